@@ -1,0 +1,229 @@
+//! `skincal`: self-calibration of skin-covered robots from their own accelerometers.
+//!
+//! A thin layer over the `skincal` library: parse the command line, call the library, print.
+
+mod render;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand};
+use skincal::io::{self, SuPlacement};
+use skincal::model::presets::PRESETS;
+use skincal::model::sensor::ExcitationPattern;
+use skincal::sim::{self, Imperfections, SimulationConfig};
+
+const EXIT_CODES: &str = "\
+Exit codes:
+  0  success
+  1  error: bad input (unknown robot, malformed file, impossible setting) or a file that cannot be
+     read or written; the message names the file or field and what to do
+  2  usage error: unknown command or option";
+
+/// Self-calibration of robots covered with artificial skin, from the skin's own accelerometers.
+///
+/// Units are SI throughout: m, rad, s, m/s² (noise levels are given in g = 9.81 m/s²).
+#[derive(Debug, Parser)]
+#[command(name = "skincal", version, after_help = EXIT_CODES)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run the whole job on a built-in robot and print what it found.
+    #[command(after_help = EXIT_CODES)]
+    Demo(DemoArgs),
+    /// Simulate the structure and training experiments of a robot: writes DIR/measurements.json
+    /// and DIR/truth.json.
+    #[command(after_help = EXIT_CODES)]
+    Simulate(SimulateArgs),
+    /// List the built-in robots.
+    #[command(after_help = EXIT_CODES)]
+    Robots,
+}
+
+#[derive(Debug, Args)]
+struct DemoArgs {
+    /// Where to write the demo's files [default: skincal-demo in the system's temporary directory].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seed of every random choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Debug, Args)]
+struct SimulateArgs {
+    /// A built-in robot (see `skincal robots`), a .toml description or a .urdf file.
+    #[arg(long)]
+    robot: String,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Overwrite existing output files.
+    #[arg(long)]
+    force: bool,
+    /// Place K random SUs per segment (per link for a URDF) instead of the described ones.
+    #[arg(long, value_name = "K")]
+    sus_per_link: Option<usize>,
+    /// Number of random training poses P.
+    #[arg(long, default_value_t = 20)]
+    poses: usize,
+    /// Half-range of the random training poses, rad (clipped to each DoF's limits).
+    #[arg(long, default_value_t = 2.62)]
+    pose_range: f64,
+    /// How far each DoF moves in the structure experiment, rad.
+    #[arg(long, default_value_t = 0.3)]
+    structure_angle: f64,
+    /// Record the structure experiment in the upright orientation only (no 90° tilt).
+    #[arg(long)]
+    no_tilt: bool,
+    /// Excitation pattern velocity amplitude A, rad/s.
+    #[arg(long, default_value_t = 0.5)]
+    amplitude: f64,
+    /// Excitation pattern frequency f, Hz.
+    #[arg(long, default_value_t = 2.0)]
+    frequency: f64,
+    /// Uniform noise ±G on every reading component, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.01)]
+    noise: f64,
+    /// Gaussian noise with standard deviation G on every component, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.0)]
+    gaussian_noise: f64,
+    /// Constant bias per SU and axis, uniform in ±G, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.0)]
+    bias: f64,
+    /// Saturate every axis at ±G, in g.
+    #[arg(long, value_name = "G")]
+    saturation: Option<f64>,
+    /// Quantise like the BMA150: 10 bit over ±2 g.
+    #[arg(long)]
+    bma150: bool,
+    /// Seed of every random choice (poses, noise, bias, random SUs).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Demo(args) => demo(args),
+        Command::Simulate(args) => simulate(args),
+        Command::Robots => robots(),
+    }
+}
+
+fn robots() -> Result<()> {
+    let mut rows = Vec::new();
+    for p in PRESETS {
+        let robot = p
+            .robot()
+            .with_context(|| format!("built-in robot {}", p.name))?;
+        let description = p.file()?.description.unwrap_or_default();
+        rows.push(render::RobotRow {
+            name: p.name,
+            dofs: robot.model.dofs().len(),
+            segments: robot.model.segments().len(),
+            sus: robot.model.sus().len(),
+            description,
+        });
+    }
+    print!("{}", render::robots_table(&rows));
+    Ok(())
+}
+
+fn simulate(args: SimulateArgs) -> Result<()> {
+    let robot = io::load_robot(
+        &args.robot,
+        SuPlacement {
+            per_link: args.sus_per_link,
+            seed: args.seed,
+        },
+    )?;
+    let mut imperfections = Imperfections {
+        uniform_noise: args.noise,
+        gaussian_noise: args.gaussian_noise,
+        bias: args.bias,
+        saturation: args.saturation,
+        quantization_bits: None,
+    };
+    if args.bma150 {
+        imperfections = Imperfections {
+            saturation: args.saturation.or(Some(2.0)),
+            ..imperfections.with_bma150()
+        };
+    }
+    let config = SimulationConfig {
+        poses: args.poses,
+        pose_range: args.pose_range,
+        structure_angle: args.structure_angle,
+        tilted_orientation: !args.no_tilt,
+        pattern: ExcitationPattern {
+            amplitude: args.amplitude,
+            frequency: args.frequency,
+        },
+        imperfections,
+        seed: args.seed,
+        ..SimulationConfig::default()
+    };
+    let files = write_simulation(&robot, &config, &args.out, args.force)?;
+    print!("{}", files.1);
+    for f in files.0 {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+/// Simulates and writes `measurements.json` and `truth.json`; returns the paths and a summary.
+fn write_simulation(
+    robot: &skincal::model::Robot,
+    config: &SimulationConfig,
+    out: &std::path::Path,
+    force: bool,
+) -> Result<(Vec<PathBuf>, String)> {
+    let simulation = sim::simulate(robot, config).context("invalid simulation setting")?;
+    let measurements = out.join("measurements.json");
+    let truth = out.join("truth.json");
+    let truth_json = serde_json::to_string_pretty(&simulation.truth)?;
+    io::write_all(
+        &[
+            (measurements.clone(), simulation.measurements.to_json()),
+            (truth.clone(), truth_json),
+        ],
+        force,
+    )?;
+    let summary = render::simulation_summary(robot, config, &simulation.measurements.summary());
+    Ok((vec![measurements, truth], summary))
+}
+
+fn demo(args: DemoArgs) -> Result<()> {
+    let out = args
+        .out
+        .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
+    let robot = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let config = SimulationConfig {
+        seed: args.seed,
+        ..SimulationConfig::default()
+    };
+    println!("skincal demo: simulating the paper's 7-DoF arm (paper-7dof)\n");
+    let (files, summary) = write_simulation(&robot, &config, &out, true)?;
+    print!("{summary}");
+    println!();
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}

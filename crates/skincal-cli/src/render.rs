@@ -1,0 +1,91 @@
+//! Text rendering of results for the terminal.
+
+use std::fmt::Write;
+
+use skincal::measurements::Summary;
+use skincal::model::sensor::STANDARD_GRAVITY;
+use skincal::model::Robot;
+use skincal::sim::SimulationConfig;
+
+/// One line of `skincal robots`.
+pub struct RobotRow {
+    pub name: &'static str,
+    pub dofs: usize,
+    pub segments: usize,
+    pub sus: usize,
+    pub description: String,
+}
+
+pub fn robots_table(rows: &[RobotRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{:<12} {:>4} {:>8} {:>4}  description",
+        "robot", "DoFs", "segments", "SUs"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "{:<12} {:>4} {:>8} {:>4}  {}",
+            r.name, r.dofs, r.segments, r.sus, r.description
+        );
+    }
+    s
+}
+
+pub fn simulation_summary(robot: &Robot, config: &SimulationConfig, summary: &Summary) -> String {
+    let mut s = String::new();
+    let m = &robot.model;
+    let _ = writeln!(
+        s,
+        "robot       {}: {} DoFs, {} segments, {} SUs",
+        m.name(),
+        m.dofs().len(),
+        m.segments().len(),
+        m.sus().len()
+    );
+    let i = &config.imperfections;
+    let mut noise = format!("uniform ±{} g", i.uniform_noise);
+    if i.gaussian_noise > 0.0 {
+        let _ = write!(noise, ", Gaussian σ {} g", i.gaussian_noise);
+    }
+    if i.bias > 0.0 {
+        let _ = write!(noise, ", bias ±{} g", i.bias);
+    }
+    if let Some(b) = i.quantization_bits {
+        let _ = write!(noise, ", {b}-bit");
+    }
+    if let Some(sat) = i.saturation {
+        let _ = write!(noise, ", saturation ±{sat} g");
+    }
+    let _ = writeln!(s, "noise       {noise} (seed {})", config.seed);
+    let _ = writeln!(
+        s,
+        "structure   {} orientation(s), {} static poses (DoFs moved by {} rad)",
+        summary.orientations, summary.structure_poses, config.structure_angle
+    );
+    if let Some(p) = summary.pattern {
+        let _ = writeln!(
+            s,
+            "training    {} poses (±{} rad), pattern A = {} rad/s, f = {} Hz, peak α = {:.3} rad/s²",
+            summary.training_poses,
+            config.pose_range,
+            p.amplitude,
+            p.frequency,
+            p.peak_acceleration()
+        );
+    }
+    let (mean, sd) = summary.static_norm;
+    let _ = writeln!(
+        s,
+        "static      |reading| = {mean:.3} ± {sd:.3} m/s² ({:.4} g) over all static readings",
+        mean / STANDARD_GRAVITY
+    );
+    if summary.training_poses > 0 {
+        let _ = writeln!(s, "dynamic     RMS |acceleration| per excited DoF, m/s²:");
+        for (dof, rms) in &summary.dynamic_rms {
+            let _ = writeln!(s, "              {dof:<20} {rms:8.4}");
+        }
+    }
+    s
+}

@@ -1,0 +1,228 @@
+//! Files: robot descriptions, measurement sets and ground truth. The only module that touches the
+//! file system. Outputs are written whole or not at all: every file goes to a temporary name in
+//! its final directory first and is renamed into place only when all of them were written.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use crate::measurements::{MeasurementError, MeasurementSet};
+use crate::model::description::{with_random_sus, DescriptionError, RobotFile};
+use crate::model::presets;
+use crate::model::urdf::{from_urdf, UrdfSus};
+use crate::model::Robot;
+use crate::sim::Truth;
+
+/// Errors reading or writing files; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IoError {
+    /// A file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// An output exists and overwriting was not asked for.
+    #[error(
+        "{path} already exists: choose another output directory or pass --force to overwrite it"
+    )]
+    Exists {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A robot description is invalid.
+    #[error("{path}: {source}")]
+    Description {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        source: DescriptionError,
+    },
+    /// A measurement set is invalid.
+    #[error("{path}: {source}")]
+    Measurements {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        source: MeasurementError,
+    },
+    /// A JSON file does not parse.
+    #[error("{path}: {message}")]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// Neither a built-in robot nor a robot file.
+    #[error("unknown robot `{name}`: give a built-in robot ({known}) or a .toml or .urdf file")]
+    UnknownRobot {
+        /// What was given.
+        name: String,
+        /// The built-in robots.
+        known: String,
+    },
+}
+
+/// How SUs are placed when a robot is loaded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SuPlacement {
+    /// Replace the described SUs by this many random ones per segment (per link for a URDF).
+    pub per_link: Option<usize>,
+    /// Seed of the random placement.
+    pub seed: u64,
+}
+
+/// Loads a robot: a built-in name, a `.toml` description or a `.urdf` file.
+///
+/// A URDF has no SUs of its own: unless `sus.per_link` says otherwise, one random SU is placed on
+/// every link.
+pub fn load_robot(spec: &str, sus: SuPlacement) -> Result<Robot, IoError> {
+    let path = Path::new(spec);
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let description = |source| IoError::Description {
+        path: path.to_path_buf(),
+        source,
+    };
+    match ext.as_deref() {
+        Some("urdf") => {
+            let text = read(path)?;
+            let per_link = sus.per_link.unwrap_or(1);
+            from_urdf(
+                &text,
+                UrdfSus::RandomPerLink {
+                    per_link,
+                    seed: sus.seed,
+                },
+            )
+            .map_err(description)
+        }
+        Some("toml") => {
+            let file = RobotFile::from_toml(&read(path)?).map_err(description)?;
+            match &file.urdf {
+                Some(urdf) => {
+                    let urdf_path = path.parent().unwrap_or(Path::new(".")).join(urdf);
+                    let text = read(&urdf_path)?;
+                    let source = match sus.per_link {
+                        Some(per_link) => UrdfSus::RandomPerLink {
+                            per_link,
+                            seed: sus.seed,
+                        },
+                        None => UrdfSus::Listed(&file.sus),
+                    };
+                    from_urdf(&text, source).map_err(|source| IoError::Description {
+                        path: urdf_path,
+                        source,
+                    })
+                }
+                None => {
+                    let robot = file.build().map_err(description)?;
+                    randomise(robot, sus).map_err(description)
+                }
+            }
+        }
+        _ => match presets::find(spec) {
+            Some(preset) => {
+                let robot = preset.robot().map_err(description)?;
+                randomise(robot, sus).map_err(description)
+            }
+            None => Err(IoError::UnknownRobot {
+                name: spec.to_string(),
+                known: presets::PRESETS
+                    .iter()
+                    .map(|p| p.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            }),
+        },
+    }
+}
+
+fn randomise(robot: Robot, sus: SuPlacement) -> Result<Robot, DescriptionError> {
+    match sus.per_link {
+        Some(k) => with_random_sus(&robot, k, sus.seed),
+        None => Ok(robot),
+    }
+}
+
+fn read(path: &Path) -> Result<String, IoError> {
+    fs::read_to_string(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads and validates a measurement set.
+pub fn read_measurements(path: &Path) -> Result<MeasurementSet, IoError> {
+    MeasurementSet::from_json(&read(path)?).map_err(|source| IoError::Measurements {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a ground-truth file.
+pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
+    serde_json::from_str(&read(path)?).map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Writes every `(path, contents)` pair whole or not at all. Without `force`, fails before writing
+/// anything if one of the paths exists. Creates missing directories.
+pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError> {
+    if !force {
+        if let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
+            return Err(IoError::Exists { path: path.clone() });
+        }
+    }
+    let mut staged: Vec<(PathBuf, &Path)> = Vec::new();
+    let result = (|| {
+        for (path, contents) in files {
+            let dir = path
+                .parent()
+                .filter(|d| !d.as_os_str().is_empty())
+                .unwrap_or(Path::new("."));
+            fs::create_dir_all(dir).map_err(|source| IoError::Write {
+                path: dir.to_path_buf(),
+                source,
+            })?;
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
+            fs::write(&tmp, contents).map_err(|source| IoError::Write {
+                path: tmp.clone(),
+                source,
+            })?;
+            staged.push((tmp, path));
+        }
+        for (tmp, path) in &staged {
+            fs::rename(tmp, path).map_err(|source| IoError::Write {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        }
+        Ok(())
+    })();
+    if result.is_err() {
+        for (tmp, _) in &staged {
+            let _ = fs::remove_file(tmp);
+        }
+    }
+    result
+}

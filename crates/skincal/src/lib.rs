@@ -1,0 +1,31 @@
+//! # skincal
+//!
+//! Self-calibration of robots covered with artificial skin, from the skin's own accelerometers:
+//! no camera, tracker or CAD model. The method follows Mittendorfer and Cheng, *Open-loop
+//! self-calibration of articulated robots with artificial skins*:
+//!
+//! 1. **Structural exploration** — which sensor unit (SU) moves with which DoF, merged into
+//!    segments and joints and sorted into a kinematic tree.
+//! 2. **Kinematic estimation** — Denavit–Hartenberg chains and SU frames fitted to static gravity
+//!    readings and to the accelerations of short excitation patterns.
+//!
+//! Modules, in the direction their dependencies point:
+//! [`model`] (kinematic tree, DH, sensor model, descriptions) ← [`measurements`] (the measurement
+//! set contract) ← [`sim`] (simulated experiments) ← [`io`] (files).
+//!
+//! Units are SI throughout: m, rad, s, m/s².
+//!
+//! ```
+//! use skincal::model::{presets, forward_kinematics};
+//! let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+//! let q = vec![0.0; robot.model.dofs().len()];
+//! let frames = forward_kinematics(&robot.model, &robot.parameters, &q);
+//! assert_eq!(frames.sus.len(), 7);
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod io;
+pub mod measurements;
+pub mod model;
+pub mod sim;

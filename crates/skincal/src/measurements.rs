@@ -1,0 +1,413 @@
+//! The measurement set: the contract between whatever records data (the simulator, log ingestion,
+//! other tools) and whatever uses it (exploration, estimation). Documented in
+//! `docs/measurements.md`.
+//!
+//! Every reading is a specific force in the SU's own frame, m/s² (see [`crate::model::sensor`]):
+//! a resting SU whose z axis points up reads `(0, 0, +9.81)`. Dynamic accelerations are the SU's
+//! response at the peak `α = 2πfA` of a positive excitation pattern, without gravity. Poses are in
+//! rad, one value per DoF in the order of `dofs`; readings are one `[x, y, z]` per SU in the order
+//! of `sus`.
+//!
+//! Fields that skincal does not know are kept as written (`extra`), at every level.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use crate::model::sensor::ExcitationPattern;
+
+/// The value of the `format` field.
+pub const FORMAT: &str = "skincal-measurements";
+/// The version this library reads and writes.
+pub const VERSION: u32 = 1;
+
+/// One accelerometer reading `[x, y, z]`, m/s², in the SU frame.
+pub type Reading = [f64; 3];
+
+/// Errors in a measurement set.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeasurementError {
+    /// The JSON does not parse or lacks required fields (the message has line and column).
+    #[error("{0}")]
+    Syntax(String),
+    /// The `format` field is not `skincal-measurements`.
+    #[error("format is `{found}`, expected `skincal-measurements`: is this a measurement set?")]
+    WrongFormat {
+        /// What the file says.
+        found: String,
+    },
+    /// A version this library does not read.
+    #[error("version {found} is not supported (this skincal reads version 1)")]
+    UnsupportedVersion {
+        /// What the file says.
+        found: u32,
+    },
+    /// An array has the wrong length.
+    #[error("{field}: has {found} entries, expected {expected} ({what})")]
+    Shape {
+        /// Path of the field.
+        field: String,
+        /// Expected length.
+        expected: usize,
+        /// Actual length.
+        found: usize,
+        /// What the length must match.
+        what: &'static str,
+    },
+    /// A DoF name that is not in `dofs`.
+    #[error("{field}: unknown DoF `{name}` (not listed in `dofs`)")]
+    UnknownDof {
+        /// Path of the field.
+        field: String,
+        /// The name.
+        name: String,
+    },
+    /// A value is NaN or infinite, or otherwise impossible.
+    #[error("{field}: {reason}")]
+    InvalidValue {
+        /// Path of the field.
+        field: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A name appears twice in `dofs` or `sus`.
+    #[error("{field}: `{name}` is listed twice")]
+    DuplicateName {
+        /// `dofs` or `sus`.
+        field: &'static str,
+        /// The name.
+        name: String,
+    },
+}
+
+/// Units of the set (always SI; recorded so that a reader can check).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Units {
+    /// `"m/s^2"`.
+    pub acceleration: String,
+    /// `"rad"`.
+    pub angle: String,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl Default for Units {
+    fn default() -> Self {
+        Self {
+            acceleration: "m/s^2".into(),
+            angle: "rad".into(),
+            extra: Map::new(),
+        }
+    }
+}
+
+/// A measurement set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeasurementSet {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// Always [`VERSION`].
+    pub version: u32,
+    /// Units.
+    pub units: Units,
+    /// DoF names; the order of every pose vector.
+    pub dofs: Vec<String>,
+    /// SU names; the order of every list of readings.
+    pub sus: Vec<String>,
+    /// The structure experiment, if recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub structure: Option<StructureExperiment>,
+    /// The training experiment, if recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub training: Option<TrainingExperiment>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// Static readings for structural exploration, in one or more base orientations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StructureExperiment {
+    /// One block per orientation of the reference segment.
+    pub orientations: Vec<Orientation>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// The structure experiment in one orientation of the reference segment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Orientation {
+    /// The rest pose, rad per DoF.
+    pub rest_pose: Vec<f64>,
+    /// Static readings at the rest pose, one per SU.
+    pub rest: Vec<Reading>,
+    /// One static pose per DoF moved away from the rest pose.
+    pub moves: Vec<Move>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// A static pose with one DoF moved.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Move {
+    /// The DoF that moved.
+    pub dof: String,
+    /// The pose, rad per DoF.
+    pub pose: Vec<f64>,
+    /// Static readings, one per SU.
+    pub readings: Vec<Reading>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// Static and dynamic readings in random poses, for kinematic estimation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingExperiment {
+    /// The excitation pattern the dynamic readings refer to.
+    pub pattern: ExcitationPattern,
+    /// The poses.
+    pub poses: Vec<TrainingPose>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// One training pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingPose {
+    /// The pose, rad per DoF.
+    pub q: Vec<f64>,
+    /// Static readings, one per SU.
+    #[serde(rename = "static")]
+    pub static_readings: Vec<Reading>,
+    /// Per excited DoF: the dynamic acceleration of every SU at the pattern peak.
+    pub dynamic: BTreeMap<String, Vec<Reading>>,
+    /// Unknown fields, kept as written.
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl MeasurementSet {
+    /// An empty set for these DoFs and SUs.
+    pub fn new(dofs: Vec<String>, sus: Vec<String>) -> Self {
+        Self {
+            format: FORMAT.into(),
+            version: VERSION,
+            units: Units::default(),
+            dofs,
+            sus,
+            structure: None,
+            training: None,
+            extra: Map::new(),
+        }
+    }
+
+    /// Parses and validates JSON text.
+    pub fn from_json(text: &str) -> Result<Self, MeasurementError> {
+        let set: Self = serde_json::from_str(text).map_err(|e| {
+            let hint = if e.to_string().contains("null") {
+                " (NaN and infinite readings are written as null by most JSON writers: remove or re-record them)"
+            } else {
+                ""
+            };
+            MeasurementError::Syntax(format!("{e}{hint}"))
+        })?;
+        set.validate()?;
+        Ok(set)
+    }
+
+    /// Serialises to pretty JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("a measurement set always serialises")
+    }
+
+    /// Index of a DoF by name.
+    pub fn dof_index(&self, name: &str) -> Option<usize> {
+        self.dofs.iter().position(|d| d == name)
+    }
+
+    /// Checks every invariant of the format: header, unique names, array lengths, known DoF
+    /// names, finite values.
+    pub fn validate(&self) -> Result<(), MeasurementError> {
+        if self.format != FORMAT {
+            return Err(MeasurementError::WrongFormat {
+                found: self.format.clone(),
+            });
+        }
+        if self.version != VERSION {
+            return Err(MeasurementError::UnsupportedVersion {
+                found: self.version,
+            });
+        }
+        for (field, names) in [("dofs", &self.dofs), ("sus", &self.sus)] {
+            let mut seen = std::collections::HashSet::new();
+            for n in names {
+                if !seen.insert(n) {
+                    return Err(MeasurementError::DuplicateName {
+                        field,
+                        name: n.clone(),
+                    });
+                }
+            }
+        }
+        let (nd, nu) = (self.dofs.len(), self.sus.len());
+        let pose = |field: String, q: &[f64]| -> Result<(), MeasurementError> {
+            shape(&field, q.len(), nd, "one angle per DoF")?;
+            finite(&field, q.iter().copied())
+        };
+        let readings = |field: String, r: &[Reading]| -> Result<(), MeasurementError> {
+            shape(&field, r.len(), nu, "one reading per SU")?;
+            finite(&field, r.iter().flatten().copied())
+        };
+        if let Some(s) = &self.structure {
+            for (o, orientation) in s.orientations.iter().enumerate() {
+                let base = format!("structure.orientations[{o}]");
+                pose(format!("{base}.rest_pose"), &orientation.rest_pose)?;
+                readings(format!("{base}.rest"), &orientation.rest)?;
+                for (m, mv) in orientation.moves.iter().enumerate() {
+                    let field = format!("{base}.moves[{m}]");
+                    if self.dof_index(&mv.dof).is_none() {
+                        return Err(MeasurementError::UnknownDof {
+                            field: format!("{field}.dof"),
+                            name: mv.dof.clone(),
+                        });
+                    }
+                    pose(format!("{field}.pose"), &mv.pose)?;
+                    readings(format!("{field}.readings"), &mv.readings)?;
+                }
+            }
+        }
+        if let Some(t) = &self.training {
+            if !t.pattern.is_valid() {
+                return Err(MeasurementError::InvalidValue {
+                    field: "training.pattern".into(),
+                    reason: format!(
+                        "amplitude {} rad/s and frequency {} Hz must be positive",
+                        t.pattern.amplitude, t.pattern.frequency
+                    ),
+                });
+            }
+            for (p, tp) in t.poses.iter().enumerate() {
+                let base = format!("training.poses[{p}]");
+                pose(format!("{base}.q"), &tp.q)?;
+                readings(format!("{base}.static"), &tp.static_readings)?;
+                for (dof, r) in &tp.dynamic {
+                    let field = format!("{base}.dynamic[\"{dof}\"]");
+                    if self.dof_index(dof).is_none() {
+                        return Err(MeasurementError::UnknownDof {
+                            field,
+                            name: dof.clone(),
+                        });
+                    }
+                    readings(field, r)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn shape(
+    field: &str,
+    found: usize,
+    expected: usize,
+    what: &'static str,
+) -> Result<(), MeasurementError> {
+    if found == expected {
+        Ok(())
+    } else {
+        Err(MeasurementError::Shape {
+            field: field.to_string(),
+            expected,
+            found,
+            what,
+        })
+    }
+}
+
+fn finite(field: &str, values: impl Iterator<Item = f64>) -> Result<(), MeasurementError> {
+    for v in values {
+        if !v.is_finite() {
+            return Err(MeasurementError::InvalidValue {
+                field: field.to_string(),
+                reason: format!("{v} is not a finite number"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Figures that tell at a glance what a measurement set holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// Number of DoFs.
+    pub dofs: usize,
+    /// Number of SUs.
+    pub sus: usize,
+    /// Number of base orientations of the structure experiment.
+    pub orientations: usize,
+    /// Number of static poses of the structure experiment (rest poses included).
+    pub structure_poses: usize,
+    /// Number of training poses.
+    pub training_poses: usize,
+    /// The training excitation pattern.
+    pub pattern: Option<ExcitationPattern>,
+    /// Mean and standard deviation of the norm of every static reading, m/s² (≈ 9.81 at rest).
+    pub static_norm: (f64, f64),
+    /// Per DoF: RMS norm of the dynamic accelerations over poses and SUs, m/s².
+    pub dynamic_rms: Vec<(String, f64)>,
+}
+
+impl MeasurementSet {
+    /// Figures that tell at a glance what the set holds.
+    pub fn summary(&self) -> Summary {
+        let norm = |r: &Reading| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+        let mut norms = Vec::new();
+        let mut structure_poses = 0;
+        let orientations = self.structure.as_ref().map_or(0, |s| s.orientations.len());
+        for o in self.structure.iter().flat_map(|s| &s.orientations) {
+            structure_poses += 1 + o.moves.len();
+            norms.extend(o.rest.iter().map(norm));
+            norms.extend(o.moves.iter().flat_map(|m| m.readings.iter().map(norm)));
+        }
+        let poses = self.training.as_ref().map_or(&[][..], |t| &t.poses[..]);
+        norms.extend(
+            poses
+                .iter()
+                .flat_map(|p| p.static_readings.iter().map(norm)),
+        );
+        let n = norms.len().max(1) as f64;
+        let mean = norms.iter().sum::<f64>() / n;
+        let sd = (norms.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let dynamic_rms = self
+            .dofs
+            .iter()
+            .map(|d| {
+                let v: Vec<f64> = poses
+                    .iter()
+                    .filter_map(|p| p.dynamic.get(d))
+                    .flatten()
+                    .map(norm)
+                    .collect();
+                let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+                (d.clone(), rms)
+            })
+            .collect();
+        Summary {
+            dofs: self.dofs.len(),
+            sus: self.sus.len(),
+            orientations,
+            structure_poses,
+            training_poses: poses.len(),
+            pattern: self.training.as_ref().map(|t| t.pattern),
+            static_norm: (mean, sd),
+            dynamic_rms,
+        }
+    }
+}

@@ -1,0 +1,338 @@
+//! Assembling a [`Robot`] from named parts, with every structural check in one place.
+
+use std::collections::{HashMap, HashSet};
+
+use nalgebra::{Isometry3, Unit, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::transform::to_xyz_rpy;
+use super::{
+    Dof, Limits, ModelError, Parameterization, Placement, Robot, RobotModel, Segment, SensorUnit,
+};
+
+/// A placement with its values, as given by a robot description.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlacementSpec {
+    /// The parameterisation.
+    pub kind: Parameterization,
+    /// Its values, in the order of [`Parameterization::parameter_names`].
+    pub values: Vec<f64>,
+}
+
+impl PlacementSpec {
+    /// The identity placement.
+    pub fn identity() -> Self {
+        Self {
+            kind: Parameterization::Identity,
+            values: vec![],
+        }
+    }
+
+    /// A standard DH placement (paper eq. 5).
+    pub fn dh(theta0: f64, d: f64, a: f64, alpha: f64) -> Self {
+        Self {
+            kind: Parameterization::StandardDh,
+            values: vec![theta0, d, a, alpha],
+        }
+    }
+
+    /// A DH-plus-sensor-frame placement (paper eqs. 5 and 7).
+    pub fn dh_sensor(theta0: f64, d: f64, a: f64, alpha: f64, theta_acc: f64, d_acc: f64) -> Self {
+        Self {
+            kind: Parameterization::StandardDhSensor,
+            values: vec![theta0, d, a, alpha, theta_acc, d_acc],
+        }
+    }
+
+    /// A URDF-style placement.
+    pub fn xyz_rpy(xyz: [f64; 3], rpy: [f64; 3]) -> Self {
+        Self {
+            kind: Parameterization::XyzRpy,
+            values: vec![xyz[0], xyz[1], xyz[2], rpy[0], rpy[1], rpy[2]],
+        }
+    }
+
+    /// A URDF-style placement equal to `pose`.
+    pub fn from_isometry(pose: &Isometry3<f64>) -> Self {
+        let (xyz, rpy) = to_xyz_rpy(pose);
+        Self::xyz_rpy(xyz, rpy)
+    }
+
+    /// The transform it describes.
+    pub fn transform(&self) -> Isometry3<f64> {
+        self.kind.transform(&self.values)
+    }
+}
+
+/// A DoF as given by a robot description (segments by name).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DofSpec {
+    /// Unique name.
+    pub name: String,
+    /// Name of the segment it is mounted on.
+    pub parent: String,
+    /// Name of the segment it moves.
+    pub child: String,
+    /// Placement of its joint frame on the parent segment.
+    pub origin: PlacementSpec,
+    /// Rotation axis in the joint frame (normalised by the builder).
+    pub axis: Vector3<f64>,
+    /// Limits.
+    pub limits: Limits,
+}
+
+/// A sensor unit as given by a robot description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SuSpec {
+    /// Unique name.
+    pub name: String,
+    /// Name of its segment.
+    pub segment: String,
+    /// Placement of its accelerometer frame on the segment.
+    pub placement: PlacementSpec,
+}
+
+/// Collects named DoFs and SUs and checks that they form a tree rooted at the reference segment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobotBuilder {
+    /// The robot's name.
+    pub name: String,
+    /// Name of the static reference segment (the root).
+    pub reference: String,
+    /// DoFs, in the order a pose vector uses.
+    pub dofs: Vec<DofSpec>,
+    /// Sensor units.
+    pub sus: Vec<SuSpec>,
+}
+
+impl RobotBuilder {
+    /// An empty robot with the given name and reference segment.
+    pub fn new(name: impl Into<String>, reference: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            reference: reference.into(),
+            dofs: vec![],
+            sus: vec![],
+        }
+    }
+
+    /// Checks the description and assembles the model and its parameter vector.
+    pub fn build(&self) -> Result<Robot, ModelError> {
+        if self.dofs.is_empty() {
+            return Err(ModelError::NoDofs);
+        }
+        unique("DoF", self.dofs.iter().map(|d| d.name.as_str()))?;
+        unique("SU", self.sus.iter().map(|s| s.name.as_str()))?;
+
+        // Segments: the reference, then every DoF's child; a child named twice is a loop.
+        let mut parents_of: HashMap<&str, Vec<usize>> = HashMap::new();
+        for (i, d) in self.dofs.iter().enumerate() {
+            parents_of.entry(d.child.as_str()).or_default().push(i);
+        }
+        for (segment, dofs) in &parents_of {
+            if dofs.len() > 1 || *segment == self.reference {
+                return Err(ModelError::SeveralParents {
+                    segment: segment.to_string(),
+                    dofs: dofs.iter().map(|&i| self.dofs[i].name.clone()).collect(),
+                });
+            }
+        }
+        let known: HashSet<&str> = std::iter::once(self.reference.as_str())
+            .chain(self.dofs.iter().map(|d| d.child.as_str()))
+            .collect();
+        for d in &self.dofs {
+            if !known.contains(d.parent.as_str()) {
+                return Err(ModelError::UnknownSegment {
+                    what: format!("DoF `{}`", d.name),
+                    segment: d.parent.clone(),
+                });
+            }
+        }
+        for s in &self.sus {
+            if !known.contains(s.segment.as_str()) {
+                return Err(ModelError::UnknownSegment {
+                    what: format!("SU `{}`", s.name),
+                    segment: s.segment.clone(),
+                });
+            }
+        }
+
+        // Topological order by depth-first walk from the reference, children in DoF order.
+        let mut children: HashMap<&str, Vec<usize>> = HashMap::new();
+        for (i, d) in self.dofs.iter().enumerate() {
+            children.entry(d.parent.as_str()).or_default().push(i);
+        }
+        let mut segments = vec![Segment {
+            name: self.reference.clone(),
+            parent_dof: None,
+        }];
+        let mut segment_of: HashMap<&str, usize> = HashMap::from([(self.reference.as_str(), 0)]);
+        let mut stack: Vec<usize> = children
+            .get(self.reference.as_str())
+            .cloned()
+            .unwrap_or_default();
+        stack.reverse();
+        while let Some(d) = stack.pop() {
+            let child = self.dofs[d].child.as_str();
+            segment_of.insert(child, segments.len());
+            segments.push(Segment {
+                name: child.to_string(),
+                parent_dof: Some(d),
+            });
+            if let Some(grand) = children.get(child) {
+                stack.extend(grand.iter().rev());
+            }
+        }
+        if let Some(d) = self
+            .dofs
+            .iter()
+            .find(|d| !segment_of.contains_key(d.child.as_str()))
+        {
+            return Err(ModelError::Unreachable {
+                segment: d.child.clone(),
+                reference: self.reference.clone(),
+            });
+        }
+
+        let mut parameter_names = Vec::new();
+        let mut parameters = Vec::new();
+        let mut place = |owner: &str,
+                         spec: &PlacementSpec,
+                         prefix: &str|
+         -> Result<Placement, ModelError> {
+            if spec.values.len() != spec.kind.len() || spec.values.iter().any(|v| !v.is_finite()) {
+                return Err(ModelError::NotFinite {
+                    what: owner.to_string(),
+                });
+            }
+            let offset = parameters.len();
+            parameters.extend_from_slice(&spec.values);
+            parameter_names.extend(
+                spec.kind
+                    .parameter_names()
+                    .iter()
+                    .map(|p| format!("{prefix}{p}")),
+            );
+            Ok(Placement {
+                kind: spec.kind,
+                offset,
+            })
+        };
+
+        let mut dofs = Vec::with_capacity(self.dofs.len());
+        for d in &self.dofs {
+            let owner = format!("DoF `{}`", d.name);
+            let norm = d.axis.norm();
+            if !(norm.is_finite() && norm > 1e-9) {
+                return Err(ModelError::InvalidAxis {
+                    dof: d.name.clone(),
+                    axis: d.axis.into(),
+                });
+            }
+            d.limits
+                .check()
+                .map_err(|reason| ModelError::InvalidLimits {
+                    dof: d.name.clone(),
+                    reason,
+                })?;
+            let origin = place(&owner, &d.origin, &format!("{}.origin.", d.name))?;
+            dofs.push(Dof {
+                name: d.name.clone(),
+                parent: segment_of[d.parent.as_str()],
+                child: segment_of[d.child.as_str()],
+                origin,
+                axis: Unit::new_normalize(d.axis),
+                limits: d.limits,
+            });
+        }
+        let mut sus = Vec::with_capacity(self.sus.len());
+        for s in &self.sus {
+            let placement = place(
+                &format!("SU `{}`", s.name),
+                &s.placement,
+                &format!("{}.", s.name),
+            )?;
+            sus.push(SensorUnit {
+                name: s.name.clone(),
+                segment: segment_of[s.segment.as_str()],
+                placement,
+            });
+        }
+
+        let mut moved_by = vec![vec![false; dofs.len()]; segments.len()];
+        for s in 1..segments.len() {
+            let d = segments[s]
+                .parent_dof
+                .expect("only the reference has no parent DoF");
+            let parent = dofs[d].parent;
+            let mut row = moved_by[parent].clone();
+            row[d] = true;
+            moved_by[s] = row;
+        }
+
+        Ok(Robot {
+            model: RobotModel {
+                name: self.name.clone(),
+                segments,
+                dofs,
+                sus,
+                parameter_names,
+                moved_by,
+            },
+            parameters,
+        })
+    }
+}
+
+fn unique<'a>(kind: &'static str, names: impl Iterator<Item = &'a str>) -> Result<(), ModelError> {
+    let mut seen = HashSet::new();
+    for n in names {
+        if !seen.insert(n) {
+            return Err(ModelError::DuplicateName {
+                kind,
+                name: n.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
+impl Robot {
+    /// The placement of a DoF's joint origin or SU frame, with its values, as a description gives it.
+    pub fn placement_spec(&self, placement: &Placement) -> PlacementSpec {
+        PlacementSpec {
+            kind: placement.kind,
+            values: self.parameters[placement.range()].to_vec(),
+        }
+    }
+
+    /// The builder that reproduces this robot (names, placements, axes and limits).
+    pub fn to_builder(&self) -> RobotBuilder {
+        let m = &self.model;
+        RobotBuilder {
+            name: m.name.clone(),
+            reference: m.segments[0].name.clone(),
+            dofs: m
+                .dofs
+                .iter()
+                .map(|d| DofSpec {
+                    name: d.name.clone(),
+                    parent: m.segments[d.parent].name.clone(),
+                    child: m.segments[d.child].name.clone(),
+                    origin: self.placement_spec(&d.origin),
+                    axis: d.axis.into_inner(),
+                    limits: d.limits,
+                })
+                .collect(),
+            sus: m
+                .sus
+                .iter()
+                .map(|s| SuSpec {
+                    name: s.name.clone(),
+                    segment: m.segments[s.segment].name.clone(),
+                    placement: self.placement_spec(&s.placement),
+                })
+                .collect(),
+        }
+    }
+}

@@ -1,0 +1,185 @@
+//! URDF import (via `urdf-rs`).
+//!
+//! Revolute and continuous joints become DoFs; links joined by fixed joints are merged into one
+//! segment, named after the link closest to the root, and every merged link keeps its offset
+//! `T_segment←link`, so that joint origins and SU placements given on any link land correctly.
+//! The root link becomes the static reference segment. Prismatic, floating, planar and spherical
+//! joints are rejected with an error naming the joint.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+
+use nalgebra::{Isometry3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::description::{random_su_placement, DescriptionError, SuEntry};
+use super::transform::xyz_rpy;
+use super::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+
+/// Where the SUs of an imported URDF come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum UrdfSus<'a> {
+    /// Listed by a robot description, each on a named link.
+    Listed(&'a [SuEntry]),
+    /// `per_link` random SUs around the origin of every link, seeded.
+    RandomPerLink {
+        /// SUs on each link.
+        per_link: usize,
+        /// Seed of the placement.
+        seed: u64,
+    },
+}
+
+/// Converts URDF text into a robot.
+pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError> {
+    let urdf =
+        urdf_rs::read_from_string(text).map_err(|e| DescriptionError::Urdf(e.to_string()))?;
+    let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
+
+    for j in &urdf.joints {
+        use urdf_rs::JointType as J;
+        let kind = match j.joint_type {
+            J::Revolute | J::Continuous | J::Fixed => continue,
+            J::Prismatic => "prismatic",
+            J::Floating => "floating",
+            J::Planar => "planar",
+            J::Spherical => "spherical",
+        };
+        return Err(DescriptionError::UnsupportedJoint {
+            joint: j.name.clone(),
+            kind: kind.into(),
+        });
+    }
+
+    let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
+    for j in &urdf.joints {
+        for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
+            if !links.contains(link.as_str()) {
+                return Err(invalid(
+                    format!("joint `{}`", j.name),
+                    format!("{role} link `{link}` is not defined"),
+                ));
+            }
+        }
+    }
+    let children: HashSet<&str> = urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
+    let roots: Vec<&str> = urdf
+        .links
+        .iter()
+        .map(|l| l.name.as_str())
+        .filter(|l| !children.contains(l))
+        .collect();
+    let root = match roots.as_slice() {
+        [root] => *root,
+        [] => {
+            return Err(invalid(
+                "links".into(),
+                "no root link (every link is some joint's child: a closed loop)".into(),
+            ))
+        }
+        many => {
+            return Err(invalid(
+                "links".into(),
+                format!("several root links {many:?}: the URDF must be one tree"),
+            ))
+        }
+    };
+
+    // Walk from the root: each link's segment and its offset in that segment.
+    let mut by_parent: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
+    for j in &urdf.joints {
+        by_parent.entry(j.parent.link.as_str()).or_default().push(j);
+    }
+    let mut placement: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
+    placement.insert(root, (root.to_string(), Isometry3::identity()));
+    let mut queue = VecDeque::from([root]);
+    let mut joint_origin: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
+    while let Some(link) = queue.pop_front() {
+        let (segment, offset) = placement[link].clone();
+        for j in by_parent.get(link).into_iter().flatten() {
+            let origin = offset * xyz_rpy(j.origin.xyz.0, j.origin.rpy.0);
+            let child = j.child.link.as_str();
+            if placement.contains_key(child) {
+                return Err(invalid(
+                    format!("joint `{}`", j.name),
+                    format!("link `{child}` is reached twice (closed loop)"),
+                ));
+            }
+            if matches!(j.joint_type, urdf_rs::JointType::Fixed) {
+                placement.insert(child, (segment.clone(), origin));
+            } else {
+                joint_origin.insert(j.name.as_str(), (segment.clone(), origin));
+                placement.insert(child, (child.to_string(), Isometry3::identity()));
+            }
+            queue.push_back(child);
+        }
+    }
+
+    let mut builder = RobotBuilder::new(urdf.name.clone(), root);
+    for j in urdf
+        .joints
+        .iter()
+        .filter(|j| !matches!(j.joint_type, urdf_rs::JointType::Fixed))
+    {
+        let (parent, origin) = joint_origin[j.name.as_str()].clone();
+        let limits = if matches!(j.joint_type, urdf_rs::JointType::Continuous) {
+            Limits {
+                velocity: positive(j.limit.velocity),
+                ..Limits::CONTINUOUS
+            }
+        } else {
+            Limits {
+                lower: j.limit.lower,
+                upper: j.limit.upper,
+                velocity: positive(j.limit.velocity),
+                acceleration: positive(j.limit.acceleration),
+            }
+        };
+        builder.dofs.push(DofSpec {
+            name: j.name.clone(),
+            parent,
+            child: j.child.link.clone(),
+            origin: PlacementSpec::from_isometry(&origin),
+            axis: Vector3::from(j.axis.xyz.0),
+            limits,
+        });
+    }
+
+    match sus {
+        UrdfSus::Listed(entries) => {
+            for (i, s) in entries.iter().enumerate() {
+                let field = format!("sus[{i}] ({})", s.name);
+                let (segment, offset) = placement.get(s.segment.as_str()).ok_or_else(|| {
+                    invalid(
+                        format!("{field}.segment"),
+                        format!("`{}` is not a link of the URDF", s.segment),
+                    )
+                })?;
+                let pose = offset * s.placement(&field)?.transform();
+                builder.sus.push(SuSpec {
+                    name: s.name.clone(),
+                    segment: segment.clone(),
+                    placement: PlacementSpec::from_isometry(&pose),
+                });
+            }
+        }
+        UrdfSus::RandomPerLink { per_link, seed } => {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            for link in &urdf.links {
+                let (segment, offset) = &placement[link.name.as_str()];
+                for k in 0..per_link {
+                    builder.sus.push(SuSpec {
+                        name: format!("{}_su{}", link.name, k + 1),
+                        segment: segment.clone(),
+                        placement: random_su_placement(&mut rng, offset),
+                    });
+                }
+            }
+        }
+    }
+    Ok(builder.build()?)
+}
+
+fn positive(v: f64) -> Option<f64> {
+    (v.is_finite() && v > 0.0).then_some(v)
+}

@@ -1,0 +1,471 @@
+//! Simulated experiments: what a robot with a known geometry would record.
+//!
+//! * **Structure experiment** (paper II-B.1): in each base orientation, a rest pose and, for every
+//!   DoF, a static pose with only that DoF moved by [`SimulationConfig::structure_angle`] (towards
+//!   the side its limits allow). By default it is repeated with the reference segment tilted 90°
+//!   about its horizontal x axis, the paper's remedy for vertical DoF axes.
+//! * **Training experiment** (paper II-C.2): `P` random poses, each DoF uniform in
+//!   `±pose_range ∩ [lower, upper]`; in each pose every SU's static reading and, for every DoF, every
+//!   SU's dynamic acceleration at the peak of the excitation pattern (eqs. 10–12).
+//! * **Imperfections**, all seeded: uniform noise (the paper's ±0.01 g), Gaussian noise, a constant
+//!   bias per SU and axis, saturation and quantisation (10 bit over ±2 g, the paper's BMA150).
+//!   A static reading is `sense(f + b) + n`; a dynamic acceleration is what remains of the sensed
+//!   peak reading after subtracting the sensed static one, `sense(f + a) − sense(f) + n`, so a
+//!   constant bias cancels in it while saturation and quantisation act on the whole signal, as on
+//!   a real sensor. Without saturation and quantisation `sense` is the identity.
+//!
+//! Random streams are separate for poses, noise and bias, so changing the noise level keeps the
+//! poses. The ground truth (the robot, the gravity of every orientation, the biases) goes to a
+//! separate [`Truth`]; the measurement set never contains it.
+
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Map};
+
+use crate::measurements::{
+    MeasurementSet, Move, Orientation, Reading, StructureExperiment, TrainingExperiment,
+    TrainingPose,
+};
+use crate::model::description::RobotFile;
+use crate::model::sensor::{
+    gravity_upright, peak_dynamic_accelerations_at, specific_force, ExcitationPattern,
+    STANDARD_GRAVITY,
+};
+use crate::model::{forward_kinematics, Robot};
+
+/// Sensor imperfections, in units of g (9.81 m/s²).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Imperfections {
+    /// Half-width of uniform noise on every component, g (paper: 0.01).
+    pub uniform_noise: f64,
+    /// Standard deviation of Gaussian noise on every component, g.
+    pub gaussian_noise: f64,
+    /// Half-width of the uniform distribution of each SU's constant bias per axis, g.
+    pub bias: f64,
+    /// Saturation of every axis at ±this, g.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub saturation: Option<f64>,
+    /// Quantisation to this many bits over ±`saturation` (saturation defaults to 2 g with it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quantization_bits: Option<u32>,
+}
+
+impl Default for Imperfections {
+    /// The paper's: uniform ±0.01 g, nothing else.
+    fn default() -> Self {
+        Self {
+            uniform_noise: 0.01,
+            gaussian_noise: 0.0,
+            bias: 0.0,
+            saturation: None,
+            quantization_bits: None,
+        }
+    }
+}
+
+impl Imperfections {
+    /// No imperfection at all.
+    pub fn none() -> Self {
+        Self {
+            uniform_noise: 0.0,
+            ..Self::default()
+        }
+    }
+
+    /// The paper's BMA150 on top of these: 10-bit quantisation over ±2 g.
+    pub fn with_bma150(self) -> Self {
+        Self {
+            saturation: Some(2.0),
+            quantization_bits: Some(10),
+            ..self
+        }
+    }
+
+    fn range(&self) -> Option<f64> {
+        self.saturation.or(self.quantization_bits.map(|_| 2.0))
+    }
+
+    /// Saturation and quantisation of one component, m/s².
+    fn sense(&self, value: f64) -> f64 {
+        let Some(range) = self.range().map(|g| g * STANDARD_GRAVITY) else {
+            return value;
+        };
+        let clipped = value.clamp(-range, range);
+        match self.quantization_bits {
+            Some(bits) => {
+                let step = 2.0 * range / f64::from(1u32 << bits.min(31));
+                (clipped / step).round() * step
+            }
+            None => clipped,
+        }
+    }
+}
+
+/// Errors in a simulation request.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimulationError {
+    /// A setting is out of its range.
+    #[error("{setting}: {reason}")]
+    InvalidSetting {
+        /// The setting.
+        setting: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// What to simulate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SimulationConfig {
+    /// Record the structure experiment.
+    pub structure: bool,
+    /// Record the training experiment.
+    pub training: bool,
+    /// Number of training poses `P` (paper: 20).
+    pub poses: usize,
+    /// Half-range of random training poses, rad (paper: 2.62).
+    pub pose_range: f64,
+    /// How far each DoF moves in the structure experiment, rad.
+    pub structure_angle: f64,
+    /// Repeat the structure experiment with the reference segment tilted 90° about x.
+    pub tilted_orientation: bool,
+    /// The excitation pattern.
+    pub pattern: ExcitationPattern,
+    /// Sensor imperfections.
+    pub imperfections: Imperfections,
+    /// Seed of every random choice.
+    pub seed: u64,
+}
+
+impl Default for SimulationConfig {
+    fn default() -> Self {
+        Self {
+            structure: true,
+            training: true,
+            poses: 20,
+            pose_range: 2.62,
+            structure_angle: 0.3,
+            tilted_orientation: true,
+            pattern: ExcitationPattern::default(),
+            imperfections: Imperfections::default(),
+            seed: 1,
+        }
+    }
+}
+
+impl SimulationConfig {
+    /// Checks every setting.
+    pub fn validate(&self) -> Result<(), SimulationError> {
+        let bad =
+            |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
+        if self.training && self.poses == 0 {
+            return bad("poses", "must be at least 1".into());
+        }
+        if !(self.pose_range.is_finite() && self.pose_range > 0.0) {
+            return bad(
+                "pose_range",
+                format!("{} rad must be positive", self.pose_range),
+            );
+        }
+        if !(self.structure_angle.is_finite() && self.structure_angle > 0.0) {
+            return bad(
+                "structure_angle",
+                format!("{} rad must be positive", self.structure_angle),
+            );
+        }
+        if !self.pattern.is_valid() {
+            return bad("pattern", "amplitude and frequency must be positive".into());
+        }
+        let i = &self.imperfections;
+        for (setting, v) in [
+            ("noise", i.uniform_noise),
+            ("gaussian_noise", i.gaussian_noise),
+            ("bias", i.bias),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(setting, format!("{v} g must be zero or positive"));
+            }
+        }
+        if let Some(s) = i.saturation {
+            if !(s.is_finite() && s > 0.0) {
+                return bad("saturation", format!("{s} g must be positive"));
+            }
+        }
+        if let Some(b) = i.quantization_bits {
+            if !(2..=24).contains(&b) {
+                return bad("quantization_bits", format!("{b} bits: use 2 to 24"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One orientation of the reference segment in the world.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaseOrientation {
+    /// `upright` or `tilted`.
+    pub label: String,
+    /// Gravity in the reference frame, m/s².
+    pub gravity: [f64; 3],
+}
+
+/// The ground truth of a simulation (written to `truth.json`; estimators never read it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Truth {
+    /// Always `skincal-truth`.
+    pub format: String,
+    /// Always 1.
+    pub version: u32,
+    /// The simulated robot, in the robot description format.
+    pub robot: RobotFile,
+    /// The base orientations of the structure experiment, in order.
+    pub orientations: Vec<BaseOrientation>,
+    /// Gravity in the reference frame during training, m/s².
+    pub training_gravity: [f64; 3],
+    /// Each SU's constant bias per axis, m/s², in SU order.
+    pub su_bias: Vec<Reading>,
+    /// The settings used.
+    pub config: SimulationConfig,
+}
+
+/// A simulated experiment: what was measured and what is true.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Simulation {
+    /// The measurement set.
+    pub measurements: MeasurementSet,
+    /// The ground truth.
+    pub truth: Truth,
+}
+
+const POSE_STREAM: u64 = 1;
+const NOISE_STREAM: u64 = 2;
+const BIAS_STREAM: u64 = 3;
+
+fn stream(seed: u64, id: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(id);
+    rng
+}
+
+struct Sensors<'a> {
+    imperfections: &'a Imperfections,
+    bias: Vec<Vector3<f64>>,
+    rng: ChaCha8Rng,
+    gaussian: Option<Normal<f64>>,
+}
+
+impl Sensors<'_> {
+    fn noise(&mut self) -> Vector3<f64> {
+        let u = self.imperfections.uniform_noise * STANDARD_GRAVITY;
+        Vector3::from_fn(|_, _| {
+            let mut n = if u > 0.0 {
+                self.rng.random_range(-u..=u)
+            } else {
+                0.0
+            };
+            if let Some(g) = &self.gaussian {
+                n += g.sample(&mut self.rng);
+            }
+            n
+        })
+    }
+
+    fn sense(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        v.map(|x| self.imperfections.sense(x))
+    }
+
+    fn static_reading(&mut self, su: usize, f: &Vector3<f64>) -> Reading {
+        let v = self.sense(&(f + self.bias[su])) + self.noise();
+        v.into()
+    }
+
+    fn dynamic_reading(&mut self, su: usize, f: &Vector3<f64>, a: &Vector3<f64>) -> Reading {
+        let f = f + self.bias[su];
+        let v = self.sense(&(f + a)) - self.sense(&f) + self.noise();
+        v.into()
+    }
+}
+
+/// Runs the experiments of `config` on `robot`.
+pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, SimulationError> {
+    config.validate()?;
+    let model = &robot.model;
+    let (nd, nu) = (model.dofs().len(), model.sus().len());
+    let imperfections = &config.imperfections;
+    let mut bias_rng = stream(config.seed, BIAS_STREAM);
+    let b = imperfections.bias * STANDARD_GRAVITY;
+    let bias: Vec<Vector3<f64>> = (0..nu)
+        .map(|_| {
+            Vector3::from_fn(|_, _| {
+                if b > 0.0 {
+                    bias_rng.random_range(-b..=b)
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect();
+    let mut sensors = Sensors {
+        imperfections,
+        bias,
+        rng: stream(config.seed, NOISE_STREAM),
+        gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
+            Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY).expect("validated")
+        }),
+    };
+    let mut pose_rng = stream(config.seed, POSE_STREAM);
+
+    let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
+    let mut orientations = vec![BaseOrientation {
+        label: "upright".into(),
+        gravity: gravity_upright().into(),
+    }];
+    if config.tilted_orientation {
+        let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+        orientations.push(BaseOrientation {
+            label: "tilted".into(),
+            gravity: tilt.inverse_transform_vector(&gravity_upright()).into(),
+        });
+    }
+
+    let static_all = |sensors: &mut Sensors<'_>, q: &[f64], g: &Vector3<f64>| -> Vec<Reading> {
+        let k = forward_kinematics(model, &robot.parameters, q);
+        k.sus
+            .iter()
+            .enumerate()
+            .map(|(su, frame)| {
+                sensors.static_reading(su, &specific_force(frame, &Vector3::zeros(), g))
+            })
+            .collect()
+    };
+
+    if config.structure {
+        let rest_pose: Vec<f64> = model.dofs().iter().map(|d| d.limits.clamp(0.0)).collect();
+        let mut blocks = Vec::new();
+        for o in &orientations {
+            let g = Vector3::from(o.gravity);
+            let rest = static_all(&mut sensors, &rest_pose, &g);
+            let moves = (0..nd)
+                .map(|d| {
+                    let mut pose = rest_pose.clone();
+                    pose[d] = structure_move(
+                        &model.dofs()[d].limits,
+                        rest_pose[d],
+                        config.structure_angle,
+                    );
+                    let readings = static_all(&mut sensors, &pose, &g);
+                    Move {
+                        dof: model.dofs()[d].name.clone(),
+                        pose,
+                        readings,
+                        extra: Map::new(),
+                    }
+                })
+                .collect();
+            let mut extra = Map::new();
+            extra.insert("label".into(), json!(o.label));
+            blocks.push(Orientation {
+                rest_pose: rest_pose.clone(),
+                rest,
+                moves,
+                extra,
+            });
+        }
+        set.structure = Some(StructureExperiment {
+            orientations: blocks,
+            extra: Map::new(),
+        });
+    }
+
+    let training_gravity = gravity_upright();
+    if config.training {
+        let mut poses = Vec::with_capacity(config.poses);
+        for _ in 0..config.poses {
+            let q: Vec<f64> = model
+                .dofs()
+                .iter()
+                .map(|d| {
+                    let (lo, hi) = (
+                        d.limits.lower.max(-config.pose_range),
+                        d.limits.upper.min(config.pose_range),
+                    );
+                    let (lo, hi) = if lo <= hi {
+                        (lo, hi)
+                    } else {
+                        (d.limits.lower, d.limits.upper)
+                    };
+                    if hi > lo {
+                        pose_rng.random_range(lo..=hi)
+                    } else {
+                        lo
+                    }
+                })
+                .collect();
+            let k = forward_kinematics(model, &robot.parameters, &q);
+            let forces: Vec<Vector3<f64>> = k
+                .sus
+                .iter()
+                .map(|f| specific_force(f, &Vector3::zeros(), &training_gravity))
+                .collect();
+            let static_readings = forces
+                .iter()
+                .enumerate()
+                .map(|(su, f)| sensors.static_reading(su, f))
+                .collect();
+            let dynamic = (0..nd)
+                .map(|d| {
+                    let peak = peak_dynamic_accelerations_at(model, &k, d, &config.pattern);
+                    let r = peak
+                        .iter()
+                        .enumerate()
+                        .map(|(su, a)| sensors.dynamic_reading(su, &forces[su], a))
+                        .collect();
+                    (model.dofs()[d].name.clone(), r)
+                })
+                .collect();
+            poses.push(TrainingPose {
+                q,
+                static_readings,
+                dynamic,
+                extra: Map::new(),
+            });
+        }
+        set.training = Some(TrainingExperiment {
+            pattern: config.pattern,
+            poses,
+            extra: Map::new(),
+        });
+    }
+
+    let truth = Truth {
+        format: "skincal-truth".into(),
+        version: 1,
+        robot: RobotFile::from_robot(robot, None),
+        orientations,
+        training_gravity: training_gravity.into(),
+        su_bias: sensors.bias.iter().map(|b| (*b).into()).collect(),
+        config: config.clone(),
+    };
+    Ok(Simulation {
+        measurements: set,
+        truth,
+    })
+}
+
+/// The position of a DoF moved by `angle` from `rest`: forwards if the limits allow, else
+/// backwards, else as far as the limits allow.
+pub fn structure_move(limits: &crate::model::Limits, rest: f64, angle: f64) -> f64 {
+    if rest + angle <= limits.upper {
+        rest + angle
+    } else if rest - angle >= limits.lower {
+        rest - angle
+    } else if limits.upper - rest >= rest - limits.lower {
+        limits.upper
+    } else {
+        limits.lower
+    }
+}
