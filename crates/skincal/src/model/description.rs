@@ -296,20 +296,26 @@ impl RobotFile {
             .dofs
             .iter()
             .map(|d| {
+                let v = &d.origin.values;
                 let (dh, origin) = match d.origin.kind {
-                    Parameterization::StandardDh => {
-                        let v = &d.origin.values;
-                        (
-                            Some(DhEntry {
-                                theta0: v[0],
-                                d: v[1],
-                                a: v[2],
-                                alpha: v[3],
-                            }),
-                            None,
-                        )
-                    }
-                    _ => {
+                    Parameterization::Identity => (None, None),
+                    Parameterization::StandardDh => (
+                        Some(DhEntry {
+                            theta0: v[0],
+                            d: v[1],
+                            a: v[2],
+                            alpha: v[3],
+                        }),
+                        None,
+                    ),
+                    Parameterization::XyzRpy => (
+                        None,
+                        Some(OriginEntry {
+                            xyz: [v[0], v[1], v[2]],
+                            rpy: [v[3], v[4], v[5]],
+                        }),
+                    ),
+                    Parameterization::StandardDhSensor => {
                         let (xyz, rpy) = super::transform::to_xyz_rpy(&d.origin.transform());
                         (None, Some(OriginEntry { xyz, rpy }))
                     }
@@ -320,7 +326,7 @@ impl RobotFile {
                     name: d.name.clone(),
                     parent: Some(d.parent.clone()),
                     child: d.child.clone(),
-                    axis: origin.map(|_| d.axis.into()),
+                    axis: dh.is_none().then(|| d.axis.into()),
                     dh,
                     origin,
                     lower: (!free).then_some(d.limits.lower),
@@ -350,7 +356,14 @@ impl RobotFile {
                             d_acc: v[5],
                         }),
                     },
-                    _ => {
+                    Parameterization::XyzRpy => SuEntry {
+                        name: s.name.clone(),
+                        segment: s.segment.clone(),
+                        xyz: Some([v[0], v[1], v[2]]),
+                        rpy: Some([v[3], v[4], v[5]]),
+                        dh: None,
+                    },
+                    Parameterization::Identity | Parameterization::StandardDh => {
                         let (xyz, rpy) = super::transform::to_xyz_rpy(&s.placement.transform());
                         SuEntry {
                             name: s.name.clone(),

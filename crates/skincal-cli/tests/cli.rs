@@ -1,0 +1,263 @@
+//! The `skincal` binary, run in temporary directories.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn skincal(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_skincal"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run skincal")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn fixture(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../skincal/tests/fixtures")
+        .join(name)
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn simulate_writes_measurements_in_the_documented_format() {
+    let dir = tempfile::tempdir().unwrap();
+    for robot in ["paper-7dof", "humanoid"] {
+        let out = skincal(
+            &["simulate", "--robot", robot, "--out", robot, "--poses", "4"],
+            dir.path(),
+        );
+        assert!(out.status.success(), "{}", stderr(&out));
+        let text =
+            std::fs::read_to_string(dir.path().join(robot).join("measurements.json")).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["format"], "skincal-measurements");
+        assert_eq!(v["version"], 1);
+        assert_eq!(v["units"]["acceleration"], "m/s^2");
+        assert_eq!(v["units"]["angle"], "rad");
+        let (nd, nu) = (
+            v["dofs"].as_array().unwrap().len(),
+            v["sus"].as_array().unwrap().len(),
+        );
+        let orientations = v["structure"]["orientations"].as_array().unwrap();
+        assert_eq!(orientations.len(), 2);
+        assert_eq!(orientations[0]["rest_pose"].as_array().unwrap().len(), nd);
+        assert_eq!(orientations[0]["rest"].as_array().unwrap().len(), nu);
+        assert_eq!(orientations[0]["moves"].as_array().unwrap().len(), nd);
+        let training = &v["training"];
+        assert_eq!(training["pattern"]["amplitude"], 0.5);
+        assert_eq!(training["pattern"]["frequency"], 2.0);
+        let poses = training["poses"].as_array().unwrap();
+        assert_eq!(poses.len(), 4);
+        assert_eq!(poses[0]["static"].as_array().unwrap().len(), nu);
+        assert_eq!(poses[0]["dynamic"].as_object().unwrap().len(), nd);
+        let first_dof = v["dofs"][0].as_str().unwrap();
+        assert_eq!(poses[0]["dynamic"][first_dof].as_array().unwrap().len(), nu);
+        assert!(skincal::measurements::MeasurementSet::from_json(&text).is_ok());
+        let truth: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(robot).join("truth.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(truth["format"], "skincal-truth");
+    }
+}
+
+#[test]
+fn robots_lists_the_presets() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = skincal(&["robots"], dir.path());
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("paper-7dof") && text.contains("humanoid"),
+        "{text}"
+    );
+}
+
+#[test]
+fn demo_runs_and_says_what_it_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = skincal(&["demo", "--out", "demo"], dir.path());
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("paper-7dof") && text.contains("measurements.json"),
+        "{text}"
+    );
+    assert!(dir.path().join("demo/measurements.json").exists());
+}
+
+/// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
+fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
+    let out = skincal(args, dir);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: {}", stderr(&out));
+    let err = stderr(&out);
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: `{n}` not in: {err}");
+    }
+}
+
+#[test]
+fn bad_input_exits_non_zero_with_a_clear_message() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fails_with(
+        &["simulate", "--robot", "octopus", "--out", "x"],
+        d,
+        &["unknown robot `octopus`", "paper-7dof"],
+    );
+    std::fs::write(
+        d.join("broken.toml"),
+        "name = \"b\"\nreference = \"base\"\n[[dofs]]\nname = \"j\"\nchild = [\n",
+    )
+    .unwrap();
+    fails_with(
+        &["simulate", "--robot", "broken.toml", "--out", "x"],
+        d,
+        &["broken.toml", "line 5"],
+    );
+    std::fs::write(d.join("limits.toml"), "name = \"b\"\nreference = \"base\"\n[[dofs]]\nname = \"elbow\"\nchild = \"l\"\nlower = 2.0\nupper = 1.0\n").unwrap();
+    fails_with(
+        &["simulate", "--robot", "limits.toml", "--out", "x"],
+        d,
+        &["limits.toml", "elbow", "impossible limits"],
+    );
+    fails_with(
+        &["simulate", "--robot", &fixture("slider.urdf"), "--out", "x"],
+        d,
+        &["rail", "prismatic"],
+    );
+    fails_with(
+        &["simulate", "--robot", "missing.urdf", "--out", "x"],
+        d,
+        &["missing.urdf"],
+    );
+    fails_with(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "x",
+            "--noise=-1",
+        ],
+        d,
+        &["noise"],
+    );
+    fails_with(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "x",
+            "--poses",
+            "0",
+        ],
+        d,
+        &["poses"],
+    );
+    assert!(
+        !d.join("x").exists(),
+        "failed runs must not leave output behind"
+    );
+}
+
+#[test]
+fn existing_output_is_kept_without_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "o",
+            "--seed",
+            "1"
+        ],
+        d
+    )
+    .status
+    .success());
+    let before = std::fs::read_to_string(d.join("o/measurements.json")).unwrap();
+    fails_with(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "o",
+            "--seed",
+            "2",
+        ],
+        d,
+        &["already exists", "--force"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(d.join("o/measurements.json")).unwrap(),
+        before
+    );
+    assert!(skincal(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "o",
+            "--seed",
+            "2",
+            "--force"
+        ],
+        d
+    )
+    .status
+    .success());
+    assert_ne!(
+        std::fs::read_to_string(d.join("o/measurements.json")).unwrap(),
+        before
+    );
+    let leftovers: Vec<_> = std::fs::read_dir(d.join("o"))
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty());
+}
+
+#[test]
+fn usage_errors_exit_with_two() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_eq!(skincal(&["simulate"], dir.path()).status.code(), Some(2));
+    assert_eq!(skincal(&["frobnicate"], dir.path()).status.code(), Some(2));
+}
+
+#[test]
+fn urdf_robots_simulate_with_random_sus() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = skincal(
+        &[
+            "simulate",
+            "--robot",
+            &fixture("arm.urdf"),
+            "--sus-per-link",
+            "2",
+            "--out",
+            "u",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("u/measurements.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(v["sus"].as_array().unwrap().len(), 10);
+    assert_eq!(v["dofs"], serde_json::json!(["shoulder", "wrist"]));
+}

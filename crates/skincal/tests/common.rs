@@ -1,0 +1,45 @@
+//! Helpers shared by the tests: an independent implementation of the paper's matrices.
+
+use nalgebra::Matrix4;
+
+/// The paper's eq. 5, written out entry by entry (not via the library's transforms).
+pub fn dh_matrix(theta: f64, d: f64, a: f64, alpha: f64) -> Matrix4<f64> {
+    let (st, ct) = theta.sin_cos();
+    let (sa, ca) = alpha.sin_cos();
+    Matrix4::new(
+        ct,
+        -st * ca,
+        st * sa,
+        a * ct, //
+        st,
+        ct * ca,
+        -ct * sa,
+        a * st, //
+        0.0,
+        sa,
+        ca,
+        d, //
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+    )
+}
+
+/// The paper's eq. 7, written out.
+pub fn sensor_matrix(theta_acc: f64, d_acc: f64) -> Matrix4<f64> {
+    let (s, c) = theta_acc.sin_cos();
+    Matrix4::new(
+        c, -s, 0.0, 0.0, //
+        s, c, 0.0, 0.0, //
+        0.0, 0.0, 1.0, d_acc, //
+        0.0, 0.0, 0.0, 1.0,
+    )
+}
+
+/// Path of a file in `tests/fixtures`.
+pub fn fixture(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}

@@ -1,0 +1,11 @@
+//! Integration tests of the skincal library. Truth always comes from outside the code under test:
+//! values computed by hand, independent re-implementations of the paper's equations, or laws that
+//! must hold.
+
+mod common;
+mod descriptions;
+mod kinematics;
+mod measurements;
+mod paper;
+mod simulator;
+mod urdf_import;
