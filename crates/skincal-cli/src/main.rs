@@ -4,14 +4,16 @@
 
 mod render;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
+use skincal::explore::ExploreConfig;
 use skincal::io::{self, SuPlacement};
 use skincal::model::presets::PRESETS;
 use skincal::model::sensor::ExcitationPattern;
+use skincal::report;
 use skincal::sim::{self, Imperfections, SimulationConfig};
 
 const EXIT_CODES: &str = "\
@@ -43,6 +45,25 @@ enum Command {
     /// List the built-in robots.
     #[command(after_help = EXIT_CODES)]
     Robots,
+    /// Structural exploration: find segments, joints and limbs in DIR/measurements.json; writes
+    /// DIR/structure.json and DIR/structure.dot.
+    #[command(after_help = EXIT_CODES)]
+    Explore(ExploreArgs),
+}
+
+#[derive(Debug, Args)]
+struct ExploreArgs {
+    /// Directory with measurements.json (or the measurement file itself).
+    dir: PathBuf,
+    /// A reading that changes by more than this on any axis marks the SU as moved by the DoF, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.05)]
+    threshold: f64,
+    /// Entries within this factor of the threshold are reported as uncertain.
+    #[arg(long, default_value_t = 2.0)]
+    uncertainty_factor: f64,
+    /// Print the structure as JSON on standard output instead of the tables.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -123,7 +144,53 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo(args) => demo(args),
         Command::Simulate(args) => simulate(args),
         Command::Robots => robots(),
+        Command::Explore(args) => explore(args),
     }
+}
+
+/// The measurement file and the output directory of a `DIR` argument.
+fn measurement_paths(dir: &Path) -> (PathBuf, PathBuf) {
+    if dir.is_file() {
+        let parent = dir
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        (dir.to_path_buf(), parent.to_path_buf())
+    } else {
+        (dir.join("measurements.json"), dir.to_path_buf())
+    }
+}
+
+fn explore(args: ExploreArgs) -> Result<()> {
+    let (file, dir) = measurement_paths(&args.dir);
+    let set = io::read_measurements(&file)?;
+    let config = ExploreConfig {
+        threshold: args.threshold,
+        uncertainty_factor: args.uncertainty_factor,
+        ..ExploreConfig::default()
+    };
+    let structure =
+        skincal::explore::explore(&set, &config).with_context(|| file.display().to_string())?;
+    let json = serde_json::to_string_pretty(&structure)?;
+    let (json_path, dot_path) = (dir.join("structure.json"), dir.join("structure.dot"));
+    io::write_all(
+        &[
+            (json_path.clone(), json.clone()),
+            (dot_path.clone(), report::structure_dot(&structure)),
+        ],
+        true,
+    )?;
+    if args.json {
+        println!("{json}");
+        return Ok(());
+    }
+    print!("{}", render::structure_summary(&structure));
+    println!(
+        "\nwrote {}\nwrote {}",
+        json_path.display(),
+        dot_path.display()
+    );
+    Ok(())
 }
 
 fn robots() -> Result<()> {

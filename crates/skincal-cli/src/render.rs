@@ -2,9 +2,11 @@
 
 use std::fmt::Write;
 
+use skincal::explore::Structure;
 use skincal::measurements::Summary;
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::model::Robot;
+use skincal::report;
 use skincal::sim::SimulationConfig;
 
 /// One line of `skincal robots`.
@@ -88,4 +90,57 @@ pub fn simulation_summary(robot: &Robot, config: &SimulationConfig, summary: &Su
         }
     }
     s
+}
+
+pub fn structure_summary(s: &Structure) -> String {
+    let mut out = String::new();
+    let multi = s.joints.iter().filter(|j| j.dofs.len() > 1).count();
+    let _ = writeln!(
+        out,
+        "{} segments, {} joints ({} with several DoFs), {} limbs; threshold {} g over {} base orientation(s)",
+        s.segments.len(),
+        s.joints.len(),
+        multi,
+        s.limbs.len(),
+        s.threshold_g,
+        s.orientations
+    );
+    let _ = writeln!(
+        out,
+        "\nActivity matrix, merged and sorted (rows: segments, columns: joints)\n"
+    );
+    out.push_str(&report::activity_table(s));
+    let _ = writeln!(out, "\nKinematic tree\n");
+    out.push_str(&report::tree(s));
+    let _ = writeln!(out, "\nLimbs\n");
+    out.push_str(&report::limbs(s));
+    if !s.uncertain.is_empty() {
+        let _ = writeln!(
+            out,
+            "\n{} entries lie within the uncertainty band (see structure.json, `uncertain`)",
+            s.uncertain.len()
+        );
+    }
+    if !s.diagnostics.is_empty() {
+        let _ = writeln!(out, "\nDiagnostics\n");
+        out.push_str(&report::diagnostics(s));
+    }
+    if !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty() {
+        let _ = writeln!(
+            out,
+            "\nLeft out of the tree: {} SUs, {} DoFs",
+            s.unplaced_sus.len(),
+            s.unplaced_dofs.len()
+        );
+    }
+    let _ = writeln!(
+        out,
+        "\n{}",
+        if s.complete {
+            "The tree is complete."
+        } else {
+            "The tree is INCOMPLETE: see the errors above."
+        }
+    );
+    out
 }

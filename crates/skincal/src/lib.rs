@@ -25,7 +25,9 @@
 
 #![warn(missing_docs)]
 
+pub mod explore;
 pub mod io;
 pub mod measurements;
 pub mod model;
+pub mod report;
 pub mod sim;

@@ -1,0 +1,940 @@
+//! Structural exploration (paper Section II-B, Algorithm 1): from static readings to the kinematic
+//! tree, with diagnostics instead of failures.
+//!
+//! 1. **Activity matrix** `A` (SU × DoF): `A[u][d] = 1` when SU `u`'s static reading changes by more
+//!    than a threshold (default 0.05 g) on any axis between the rest pose and the pose in which only
+//!    DoF `d` moved. Matrices of several base orientations are OR-ed: a DoF whose axis happens to be
+//!    vertical rotates gravity about itself and changes no reading, so the reference segment is tilted
+//!    by 90° for a second matrix. The measured change of every entry is kept; entries within a factor
+//!    of 2 of the threshold are *uncertain*.
+//! 2. **Merging**: DoFs with identical columns form one joint (several DoFs with no SU between them);
+//!    SUs with identical rows (over joints) form one segment.
+//! 3. **Connectivity**: the row of a segment is the set of joints between it and the reference, so
+//!    the reference is the null row, and a segment's parent is the segment whose row is its own less
+//!    exactly one joint — the joint that connects them. Ordering segments depth-first from the root
+//!    and every joint by its child gives the paper's strictly lower-triangular matrix with ones on
+//!    the secondary diagonal.
+//! 4. **Anatomy**: end effectors (leaves), branching segments (more than two joints) and the limbs
+//!    from the reference or a branching segment to the next end effector or branching segment.
+//!
+//! Whatever does not fit a tree is reported in plain words and left out, and the largest
+//! consistent part of the tree is returned.
+
+use std::collections::{BTreeMap, HashMap};
+
+use fixedbitset::FixedBitSet;
+use serde::{Deserialize, Serialize};
+
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::STANDARD_GRAVITY;
+
+/// Settings of the exploration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ExploreConfig {
+    /// An entry is active when a reading changes by more than this on any axis, in g.
+    pub threshold: f64,
+    /// Entries whose change lies within this factor of the threshold are uncertain.
+    pub uncertainty_factor: f64,
+    /// Largest difference, rad, between how far two static SUs' gravity readings turn when the base
+    /// is re-oriented, for them to count as one rigid reference segment.
+    pub static_turn_tolerance: f64,
+}
+
+impl Default for ExploreConfig {
+    fn default() -> Self {
+        Self {
+            threshold: 0.05,
+            uncertainty_factor: 2.0,
+            static_turn_tolerance: 0.15,
+        }
+    }
+}
+
+/// Errors that stop exploration before it starts.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ExploreError {
+    /// The measurement set has no structure experiment.
+    #[error("the measurement set has no structure experiment (`structure`): record one (skincal simulate, or skincal ingest of the structure moves)")]
+    NoStructureExperiment,
+    /// The structure experiment moves no DoF.
+    #[error(
+        "the structure experiment has no moves: every DoF must be moved once from the rest pose"
+    )]
+    NoMoves,
+    /// A setting is out of range.
+    #[error("{setting}: {reason}")]
+    InvalidSetting {
+        /// The setting.
+        setting: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// The activity matrix with the measured change behind every entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActivityMatrix {
+    /// SU names (rows).
+    pub sus: Vec<String>,
+    /// DoF names (columns).
+    pub dofs: Vec<String>,
+    /// `change[u][d]`: the largest change of any axis of SU `u`'s reading when DoF `d` moved, over
+    /// all orientations, m/s² (0 for a DoF that was never moved).
+    pub change: Vec<Vec<f64>>,
+    /// Whether each DoF was moved in at least one orientation.
+    pub explored: Vec<bool>,
+    /// The threshold, m/s².
+    pub threshold: f64,
+    /// The uncertainty factor.
+    pub uncertainty_factor: f64,
+    /// Number of base orientations.
+    pub orientations: usize,
+    /// Per SU: the angle, rad, between its rest readings in the first and the second orientation
+    /// (`None` with a single orientation).
+    pub rest_turn: Vec<Option<f64>>,
+}
+
+impl ActivityMatrix {
+    /// Whether DoF `d` moves SU `u`.
+    pub fn is_active(&self, u: usize, d: usize) -> bool {
+        self.explored[d] && self.change[u][d] > self.threshold
+    }
+
+    /// Whether the entry lies within the uncertainty band around the threshold.
+    pub fn is_uncertain(&self, u: usize, d: usize) -> bool {
+        let c = self.change[u][d];
+        self.explored[d]
+            && c >= self.threshold / self.uncertainty_factor
+            && c <= self.threshold * self.uncertainty_factor
+    }
+}
+
+/// Builds the activity matrix from the structure experiment of a measurement set.
+pub fn activity_matrix(
+    set: &MeasurementSet,
+    config: &ExploreConfig,
+) -> Result<ActivityMatrix, ExploreError> {
+    if !(config.threshold.is_finite() && config.threshold > 0.0) {
+        return Err(ExploreError::InvalidSetting {
+            setting: "threshold",
+            reason: format!("{} g must be positive", config.threshold),
+        });
+    }
+    if !(config.uncertainty_factor.is_finite() && config.uncertainty_factor >= 1.0) {
+        return Err(ExploreError::InvalidSetting {
+            setting: "uncertainty_factor",
+            reason: format!("{} must be at least 1", config.uncertainty_factor),
+        });
+    }
+    let structure = set
+        .structure
+        .as_ref()
+        .ok_or(ExploreError::NoStructureExperiment)?;
+    let (nu, nd) = (set.sus.len(), set.dofs.len());
+    let mut change = vec![vec![0.0; nd]; nu];
+    let mut explored = vec![false; nd];
+    for orientation in &structure.orientations {
+        for mv in &orientation.moves {
+            let d = set.dof_index(&mv.dof).expect("validated measurement set");
+            explored[d] = true;
+            for (u, (before, after)) in orientation.rest.iter().zip(&mv.readings).enumerate() {
+                let c = (0..3)
+                    .map(|k| (after[k] - before[k]).abs())
+                    .fold(0.0, f64::max);
+                change[u][d] = f64::max(change[u][d], c);
+            }
+        }
+    }
+    if !explored.iter().any(|&e| e) {
+        return Err(ExploreError::NoMoves);
+    }
+    let rest_turn = (0..nu)
+        .map(|u| match structure.orientations.as_slice() {
+            [first, second, ..] => Some(angle_between(&first.rest[u], &second.rest[u])),
+            _ => None,
+        })
+        .collect();
+    Ok(ActivityMatrix {
+        sus: set.sus.clone(),
+        dofs: set.dofs.clone(),
+        change,
+        explored,
+        threshold: config.threshold * STANDARD_GRAVITY,
+        uncertainty_factor: config.uncertainty_factor,
+        orientations: structure.orientations.len(),
+        rest_turn,
+    })
+}
+
+fn angle_between(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    let dot: f64 = (0..3).map(|k| a[k] * b[k]).sum();
+    let na = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let nb = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if na == 0.0 || nb == 0.0 {
+        return 0.0;
+    }
+    (dot / (na * nb)).clamp(-1.0, 1.0).acos()
+}
+
+/// How serious a diagnostic is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Severity {
+    /// Worth knowing; the tree is right.
+    Info,
+    /// The tree is consistent, but something deserves a look.
+    Warning,
+    /// Part of the robot is missing from the tree, or may be wrong.
+    Error,
+}
+
+/// What a diagnostic is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DiagnosticKind {
+    /// A DoF was never moved in the structure experiment.
+    DofNotExplored,
+    /// A DoF changed no SU's reading.
+    DofMovesNoSu,
+    /// No SU stayed still: there is no null row.
+    NoStaticSegment,
+    /// SUs stayed still but do not turn with the reference segment: more than one null row.
+    SeveralStaticGroups,
+    /// Rows that cannot be sorted into a tree.
+    Unsortable,
+    /// A segment without SU had to be assumed to connect the tree.
+    SegmentWithoutSu,
+    /// An uncertain entry whose flip would make an SU fit the tree.
+    UncertainEntry,
+    /// Several DoFs form one joint; their order is not in the matrix.
+    MultiDofJoint,
+}
+
+/// A finding, with the SUs and DoFs involved and the likely cause in plain words.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Diagnostic {
+    /// What it is about.
+    pub kind: DiagnosticKind,
+    /// How serious it is.
+    pub severity: Severity,
+    /// Plain words: what was seen, the likely cause, what to do.
+    pub message: String,
+    /// SUs involved.
+    pub sus: Vec<String>,
+    /// DoFs involved.
+    pub dofs: Vec<String>,
+}
+
+/// A segment of the discovered tree.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SegmentNode {
+    /// `S0` (the reference), `S1`, … in depth-first order.
+    pub id: String,
+    /// The SUs on it.
+    pub sus: Vec<String>,
+    /// The joint that moves it (none for the reference).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parent_joint: Option<String>,
+    /// Assumed to connect the tree although no SU was seen on it.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub without_su: bool,
+}
+
+/// A joint of the discovered tree.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointNode {
+    /// `J1`, `J2`, …: joint `Jn` moves segment `Sn`.
+    pub id: String,
+    /// Its DoFs, in input order (the order along the chain is not in the activity matrix).
+    pub dofs: Vec<String>,
+    /// The segment it is mounted on.
+    pub parent: String,
+    /// The segment it moves.
+    pub child: String,
+}
+
+/// A limb: from a reference (the root or a branching segment) to an end effector or the next
+/// branching segment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Limb {
+    /// The reference segment.
+    pub from: String,
+    /// The last segment.
+    pub to: String,
+    /// Joints from the reference outwards.
+    pub joints: Vec<String>,
+    /// Segments after the reference, outwards.
+    pub segments: Vec<String>,
+    /// DoFs from the reference outwards (input order inside a multi-DoF joint).
+    pub dofs: Vec<String>,
+    /// SUs on the limb's segments, segment by segment.
+    pub sus: Vec<String>,
+}
+
+/// An uncertain entry of the activity matrix.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct UncertainEntry {
+    /// The SU.
+    pub su: String,
+    /// The DoF.
+    pub dof: String,
+    /// The measured change, g.
+    pub change_g: f64,
+    /// Whether the entry counted as active.
+    pub active: bool,
+}
+
+/// The merged and sorted activity matrix: segments × joints.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SortedMatrix {
+    /// Row labels (segment ids).
+    pub segments: Vec<String>,
+    /// Column labels (joint ids).
+    pub joints: Vec<String>,
+    /// `entries[s][j]`: whether joint `j` moves segment `s`.
+    pub entries: Vec<Vec<bool>>,
+}
+
+/// The discovered kinematic structure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Structure {
+    /// The static reference segment (`S0`).
+    pub root: String,
+    /// Segments in depth-first order; `S0` is the reference.
+    pub segments: Vec<SegmentNode>,
+    /// Joints; `Jn` moves `Sn`.
+    pub joints: Vec<JointNode>,
+    /// True end effectors (leaves).
+    pub end_effectors: Vec<String>,
+    /// Branching segments (more than two joints): references of sub-limbs.
+    pub branching: Vec<String>,
+    /// Limbs.
+    pub limbs: Vec<Limb>,
+    /// Findings.
+    pub diagnostics: Vec<Diagnostic>,
+    /// Whether no error-level diagnostic was raised.
+    pub complete: bool,
+    /// SUs left out of the tree.
+    pub unplaced_sus: Vec<String>,
+    /// DoFs left out of the tree.
+    pub unplaced_dofs: Vec<String>,
+    /// The merged and sorted activity matrix (paper Fig. 2).
+    pub matrix: SortedMatrix,
+    /// Entries within the uncertainty band.
+    pub uncertain: Vec<UncertainEntry>,
+    /// The threshold used, g.
+    pub threshold_g: f64,
+    /// Number of base orientations combined.
+    pub orientations: usize,
+}
+
+impl Structure {
+    /// The segment with this id.
+    pub fn segment(&self, id: &str) -> Option<&SegmentNode> {
+        self.segments.iter().find(|s| s.id == id)
+    }
+
+    /// The joint with this id.
+    pub fn joint(&self, id: &str) -> Option<&JointNode> {
+        self.joints.iter().find(|j| j.id == id)
+    }
+}
+
+/// Structural exploration of a measurement set: activity matrix, then [`structure_from_activity`].
+///
+/// ```
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let sim = simulate(&robot, &SimulationConfig { training: false, ..SimulationConfig::default() }).unwrap();
+/// let structure = explore(&sim.measurements, &ExploreConfig::default()).unwrap();
+/// assert!(structure.complete);
+/// assert_eq!(structure.joints.len(), 7);
+/// assert_eq!(structure.limbs.len(), 1);
+/// ```
+pub fn explore(set: &MeasurementSet, config: &ExploreConfig) -> Result<Structure, ExploreError> {
+    let activity = activity_matrix(set, config)?;
+    Ok(structure_from_activity(&activity, config))
+}
+
+/// One attempt at the tree on a subset of SUs.
+struct Attempt {
+    /// Joints: DoF indices, each list in input order.
+    joints: Vec<Vec<usize>>,
+    /// Segments: row over joints, SU indices (empty for a segment without SU).
+    segments: Vec<(FixedBitSet, Vec<usize>)>,
+    /// Index of the root segment.
+    root: usize,
+    /// `parent[s] = (parent segment, joint)`.
+    parent: Vec<Option<(usize, usize)>>,
+}
+
+enum Outcome {
+    Tree(Attempt),
+    /// Rows that do not fit: the segment to leave out and why.
+    Conflict {
+        segment: Vec<usize>,
+        joints: Vec<usize>,
+        reason: String,
+        attempt: Attempt,
+    },
+    /// A segment without SU must be assumed: its row over DoFs.
+    AddSegment(FixedBitSet),
+}
+
+/// Merges, sorts and connects an activity matrix into a tree; see the module documentation.
+pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> Structure {
+    let (nu, nd) = (a.sus.len(), a.dofs.len());
+    let mut diagnostics = Vec::new();
+    let dof_names = |ds: &[usize]| ds.iter().map(|&d| a.dofs[d].clone()).collect::<Vec<_>>();
+    let su_names = |us: &[usize]| us.iter().map(|&u| a.sus[u].clone()).collect::<Vec<_>>();
+
+    for d in (0..nd).filter(|&d| !a.explored[d]) {
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::DofNotExplored,
+            severity: Severity::Error,
+            message: format!("DoF `{}` was never moved in the structure experiment, so nothing is known about it: add a move of it from the rest pose", a.dofs[d]),
+            sus: vec![],
+            dofs: vec![a.dofs[d].clone()],
+        });
+    }
+    let mut moving: Vec<usize> = Vec::new();
+    for d in (0..nd).filter(|&d| a.explored[d]) {
+        if (0..nu).any(|u| a.is_active(u, d)) {
+            moving.push(d);
+            continue;
+        }
+        let largest = (0..nu).map(|u| a.change[u][d]).fold(0.0, f64::max) / STANDARD_GRAVITY;
+        let cause = if a.orientations < 2 {
+            "its axis was probably vertical (turning about gravity changes no reading): record the structure experiment again with the reference segment tilted by 90° about a horizontal axis; or the segment it moves carries no SU"
+        } else {
+            "the segment it moves carries no SU (a chain's end without skin), or the DoF did not actually move"
+        };
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::DofMovesNoSu,
+            severity: Severity::Error,
+            message: format!("DoF `{}` changed no SU's reading by more than {:.3} g (largest change {largest:.3} g): {cause}", a.dofs[d], a.threshold / STANDARD_GRAVITY),
+            sus: vec![],
+            dofs: vec![a.dofs[d].clone()],
+        });
+    }
+
+    let row_of = |u: usize| -> FixedBitSet {
+        let mut b = FixedBitSet::with_capacity(nd);
+        for &d in &moving {
+            if a.is_active(u, d) {
+                b.insert(d);
+            }
+        }
+        b
+    };
+    let dof_rows: Vec<FixedBitSet> = (0..nu).map(row_of).collect();
+    let mut excluded = vec![false; nu];
+
+    // Null-row SUs must turn together with the reference segment when the base is re-oriented.
+    let still: Vec<usize> = (0..nu).filter(|&u| dof_rows[u].is_clear()).collect();
+    if still.is_empty() {
+        let everything: Vec<usize> = moving
+            .iter()
+            .copied()
+            .filter(|&d| (0..nu).all(|u| a.is_active(u, d)))
+            .collect();
+        let message = if everything.is_empty() {
+            "no SU stayed still in every move (no null row): the reference segment carries no SU; the tree is rooted at an assumed reference segment without SU".to_string()
+        } else {
+            format!("no SU stayed still in every move (no null row), and DoF(s) {} moved every SU: either the reference segment carries no SU (normal for an arm whose base has no skin: its first joint moves everything), or the reference segment itself moved with them — then hold it still. The tree is rooted at an assumed reference segment without SU", dof_names(&everything).join(", "))
+        };
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::NoStaticSegment,
+            severity: Severity::Info,
+            message,
+            sus: vec![],
+            dofs: dof_names(&everything),
+        });
+    } else if let Some(turns) = still
+        .iter()
+        .map(|&u| a.rest_turn[u])
+        .collect::<Option<Vec<f64>>>()
+    {
+        let mut sorted = turns.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let odd: Vec<usize> = still
+            .iter()
+            .zip(&turns)
+            .filter(|(_, t)| (**t - median).abs() > config.static_turn_tolerance)
+            .map(|(&u, _)| u)
+            .collect();
+        if !odd.is_empty() {
+            for &u in &odd {
+                excluded[u] = true;
+            }
+            diagnostics.push(Diagnostic {
+                kind: DiagnosticKind::SeveralStaticGroups,
+                severity: Severity::Error,
+                message: format!(
+                    "more than one null row: these SUs stayed still in every move, but their gravity reading turned by a different angle than the reference segment's ({:.0}°) when the base was re-oriented, so they are not on the reference segment: loose SUs, SUs on another static body, or SUs on a segment whose DoFs were not moved; left out of the tree",
+                    median.to_degrees()
+                ),
+                sus: su_names(&odd),
+                dofs: vec![],
+            });
+        }
+    }
+
+    // Every round either leaves out at least one SU or assumes a segment row that did not exist;
+    // past a generous bound no more segments are assumed, so the loop always ends.
+    let mut extra_rows: Vec<FixedBitSet> = Vec::new();
+    let limit = 4 * (nu + nd) + 8;
+    let mut rounds = 0;
+    let attempt = loop {
+        rounds += 1;
+        let active: Vec<usize> = (0..nu).filter(|&u| !excluded[u]).collect();
+        match attempt_tree(&dof_rows, &active, &moving, &extra_rows, nd, rounds < limit) {
+            Outcome::Tree(t) => break t,
+            Outcome::AddSegment(row) => extra_rows.push(row),
+            Outcome::Conflict {
+                segment,
+                joints,
+                reason,
+                attempt,
+            } => {
+                let dofs: Vec<usize> = joints
+                    .iter()
+                    .flat_map(|&j| attempt.joints[j].clone())
+                    .collect();
+                if !segment.is_empty() {
+                    for &u in &segment {
+                        excluded[u] = true;
+                    }
+                } else if !extra_rows.is_empty() {
+                    extra_rows.clear();
+                } else {
+                    excluded.iter_mut().for_each(|e| *e = true);
+                }
+                diagnostics.push(Diagnostic {
+                    kind: DiagnosticKind::Unsortable,
+                    severity: Severity::Error,
+                    message: format!("the activity matrix cannot be sorted into a tree: {reason}. Likely causes: a closed kinematic loop, a reference segment that moved, a segment without SU in mid-chain, or a misread entry; these SUs are left out of the tree"),
+                    sus: su_names(&segment),
+                    dofs: dof_names(&dofs),
+                });
+            }
+        }
+    };
+
+    finish(a, attempt, diagnostics, &excluded, &moving, &dof_rows)
+}
+
+/// Merges the active SUs' rows into joints and segments and connects them, or reports the first
+/// conflict.
+fn attempt_tree(
+    dof_rows: &[FixedBitSet],
+    active: &[usize],
+    moving: &[usize],
+    extra_rows: &[FixedBitSet],
+    nd: usize,
+    may_assume_segments: bool,
+) -> Outcome {
+    // Columns over active SUs; DoFs with identical non-empty columns form a joint.
+    let mut columns: BTreeMap<Vec<usize>, Vec<usize>> = BTreeMap::new();
+    for &d in moving {
+        let column: Vec<usize> = active
+            .iter()
+            .copied()
+            .filter(|&u| dof_rows[u].contains(d))
+            .collect();
+        let extra: Vec<usize> = extra_rows
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.contains(d))
+            .map(|(i, _)| usize::MAX - i)
+            .collect();
+        if column.is_empty() {
+            continue;
+        }
+        columns.entry([column, extra].concat()).or_default().push(d);
+    }
+    let mut joints: Vec<Vec<usize>> = columns.into_values().collect();
+    joints.sort_by_key(|j| j[0]);
+    let mut joint_of = vec![usize::MAX; nd];
+    for (j, ds) in joints.iter().enumerate() {
+        for &d in ds {
+            joint_of[d] = j;
+        }
+    }
+    let to_joint_row = |r: &FixedBitSet| -> FixedBitSet {
+        let mut b = FixedBitSet::with_capacity(joints.len());
+        for d in r.ones() {
+            if joint_of[d] != usize::MAX {
+                b.insert(joint_of[d]);
+            }
+        }
+        b
+    };
+    let mut by_row: HashMap<FixedBitSet, Vec<usize>> = HashMap::new();
+    for &u in active {
+        by_row
+            .entry(to_joint_row(&dof_rows[u]))
+            .or_default()
+            .push(u);
+    }
+    for r in extra_rows {
+        by_row.entry(to_joint_row(r)).or_default();
+    }
+    let mut segments: Vec<(FixedBitSet, Vec<usize>)> = by_row.into_iter().collect();
+    segments.sort_by(|a, b| {
+        a.0.count_ones(..)
+            .cmp(&b.0.count_ones(..))
+            .then_with(|| a.0.cmp(&b.0))
+    });
+    let root = match segments.iter().position(|(r, _)| r.is_clear()) {
+        Some(i) => i,
+        None => {
+            segments.insert(0, (FixedBitSet::with_capacity(joints.len()), vec![]));
+            0
+        }
+    };
+    let n = segments.len();
+    let mut parent: Vec<Option<(usize, usize)>> = vec![None; n];
+    let mut claimed: Vec<Option<usize>> = vec![None; joints.len()];
+    let mut placed = vec![false; n];
+    placed[root] = true;
+    let mut orphans: Vec<usize> = Vec::new();
+    let mut conflict: Option<(usize, Vec<usize>, String)> = None;
+    for s in 0..n {
+        if s == root {
+            continue;
+        }
+        let row = &segments[s].0;
+        let size = row.count_ones(..);
+        let candidates: Vec<usize> = (0..n)
+            .filter(|&p| {
+                placed[p]
+                    && segments[p].0.is_subset(row)
+                    && segments[p].0.count_ones(..) + 1 == size
+            })
+            .collect();
+        match candidates.as_slice() {
+            [p] => {
+                let j = row
+                    .difference(&segments[*p].0)
+                    .next()
+                    .expect("rows differ by one joint");
+                if let Some(other) = claimed[j] {
+                    let guilty = if segments[other].1.len() < segments[s].1.len() {
+                        other
+                    } else {
+                        s
+                    };
+                    conflict = Some((guilty, vec![j], format!("two segments claim to be the one that joint of DoF(s) {:?} moves directly", joints[j])));
+                    break;
+                }
+                claimed[j] = Some(s);
+                parent[s] = Some((*p, j));
+                placed[s] = true;
+            }
+            [] => orphans.push(s),
+            many => {
+                conflict = Some((
+                    s,
+                    row.ones().collect(),
+                    format!(
+                        "a segment could hang from {} different segments",
+                        many.len()
+                    ),
+                ));
+                break;
+            }
+        }
+    }
+    let attempt = Attempt {
+        joints,
+        segments,
+        root,
+        parent,
+    };
+    if let Some((s, joints, reason)) = conflict {
+        let segment = attempt.segments[s].1.clone();
+        return Outcome::Conflict {
+            segment,
+            joints,
+            reason,
+            attempt,
+        };
+    }
+    if orphans.is_empty() {
+        return Outcome::Tree(attempt);
+    }
+    if !may_assume_segments {
+        let s = orphans[0];
+        let segment = attempt.segments[s].1.clone();
+        let joints: Vec<usize> = attempt.segments[s].0.ones().collect();
+        return Outcome::Conflict { segment, joints, reason: "no other segment's row equals this segment's row less one joint, so it hangs from nothing".into(), attempt };
+    }
+    // An orphan whose row shares all but one joint with another orphan's row points at a segment
+    // without SU from which both branch off.
+    for (i, &s) in orphans.iter().enumerate() {
+        for &t in &orphans[i + 1..] {
+            let (rs, rt) = (&attempt.segments[s].0, &attempt.segments[t].0);
+            let size = rs.count_ones(..);
+            if size == rt.count_ones(..) && rs.intersection_count(rt) + 1 == size {
+                let mut common = FixedBitSet::with_capacity(rs.len());
+                common.extend(rs.intersection(rt));
+                if attempt.segments.iter().all(|(r, _)| *r != common) {
+                    let mut dof_row = FixedBitSet::with_capacity(nd);
+                    for j in common.ones() {
+                        dof_row.extend(attempt.joints[j].iter().copied());
+                    }
+                    return Outcome::AddSegment(dof_row);
+                }
+            }
+        }
+    }
+    let s = orphans[0];
+    let segment = attempt.segments[s].1.clone();
+    let joints: Vec<usize> = attempt.segments[s].0.ones().collect();
+    Outcome::Conflict { segment, joints, reason: "no other segment's row equals this segment's row less one joint, so it hangs from nothing".into(), attempt }
+}
+
+/// Numbers the tree depth-first, derives its anatomy and suggests flips for left-out SUs.
+fn finish(
+    a: &ActivityMatrix,
+    t: Attempt,
+    mut diagnostics: Vec<Diagnostic>,
+    excluded: &[bool],
+    moving: &[usize],
+    dof_rows: &[FixedBitSet],
+) -> Structure {
+    let n = t.segments.len();
+    let mut children: Vec<Vec<(usize, usize)>> = vec![vec![]; n];
+    for (s, p) in t.parent.iter().enumerate() {
+        if let Some((p, j)) = p {
+            children[*p].push((t.joints[*j][0], s));
+        }
+    }
+    for c in &mut children {
+        c.sort();
+    }
+    // Depth-first order: S0 = root, and joint Jk is the parent joint of Sk.
+    let mut order = Vec::with_capacity(n);
+    let mut stack = vec![t.root];
+    while let Some(s) = stack.pop() {
+        order.push(s);
+        stack.extend(children[s].iter().rev().map(|&(_, c)| c));
+    }
+    let mut id = vec![String::new(); n];
+    for (k, &s) in order.iter().enumerate() {
+        id[s] = format!("S{k}");
+    }
+    let joint_id = |s: usize| format!("J{}", order.iter().position(|&x| x == s).unwrap_or(0));
+    let segments: Vec<SegmentNode> = order
+        .iter()
+        .map(|&s| SegmentNode {
+            id: id[s].clone(),
+            sus: t.segments[s].1.iter().map(|&u| a.sus[u].clone()).collect(),
+            parent_joint: t.parent[s].map(|_| joint_id(s)),
+            without_su: t.segments[s].1.is_empty(),
+        })
+        .collect();
+    let joints: Vec<JointNode> = order
+        .iter()
+        .filter_map(|&s| {
+            t.parent[s].map(|(p, j)| JointNode {
+                id: joint_id(s),
+                dofs: t.joints[j].iter().map(|&d| a.dofs[d].clone()).collect(),
+                parent: id[p].clone(),
+                child: id[s].clone(),
+            })
+        })
+        .collect();
+    // Joints of the attempt that connect nothing (all their SUs were left out).
+    let used: Vec<usize> = t.parent.iter().flatten().map(|&(_, j)| j).collect();
+    let mut unplaced_dofs: Vec<usize> = (0..a.dofs.len()).filter(|d| !moving.contains(d)).collect();
+    for (j, ds) in t.joints.iter().enumerate() {
+        if !used.contains(&j) {
+            unplaced_dofs.extend(ds);
+        }
+    }
+    unplaced_dofs.extend(
+        moving
+            .iter()
+            .copied()
+            .filter(|&d| !t.joints.iter().any(|j| j.contains(&d))),
+    );
+    unplaced_dofs.sort();
+    unplaced_dofs.dedup();
+
+    for j in &joints {
+        if j.dofs.len() > 1 {
+            diagnostics.push(Diagnostic {
+                kind: DiagnosticKind::MultiDofJoint,
+                severity: Severity::Info,
+                message: format!("{} combines {} DoFs with no SU between them; their order along the chain cannot be seen in the activity matrix (identical columns) and is listed in input order — kinematic estimation determines it", j.id, j.dofs.len()),
+                sus: vec![],
+                dofs: j.dofs.clone(),
+            });
+        }
+    }
+    for s in segments.iter().filter(|s| s.without_su && s.id != "S0") {
+        let out: Vec<&JointNode> = joints.iter().filter(|j| j.parent == s.id).collect();
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::SegmentWithoutSu,
+            severity: Severity::Warning,
+            message: format!("joints {} start from a segment that carries no SU; it was assumed as {} to connect the tree. Cover it with at least one SU so that it can be calibrated", out.iter().map(|j| j.id.as_str()).collect::<Vec<_>>().join(", "), s.id),
+            sus: vec![],
+            dofs: out.iter().flat_map(|j| j.dofs.clone()).collect(),
+        });
+    }
+
+    // Uncertain entries, and flips that would make a left-out SU fit a placed segment.
+    let mut uncertain = Vec::new();
+    for u in 0..a.sus.len() {
+        for d in 0..a.dofs.len() {
+            if a.is_uncertain(u, d) {
+                uncertain.push(UncertainEntry {
+                    su: a.sus[u].clone(),
+                    dof: a.dofs[d].clone(),
+                    change_g: a.change[u][d] / STANDARD_GRAVITY,
+                    active: a.is_active(u, d),
+                });
+            }
+        }
+    }
+    let placed_rows: HashMap<FixedBitSet, usize> = (0..n)
+        .map(|s| (dof_row_of_segment(&t, s, a.dofs.len()), s))
+        .collect();
+    for u in (0..a.sus.len()).filter(|&u| excluded[u]) {
+        for &d in moving {
+            if !a.is_uncertain(u, d) {
+                continue;
+            }
+            let mut flipped = dof_rows[u].clone();
+            flipped.toggle(d);
+            let flipped = expand_to_joints(&t, &flipped);
+            if let Some(&s) = placed_rows.get(&flipped) {
+                diagnostics.push(Diagnostic {
+                    kind: DiagnosticKind::UncertainEntry,
+                    severity: Severity::Warning,
+                    message: format!(
+                        "SU `{}` would sit on {} if its entry for DoF `{}` were {} (measured change {:.3} g against a threshold of {:.3} g): check that SU and that move, or re-run with another --threshold",
+                        a.sus[u], id[s], a.dofs[d], if a.is_active(u, d) { 0 } else { 1 }, a.change[u][d] / STANDARD_GRAVITY, a.threshold / STANDARD_GRAVITY
+                    ),
+                    sus: vec![a.sus[u].clone()],
+                    dofs: vec![a.dofs[d].clone()],
+                });
+            }
+        }
+    }
+
+    // Anatomy.
+    let degree = |s: usize| children[s].len() + usize::from(t.parent[s].is_some());
+    let end_effectors: Vec<String> = order
+        .iter()
+        .filter(|&&s| s != t.root && degree(s) == 1)
+        .map(|&s| id[s].clone())
+        .collect();
+    let branching: Vec<String> = order
+        .iter()
+        .filter(|&&s| s != t.root && degree(s) > 2)
+        .map(|&s| id[s].clone())
+        .collect();
+    let mut limbs = Vec::new();
+    for &reference in order.iter().filter(|&&s| s == t.root || degree(s) > 2) {
+        for &(_, first) in &children[reference] {
+            let mut limb = Limb {
+                from: id[reference].clone(),
+                to: String::new(),
+                joints: vec![],
+                segments: vec![],
+                dofs: vec![],
+                sus: vec![],
+            };
+            let mut s = first;
+            loop {
+                let (_, j) = t.parent[s].expect("children have parents");
+                limb.joints.push(joint_id(s));
+                limb.dofs
+                    .extend(t.joints[j].iter().map(|&d| a.dofs[d].clone()));
+                limb.segments.push(id[s].clone());
+                limb.sus
+                    .extend(t.segments[s].1.iter().map(|&u| a.sus[u].clone()));
+                if children[s].len() == 1 {
+                    s = children[s][0].1;
+                } else {
+                    break;
+                }
+            }
+            limb.to = id[s].clone();
+            limbs.push(limb);
+        }
+    }
+
+    let matrix = SortedMatrix {
+        segments: order.iter().map(|&s| id[s].clone()).collect(),
+        joints: order.iter().skip(1).map(|&s| joint_id(s)).collect(),
+        entries: order
+            .iter()
+            .map(|&s| {
+                order
+                    .iter()
+                    .skip(1)
+                    .map(|&c| t.parent[c].is_some_and(|(_, j)| t.segments[s].0.contains(j)))
+                    .collect()
+            })
+            .collect(),
+    };
+    diagnostics.sort_by_key(|d| std::cmp::Reverse(d.severity));
+    let complete = diagnostics.iter().all(|d| d.severity != Severity::Error);
+    Structure {
+        root: "S0".into(),
+        segments,
+        joints,
+        end_effectors,
+        branching,
+        limbs,
+        diagnostics,
+        complete,
+        unplaced_sus: (0..a.sus.len())
+            .filter(|&u| excluded[u])
+            .map(|u| a.sus[u].clone())
+            .collect(),
+        unplaced_dofs: unplaced_dofs.iter().map(|&d| a.dofs[d].clone()).collect(),
+        matrix,
+        uncertain,
+        threshold_g: a.threshold / STANDARD_GRAVITY,
+        orientations: a.orientations,
+    }
+}
+
+fn dof_row_of_segment(t: &Attempt, s: usize, nd: usize) -> FixedBitSet {
+    let mut b = FixedBitSet::with_capacity(nd);
+    for j in t.segments[s].0.ones() {
+        b.extend(t.joints[j].iter().copied());
+    }
+    b
+}
+
+/// A row over DoFs in the form of a placed segment's row: unchanged if it holds every DoF of each
+/// joint it touches; a row that splits a joint is returned as it is (and matches no segment).
+fn expand_to_joints(t: &Attempt, row: &FixedBitSet) -> FixedBitSet {
+    let mut b = FixedBitSet::with_capacity(row.len());
+    for ds in &t.joints {
+        let inside = ds.iter().filter(|&&d| row.contains(d)).count();
+        if inside == ds.len() {
+            b.extend(ds.iter().copied());
+        } else if inside > 0 {
+            return row.clone();
+        }
+    }
+    // DoFs outside every joint stay as they are.
+    for d in row.ones() {
+        if !t.joints.iter().any(|j| j.contains(&d)) {
+            b.insert(d);
+        }
+    }
+    b
+}
