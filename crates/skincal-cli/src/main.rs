@@ -14,7 +14,7 @@ use skincal::io::{self, SuPlacement};
 use skincal::model::presets::PRESETS;
 use skincal::model::sensor::ExcitationPattern;
 use skincal::report;
-use skincal::sim::{self, Imperfections, SimulationConfig};
+use skincal::sim::{self, Imperfections, RandomTreeConfig, SimulationConfig};
 
 const EXIT_CODES: &str = "\
 Exit codes:
@@ -49,6 +49,31 @@ enum Command {
     /// DIR/structure.json and DIR/structure.dot.
     #[command(after_help = EXIT_CODES)]
     Explore(ExploreArgs),
+    /// Measure speed on generated data and print a table (build with --release).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// Structural exploration, from readings to tree, on a random robot.
+    Explore(BenchExploreArgs),
+}
+
+#[derive(Debug, Args)]
+struct BenchExploreArgs {
+    /// Number of SUs of the random robot.
+    #[arg(long, default_value_t = 2000)]
+    sus: usize,
+    /// Number of DoFs of the random robot.
+    #[arg(long, default_value_t = 60)]
+    dofs: usize,
+    /// Timed repetitions.
+    #[arg(long, default_value_t = 30)]
+    repeat: usize,
+    /// Seed of the robot and the simulation.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 #[derive(Debug, Args)]
@@ -145,6 +170,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Simulate(args) => simulate(args),
         Command::Robots => robots(),
         Command::Explore(args) => explore(args),
+        Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
     }
 }
 
@@ -189,6 +215,60 @@ fn explore(args: ExploreArgs) -> Result<()> {
         "\nwrote {}\nwrote {}",
         json_path.display(),
         dot_path.display()
+    );
+    Ok(())
+}
+
+fn bench_explore(args: BenchExploreArgs) -> Result<()> {
+    use std::time::Instant;
+    let robot = sim::random_tree(
+        &RandomTreeConfig {
+            dofs: args.dofs,
+            sus: args.sus,
+            ..RandomTreeConfig::default()
+        },
+        args.seed,
+    )?;
+    let config = SimulationConfig {
+        training: false,
+        seed: args.seed,
+        ..SimulationConfig::default()
+    };
+    let set = sim::simulate(&robot, &config)?.measurements;
+    let explore_config = ExploreConfig::default();
+    let repeat = args.repeat.max(1);
+    let (mut activity_ms, mut tree_ms, mut total_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut structure = None;
+    for _ in 0..repeat {
+        let t0 = Instant::now();
+        let activity = skincal::explore::activity_matrix(&set, &explore_config)?;
+        let t1 = Instant::now();
+        let s = skincal::explore::structure_from_activity(&activity, &explore_config);
+        let t2 = Instant::now();
+        activity_ms.push((t1 - t0).as_secs_f64() * 1e3);
+        tree_ms.push((t2 - t1).as_secs_f64() * 1e3);
+        total_ms.push((t2 - t0).as_secs_f64() * 1e3);
+        structure = Some(s);
+    }
+    let s = structure.expect("at least one repetition");
+    println!(
+        "structural exploration, one thread: {} SUs × {} DoFs, {} base orientations, {} repetitions",
+        args.sus, args.dofs, config.tilted_orientation as usize + 1, repeat
+    );
+    println!(
+        "found {} segments, {} joints, {} limbs; complete: {}\n",
+        s.segments.len(),
+        s.joints.len(),
+        s.limbs.len(),
+        s.complete
+    );
+    print!(
+        "{}",
+        render::timing_table(&[
+            ("activity matrix", activity_ms),
+            ("merge, sort, tree", tree_ms),
+            ("readings → tree", total_ms)
+        ])
     );
     Ok(())
 }
@@ -285,9 +365,25 @@ fn demo(args: DemoArgs) -> Result<()> {
         seed: args.seed,
         ..SimulationConfig::default()
     };
-    println!("skincal demo: simulating the paper's 7-DoF arm (paper-7dof)\n");
-    let (files, summary) = write_simulation(&robot, &config, &out, true)?;
+    println!("skincal demo: the paper's 7-DoF arm (paper-7dof)\n");
+    println!("1. Simulated experiments\n");
+    let (mut files, summary) = write_simulation(&robot, &config, &out, true)?;
     print!("{summary}");
+    println!("\n2. Structural exploration\n");
+    let set = io::read_measurements(&files[0])?;
+    let structure = skincal::explore::explore(&set, &ExploreConfig::default())?;
+    print!("{}", report::tree(&structure));
+    println!();
+    print!("{}", report::diagnostics(&structure));
+    let (json_path, dot_path) = (out.join("structure.json"), out.join("structure.dot"));
+    io::write_all(
+        &[
+            (json_path.clone(), serde_json::to_string_pretty(&structure)?),
+            (dot_path.clone(), report::structure_dot(&structure)),
+        ],
+        true,
+    )?;
+    files.extend([json_path, dot_path]);
     println!();
     for f in files {
         println!("wrote {}", f.display());

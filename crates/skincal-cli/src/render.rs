@@ -144,3 +144,25 @@ pub fn structure_summary(s: &Structure) -> String {
     );
     out
 }
+
+/// Min, median and max of each named series of durations, ms.
+pub fn timing_table(rows: &[(&str, Vec<f64>)]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<20} {:>10} {:>10} {:>10}",
+        "stage", "min ms", "median ms", "max ms"
+    );
+    for (name, values) in rows {
+        let mut v = values.clone();
+        v.sort_by(f64::total_cmp);
+        let median = v[v.len() / 2];
+        let _ = writeln!(
+            out,
+            "{name:<20} {:>10.3} {median:>10.3} {:>10.3}",
+            v[0],
+            v[v.len() - 1]
+        );
+    }
+    out
+}

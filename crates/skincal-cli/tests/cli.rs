@@ -261,3 +261,73 @@ fn urdf_robots_simulate_with_random_sus() {
     assert_eq!(v["sus"].as_array().unwrap().len(), 10);
     assert_eq!(v["dofs"], serde_json::json!(["shoulder", "wrist"]));
 }
+
+#[test]
+fn explore_prints_the_tree_and_writes_json_and_dot() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(
+        &["simulate", "--robot", "humanoid", "--out", "h", "--poses", "2"],
+        d
+    )
+    .status
+    .success());
+    let out = skincal(&["explore", "h"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("14 segments, 13 joints (9 with several DoFs), 5 limbs"),
+        "{text}"
+    );
+    assert!(
+        text.contains("l_shoulder_pitch, l_shoulder_roll, l_shoulder_yaw"),
+        "{text}"
+    );
+    assert!(text.contains("The tree is complete."), "{text}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("h/structure.json")).unwrap())
+            .unwrap();
+    assert_eq!(v["root"], "S0");
+    for key in [
+        "segments",
+        "joints",
+        "end_effectors",
+        "branching",
+        "limbs",
+        "diagnostics",
+    ] {
+        assert!(v[key].is_array(), "{key}");
+    }
+    assert_eq!(v["joints"][0]["parent"], "S0");
+    assert!(v["segments"][0]["sus"].is_array());
+    assert!(v["limbs"][0]["joints"].is_array() && v["limbs"][0]["segments"].is_array());
+    let dot = std::fs::read_to_string(d.join("h/structure.dot")).unwrap();
+    assert!(
+        dot.starts_with("digraph structure {") && dot.contains("\"S0\" -> \"S1\""),
+        "{dot}"
+    );
+
+    let out = skincal(&["explore", "h/measurements.json", "--json"], d);
+    assert!(out.status.success());
+    let printed: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("--json prints only JSON");
+    assert_eq!(printed, v);
+}
+
+#[test]
+fn explore_refuses_what_it_cannot_use() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fails_with(&["explore", "nowhere"], d, &["nowhere/measurements.json"]);
+    std::fs::create_dir(d.join("t")).unwrap();
+    std::fs::write(d.join("t/measurements.json"), r#"{"format":"skincal-measurements","version":1,"units":{"acceleration":"m/s^2","angle":"rad"},"dofs":["a"],"sus":["s"]}"#).unwrap();
+    fails_with(&["explore", "t"], d, &["no structure experiment"]);
+    std::fs::write(d.join("t/measurements.json"), "{\"format\": 3").unwrap();
+    fails_with(&["explore", "t"], d, &["t/measurements.json", "line 1"]);
+    assert!(
+        skincal(&["simulate", "--robot", "paper-7dof", "--out", "p"], d)
+            .status
+            .success()
+    );
+    fails_with(&["explore", "p", "--threshold=-0.1"], d, &["threshold"]);
+}

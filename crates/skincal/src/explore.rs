@@ -432,6 +432,9 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
         b
     };
     let dof_rows: Vec<FixedBitSet> = (0..nu).map(row_of).collect();
+    let uncertain: Vec<usize> = (0..nu)
+        .map(|u| moving.iter().filter(|&&d| a.is_uncertain(u, d)).count())
+        .collect();
     let mut excluded = vec![false; nu];
 
     // Null-row SUs must turn together with the reference segment when the base is re-oriented.
@@ -493,7 +496,15 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
     let attempt = loop {
         rounds += 1;
         let active: Vec<usize> = (0..nu).filter(|&u| !excluded[u]).collect();
-        match attempt_tree(&dof_rows, &active, &moving, &extra_rows, nd, rounds < limit) {
+        match attempt_tree(
+            &dof_rows,
+            &active,
+            &moving,
+            &extra_rows,
+            nd,
+            rounds < limit,
+            &uncertain,
+        ) {
             Outcome::Tree(t) => break t,
             Outcome::AddSegment(row) => extra_rows.push(row),
             Outcome::Conflict {
@@ -538,6 +549,7 @@ fn attempt_tree(
     extra_rows: &[FixedBitSet],
     nd: usize,
     may_assume_segments: bool,
+    uncertain: &[usize],
 ) -> Outcome {
     // Columns over active SUs; DoFs with identical non-empty columns form a joint.
     let mut columns: BTreeMap<Vec<usize>, Vec<usize>> = BTreeMap::new();
@@ -599,6 +611,18 @@ fn attempt_tree(
         }
     };
     let n = segments.len();
+    // Of several segments in conflict, the one to leave out: the one whose SUs have the most
+    // uncertain entries, then the one with the fewest SUs, then the first named (the segment
+    // being placed).
+    let suspect = |parties: &[usize]| -> usize {
+        *parties
+            .iter()
+            .min_by_key(|&&p| {
+                let doubt: usize = segments[p].1.iter().map(|&u| uncertain[u]).sum();
+                (std::cmp::Reverse(doubt), segments[p].1.len())
+            })
+            .expect("a conflict has parties")
+    };
     let mut parent: Vec<Option<(usize, usize)>> = vec![None; n];
     let mut claimed: Vec<Option<usize>> = vec![None; joints.len()];
     let mut placed = vec![false; n];
@@ -625,11 +649,7 @@ fn attempt_tree(
                     .next()
                     .expect("rows differ by one joint");
                 if let Some(other) = claimed[j] {
-                    let guilty = if segments[other].1.len() < segments[s].1.len() {
-                        other
-                    } else {
-                        s
-                    };
+                    let guilty = suspect(&[s, other]);
                     conflict = Some((guilty, vec![j], format!("two segments claim to be the one that joint of DoF(s) {:?} moves directly", joints[j])));
                     break;
                 }
@@ -640,7 +660,7 @@ fn attempt_tree(
             [] => orphans.push(s),
             many => {
                 conflict = Some((
-                    s,
+                    suspect(&[&[s][..], many].concat()),
                     row.ones().collect(),
                     format!(
                         "a segment could hang from {} different segments",

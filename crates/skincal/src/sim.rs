@@ -469,3 +469,153 @@ pub fn structure_move(limits: &crate::model::Limits, rest: f64, angle: f64) -> f
         limits.lower
     }
 }
+
+/// Settings of [`random_tree`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RandomTreeConfig {
+    /// Number of DoFs.
+    pub dofs: usize,
+    /// Number of SUs (at least one per segment that carries skin).
+    pub sus: usize,
+    /// Largest number of DoFs in one joint (DoFs with no SU between them).
+    pub max_joint_dofs: usize,
+    /// Fraction of DoF axes that are exactly vertical at the rest pose.
+    pub vertical_axes: f64,
+    /// Probability that a new joint continues the newest segment rather than a random one
+    /// (higher: longer chains, lower: bushier trees).
+    pub chain_bias: f64,
+}
+
+impl Default for RandomTreeConfig {
+    fn default() -> Self {
+        Self {
+            dofs: 20,
+            sus: 100,
+            max_joint_dofs: 3,
+            vertical_axes: 0.2,
+            chain_bias: 0.6,
+        }
+    }
+}
+
+/// A random robot: a tree of segments joined by joints of 1 to `max_joint_dofs` revolute DoFs
+/// (the segments between the DoFs of one joint carry no SU), random link offsets (0.1–0.4 m) and
+/// orientations, random axes of which a fraction is exactly vertical at the rest pose, freely
+/// turning DoFs, and SUs spread over every other segment (at least one each, the reference
+/// included) within ±0.1 m of the segment frame, randomly oriented. Seeded.
+///
+/// Names: DoFs `dof1…`, segments `seg0…` (the reference is `seg0`), SUs `su1…`.
+pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, SimulationError> {
+    use crate::model::description::random_su_placement;
+    use crate::model::{DofSpec, Limits, PlacementSpec, RobotBuilder, SuSpec};
+    use nalgebra::{Isometry3, UnitQuaternion};
+
+    let bad = |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
+    if config.dofs == 0 {
+        return bad("dofs", "must be at least 1".into());
+    }
+    if config.max_joint_dofs == 0 {
+        return bad("max_joint_dofs", "must be at least 1".into());
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let unit = |rng: &mut ChaCha8Rng| loop {
+        let v = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let n = v.norm();
+        if n > 0.1 && n <= 1.0 {
+            break v / n;
+        }
+    };
+    let rotation = |rng: &mut ChaCha8Rng| {
+        UnitQuaternion::from_scaled_axis(unit(rng) * rng.random_range(0.0..std::f64::consts::PI))
+    };
+
+    let mut builder = RobotBuilder::new(
+        format!("random-{}dof-{}su-{seed}", config.dofs, config.sus),
+        "seg0",
+    );
+    // Real segments (those that carry skin) with their rest orientation in the reference frame.
+    let mut real: Vec<(String, UnitQuaternion<f64>)> =
+        vec![("seg0".into(), UnitQuaternion::identity())];
+    let mut n = 0;
+    while n < config.dofs {
+        let parent = if real.len() == 1 || rng.random_bool(config.chain_bias) {
+            real.len() - 1
+        } else {
+            rng.random_range(0..real.len())
+        };
+        let (mut segment, mut orientation) = real[parent].clone();
+        let k = rng.random_range(1..=config.max_joint_dofs.min(config.dofs - n));
+        for i in 0..k {
+            n += 1;
+            let length = if i == 0 {
+                rng.random_range(0.1..0.4)
+            } else {
+                rng.random_range(0.0..0.03)
+            };
+            let offset: Vector3<f64> = unit(&mut rng) * length;
+            let origin = Isometry3::from_parts(offset.into(), rotation(&mut rng));
+            let joint = orientation * origin.rotation;
+            let axis = if rng.random_bool(config.vertical_axes.clamp(0.0, 1.0)) {
+                joint.inverse_transform_vector(&Vector3::z())
+            } else {
+                unit(&mut rng)
+            };
+            let child = if i + 1 == k {
+                format!("seg{}", real.len())
+            } else {
+                format!("link_dof{n}")
+            };
+            builder.dofs.push(DofSpec {
+                name: format!("dof{n}"),
+                parent: segment,
+                child: child.clone(),
+                origin: PlacementSpec::from_isometry(&origin),
+                axis,
+                limits: Limits {
+                    velocity: Some(2.0),
+                    acceleration: Some(10.0),
+                    ..Limits::CONTINUOUS
+                },
+            });
+            segment = child;
+            orientation = joint;
+        }
+        real.push((segment, orientation));
+    }
+    if config.sus < real.len() {
+        return bad(
+            "sus",
+            format!(
+                "{} SUs cannot cover {} segments: give at least one per segment",
+                config.sus,
+                real.len()
+            ),
+        );
+    }
+    let mut count = vec![1usize; real.len()];
+    for _ in real.len()..config.sus {
+        count[rng.random_range(0..real.len())] += 1;
+    }
+    let mut k = 0;
+    for ((segment, _), &c) in real.iter().zip(&count) {
+        for _ in 0..c {
+            k += 1;
+            let anchor = Isometry3::translation(
+                rng.random_range(-0.05..0.05),
+                rng.random_range(-0.05..0.05),
+                rng.random_range(-0.05..0.05),
+            );
+            builder.sus.push(SuSpec {
+                name: format!("su{k}"),
+                segment: segment.clone(),
+                placement: random_su_placement(&mut rng, &anchor),
+            });
+        }
+    }
+    builder
+        .build()
+        .map_err(|e| SimulationError::InvalidSetting {
+            setting: "random tree",
+            reason: e.to_string(),
+        })
+}

@@ -4,6 +4,7 @@
 
 mod common;
 mod descriptions;
+mod exploration;
 mod kinematics;
 mod measurements;
 mod paper;
