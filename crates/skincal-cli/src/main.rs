@@ -9,6 +9,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
+use skincal::estimate::paper::PaperConfig;
+use skincal::estimate::{self, ChainData, SerialChain};
 use skincal::explore::ExploreConfig;
 use skincal::io::{self, SuPlacement};
 use skincal::model::presets::PRESETS;
@@ -49,15 +51,67 @@ enum Command {
     /// DIR/structure.json and DIR/structure.dot.
     #[command(after_help = EXIT_CODES)]
     Explore(ExploreArgs),
+    /// Kinematic estimation: fit the serial chain of every limb to DIR/measurements.json; writes
+    /// DIR/model-paper.json.
+    #[command(after_help = EXIT_CODES)]
+    Calibrate(CalibrateArgs),
     /// Measure speed on generated data and print a table (build with --release).
     #[command(subcommand)]
     Bench(BenchCommand),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Method {
+    /// The paper's method: progressive NLopt MLSL-LDS + Nelder-Mead on e_T.
+    Paper,
+}
+
+#[derive(Debug, Args)]
+struct CalibrateArgs {
+    /// Directory with measurements.json (and structure.json, truth.json if present).
+    dir: PathBuf,
+    /// Estimation method.
+    #[arg(long, value_enum, default_value_t = Method::Paper)]
+    method: Method,
+    /// Only the limb that ends at this segment (e.g. S7; see `skincal explore`).
+    #[arg(long, value_name = "ID")]
+    limb: Option<String>,
+    /// Seed of the optimiser's random numbers.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Global stop of the paper's method: e_T ≤ E (g²).
+    #[arg(long, value_name = "E", default_value_t = 0.1)]
+    e_stop: f64,
+    /// Cap on error-function evaluations per step.
+    #[arg(long, default_value_t = 100_000)]
+    max_evaluations: u32,
 }
 
 #[derive(Debug, Subcommand)]
 enum BenchCommand {
     /// Structural exploration, from readings to tree, on a random robot.
     Explore(BenchExploreArgs),
+    /// Kinematic estimation of paper-7dof over many noise seeds: time, evaluations, accuracy.
+    Calibrate(BenchCalibrateArgs),
+}
+
+#[derive(Debug, Args)]
+struct BenchCalibrateArgs {
+    /// Estimation method.
+    #[arg(long, value_enum, default_value_t = Method::Paper)]
+    method: Method,
+    /// Number of noise seeds (data sets), 1…N.
+    #[arg(long, default_value_t = 10)]
+    seeds: u64,
+    /// Training poses P.
+    #[arg(long, default_value_t = 20)]
+    poses: usize,
+    /// Uniform noise, g.
+    #[arg(long, value_name = "G", default_value_t = 0.01)]
+    noise: f64,
+    /// Print one row per seed.
+    #[arg(long)]
+    verbose: bool,
 }
 
 #[derive(Debug, Args)]
@@ -170,7 +224,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Simulate(args) => simulate(args),
         Command::Robots => robots(),
         Command::Explore(args) => explore(args),
+        Command::Calibrate(args) => calibrate(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
+        Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
     }
 }
 
@@ -215,6 +271,167 @@ fn explore(args: ExploreArgs) -> Result<()> {
         "\nwrote {}\nwrote {}",
         json_path.display(),
         dot_path.display()
+    );
+    Ok(())
+}
+
+/// The serial chains to calibrate: from DIR/structure.json, else from exploring the set, else the
+/// DoFs in listed order.
+fn chains_of(
+    set: &skincal::measurements::MeasurementSet,
+    dir: &Path,
+) -> Result<(Vec<SerialChain>, String)> {
+    let structure_path = dir.join("structure.json");
+    let (structure, source) = if structure_path.exists() {
+        (
+            Some(io::read_structure(&structure_path)?),
+            format!("limbs from {}", structure_path.display()),
+        )
+    } else if set.structure.is_some() {
+        (
+            Some(skincal::explore::explore(set, &ExploreConfig::default())?),
+            "limbs from exploring the structure experiment".to_string(),
+        )
+    } else {
+        (
+            None,
+            "no structure experiment: the DoFs in listed order as one chain".to_string(),
+        )
+    };
+    let chains = match structure {
+        Some(s) => {
+            if !s.complete {
+                anyhow::bail!("the explored structure is incomplete (see `skincal explore`): fix the structure experiment before calibrating");
+            }
+            estimate::serial_chains(&s)?
+        }
+        None => vec![estimate::chain_in_listed_order(set)?],
+    };
+    Ok((chains, source))
+}
+
+fn calibrate(args: CalibrateArgs) -> Result<()> {
+    let (file, dir) = measurement_paths(&args.dir);
+    let set = io::read_measurements(&file)?;
+    let (mut chains, source) = chains_of(&set, &dir)?;
+    if let Some(limb) = &args.limb {
+        let known = chains
+            .iter()
+            .map(|c| c.name.clone())
+            .collect::<Vec<_>>()
+            .join(", ");
+        chains.retain(|c| &c.name == limb);
+        if chains.is_empty() {
+            return Err(estimate::EstimateError::UnknownLimb {
+                limb: limb.clone(),
+                known,
+            }
+            .into());
+        }
+    }
+    let truth_path = dir.join("truth.json");
+    let truth = if truth_path.exists() {
+        let t = io::read_truth(&truth_path)?;
+        Some(
+            t.robot
+                .build()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path.display()))?,
+        )
+    } else {
+        None
+    };
+    let Method::Paper = args.method;
+    let config = PaperConfig {
+        seed: args.seed,
+        e_stop: args.e_stop,
+        max_evaluations: args.max_evaluations,
+        ..PaperConfig::default()
+    };
+    println!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
+    let mut estimates = Vec::new();
+    for chain in &chains {
+        let data = ChainData::new(&set, chain)?;
+        let estimate = estimate::paper::estimate_chain(&data, &config)?;
+        println!(
+            "limb {} ({} DoFs, {} training poses)\n",
+            chain.name,
+            chain.dofs.len(),
+            data.poses()
+        );
+        let true_rows = truth
+            .as_ref()
+            .and_then(|t| estimate::true_dh_table(t, chain));
+        print!("{}", report::dh_tables(&estimate, true_rows.as_ref()));
+        println!("\nOptimization steps\n");
+        print!("{}", report::optimization_steps(&estimate));
+        if let Some(t) = &truth {
+            let accuracy = estimate::consecutive_su_errors(t, &estimate.robot(), chain, 30, 1)?;
+            println!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
+            print!("{}", report::chain_accuracy(&accuracy));
+        }
+        println!();
+        estimates.push(estimate);
+    }
+    let model = serde_json::json!({ "format": "skincal-model-paper", "version": 1, "method": "paper", "limbs": estimates });
+    let out = dir.join("model-paper.json");
+    io::write_all(
+        &[(out.clone(), serde_json::to_string_pretty(&model)?)],
+        true,
+    )?;
+    println!("wrote {}", out.display());
+    if estimates.iter().any(|e| !e.converged()) {
+        eprintln!("warning: some steps did not reach e_T ≤ e_stop (marked !)");
+    }
+    Ok(())
+}
+
+fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
+    let truth = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let chain = SerialChain {
+        name: "S7".into(),
+        dofs: truth.model.dof_names(),
+        sus: truth.model.su_names(),
+    };
+    let Method::Paper = args.method;
+    println!(
+        "paper-7dof, P = {}, uniform ±{} g noise, {} seeds; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
+        args.poses, args.noise, args.seeds
+    );
+    let mut rows = Vec::new();
+    for seed in 1..=args.seeds {
+        let config = SimulationConfig {
+            poses: args.poses,
+            seed,
+            imperfections: Imperfections {
+                uniform_noise: args.noise,
+                ..Imperfections::none()
+            },
+            ..SimulationConfig::default()
+        };
+        let set = sim::simulate(&truth, &config)?.measurements;
+        let data = ChainData::new(&set, &chain)?;
+        let estimate = estimate::paper::estimate_chain(
+            &data,
+            &PaperConfig {
+                seed,
+                ..PaperConfig::default()
+            },
+        )?;
+        let accuracy =
+            estimate::consecutive_su_errors(&truth, &estimate.robot(), &chain, 30, 1000 + seed)?;
+        rows.push(render::BenchRow {
+            seed,
+            converged: estimate.converged(),
+            seconds: estimate.seconds(),
+            evaluations: estimate.evaluations(),
+            accuracy,
+        });
+    }
+    let fig6 = skincal::model::presets::PAPER_FIG6_ESTIMATE.robot()?;
+    let fig6_accuracy = estimate::consecutive_su_errors(&truth, &fig6, &chain, 30, 1000)?;
+    print!(
+        "{}",
+        render::calibration_bench(&rows, args.verbose, &fig6_accuracy)
     );
     Ok(())
 }

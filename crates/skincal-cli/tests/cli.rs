@@ -331,3 +331,63 @@ fn explore_refuses_what_it_cannot_use() {
     );
     fails_with(&["explore", "p", "--threshold=-0.1"], d, &["threshold"]);
 }
+
+#[test]
+fn calibrate_with_the_papers_method_prints_fig6_and_writes_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(
+        skincal(&["simulate", "--robot", "paper-7dof", "--out", "p"], d)
+            .status
+            .success()
+    );
+    let out = skincal(&["calibrate", "p", "--method", "paper", "--limb", "S7"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for needle in [
+        "DoF-DoF transformation parameters",
+        "DoF-SU transformation parameters",
+        "real",
+        "est",
+        "Optimization steps",
+        "dof6→dof7",
+        "dof7→su7",
+        "su6→su7",
+    ] {
+        assert!(text.contains(needle), "`{needle}` missing in:\n{text}");
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("p/model-paper.json")).unwrap())
+            .unwrap();
+    assert_eq!(v["method"], "paper");
+    let limb = &v["limbs"][0];
+    assert_eq!(limb["dof_dof"].as_array().unwrap().len(), 6);
+    assert_eq!(limb["dof_su"].as_array().unwrap().len(), 7);
+    assert_eq!(limb["steps"].as_array().unwrap().len(), 7);
+    assert!(limb["dof_su"][6]["theta_acc"].is_f64());
+    fails_with(
+        &["calibrate", "p", "--limb", "S9"],
+        d,
+        &["no limb `S9`", "S7"],
+    );
+}
+
+#[test]
+fn calibrate_explains_what_the_papers_method_cannot_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(
+        &["simulate", "--robot", "humanoid", "--out", "h", "--poses", "12"],
+        d
+    )
+    .status
+    .success());
+    fails_with(
+        &["calibrate", "h", "--method", "paper"],
+        d,
+        &["DoFs", "with no SU between them"],
+    );
+    std::fs::create_dir(d.join("s")).unwrap();
+    std::fs::write(d.join("s/measurements.json"), r#"{"format":"skincal-measurements","version":1,"units":{"acceleration":"m/s^2","angle":"rad"},"dofs":["a"],"sus":["s"]}"#).unwrap();
+    fails_with(&["calibrate", "s"], d, &["no training experiment"]);
+}

@@ -226,3 +226,11 @@ pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError
     }
     result
 }
+
+/// Reads a structure written by exploration (`structure.json`).
+pub fn read_structure(path: &Path) -> Result<crate::explore::Structure, IoError> {
+    serde_json::from_str(&read(path)?).map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}

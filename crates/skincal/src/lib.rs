@@ -25,6 +25,7 @@
 
 #![warn(missing_docs)]
 
+pub mod estimate;
 pub mod explore;
 pub mod io;
 pub mod measurements;

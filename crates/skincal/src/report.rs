@@ -184,3 +184,187 @@ fn abbreviate(names: &[String], keep: usize) -> String {
         format!("{}, … ({} in all)", names[..keep].join(", "), names.len())
     }
 }
+
+/// The paper's Fig. 6 for one chain: DoF-to-DoF and DoF-to-SU tables, with the true values beside
+/// the estimates when known and deviations above 0.1 (rad or m) marked with `*`.
+pub fn dh_tables(
+    estimate: &crate::estimate::paper::PaperChainEstimate,
+    truth: Option<&(Vec<crate::estimate::DhRow>, Vec<crate::estimate::SuRow>)>,
+) -> String {
+    let mut out = String::new();
+    let chain = &estimate.chain;
+    let dd: Vec<(String, Vec<f64>)> = estimate
+        .dof_dof
+        .iter()
+        .enumerate()
+        .map(|(k, r)| {
+            (
+                format!("{}→{}", chain.dofs[k], chain.dofs[k + 1]),
+                vec![r.theta0, r.d, r.a, r.alpha],
+            )
+        })
+        .collect();
+    let ds: Vec<(String, Vec<f64>)> = estimate
+        .dof_su
+        .iter()
+        .enumerate()
+        .map(|(k, r)| {
+            (
+                format!("{}→{}", chain.dofs[k], chain.sus[k]),
+                vec![r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc],
+            )
+        })
+        .collect();
+    let true_dd: Option<Vec<Vec<f64>>> = truth.map(|(rows, _)| {
+        rows.iter()
+            .map(|r| vec![r.theta0, r.d, r.a, r.alpha])
+            .collect()
+    });
+    let true_ds: Option<Vec<Vec<f64>>> = truth.map(|(_, rows)| {
+        rows.iter()
+            .map(|r| vec![r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc])
+            .collect()
+    });
+    if !dd.is_empty() {
+        let _ = writeln!(out, "DoF-DoF transformation parameters");
+        table(&mut out, &dd, true_dd.as_deref(), &["θ0", "d", "a", "α"]);
+        out.push('\n');
+    }
+    let _ = writeln!(out, "DoF-SU transformation parameters");
+    table(
+        &mut out,
+        &ds,
+        true_ds.as_deref(),
+        &["θ0", "d", "a", "α", "θ_acc", "d_acc"],
+    );
+    if truth.is_some() {
+        let _ = writeln!(out, "(* deviation above 0.1 rad or m)");
+    }
+    out
+}
+
+fn table(
+    out: &mut String,
+    columns: &[(String, Vec<f64>)],
+    truth: Option<&[Vec<f64>]>,
+    rows: &[&str],
+) {
+    let per = if truth.is_some() { 16 } else { 8 };
+    let width = columns
+        .iter()
+        .map(|(n, _)| n.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(per);
+    let _ = write!(out, "{:7}", "");
+    for (name, _) in columns {
+        let _ = write!(out, " {name:>width$}");
+    }
+    out.push('\n');
+    if truth.is_some() {
+        let _ = write!(out, "{:7}", "");
+        for _ in columns {
+            let _ = write!(
+                out,
+                " {:>w$}",
+                format!("{:>7} {:>8}", "real", "est"),
+                w = width
+            );
+        }
+        out.push('\n');
+    }
+    for (i, row) in rows.iter().enumerate() {
+        let _ = write!(out, "{row:7}");
+        for (c, (_, values)) in columns.iter().enumerate() {
+            let est = values[i];
+            let cell = match truth {
+                Some(t) => {
+                    let real = t[c][i];
+                    let mut diff = est - real;
+                    if !matches!(*row, "d" | "a" | "d_acc") {
+                        diff = (diff + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+                            - std::f64::consts::PI;
+                    }
+                    let mark = if diff.abs() > 0.1 { "*" } else { " " };
+                    format!("{real:>7.3} {est:>7.3}{mark}")
+                }
+                None => format!("{est:>8.3}"),
+            };
+            let _ = write!(out, " {cell:>width$}");
+        }
+        out.push('\n');
+    }
+}
+
+/// The paper's "Optimization Steps" table.
+pub fn optimization_steps(estimate: &crate::estimate::paper::PaperChainEstimate) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:>5} {:>8} {:>6} {:>12} {:>10} {:>10}  stop",
+        "step", "SU", "params", "evaluations", "time s", "e_T"
+    );
+    for s in &estimate.steps {
+        let _ = writeln!(
+            out,
+            "{:>5} {:>8} {:>6} {:>12} {:>10.3} {:>10.4}{} {}",
+            s.step,
+            s.su,
+            s.parameters.len(),
+            s.evaluations,
+            s.seconds,
+            s.e_t,
+            if s.converged { " " } else { "!" },
+            s.stop
+        );
+    }
+    let _ = writeln!(
+        out,
+        "{:>5} {:>8} {:>6} {:>12} {:>10.3} {:>10}",
+        "total",
+        "",
+        "",
+        estimate.evaluations(),
+        estimate.seconds(),
+        ""
+    );
+    if !estimate.converged() {
+        let _ = writeln!(
+            out,
+            "! e_T above e_stop = {}: the step did not converge",
+            estimate.config.e_stop
+        );
+    }
+    out
+}
+
+/// Pose errors of consecutive SUs against the truth.
+pub fn chain_accuracy(a: &crate::estimate::ChainAccuracy) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:>18} {:>12} {:>12} {:>12} {:>12}",
+        "SU pair", "pos RMS mm", "pos max mm", "rot RMS °", "rot max °"
+    );
+    for p in &a.pairs {
+        let _ = writeln!(
+            out,
+            "{:>18} {:>12.2} {:>12.2} {:>12.3} {:>12.3}",
+            format!("{}→{}", p.from, p.to),
+            p.position_rms * 1e3,
+            p.position_max * 1e3,
+            p.rotation_rms.to_degrees(),
+            p.rotation_max.to_degrees()
+        );
+    }
+    let _ = writeln!(
+        out,
+        "{:>18} {:>12.2} {:>12.2} {:>12.3} {:>12.3}",
+        "all",
+        a.position_rms * 1e3,
+        a.position_max * 1e3,
+        a.rotation_rms.to_degrees(),
+        a.rotation_max.to_degrees()
+    );
+    out
+}

@@ -4,6 +4,7 @@
 
 mod common;
 mod descriptions;
+mod estimation;
 mod exploration;
 mod kinematics;
 mod measurements;

@@ -24,6 +24,13 @@ pub const PRESETS: &[Preset] = &[
     },
 ];
 
+/// The paper's own estimate of `paper-7dof` (its Fig. 6 `est` columns) in the description format:
+/// reference data for comparing estimators, not a robot to simulate.
+pub const PAPER_FIG6_ESTIMATE: Preset = Preset {
+    name: "paper-7dof-fig6-estimate",
+    toml: include_str!("../../presets/paper-7dof-fig6-estimate.toml"),
+};
+
 /// The built-in robot with this name, if there is one.
 pub fn find(name: &str) -> Option<&'static Preset> {
     PRESETS.iter().find(|p| p.name == name)

@@ -1,0 +1,509 @@
+//! Kinematic estimation (paper Section II-C, Algorithm 2): fitting serial-chain models of the limbs
+//! to the training experiment.
+//!
+//! A **serial chain** runs from the static reference segment through DoFs `1…N` to an end effector,
+//! with one SU on every segment (the paper's chain model). Its DH form (paper eqs. 4–7) is a table of
+//! DoF-to-DoF rows `(θ0, d, a, α)` and DoF-to-SU rows `(θ0, d, a, α, θ_acc, d_acc)`; the reference frame
+//! is the first DoF's axis frame (`DoF1_T_RS = I`).
+//!
+//! Accuracy is judged where it is physically meaningful ([`consecutive_su_errors`]): the pose of each SU
+//! relative to the previous SU of the chain, over random held-out poses, against the truth. Parameters
+//! such as the first transform's `θ0` and `d`, or DH equivalences like `(θ+π, d, −a, −α)`, cannot be
+//! determined from accelerometer data and are not compared one by one.
+
+pub mod paper;
+
+use nalgebra::{Isometry3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::explore::Structure;
+use crate::measurements::MeasurementSet;
+use crate::model::{
+    forward_kinematics, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec,
+};
+
+/// Errors that stop an estimation before it starts.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum EstimateError {
+    /// The measurement set has no training experiment.
+    #[error("the measurement set has no training experiment (`training`): record static and dynamic readings in random poses first")]
+    NoTrainingData,
+    /// A DoF or SU of the chain is missing from the measurement set.
+    #[error("{what} `{name}` of limb {limb} is not in the measurement set")]
+    Unknown {
+        /// "DoF" or "SU".
+        what: &'static str,
+        /// Its name.
+        name: String,
+        /// The limb.
+        limb: String,
+    },
+    /// A training pose lacks the dynamic readings the chain needs.
+    #[error("training.poses[{pose}] has no dynamic readings for DoF `{dof}`, which limb {limb} needs: record the excitation pattern of every DoF of the limb in every pose")]
+    MissingDynamic {
+        /// The pose index.
+        pose: usize,
+        /// The DoF.
+        dof: String,
+        /// The limb.
+        limb: String,
+    },
+    /// Too few training poses for the number of parameters.
+    #[error("{poses} training poses cannot determine {parameters} parameters per step: record at least {parameters} poses")]
+    TooFewPoses {
+        /// Poses recorded.
+        poses: usize,
+        /// Parameters of the largest step.
+        parameters: usize,
+    },
+    /// The measurement set is not valid.
+    #[error("invalid measurement set: {0}")]
+    Measurements(String),
+    /// A limb that the method cannot model.
+    #[error("limb {limb}: {reason}")]
+    UnsupportedLimb {
+        /// The limb.
+        limb: String,
+        /// Why, and what to do.
+        reason: String,
+    },
+    /// A limb id that the structure does not have.
+    #[error("no limb `{limb}`: the structure's limbs end at {known}")]
+    UnknownLimb {
+        /// What was asked.
+        limb: String,
+        /// The limbs there are.
+        known: String,
+    },
+    /// A setting is out of range.
+    #[error("{setting}: {reason}")]
+    InvalidSetting {
+        /// The setting.
+        setting: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// A serial chain from the static reference to an end effector, one SU per segment.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SerialChain {
+    /// Its name: the end segment's id in the explored structure, or `chain`.
+    pub name: String,
+    /// DoFs from the reference outwards.
+    pub dofs: Vec<String>,
+    /// `sus[k]`: the SU on the segment that DoF `k` moves directly.
+    pub sus: Vec<String>,
+}
+
+/// The serial chains from the reference segment to every end effector of an explored structure,
+/// with the first SU of every segment. Every joint on them must have a single DoF (the paper's
+/// chain model); the error names the joint otherwise.
+pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, EstimateError> {
+    let mut chains = Vec::new();
+    for end in &structure.end_effectors {
+        let mut dofs = Vec::new();
+        let mut sus = Vec::new();
+        let mut segment = structure.segment(end).expect("end effectors are segments");
+        while let Some(joint_id) = &segment.parent_joint {
+            let joint = structure.joint(joint_id).expect("parent joints exist");
+            if joint.dofs.len() != 1 {
+                return Err(EstimateError::UnsupportedLimb {
+                    limb: end.clone(),
+                    reason: format!(
+                        "joint {} has {} DoFs ({}) with no SU between them; the paper's chain model needs one SU after every DoF",
+                        joint.id,
+                        joint.dofs.len(),
+                        joint.dofs.join(", ")
+                    ),
+                });
+            }
+            let su = segment
+                .sus
+                .first()
+                .ok_or_else(|| EstimateError::UnsupportedLimb {
+                    limb: end.clone(),
+                    reason: format!("segment {} carries no SU", segment.id),
+                })?;
+            dofs.push(joint.dofs[0].clone());
+            sus.push(su.clone());
+            segment = structure.segment(&joint.parent).expect("parents exist");
+        }
+        dofs.reverse();
+        sus.reverse();
+        chains.push(SerialChain {
+            name: end.clone(),
+            dofs,
+            sus,
+        });
+    }
+    Ok(chains)
+}
+
+/// Without a structure: the DoFs of the set in their order as one chain, the `k`-th SU on the
+/// segment after the `k`-th DoF. Needs as many SUs as DoFs.
+pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<SerialChain, EstimateError> {
+    if set.sus.len() != set.dofs.len() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: "chain".into(),
+            reason: format!(
+                "without a structure (no structure experiment, no structure.json) the DoFs are taken as one chain in listed order with one SU per segment, but there are {} SUs for {} DoFs: record the structure experiment",
+                set.sus.len(),
+                set.dofs.len()
+            ),
+        });
+    }
+    Ok(SerialChain {
+        name: "chain".into(),
+        dofs: set.dofs.clone(),
+        sus: set.sus.clone(),
+    })
+}
+
+/// The training data of one chain, in chain order, in m/s².
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainData {
+    /// The chain.
+    pub chain: SerialChain,
+    /// `q[p][k]`: position of chain DoF `k` in pose `p`.
+    pub q: Vec<Vec<f64>>,
+    /// `static_readings[p][k]`: static reading of chain SU `k` in pose `p`.
+    pub static_readings: Vec<Vec<Vector3<f64>>>,
+    /// `dynamic[p][k][j]`: dynamic acceleration of chain SU `k` for the pattern of chain DoF `j`.
+    pub dynamic: Vec<Vec<Vec<Vector3<f64>>>>,
+    /// The excitation pattern.
+    pub pattern: crate::model::sensor::ExcitationPattern,
+}
+
+impl ChainData {
+    /// Extracts and checks the data of `chain`.
+    pub fn new(set: &MeasurementSet, chain: &SerialChain) -> Result<Self, EstimateError> {
+        set.validate()
+            .map_err(|e| EstimateError::Measurements(e.to_string()))?;
+        let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
+        if training.poses.is_empty() {
+            return Err(EstimateError::NoTrainingData);
+        }
+        let find = |what, names: &[String], name: &String| {
+            names
+                .iter()
+                .position(|n| n == name)
+                .ok_or_else(|| EstimateError::Unknown {
+                    what,
+                    name: name.clone(),
+                    limb: chain.name.clone(),
+                })
+        };
+        let dof_index: Vec<usize> = chain
+            .dofs
+            .iter()
+            .map(|d| find("DoF", &set.dofs, d))
+            .collect::<Result<_, _>>()?;
+        let su_index: Vec<usize> = chain
+            .sus
+            .iter()
+            .map(|s| find("SU", &set.sus, s))
+            .collect::<Result<_, _>>()?;
+        let mut q = Vec::new();
+        let mut static_readings = Vec::new();
+        let mut dynamic = Vec::new();
+        for (p, pose) in training.poses.iter().enumerate() {
+            q.push(dof_index.iter().map(|&d| pose.q[d]).collect());
+            static_readings.push(
+                su_index
+                    .iter()
+                    .map(|&u| Vector3::from(pose.static_readings[u]))
+                    .collect(),
+            );
+            let mut per_su = vec![Vec::with_capacity(chain.dofs.len()); chain.sus.len()];
+            for dof in &chain.dofs {
+                let readings =
+                    pose.dynamic
+                        .get(dof)
+                        .ok_or_else(|| EstimateError::MissingDynamic {
+                            pose: p,
+                            dof: dof.clone(),
+                            limb: chain.name.clone(),
+                        })?;
+                for (k, &u) in su_index.iter().enumerate() {
+                    per_su[k].push(Vector3::from(readings[u]));
+                }
+            }
+            dynamic.push(per_su);
+        }
+        Ok(Self {
+            chain: chain.clone(),
+            q,
+            static_readings,
+            dynamic,
+            pattern: training.pattern,
+        })
+    }
+
+    /// Number of poses.
+    pub fn poses(&self) -> usize {
+        self.q.len()
+    }
+}
+
+/// A DoF-to-DoF row of the paper's table (Fig. 6), m and rad.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DhRow {
+    /// Joint angle offset.
+    pub theta0: f64,
+    /// Offset along z.
+    pub d: f64,
+    /// Length along x.
+    pub a: f64,
+    /// Twist about x.
+    pub alpha: f64,
+}
+
+/// A DoF-to-SU row of the paper's table (Fig. 6), m and rad.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SuRow {
+    /// Joint angle offset.
+    pub theta0: f64,
+    /// Offset along z.
+    pub d: f64,
+    /// Length along x.
+    pub a: f64,
+    /// Twist about x.
+    pub alpha: f64,
+    /// Rotation of the accelerometer about the virtual axis.
+    pub theta_acc: f64,
+    /// Translation of the accelerometer along the virtual axis.
+    pub d_acc: f64,
+}
+
+/// The paper's chain model as a [`Robot`]: reference `reference`, DoF `k+1` placed on the segment
+/// of DoF `k` by `dof_dof[k]`, SU `k` on the segment of DoF `k` by `dof_su[k]`. `dof_su` may be
+/// shorter than the chain (only the first SUs), and `dof_dof` has one row less than the DoFs used.
+pub fn dh_chain_robot(
+    chain: &SerialChain,
+    dofs: usize,
+    dof_dof: &[DhRow],
+    dof_su: &[(usize, SuRow)],
+) -> Robot {
+    let mut b = RobotBuilder::new(chain.name.clone(), "reference");
+    let segment = |k: usize| format!("segment_{}", chain.dofs[k]);
+    for k in 0..dofs {
+        let origin = if k == 0 {
+            PlacementSpec::identity()
+        } else {
+            let r = dof_dof[k - 1];
+            PlacementSpec::dh(r.theta0, r.d, r.a, r.alpha)
+        };
+        b.dofs.push(DofSpec {
+            name: chain.dofs[k].clone(),
+            parent: if k == 0 {
+                "reference".into()
+            } else {
+                segment(k - 1)
+            },
+            child: segment(k),
+            origin,
+            axis: Vector3::z(),
+            limits: Limits::CONTINUOUS,
+        });
+    }
+    for &(k, r) in dof_su {
+        b.sus.push(SuSpec {
+            name: chain.sus[k].clone(),
+            segment: segment(k),
+            placement: PlacementSpec::dh_sensor(r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc),
+        });
+    }
+    b.build()
+        .expect("a DH chain with distinct names is a valid tree")
+}
+
+/// Errors of one consecutive SU pair over held-out poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PairError {
+    /// The previous SU.
+    pub from: String,
+    /// The SU whose pose relative to `from` is judged.
+    pub to: String,
+    /// RMS position error, m.
+    pub position_rms: f64,
+    /// Largest position error, m.
+    pub position_max: f64,
+    /// RMS rotation error, rad.
+    pub rotation_rms: f64,
+    /// Largest rotation error, rad.
+    pub rotation_max: f64,
+}
+
+/// Accuracy of a chain estimate against the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChainAccuracy {
+    /// Per consecutive SU pair.
+    pub pairs: Vec<PairError>,
+    /// RMS position error over all pairs and poses, m.
+    pub position_rms: f64,
+    /// Largest position error, m.
+    pub position_max: f64,
+    /// RMS rotation error over all pairs and poses, rad.
+    pub rotation_rms: f64,
+    /// Largest rotation error, rad.
+    pub rotation_max: f64,
+    /// Number of held-out poses.
+    pub poses: usize,
+}
+
+/// The pose of every SU of `chain` relative to the previous SU, estimated against true, over
+/// `poses` random poses (each chain DoF uniform in `±2.62 rad ∩` its true limits; other DoFs of
+/// the truth at 0), seeded.
+///
+/// Both robots must name the chain's DoFs and SUs. The relative pose is `T_prev⁻¹ · T_su`; the
+/// position error is the norm of the difference of the translations (in the previous SU's frame),
+/// the rotation error the angle of `R_trueᵀ · R_est`. For the first pair only, the position error
+/// along the first DoF's axis is left out: the first SU is moved by the first DoF alone, whose
+/// accelerations are all perpendicular to its axis, so no reading tells how far the first SU sits
+/// from the second along that axis.
+pub fn consecutive_su_errors(
+    truth: &Robot,
+    estimate: &Robot,
+    chain: &SerialChain,
+    poses: usize,
+    seed: u64,
+) -> Result<ChainAccuracy, EstimateError> {
+    let index =
+        |robot: &Robot, what: &'static str, name: &String| -> Result<usize, EstimateError> {
+            let found = if what == "DoF" {
+                robot.model.dof_index(name)
+            } else {
+                robot.model.su_index(name)
+            };
+            found.ok_or_else(|| EstimateError::Unknown {
+                what,
+                name: name.clone(),
+                limb: chain.name.clone(),
+            })
+        };
+    let t_dofs: Vec<usize> = chain
+        .dofs
+        .iter()
+        .map(|d| index(truth, "DoF", d))
+        .collect::<Result<_, _>>()?;
+    let e_dofs: Vec<usize> = chain
+        .dofs
+        .iter()
+        .map(|d| index(estimate, "DoF", d))
+        .collect::<Result<_, _>>()?;
+    let t_sus: Vec<usize> = chain
+        .sus
+        .iter()
+        .map(|s| index(truth, "SU", s))
+        .collect::<Result<_, _>>()?;
+    let e_sus: Vec<usize> = chain
+        .sus
+        .iter()
+        .map(|s| index(estimate, "SU", s))
+        .collect::<Result<_, _>>()?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let n_pairs = chain.sus.len().saturating_sub(1);
+    let mut pos = vec![Vec::new(); n_pairs];
+    let mut rot = vec![Vec::new(); n_pairs];
+    for _ in 0..poses {
+        let mut qt = vec![0.0; truth.model.dofs().len()];
+        let mut qe = vec![0.0; estimate.model.dofs().len()];
+        for (k, &d) in t_dofs.iter().enumerate() {
+            let l = &truth.model.dofs()[d].limits;
+            let (lo, hi) = (l.lower.max(-2.62), l.upper.min(2.62));
+            let v = if hi > lo {
+                rng.random_range(lo..=hi)
+            } else {
+                lo
+            };
+            qt[d] = v;
+            qe[e_dofs[k]] = v;
+        }
+        let kt = forward_kinematics(&truth.model, &truth.parameters, &qt);
+        let ke = forward_kinematics(&estimate.model, &estimate.parameters, &qe);
+        for i in 0..n_pairs {
+            let rel = |k: &crate::model::Kinematics<f64>, a: usize, b: usize| -> Isometry3<f64> {
+                k.sus[a].inverse() * k.sus[b]
+            };
+            let true_rel = rel(&kt, t_sus[i], t_sus[i + 1]);
+            let est_rel = rel(&ke, e_sus[i], e_sus[i + 1]);
+            let mut error = est_rel.translation.vector - true_rel.translation.vector;
+            if i == 0 {
+                let axis = kt.sus[t_sus[0]]
+                    .rotation
+                    .inverse_transform_vector(&kt.axis(&truth.model, t_dofs[0]));
+                error -= axis * axis.dot(&error);
+            }
+            pos[i].push(error.norm());
+            rot[i].push((true_rel.rotation.inverse() * est_rel.rotation).angle());
+        }
+    }
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    let pairs = (0..n_pairs)
+        .map(|i| PairError {
+            from: chain.sus[i].clone(),
+            to: chain.sus[i + 1].clone(),
+            position_rms: rms(&pos[i]),
+            position_max: max(&pos[i]),
+            rotation_rms: rms(&rot[i]),
+            rotation_max: max(&rot[i]),
+        })
+        .collect();
+    let all_pos: Vec<f64> = pos.concat();
+    let all_rot: Vec<f64> = rot.concat();
+    Ok(ChainAccuracy {
+        pairs,
+        position_rms: rms(&all_pos),
+        position_max: max(&all_pos),
+        rotation_rms: rms(&all_rot),
+        rotation_max: max(&all_rot),
+        poses,
+    })
+}
+
+/// The true DH table of `chain`, when the truth is written in the paper's DH form (DoFs placed by
+/// DH rows on the previous DoF's segment, SUs by DH-plus-sensor rows); `None` otherwise.
+pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+    use crate::model::Parameterization as P;
+    let m = &truth.model;
+    let mut rows = Vec::new();
+    for k in 1..chain.dofs.len() {
+        let dof = &m.dofs()[m.dof_index(&chain.dofs[k])?];
+        let previous = m.dof_index(&chain.dofs[k - 1])?;
+        if dof.origin.kind != P::StandardDh || m.segments()[dof.parent].parent_dof != Some(previous)
+        {
+            return None;
+        }
+        let v = &truth.parameters[dof.origin.range()];
+        rows.push(DhRow {
+            theta0: v[0],
+            d: v[1],
+            a: v[2],
+            alpha: v[3],
+        });
+    }
+    let mut sus = Vec::new();
+    for (k, name) in chain.sus.iter().enumerate() {
+        let su = &m.sus()[m.su_index(name)?];
+        if su.placement.kind != P::StandardDhSensor
+            || m.segments()[su.segment].parent_dof != m.dof_index(&chain.dofs[k])
+        {
+            return None;
+        }
+        let v = &truth.parameters[su.placement.range()];
+        sus.push(SuRow {
+            theta0: v[0],
+            d: v[1],
+            a: v[2],
+            alpha: v[3],
+            theta_acc: v[4],
+            d_acc: v[5],
+        });
+    }
+    Some((rows, sus))
+}

@@ -1,0 +1,390 @@
+//! The paper's estimator (Section II-C.3–4), implemented faithfully as the baseline.
+//!
+//! **Error function** (eqs. 14–17), with accelerations in g:
+//!
+//! ```text
+//! e_T = e1 + e2
+//! e1  = Σ_p | R_ref←SU_N(q_p) · g_p − (1/P) Σ_p' R_ref←SU_N(q_p') · g_p' |²
+//! e2  = Σ_p Σ_d | a_model(N, d, p) − a_train(N, d, p) |²,  d over the (up to) three DoFs before SU N
+//! ```
+//!
+//! where `g_p` is SU N's static reading in pose `p` and `a` its dynamic acceleration for DoF `d`'s
+//! pattern (eq. 8; the model's peak tangential acceleration, which eq. 9 approximates numerically).
+//! Eq. 17's index range reads `d = N−3…N`, the text says three DoFs; three are used.
+//!
+//! **Progressive estimation** (Fig. 4): step `N` fits only the new DoF-to-DoF row `(N−1 → N)` and the
+//! DoF-to-SU row of SU `N`, re-using every row estimated before: 4 parameters in step 1 (the first
+//! DoF-to-SU row's `θ0` and `d` are arbitrary and fixed at 0), 8 in step 2 (the first DoF-to-DoF row's
+//! `θ0` and `d` are arbitrary and fixed at 0), 10 from step 3 on.
+//!
+//! **Optimiser**: NLopt's MLSL with low-discrepancy sampling (`G_MLSL_LDS`) and Nelder–Mead
+//! (`LN_NELDERMEAD`) as local optimiser, bounds of eq. 18 (`θ0, α, θ_acc ∈ [−π, π]`, `d, d_acc ∈ [−1, 1]`,
+//! `a ∈ [0, 1]`) with the start in their middle, the global stop `e_T ≤ e_stop`, the local stop
+//! `Δe_T / e_T ≤ ftol_rel`, and a cap on evaluations. NLopt's random numbers are seeded per step, so a
+//! run repeats exactly.
+
+use std::f64::consts::PI;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use nlopt::{Algorithm, Nlopt, Target};
+use serde::{Deserialize, Serialize};
+
+use super::{dh_chain_robot, ChainData, DhRow, EstimateError, SerialChain, SuRow};
+use crate::model::forward_kinematics;
+use crate::model::sensor::{peak_dynamic_accelerations_at, STANDARD_GRAVITY};
+use crate::model::Robot;
+
+/// Settings of the paper's estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PaperConfig {
+    /// Global stop: a step ends as soon as `e_T ≤ e_stop` (g²; paper: 0.1).
+    pub e_stop: f64,
+    /// Local relative stop of Nelder–Mead (paper: 1e-6).
+    pub ftol_rel: f64,
+    /// Cap on error-function evaluations per step.
+    pub max_evaluations: u32,
+    /// Seed of NLopt's random numbers.
+    pub seed: u64,
+    /// How many DoFs before the SU are excited in e2 (paper: 3).
+    pub excited_dofs: usize,
+}
+
+impl Default for PaperConfig {
+    fn default() -> Self {
+        Self {
+            e_stop: 0.1,
+            ftol_rel: 1e-6,
+            max_evaluations: 100_000,
+            seed: 1,
+            excited_dofs: 3,
+        }
+    }
+}
+
+/// What one progressive step did (the paper's "Optimization Steps" table).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepReport {
+    /// Step number `N` (1-based): it fits SU `N`.
+    pub step: usize,
+    /// The SU it fits.
+    pub su: String,
+    /// The DoFs whose patterns enter e2.
+    pub excited: Vec<String>,
+    /// The parameters it estimates.
+    pub parameters: Vec<String>,
+    /// Error-function evaluations.
+    pub evaluations: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+    /// Final `e_T`, g².
+    pub e_t: f64,
+    /// Whether `e_T ≤ e_stop`.
+    pub converged: bool,
+    /// NLopt's termination reason.
+    pub stop: String,
+}
+
+/// The paper's estimate of one chain: its DH table (Fig. 6) and how the steps went.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PaperChainEstimate {
+    /// The chain.
+    pub chain: SerialChain,
+    /// DoF-to-DoF rows `k → k+1`.
+    pub dof_dof: Vec<DhRow>,
+    /// DoF-to-SU rows, one per SU.
+    pub dof_su: Vec<SuRow>,
+    /// Parameters fixed because the data cannot determine them.
+    pub fixed: Vec<String>,
+    /// The steps.
+    pub steps: Vec<StepReport>,
+    /// The settings used.
+    pub config: PaperConfig,
+}
+
+impl PaperChainEstimate {
+    /// Whether every step reached `e_T ≤ e_stop`.
+    pub fn converged(&self) -> bool {
+        self.steps.iter().all(|s| s.converged)
+    }
+
+    /// The estimated chain as a robot (names as in the chain).
+    pub fn robot(&self) -> Robot {
+        let sus: Vec<(usize, SuRow)> = self.dof_su.iter().copied().enumerate().collect();
+        dh_chain_robot(&self.chain, self.chain.dofs.len(), &self.dof_dof, &sus)
+    }
+
+    /// Total evaluations over all steps.
+    pub fn evaluations(&self) -> usize {
+        self.steps.iter().map(|s| s.evaluations).sum()
+    }
+
+    /// Total wall time over all steps, s.
+    pub fn seconds(&self) -> f64 {
+        self.steps.iter().map(|s| s.seconds).sum()
+    }
+}
+
+/// The paper's `e_T` of step `n` (0-based SU index) for the full step parameter vector
+/// (DoF-to-DoF rows `0…n−1` then SU `n`'s row, as laid out by [`dh_chain_robot`]).
+struct StepProblem<'a> {
+    data: &'a ChainData,
+    robot: Robot,
+    n: usize,
+    excited: std::ops::Range<usize>,
+}
+
+impl StepProblem<'_> {
+    fn error(&self, parameters: &[f64]) -> f64 {
+        let g = STANDARD_GRAVITY;
+        let model = &self.robot.model;
+        let mut rotated = Vec::with_capacity(self.data.poses());
+        let mut e2 = 0.0;
+        for p in 0..self.data.poses() {
+            let q = &self.data.q[p][..=self.n];
+            let k = forward_kinematics(model, parameters, q);
+            rotated.push(k.sus[0].rotation * (self.data.static_readings[p][self.n] / g));
+            for d in self.excited.clone() {
+                let model_a =
+                    peak_dynamic_accelerations_at(model, &k, d, &self.data.pattern)[0] / g;
+                e2 += (model_a - self.data.dynamic[p][self.n][d] / g).norm_squared();
+            }
+        }
+        let mean: Vector3<f64> = rotated.iter().sum::<Vector3<f64>>() / rotated.len() as f64;
+        let e1: f64 = rotated.iter().map(|r| (r - mean).norm_squared()).sum();
+        e1 + e2
+    }
+}
+
+const ROW: [&str; 4] = ["theta0", "d", "a", "alpha"];
+const SU_ROW: [&str; 6] = ["theta0", "d", "a", "alpha", "theta_acc", "d_acc"];
+
+fn bounds(name: &str) -> (f64, f64) {
+    match name {
+        "d" | "d_acc" => (-1.0, 1.0),
+        "a" => (0.0, 1.0),
+        _ => (-PI, PI),
+    }
+}
+
+/// Estimates one chain progressively with the paper's method.
+pub fn estimate_chain(
+    data: &ChainData,
+    config: &PaperConfig,
+) -> Result<PaperChainEstimate, EstimateError> {
+    validate(config)?;
+    let n_dofs = data.chain.dofs.len();
+    let largest = match n_dofs {
+        1 => 4,
+        2 => 8,
+        _ => 10,
+    };
+    if data.poses() < largest {
+        return Err(EstimateError::TooFewPoses {
+            poses: data.poses(),
+            parameters: largest,
+        });
+    }
+    let chain = &data.chain;
+    let mut dof_dof: Vec<DhRow> = Vec::new();
+    let mut dof_su: Vec<SuRow> = Vec::new();
+    let mut steps = Vec::new();
+    for n in 0..n_dofs {
+        // Which entries of (new DoF-to-DoF row, SU row) are free in this step.
+        let row_free: &[&str] = match n {
+            0 => &[],
+            1 => &["a", "alpha"],
+            _ => &ROW,
+        };
+        let su_free: &[&str] = if n == 0 {
+            &["a", "alpha", "theta_acc", "d_acc"]
+        } else {
+            &SU_ROW
+        };
+        let mut names: Vec<String> = Vec::new();
+        let (mut lower, mut upper) = (Vec::new(), Vec::new());
+        for (prefix, free) in [
+            (
+                format!(
+                    "{}-{}",
+                    chain.dofs.get(n.wrapping_sub(1)).map_or("", |s| s),
+                    chain.dofs[n]
+                ),
+                row_free,
+            ),
+            (format!("{}-{}", chain.dofs[n], chain.sus[n]), su_free),
+        ] {
+            for &p in free {
+                names.push(format!("{prefix}.{p}"));
+                let (lo, hi) = bounds(p);
+                lower.push(lo);
+                upper.push(hi);
+            }
+        }
+        let excited = n + 1 - config.excited_dofs.min(n + 1)..n + 1;
+        let placeholder = SuRow {
+            theta0: 0.0,
+            d: 0.0,
+            a: 0.0,
+            alpha: 0.0,
+            theta_acc: 0.0,
+            d_acc: 0.0,
+        };
+        let mut rows = dof_dof.clone();
+        if n > 0 {
+            rows.push(DhRow {
+                theta0: 0.0,
+                d: 0.0,
+                a: 0.0,
+                alpha: 0.0,
+            });
+        }
+        let problem = StepProblem {
+            data,
+            robot: dh_chain_robot(chain, n + 1, &rows, &[(n, placeholder)]),
+            n,
+            excited: excited.clone(),
+        };
+        let fixed_prefix: Vec<f64> = dof_dof
+            .iter()
+            .flat_map(|r| [r.theta0, r.d, r.a, r.alpha])
+            .collect();
+        let assemble = |x: &[f64]| -> Vec<f64> {
+            let mut v = fixed_prefix.clone();
+            let mut it = x.iter().copied();
+            if n > 0 {
+                for p in ROW {
+                    v.push(if row_free.contains(&p) {
+                        it.next().expect("free")
+                    } else {
+                        0.0
+                    });
+                }
+            }
+            for p in SU_ROW {
+                v.push(if su_free.contains(&p) {
+                    it.next().expect("free")
+                } else {
+                    0.0
+                });
+            }
+            v
+        };
+        let objective =
+            |x: &[f64], _gradient: Option<&mut [f64]>, evaluations: &mut usize| -> f64 {
+                *evaluations += 1;
+                problem.error(&assemble(x))
+            };
+        let mut x: Vec<f64> = lower
+            .iter()
+            .zip(&upper)
+            .map(|(lo, hi)| 0.5 * (lo + hi))
+            .collect();
+        let started = Instant::now();
+        Nlopt::<fn(&[f64], Option<&mut [f64]>, &mut ()) -> f64, ()>::srand_seed(Some(
+            config.seed.wrapping_add(n as u64),
+        ));
+        let mut opt = Nlopt::new(
+            Algorithm::GMlslLds,
+            x.len(),
+            objective,
+            Target::Minimize,
+            0usize,
+        );
+        let setup = [
+            opt.set_lower_bounds(&lower),
+            opt.set_upper_bounds(&upper),
+            opt.set_stopval(config.e_stop),
+            opt.set_maxeval(config.max_evaluations),
+        ];
+        let mut local = opt.get_local_optimizer(Algorithm::Neldermead);
+        let local_setup = local.set_ftol_rel(config.ftol_rel);
+        let setup_local = opt.set_local_optimizer(local);
+        if setup
+            .iter()
+            .chain([&local_setup, &setup_local])
+            .any(|r| r.is_err())
+        {
+            return Err(EstimateError::InvalidSetting {
+                setting: "nlopt",
+                reason: "NLopt refused the bounds or stop criteria".into(),
+            });
+        }
+        let outcome = opt.optimize(&mut x);
+        let evaluations = opt.recover_user_data();
+        let seconds = started.elapsed().as_secs_f64();
+        let stop = match &outcome {
+            Ok((state, _)) => format!("{state:?}"),
+            Err((state, _)) => format!("{state:?}"),
+        };
+        let v = assemble(&x);
+        let e_t = problem.error(&v);
+        if n > 0 {
+            let o = 4 * (n - 1);
+            dof_dof.push(DhRow {
+                theta0: v[o],
+                d: v[o + 1],
+                a: v[o + 2],
+                alpha: v[o + 3],
+            });
+        }
+        let o = v.len() - 6;
+        dof_su.push(SuRow {
+            theta0: v[o],
+            d: v[o + 1],
+            a: v[o + 2],
+            alpha: v[o + 3],
+            theta_acc: v[o + 4],
+            d_acc: v[o + 5],
+        });
+        steps.push(StepReport {
+            step: n + 1,
+            su: chain.sus[n].clone(),
+            excited: excited.map(|d| chain.dofs[d].clone()).collect(),
+            parameters: names,
+            evaluations,
+            seconds,
+            e_t,
+            converged: e_t <= config.e_stop,
+            stop,
+        });
+    }
+    let mut fixed = vec![
+        format!("{}-{}.theta0", chain.dofs[0], chain.sus[0]),
+        format!("{}-{}.d", chain.dofs[0], chain.sus[0]),
+    ];
+    if n_dofs > 1 {
+        fixed.extend([
+            format!("{}-{}.theta0", chain.dofs[0], chain.dofs[1]),
+            format!("{}-{}.d", chain.dofs[0], chain.dofs[1]),
+        ]);
+    }
+    Ok(PaperChainEstimate {
+        chain: chain.clone(),
+        dof_dof,
+        dof_su,
+        fixed,
+        steps,
+        config: *config,
+    })
+}
+
+fn validate(config: &PaperConfig) -> Result<(), EstimateError> {
+    let bad = |setting, reason: String| Err(EstimateError::InvalidSetting { setting, reason });
+    if !(config.e_stop.is_finite() && config.e_stop >= 0.0) {
+        return bad(
+            "e_stop",
+            format!("{} must be zero or positive", config.e_stop),
+        );
+    }
+    if !(config.ftol_rel.is_finite() && config.ftol_rel > 0.0) {
+        return bad("ftol_rel", format!("{} must be positive", config.ftol_rel));
+    }
+    if config.max_evaluations == 0 {
+        return bad("max_evaluations", "must be at least 1".into());
+    }
+    if config.excited_dofs == 0 {
+        return bad("excited_dofs", "must be at least 1".into());
+    }
+    Ok(())
+}
