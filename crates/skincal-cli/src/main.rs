@@ -61,7 +61,9 @@ enum Command {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum Method {
+pub(crate) enum Method {
+    /// Maximum likelihood on the raw readings: closed-form start, Levenberg-Marquardt, covariance.
+    Ml,
     /// The paper's method: progressive NLopt MLSL-LDS + Nelder-Mead on e_T.
     Paper,
 }
@@ -71,8 +73,11 @@ struct CalibrateArgs {
     /// Directory with measurements.json (and structure.json, truth.json if present).
     dir: PathBuf,
     /// Estimation method.
-    #[arg(long, value_enum, default_value_t = Method::Paper)]
+    #[arg(long, value_enum, default_value_t = Method::Ml)]
     method: Method,
+    /// Noise of the readings (uniform ±G, in g) for weighting and the convergence test of `ml`.
+    #[arg(long, value_name = "G", default_value_t = 0.01)]
+    noise: f64,
     /// Only the limb that ends at this segment (e.g. S7; see `skincal explore`).
     #[arg(long, value_name = "ID")]
     limb: Option<String>,
@@ -95,11 +100,21 @@ enum BenchCommand {
     Calibrate(BenchCalibrateArgs),
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum BenchMethod {
+    /// Both estimators on the same data.
+    Both,
+    /// Maximum likelihood only.
+    Ml,
+    /// The paper's method only.
+    Paper,
+}
+
 #[derive(Debug, Args)]
 struct BenchCalibrateArgs {
-    /// Estimation method.
-    #[arg(long, value_enum, default_value_t = Method::Paper)]
-    method: Method,
+    /// Estimators to run.
+    #[arg(long, value_enum, default_value_t = BenchMethod::Both)]
+    method: BenchMethod,
     /// Number of noise seeds (data sets), 1…N.
     #[arg(long, default_value_t = 10)]
     seeds: u64,
@@ -340,7 +355,9 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     } else {
         None
     };
-    let Method::Paper = args.method;
+    if args.method == Method::Ml {
+        return calibrate_ml(&args, &set, &chains, truth.as_ref(), &source, &dir);
+    }
     let config = PaperConfig {
         seed: args.seed,
         e_stop: args.e_stop,
@@ -385,19 +402,77 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     Ok(())
 }
 
+fn calibrate_ml(
+    args: &CalibrateArgs,
+    set: &skincal::measurements::MeasurementSet,
+    chains: &[SerialChain],
+    truth: Option<&skincal::model::Robot>,
+    source: &str,
+    dir: &Path,
+) -> Result<()> {
+    use skincal::estimate::ml::{self, MlConfig};
+    let config = MlConfig {
+        noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
+        ..MlConfig::default()
+    };
+    println!(
+        "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g); {source}\n",
+        config.noise_sd, args.noise
+    );
+    let mut estimates = Vec::new();
+    for chain in chains {
+        let data = ChainData::new(set, chain)?;
+        let estimate = ml::estimate_chain(&data, &config)?;
+        println!(
+            "limb {} ({} DoFs, {} training poses)\n",
+            chain.name,
+            chain.dofs.len(),
+            data.poses()
+        );
+        print!("{}", render::ml_summary(&estimate));
+        if let Some(t) = truth {
+            let accuracy = estimate::consecutive_su_errors(t, &estimate.to_robot(), chain, 30, 1)?;
+            println!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
+            print!("{}", report::chain_accuracy(&accuracy));
+        }
+        println!();
+        estimates.push(estimate);
+    }
+    let model = serde_json::json!({ "format": "skincal-model", "version": 1, "method": "ml", "noise_sd": config.noise_sd, "limbs": estimates });
+    let out = dir.join("model.json");
+    io::write_all(
+        &[(out.clone(), serde_json::to_string_pretty(&model)?)],
+        true,
+    )?;
+    println!("wrote {}", out.display());
+    if estimates.iter().any(|e| !e.converged) {
+        eprintln!("warning: some limbs did not converge to the noise level (see above)");
+    }
+    Ok(())
+}
+
 fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
+    use skincal::estimate::ml::{self, MlConfig};
     let truth = io::load_robot("paper-7dof", SuPlacement::default())?;
     let chain = SerialChain {
         name: "S7".into(),
         dofs: truth.model.dof_names(),
         sus: truth.model.su_names(),
     };
-    let Method::Paper = args.method;
+    let g = skincal::model::sensor::STANDARD_GRAVITY;
+    let sd = args.noise * g / 3f64.sqrt();
     println!(
-        "paper-7dof, P = {}, uniform ±{} g noise, {} seeds; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
-        args.poses, args.noise, args.seeds
+        "paper-7dof, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds 1…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
+        args.poses, args.noise, sd, args.seeds
     );
-    let mut rows = Vec::new();
+    let methods: Vec<Method> = match args.method {
+        BenchMethod::Both => vec![Method::Ml, Method::Paper],
+        BenchMethod::Ml => vec![Method::Ml],
+        BenchMethod::Paper => vec![Method::Paper],
+    };
+    let mut rows: Vec<(Method, Vec<render::BenchRow>)> =
+        methods.iter().map(|&m| (m, Vec::new())).collect();
+    let (mut bound_position, mut bound_rotation) = (0.0, 0.0);
     for seed in 1..=args.seeds {
         let config = SimulationConfig {
             poses: args.poses,
@@ -410,28 +485,58 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         };
         let set = sim::simulate(&truth, &config)?.measurements;
         let data = ChainData::new(&set, &chain)?;
-        let estimate = estimate::paper::estimate_chain(
+        if let Some((p, r)) = ml::cramer_rao_bound(
+            &truth,
+            &skincal::model::sensor::gravity_upright(),
             &data,
-            &PaperConfig {
+            sd.max(1e-9),
+            30,
+            1000 + seed,
+        ) {
+            bound_position += p * p;
+            bound_rotation += r * r;
+        }
+        for (method, list) in &mut rows {
+            let (robot, converged, seconds, evaluations) = match method {
+                Method::Paper => {
+                    let e = estimate::paper::estimate_chain(
+                        &data,
+                        &PaperConfig {
+                            seed,
+                            ..PaperConfig::default()
+                        },
+                    )?;
+                    (e.robot(), e.converged(), e.seconds(), e.evaluations())
+                }
+                Method::Ml => {
+                    let e = ml::estimate_chain(
+                        &data,
+                        &MlConfig {
+                            noise_sd: sd.max(1e-6),
+                            ..MlConfig::default()
+                        },
+                    )?;
+                    (e.to_robot(), e.converged, e.seconds, e.iterations)
+                }
+            };
+            let accuracy =
+                estimate::consecutive_su_errors(&truth, &robot, &chain, 30, 1000 + seed)?;
+            list.push(render::BenchRow {
                 seed,
-                ..PaperConfig::default()
-            },
-        )?;
-        let accuracy =
-            estimate::consecutive_su_errors(&truth, &estimate.robot(), &chain, 30, 1000 + seed)?;
-        rows.push(render::BenchRow {
-            seed,
-            converged: estimate.converged(),
-            seconds: estimate.seconds(),
-            evaluations: estimate.evaluations(),
-            accuracy,
-        });
+                converged,
+                seconds,
+                evaluations,
+                accuracy,
+            });
+        }
     }
+    let n = args.seeds.max(1) as f64;
+    let bound = ((bound_position / n).sqrt(), (bound_rotation / n).sqrt());
     let fig6 = skincal::model::presets::PAPER_FIG6_ESTIMATE.robot()?;
     let fig6_accuracy = estimate::consecutive_su_errors(&truth, &fig6, &chain, 30, 1000)?;
     print!(
         "{}",
-        render::calibration_bench(&rows, args.verbose, &fig6_accuracy)
+        render::calibration_bench(&rows, args.verbose, &fig6_accuracy, bound)
     );
     Ok(())
 }

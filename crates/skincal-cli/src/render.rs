@@ -177,14 +177,15 @@ pub struct BenchRow {
 }
 
 pub fn calibration_bench(
-    rows: &[BenchRow],
+    methods: &[(crate::Method, Vec<BenchRow>)],
     verbose: bool,
     fig6: &skincal::estimate::ChainAccuracy,
+    bound: (f64, f64),
 ) -> String {
     let mut out = String::new();
     let header = format!(
-        "{:<26} {:>10} {:>12} {:>12} {:>12} {:>11} {:>11}",
-        "", "time s", "evaluations", "pos RMS mm", "pos max mm", "rot RMS °", "rot max °"
+        "{:<34} {:>10} {:>12} {:>12} {:>12} {:>11} {:>11}",
+        "", "median s", "median iter", "pos RMS mm", "pos max mm", "rot RMS °", "rot max °"
     );
     let _ = writeln!(out, "{header}");
     let line = |out: &mut String,
@@ -192,61 +193,99 @@ pub fn calibration_bench(
                 seconds: Option<f64>,
                 evaluations: Option<f64>,
                 a: (f64, f64, f64, f64)| {
-        let s = seconds.map_or("—".into(), |s| format!("{s:.3}"));
+        let s = seconds.map_or("—".into(), |s| format!("{s:.4}"));
         let e = evaluations.map_or("—".into(), |e| format!("{e:.0}"));
         let _ = writeln!(
             out,
-            "{label:<26} {s:>10} {e:>12} {:>12.2} {:>12.2} {:>11.3} {:>11.3}",
+            "{label:<34} {s:>10} {e:>12} {:>12.2} {:>12.2} {:>11.3} {:>11.3}",
             a.0 * 1e3,
             a.1 * 1e3,
             a.2.to_degrees(),
             a.3.to_degrees()
         );
     };
-    if verbose {
-        for r in rows {
-            let a = &r.accuracy;
-            line(
-                &mut out,
-                &format!(
-                    "seed {}{}",
-                    r.seed,
-                    if r.converged { "" } else { " (not converged)" }
-                ),
-                Some(r.seconds),
-                Some(r.evaluations as f64),
-                (
-                    a.position_rms,
-                    a.position_max,
-                    a.rotation_rms,
-                    a.rotation_max,
-                ),
-            );
-        }
-    }
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
-    let n = rows.len() as f64;
-    let pooled =
-        |f: fn(&BenchRow) -> f64| (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / n).sqrt();
-    let worst = |f: fn(&BenchRow) -> f64| rows.iter().map(f).fold(0.0, f64::max);
-    line(
-        &mut out,
-        &format!("all {} seeds (median; RMS)", rows.len()),
-        Some(median(rows.iter().map(|r| r.seconds).collect())),
-        Some(median(rows.iter().map(|r| r.evaluations as f64).collect())),
-        (
-            pooled(|r| r.accuracy.position_rms),
-            worst(|r| r.accuracy.position_max),
-            pooled(|r| r.accuracy.rotation_rms),
-            worst(|r| r.accuracy.rotation_max),
-        ),
+    let mut medians = Vec::new();
+    for (method, rows) in methods {
+        let name = match method {
+            crate::Method::Ml => "ml",
+            crate::Method::Paper => "paper",
+        };
+        if verbose {
+            for r in rows {
+                let a = &r.accuracy;
+                line(
+                    &mut out,
+                    &format!(
+                        "{name} seed {}{}",
+                        r.seed,
+                        if r.converged { "" } else { " (not converged)" }
+                    ),
+                    Some(r.seconds),
+                    Some(r.evaluations as f64),
+                    (
+                        a.position_rms,
+                        a.position_max,
+                        a.rotation_rms,
+                        a.rotation_max,
+                    ),
+                );
+            }
+        }
+        let n = rows.len() as f64;
+        let pooled =
+            |f: fn(&BenchRow) -> f64| (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / n).sqrt();
+        let worst = |f: fn(&BenchRow) -> f64| rows.iter().map(f).fold(0.0, f64::max);
+        let m = median(rows.iter().map(|r| r.seconds).collect());
+        medians.push((name, m));
+        line(
+            &mut out,
+            &format!("{name}: all {} seeds", rows.len()),
+            Some(m),
+            Some(median(rows.iter().map(|r| r.evaluations as f64).collect())),
+            (
+                pooled(|r| r.accuracy.position_rms),
+                worst(|r| r.accuracy.position_max),
+                pooled(|r| r.accuracy.rotation_rms),
+                worst(|r| r.accuracy.rotation_max),
+            ),
+        );
+        let converged = rows.iter().filter(|r| r.converged).count();
+        let failed: Vec<String> = rows
+            .iter()
+            .filter(|r| !r.converged)
+            .map(|r| r.seed.to_string())
+            .collect();
+        let _ = writeln!(
+            out,
+            "{:<34} converged {converged} of {} ({:.1} %){}",
+            "",
+            rows.len(),
+            100.0 * converged as f64 / n,
+            if failed.is_empty() {
+                String::new()
+            } else {
+                format!("; not converged: seeds {}", failed.join(", "))
+            }
+        );
+    }
+    let _ = writeln!(
+        out,
+        "{:<34} {:>10} {:>12} {:>12.2} {:>12} {:>11.3} {:>11}",
+        "Cramér–Rao bound (RMS)",
+        "",
+        "",
+        bound.0 * 1e3,
+        "",
+        bound.1.to_degrees(),
+        ""
     );
     line(
         &mut out,
-        "paper's Fig. 6 estimate",
+        "paper's Fig. 6 estimate (its run)",
         Some(86.0),
         Some(7672.0),
         (
@@ -256,24 +295,67 @@ pub fn calibration_bench(
             fig6.rotation_max,
         ),
     );
-    let converged = rows.iter().filter(|r| r.converged).count();
+    if let (Some(ml), Some(paper)) = (
+        medians.iter().find(|m| m.0 == "ml"),
+        medians.iter().find(|m| m.0 == "paper"),
+    ) {
+        let _ = writeln!(out, "\nmedian time, paper / ml: {:.0}×", paper.1 / ml.1);
+    }
+    let _ = writeln!(out, "(iterations: NLopt evaluations for paper, LM iterations for ml; the paper's own time is on a 2.26 GHz Core 2 Duo)");
+    out
+}
+
+pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
+    let mut out = String::new();
+    let g = e.gravity;
     let _ = writeln!(
         out,
-        "\nconverged (every step e_T ≤ e_stop): {converged} of {} ({:.1} %)",
-        rows.len(),
-        100.0 * converged as f64 / n
+        "gravity in the reference frame: ({:.4}, {:.4}, {:.4}) m/s², |g| = {:.4}",
+        g[0],
+        g[1],
+        g[2],
+        (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()
     );
-    let failed: Vec<String> = rows
-        .iter()
-        .filter(|r| !r.converged)
-        .map(|r| r.seed.to_string())
-        .collect();
-    if !failed.is_empty() {
-        let _ = writeln!(out, "not converged: seeds {}", failed.join(", "));
+    let _ = writeln!(
+        out,
+        "residual RMS {:.3}× the noise σ (estimated σ {:.4} m/s²): {}",
+        e.residual_ratio,
+        e.noise_sd_estimate,
+        if e.converged {
+            "converged"
+        } else {
+            "NOT CONVERGED"
+        }
+    );
+    let _ = writeln!(
+        out,
+        "{} LM iterations in {:.1} ms; gauge: {}",
+        e.iterations,
+        e.seconds * 1e3,
+        e.fixed.join(", ")
+    );
+    for u in &e.unobservable {
+        let _ = writeln!(
+            out,
+            "unobservable direction (σ_rel {:.1e}): {}",
+            u.singular_value,
+            u.parameters.join(", ")
+        );
     }
     let _ = writeln!(
         out,
-        "(the paper's time and evaluations are its own: 2.26 GHz Core 2 Duo, one run)"
+        "\n{:>12} {:>16} {:>18}",
+        "SU", "position sd mm", "orientation sd °"
     );
+    for u in &e.uncertainty {
+        let _ = writeln!(
+            out,
+            "{:>12} {:>16.2} {:>18.3}",
+            u.su,
+            u.position_sd * 1e3,
+            u.orientation_sd.to_degrees()
+        );
+    }
+    let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
     out
 }

@@ -11,6 +11,7 @@
 //! such as the first transform's `θ0` and `d`, or DH equivalences like `(θ+π, d, −a, −α)`, cannot be
 //! determined from accelerometer data and are not compared one by one.
 
+pub mod ml;
 pub mod paper;
 
 use nalgebra::{Isometry3, Vector3};
@@ -338,18 +339,27 @@ pub struct PairError {
     pub rotation_max: f64,
 }
 
+/// The first SU pair in one held-out pose: true and estimated relative poses, and the first axis
+/// (direction and a point) in the first SU's true frame.
+struct FirstPair {
+    truth: Isometry3<f64>,
+    estimate: Isometry3<f64>,
+    axis: Vector3<f64>,
+    point: Vector3<f64>,
+}
+
 /// Accuracy of a chain estimate against the truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChainAccuracy {
-    /// Per consecutive SU pair.
+    /// Per consecutive SU pair (the first one compared up to a screw about the first axis).
     pub pairs: Vec<PairError>,
-    /// RMS position error over all pairs and poses, m.
+    /// RMS position error over the pairs after the first and all poses, m.
     pub position_rms: f64,
-    /// Largest position error, m.
+    /// Largest position error over the pairs after the first, m.
     pub position_max: f64,
-    /// RMS rotation error over all pairs and poses, rad.
+    /// RMS rotation error over the pairs after the first and all poses, rad.
     pub rotation_rms: f64,
-    /// Largest rotation error, rad.
+    /// Largest rotation error over the pairs after the first, rad.
     pub rotation_max: f64,
     /// Number of held-out poses.
     pub poses: usize,
@@ -361,10 +371,14 @@ pub struct ChainAccuracy {
 ///
 /// Both robots must name the chain's DoFs and SUs. The relative pose is `T_prev⁻¹ · T_su`; the
 /// position error is the norm of the difference of the translations (in the previous SU's frame),
-/// the rotation error the angle of `R_trueᵀ · R_est`. For the first pair only, the position error
-/// along the first DoF's axis is left out: the first SU is moved by the first DoF alone, whose
-/// accelerations are all perpendicular to its axis, so no reading tells how far the first SU sits
-/// from the second along that axis.
+/// the rotation error the angle of `R_trueᵀ · R_est`.
+///
+/// The first pair is different: the first SU is moved by the first DoF alone, whose accelerations
+/// are all perpendicular to its axis, so no reading tells how far along that axis it sits from the
+/// rest of the chain; and when the first axis is vertical (as on most arms, and the paper's), gravity
+/// does not tell how far about it the first SU is turned either. The first pair is therefore
+/// compared up to one screw about the first axis (the same for all poses: the best rotation about it,
+/// and any shift along it), and the summary figures are taken over the pairs after the first.
 pub fn consecutive_su_errors(
     truth: &Robot,
     estimate: &Robot,
@@ -409,6 +423,9 @@ pub fn consecutive_su_errors(
     let n_pairs = chain.sus.len().saturating_sub(1);
     let mut pos = vec![Vec::new(); n_pairs];
     let mut rot = vec![Vec::new(); n_pairs];
+    // First pair: (true relative pose, estimated relative pose, first axis direction and a point on
+    // it, both in the first SU's true frame).
+    let mut first: Vec<FirstPair> = Vec::new();
     for _ in 0..poses {
         let mut qt = vec![0.0; truth.model.dofs().len()];
         let mut qe = vec![0.0; estimate.model.dofs().len()];
@@ -425,21 +442,80 @@ pub fn consecutive_su_errors(
         }
         let kt = forward_kinematics(&truth.model, &truth.parameters, &qt);
         let ke = forward_kinematics(&estimate.model, &estimate.parameters, &qe);
+        let rel = |k: &crate::model::Kinematics<f64>, a: usize, b: usize| -> Isometry3<f64> {
+            k.sus[a].inverse() * k.sus[b]
+        };
         for i in 0..n_pairs {
-            let rel = |k: &crate::model::Kinematics<f64>, a: usize, b: usize| -> Isometry3<f64> {
-                k.sus[a].inverse() * k.sus[b]
-            };
             let true_rel = rel(&kt, t_sus[i], t_sus[i + 1]);
             let est_rel = rel(&ke, e_sus[i], e_sus[i + 1]);
-            let mut error = est_rel.translation.vector - true_rel.translation.vector;
             if i == 0 {
-                let axis = kt.sus[t_sus[0]]
+                let su = &kt.sus[t_sus[0]];
+                let axis = su
                     .rotation
                     .inverse_transform_vector(&kt.axis(&truth.model, t_dofs[0]));
-                error -= axis * axis.dot(&error);
+                let point = su
+                    .inverse_transform_point(&kt.axis_point(t_dofs[0]).into())
+                    .coords;
+                first.push(FirstPair {
+                    truth: true_rel,
+                    estimate: est_rel,
+                    axis,
+                    point,
+                });
+                continue;
             }
-            pos[i].push(error.norm());
+            pos[i].push((est_rel.translation.vector - true_rel.translation.vector).norm());
             rot[i].push((true_rel.rotation.inverse() * est_rel.rotation).angle());
+        }
+    }
+    if !first.is_empty() {
+        // The screw angle that best aligns the rotations over all poses (grid, then refinement).
+        let misfit = |phi: f64| -> f64 {
+            first
+                .iter()
+                .map(
+                    |FirstPair {
+                         truth: t,
+                         estimate: e,
+                         axis: a,
+                         ..
+                     }| {
+                        let turn = nalgebra::UnitQuaternion::from_axis_angle(
+                            &nalgebra::Unit::new_normalize(*a),
+                            phi,
+                        );
+                        (t.rotation.inverse() * turn * e.rotation).angle().powi(2)
+                    },
+                )
+                .sum()
+        };
+        let mut best = (0..720)
+            .map(|i| -std::f64::consts::PI + i as f64 * std::f64::consts::PI / 360.0)
+            .min_by(|a, b| misfit(*a).total_cmp(&misfit(*b)))
+            .unwrap_or(0.0);
+        let mut step = std::f64::consts::PI / 360.0;
+        while step > 1e-9 {
+            for candidate in [best - step, best + step] {
+                if misfit(candidate) < misfit(best) {
+                    best = candidate;
+                }
+            }
+            step *= 0.5;
+        }
+        for FirstPair {
+            truth: t,
+            estimate: e,
+            axis: a,
+            point: c,
+        } in &first
+        {
+            let turn =
+                nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(*a), best);
+            let moved = turn * (e.translation.vector - c) + c;
+            let mut error = moved - t.translation.vector;
+            error -= a * a.dot(&error);
+            pos[0].push(error.norm());
+            rot[0].push((t.rotation.inverse() * turn * e.rotation).angle());
         }
     }
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
@@ -454,14 +530,14 @@ pub fn consecutive_su_errors(
             rotation_max: max(&rot[i]),
         })
         .collect();
-    let all_pos: Vec<f64> = pos.concat();
-    let all_rot: Vec<f64> = rot.concat();
+    let later_pos: Vec<f64> = pos.iter().skip(1).flatten().copied().collect();
+    let later_rot: Vec<f64> = rot.iter().skip(1).flatten().copied().collect();
     Ok(ChainAccuracy {
         pairs,
-        position_rms: rms(&all_pos),
-        position_max: max(&all_pos),
-        rotation_rms: rms(&all_rot),
-        rotation_max: max(&all_rot),
+        position_rms: rms(&later_pos),
+        position_max: max(&later_pos),
+        rotation_rms: rms(&later_rot),
+        rotation_max: max(&later_rot),
         poses,
     })
 }
