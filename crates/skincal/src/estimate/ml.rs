@@ -66,6 +66,9 @@ pub struct MlConfig {
     pub converged_ratio: f64,
     /// Candidates carried from one segment to the next.
     pub beam: usize,
+    /// Gravity is taken along the first axis when holding it there raises the χ² of segment 1 by
+    /// less than this (default: the 99 % point of χ² with 2 degrees of freedom).
+    pub vertical_test: f64,
 }
 
 impl Default for MlConfig {
@@ -76,6 +79,7 @@ impl Default for MlConfig {
             max_iterations: 100,
             converged_ratio: 1.5,
             beam: 3,
+            vertical_test: 9.21,
         }
     }
 }
@@ -397,7 +401,7 @@ fn solve(
                 state = trial;
                 cost = trial_cost;
                 lambda = (lambda / 3.0).max(1e-12);
-                improved = relative > 1e-9 && step.norm() > 1e-10;
+                improved = relative > 1e-9 && cost * relative > 1e-6 && step.norm() > 1e-10;
                 break;
             }
             lambda *= 4.0;
@@ -586,6 +590,7 @@ pub fn estimate_chain(
         sus: vec![Isometry3::identity(); dofs],
     };
     let mut beam: Vec<(ChainState, f64)> = Vec::new();
+    let mut vertical_votes = 0;
     for sign in [1.0, -1.0] {
         let mut s = empty.clone();
         s.sus[0] = su_from_axis(&readings, 0, sign);
@@ -602,10 +607,35 @@ pub fn estimate_chain(
             held: vec![(1, 2), (1, 5)],
             sus: vec![0],
         };
-        let solved = solve(s, &layout, &readings, &spec, sigma, config.max_iterations);
-        iterations += solved.iterations;
-        beam.push((solved.state, solved.cost));
+        let free = solve(s, &layout, &readings, &spec, sigma, config.max_iterations);
+        // Is the first axis vertical? A likelihood-ratio test of gravity along it.
+        let mut upright = free.state.clone();
+        upright.gravity = Vector3::new(
+            0.0,
+            0.0,
+            upright.gravity.z.signum() * upright.gravity.norm(),
+        );
+        let spec_upright = Spec {
+            held: vec![(0, 0), (0, 1), (1, 2), (1, 5)],
+            ..spec
+        };
+        let held = solve(
+            upright,
+            &layout,
+            &readings,
+            &spec_upright,
+            sigma,
+            config.max_iterations,
+        );
+        iterations += free.iterations + held.iterations;
+        if held.cost - free.cost < config.vertical_test {
+            vertical_votes += 1;
+            beam.push((held.state, held.cost));
+        } else {
+            beam.push((free.state, free.cost));
+        }
     }
+    let vertical = vertical_votes == 2;
 
     // Segments 2…N: SU from its own axis, joint rotation from gravity (or searched), joint position
     // from upstream accelerations; every candidate refined (in parallel), the best few kept.
@@ -619,26 +649,36 @@ pub fn estimate_chain(
                 }
             }
         }
-        let solved: Vec<(Solved, f64, usize)> = candidates
+        // Phase 1: the joint frame alone from every start; phase 2: joint and SU together.
+        let phase1: Vec<(Solved, f64)> = candidates
             .into_par_iter()
             .map(|(state, su, start, cost)| {
                 let mut s = state;
                 s.sus[k] = su;
                 s.joints[k] = start;
-                let spec_joint = Spec {
+                let spec = Spec {
                     blocks: vec![Block::JointFull(k)],
                     held: vec![],
                     sus: vec![k],
                 };
-                let first = solve(
-                    s,
-                    &layout,
-                    &readings,
-                    &spec_joint,
-                    sigma,
-                    config.max_iterations,
-                );
-                let spec_all = Spec {
+                (
+                    solve(
+                        s,
+                        &layout,
+                        &readings,
+                        &spec,
+                        sigma,
+                        config.max_iterations.min(30),
+                    ),
+                    cost,
+                )
+            })
+            .collect();
+        iterations += phase1.iter().map(|s| s.0.iterations).sum::<usize>();
+        let solved: Vec<(Solved, f64)> = phase1
+            .into_par_iter()
+            .map(|(first, cost)| {
+                let spec = Spec {
                     blocks: vec![Block::Joint(k), Block::Su(k)],
                     held: vec![],
                     sus: vec![k],
@@ -647,19 +687,18 @@ pub fn estimate_chain(
                     first.state,
                     &layout,
                     &readings,
-                    &spec_all,
+                    &spec,
                     sigma,
                     config.max_iterations,
                 );
-                let its = first.iterations + solved.iterations;
                 let total = cost + solved.cost;
-                (solved, total, its)
+                (solved, total)
             })
             .collect();
-        iterations += solved.iter().map(|s| s.2).sum::<usize>();
+        iterations += solved.iter().map(|s| s.0.iterations).sum::<usize>();
         let mut ranked: Vec<(ChainState, f64)> = solved
             .into_iter()
-            .map(|(s, total, _)| (s.state, total))
+            .map(|(s, total)| (s.state, total))
             .collect();
         ranked.sort_by(|a, b| a.1.total_cmp(&b.1));
         beam.clear();
@@ -676,9 +715,13 @@ pub fn estimate_chain(
         }
     }
     let state = beam.swap_remove(0).0;
-
     // The whole chain at once.
-    let spec = full_spec(&layout);
+    let mut spec = full_spec(&layout);
+    if vertical {
+        // Gravity along the first axis: its horizontal components are held at zero, which leaves
+        // the turn of everything after segment 1 about that axis exactly free (reported below).
+        spec.held.extend([(0, 0), (0, 1)]);
+    }
     let solved = solve(
         state,
         &layout,
@@ -698,10 +741,13 @@ pub fn estimate_chain(
     let (_, jac) = linearise(&state, &layout, &readings, &spec, sigma, true);
     let (covariance, unobservable) = covariance(&jac, residual_ratio.max(1.0), &names);
     let uncertainty = su_uncertainty(&state, &layout, &spec, &data.chain, &covariance);
-    let fixed = vec![
+    let mut fixed = vec![
         format!("{}.rotation_z", data.chain.sus[0]),
         format!("{}.z", data.chain.sus[0]),
     ];
+    if vertical {
+        fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
+    }
     Ok(MlChainEstimate {
         robot: chain_robot_file(&data.chain, &state),
         chain: data.chain.clone(),
