@@ -8,6 +8,7 @@ mod estimation;
 mod exploration;
 mod kinematics;
 mod measurements;
+mod ml_estimation;
 mod paper;
 mod simulator;
 mod urdf_import;

@@ -69,6 +69,9 @@ pub struct MlConfig {
     /// Gravity is taken along the first axis when holding it there raises the χ² of segment 1 by
     /// less than this (default: the 99 % point of χ² with 2 degrees of freedom).
     pub vertical_test: f64,
+    /// A parameter direction that the data determine only to worse than this (m or rad) is
+    /// reported as unobservable.
+    pub observable_limit: f64,
 }
 
 impl Default for MlConfig {
@@ -80,6 +83,7 @@ impl Default for MlConfig {
             converged_ratio: 1.5,
             beam: 3,
             vertical_test: 9.21,
+            observable_limit: 1.0,
         }
     }
 }
@@ -739,7 +743,12 @@ pub fn estimate_chain(
 
     let names = column_names(&data.chain, &spec);
     let (_, jac) = linearise(&state, &layout, &readings, &spec, sigma, true);
-    let (covariance, unobservable) = covariance(&jac, residual_ratio.max(1.0), &names);
+    let (covariance, unobservable) = covariance(
+        &jac,
+        residual_ratio.max(1.0),
+        &names,
+        config.observable_limit,
+    );
     let uncertainty = su_uncertainty(&state, &layout, &spec, &data.chain, &covariance);
     let mut fixed = vec![
         format!("{}.rotation_z", data.chain.sus[0]),
@@ -887,36 +896,42 @@ fn joint_position(
 }
 
 /// Parameter covariance from a column-pivoted QR of the whitened Jacobian `J·P = Q·R`: the leading
-/// `rank` pivot columns get `scale²·(R₁₁ᵀR₁₁)⁻¹` by triangular solves (no normal-matrix inverse); the
-/// columns beyond the numerical rank are what the data cannot determine — they are reported by name
-/// and get no variance (they are held at their estimate, a gauge choice).
+/// pivot columns get `scale²·(R₁₁ᵀR₁₁)⁻¹` by triangular solves (no normal-matrix inverse). A direction
+/// the data determine only to worse than `limit` (1 m or 1 rad by default: the whitened Jacobian's
+/// singular value below `1/limit`) counts as unobservable: it is reported by the parameters that
+/// make it up (from the SVD), and the pivot columns beyond the observable rank are held at their
+/// estimate (a gauge choice) and get no variance.
 fn covariance(
     jac: &DMatrix<f64>,
     scale: f64,
     names: &[String],
+    limit: f64,
 ) -> (DMatrix<f64>, Vec<Unobservable>) {
     let n = jac.ncols();
+    let svd = jac.clone().svd(false, true);
+    let largest = svd.singular_values.max().max(1e-300);
+    let mut unobservable = Vec::new();
+    if let Some(vt) = &svd.v_t {
+        for (i, &s) in svd.singular_values.iter().enumerate() {
+            if s * limit < 1.0 {
+                let mut parts: Vec<(f64, usize)> = (0..n)
+                    .map(|c| (vt[(i, c)].abs(), c))
+                    .filter(|(w, _)| *w > 0.3)
+                    .collect();
+                parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+                unobservable.push(Unobservable {
+                    singular_value: s / largest,
+                    parameters: parts.iter().map(|&(_, c)| names[c].clone()).collect(),
+                });
+            }
+        }
+    }
     let qr = jac.clone().col_piv_qr();
     let r = qr.r();
     let mut order = DMatrix::from_fn(1, n, |_, c| c as f64);
     qr.p().permute_columns(&mut order);
     let order: Vec<usize> = order.iter().map(|&c| c as usize).collect();
-    let largest = r[(0, 0)].abs().max(1e-300);
-    let rank = (0..n.min(r.nrows()))
-        .take_while(|&i| r[(i, i)].abs() > largest * 1e-9)
-        .count();
-    let unobservable = order[rank..]
-        .iter()
-        .map(|&c| Unobservable {
-            singular_value: r
-                .get((
-                    order.iter().position(|&o| o == c).unwrap_or(0),
-                    order.iter().position(|&o| o == c).unwrap_or(0),
-                ))
-                .map_or(0.0, |v| v.abs() / largest),
-            parameters: vec![names[c].clone()],
-        })
-        .collect();
+    let rank = n.saturating_sub(unobservable.len()).min(r.nrows());
     let mut covariance = DMatrix::zeros(n, n);
     let r11 = r.view((0, 0), (rank, rank)).into_owned();
     if let Some(r_inv) = r11.solve_upper_triangular(&DMatrix::identity(rank, rank)) {
@@ -1147,7 +1162,12 @@ pub fn cramer_rao_bound(
     let spec = full_spec(&layout);
     let (_, jac) = linearise(&state, &layout, &readings(data), &spec, sigma, true);
     let n = jac.ncols();
-    let (covariance, _) = covariance(&jac, 1.0, &vec![String::new(); n]);
+    let (covariance, _) = covariance(
+        &jac,
+        1.0,
+        &vec![String::new(); n],
+        MlConfig::default().observable_limit,
+    );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let (mut position, mut rotation, mut count) = (0.0, 0.0, 0usize);
     let h = 1e-6;

@@ -1,0 +1,227 @@
+//! The maximum-likelihood estimator against the simulator's ground truth, central differences and
+//! a constructed unobservable case.
+
+use nalgebra::Vector3;
+use skincal::estimate::ml::{estimate_chain, internals, state_of, MlConfig};
+use skincal::estimate::{consecutive_su_errors, ChainData, SerialChain};
+use skincal::model::description::RobotFile;
+use skincal::model::presets;
+use skincal::model::sensor::gravity_upright;
+use skincal::sim::{simulate, Imperfections, SimulationConfig};
+
+fn chain(n: usize) -> SerialChain {
+    SerialChain {
+        name: "chain".into(),
+        dofs: (1..=n).map(|k| format!("dof{k}")).collect(),
+        sus: (1..=n).map(|k| format!("su{k}")).collect(),
+    }
+}
+
+fn noise_free() -> SimulationConfig {
+    SimulationConfig {
+        imperfections: Imperfections::none(),
+        ..SimulationConfig::default()
+    }
+}
+
+#[test]
+fn noise_free_data_gives_back_the_poses() {
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sim = simulate(&truth, &noise_free()).unwrap();
+    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+    let estimate = estimate_chain(
+        &data,
+        &MlConfig {
+            noise_sd: 1e-3,
+            ..MlConfig::default()
+        },
+    )
+    .unwrap();
+    assert!(estimate.converged);
+    assert!(
+        estimate.residual_ratio < 1e-6,
+        "{}",
+        estimate.residual_ratio
+    );
+    let a = consecutive_su_errors(&truth, &estimate.to_robot(), &chain(7), 30, 5).unwrap();
+    assert!(a.position_max <= 1e-6, "{} m", a.position_max);
+    assert!(a.rotation_max <= 1e-6, "{} rad", a.rotation_max);
+    for pair in &a.pairs {
+        assert!(
+            pair.position_max <= 1e-6 && pair.rotation_max <= 1e-6,
+            "{pair:?}"
+        );
+    }
+    // Gravity comes back along the first axis with its true magnitude.
+    let g = Vector3::from(estimate.gravity);
+    assert!((g - Vector3::new(0.0, 0.0, -9.81)).norm() < 1e-6, "{g}");
+}
+
+/// A random 5-DoF chain in DH form within eq. 18's bounds, as a description.
+fn random_chain(seed: u64) -> skincal::model::Robot {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut text = String::from("name = \"r\"\nreference = \"base\"\n");
+    let pi = std::f64::consts::PI;
+    for k in 1..=5 {
+        text += &format!("[[dofs]]\nname = \"dof{k}\"\nchild = \"l{k}\"\n");
+        if k > 1 {
+            text += &format!(
+                "dh = {{ theta0 = {}, d = {}, a = {}, alpha = {} }}\n",
+                rng.random_range(-pi..pi),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(0.05..0.4),
+                rng.random_range(-pi..pi)
+            );
+        }
+    }
+    for k in 1..=5 {
+        text += &format!(
+            "[[sus]]\nname = \"su{k}\"\nsegment = \"l{k}\"\nxyz = [{}, {}, {}]\nrpy = [{}, {}, {}]\n",
+            rng.random_range(-0.15..0.15),
+            rng.random_range(-0.15..0.15),
+            rng.random_range(-0.15..0.15),
+            rng.random_range(-pi..pi),
+            rng.random_range(-1.5..1.5),
+            rng.random_range(-pi..pi)
+        );
+    }
+    RobotFile::from_toml(&text).unwrap().build().unwrap()
+}
+
+#[test]
+fn the_analytic_jacobian_matches_central_differences_on_random_chains() {
+    for seed in 0..4 {
+        let truth = random_chain(seed);
+        let sim = simulate(
+            &truth,
+            &SimulationConfig {
+                poses: 6,
+                seed,
+                ..SimulationConfig::default()
+            },
+        )
+        .unwrap();
+        let data = ChainData::new(&sim.measurements, &chain(5)).unwrap();
+        // Linearised at the truth, which with noisy readings is not the optimum.
+        let state = state_of(&truth, &chain(5), &gravity_upright()).unwrap();
+        let (_, jac) = internals::full_problem(&data, &state, 0.05);
+        let h = 1e-6;
+        for c in 0..jac.ncols() {
+            let mut plus = vec![0.0; jac.ncols()];
+            plus[c] = h;
+            let mut minus = vec![0.0; jac.ncols()];
+            minus[c] = -h;
+            let numeric = (internals::residuals_after(&data, &state, 0.05, &plus)
+                - internals::residuals_after(&data, &state, 0.05, &minus))
+                / (2.0 * h);
+            let diff = (&numeric - jac.column(c)).amax();
+            // Central differences err by O(h²) and by rounding ~1e-16·|r|/h: √h is a safe bound.
+            assert!(
+                diff < 1e-3 * (1.0 + numeric.amax()),
+                "seed {seed}, column {c}: {diff}"
+            );
+        }
+    }
+}
+
+#[test]
+fn parallel_axes_leave_directions_the_data_cannot_see_and_they_are_named() {
+    // Three DoFs with parallel horizontal axes (α = 0): the planar arm's offsets along the axes are
+    // invisible to every reading.
+    let text = "name = \"planar\"\nreference = \"base\"\n\
+        [[dofs]]\nname = \"dof1\"\nchild = \"l1\"\norigin = { rpy = [1.5707963267948966, 0, 0] }\n\
+        [[dofs]]\nname = \"dof2\"\nchild = \"l2\"\ndh = { theta0 = 0.3, d = 0.05, a = 0.3, alpha = 0.0 }\n\
+        [[dofs]]\nname = \"dof3\"\nchild = \"l3\"\ndh = { theta0 = -0.2, d = 0.02, a = 0.25, alpha = 0.0 }\n\
+        [[sus]]\nname = \"su1\"\nsegment = \"l1\"\nxyz = [0.1, 0.02, 0.03]\nrpy = [0.2, 0.1, 0.3]\n\
+        [[sus]]\nname = \"su2\"\nsegment = \"l2\"\nxyz = [0.12, -0.03, 0.04]\nrpy = [-0.3, 0.2, 0.1]\n\
+        [[sus]]\nname = \"su3\"\nsegment = \"l3\"\nxyz = [0.08, 0.02, -0.05]\nrpy = [0.1, -0.4, 0.6]\n";
+    let truth = RobotFile::from_toml(text).unwrap().build().unwrap();
+    let sim = simulate(
+        &truth,
+        &SimulationConfig {
+            seed: 2,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap();
+    let data = ChainData::new(&sim.measurements, &chain(3)).unwrap();
+    let estimate = estimate_chain(&data, &MlConfig::default()).unwrap();
+    assert!(estimate.converged, "{}", estimate.residual_ratio);
+    let named: Vec<String> = estimate
+        .unobservable
+        .iter()
+        .flat_map(|u| u.parameters.clone())
+        .collect();
+    assert!(named.len() >= 2, "{named:?}");
+    // Every SU's position along the common axis direction (z of its segment frame) is among them.
+    for su in ["su2.z", "su3.z"] {
+        assert!(named.iter().any(|n| n == su), "{su} not in {named:?}");
+    }
+}
+
+#[test]
+fn the_same_data_gives_the_same_estimate() {
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sim = simulate(
+        &truth,
+        &SimulationConfig {
+            seed: 4,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap();
+    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+    let a = estimate_chain(&data, &MlConfig::default()).unwrap();
+    let b = estimate_chain(&data, &MlConfig::default()).unwrap();
+    assert_eq!(a.robot, b.robot);
+    assert_eq!(a.uncertainty, b.uncertainty);
+    assert!(
+        a.converged && (a.residual_ratio - 1.0).abs() < 0.15,
+        "{}",
+        a.residual_ratio
+    );
+}
+
+#[test]
+fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
+    // Over 5 data sets the consecutive-SU error stays within 1.5× the Cramér–Rao bound, and the
+    // reported standard deviations describe the actual errors of the later SUs.
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sd = 0.01 * 9.81 / 3f64.sqrt();
+    let (mut err, mut bound) = (0.0, 0.0);
+    for seed in 1..=5 {
+        let sim = simulate(
+            &truth,
+            &SimulationConfig {
+                seed,
+                ..SimulationConfig::default()
+            },
+        )
+        .unwrap();
+        let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+        let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+        assert!(e.converged, "seed {seed}");
+        let a = consecutive_su_errors(&truth, &e.to_robot(), &chain(7), 30, seed).unwrap();
+        err += a.position_rms.powi(2);
+        let (p, _) = skincal::estimate::ml::cramer_rao_bound(
+            &truth,
+            &gravity_upright(),
+            &data,
+            sd,
+            30,
+            seed,
+        )
+        .unwrap();
+        bound += p * p;
+        for u in &e.uncertainty[2..] {
+            assert!(u.position_sd > 1e-4 && u.position_sd < 0.02, "{u:?}");
+        }
+    }
+    assert!(
+        err.sqrt() < 1.5 * bound.sqrt(),
+        "{} vs bound {}",
+        err.sqrt(),
+        bound.sqrt()
+    );
+}
