@@ -127,6 +127,9 @@ struct BenchCalibrateArgs {
     /// Print one row per seed.
     #[arg(long)]
     verbose: bool,
+    /// Instead of paper-7dof, a different random 7-DoF DH chain for every seed (eq. 18's bounds).
+    #[arg(long)]
+    random_chains: bool,
 }
 
 #[derive(Debug, Args)]
@@ -453,17 +456,21 @@ fn calibrate_ml(
 
 fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     use skincal::estimate::ml::{self, MlConfig};
-    let truth = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let paper = io::load_robot("paper-7dof", SuPlacement::default())?;
     let chain = SerialChain {
         name: "S7".into(),
-        dofs: truth.model.dof_names(),
-        sus: truth.model.su_names(),
+        dofs: paper.model.dof_names(),
+        sus: paper.model.su_names(),
     };
     let g = skincal::model::sensor::STANDARD_GRAVITY;
     let sd = args.noise * g / 3f64.sqrt();
     println!(
-        "paper-7dof, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds 1…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
-        args.poses, args.noise, sd, args.seeds
+        "{}, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds 1…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
+        if args.random_chains { "random 7-DoF DH chains (robot seed = data seed)" } else { "paper-7dof" },
+        args.poses,
+        args.noise,
+        sd,
+        args.seeds
     );
     let methods: Vec<Method> = match args.method {
         BenchMethod::Both => vec![Method::Ml, Method::Paper],
@@ -483,16 +490,22 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
             },
             ..SimulationConfig::default()
         };
+        let truth = if args.random_chains {
+            sim::random_dh_chain(7, seed)?
+        } else {
+            paper.clone()
+        };
         let set = sim::simulate(&truth, &config)?.measurements;
         let data = ChainData::new(&set, &chain)?;
-        if let Some((p, r)) = ml::cramer_rao_bound(
+        let seed_bound = ml::cramer_rao_bound(
             &truth,
             &skincal::model::sensor::gravity_upright(),
             &data,
             sd.max(1e-9),
             30,
             1000 + seed,
-        ) {
+        );
+        if let Some((p, r)) = seed_bound {
             bound_position += p * p;
             bound_rotation += r * r;
         }
@@ -527,16 +540,19 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
                 seconds,
                 evaluations,
                 accuracy,
+                bound: seed_bound,
             });
         }
     }
     let n = args.seeds.max(1) as f64;
     let bound = ((bound_position / n).sqrt(), (bound_rotation / n).sqrt());
     let fig6 = skincal::model::presets::PAPER_FIG6_ESTIMATE.robot()?;
-    let fig6_accuracy = estimate::consecutive_su_errors(&truth, &fig6, &chain, 30, 1000)?;
+    let fig6_accuracy = (!args.random_chains)
+        .then(|| estimate::consecutive_su_errors(&paper, &fig6, &chain, 30, 1000))
+        .transpose()?;
     print!(
         "{}",
-        render::calibration_bench(&rows, args.verbose, &fig6_accuracy, bound)
+        render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), bound)
     );
     Ok(())
 }

@@ -174,12 +174,14 @@ pub struct BenchRow {
     pub seconds: f64,
     pub evaluations: usize,
     pub accuracy: skincal::estimate::ChainAccuracy,
+    /// The Cramér–Rao bound of this data set (position m, rotation rad).
+    pub bound: Option<(f64, f64)>,
 }
 
 pub fn calibration_bench(
     methods: &[(crate::Method, Vec<BenchRow>)],
     verbose: bool,
-    fig6: &skincal::estimate::ChainAccuracy,
+    fig6: Option<&skincal::estimate::ChainAccuracy>,
     bound: (f64, f64),
 ) -> String {
     let mut out = String::new();
@@ -233,6 +235,10 @@ pub fn calibration_bench(
                         a.rotation_max,
                     ),
                 );
+                if let Some((p, q)) = r.bound {
+                    out.pop();
+                    let _ = writeln!(out, "   bound {:.2} mm {:.3}°", p * 1e3, q.to_degrees());
+                }
             }
         }
         let n = rows.len() as f64;
@@ -283,18 +289,20 @@ pub fn calibration_bench(
         bound.1.to_degrees(),
         ""
     );
-    line(
-        &mut out,
-        "paper's Fig. 6 estimate (its run)",
-        Some(86.0),
-        Some(7672.0),
-        (
-            fig6.position_rms,
-            fig6.position_max,
-            fig6.rotation_rms,
-            fig6.rotation_max,
-        ),
-    );
+    if let Some(fig6) = fig6 {
+        line(
+            &mut out,
+            "paper's Fig. 6 estimate (its run)",
+            Some(86.0),
+            Some(7672.0),
+            (
+                fig6.position_rms,
+                fig6.position_max,
+                fig6.rotation_rms,
+                fig6.rotation_max,
+            ),
+        );
+    }
     if let (Some(ml), Some(paper)) = (
         medians.iter().find(|m| m.0 == "ml"),
         medians.iter().find(|m| m.0 == "paper"),

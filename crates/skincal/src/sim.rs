@@ -619,3 +619,67 @@ pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, Simula
             reason: e.to_string(),
         })
 }
+
+/// A random serial chain in the paper's DH form: `dofs` DoFs, DoF-to-DoF rows and one DoF-to-SU row
+/// per segment drawn uniformly within the bounds of the paper's eq. 18 (`θ0, α, θ_acc ∈ [−π, π]`,
+/// `d, d_acc ∈ [−1, 1]`, `a ∈ [0, 1]`), freely turning DoFs, reference = the first DoF's frame.
+/// Names as in `paper-7dof`: DoFs `dof1…`, segments `link1…`, SUs `su1…`. Seeded.
+pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError> {
+    use crate::model::{DofSpec, Limits, PlacementSpec, RobotBuilder, SuSpec};
+    use std::f64::consts::PI;
+    if dofs == 0 {
+        return Err(SimulationError::InvalidSetting {
+            setting: "dofs",
+            reason: "must be at least 1".into(),
+        });
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut b = RobotBuilder::new(format!("random-dh-{dofs}dof-{seed}"), "base");
+    for k in 1..=dofs {
+        let origin = if k == 1 {
+            PlacementSpec::identity()
+        } else {
+            PlacementSpec::dh(
+                rng.random_range(-PI..PI),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(0.0..1.0),
+                rng.random_range(-PI..PI),
+            )
+        };
+        b.dofs.push(DofSpec {
+            name: format!("dof{k}"),
+            parent: if k == 1 {
+                "base".into()
+            } else {
+                format!("link{}", k - 1)
+            },
+            child: format!("link{k}"),
+            origin,
+            axis: Vector3::z(),
+            limits: Limits {
+                velocity: Some(1.7),
+                acceleration: Some(10.0),
+                ..Limits::CONTINUOUS
+            },
+        });
+    }
+    for k in 1..=dofs {
+        let placement = PlacementSpec::dh_sensor(
+            rng.random_range(-PI..PI),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(0.0..1.0),
+            rng.random_range(-PI..PI),
+            rng.random_range(-PI..PI),
+            rng.random_range(-1.0..1.0),
+        );
+        b.sus.push(SuSpec {
+            name: format!("su{k}"),
+            segment: format!("link{k}"),
+            placement,
+        });
+    }
+    b.build().map_err(|e| SimulationError::InvalidSetting {
+        setting: "random chain",
+        reason: e.to_string(),
+    })
+}

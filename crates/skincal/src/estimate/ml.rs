@@ -899,8 +899,9 @@ fn joint_position(
 /// pivot columns get `scale²·(R₁₁ᵀR₁₁)⁻¹` by triangular solves (no normal-matrix inverse). A direction
 /// the data determine only to worse than `limit` (1 m or 1 rad by default: the whitened Jacobian's
 /// singular value below `1/limit`) counts as unobservable: it is reported by the parameters that
-/// make it up (from the SVD), and the pivot columns beyond the observable rank are held at their
-/// estimate (a gauge choice) and get no variance.
+/// make it up (from the SVD). Directions with no information at all (singular value below 1e-9 of
+/// the largest: what the data leave free, like a gauge) correspond to the pivot columns beyond the
+/// numerical rank; those are held at their estimate and get no variance.
 fn covariance(
     jac: &DMatrix<f64>,
     scale: f64,
@@ -931,7 +932,14 @@ fn covariance(
     let mut order = DMatrix::from_fn(1, n, |_, c| c as f64);
     qr.p().permute_columns(&mut order);
     let order: Vec<usize> = order.iter().map(|&c| c as usize).collect();
-    let rank = n.saturating_sub(unobservable.len()).min(r.nrows());
+    // Only directions with no information at all (a gauge the data leave free) are held; weakly
+    // determined ones keep their large variance.
+    let null = svd
+        .singular_values
+        .iter()
+        .filter(|&&s| s <= largest * 1e-9)
+        .count();
+    let rank = n.saturating_sub(null).min(r.nrows());
     let mut covariance = DMatrix::zeros(n, n);
     let r11 = r.view((0, 0), (rank, rank)).into_owned();
     if let Some(r_inv) = r11.solve_upper_triangular(&DMatrix::identity(rank, rank)) {
