@@ -381,7 +381,15 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         let true_rows = truth
             .as_ref()
             .and_then(|t| estimate::true_dh_table(t, chain));
-        print!("{}", report::dh_tables(&estimate, true_rows.as_ref()));
+        print!(
+            "{}",
+            report::dh_tables(
+                &estimate.chain,
+                &estimate.dof_dof,
+                &estimate.dof_su,
+                true_rows.as_ref()
+            )
+        );
         println!("\nOptimization steps\n");
         print!("{}", report::optimization_steps(&estimate));
         if let Some(t) = &truth {
@@ -433,6 +441,14 @@ fn calibrate_ml(
             data.poses()
         );
         print!("{}", render::ml_summary(&estimate));
+        if let Some((dof_dof, dof_su)) = estimate::dh_form(&estimate.to_robot(), chain) {
+            let true_rows = truth.and_then(|t| estimate::dh_form(t, chain));
+            println!("\nIn the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)\n");
+            print!(
+                "{}",
+                report::dh_tables(chain, &dof_dof, &dof_su, true_rows.as_ref())
+            );
+        }
         if let Some(t) = truth {
             let accuracy = estimate::consecutive_su_errors(t, &estimate.to_robot(), chain, 30, 1)?;
             println!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");

@@ -391,3 +391,48 @@ fn calibrate_explains_what_the_papers_method_cannot_do() {
     std::fs::write(d.join("s/measurements.json"), r#"{"format":"skincal-measurements","version":1,"units":{"acceleration":"m/s^2","angle":"rad"},"dofs":["a"],"sus":["s"]}"#).unwrap();
     fails_with(&["calibrate", "s"], d, &["no training experiment"]);
 }
+
+#[test]
+fn calibrate_defaults_to_maximum_likelihood_and_writes_model_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "p",
+            "--seed",
+            "3"
+        ],
+        d
+    )
+    .status
+    .success());
+    let out = skincal(&["calibrate", "p"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for needle in [
+        "maximum likelihood",
+        "converged",
+        "position sd mm",
+        "su7",
+        "Pose of each SU relative to the previous one",
+    ] {
+        assert!(text.contains(needle), "`{needle}` missing in:\n{text}");
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("p/model.json")).unwrap()).unwrap();
+    assert_eq!(v["format"], "skincal-model");
+    assert_eq!(v["method"], "ml");
+    let limb = &v["limbs"][0];
+    assert_eq!(limb["converged"], true);
+    assert_eq!(limb["uncertainty"].as_array().unwrap().len(), 7);
+    assert_eq!(limb["robot"]["dofs"].as_array().unwrap().len(), 7);
+    assert!(limb["gravity"][2].as_f64().unwrap() < -9.7);
+    // The exported limb is a robot description that builds.
+    let robot: skincal::model::description::RobotFile =
+        serde_json::from_value(limb["robot"].clone()).unwrap();
+    assert_eq!(robot.build().unwrap().model.sus().len(), 7);
+}

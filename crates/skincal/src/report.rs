@@ -188,13 +188,13 @@ fn abbreviate(names: &[String], keep: usize) -> String {
 /// The paper's Fig. 6 for one chain: DoF-to-DoF and DoF-to-SU tables, with the true values beside
 /// the estimates when known and deviations above 0.1 (rad or m) marked with `*`.
 pub fn dh_tables(
-    estimate: &crate::estimate::paper::PaperChainEstimate,
+    chain: &crate::estimate::SerialChain,
+    dof_dof: &[crate::estimate::DhRow],
+    dof_su: &[crate::estimate::SuRow],
     truth: Option<&(Vec<crate::estimate::DhRow>, Vec<crate::estimate::SuRow>)>,
 ) -> String {
     let mut out = String::new();
-    let chain = &estimate.chain;
-    let dd: Vec<(String, Vec<f64>)> = estimate
-        .dof_dof
+    let dd: Vec<(String, Vec<f64>)> = dof_dof
         .iter()
         .enumerate()
         .map(|(k, r)| {
@@ -204,8 +204,7 @@ pub fn dh_tables(
             )
         })
         .collect();
-    let ds: Vec<(String, Vec<f64>)> = estimate
-        .dof_su
+    let ds: Vec<(String, Vec<f64>)> = dof_su
         .iter()
         .enumerate()
         .map(|(k, r)| {

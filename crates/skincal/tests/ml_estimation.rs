@@ -225,3 +225,73 @@ fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
         bound.sqrt()
     );
 }
+
+#[test]
+fn the_dh_form_of_the_truth_is_the_papers_table_and_the_estimate_gives_it_back() {
+    use skincal::estimate::{dh_form, true_dh_table};
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let (rows, sus) = dh_form(&truth, &chain(7)).unwrap();
+    let (true_rows, true_sus) = true_dh_table(&truth, &chain(7)).unwrap();
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-9;
+    for (r, t) in rows.iter().zip(&true_rows) {
+        assert!(
+            close(r.theta0, t.theta0)
+                && close(r.d, t.d)
+                && close(r.a, t.a)
+                && close(r.alpha, t.alpha),
+            "{r:?} vs {t:?}"
+        );
+    }
+    for (r, t) in sus.iter().zip(&true_sus) {
+        assert!(
+            close(r.theta0, t.theta0)
+                && close(r.a, t.a)
+                && close(r.alpha, t.alpha)
+                && close(r.theta_acc, t.theta_acc),
+            "{r:?} vs {t:?}"
+        );
+        // With α = 0 the virtual axis is the SU's z axis itself: only d + d_acc is defined.
+        if t.alpha.abs() > 1e-9 {
+            assert!(close(r.d, t.d) && close(r.d_acc, t.d_acc), "{r:?} vs {t:?}");
+        } else {
+            assert!(close(r.d + r.d_acc, t.d + t.d_acc), "{r:?} vs {t:?}");
+        }
+    }
+
+    // The noise-free estimate: every row but the gauge (the first rows' θ0 and d) comes back.
+    let sim = simulate(&truth, &noise_free()).unwrap();
+    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+    let estimate = estimate_chain(
+        &data,
+        &MlConfig {
+            noise_sd: 1e-3,
+            ..MlConfig::default()
+        },
+    )
+    .unwrap();
+    let (est_rows, est_sus) = dh_form(&estimate.to_robot(), &chain(7)).unwrap();
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-6;
+    for (i, (e, r)) in est_rows.iter().zip(&rows).enumerate() {
+        assert!(
+            near(e.a, r.a) && near(e.alpha, r.alpha),
+            "row {i}: {e:?} vs {r:?}"
+        );
+        if i > 0 {
+            assert!(
+                near(e.theta0, r.theta0) && near(e.d, r.d),
+                "row {i}: {e:?} vs {r:?}"
+            );
+        }
+    }
+    for (i, (e, r)) in est_sus.iter().zip(&sus).enumerate().skip(1) {
+        assert!(
+            near(e.theta0, r.theta0)
+                && near(e.d, r.d)
+                && near(e.a, r.a)
+                && near(e.alpha, r.alpha)
+                && near(e.theta_acc, r.theta_acc)
+                && near(e.d_acc, r.d_acc),
+            "SU {i}: {e:?} vs {r:?}"
+        );
+    }
+}

@@ -583,3 +583,97 @@ pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, 
     }
     Some((rows, sus))
 }
+
+/// The standard DH row that places the line `(point, direction)` (in `frame`'s coordinates) as the
+/// next axis: x along the common normal from `frame`'s z to the line, `a ≥ 0`. For parallel axes the
+/// normal through `frame`'s origin is taken (`d = 0`); for intersecting axes `x = z × u`.
+fn dh_to_line(point: &Vector3<f64>, direction: &Vector3<f64>) -> (DhRow, Isometry3<f64>) {
+    let u = direction.normalize();
+    let b = u.z;
+    let denominator = 1.0 - b * b;
+    let (t, foot) = if denominator > 1e-12 {
+        let t = (point.z - b * u.dot(point)) / denominator;
+        let s = (b * point.z - u.dot(point)) / denominator;
+        (t, point + u * s)
+    } else {
+        // Parallel: the foot on the line at the height of the origin.
+        let s = if u.z.abs() > 0.0 { -point.z / u.z } else { 0.0 };
+        (0.0, point + u * s)
+    };
+    let normal = foot - Vector3::new(0.0, 0.0, t);
+    let a = normal.norm();
+    let x = if a > 1e-12 {
+        normal / a
+    } else {
+        let c = Vector3::z().cross(&u);
+        if c.norm() > 1e-12 {
+            c.normalize()
+        } else {
+            Vector3::x()
+        }
+    };
+    let theta0 = x.y.atan2(x.x);
+    let alpha = Vector3::z().cross(&u).dot(&x).atan2(u.z);
+    let row = DhRow {
+        theta0,
+        d: t,
+        a,
+        alpha,
+    };
+    let frame = crate::model::transform::standard_dh(theta0, t, a, alpha);
+    (row, frame)
+}
+
+/// The paper's DH+2 table (Fig. 6) of a chain of any robot that names its DoFs and SUs — an estimate
+/// or the truth: DoF-to-DoF rows from the common normals between consecutive axes at the zero pose,
+/// the first DH frame being the first joint's frame (the paper's `DoF1_T_RS = I`), and DoF-to-SU
+/// rows to each SU's z axis, with `θ_acc`, `d_acc` for the rest.
+pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+    let m = &robot.model;
+    let dofs: Vec<usize> = chain
+        .dofs
+        .iter()
+        .map(|d| m.dof_index(d))
+        .collect::<Option<_>>()?;
+    let sus: Vec<usize> = chain
+        .sus
+        .iter()
+        .map(|s| m.su_index(s))
+        .collect::<Option<_>>()?;
+    let k = forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
+    let axis_frame = |d: usize| -> Isometry3<f64> {
+        let axis = m.dofs()[d].axis.into_inner();
+        let align = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &axis)
+            .unwrap_or_else(|| {
+                nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+            });
+        k.joints[d] * align
+    };
+    let base = axis_frame(dofs[0]);
+    let mut frames = vec![Isometry3::identity()];
+    let mut rows = Vec::new();
+    for i in 1..dofs.len() {
+        let next = base.inverse() * axis_frame(dofs[i]);
+        let local = frames[i - 1].inverse() * next;
+        let (row, step) = dh_to_line(&local.translation.vector, &(local.rotation * Vector3::z()));
+        rows.push(row);
+        frames.push(frames[i - 1] * step);
+    }
+    let mut su_rows = Vec::new();
+    for (i, &s) in sus.iter().enumerate() {
+        let su = frames[i].inverse() * (base.inverse() * k.sus[s]);
+        let (row, virtual_frame) =
+            dh_to_line(&su.translation.vector, &(su.rotation * Vector3::z()));
+        let rest = virtual_frame.inverse() * su;
+        let x = rest.rotation * Vector3::x();
+        su_rows.push(SuRow {
+            theta0: row.theta0,
+            d: row.d,
+            a: row.a,
+            alpha: row.alpha,
+            theta_acc: x.y.atan2(x.x),
+            d_acc: rest.translation.vector.z,
+        });
+    }
+    Some((rows, su_rows))
+}
