@@ -375,7 +375,7 @@ fn solve(
         // One QR of the Jacobian per iteration; each trial damping only needs a small QR of
         // [R; √λ·D] (the MINPACK scheme).
         let scale: Vec<f64> = (0..n).map(|c| jac.column(c).norm().max(1e-12)).collect();
-        let qr = jac.clone().qr();
+        let qr = std::mem::replace(&mut jac, DMatrix::zeros(0, 0)).qr();
         let mut qtr = -r.clone();
         qr.q_tr_mul(&mut qtr);
         let r_factor = qr.r();
