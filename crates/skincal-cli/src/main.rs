@@ -441,12 +441,12 @@ fn calibrate_ml(
             data.poses()
         );
         print!("{}", render::ml_summary(&estimate));
-        if let Some((dof_dof, dof_su)) = estimate::dh_form(&estimate.to_robot(), chain) {
+        if let Some(dh) = &estimate.dh {
             let true_rows = truth.and_then(|t| estimate::dh_form(t, chain));
             println!("\nIn the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)\n");
             print!(
                 "{}",
-                report::dh_tables(chain, &dof_dof, &dof_su, true_rows.as_ref())
+                report::dh_tables(chain, &dh.dof_dof, &dh.dof_su, true_rows.as_ref())
             );
         }
         if let Some(t) = truth {
@@ -711,6 +711,7 @@ fn write_simulation(
 }
 
 fn demo(args: DemoArgs) -> Result<()> {
+    use skincal::estimate::ml::{self, MlConfig};
     let out = args
         .out
         .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
@@ -729,15 +730,61 @@ fn demo(args: DemoArgs) -> Result<()> {
     print!("{}", report::tree(&structure));
     println!();
     print!("{}", report::diagnostics(&structure));
-    let (json_path, dot_path) = (out.join("structure.json"), out.join("structure.dot"));
+    let chains = estimate::serial_chains(&structure)?;
+
+    println!("\n3. Kinematic estimation, maximum likelihood\n");
+    let mut limbs = Vec::new();
+    let mut rows = Vec::new();
+    for chain in &chains {
+        let data = ChainData::new(&set, chain)?;
+        let e = ml::estimate_chain(&data, &MlConfig::default())?;
+        print!("{}", render::ml_summary(&e));
+        let ml_accuracy = estimate::consecutive_su_errors(&robot, &e.to_robot(), chain, 30, 1)?;
+        let paper = estimate::paper::estimate_chain(
+            &data,
+            &PaperConfig {
+                seed: args.seed,
+                ..PaperConfig::default()
+            },
+        )?;
+        let paper_accuracy = estimate::consecutive_su_errors(&robot, &paper.robot(), chain, 30, 1)?;
+        rows.push(render::DemoRow {
+            limb: chain.name.clone(),
+            method: "maximum likelihood",
+            seconds: e.seconds,
+            accuracy: ml_accuracy,
+        });
+        let method = if paper.converged() {
+            "paper (NLopt)"
+        } else {
+            "paper (not converged)"
+        };
+        rows.push(render::DemoRow {
+            limb: chain.name.clone(),
+            method,
+            seconds: paper.seconds(),
+            accuracy: paper_accuracy,
+        });
+        limbs.push(e);
+    }
+    println!("\n4. Against the simulator's truth: pose of each SU relative to the previous one, 30 held-out poses\n");
+    print!("{}", render::demo_accuracy(&rows));
+
+    let (json_path, dot_path, model_path) = (
+        out.join("structure.json"),
+        out.join("structure.dot"),
+        out.join("model.json"),
+    );
+    let model = serde_json::json!({ "format": "skincal-model", "version": 1, "method": "ml", "noise_sd": MlConfig::default().noise_sd, "limbs": limbs });
     io::write_all(
         &[
             (json_path.clone(), serde_json::to_string_pretty(&structure)?),
             (dot_path.clone(), report::structure_dot(&structure)),
+            (model_path.clone(), serde_json::to_string_pretty(&model)?),
         ],
         true,
     )?;
-    files.extend([json_path, dot_path]);
+    files.extend([json_path, dot_path, model_path]);
     println!();
     for f in files {
         println!("wrote {}", f.display());

@@ -367,3 +367,33 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
     out
 }
+
+/// One line of the demo's accuracy table.
+pub struct DemoRow {
+    pub limb: String,
+    pub method: &'static str,
+    pub seconds: f64,
+    pub accuracy: skincal::estimate::ChainAccuracy,
+}
+
+pub fn demo_accuracy(rows: &[DemoRow]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<8} {:<22} {:>10} {:>12} {:>12}",
+        "limb", "method", "time ms", "pos RMS mm", "rot RMS °"
+    );
+    for r in rows {
+        let _ = writeln!(
+            out,
+            "{:<8} {:<22} {:>10.1} {:>12.2} {:>12.3}",
+            r.limb,
+            r.method,
+            r.seconds * 1e3,
+            r.accuracy.position_rms * 1e3,
+            r.accuracy.rotation_rms.to_degrees()
+        );
+    }
+    let _ = writeln!(out, "(summary over the SU pairs after the first; the first pair is only defined up to a screw about the first axis)");
+    out
+}

@@ -457,6 +457,15 @@ pub struct Unobservable {
     pub parameters: Vec<String>,
 }
 
+/// A chain in the paper's DH+2 form (Fig. 6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DhTable {
+    /// DoF-to-DoF rows `k → k+1`.
+    pub dof_dof: Vec<super::DhRow>,
+    /// DoF-to-SU rows.
+    pub dof_su: Vec<super::SuRow>,
+}
+
 /// The maximum-likelihood estimate of one chain.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MlChainEstimate {
@@ -478,6 +487,8 @@ pub struct MlChainEstimate {
     pub unobservable: Vec<Unobservable>,
     /// Per SU: standard deviations.
     pub uncertainty: Vec<SuUncertainty>,
+    /// The same limb in the paper's DH+2 form (`None` if it cannot be expressed).
+    pub dh: Option<DhTable>,
     /// LM iterations, all solves.
     pub iterations: usize,
     /// Wall time, s.
@@ -757,8 +768,15 @@ pub fn estimate_chain(
     if vertical {
         fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
     }
+    let robot = chain_robot_file(&data.chain, &state);
+    let dh = robot
+        .build()
+        .ok()
+        .and_then(|r| super::dh_form(&r, &data.chain))
+        .map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su });
     Ok(MlChainEstimate {
-        robot: chain_robot_file(&data.chain, &state),
+        robot,
+        dh,
         chain: data.chain.clone(),
         gravity: state.gravity.into(),
         residual_ratio,
