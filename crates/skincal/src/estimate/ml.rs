@@ -1122,40 +1122,17 @@ pub mod internals {
 /// The chain state of a robot that names the chain's DoFs and SUs (e.g. the truth), in this
 /// estimator's frames: reference = the first DoF's joint frame with `z` along its axis.
 pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> Option<ChainState> {
-    let m = &robot.model;
-    let dofs: Vec<usize> = chain
-        .dofs
-        .iter()
-        .map(|d| m.dof_index(d))
-        .collect::<Option<_>>()?;
-    let sus: Vec<usize> = chain
-        .sus
-        .iter()
-        .map(|s| m.su_index(s))
-        .collect::<Option<_>>()?;
-    let k =
-        crate::model::forward_kinematics(&m.clone(), &robot.parameters, &vec![0.0; m.dofs().len()]);
-    // Joint frames with z along the axis, in the robot's reference frame at q = 0.
-    let joint_world: Vec<Isometry3<f64>> = dofs
-        .iter()
-        .map(|&d| {
-            let axis = m.dofs()[d].axis.into_inner();
-            k.joints[d]
-                * UnitQuaternion::rotation_between(&Vector3::z(), &axis).unwrap_or_else(|| {
-                    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
-                })
-        })
-        .collect();
+    let (joint_world, su_world) = super::chain_frames_at_zero(robot, chain)?;
     let to_reference = joint_world[0].inverse();
     let world: Vec<Isometry3<f64>> = joint_world.iter().map(|j| to_reference * j).collect();
-    let mut joints = vec![Isometry3::identity(); dofs.len()];
-    for i in 1..dofs.len() {
+    let mut joints = vec![Isometry3::identity(); world.len()];
+    for i in 1..world.len() {
         joints[i] = world[i - 1].inverse() * world[i];
     }
-    let su_states = sus
+    let su_states = su_world
         .iter()
         .enumerate()
-        .map(|(u, &s)| world[u].inverse() * (to_reference * k.sus[s]))
+        .map(|(u, s)| world[u].inverse() * (to_reference * s))
         .collect();
     Some(ChainState {
         gravity: to_reference.rotation * gravity,

@@ -250,35 +250,10 @@ impl ChainData {
     }
 }
 
-/// A DoF-to-DoF row of the paper's table (Fig. 6), m and rad.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct DhRow {
-    /// Joint angle offset.
-    pub theta0: f64,
-    /// Offset along z.
-    pub d: f64,
-    /// Length along x.
-    pub a: f64,
-    /// Twist about x.
-    pub alpha: f64,
-}
-
-/// A DoF-to-SU row of the paper's table (Fig. 6), m and rad.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct SuRow {
-    /// Joint angle offset.
-    pub theta0: f64,
-    /// Offset along z.
-    pub d: f64,
-    /// Length along x.
-    pub a: f64,
-    /// Twist about x.
-    pub alpha: f64,
-    /// Rotation of the accelerometer about the virtual axis.
-    pub theta_acc: f64,
-    /// Translation of the accelerometer along the virtual axis.
-    pub d_acc: f64,
-}
+/// A DoF-to-DoF row of the paper's table (Fig. 6): `θ0, d, a, α`, m and rad.
+pub use crate::model::description::DhEntry as DhRow;
+/// A DoF-to-SU row of the paper's table (Fig. 6): `θ0, d, a, α, θ_acc, d_acc`, m and rad.
+pub use crate::model::description::DhSensorEntry as SuRow;
 
 /// The paper's chain model as a [`Robot`]: reference `reference`, DoF `k+1` placed on the segment
 /// of DoF `k` by `dof_dof[k]`, SU `k` on the segment of DoF `k` by `dof_su[k]`. `dof_su` may be
@@ -624,11 +599,15 @@ fn dh_to_line(point: &Vector3<f64>, direction: &Vector3<f64>) -> (DhRow, Isometr
     (row, frame)
 }
 
-/// The paper's DH+2 table (Fig. 6) of a chain of any robot that names its DoFs and SUs — an estimate
-/// or the truth: DoF-to-DoF rows from the common normals between consecutive axes at the zero pose,
-/// the first DH frame being the first joint's frame (the paper's `DoF1_T_RS = I`), and DoF-to-SU
-/// rows to each SU's z axis, with `θ_acc`, `d_acc` for the rest.
-pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+/// Frames of a chain at the zero pose: (joint frames with z along each axis, SU frames).
+pub type ChainFrames = (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>);
+
+/// The frames of a chain of any robot at the zero pose, in the robot's reference frame: every
+/// DoF's joint frame turned so that its z axis is the DoF's axis, and every chain SU's frame.
+pub fn chain_frames_at_zero(
+    robot: &Robot,
+    chain: &SerialChain,
+) -> Option<ChainFrames> {
     let m = &robot.model;
     let dofs: Vec<usize> = chain
         .dofs
@@ -641,27 +620,43 @@ pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<Su
         .map(|s| m.su_index(s))
         .collect::<Option<_>>()?;
     let k = forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
-    let axis_frame = |d: usize| -> Isometry3<f64> {
-        let axis = m.dofs()[d].axis.into_inner();
-        let align = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &axis)
-            .unwrap_or_else(|| {
-                nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
-            });
-        k.joints[d] * align
-    };
-    let base = axis_frame(dofs[0]);
+    let joints = dofs
+        .iter()
+        .map(|&d| {
+            let axis = m.dofs()[d].axis.into_inner();
+            let align = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &axis)
+                .unwrap_or_else(|| {
+                    nalgebra::UnitQuaternion::from_axis_angle(
+                        &Vector3::x_axis(),
+                        std::f64::consts::PI,
+                    )
+                });
+            k.joints[d] * align
+        })
+        .collect();
+    Some((joints, sus.iter().map(|&s| k.sus[s]).collect()))
+}
+
+/// The paper's DH+2 table (Fig. 6) of a chain of any robot that names its DoFs and SUs — an estimate
+/// or the truth: DoF-to-DoF rows from the common normals between consecutive axes at the zero pose,
+/// the first DH frame being the first joint's frame (the paper's `DoF1_T_RS = I`), and DoF-to-SU
+/// rows to each SU's z axis, with `θ_acc`, `d_acc` for the rest.
+pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+    let (joints, su_frames) = chain_frames_at_zero(robot, chain)?;
+    let base = joints[0];
+
     let mut frames = vec![Isometry3::identity()];
     let mut rows = Vec::new();
-    for i in 1..dofs.len() {
-        let next = base.inverse() * axis_frame(dofs[i]);
+    for (i, joint) in joints.iter().enumerate().skip(1) {
+        let next = base.inverse() * joint;
         let local = frames[i - 1].inverse() * next;
         let (row, step) = dh_to_line(&local.translation.vector, &(local.rotation * Vector3::z()));
         rows.push(row);
         frames.push(frames[i - 1] * step);
     }
     let mut su_rows = Vec::new();
-    for (i, &s) in sus.iter().enumerate() {
-        let su = frames[i].inverse() * (base.inverse() * k.sus[s]);
+    for (i, frame) in su_frames.iter().enumerate() {
+        let su = frames[i].inverse() * (base.inverse() * frame);
         let (row, virtual_frame) =
             dh_to_line(&su.translation.vector, &(su.rotation * Vector3::z()));
         let rest = virtual_frame.inverse() * su;
