@@ -115,7 +115,7 @@ pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, Estimate
                 return Err(EstimateError::UnsupportedLimb {
                     limb: end.clone(),
                     reason: format!(
-                        "joint {} has {} DoFs ({}) with no SU between them; the paper's chain model needs one SU after every DoF",
+                        "joint {} has {} DoFs ({}) with no SU between them; the serial-chain estimators need one SU after every DoF (multi-DoF joints are not calibrated yet)",
                         joint.id,
                         joint.dofs.len(),
                         joint.dofs.join(", ")
@@ -604,10 +604,7 @@ pub type ChainFrames = (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>);
 
 /// The frames of a chain of any robot at the zero pose, in the robot's reference frame: every
 /// DoF's joint frame turned so that its z axis is the DoF's axis, and every chain SU's frame.
-pub fn chain_frames_at_zero(
-    robot: &Robot,
-    chain: &SerialChain,
-) -> Option<ChainFrames> {
+pub fn chain_frames_at_zero(robot: &Robot, chain: &SerialChain) -> Option<ChainFrames> {
     let m = &robot.model;
     let dofs: Vec<usize> = chain
         .dofs
