@@ -78,7 +78,7 @@ impl Default for MlConfig {
     fn default() -> Self {
         Self {
             noise_sd: 0.01 * STANDARD_GRAVITY / 3f64.sqrt(),
-            angle_starts: 12,
+            angle_starts: 8,
             max_iterations: 100,
             converged_ratio: 1.5,
             beam: 3,
@@ -160,14 +160,21 @@ struct Frames {
     sus: Vec<Isometry3<f64>>,
 }
 
-fn frames(state: &ChainState, layout: &Layout, q: &[f64]) -> Frames {
+/// `Rz(q_k)` for every DoF of a pose.
+fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
+    q.iter()
+        .map(|&a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
+        .collect()
+}
+
+fn frames(state: &ChainState, layout: &Layout, turns: &[UnitQuaternion<f64>]) -> Frames {
     let mut segments = Vec::with_capacity(layout.dofs + 1);
     let mut joints = Vec::with_capacity(layout.dofs);
     segments.push(Isometry3::identity());
     for k in 0..layout.dofs {
         let j = segments[k] * state.joints[k];
         joints.push(j);
-        segments.push(j * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), q[k]));
+        segments.push(j * turns[k]);
     }
     let sus = state
         .sus
@@ -221,7 +228,7 @@ fn linearise(
     let alpha = data.alpha;
     let mut row = 0;
     for p in 0..data.q.len() {
-        let f = frames(state, layout, &data.q[p]);
+        let f = frames(state, layout, &data.turns[p]);
         for &u in &spec.sus {
             let s = layout.su_segment[u];
             let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
@@ -347,6 +354,11 @@ fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainState {
     next
 }
 
+/// Relative cost decrease below which an initialisation solve stops.
+const INIT_TOLERANCE: f64 = 1e-6;
+/// Relative cost decrease below which the final joint refinement stops.
+const FINAL_TOLERANCE: f64 = 1e-10;
+
 /// Outcome of one LM solve.
 #[derive(Debug, Clone)]
 struct Solved {
@@ -363,6 +375,7 @@ fn solve(
     spec: &Spec,
     sigma: f64,
     max_iterations: usize,
+    tolerance: f64,
 ) -> Solved {
     let mut state = state;
     let (mut r, mut jac) = linearise(&state, layout, data, spec, sigma, true);
@@ -405,7 +418,7 @@ fn solve(
                 state = trial;
                 cost = trial_cost;
                 lambda = (lambda / 3.0).max(1e-12);
-                improved = relative > 1e-9 && cost * relative > 1e-6 && step.norm() > 1e-10;
+                improved = relative > tolerance && cost * relative > 1e-6 && step.norm() > 1e-10;
                 break;
             }
             lambda *= 4.0;
@@ -430,6 +443,8 @@ fn solve(
 #[derive(Debug, Clone)]
 struct Readings {
     q: Vec<Vec<f64>>,
+    /// `Rz(q)` of every DoF in every pose.
+    turns: Vec<Vec<UnitQuaternion<f64>>>,
     statics: Vec<Vec<Vector3<f64>>>,
     /// `dynamics[p][u][d]` for every DoF `d` before the SU.
     dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
@@ -507,6 +522,7 @@ impl MlChainEstimate {
 fn readings(data: &ChainData) -> Readings {
     Readings {
         q: data.q.clone(),
+        turns: data.q.iter().map(|q| turns_of(q)).collect(),
         statics: data.static_readings.clone(),
         dynamics: data
             .dynamic
@@ -622,7 +638,15 @@ pub fn estimate_chain(
             held: vec![(1, 2), (1, 5)],
             sus: vec![0],
         };
-        let free = solve(s, &layout, &readings, &spec, sigma, config.max_iterations);
+        let free = solve(
+            s,
+            &layout,
+            &readings,
+            &spec,
+            sigma,
+            config.max_iterations,
+            INIT_TOLERANCE,
+        );
         // Is the first axis vertical? A likelihood-ratio test of gravity along it.
         let mut upright = free.state.clone();
         upright.gravity = Vector3::new(
@@ -641,6 +665,7 @@ pub fn estimate_chain(
             &spec_upright,
             sigma,
             config.max_iterations,
+            INIT_TOLERANCE,
         );
         iterations += free.iterations + held.iterations;
         if held.cost - free.cost < config.vertical_test {
@@ -683,7 +708,8 @@ pub fn estimate_chain(
                         &readings,
                         &spec,
                         sigma,
-                        config.max_iterations.min(30),
+                        config.max_iterations.min(10),
+                        INIT_TOLERANCE,
                     ),
                     cost,
                 )
@@ -705,6 +731,7 @@ pub fn estimate_chain(
                     &spec,
                     sigma,
                     config.max_iterations,
+                    INIT_TOLERANCE,
                 );
                 let total = cost + solved.cost;
                 (solved, total)
@@ -744,6 +771,7 @@ pub fn estimate_chain(
         &spec,
         sigma,
         config.max_iterations,
+        FINAL_TOLERANCE,
     );
     iterations += solved.iterations;
     let state = solved.state;
@@ -841,7 +869,7 @@ fn joint_starts(
     let mut after = Vec::with_capacity(p);
     let mut segment = Vec::with_capacity(p);
     for i in 0..p {
-        let f = frames(state, layout, &data.q[i]);
+        let f = frames(state, layout, &data.turns[i]);
         before.push(f.segments[k].rotation.inverse() * minus_g);
         after.push(
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), data.q[i][k])
@@ -889,7 +917,7 @@ fn joint_position(
     let mut ata = Matrix3::zeros();
     let mut atb = Vector3::zeros();
     for (i, seg) in segment.iter().enumerate() {
-        let f = frames(state, layout, &data.q[i]);
+        let f = frames(state, layout, &data.turns[i]);
         let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), data.q[i][k]);
         let r_world = seg.rotation * rotation * turn * su.rotation;
         // p_u = seg·(t + R·Rz(q)·t_su) = c + Rseg·t.
@@ -973,7 +1001,11 @@ fn covariance(
 
 /// Pose of SU `u` relative to the previous SU (reference for the first) at q = 0.
 fn relative_pose(state: &ChainState, layout: &Layout, u: usize) -> Isometry3<f64> {
-    let f = frames(state, layout, &vec![0.0; layout.dofs]);
+    let f = frames(
+        state,
+        layout,
+        &vec![UnitQuaternion::identity(); layout.dofs],
+    );
     if u == 0 {
         f.sus[0]
     } else {
@@ -1175,7 +1207,11 @@ pub fn cramer_rao_bound(
     let (mut position, mut rotation, mut count) = (0.0, 0.0, 0usize);
     let h = 1e-6;
     for _ in 0..poses {
-        let q: Vec<f64> = (0..dofs).map(|_| rng.random_range(-2.62..=2.62)).collect();
+        let q = turns_of(
+            &(0..dofs)
+                .map(|_| rng.random_range(-2.62..=2.62))
+                .collect::<Vec<f64>>(),
+        );
         let pair = |s: &ChainState, i: usize| {
             let f = frames(s, &layout, &q);
             f.sus[i].inverse() * f.sus[i + 1]
