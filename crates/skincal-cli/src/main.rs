@@ -81,13 +81,13 @@ struct CalibrateArgs {
     /// Only the limb that ends at this segment (e.g. S7; see `skincal explore`).
     #[arg(long, value_name = "ID")]
     limb: Option<String>,
-    /// Seed of the optimiser's random numbers.
+    /// Seed of NLopt's random numbers (method paper; method ml is deterministic).
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Global stop of the paper's method: e_T ≤ E (g²).
     #[arg(long, value_name = "E", default_value_t = 0.1)]
     e_stop: f64,
-    /// Cap on error-function evaluations per step.
+    /// Cap on error-function evaluations per step (method paper).
     #[arg(long, default_value_t = 100_000)]
     max_evaluations: u32,
 }

@@ -51,7 +51,7 @@ use serde::{Deserialize, Serialize};
 use super::{ChainData, EstimateError, SerialChain};
 use crate::model::description::RobotFile;
 use crate::model::sensor::STANDARD_GRAVITY;
-use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use crate::model::{PlacementSpec, Robot};
 
 /// Settings of the maximum-likelihood estimator.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -1052,31 +1052,19 @@ fn su_uncertainty(
 
 /// The estimated chain in the robot description format: reference = the first joint frame.
 fn chain_robot_file(chain: &SerialChain, state: &ChainState) -> RobotFile {
-    let mut b = RobotBuilder::new(chain.name.clone(), "reference");
-    let segment = |k: usize| format!("segment_{}", chain.dofs[k]);
-    for k in 0..chain.dofs.len() {
-        b.dofs.push(DofSpec {
-            name: chain.dofs[k].clone(),
-            parent: if k == 0 {
-                "reference".into()
-            } else {
-                segment(k - 1)
-            },
-            child: segment(k),
-            origin: PlacementSpec::from_isometry(&state.joints[k]),
-            axis: Vector3::z(),
-            limits: Limits::CONTINUOUS,
-        });
-    }
-    for (u, su) in state.sus.iter().enumerate() {
-        b.sus.push(SuSpec {
-            name: chain.sus[u].clone(),
-            segment: segment(u),
-            placement: PlacementSpec::from_isometry(su),
-        });
-    }
+    let origins = state
+        .joints
+        .iter()
+        .map(PlacementSpec::from_isometry)
+        .collect();
+    let sus = state
+        .sus
+        .iter()
+        .enumerate()
+        .map(|(u, s)| (u, PlacementSpec::from_isometry(s)))
+        .collect();
     RobotFile::from_robot(
-        &b.build().expect("valid chain"),
+        &super::chain_robot(chain, origins, sus),
         Some("maximum-likelihood estimate".into()),
     )
 }

@@ -255,24 +255,17 @@ pub use crate::model::description::DhEntry as DhRow;
 /// A DoF-to-SU row of the paper's table (Fig. 6): `θ0, d, a, α, θ_acc, d_acc`, m and rad.
 pub use crate::model::description::DhSensorEntry as SuRow;
 
-/// The paper's chain model as a [`Robot`]: reference `reference`, DoF `k+1` placed on the segment
-/// of DoF `k` by `dof_dof[k]`, SU `k` on the segment of DoF `k` by `dof_su[k]`. `dof_su` may be
-/// shorter than the chain (only the first SUs), and `dof_dof` has one row less than the DoFs used.
-pub fn dh_chain_robot(
+/// A serial chain as a [`Robot`]: reference segment `reference`, DoF `k` (axis z of its joint frame)
+/// placed by `origins[k]` on the segment of DoF `k−1`, and SU `k` placed by `sus` entries `(k, placement)`
+/// on the segment of DoF `k`. Only the first `origins.len()` DoFs are built.
+pub fn chain_robot(
     chain: &SerialChain,
-    dofs: usize,
-    dof_dof: &[DhRow],
-    dof_su: &[(usize, SuRow)],
+    origins: Vec<PlacementSpec>,
+    sus: Vec<(usize, PlacementSpec)>,
 ) -> Robot {
     let mut b = RobotBuilder::new(chain.name.clone(), "reference");
     let segment = |k: usize| format!("segment_{}", chain.dofs[k]);
-    for k in 0..dofs {
-        let origin = if k == 0 {
-            PlacementSpec::identity()
-        } else {
-            let r = dof_dof[k - 1];
-            PlacementSpec::dh(r.theta0, r.d, r.a, r.alpha)
-        };
+    for (k, origin) in origins.into_iter().enumerate() {
         b.dofs.push(DofSpec {
             name: chain.dofs[k].clone(),
             parent: if k == 0 {
@@ -286,15 +279,45 @@ pub fn dh_chain_robot(
             limits: Limits::CONTINUOUS,
         });
     }
-    for &(k, r) in dof_su {
+    for (k, placement) in sus {
         b.sus.push(SuSpec {
             name: chain.sus[k].clone(),
             segment: segment(k),
-            placement: PlacementSpec::dh_sensor(r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc),
+            placement,
         });
     }
     b.build()
-        .expect("a DH chain with distinct names is a valid tree")
+        .expect("a chain with distinct names is a valid tree")
+}
+
+/// The paper's chain model (eqs. 4–7) as a [`Robot`]: DoF `k+1` placed on the segment of DoF `k`
+/// by `dof_dof[k]`, SU `k` on the segment of DoF `k` by its row. `dof_su` may name only some SUs,
+/// and `dof_dof` has one row less than the DoFs used.
+pub fn dh_chain_robot(
+    chain: &SerialChain,
+    dofs: usize,
+    dof_dof: &[DhRow],
+    dof_su: &[(usize, SuRow)],
+) -> Robot {
+    let origins = (0..dofs)
+        .map(|k| match k {
+            0 => PlacementSpec::identity(),
+            _ => {
+                let r = dof_dof[k - 1];
+                PlacementSpec::dh(r.theta0, r.d, r.a, r.alpha)
+            }
+        })
+        .collect();
+    let sus = dof_su
+        .iter()
+        .map(|&(k, r)| {
+            (
+                k,
+                PlacementSpec::dh_sensor(r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc),
+            )
+        })
+        .collect();
+    chain_robot(chain, origins, sus)
 }
 
 /// Errors of one consecutive SU pair over held-out poses.
