@@ -136,6 +136,9 @@ struct Spec {
     held: Vec<(usize, usize)>,
     /// SUs whose residuals enter.
     sus: Vec<usize>,
+    /// Frames that the free blocks cannot change, per pose: the joint frames before the first
+    /// free joint and the segment it sits on (a cache for the segment-by-segment solves).
+    prefix: Option<std::sync::Arc<Vec<Prefix>>>,
 }
 
 impl Spec {
@@ -160,6 +163,27 @@ struct Frames {
     sus: Vec<Isometry3<f64>>,
 }
 
+/// Joint frames `0…k−1` and the frame of segment `k` of one pose, in the reference frame.
+#[derive(Debug, Clone, PartialEq)]
+struct Prefix {
+    joints: Vec<Isometry3<f64>>,
+    segment: Isometry3<f64>,
+}
+
+/// The prefixes up to joint `k` of every pose.
+fn prefixes(state: &ChainState, layout: &Layout, data: &Readings, k: usize) -> Vec<Prefix> {
+    data.turns
+        .iter()
+        .map(|turns| {
+            let f = frames(state, layout, turns, None, k);
+            Prefix {
+                joints: f.joints[..k].to_vec(),
+                segment: f.segments[k],
+            }
+        })
+        .collect()
+}
+
 /// `Rz(q_k)` for every DoF of a pose.
 fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
     q.iter()
@@ -167,11 +191,24 @@ fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
         .collect()
 }
 
-fn frames(state: &ChainState, layout: &Layout, turns: &[UnitQuaternion<f64>]) -> Frames {
-    let mut segments = Vec::with_capacity(layout.dofs + 1);
-    let mut joints = Vec::with_capacity(layout.dofs);
-    segments.push(Isometry3::identity());
-    for k in 0..layout.dofs {
+/// Frames of one pose up to segment `last` (joints `0…last−1`), continuing from `prefix` when given,
+/// and the frames of the SUs on those segments (identity for the others).
+fn frames(
+    state: &ChainState,
+    layout: &Layout,
+    turns: &[UnitQuaternion<f64>],
+    prefix: Option<&Prefix>,
+    last: usize,
+) -> Frames {
+    let (mut joints, mut segments) = match prefix {
+        Some(p) => {
+            let mut segments = vec![Isometry3::identity(); p.joints.len()];
+            segments.push(p.segment);
+            (p.joints.clone(), segments)
+        }
+        None => (Vec::with_capacity(layout.dofs), vec![Isometry3::identity()]),
+    };
+    for k in joints.len()..last.min(layout.dofs) {
         let j = segments[k] * state.joints[k];
         joints.push(j);
         segments.push(j * turns[k]);
@@ -180,7 +217,7 @@ fn frames(state: &ChainState, layout: &Layout, turns: &[UnitQuaternion<f64>]) ->
         .sus
         .iter()
         .zip(&layout.su_segment)
-        .map(|(s, &seg)| segments[seg] * s)
+        .map(|(s, &seg)| segments.get(seg).map_or(Isometry3::identity(), |f| f * s))
         .collect();
     Frames {
         joints,
@@ -226,9 +263,21 @@ fn linearise(
     let mut jac = DMatrix::zeros(if jacobian { rows } else { 0 }, columns.len());
     let g = state.gravity;
     let alpha = data.alpha;
+    let last = spec
+        .sus
+        .iter()
+        .map(|&u| layout.su_segment[u])
+        .max()
+        .unwrap_or(0);
     let mut row = 0;
     for p in 0..data.q.len() {
-        let f = frames(state, layout, &data.turns[p]);
+        let f = frames(
+            state,
+            layout,
+            &data.turns[p],
+            spec.prefix.as_ref().map(|v| &v[p]),
+            last,
+        );
         for &u in &spec.sus {
             let s = layout.su_segment[u];
             let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
@@ -637,6 +686,7 @@ pub fn estimate_chain(
             blocks: vec![Block::Gravity, Block::Su(0)],
             held: vec![(1, 2), (1, 5)],
             sus: vec![0],
+            prefix: None,
         };
         let free = solve(
             s,
@@ -680,19 +730,25 @@ pub fn estimate_chain(
     // Segments 2…N: SU from its own axis, joint rotation from gravity (or searched), joint position
     // from upstream accelerations; every candidate refined (in parallel), the best few kept.
     for k in 1..dofs {
-        let mut candidates: Vec<(ChainState, Isometry3<f64>, Isometry3<f64>, f64)> = Vec::new();
-        for (state, cost) in &beam {
+        // Joints 0…k−1 stay as they are in this segment's solves: their frames are computed once.
+        let caches: Vec<std::sync::Arc<Vec<Prefix>>> = beam
+            .iter()
+            .map(|(state, _)| std::sync::Arc::new(prefixes(state, &layout, &readings, k)))
+            .collect();
+        let mut candidates: Vec<(ChainState, Isometry3<f64>, Isometry3<f64>, f64, usize)> =
+            Vec::new();
+        for (b, (state, cost)) in beam.iter().enumerate() {
             for sign in [1.0, -1.0] {
                 let su = su_from_axis(&readings, k, sign);
                 for start in joint_starts(state, &layout, &readings, k, &su, config.angle_starts) {
-                    candidates.push((state.clone(), su, start, *cost));
+                    candidates.push((state.clone(), su, start, *cost, b));
                 }
             }
         }
         // Phase 1: the joint frame alone from every start; phase 2: joint and SU together.
-        let phase1: Vec<(Solved, f64)> = candidates
+        let phase1: Vec<(Solved, f64, usize)> = candidates
             .into_par_iter()
-            .map(|(state, su, start, cost)| {
+            .map(|(state, su, start, cost, b)| {
                 let mut s = state;
                 s.sus[k] = su;
                 s.joints[k] = start;
@@ -700,6 +756,7 @@ pub fn estimate_chain(
                     blocks: vec![Block::JointFull(k)],
                     held: vec![],
                     sus: vec![k],
+                    prefix: Some(caches[b].clone()),
                 };
                 (
                     solve(
@@ -712,17 +769,19 @@ pub fn estimate_chain(
                         INIT_TOLERANCE,
                     ),
                     cost,
+                    b,
                 )
             })
             .collect();
         iterations += phase1.iter().map(|s| s.0.iterations).sum::<usize>();
         let solved: Vec<(Solved, f64)> = phase1
             .into_par_iter()
-            .map(|(first, cost)| {
+            .map(|(first, cost, b)| {
                 let spec = Spec {
                     blocks: vec![Block::Joint(k), Block::Su(k)],
                     held: vec![],
                     sus: vec![k],
+                    prefix: Some(caches[b].clone()),
                 };
                 let solved = solve(
                     first.state,
@@ -825,6 +884,7 @@ fn full_spec(layout: &Layout) -> Spec {
     // The first SU (on segment 1) holds the gauge: its rotation about and shift along z.
     let first_su = layout.dofs;
     Spec {
+        prefix: None,
         blocks,
         held: vec![(first_su, 2), (first_su, 5)],
         sus: (0..layout.su_segment.len()).collect(),
@@ -869,7 +929,7 @@ fn joint_starts(
     let mut after = Vec::with_capacity(p);
     let mut segment = Vec::with_capacity(p);
     for i in 0..p {
-        let f = frames(state, layout, &data.turns[i]);
+        let f = frames(state, layout, &data.turns[i], None, layout.dofs);
         before.push(f.segments[k].rotation.inverse() * minus_g);
         after.push(
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), data.q[i][k])
@@ -917,7 +977,7 @@ fn joint_position(
     let mut ata = Matrix3::zeros();
     let mut atb = Vector3::zeros();
     for (i, seg) in segment.iter().enumerate() {
-        let f = frames(state, layout, &data.turns[i]);
+        let f = frames(state, layout, &data.turns[i], None, layout.dofs);
         let turn = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), data.q[i][k]);
         let r_world = seg.rotation * rotation * turn * su.rotation;
         // p_u = seg·(t + R·Rz(q)·t_su) = c + Rseg·t.
@@ -1005,6 +1065,8 @@ fn relative_pose(state: &ChainState, layout: &Layout, u: usize) -> Isometry3<f64
         state,
         layout,
         &vec![UnitQuaternion::identity(); layout.dofs],
+        None,
+        layout.dofs,
     );
     if u == 0 {
         f.sus[0]
@@ -1201,7 +1263,7 @@ pub fn cramer_rao_bound(
                 .collect::<Vec<f64>>(),
         );
         let pair = |s: &ChainState, i: usize| {
-            let f = frames(s, &layout, &q);
+            let f = frames(s, &layout, &q, None, layout.dofs);
             f.sus[i].inverse() * f.sus[i + 1]
         };
         for i in 1..dofs.saturating_sub(1) {
