@@ -408,6 +408,16 @@ const INIT_TOLERANCE: f64 = 1e-6;
 /// Relative cost decrease below which the final joint refinement stops.
 const FINAL_TOLERANCE: f64 = 1e-10;
 
+/// A start for one segment's solve: the beam state it extends, the SU placement and joint frame to
+/// start from, the cost so far and the beam entry it came from.
+struct Candidate {
+    state: ChainState,
+    su: Isometry3<f64>,
+    start: Isometry3<f64>,
+    cost: f64,
+    beam: usize,
+}
+
 /// Outcome of one LM solve.
 #[derive(Debug, Clone)]
 struct Solved {
@@ -735,43 +745,56 @@ pub fn estimate_chain(
             .iter()
             .map(|(state, _)| std::sync::Arc::new(prefixes(state, &layout, &readings, k)))
             .collect();
-        let mut candidates: Vec<(ChainState, Isometry3<f64>, Isometry3<f64>, f64, usize)> =
-            Vec::new();
+        let mut candidates: Vec<Candidate> = Vec::new();
         for (b, (state, cost)) in beam.iter().enumerate() {
             for sign in [1.0, -1.0] {
                 let su = su_from_axis(&readings, k, sign);
                 for start in joint_starts(state, &layout, &readings, k, &su, config.angle_starts) {
-                    candidates.push((state.clone(), su, start, *cost, b));
+                    candidates.push(Candidate {
+                        state: state.clone(),
+                        su,
+                        start,
+                        cost: *cost,
+                        beam: b,
+                    });
                 }
             }
         }
         // Phase 1: the joint frame alone from every start; phase 2: joint and SU together.
         let phase1: Vec<(Solved, f64, usize)> = candidates
             .into_par_iter()
-            .map(|(state, su, start, cost, b)| {
-                let mut s = state;
-                s.sus[k] = su;
-                s.joints[k] = start;
-                let spec = Spec {
-                    blocks: vec![Block::JointFull(k)],
-                    held: vec![],
-                    sus: vec![k],
-                    prefix: Some(caches[b].clone()),
-                };
-                (
-                    solve(
-                        s,
-                        &layout,
-                        &readings,
-                        &spec,
-                        sigma,
-                        config.max_iterations.min(10),
-                        INIT_TOLERANCE,
-                    ),
-                    cost,
-                    b,
-                )
-            })
+            .map(
+                |Candidate {
+                     state,
+                     su,
+                     start,
+                     cost,
+                     beam: b,
+                 }| {
+                    let mut s = state;
+                    s.sus[k] = su;
+                    s.joints[k] = start;
+                    let spec = Spec {
+                        blocks: vec![Block::JointFull(k)],
+                        held: vec![],
+                        sus: vec![k],
+                        prefix: Some(caches[b].clone()),
+                    };
+                    (
+                        solve(
+                            s,
+                            &layout,
+                            &readings,
+                            &spec,
+                            sigma,
+                            config.max_iterations.min(10),
+                            INIT_TOLERANCE,
+                        ),
+                        cost,
+                        b,
+                    )
+                },
+            )
             .collect();
         iterations += phase1.iter().map(|s| s.0.iterations).sum::<usize>();
         let solved: Vec<(Solved, f64)> = phase1
