@@ -78,10 +78,10 @@ impl Default for MlConfig {
     fn default() -> Self {
         Self {
             noise_sd: 0.01 * STANDARD_GRAVITY / 3f64.sqrt(),
-            angle_starts: 8,
+            angle_starts: 6,
             max_iterations: 100,
             converged_ratio: 1.5,
-            beam: 3,
+            beam: 2,
             vertical_test: 9.21,
             observable_limit: 1.0,
         }
