@@ -647,6 +647,19 @@ fn wahba(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> (Rotation3<f64>, f64) {
 }
 
 /// Estimates one chain by maximum likelihood.
+///
+/// ```
+/// use skincal::estimate::{ml, ChainData, SerialChain};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
+/// let estimate = ml::estimate_chain(&ChainData::new(&set, &chain).unwrap(), &ml::MlConfig::default()).unwrap();
+/// assert!(estimate.converged);
+/// assert!((estimate.residual_ratio - 1.0).abs() < 0.2); // at the noise level
+/// ```
 pub fn estimate_chain(
     data: &ChainData,
     config: &MlConfig,

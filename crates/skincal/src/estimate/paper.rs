@@ -168,6 +168,19 @@ fn bounds(name: &str) -> (f64, f64) {
 }
 
 /// Estimates one chain progressively with the paper's method.
+///
+/// ```
+/// use skincal::estimate::{paper, ChainData, SerialChain};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
+/// let estimate = paper::estimate_chain(&ChainData::new(&set, &chain).unwrap(), &paper::PaperConfig::default()).unwrap();
+/// assert_eq!(estimate.steps.len(), 7);
+/// assert!(estimate.steps.iter().all(|s| s.e_t <= 0.1)); // this data set: every step meets e_stop
+/// ```
 pub fn estimate_chain(
     data: &ChainData,
     config: &PaperConfig,
