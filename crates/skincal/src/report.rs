@@ -200,7 +200,7 @@ pub fn dh_tables(
         .map(|(k, r)| {
             (
                 format!("{}→{}", chain.dofs[k], chain.dofs[k + 1]),
-                vec![r.theta0, r.d, r.a, r.alpha],
+                r.values().to_vec(),
             )
         })
         .collect();
@@ -210,20 +210,14 @@ pub fn dh_tables(
         .map(|(k, r)| {
             (
                 format!("{}→{}", chain.dofs[k], chain.sus[k]),
-                vec![r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc],
+                r.values().to_vec(),
             )
         })
         .collect();
-    let true_dd: Option<Vec<Vec<f64>>> = truth.map(|(rows, _)| {
-        rows.iter()
-            .map(|r| vec![r.theta0, r.d, r.a, r.alpha])
-            .collect()
-    });
-    let true_ds: Option<Vec<Vec<f64>>> = truth.map(|(_, rows)| {
-        rows.iter()
-            .map(|r| vec![r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc])
-            .collect()
-    });
+    let true_dd: Option<Vec<Vec<f64>>> =
+        truth.map(|(rows, _)| rows.iter().map(|r| r.values().to_vec()).collect());
+    let true_ds: Option<Vec<Vec<f64>>> =
+        truth.map(|(_, rows)| rows.iter().map(|r| r.values().to_vec()).collect());
     if !dd.is_empty() {
         let _ = writeln!(out, "DoF-DoF transformation parameters");
         table(&mut out, &dd, true_dd.as_deref(), &["θ0", "d", "a", "α"]);

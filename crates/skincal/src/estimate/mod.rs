@@ -302,21 +302,10 @@ pub fn dh_chain_robot(
     let origins = (0..dofs)
         .map(|k| match k {
             0 => PlacementSpec::identity(),
-            _ => {
-                let r = dof_dof[k - 1];
-                PlacementSpec::dh(r.theta0, r.d, r.a, r.alpha)
-            }
+            _ => dof_dof[k - 1].placement(),
         })
         .collect();
-    let sus = dof_su
-        .iter()
-        .map(|&(k, r)| {
-            (
-                k,
-                PlacementSpec::dh_sensor(r.theta0, r.d, r.a, r.alpha, r.theta_acc, r.d_acc),
-            )
-        })
-        .collect();
+    let sus = dof_su.iter().map(|(k, r)| (*k, r.placement())).collect();
     chain_robot(chain, origins, sus)
 }
 
@@ -554,12 +543,7 @@ pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, 
             return None;
         }
         let v = &truth.parameters[dof.origin.range()];
-        rows.push(DhRow {
-            theta0: v[0],
-            d: v[1],
-            a: v[2],
-            alpha: v[3],
-        });
+        rows.push(DhRow::from_values(v));
     }
     let mut sus = Vec::new();
     for (k, name) in chain.sus.iter().enumerate() {
@@ -570,14 +554,7 @@ pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, 
             return None;
         }
         let v = &truth.parameters[su.placement.range()];
-        sus.push(SuRow {
-            theta0: v[0],
-            d: v[1],
-            a: v[2],
-            alpha: v[3],
-            theta_acc: v[4],
-            d_acc: v[5],
-        });
+        sus.push(SuRow::from_values(v));
     }
     Some((rows, sus))
 }

@@ -258,10 +258,7 @@ pub fn estimate_chain(
             n,
             excited: excited.clone(),
         };
-        let fixed_prefix: Vec<f64> = dof_dof
-            .iter()
-            .flat_map(|r| [r.theta0, r.d, r.a, r.alpha])
-            .collect();
+        let fixed_prefix: Vec<f64> = dof_dof.iter().flat_map(|r| r.values()).collect();
         let assemble = |x: &[f64]| -> Vec<f64> {
             let mut v = fixed_prefix.clone();
             let mut it = x.iter().copied();
@@ -333,23 +330,9 @@ pub fn estimate_chain(
         let v = assemble(&x);
         let e_t = problem.error(&v);
         if n > 0 {
-            let o = 4 * (n - 1);
-            dof_dof.push(DhRow {
-                theta0: v[o],
-                d: v[o + 1],
-                a: v[o + 2],
-                alpha: v[o + 3],
-            });
+            dof_dof.push(DhRow::from_values(&v[4 * (n - 1)..]));
         }
-        let o = v.len() - 6;
-        dof_su.push(SuRow {
-            theta0: v[o],
-            d: v[o + 1],
-            a: v[o + 2],
-            alpha: v[o + 3],
-            theta_acc: v[o + 4],
-            d_acc: v[o + 5],
-        });
+        dof_su.push(SuRow::from_values(&v[v.len() - 6..]));
         steps.push(StepReport {
             step: n + 1,
             su: chain.sus[n].clone(),

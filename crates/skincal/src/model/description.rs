@@ -138,6 +138,65 @@ pub struct DhSensorEntry {
     pub d_acc: f64,
 }
 
+impl DhEntry {
+    /// The row from values in parameter order `theta0, d, a, alpha` (at least 4).
+    pub fn from_values(v: &[f64]) -> Self {
+        Self {
+            theta0: v[0],
+            d: v[1],
+            a: v[2],
+            alpha: v[3],
+        }
+    }
+
+    /// The values in parameter order.
+    pub fn values(&self) -> [f64; 4] {
+        [self.theta0, self.d, self.a, self.alpha]
+    }
+
+    /// The row as a placement.
+    pub fn placement(&self) -> PlacementSpec {
+        PlacementSpec {
+            kind: Parameterization::StandardDh,
+            values: self.values().to_vec(),
+        }
+    }
+}
+
+impl DhSensorEntry {
+    /// The row from values in parameter order `theta0, d, a, alpha, theta_acc, d_acc` (at least 6).
+    pub fn from_values(v: &[f64]) -> Self {
+        Self {
+            theta0: v[0],
+            d: v[1],
+            a: v[2],
+            alpha: v[3],
+            theta_acc: v[4],
+            d_acc: v[5],
+        }
+    }
+
+    /// The values in parameter order.
+    pub fn values(&self) -> [f64; 6] {
+        [
+            self.theta0,
+            self.d,
+            self.a,
+            self.alpha,
+            self.theta_acc,
+            self.d_acc,
+        ]
+    }
+
+    /// The row as a placement.
+    pub fn placement(&self) -> PlacementSpec {
+        PlacementSpec {
+            kind: Parameterization::StandardDhSensor,
+            values: self.values().to_vec(),
+        }
+    }
+}
+
 /// A URDF-like origin.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -177,14 +236,7 @@ impl SuEntry {
                 field: field.to_string(),
                 reason: "give either `dh` or `xyz`/`rpy`, not both".into(),
             }),
-            (Some(h), false) => Ok(PlacementSpec::dh_sensor(
-                h.theta0,
-                h.d,
-                h.a,
-                h.alpha,
-                h.theta_acc,
-                h.d_acc,
-            )),
+            (Some(h), false) => Ok(h.placement()),
             (None, _) => Ok(PlacementSpec::xyz_rpy(
                 self.xyz.unwrap_or_default(),
                 self.rpy.unwrap_or_default(),
@@ -240,7 +292,7 @@ impl RobotFile {
                         "a DH placement rotates about z; remove `axis` or use `origin`",
                     ))
                 }
-                (Some(h), None) => PlacementSpec::dh(h.theta0, h.d, h.a, h.alpha),
+                (Some(h), None) => h.placement(),
                 (None, Some(o)) => PlacementSpec::xyz_rpy(o.xyz, o.rpy),
                 (None, None) => PlacementSpec::identity(),
             };
@@ -299,15 +351,7 @@ impl RobotFile {
                 let v = &d.origin.values;
                 let (dh, origin) = match d.origin.kind {
                     Parameterization::Identity => (None, None),
-                    Parameterization::StandardDh => (
-                        Some(DhEntry {
-                            theta0: v[0],
-                            d: v[1],
-                            a: v[2],
-                            alpha: v[3],
-                        }),
-                        None,
-                    ),
+                    Parameterization::StandardDh => (Some(DhEntry::from_values(v)), None),
                     Parameterization::XyzRpy => (
                         None,
                         Some(OriginEntry {
@@ -347,14 +391,7 @@ impl RobotFile {
                         segment: s.segment.clone(),
                         xyz: None,
                         rpy: None,
-                        dh: Some(DhSensorEntry {
-                            theta0: v[0],
-                            d: v[1],
-                            a: v[2],
-                            alpha: v[3],
-                            theta_acc: v[4],
-                            d_acc: v[5],
-                        }),
+                        dh: Some(DhSensorEntry::from_values(v)),
                     },
                     Parameterization::XyzRpy => SuEntry {
                         name: s.name.clone(),
