@@ -891,14 +891,11 @@ pub fn estimate_chain(
     if vertical {
         fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
     }
-    let robot = chain_robot_file(&data.chain, &state);
-    let dh = robot
-        .build()
-        .ok()
-        .and_then(|r| super::dh_form(&r, &data.chain))
-        .map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su });
+    let limb = chain_robot(&data.chain, &state);
+    let dh =
+        super::dh_form(&limb, &data.chain).map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su });
     Ok(MlChainEstimate {
-        robot,
+        robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
         dh,
         chain: data.chain.clone(),
         gravity: state.gravity.into(),
@@ -1148,8 +1145,8 @@ fn su_uncertainty(
         .collect()
 }
 
-/// The estimated chain in the robot description format: reference = the first joint frame.
-fn chain_robot_file(chain: &SerialChain, state: &ChainState) -> RobotFile {
+/// The estimated chain as a robot: reference = the first joint frame.
+fn chain_robot(chain: &SerialChain, state: &ChainState) -> Robot {
     let origins = state
         .joints
         .iter()
@@ -1161,10 +1158,7 @@ fn chain_robot_file(chain: &SerialChain, state: &ChainState) -> RobotFile {
         .enumerate()
         .map(|(u, s)| (u, PlacementSpec::from_isometry(s)))
         .collect();
-    RobotFile::from_robot(
-        &super::chain_robot(chain, origins, sus),
-        Some("maximum-likelihood estimate".into()),
-    )
+    super::chain_robot(chain, origins, sus)
 }
 
 fn validate(config: &MlConfig) -> Result<(), EstimateError> {
