@@ -11,8 +11,11 @@
 //! such as the first transform's `θ0` and `d`, or DH equivalences like `(θ+π, d, −a, −α)`, cannot be
 //! determined from accelerometer data and are not compared one by one.
 
+pub mod limb;
 pub mod ml;
 pub mod paper;
+
+pub use limb::{limb_chains, LimbChain, LimbData, LimbJoint};
 
 use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};

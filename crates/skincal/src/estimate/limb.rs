@@ -1,0 +1,343 @@
+//! Limbs as the maximum-likelihood estimator sees them: joints of one or more DoFs, any number of
+//! SUs on every segment, and optionally a base path that an earlier estimate already fixed.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::{EstimateError, SerialChain};
+use crate::explore::Structure;
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::ExcitationPattern;
+
+/// A joint of a limb: the DoFs between two segments that carry SUs.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LimbJoint {
+    /// Its id (the structure's `Jn`, or the DoF's name for a chain without a structure).
+    pub id: String,
+    /// Its DoFs along the chain. For a joint of several DoFs the order is not known before
+    /// estimation; an estimate lists them in the order it found.
+    pub dofs: Vec<String>,
+    /// The segment it moves.
+    pub segment: String,
+    /// The SUs on that segment.
+    pub sus: Vec<String>,
+}
+
+/// A limb to estimate: joints from its base outwards.
+///
+/// The first `base_joints` joints lead from the static reference to the limb's base (a branching
+/// segment) and were estimated with an earlier limb; they are held at that estimate, and their SUs
+/// do not enter.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LimbChain {
+    /// Its name: the structure's end segment of the limb, or `chain`.
+    pub name: String,
+    /// Joints held from the parent limb's estimate.
+    #[serde(default)]
+    pub base_joints: usize,
+    /// Joints from the static reference outwards.
+    pub joints: Vec<LimbJoint>,
+}
+
+impl LimbChain {
+    /// All DoFs along the chain.
+    pub fn dofs(&self) -> Vec<String> {
+        self.joints.iter().flat_map(|j| j.dofs.clone()).collect()
+    }
+
+    /// The SUs this limb estimates (those after its base), segment by segment.
+    pub fn sus(&self) -> Vec<String> {
+        self.joints[self.base_joints..]
+            .iter()
+            .flat_map(|j| j.sus.clone())
+            .collect()
+    }
+
+    /// The name of the segment after DoF `k` of [`Self::dofs`]: the joint's segment after its last
+    /// DoF, `segment_dof` between the DoFs of a multi-DoF joint.
+    pub fn segment_after(&self, k: usize) -> String {
+        let mut first = 0;
+        for joint in &self.joints {
+            if k < first + joint.dofs.len() {
+                return if k + 1 == first + joint.dofs.len() {
+                    joint.segment.clone()
+                } else {
+                    format!("{}_{}", joint.segment, joint.dofs[k - first])
+                };
+            }
+            first += joint.dofs.len();
+        }
+        format!("segment_{k}")
+    }
+
+    /// A serial chain in the paper's sense (one DoF and one SU per joint), if this limb is one.
+    pub fn as_serial(&self) -> Option<SerialChain> {
+        let single = self.base_joints == 0
+            && self
+                .joints
+                .iter()
+                .all(|j| j.dofs.len() == 1 && j.sus.len() == 1);
+        single.then(|| SerialChain {
+            name: self.name.clone(),
+            dofs: self.dofs(),
+            sus: self.sus(),
+        })
+    }
+
+    /// The chain of every SU relative to the previous one along the limb, for
+    /// [`super::consecutive_su_errors`].
+    pub fn su_sequence(&self) -> SerialChain {
+        SerialChain {
+            name: self.name.clone(),
+            dofs: self.dofs(),
+            sus: self.sus(),
+        }
+    }
+}
+
+impl From<&SerialChain> for LimbChain {
+    fn from(chain: &SerialChain) -> Self {
+        LimbChain {
+            name: chain.name.clone(),
+            base_joints: 0,
+            joints: chain
+                .dofs
+                .iter()
+                .zip(&chain.sus)
+                .map(|(d, s)| LimbJoint {
+                    id: d.clone(),
+                    dofs: vec![d.clone()],
+                    segment: format!("segment_{d}"),
+                    sus: vec![s.clone()],
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The limbs of an explored structure, in an order where every limb comes after the limb that ends
+/// at its base: each limb runs from the static reference (through the joints of its base path,
+/// held) to an end effector or the next branching segment, with every SU of its segments.
+pub fn limb_chains(structure: &Structure) -> Result<Vec<LimbChain>, EstimateError> {
+    let mut limbs = Vec::new();
+    for limb in &structure.limbs {
+        let mut path = Vec::new();
+        let mut segment = structure
+            .segment(&limb.to)
+            .ok_or_else(|| EstimateError::UnsupportedLimb {
+                limb: limb.to.clone(),
+                reason: "its end segment is not in the structure".into(),
+            })?;
+        while let Some(joint_id) = &segment.parent_joint {
+            let joint = structure.joint(joint_id).expect("parent joints exist");
+            if segment.sus.is_empty() {
+                return Err(EstimateError::UnsupportedLimb {
+                    limb: limb.to.clone(),
+                    reason: format!(
+                        "segment {} carries no SU (it was assumed to connect the tree): joint {} cannot be calibrated; put an SU on it",
+                        segment.id, joint.id
+                    ),
+                });
+            }
+            path.push(LimbJoint {
+                id: joint.id.clone(),
+                dofs: joint.dofs.clone(),
+                segment: segment.id.clone(),
+                sus: segment.sus.clone(),
+            });
+            segment = structure.segment(&joint.parent).expect("parents exist");
+        }
+        path.reverse();
+        let base_joints = path.len() - limb.joints.len();
+        limbs.push(LimbChain {
+            name: limb.to.clone(),
+            base_joints,
+            joints: path,
+        });
+    }
+    // Parents first: a limb's base path is a prefix of its parent's path.
+    limbs.sort_by_key(|l| l.base_joints);
+    Ok(limbs)
+}
+
+/// The training data of one limb, in chain order, in m/s².
+#[derive(Debug, Clone, PartialEq)]
+pub struct LimbData {
+    /// The limb.
+    pub chain: LimbChain,
+    /// `q[p][k]`: position of chain DoF `k` in pose `p`.
+    pub q: Vec<Vec<f64>>,
+    /// For every SU of [`LimbChain::sus`]: the number of chain DoFs that move it.
+    pub su_depth: Vec<usize>,
+    /// `statics[p][u]`: static reading of SU `u` in pose `p`.
+    pub statics: Vec<Vec<Vector3<f64>>>,
+    /// `dynamics[p][u][k]`: dynamic acceleration of SU `u` for the pattern of chain DoF `k`
+    /// (`k < su_depth[u]`).
+    pub dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
+    /// The excitation pattern.
+    pub pattern: ExcitationPattern,
+}
+
+impl LimbData {
+    /// Extracts and checks the data of `chain`.
+    pub fn new(set: &MeasurementSet, chain: &LimbChain) -> Result<Self, EstimateError> {
+        set.validate()
+            .map_err(|e| EstimateError::Measurements(e.to_string()))?;
+        let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
+        if training.poses.is_empty() {
+            return Err(EstimateError::NoTrainingData);
+        }
+        if chain.joints.len() <= chain.base_joints {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: "it has no joint to estimate".into(),
+            });
+        }
+        let find = |what, names: &[String], name: &String| {
+            names
+                .iter()
+                .position(|n| n == name)
+                .ok_or_else(|| EstimateError::Unknown {
+                    what,
+                    name: name.clone(),
+                    limb: chain.name.clone(),
+                })
+        };
+        let dofs = chain.dofs();
+        let dof_index: Vec<usize> = dofs
+            .iter()
+            .map(|d| find("DoF", &set.dofs, d))
+            .collect::<Result<_, _>>()?;
+        let mut su_index = Vec::new();
+        let mut su_depth = Vec::new();
+        let mut depth = 0;
+        for (j, joint) in chain.joints.iter().enumerate() {
+            depth += joint.dofs.len();
+            if j < chain.base_joints {
+                continue;
+            }
+            if joint.sus.is_empty() {
+                return Err(EstimateError::UnsupportedLimb {
+                    limb: chain.name.clone(),
+                    reason: format!(
+                        "segment {} (after joint {}) carries no SU",
+                        joint.segment, joint.id
+                    ),
+                });
+            }
+            for su in &joint.sus {
+                su_index.push(find("SU", &set.sus, su)?);
+                su_depth.push(depth);
+            }
+        }
+        let mut q = Vec::new();
+        let mut statics = Vec::new();
+        let mut dynamics = Vec::new();
+        for (p, pose) in training.poses.iter().enumerate() {
+            q.push(dof_index.iter().map(|&d| pose.q[d]).collect());
+            statics.push(
+                su_index
+                    .iter()
+                    .map(|&u| Vector3::from(pose.static_readings[u]))
+                    .collect(),
+            );
+            let mut per_su: Vec<Vec<Vector3<f64>>> =
+                su_depth.iter().map(|&d| Vec::with_capacity(d)).collect();
+            for (k, dof) in dofs.iter().enumerate() {
+                let needed = su_depth.iter().any(|&d| k < d);
+                if !needed {
+                    continue;
+                }
+                let readings =
+                    pose.dynamic
+                        .get(dof)
+                        .ok_or_else(|| EstimateError::MissingDynamic {
+                            pose: p,
+                            dof: dof.clone(),
+                            limb: chain.name.clone(),
+                        })?;
+                for (i, &u) in su_index.iter().enumerate() {
+                    if k < su_depth[i] {
+                        per_su[i].push(Vector3::from(readings[u]));
+                    }
+                }
+            }
+            dynamics.push(per_su);
+        }
+        Ok(Self {
+            chain: chain.clone(),
+            q,
+            su_depth,
+            statics,
+            dynamics,
+            pattern: training.pattern,
+        })
+    }
+
+    /// Number of poses.
+    pub fn poses(&self) -> usize {
+        self.q.len()
+    }
+
+    /// The same data with the DoFs of joint `joint` in the order `order` (indices into its DoFs).
+    pub fn with_joint_order(&self, joint: usize, order: &[usize]) -> Self {
+        let first: usize = self.chain.joints[..joint]
+            .iter()
+            .map(|j| j.dofs.len())
+            .sum();
+        let mut chain = self.chain.clone();
+        let dofs = &self.chain.joints[joint].dofs;
+        chain.joints[joint].dofs = order.iter().map(|&i| dofs[i].clone()).collect();
+        let permute = |k: usize| {
+            if k >= first && k < first + order.len() {
+                first + order[k - first]
+            } else {
+                k
+            }
+        };
+        let q = self
+            .q
+            .iter()
+            .map(|q| (0..q.len()).map(|k| q[permute(k)]).collect())
+            .collect();
+        let dynamics = self
+            .dynamics
+            .iter()
+            .map(|per_su| {
+                per_su
+                    .iter()
+                    .map(|d| (0..d.len()).map(|k| d[permute(k)]).collect())
+                    .collect()
+            })
+            .collect();
+        Self {
+            chain,
+            q,
+            dynamics,
+            ..self.clone()
+        }
+    }
+}
+
+impl From<&super::ChainData> for LimbData {
+    fn from(data: &super::ChainData) -> Self {
+        Self {
+            chain: LimbChain::from(&data.chain),
+            q: data.q.clone(),
+            su_depth: (1..=data.chain.sus.len()).collect(),
+            statics: data.static_readings.clone(),
+            dynamics: data
+                .dynamic
+                .iter()
+                .map(|per_su| {
+                    per_su
+                        .iter()
+                        .enumerate()
+                        .map(|(u, d)| d[..=u].to_vec())
+                        .collect()
+                })
+                .collect(),
+            pattern: data.pattern,
+        }
+    }
+}

@@ -1,0 +1,1026 @@
+//! Maximum-likelihood estimation of a serial chain: least squares on the raw readings, solved on
+//! the manifold of rigid transforms, initialised from closed-form physics.
+//!
+//! **Model.** The reference frame is the first DoF's joint frame (`z` = its axis). DoF `k` turns
+//! about the `z` axis of its joint frame `J_k`, placed on segment `k` (segment 0 = reference):
+//! `T_ref←seg(k+1) = T_ref←seg(k) · J_k · Rz(q_k)`, `J_0 = I`. SU `u` on segment `s` has the frame
+//! `T_ref←seg(s) · S_u`. Gravity `g` in the reference frame is unknown (3 values).
+//!
+//! **Residuals** (whitened by the noise standard deviation σ), for every pose `p` and SU `u`:
+//! the static reading `R_uᵀ·(−g) − s_meas`, and for **every** DoF `d` that moves `u` the dynamic
+//! acceleration `α·R_uᵀ·(z_d × (p_u − o_d)) − a_meas` with `α = 2πfA` (the paper uses only the last
+//! three DoFs and a spread-of-gravity term instead).
+//!
+//! **Parameters and gauge.** Each joint frame `J_k` (`k ≥ 1`) has 4 local parameters — tilts about its
+//! `x` and `y` axes and shifts along them — because turning it about or sliding it along its own axis
+//! is absorbed by the frames of the segment it moves. Each SU frame has 6 (a rotation vector and a
+//! translation, both in its segment's frame). Turning everything about, or sliding it along, the
+//! first axis changes no reading: the rotation about and translation along `z` of the first SU on
+//! segment 1 are held fixed. Updates are applied on the manifold (`J ← J·T(δ)·R(δ)`,
+//! `R ← exp(ω)·R`), so there are no Euler-angle or DH singularities; the Jacobian is analytic at
+//! the point of linearisation and checked against central differences in the tests.
+//!
+//! **Solver.** Levenberg–Marquardt with Marquardt scaling: every step solves the damped system by
+//! Householder QR of the stacked matrix `[J; √λ·D]` (never `(JᵀJ)⁻¹`); the damping grows on rejected
+//! steps and shrinks on accepted ones.
+//!
+//! **Initialisation**, segment by segment (the physics first, search only where it is needed):
+//! 1. An SU on the segment that DoF `k` moves directly sees all its DoF-`k` accelerations
+//!    perpendicular to the axis: the axis direction in the SU frame is the right singular vector of
+//!    the smallest singular value of those accelerations (Seel-style joint-axis estimation), and the
+//!    lever arm follows from them as `r⊥ = mean(a/α) × n`.
+//! 2. The joint's rotation follows from how gravity turns between the previous segment and this one
+//!    (a Wahba problem, solved by SVD); when gravity does not turn (a vertical axis upstream) the
+//!    rotation about the axis is searched over a low-discrepancy set of angles.
+//! 3. The joint's position follows linearly from the accelerations that upstream DoFs cause.
+//! 4. Every candidate (both signs of the axis, every searched angle) is refined by LM on the
+//!    segment's data; the best is kept. Finally the whole chain is refined jointly.
+//!
+//! **Uncertainty.** The parameter covariance is `σ̂²·(RᵀR)⁻¹` from the R factor of the whitened
+//! Jacobian's QR (triangular solves, no explicit normal-matrix inverse), and is propagated to each
+//! SU's position and orientation relative to the previous SU.
+
+mod init;
+mod problem;
+
+use std::time::Instant;
+
+use nalgebra::{DMatrix, Isometry3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::limb::{LimbChain, LimbData};
+use super::{ChainData, EstimateError, SerialChain};
+use crate::model::description::RobotFile;
+use crate::model::sensor::STANDARD_GRAVITY;
+use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use problem::{
+    covariance, frames, normal_system, prefixes, retract, solve, turns_of, Block, ColumnMap,
+    Layout, Readings, Solved, Spec,
+};
+
+/// Settings of the maximum-likelihood estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MlConfig {
+    /// Standard deviation of the noise on every reading component, m/s² (default: uniform ±0.01 g).
+    pub noise_sd: f64,
+    /// Angles tried for a joint's rotation about its axis when gravity cannot tell it.
+    pub angle_starts: usize,
+    /// Largest number of LM iterations per solve.
+    pub max_iterations: usize,
+    /// A result whose residual RMS exceeds this multiple of `noise_sd` is not converged.
+    pub converged_ratio: f64,
+    /// Candidates carried from one segment to the next.
+    pub beam: usize,
+    /// Gravity is taken along the first axis when holding it there raises the χ² of segment 1 by
+    /// less than this (default: the 99 % point of χ² with 2 degrees of freedom).
+    pub vertical_test: f64,
+    /// A parameter direction that the data determine only to worse than this (m or rad) is
+    /// reported as unobservable.
+    pub observable_limit: f64,
+}
+
+impl Default for MlConfig {
+    fn default() -> Self {
+        Self {
+            noise_sd: 0.01 * STANDARD_GRAVITY / 3f64.sqrt(),
+            angle_starts: 6,
+            max_iterations: 100,
+            converged_ratio: 1.5,
+            beam: 2,
+            vertical_test: 9.21,
+            observable_limit: 1.0,
+        }
+    }
+}
+
+/// The geometry being estimated, in the chart described in the module documentation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChainState {
+    /// Gravity in the reference frame, m/s².
+    pub gravity: Vector3<f64>,
+    /// `joints[k]`: DoF `k`'s joint frame on segment `k` (`joints[0] = I`).
+    pub joints: Vec<Isometry3<f64>>,
+    /// SU frames on their segments.
+    pub sus: Vec<Isometry3<f64>>,
+}
+
+/// The part of a limb that an earlier estimate fixed: the joint frames of the DoFs from the static
+/// reference to the limb's base, and gravity, in that estimate's reference frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LimbBase {
+    /// Joint frames of the base path's DoFs.
+    pub joints: Vec<Isometry3<f64>>,
+    /// Gravity, m/s².
+    pub gravity: Vector3<f64>,
+}
+
+impl LimbBase {
+    /// The first `dofs` joint frames and the gravity of an estimate.
+    pub fn of(estimate: &MlChainEstimate, dofs: usize) -> Option<Self> {
+        let state = estimate.state.as_ref()?;
+        (dofs <= state.joints.len()).then(|| Self {
+            joints: state.joints[..dofs].to_vec(),
+            gravity: state.gravity,
+        })
+    }
+}
+
+/// One SU's parameter uncertainty, relative to the previous SU of the chain (to the reference frame
+/// for the first), at the zero pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuUncertainty {
+    /// The SU.
+    pub su: String,
+    /// Standard deviation of its position, m (root of the trace of the 3×3 covariance).
+    pub position_sd: f64,
+    /// Standard deviation of its orientation, rad (root of the trace of the rotation covariance).
+    pub orientation_sd: f64,
+}
+
+/// A parameter direction the data cannot determine.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Unobservable {
+    /// Relative singular value of the whitened Jacobian.
+    pub singular_value: f64,
+    /// The parameters that make up the direction, largest share first.
+    pub parameters: Vec<String>,
+}
+
+/// A chain in the paper's DH+2 form (Fig. 6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DhTable {
+    /// DoF-to-DoF rows `k → k+1`.
+    pub dof_dof: Vec<super::DhRow>,
+    /// DoF-to-SU rows.
+    pub dof_su: Vec<super::SuRow>,
+}
+
+/// How well one order of a multi-DoF joint's DoFs explains the accelerations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OrderMisfit {
+    /// DoFs from the parent segment outwards.
+    pub dofs: Vec<String>,
+    /// Scatter of the accelerations about the closed-form axis model (m², accelerations divided
+    /// by α); the order along the chain has the smallest, near the noise floor.
+    pub misfit: f64,
+}
+
+/// The order found for the DoFs of a joint that has several.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointOrder {
+    /// The joint.
+    pub joint: String,
+    /// Its DoFs from the parent segment outwards.
+    pub dofs: Vec<String>,
+    /// Every order tried, best first.
+    pub alternatives: Vec<OrderMisfit>,
+}
+
+/// The maximum-likelihood estimate of one limb.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MlChainEstimate {
+    /// The limb, the DoFs of every joint in the order found.
+    pub chain: LimbChain,
+    /// For every joint of several DoFs: the order found and how well each order fits.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub joint_orders: Vec<JointOrder>,
+    /// The estimated limb as a robot description (reference = the first DoF's joint frame; the
+    /// base path's joints, for a limb on a branching segment, as the parent limb estimated them).
+    pub robot: RobotFile,
+    /// Gravity in the reference frame, m/s².
+    pub gravity: [f64; 3],
+    /// Residual RMS relative to the noise standard deviation (≈ 1 at the noise limit).
+    pub residual_ratio: f64,
+    /// Estimated noise standard deviation, m/s².
+    pub noise_sd_estimate: f64,
+    /// Whether the residual is at the noise level.
+    pub converged: bool,
+    /// The gauge: parameters held, or directions the data leave free.
+    pub fixed: Vec<String>,
+    /// Directions the data do not determine.
+    pub unobservable: Vec<Unobservable>,
+    /// Per SU: standard deviations.
+    pub uncertainty: Vec<SuUncertainty>,
+    /// The same limb in the paper's DH+2 form (only for a paper-style chain: single-DoF joints,
+    /// one SU per segment).
+    pub dh: Option<DhTable>,
+    /// LM iterations, all solves.
+    pub iterations: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+    /// The estimate in the estimator's own chart (not written to files).
+    #[serde(skip)]
+    pub state: Option<ChainState>,
+}
+
+impl MlChainEstimate {
+    /// The estimated limb as a robot.
+    pub fn to_robot(&self) -> Robot {
+        self.robot
+            .build()
+            .expect("an estimated chain is a valid robot")
+    }
+}
+
+fn readings(data: &LimbData) -> Readings {
+    Readings {
+        q: data.q.clone(),
+        turns: data.q.iter().map(|q| turns_of(q)).collect(),
+        statics: data.statics.clone(),
+        dynamics: data.dynamics.clone(),
+        alpha: data.pattern.peak_acceleration(),
+    }
+}
+
+/// Relative cost decrease below which an initialisation solve stops.
+const INIT_TOLERANCE: f64 = 1e-6;
+/// Relative cost decrease below which the final refinement stops.
+const FINAL_TOLERANCE: f64 = 1e-10;
+
+/// Estimates one serial chain (one DoF and one SU per joint) by maximum likelihood.
+///
+/// ```
+/// use skincal::estimate::{ml, ChainData, SerialChain};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
+/// let estimate = ml::estimate_chain(&ChainData::new(&set, &chain).unwrap(), &ml::MlConfig::default()).unwrap();
+/// assert!(estimate.converged);
+/// assert!((estimate.residual_ratio - 1.0).abs() < 0.2); // at the noise level
+/// ```
+pub fn estimate_chain(
+    data: &ChainData,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    estimate_limb(&LimbData::from(data), None, config)
+}
+
+/// A joint of the limb in chain indices: its first and last DoF and the SUs on the segment it moves.
+struct Span {
+    k0: usize,
+    k1: usize,
+    sus: Vec<usize>,
+}
+
+fn spans(data: &LimbData) -> Vec<Span> {
+    let mut out = Vec::new();
+    let mut k = 0;
+    for joint in &data.chain.joints {
+        let k1 = k + joint.dofs.len() - 1;
+        out.push(Span {
+            k0: k,
+            k1,
+            sus: (0..data.su_depth.len())
+                .filter(|&u| data.su_depth[u] == k1 + 1)
+                .collect(),
+        });
+        k = k1 + 1;
+    }
+    out
+}
+
+/// A start for one joint's solves.
+struct Candidate {
+    state: ChainState,
+    cost: f64,
+    beam: usize,
+}
+
+/// Keeps the `size` cheapest distinct states.
+fn keep_best(mut ranked: Vec<(ChainState, f64)>, size: usize) -> Vec<(ChainState, f64)> {
+    ranked.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut beam: Vec<(ChainState, f64)> = Vec::new();
+    for (state, cost) in ranked {
+        if beam.len() == size.max(1) {
+            break;
+        }
+        if beam
+            .iter()
+            .all(|(_, c)| (c - cost).abs() > 1e-7 * cost.abs().max(1.0))
+        {
+            beam.push((state, cost));
+        }
+    }
+    beam
+}
+
+/// Estimates one limb by maximum likelihood: joints of one or more DoFs, any number of SUs per
+/// segment. With `base`, the joints of the limb's base path are held at that earlier estimate.
+pub fn estimate_limb(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    validate(config)?;
+    let started = Instant::now();
+    let chain = &data.chain;
+    let base_dofs: usize = chain.joints[..chain.base_joints]
+        .iter()
+        .map(|j| j.dofs.len())
+        .sum();
+    if let Some(b) = base {
+        if b.joints.len() != base_dofs {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: format!(
+                    "its base path has {base_dofs} DoFs but the base estimate {}",
+                    b.joints.len()
+                ),
+            });
+        }
+    } else if chain.base_joints > 0 {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: chain.name.clone(),
+            reason: "it hangs on a branching segment: estimate the limb that leads there first"
+                .into(),
+        });
+    }
+
+    // The order of the DoFs inside every joint that has several, from the closed-form axis model.
+    let mut data = data.clone();
+    let mut joint_orders = Vec::new();
+    for j in chain.base_joints..chain.joints.len() {
+        let span = &spans(&data)[j];
+        let m = span.k1 - span.k0 + 1;
+        if m == 1 {
+            continue;
+        }
+        let r = readings(&data);
+        let mut tried: Vec<(Vec<usize>, f64)> = init::permutations(m)
+            .into_iter()
+            .map(|order| {
+                let dofs: Vec<usize> = order.iter().map(|&i| span.k0 + i).collect();
+                let misfit = init::joint_lines(&r, span.sus[0], &dofs).misfit;
+                (order, misfit)
+            })
+            .collect();
+        tried.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let names = &data.chain.joints[j].dofs;
+        let alternatives = tried
+            .iter()
+            .map(|(order, misfit)| OrderMisfit {
+                dofs: order.iter().map(|&i| names[i].clone()).collect(),
+                misfit: *misfit,
+            })
+            .collect();
+        data = data.with_joint_order(j, &tried[0].0);
+        joint_orders.push(JointOrder {
+            joint: chain.joints[j].id.clone(),
+            dofs: data.chain.joints[j].dofs.clone(),
+            alternatives,
+        });
+    }
+    let data = data;
+    let dofs = data.q.first().map_or(0, |q| q.len());
+    let sus = data.su_depth.len();
+    let free_dofs = dofs - base_dofs;
+    let parameters = 3 + 4 * free_dofs + 6 * sus;
+    let per_pose: usize = data.su_depth.iter().map(|&d| 3 * (1 + d)).sum();
+    let needed = parameters.div_ceil(per_pose.max(1)).max(3);
+    if data.poses() < needed {
+        return Err(EstimateError::TooFewPoses {
+            poses: data.poses(),
+            parameters: needed,
+        });
+    }
+    let layout = Layout {
+        dofs,
+        su_segment: data.su_depth.clone(),
+    };
+    let readings = readings(&data);
+    let spans = spans(&data);
+    let sigma = config.noise_sd;
+    let mut iterations = 0;
+    let empty = ChainState {
+        gravity: Vector3::zeros(),
+        joints: vec![Isometry3::identity(); dofs],
+        sus: vec![Isometry3::identity(); sus],
+    };
+    let solve_init = |state: ChainState, spec: &Spec, max: usize| {
+        solve(state, &layout, &readings, spec, sigma, max, INIT_TOLERANCE)
+    };
+
+    // The first joint: its tail in closed form, gravity from the static readings. With a single DoF
+    // both senses of the axis are kept (mirror images fit the first segment equally well).
+    let mut beam: Vec<(ChainState, f64)> = Vec::new();
+    let mut vertical = false;
+    let first = chain.base_joints;
+    if let Some(b) = base {
+        let mut state = empty.clone();
+        state.joints[..base_dofs].copy_from_slice(&b.joints);
+        state.gravity = b.gravity;
+        beam.push((state, 0.0));
+    } else {
+        let span = &spans[first];
+        let u = span.sus[0];
+        let mut starts = Vec::new();
+        if span.k0 == span.k1 {
+            for sign in [1.0, -1.0] {
+                let mut s = empty.clone();
+                s.sus[u] = init::su_from_axis(&readings, u, 0, sign);
+                starts.push(s);
+            }
+        } else {
+            let dofs: Vec<usize> = (span.k0..=span.k1).collect();
+            let lines = init::joint_lines(&readings, u, &dofs);
+            let mut s = empty.clone();
+            init::place_joint_lines(&mut s, 0, u, &lines.lines);
+            starts.push(s);
+        }
+        let mut votes = 0;
+        let count = starts.len();
+        for mut s in starts {
+            let tail = init::tails(&s, &readings, 0, span.k1, u);
+            let minus_g: Vector3<f64> = (0..data.poses())
+                .map(|p| readings.turns[p][0] * (tail[p].rotation * readings.statics[p][u]))
+                .sum::<Vector3<f64>>()
+                / data.poses() as f64;
+            s.gravity = -minus_g;
+            let mut blocks = vec![Block::Gravity];
+            blocks.extend((1..=span.k1).map(Block::Joint));
+            blocks.push(Block::Su(u));
+            let su_block = blocks.len() - 1;
+            let spec = Spec {
+                blocks,
+                held: if span.k0 == span.k1 {
+                    vec![(su_block, 2), (su_block, 5)]
+                } else {
+                    vec![]
+                },
+                sus: vec![u],
+                prefix: None,
+            };
+            let free = solve_init(s, &spec, config.max_iterations);
+            // Is the first axis vertical? A likelihood-ratio test of gravity along it.
+            let mut upright = free.state.clone();
+            upright.gravity = Vector3::new(
+                0.0,
+                0.0,
+                upright.gravity.z.signum() * upright.gravity.norm(),
+            );
+            let mut held = spec.held.clone();
+            held.extend([(0, 0), (0, 1)]);
+            let spec_upright = Spec { held, ..spec };
+            let fixed = solve_init(upright, &spec_upright, config.max_iterations);
+            iterations += free.iterations + fixed.iterations;
+            if fixed.cost - free.cost < config.vertical_test {
+                votes += 1;
+                beam.push((fixed.state, fixed.cost));
+            } else {
+                beam.push((free.state, free.cost));
+            }
+        }
+        vertical = votes == count;
+        let (next, its) = add_segment_sus(beam, &layout, &readings, &spans[first], config);
+        beam = next;
+        iterations += its;
+    }
+
+    // The joints after: tail in closed form, joint rotation from gravity (or searched), position
+    // from upstream accelerations; every candidate refined (in parallel), the best few kept.
+    let after = if base.is_some() { first } else { first + 1 };
+    for span in &spans[after..] {
+        let (k0, k1, u) = (span.k0, span.k1, span.sus[0]);
+        let caches: Vec<_> = beam
+            .iter()
+            .map(|(state, _)| prefixes(state, &layout, &readings, k0))
+            .collect();
+        let mut candidates = Vec::new();
+        for (b, (state, cost)) in beam.iter().enumerate() {
+            let mut tails_of = Vec::new();
+            if k0 == k1 {
+                for sign in [1.0, -1.0] {
+                    let mut s = state.clone();
+                    s.sus[u] = init::su_from_axis(&readings, u, k0, sign);
+                    tails_of.push(s);
+                }
+            } else {
+                let dofs: Vec<usize> = (k0..=k1).collect();
+                let lines = init::joint_lines(&readings, u, &dofs);
+                let mut s = state.clone();
+                init::place_joint_lines(&mut s, k0, u, &lines.lines);
+                tails_of.push(s);
+            }
+            for s in tails_of {
+                let tail = init::tails(&s, &readings, k0, k1, u);
+                for start in
+                    init::joint_starts(&s, &layout, &readings, k0, u, &tail, config.angle_starts)
+                {
+                    let mut c = s.clone();
+                    c.joints[k0] = start;
+                    candidates.push(Candidate {
+                        state: c,
+                        cost: *cost,
+                        beam: b,
+                    });
+                }
+            }
+        }
+        // Phase 1: the joint frame alone from every start; phase 2: the joint's lines and the SU.
+        let solved: Vec<(Solved, f64, usize)> = candidates
+            .into_par_iter()
+            .map(|Candidate { state, cost, beam: b }| {
+                let spec = Spec {
+                    blocks: vec![Block::JointFull(k0)],
+                    held: vec![],
+                    sus: vec![u],
+                    prefix: Some(caches[b].clone()),
+                };
+                let first = solve(
+                    state,
+                    &layout,
+                    &readings,
+                    &spec,
+                    sigma,
+                    config.max_iterations.min(10),
+                    INIT_TOLERANCE,
+                );
+                let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
+                blocks.push(Block::Su(u));
+                let spec = Spec {
+                    blocks,
+                    held: vec![],
+                    sus: vec![u],
+                    prefix: Some(caches[b].clone()),
+                };
+                let second = solve(
+                    first.state,
+                    &layout,
+                    &readings,
+                    &spec,
+                    sigma,
+                    config.max_iterations,
+                    INIT_TOLERANCE,
+                );
+                let its = first.iterations + second.iterations;
+                (second, cost, its)
+            })
+            .collect();
+        iterations += solved.iter().map(|s| s.2).sum::<usize>();
+        let ranked = solved
+            .into_iter()
+            .map(|(s, cost, _)| (s.state, cost + s.cost))
+            .collect();
+        let (next, its) = add_segment_sus(
+            keep_best(ranked, config.beam),
+            &layout,
+            &readings,
+            span,
+            config,
+        );
+        beam = next;
+        iterations += its;
+    }
+    let state = beam.swap_remove(0).0;
+
+    // The whole limb at once.
+    let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
+    let mut spec = full_spec(&layout, base_dofs.max(1), base.is_none(), gauge_su);
+    if vertical {
+        // Gravity along the first axis: its horizontal components are held at zero, which leaves
+        // the turn of everything after segment 1 about that axis exactly free (reported below).
+        spec.held.extend([(0, 0), (0, 1)]);
+    }
+    let solved = solve(
+        state,
+        &layout,
+        &readings,
+        &spec,
+        sigma,
+        config.max_iterations,
+        FINAL_TOLERANCE,
+    );
+    iterations += solved.iterations;
+    let state = solved.state;
+    let dof_count = spec.columns().len();
+    let noise_sd_estimate =
+        sigma * (solved.cost / (solved.residuals.saturating_sub(dof_count)).max(1) as f64).sqrt();
+    let residual_ratio = noise_sd_estimate / sigma;
+
+    let flat_dofs = data.chain.dofs();
+    let flat_sus = data.chain.sus();
+    let names = column_names(&flat_dofs, &flat_sus, &spec);
+    let map = ColumnMap::new(&spec);
+    let normal = normal_system(&state, &layout, &readings, &spec, &map, sigma);
+    let (cov, unobservable) = covariance(
+        &normal,
+        &map,
+        residual_ratio.max(1.0),
+        &names,
+        config.observable_limit,
+    );
+    let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
+    let mut fixed = Vec::new();
+    match (base, gauge_su) {
+        (Some(_), _) => fixed.push(format!(
+            "the base path ({} DoFs) and gravity, as the parent limb estimated them",
+            base_dofs
+        )),
+        (None, Some(u)) => fixed.extend([
+            format!("{}.rotation_z", flat_sus[u]),
+            format!("{}.z", flat_sus[u]),
+        ]),
+        (None, None) => fixed.push(format!(
+            "the turn about and shift along {}'s axis of everything it moves (no SU before {}: left to the damping, not held by a parameter)",
+            flat_dofs[0], flat_dofs.get(1).map_or("", String::as_str)
+        )),
+    }
+    if vertical {
+        fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
+    }
+    let limb = limb_robot(&data.chain, &state, &data.su_depth);
+    let dh = data.chain.as_serial().and_then(|serial| {
+        super::dh_form(&limb, &serial).map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su })
+    });
+    Ok(MlChainEstimate {
+        robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
+        dh,
+        chain: data.chain.clone(),
+        joint_orders,
+        gravity: state.gravity.into(),
+        residual_ratio,
+        noise_sd_estimate,
+        converged: residual_ratio <= config.converged_ratio,
+        fixed,
+        unobservable,
+        uncertainty,
+        iterations,
+        seconds: started.elapsed().as_secs_f64(),
+        state: Some(state),
+    })
+}
+
+/// Places the other SUs of a joint's segment (closed-form starts, each refined alone with the
+/// joints held) and refines the joint's lines with all of them; returns the re-ranked beam.
+fn add_segment_sus(
+    beam: Vec<(ChainState, f64)>,
+    layout: &Layout,
+    data: &Readings,
+    span: &Span,
+    config: &MlConfig,
+) -> (Vec<(ChainState, f64)>, usize) {
+    if span.sus.len() < 2 {
+        return (beam, 0);
+    }
+    let sigma = config.noise_sd;
+    let s = span.k1 + 1;
+    let results: Vec<((ChainState, f64), usize)> = beam
+        .into_par_iter()
+        .map(|(mut state, cost)| {
+            let mut iterations = 0;
+            // The cost so far: earlier segments plus this segment's first SU.
+            let previous = cost - single_su_cost(&state, layout, data, span.sus[0], sigma);
+            let cache = prefixes(&state, layout, data, s);
+            for &v in &span.sus[1..] {
+                let spec = Spec {
+                    blocks: vec![Block::Su(v)],
+                    held: vec![],
+                    sus: vec![v],
+                    prefix: Some(cache.clone()),
+                };
+                let best = init::su_starts(&state, layout, data, v, s, config.angle_starts)
+                    .into_iter()
+                    .map(|start| {
+                        let mut c = state.clone();
+                        c.sus[v] = start;
+                        solve(c, layout, data, &spec, sigma, config.max_iterations, INIT_TOLERANCE)
+                    })
+                    .min_by(|a, b| a.cost.total_cmp(&b.cost))
+                    .expect("at least one start");
+                iterations += best.iterations;
+                state.sus[v] = best.state.sus[v];
+            }
+            let first_free = if span.k0 == 0 { 1 } else { span.k0 };
+            let mut blocks: Vec<Block> = (first_free..=span.k1).map(Block::Joint).collect();
+            blocks.extend(span.sus.iter().map(|&v| Block::Su(v)));
+            let spec = Spec {
+                blocks,
+                held: vec![],
+                sus: span.sus.clone(),
+                prefix: Some(prefixes(&state, layout, data, first_free)),
+            };
+            let solved = solve(state, layout, data, &spec, sigma, config.max_iterations, INIT_TOLERANCE);
+            iterations += solved.iterations;
+            ((solved.state, previous.max(0.0) + solved.cost), iterations)
+        })
+        .collect();
+    let iterations = results.iter().map(|r| r.1).sum();
+    (
+        keep_best(results.into_iter().map(|r| r.0).collect(), usize::MAX),
+        iterations,
+    )
+}
+
+/// The cost of one SU's readings.
+fn single_su_cost(state: &ChainState, layout: &Layout, data: &Readings, u: usize, sigma: f64) -> f64 {
+    let spec = Spec {
+        blocks: vec![],
+        held: vec![],
+        sus: vec![u],
+        prefix: None,
+    };
+    problem::cost_of(state, layout, data, &spec, &ColumnMap::new(&spec), sigma)
+}
+
+/// The final problem: gravity (when `with_gravity`), every joint line from `first_joint` on, every
+/// SU; the gauge SU's rotation about and shift along z held.
+fn full_spec(layout: &Layout, first_joint: usize, with_gravity: bool, gauge_su: Option<usize>) -> Spec {
+    let mut blocks = Vec::new();
+    if with_gravity {
+        blocks.push(Block::Gravity);
+    }
+    blocks.extend((first_joint..layout.dofs).map(Block::Joint));
+    let first_su = blocks.len();
+    blocks.extend((0..layout.su_segment.len()).map(Block::Su));
+    Spec {
+        prefix: None,
+        held: gauge_su
+            .map(|u| vec![(first_su + u, 2), (first_su + u, 5)])
+            .unwrap_or_default(),
+        blocks,
+        sus: (0..layout.su_segment.len()).collect(),
+    }
+}
+
+fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
+    spec.columns()
+        .iter()
+        .map(|&(b, c)| match spec.blocks[b] {
+            Block::Gravity => format!("gravity.{}", ["x", "y", "z"][c]),
+            Block::Joint(k) => format!(
+                "{}.{}",
+                dofs[k],
+                ["tilt_x", "tilt_y", "shift_x", "shift_y"][c]
+            ),
+            Block::JointFull(k) => {
+                format!("{}.{}", dofs[k], ["rx", "ry", "rz", "x", "y", "z"][c])
+            }
+            Block::Su(u) => format!(
+                "{}.{}",
+                sus[u],
+                ["rotation_x", "rotation_y", "rotation_z", "x", "y", "z"][c]
+            ),
+        })
+        .collect()
+}
+
+/// Pose of SU `u` relative to the previous SU (reference for the first) at q = 0.
+fn relative_pose(state: &ChainState, layout: &Layout, u: usize) -> Isometry3<f64> {
+    let f = frames(
+        state,
+        layout,
+        &vec![UnitQuaternion::identity(); layout.dofs],
+        None,
+        layout.dofs,
+    );
+    if u == 0 {
+        f.sus[0]
+    } else {
+        f.sus[u - 1].inverse() * f.sus[u]
+    }
+}
+
+fn su_uncertainty(
+    state: &ChainState,
+    layout: &Layout,
+    spec: &Spec,
+    names: &[String],
+    covariance: &DMatrix<f64>,
+) -> Vec<SuUncertainty> {
+    let columns = spec.columns();
+    let n = columns.len();
+    let h = 1e-6;
+    (0..layout.su_segment.len())
+        .into_par_iter()
+        .map(|u| {
+            let base = relative_pose(state, layout, u);
+            // Only the two SUs' own blocks and the shared parameters move the relative pose.
+            let relevant: Vec<usize> = (0..n)
+                .filter(|&c| match spec.blocks[columns[c].0] {
+                    Block::Su(v) => v == u || v + 1 == u,
+                    _ => true,
+                })
+                .collect();
+            let mut jac = DMatrix::zeros(6, relevant.len());
+            for (j, &c) in relevant.iter().enumerate() {
+                let mut delta = vec![0.0; n];
+                delta[c] = h;
+                let plus = relative_pose(&retract(state, spec, &delta), layout, u);
+                delta[c] = -h;
+                let minus = relative_pose(&retract(state, spec, &delta), layout, u);
+                let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
+                let dr = (base.rotation.inverse() * plus.rotation).scaled_axis()
+                    - (base.rotation.inverse() * minus.rotation).scaled_axis();
+                for i in 0..3 {
+                    jac[(i, j)] = dt[i];
+                    jac[(3 + i, j)] = dr[i] / (2.0 * h);
+                }
+            }
+            let sub = DMatrix::from_fn(relevant.len(), relevant.len(), |a, b| {
+                covariance[(relevant[a], relevant[b])]
+            });
+            let cov = &jac * sub * jac.transpose();
+            SuUncertainty {
+                su: names[u].clone(),
+                position_sd: (cov[(0, 0)] + cov[(1, 1)] + cov[(2, 2)]).max(0.0).sqrt(),
+                orientation_sd: (cov[(3, 3)] + cov[(4, 4)] + cov[(5, 5)]).max(0.0).sqrt(),
+            }
+        })
+        .collect()
+}
+
+/// The estimated limb as a robot: reference = the first joint frame, DoF `k` on the segment after
+/// DoF `k−1`, every SU on its segment.
+fn limb_robot(chain: &LimbChain, state: &ChainState, su_depth: &[usize]) -> Robot {
+    let dofs = chain.dofs();
+    let sus = chain.sus();
+    let mut b = RobotBuilder::new(chain.name.clone(), "reference");
+    for (k, dof) in dofs.iter().enumerate() {
+        b.dofs.push(DofSpec {
+            name: dof.clone(),
+            parent: if k == 0 {
+                "reference".into()
+            } else {
+                chain.segment_after(k - 1)
+            },
+            child: chain.segment_after(k),
+            origin: PlacementSpec::from_isometry(&state.joints[k]),
+            axis: Vector3::z(),
+            limits: Limits::CONTINUOUS,
+        });
+    }
+    for (u, su) in sus.iter().enumerate() {
+        b.sus.push(SuSpec {
+            name: su.clone(),
+            segment: chain.segment_after(su_depth[u] - 1),
+            placement: PlacementSpec::from_isometry(&state.sus[u]),
+        });
+    }
+    b.build()
+        .expect("a limb with distinct names is a valid tree")
+}
+
+fn validate(config: &MlConfig) -> Result<(), EstimateError> {
+    let bad = |setting, reason: String| Err(EstimateError::InvalidSetting { setting, reason });
+    if !(config.noise_sd.is_finite() && config.noise_sd > 0.0) {
+        return bad(
+            "noise_sd",
+            format!("{} m/s² must be positive", config.noise_sd),
+        );
+    }
+    if config.max_iterations == 0 {
+        return bad("max_iterations", "must be at least 1".into());
+    }
+    if !(config.converged_ratio.is_finite() && config.converged_ratio >= 1.0) {
+        return bad(
+            "converged_ratio",
+            format!("{} must be at least 1", config.converged_ratio),
+        );
+    }
+    Ok(())
+}
+
+fn serial_layout(dofs: usize) -> Layout {
+    Layout {
+        dofs,
+        su_segment: (1..=dofs).collect(),
+    }
+}
+
+/// Test access to the internals: the analytic Jacobian and the residuals through the chart, for a
+/// chain state built from a robot.
+#[doc(hidden)]
+pub mod internals {
+    use super::*;
+
+    /// Residuals and analytic Jacobian of the full problem at `state`.
+    pub fn full_problem(
+        data: &ChainData,
+        state: &ChainState,
+        sigma: f64,
+    ) -> (nalgebra::DVector<f64>, DMatrix<f64>) {
+        let layout = serial_layout(data.chain.dofs.len());
+        let spec = full_spec(&layout, 1, true, Some(0));
+        problem::dense_problem(state, &layout, &readings(&LimbData::from(data)), &spec, sigma)
+    }
+
+    /// Residuals after a step `delta` of the full problem's columns.
+    pub fn residuals_after(
+        data: &ChainData,
+        state: &ChainState,
+        sigma: f64,
+        delta: &[f64],
+    ) -> nalgebra::DVector<f64> {
+        let layout = serial_layout(data.chain.dofs.len());
+        let spec = full_spec(&layout, 1, true, Some(0));
+        problem::dense_problem(
+            &retract(state, &spec, delta),
+            &layout,
+            &readings(&LimbData::from(data)),
+            &spec,
+            sigma,
+        )
+        .0
+    }
+}
+
+/// The chain state of a robot that names the chain's DoFs and SUs (e.g. the truth), in this
+/// estimator's frames: reference = the first DoF's joint frame with `z` along its axis.
+pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> Option<ChainState> {
+    let (joint_world, su_world) = super::chain_frames_at_zero(robot, chain)?;
+    let to_reference = joint_world[0].inverse();
+    let world: Vec<Isometry3<f64>> = joint_world.iter().map(|j| to_reference * j).collect();
+    let mut joints = vec![Isometry3::identity(); world.len()];
+    for i in 1..world.len() {
+        joints[i] = world[i - 1].inverse() * world[i];
+    }
+    let su_states = su_world
+        .iter()
+        .enumerate()
+        .map(|(u, s)| world[u].inverse() * (to_reference * s))
+        .collect();
+    Some(ChainState {
+        gravity: to_reference.rotation * gravity,
+        joints,
+        sus: su_states,
+    })
+}
+
+/// The Cramér–Rao bound on the consecutive-SU pose errors of [`super::consecutive_su_errors`]:
+/// the parameter covariance `σ²(JᵀJ)⁻¹` of the whitened Jacobian at the truth (for the training poses
+/// of `data`; readings do not enter), propagated to each SU's pose relative to the previous one over
+/// `poses` random held-out poses (seeded, each DoF uniform in ±2.62 rad). Returns the RMS position
+/// bound (m) and the RMS rotation bound (rad) over the pairs that the metric aggregates (all but the
+/// first).
+pub fn cramer_rao_bound(
+    truth: &Robot,
+    gravity: &Vector3<f64>,
+    data: &ChainData,
+    sigma: f64,
+    poses: usize,
+    seed: u64,
+) -> Option<(f64, f64)> {
+    use rand::{Rng, SeedableRng};
+    let state = state_of(truth, &data.chain, gravity)?;
+    let dofs = data.chain.dofs.len();
+    let layout = serial_layout(dofs);
+    let spec = full_spec(&layout, 1, true, Some(0));
+    let map = ColumnMap::new(&spec);
+    let normal = normal_system(
+        &state,
+        &layout,
+        &readings(&LimbData::from(data)),
+        &spec,
+        &map,
+        sigma,
+    );
+    let n = spec.columns().len();
+    let (covariance, _) = covariance(
+        &normal,
+        &map,
+        1.0,
+        &vec![String::new(); n],
+        MlConfig::default().observable_limit,
+    );
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let (mut position, mut rotation, mut count) = (0.0, 0.0, 0usize);
+    let h = 1e-6;
+    for _ in 0..poses {
+        let q = turns_of(
+            &(0..dofs)
+                .map(|_| rng.random_range(-2.62..=2.62))
+                .collect::<Vec<f64>>(),
+        );
+        let pair = |s: &ChainState, i: usize| {
+            let f = frames(s, &layout, &q, None, layout.dofs);
+            f.sus[i].inverse() * f.sus[i + 1]
+        };
+        for i in 1..dofs.saturating_sub(1) {
+            let base = pair(&state, i);
+            let mut jac_t = DMatrix::zeros(3, n);
+            let mut jac_r = DMatrix::zeros(3, n);
+            for c in 0..n {
+                let mut delta = vec![0.0; n];
+                delta[c] = h;
+                let plus = pair(&retract(&state, &spec, &delta), i);
+                delta[c] = -h;
+                let minus = pair(&retract(&state, &spec, &delta), i);
+                let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
+                let dr = ((base.rotation.inverse() * plus.rotation).scaled_axis()
+                    - (base.rotation.inverse() * minus.rotation).scaled_axis())
+                    / (2.0 * h);
+                jac_t.set_column(c, &dt);
+                jac_r.set_column(c, &dr);
+            }
+            position += (&jac_t * &covariance * jac_t.transpose()).trace();
+            rotation += (&jac_r * &covariance * jac_r.transpose()).trace();
+            count += 1;
+        }
+    }
+    let count = count.max(1) as f64;
+    Some(((position / count).sqrt(), (rotation / count).sqrt()))
+}

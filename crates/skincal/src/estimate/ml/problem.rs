@@ -1,0 +1,783 @@
+//! The least-squares problem of a limb: frames, residuals and analytic Jacobian per SU, the
+//! Levenberg–Marquardt solver with the SU blocks eliminated (Schur complement), and the parameter
+//! covariance.
+//!
+//! Every SU's readings depend on its own 6 parameters and on the shared ones (gravity and the joint
+//! lines before it), never on another SU's: the normal matrix is block-arrow shaped. Each SU block is
+//! linearised on its own (in parallel) and reduced at once to its small normal-equation pieces, the
+//! SU blocks are eliminated and only the shared system is factorised, so an iteration costs time
+//! linear in the number of SUs and memory independent of the number of readings.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector, Isometry3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use super::{ChainState, Unobservable};
+
+/// Which SU sits on which segment (1-based: segment `k` is moved directly by DoF `k−1`).
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Layout {
+    pub dofs: usize,
+    pub su_segment: Vec<usize>,
+}
+
+/// Readings of the limb, per pose and SU, in m/s².
+#[derive(Debug, Clone)]
+pub(super) struct Readings {
+    pub q: Vec<Vec<f64>>,
+    /// `Rz(q)` of every DoF in every pose.
+    pub turns: Vec<Vec<UnitQuaternion<f64>>>,
+    pub statics: Vec<Vec<Vector3<f64>>>,
+    /// `dynamics[p][u][d]` for every DoF `d` before the SU.
+    pub dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
+    pub alpha: f64,
+}
+
+/// A parameter block of the least-squares problem.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum Block {
+    Gravity,
+    /// The 4 line parameters of joint `k`.
+    Joint(usize),
+    /// All 6 parameters of joint `k` (initialisation only).
+    JointFull(usize),
+    /// The 6 parameters of SU `u`.
+    Su(usize),
+}
+
+impl Block {
+    fn len(self) -> usize {
+        match self {
+            Block::Gravity => 3,
+            Block::Joint(_) => 4,
+            Block::JointFull(_) | Block::Su(_) => 6,
+        }
+    }
+}
+
+/// A least-squares problem: which blocks are free, which components are held, whose readings count.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Spec {
+    pub blocks: Vec<Block>,
+    /// (block index, component) held fixed.
+    pub held: Vec<(usize, usize)>,
+    /// SUs whose residuals enter.
+    pub sus: Vec<usize>,
+    /// Frames that the free blocks cannot change, per pose: the joint frames before the first
+    /// free joint and the segment it sits on (a cache for the segment-by-segment solves).
+    pub prefix: Option<Arc<Vec<Prefix>>>,
+}
+
+impl Spec {
+    /// Free columns: (block index, component).
+    pub fn columns(&self) -> Vec<(usize, usize)> {
+        self.blocks
+            .iter()
+            .enumerate()
+            .flat_map(|(b, block)| (0..block.len()).map(move |c| (b, c)))
+            .filter(|bc| !self.held.contains(bc))
+            .collect()
+    }
+}
+
+/// Where a free column lives: among the shared parameters, or in one SU's own block.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Slot {
+    Shared(usize),
+    /// (position of the SU in `Spec::sus`, component).
+    Own(usize, usize),
+}
+
+/// The free columns sorted into shared ones and per-SU ones.
+#[derive(Debug, Clone)]
+pub(super) struct ColumnMap {
+    slots: Vec<Slot>,
+    shared: Vec<(usize, usize)>,
+    own: Vec<Vec<(usize, usize)>>,
+}
+
+impl ColumnMap {
+    pub fn new(spec: &Spec) -> Self {
+        let mut slots = Vec::new();
+        let mut shared = Vec::new();
+        let mut own = vec![Vec::new(); spec.sus.len()];
+        for (b, c) in spec.columns() {
+            let owner = match spec.blocks[b] {
+                Block::Su(u) => spec.sus.iter().position(|&v| v == u),
+                _ => None,
+            };
+            match owner {
+                Some(i) => {
+                    slots.push(Slot::Own(i, own[i].len()));
+                    own[i].push((b, c));
+                }
+                None => {
+                    slots.push(Slot::Shared(shared.len()));
+                    shared.push((b, c));
+                }
+            }
+        }
+        Self { slots, shared, own }
+    }
+}
+
+/// Frames of one pose.
+pub(super) struct Frames {
+    /// Joint frames in the reference frame.
+    pub joints: Vec<Isometry3<f64>>,
+    /// Segment frames in the reference frame (`segments[0] = I`).
+    pub segments: Vec<Isometry3<f64>>,
+    /// SU frames in the reference frame.
+    pub sus: Vec<Isometry3<f64>>,
+}
+
+/// Joint frames `0…k−1` and the frame of segment `k` of one pose, in the reference frame.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Prefix {
+    joints: Vec<Isometry3<f64>>,
+    segment: Isometry3<f64>,
+}
+
+/// The prefixes up to joint `k` of every pose.
+pub(super) fn prefixes(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    k: usize,
+) -> Arc<Vec<Prefix>> {
+    Arc::new(
+        data.turns
+            .iter()
+            .map(|turns| {
+                let f = frames(state, layout, turns, None, k);
+                Prefix {
+                    joints: f.joints[..k].to_vec(),
+                    segment: f.segments[k],
+                }
+            })
+            .collect(),
+    )
+}
+
+/// `Rz(q_k)` for every DoF of a pose.
+pub(super) fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
+    q.iter()
+        .map(|&a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
+        .collect()
+}
+
+/// Frames of one pose up to segment `last` (joints `0…last−1`), continuing from `prefix` when given,
+/// and the frames of the SUs on those segments (identity for the others).
+pub(super) fn frames(
+    state: &ChainState,
+    layout: &Layout,
+    turns: &[UnitQuaternion<f64>],
+    prefix: Option<&Prefix>,
+    last: usize,
+) -> Frames {
+    let (mut joints, mut segments) = match prefix {
+        Some(p) => {
+            let mut segments = vec![Isometry3::identity(); p.joints.len()];
+            segments.push(p.segment);
+            (p.joints.clone(), segments)
+        }
+        None => (Vec::with_capacity(layout.dofs), vec![Isometry3::identity()]),
+    };
+    for k in joints.len()..last.min(layout.dofs) {
+        let j = segments[k] * state.joints[k];
+        joints.push(j);
+        segments.push(j * turns[k]);
+    }
+    let sus = state
+        .sus
+        .iter()
+        .zip(&layout.su_segment)
+        .map(|(s, &seg)| segments.get(seg).map_or(Isometry3::identity(), |f| f * s))
+        .collect();
+    Frames {
+        joints,
+        segments,
+        sus,
+    }
+}
+
+/// The local motion of component `c` of a joint block, as a world twist `(ω, v)` such that a point
+/// `p` downstream moves by `ω × p + v` and a direction rotates by `ω`.
+fn joint_twist(joint: &Isometry3<f64>, c: usize) -> (Vector3<f64>, Vector3<f64>) {
+    let axis = |i: usize| joint.rotation * Vector3::ith(i, 1.0);
+    let o = joint.translation.vector;
+    match c {
+        // Rotations about the joint's own x, y (and z for the full block) through its origin.
+        0 | 1 | 4 => {
+            let w = axis(if c == 4 { 2 } else { c });
+            (w, -w.cross(&o))
+        }
+        // Shifts along x, y (and z).
+        2 | 3 => (Vector3::zeros(), axis(c - 2)),
+        _ => (Vector3::zeros(), axis(2)),
+    }
+}
+
+/// How one column moves an SU on segment `s` at `pu`: a world twist `(ω, δp)`, the first DoF whose
+/// axis moves with the SU, or a gravity direction. `None`: the column does not touch the SU.
+enum Effect {
+    Gravity(Vector3<f64>),
+    Motion {
+        omega: Vector3<f64>,
+        dp: Vector3<f64>,
+        moved_from: usize,
+    },
+}
+
+fn effect(block: Block, c: usize, f: &Frames, s: usize, pu: &Vector3<f64>) -> Option<Effect> {
+    match block {
+        Block::Gravity => Some(Effect::Gravity(Vector3::ith(c, 1.0))),
+        Block::Joint(k) | Block::JointFull(k) => {
+            if k >= s {
+                return None;
+            }
+            let c = if matches!(block, Block::Joint(_)) {
+                c
+            } else {
+                [0, 1, 4, 2, 3, 5][c]
+            };
+            let (w, v) = joint_twist(&f.joints[k], c);
+            Some(Effect::Motion {
+                omega: w,
+                dp: w.cross(pu) + v,
+                moved_from: k,
+            })
+        }
+        Block::Su(_) => {
+            let rs = f.segments[s].rotation;
+            let (omega, dp) = if c < 3 {
+                (rs * Vector3::ith(c, 1.0), Vector3::zeros())
+            } else {
+                (Vector3::zeros(), rs * Vector3::ith(c - 3, 1.0))
+            };
+            Some(Effect::Motion {
+                omega,
+                dp,
+                moved_from: usize::MAX,
+            })
+        }
+    }
+}
+
+/// Frames of every pose for the SUs of `spec`.
+fn pose_frames(state: &ChainState, layout: &Layout, data: &Readings, spec: &Spec) -> Vec<Frames> {
+    let last = spec
+        .sus
+        .iter()
+        .map(|&u| layout.su_segment[u])
+        .max()
+        .unwrap_or(0);
+    (0..data.q.len())
+        .map(|p| {
+            frames(
+                state,
+                layout,
+                &data.turns[p],
+                spec.prefix.as_ref().map(|v| &v[p]),
+                last,
+            )
+        })
+        .collect()
+}
+
+/// One SU's residuals (whitened; rows: pose by pose, the static reading then the dynamic
+/// acceleration of every DoF before it) and, when asked, the Jacobian columns of its own block and
+/// of the shared parameters.
+struct SuBlock {
+    r: DVector<f64>,
+    own: DMatrix<f64>,
+    shared: DMatrix<f64>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn su_block(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    frames: &[Frames],
+    i: usize,
+    sigma: f64,
+    jacobian: bool,
+) -> SuBlock {
+    let u = spec.sus[i];
+    let s = layout.su_segment[u];
+    let per_pose = 3 * (1 + s);
+    let rows = per_pose * data.q.len();
+    let mut r = DVector::zeros(rows);
+    let (mut own, mut shared) = if jacobian {
+        (
+            DMatrix::zeros(rows, map.own[i].len()),
+            DMatrix::zeros(rows, map.shared.len()),
+        )
+    } else {
+        (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
+    };
+    let g = state.gravity;
+    let alpha = data.alpha;
+    for (p, f) in frames.iter().enumerate() {
+        let row = p * per_pose;
+        let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
+        let rut = ru.transpose();
+        let pu = f.sus[u].translation.vector;
+        r.fixed_rows_mut::<3>(row)
+            .copy_from(&((rut * (-g) - data.statics[p][u]) / sigma));
+        let axes: Vec<(Vector3<f64>, Vector3<f64>)> = (0..s)
+            .map(|d| {
+                (
+                    f.joints[d].rotation * Vector3::z(),
+                    f.joints[d].translation.vector,
+                )
+            })
+            .collect();
+        for (d, (z, o)) in axes.iter().enumerate() {
+            let predicted = rut * (z.cross(&(pu - o)) * alpha);
+            r.fixed_rows_mut::<3>(row + 3 * (1 + d))
+                .copy_from(&((predicted - data.dynamics[p][u][d]) / sigma));
+        }
+        if !jacobian {
+            continue;
+        }
+        let fill = |target: &mut DMatrix<f64>, col: usize, e: Effect| match e {
+            Effect::Gravity(dir) => target
+                .fixed_view_mut::<3, 1>(row, col)
+                .copy_from(&(-(rut * dir) / sigma)),
+            Effect::Motion {
+                omega,
+                dp,
+                moved_from,
+            } => {
+                target
+                    .fixed_view_mut::<3, 1>(row, col)
+                    .copy_from(&(rut * omega.cross(&g) / sigma));
+                // Axes from `moved_from` on move with the SU: their accelerations do not change.
+                for (d, (z, o)) in axes.iter().enumerate().take(moved_from.min(s)) {
+                    let w = z.cross(&(pu - o));
+                    let delta = rut * (w.cross(&omega) + z.cross(&dp)) * alpha;
+                    target
+                        .fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
+                        .copy_from(&(delta / sigma));
+                }
+            }
+        };
+        for (col, &(b, c)) in map.own[i].iter().enumerate() {
+            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu) {
+                fill(&mut own, col, e);
+            }
+        }
+        for (col, &(b, c)) in map.shared.iter().enumerate() {
+            if let Block::Su(v) = spec.blocks[b] {
+                if v != u {
+                    continue;
+                }
+            }
+            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu) {
+                fill(&mut shared, col, e);
+            }
+        }
+    }
+    SuBlock { r, own, shared }
+}
+
+/// One SU's pieces of the normal equations: `A = J_oᵀJ_o`, `B = J_oᵀJ_s`, `g_o = J_oᵀr`.
+#[derive(Debug, Clone)]
+struct SuNormal {
+    a: DMatrix<f64>,
+    b: DMatrix<f64>,
+    go: DVector<f64>,
+}
+
+/// The normal equations of a problem at a state, SU blocks kept apart.
+#[derive(Debug, Clone)]
+pub(super) struct Normal {
+    sus: Vec<SuNormal>,
+    /// `Σ J_sᵀJ_s`.
+    c: DMatrix<f64>,
+    /// `Σ J_sᵀr`.
+    gs: DVector<f64>,
+    /// `|r|²`.
+    pub cost: f64,
+    /// Number of residuals.
+    pub rows: usize,
+}
+
+pub(super) fn normal_system(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    sigma: f64,
+) -> Normal {
+    let frames = pose_frames(state, layout, data, spec);
+    let m = map.shared.len();
+    let parts: Vec<(SuNormal, DMatrix<f64>, DVector<f64>, f64, usize)> = (0..spec.sus.len())
+        .into_par_iter()
+        .map(|i| {
+            let block = su_block(state, layout, data, spec, map, &frames, i, sigma, true);
+            (
+                SuNormal {
+                    a: block.own.tr_mul(&block.own),
+                    b: block.own.tr_mul(&block.shared),
+                    go: block.own.tr_mul(&block.r),
+                },
+                block.shared.tr_mul(&block.shared),
+                block.shared.tr_mul(&block.r),
+                block.r.norm_squared(),
+                block.r.len(),
+            )
+        })
+        .collect();
+    let mut c = DMatrix::zeros(m, m);
+    let mut gs = DVector::zeros(m);
+    let (mut cost, mut rows) = (0.0, 0);
+    let mut sus = Vec::with_capacity(parts.len());
+    for (su, ci, gi, cost_i, rows_i) in parts {
+        c += ci;
+        gs += gi;
+        cost += cost_i;
+        rows += rows_i;
+        sus.push(su);
+    }
+    Normal {
+        sus,
+        c,
+        gs,
+        cost,
+        rows,
+    }
+}
+
+/// `|r|²` at a state.
+pub(super) fn cost_of(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    sigma: f64,
+) -> f64 {
+    let frames = pose_frames(state, layout, data, spec);
+    (0..spec.sus.len())
+        .into_par_iter()
+        .map(|i| {
+            su_block(state, layout, data, spec, map, &frames, i, sigma, false)
+                .r
+                .norm_squared()
+        })
+        .sum()
+}
+
+/// Residuals and the dense Jacobian (columns in `spec.columns()` order, rows SU by SU).
+pub(super) fn dense_problem(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> (DVector<f64>, DMatrix<f64>) {
+    let map = ColumnMap::new(spec);
+    let frames = pose_frames(state, layout, data, spec);
+    let blocks: Vec<SuBlock> = (0..spec.sus.len())
+        .map(|i| su_block(state, layout, data, spec, &map, &frames, i, sigma, true))
+        .collect();
+    let rows: usize = blocks.iter().map(|b| b.r.len()).sum();
+    let mut r = DVector::zeros(rows);
+    let mut jac = DMatrix::zeros(rows, map.slots.len());
+    let mut row = 0;
+    for (i, block) in blocks.iter().enumerate() {
+        let n = block.r.len();
+        r.rows_mut(row, n).copy_from(&block.r);
+        for (col, slot) in map.slots.iter().enumerate() {
+            match *slot {
+                Slot::Shared(j) => jac
+                    .view_mut((row, col), (n, 1))
+                    .copy_from(&block.shared.column(j)),
+                Slot::Own(owner, l) if owner == i => jac
+                    .view_mut((row, col), (n, 1))
+                    .copy_from(&block.own.column(l)),
+                Slot::Own(..) => {}
+            }
+        }
+        row += n;
+    }
+    (r, jac)
+}
+
+/// The damped Gauss–Newton step `(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr` with the SU blocks eliminated;
+/// `None` when a factorisation fails (the caller raises λ).
+fn schur_step(normal: &Normal, map: &ColumnMap, lambda: f64) -> Option<Vec<f64>> {
+    let m = normal.c.nrows();
+    let mut s = normal.c.clone();
+    for j in 0..m {
+        s[(j, j)] += lambda * normal.c[(j, j)].max(1e-24);
+    }
+    let mut rhs = -normal.gs.clone();
+    let mut reduced = Vec::with_capacity(normal.sus.len());
+    for su in &normal.sus {
+        let k = su.a.nrows();
+        if k == 0 {
+            reduced.push(None);
+            continue;
+        }
+        let mut a = su.a.clone();
+        for l in 0..k {
+            a[(l, l)] += lambda * su.a[(l, l)].max(1e-24);
+        }
+        let chol = a.cholesky()?;
+        let w = chol.solve(&su.b);
+        let wv = chol.solve(&su.go);
+        s -= su.b.tr_mul(&w);
+        rhs += su.b.tr_mul(&wv);
+        reduced.push(Some((w, wv)));
+    }
+    let ds = if m > 0 {
+        s.cholesky()?.solve(&rhs)
+    } else {
+        DVector::zeros(0)
+    };
+    let own: Vec<Option<DVector<f64>>> = reduced
+        .into_iter()
+        .map(|part| part.map(|(w, wv)| -(wv + w * &ds)))
+        .collect();
+    Some(
+        map.slots
+            .iter()
+            .map(|slot| match *slot {
+                Slot::Shared(j) => ds[j],
+                Slot::Own(i, l) => own[i].as_ref().map_or(0.0, |d| d[l]),
+            })
+            .collect(),
+    )
+}
+
+/// Applies a step of the free columns to the state (the retraction).
+pub(super) fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainState {
+    let mut full: Vec<[f64; 6]> = vec![[0.0; 6]; spec.blocks.len()];
+    for (&(b, c), &x) in spec.columns().iter().zip(delta) {
+        full[b][c] = x;
+    }
+    let mut next = state.clone();
+    for (b, block) in spec.blocks.iter().enumerate() {
+        let x = full[b];
+        match *block {
+            Block::Gravity => next.gravity += Vector3::new(x[0], x[1], x[2]),
+            Block::Joint(k) => {
+                let local = Isometry3::from_parts(
+                    Translation3::new(x[2], x[3], 0.0),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], 0.0)),
+                );
+                next.joints[k] = state.joints[k] * local;
+            }
+            Block::JointFull(k) => {
+                let local = Isometry3::from_parts(
+                    Translation3::new(x[3], x[4], x[5]),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])),
+                );
+                next.joints[k] = state.joints[k] * local;
+            }
+            Block::Su(u) => {
+                let s = &state.sus[u];
+                next.sus[u] = Isometry3::from_parts(
+                    Translation3::from(s.translation.vector + Vector3::new(x[3], x[4], x[5])),
+                    UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2])) * s.rotation,
+                );
+            }
+        }
+    }
+    next
+}
+
+/// Outcome of one LM solve.
+#[derive(Debug, Clone)]
+pub(super) struct Solved {
+    pub state: ChainState,
+    pub cost: f64,
+    pub residuals: usize,
+    pub iterations: usize,
+}
+
+/// Levenberg–Marquardt with Marquardt scaling from `state`: stops when an accepted step lowers the
+/// cost by less than `tolerance` (relative), or after `max_iterations`.
+pub(super) fn solve(
+    state: ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+    max_iterations: usize,
+    tolerance: f64,
+) -> Solved {
+    let map = ColumnMap::new(spec);
+    let mut state = state;
+    let mut normal = normal_system(&state, layout, data, spec, &map, sigma);
+    let mut cost = normal.cost;
+    let mut lambda: f64 = 1e-3;
+    let mut iterations = 0;
+    while iterations < max_iterations {
+        iterations += 1;
+        let mut improved = false;
+        for _ in 0..40 {
+            let Some(step) = schur_step(&normal, &map, lambda) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = retract(&state, spec, &step);
+            let trial_cost = cost_of(&trial, layout, data, spec, &map, sigma);
+            if trial_cost < cost {
+                let relative = (cost - trial_cost) / cost.max(1e-300);
+                let step_norm = step.iter().map(|x| x * x).sum::<f64>().sqrt();
+                state = trial;
+                cost = trial_cost;
+                lambda = (lambda / 3.0).max(1e-12);
+                improved = relative > tolerance && cost * relative > 1e-6 && step_norm > 1e-10;
+                break;
+            }
+            lambda *= 4.0;
+            if lambda > 1e12 {
+                break;
+            }
+        }
+        if !improved {
+            break;
+        }
+        normal = normal_system(&state, layout, data, spec, &map, sigma);
+    }
+    Solved {
+        residuals: normal.rows,
+        state,
+        cost,
+        iterations,
+    }
+}
+
+/// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.
+fn pseudo_inverse(m: &DMatrix<f64>, floor: f64) -> (DMatrix<f64>, Vec<(f64, DVector<f64>)>) {
+    let n = m.nrows();
+    let mut inverse = DMatrix::zeros(n, n);
+    let mut pairs = Vec::with_capacity(n);
+    if n == 0 {
+        return (inverse, pairs);
+    }
+    let eig = m.clone().symmetric_eigen();
+    for (i, &e) in eig.eigenvalues.iter().enumerate() {
+        let v = eig.eigenvectors.column(i).into_owned();
+        if e > floor {
+            inverse += &v * v.transpose() / e;
+        }
+        pairs.push((e, v));
+    }
+    (inverse, pairs)
+}
+
+/// Parameter covariance `scale²·(JᵀJ)⁺` (columns in `spec.columns()` order) from the normal
+/// equations at the solution, by the Schur complement with symmetric eigen-decompositions of the
+/// small SU blocks and of the reduced shared system. Directions with no information at all (a
+/// gauge the data leave free: eigenvalue below 1e-12 of the largest diagonal entry) get no
+/// variance; directions the data determine only to worse than `limit` (m or rad) are reported by
+/// the parameters that make them up.
+pub(super) fn covariance(
+    normal: &Normal,
+    map: &ColumnMap,
+    scale: f64,
+    names: &[String],
+    limit: f64,
+) -> (DMatrix<f64>, Vec<Unobservable>) {
+    let n = map.slots.len();
+    let largest = normal
+        .sus
+        .iter()
+        .flat_map(|s| s.a.diagonal().iter().copied().collect::<Vec<_>>())
+        .chain(normal.c.diagonal().iter().copied())
+        .fold(0.0f64, f64::max)
+        .max(1e-300);
+    let floor = largest * 1e-12;
+    let weak = 1.0 / (limit * limit);
+    let mut unobservable = Vec::new();
+    let mut own_index: Vec<Vec<usize>> = vec![Vec::new(); normal.sus.len()];
+    let mut shared_index = Vec::new();
+    for (col, slot) in map.slots.iter().enumerate() {
+        match *slot {
+            Slot::Shared(_) => shared_index.push(col),
+            Slot::Own(i, _) => own_index[i].push(col),
+        }
+    }
+    let name_direction = |weights: &[(usize, f64)]| -> Vec<String> {
+        let norm = weights.iter().map(|(_, w)| w * w).sum::<f64>().sqrt();
+        let mut parts: Vec<(f64, usize)> = weights
+            .iter()
+            .map(|&(c, w)| (w.abs() / norm.max(1e-300), c))
+            .filter(|(w, _)| *w > 0.3)
+            .collect();
+        parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+        parts.iter().map(|&(_, c)| names[c].clone()).collect()
+    };
+    let mut a_inverse = Vec::with_capacity(normal.sus.len());
+    let mut s = normal.c.clone();
+    for (i, su) in normal.sus.iter().enumerate() {
+        let (inv, pairs) = pseudo_inverse(&su.a, floor);
+        for (e, v) in pairs {
+            if e < weak {
+                let weights: Vec<(usize, f64)> =
+                    own_index[i].iter().copied().zip(v.iter().copied()).collect();
+                unobservable.push(Unobservable {
+                    singular_value: (e.max(0.0) / largest).sqrt(),
+                    parameters: name_direction(&weights),
+                });
+            }
+        }
+        s -= su.b.transpose() * &inv * &su.b;
+        a_inverse.push(inv);
+    }
+    let (s_inverse, pairs) = pseudo_inverse(&s, floor);
+    let k: Vec<DMatrix<f64>> = normal
+        .sus
+        .iter()
+        .zip(&a_inverse)
+        .map(|(su, inv)| inv * &su.b)
+        .collect();
+    for (e, v) in pairs {
+        if e < weak {
+            let mut weights: Vec<(usize, f64)> =
+                shared_index.iter().copied().zip(v.iter().copied()).collect();
+            for (i, ki) in k.iter().enumerate() {
+                let own = -(ki * &v);
+                weights.extend(own_index[i].iter().copied().zip(own.iter().copied()));
+            }
+            unobservable.push(Unobservable {
+                singular_value: (e.max(0.0) / largest).sqrt(),
+                parameters: name_direction(&weights),
+            });
+        }
+    }
+    let mut cov = DMatrix::zeros(n, n);
+    let put = |cov: &mut DMatrix<f64>, rows: &[usize], cols: &[usize], block: &DMatrix<f64>| {
+        for (a, &r) in rows.iter().enumerate() {
+            for (b, &c) in cols.iter().enumerate() {
+                cov[(r, c)] = block[(a, b)] * scale * scale;
+            }
+        }
+    };
+    put(&mut cov, &shared_index, &shared_index, &s_inverse);
+    let ks: Vec<DMatrix<f64>> = k.iter().map(|ki| ki * &s_inverse).collect();
+    for i in 0..normal.sus.len() {
+        let cross = -&ks[i];
+        put(&mut cov, &own_index[i], &shared_index, &cross);
+        put(&mut cov, &shared_index, &own_index[i], &cross.transpose());
+        for j in 0..normal.sus.len() {
+            let mut block = &ks[i] * k[j].transpose();
+            if i == j {
+                block += &a_inverse[i];
+            }
+            put(&mut cov, &own_index[i], &own_index[j], &block);
+        }
+    }
+    (cov, unobservable)
+}
