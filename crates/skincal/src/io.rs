@@ -234,3 +234,33 @@ pub fn read_structure(path: &Path) -> Result<crate::explore::Structure, IoError>
         message: e.to_string(),
     })
 }
+
+/// Reads a calibrated model (`model.json`) and checks that it is one.
+pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoError> {
+    let json = |message: String| IoError::Json {
+        path: path.to_path_buf(),
+        message,
+    };
+    let model: crate::estimate::body::BodyModel =
+        serde_json::from_str(&read(path)?).map_err(|e| json(e.to_string()))?;
+    model.check().map_err(json)?;
+    Ok(model)
+}
+
+/// Reads a pose table: CSV (header of DoF names, one pose per row) or, for `.json`, `{"dofs",
+/// "poses"}`.
+pub fn read_poses(path: &Path) -> Result<crate::predict::PoseTable, IoError> {
+    let text = read(path)?;
+    let is_json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let table = if is_json {
+        crate::predict::PoseTable::from_json(&text)
+    } else {
+        crate::predict::PoseTable::from_csv(&text)
+    };
+    table.map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}

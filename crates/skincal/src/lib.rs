@@ -30,5 +30,6 @@ pub mod explore;
 pub mod io;
 pub mod measurements;
 pub mod model;
+pub mod predict;
 pub mod report;
 pub mod sim;

@@ -11,6 +11,7 @@
 //! such as the first transform's `θ0` and `d`, or DH equivalences like `(θ+π, d, −a, −α)`, cannot be
 //! determined from accelerometer data and are not compared one by one.
 
+pub mod body;
 pub mod limb;
 pub mod ml;
 pub mod paper;

@@ -183,3 +183,90 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
 fn positive(v: f64) -> Option<f64> {
     (v.is_finite() && v > 0.0).then_some(v)
 }
+
+/// A robot as URDF text: one link per segment (the reference segment is the root link), one
+/// revolute joint per DoF named after it (origin and axis as in the model, limits from the model's;
+/// effort and velocity 0 when unknown), and one link per SU named after it, attached to its segment
+/// by a fixed joint `<su>_mount`. Loading the text back and composing the joints gives the model's
+/// forward kinematics.
+pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
+    let m = &robot.model;
+    let k = super::forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
+    let pose = |t: &Isometry3<f64>| {
+        let (r, p, y) = t.rotation.euler_angles();
+        urdf_rs::Pose {
+            xyz: urdf_rs::Vec3(t.translation.vector.into()),
+            rpy: urdf_rs::Vec3([r, p, y]),
+        }
+    };
+    let link = |name: &str| urdf_rs::Link {
+        name: name.to_string(),
+        inertial: Default::default(),
+        visual: Vec::new(),
+        collision: Vec::new(),
+    };
+    let mut links: Vec<urdf_rs::Link> = m.segments().iter().map(|s| link(&s.name)).collect();
+    let mut joints = Vec::new();
+    for (d, dof) in m.dofs().iter().enumerate() {
+        let origin = k.segments[dof.parent].inverse() * k.joints[d];
+        joints.push(urdf_rs::Joint {
+            name: dof.name.clone(),
+            joint_type: urdf_rs::JointType::Revolute,
+            origin: pose(&origin),
+            parent: urdf_rs::LinkName {
+                link: m.segments()[dof.parent].name.clone(),
+            },
+            child: urdf_rs::LinkName {
+                link: m.segments()[dof.child].name.clone(),
+            },
+            axis: urdf_rs::Axis {
+                xyz: urdf_rs::Vec3(dof.axis.into_inner().into()),
+            },
+            limit: urdf_rs::JointLimit {
+                lower: dof.limits.lower,
+                upper: dof.limits.upper,
+                effort: 0.0,
+                velocity: dof.limits.velocity.unwrap_or(0.0),
+                ..Default::default()
+            },
+            calibration: None,
+            dynamics: None,
+            mimic: None,
+            safety_controller: None,
+        });
+    }
+    for (u, su) in m.sus().iter().enumerate() {
+        if m.segments().iter().any(|s| s.name == su.name) {
+            return Err(DescriptionError::Invalid {
+                field: format!("sus.{}", su.name),
+                reason: "an SU has the name of a segment: URDF link names must be unique".into(),
+            });
+        }
+        links.push(link(&su.name));
+        joints.push(urdf_rs::Joint {
+            name: format!("{}_mount", su.name),
+            joint_type: urdf_rs::JointType::Fixed,
+            origin: pose(&(k.segments[su.segment].inverse() * k.sus[u])),
+            parent: urdf_rs::LinkName {
+                link: m.segments()[su.segment].name.clone(),
+            },
+            child: urdf_rs::LinkName {
+                link: su.name.clone(),
+            },
+            axis: Default::default(),
+            limit: Default::default(),
+            calibration: None,
+            dynamics: None,
+            mimic: None,
+            safety_controller: None,
+        });
+    }
+    let urdf = urdf_rs::Robot {
+        name: m.name().to_string(),
+        version: None,
+        links,
+        joints,
+        materials: Vec::new(),
+    };
+    urdf_rs::write_to_string(&urdf).map_err(|e| DescriptionError::Urdf(e.to_string()))
+}

@@ -1,0 +1,390 @@
+//! Whole-body calibration: every limb of an explored structure estimated by maximum likelihood,
+//! assembled into one calibrated model (`model.json`).
+//!
+//! **Frames.** The body's reference frame is the static reference segment's, with `z` pointing up
+//! (against gravity). Each limb that starts at the reference segment has its own frame (its first
+//! DoF's joint frame) and its own gravity estimate; in the body it is turned so that its gravity
+//! points down. Where on the reference segment such a limb sits, and how it is turned about the
+//! vertical, no accelerometer reading can tell (the reference segment never moves): those limbs
+//! start at the origin with the heading the estimate gave. A limb that starts at a branching
+//! segment hangs on the segment of its parent limb, fully determined. SUs on the reference segment
+//! read a constant: only their tilt is known (placed at the origin, turned so that their reading
+//! is gravity).
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::limb::{limb_chains, LimbChain, LimbData};
+use super::ml::{estimate_limb, LimbBase, MlChainEstimate, MlConfig};
+use super::{chain_in_listed_order, EstimateError};
+use crate::explore::Structure;
+use crate::measurements::MeasurementSet;
+use crate::model::description::RobotFile;
+use crate::model::sensor::ExcitationPattern;
+use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+
+/// Format name of a calibrated model file.
+pub const MODEL_FORMAT: &str = "skincal-model";
+/// Version of the calibrated model file.
+pub const MODEL_VERSION: u32 = 2;
+
+/// A rigid placement, m and rad (roll-pitch-yaw about fixed x, y, z as in URDF).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Frame {
+    /// Translation, m.
+    pub xyz: [f64; 3],
+    /// Rotation, rad.
+    pub rpy: [f64; 3],
+}
+
+impl Frame {
+    /// From an isometry.
+    pub fn from_isometry(pose: &Isometry3<f64>) -> Self {
+        let (r, p, y) = pose.rotation.euler_angles();
+        Self {
+            xyz: pose.translation.vector.into(),
+            rpy: [r, p, y],
+        }
+    }
+
+    /// As an isometry.
+    pub fn to_isometry(&self) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Vector3::from(self.xyz).into(),
+            UnitQuaternion::from_euler_angles(self.rpy[0], self.rpy[1], self.rpy[2]),
+        )
+    }
+}
+
+/// One limb of the calibrated body.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BodyLimb {
+    /// Its name (the structure's end segment of the limb).
+    pub name: String,
+    /// The limb it hangs on (none: it starts at the static reference segment).
+    pub parent: Option<String>,
+    /// The limb's own frame (its first DoF's joint frame) in the body's reference frame.
+    pub base_frame: Frame,
+    /// Gravity in the body's reference frame, m/s².
+    pub gravity: [f64; 3],
+    /// The DoFs it estimates, along the chain.
+    pub dofs: Vec<String>,
+    /// The SUs it estimates.
+    pub sus: Vec<String>,
+    /// The estimate in the limb's own frame: joints, SU poses, uncertainties, gauge, fit.
+    pub estimate: MlChainEstimate,
+}
+
+/// An SU on the static reference segment: its reading never changes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StaticSu {
+    /// The SU.
+    pub su: String,
+    /// Its mean static reading over the training poses, m/s².
+    pub reading: [f64; 3],
+}
+
+/// A calibrated body: the file `model.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BodyModel {
+    /// Always [`MODEL_FORMAT`].
+    pub format: String,
+    /// Always [`MODEL_VERSION`].
+    pub version: u32,
+    /// The estimator (`ml`).
+    pub method: String,
+    /// Noise standard deviation assumed, m/s².
+    pub noise_sd: f64,
+    /// The excitation pattern of the training data (what `predict` uses by default).
+    pub pattern: ExcitationPattern,
+    /// The static reference segment.
+    pub reference: String,
+    /// The whole calibrated body as a robot description (body reference frame, z up).
+    pub robot: RobotFile,
+    /// Limbs, every one after the limb it hangs on.
+    pub limbs: Vec<BodyLimb>,
+    /// SUs on the static reference segment.
+    pub static_sus: Vec<StaticSu>,
+}
+
+impl BodyModel {
+    /// Checks the format and version and that the robot description builds.
+    pub fn check(&self) -> Result<Robot, String> {
+        if self.format != MODEL_FORMAT || self.version != MODEL_VERSION {
+            return Err(format!(
+                "`format`/`version` are {:?}/{}, expected {MODEL_FORMAT:?}/{MODEL_VERSION} (a model written by `skincal calibrate`)",
+                self.format, self.version
+            ));
+        }
+        if !self.pattern.is_valid() {
+            return Err("`pattern`: amplitude and frequency must be positive".into());
+        }
+        self.robot.build().map_err(|e| format!("`robot`: {e}"))
+    }
+
+    /// Gravity (body frame) that each SU of the model reads, by SU name.
+    pub fn gravity_by_su(&self) -> BTreeMap<String, Vector3<f64>> {
+        let mut out = BTreeMap::new();
+        for limb in &self.limbs {
+            for su in &limb.sus {
+                out.insert(su.clone(), Vector3::from(limb.gravity));
+            }
+        }
+        for s in &self.static_sus {
+            out.insert(
+                s.su.clone(),
+                Vector3::new(0.0, 0.0, -Vector3::from(s.reading).norm()),
+            );
+        }
+        out
+    }
+}
+
+/// Calibrates every limb of `structure` (or, without one, the DoFs of the set in listed order as
+/// one chain with one SU per segment). With `only`, just that limb and the limbs it hangs on.
+pub fn calibrate_body(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+) -> Result<BodyModel, EstimateError> {
+    let mut chains = match structure {
+        Some(s) => limb_chains(s)?,
+        None => vec![LimbChain::from(&chain_in_listed_order(set)?)],
+    };
+    if let Some(name) = only {
+        let target = chains
+            .iter()
+            .find(|c| c.name == name)
+            .cloned()
+            .ok_or_else(|| EstimateError::UnknownLimb {
+                limb: name.into(),
+                known: chains
+                    .iter()
+                    .map(|c| c.name.clone())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?;
+        chains.retain(|c| {
+            c.joints.len() <= target.joints.len()
+                && c.joints.iter().zip(&target.joints).all(|(a, b)| a.id == b.id)
+        });
+    }
+    let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
+    let mut estimates: Vec<MlChainEstimate> = Vec::new();
+    let mut parents = Vec::new();
+    for chain in &chains {
+        let mut chain = chain.clone();
+        let mut base = None;
+        let mut parent = None;
+        if chain.base_joints > 0 {
+            let found = estimates.iter().find(|e| {
+                e.chain.joints.len() == chain.base_joints
+                    && e.chain
+                        .joints
+                        .iter()
+                        .zip(&chain.joints)
+                        .all(|(a, b)| a.id == b.id)
+            });
+            let Some(p) = found else {
+                return Err(EstimateError::UnsupportedLimb {
+                    limb: chain.name.clone(),
+                    reason: "no limb ends at its base segment".into(),
+                });
+            };
+            // The base path with the DoF order its own estimate found.
+            for j in 0..chain.base_joints {
+                chain.joints[j].dofs = p.chain.joints[j].dofs.clone();
+            }
+            let base_dofs = p.chain.dofs().len();
+            base = LimbBase::of(p, base_dofs);
+            parent = Some(p.chain.name.clone());
+        }
+        let data = LimbData::new(set, &chain)?;
+        estimates.push(estimate_limb(&data, base.as_ref(), config)?);
+        parents.push(parent);
+    }
+    let static_sus = match structure {
+        Some(s) => s
+            .segment(&s.root)
+            .map(|root| {
+                root.sus
+                    .iter()
+                    .filter_map(|su| {
+                        let u = set.sus.iter().position(|n| n == su)?;
+                        let mean = training
+                            .poses
+                            .iter()
+                            .map(|p| Vector3::from(p.static_readings[u]))
+                            .sum::<Vector3<f64>>()
+                            / training.poses.len() as f64;
+                        Some(StaticSu {
+                            su: su.clone(),
+                            reading: mean.into(),
+                        })
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        None => Vec::new(),
+    };
+    let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
+    Ok(assemble(
+        set,
+        &reference,
+        estimates,
+        parents,
+        static_sus,
+        config,
+        training.pattern,
+    ))
+}
+
+/// The range each DoF covered in the set's poses, as its limits in the calibrated model.
+fn observed_limits(set: &MeasurementSet, dof: &str) -> Limits {
+    let Some(d) = set.dofs.iter().position(|n| n == dof) else {
+        return Limits::CONTINUOUS;
+    };
+    let mut values: Vec<f64> = Vec::new();
+    if let Some(t) = &set.training {
+        values.extend(t.poses.iter().map(|p| p.q[d]));
+    }
+    if let Some(s) = &set.structure {
+        for o in &s.orientations {
+            values.push(o.rest_pose[d]);
+            values.extend(o.moves.iter().map(|m| m.pose[d]));
+        }
+    }
+    let lower = values.iter().copied().fold(f64::INFINITY, f64::min);
+    let upper = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if lower.is_finite() && upper > lower {
+        Limits {
+            lower,
+            upper,
+            velocity: None,
+            acceleration: None,
+        }
+    } else {
+        Limits::CONTINUOUS
+    }
+}
+
+fn assemble(
+    set: &MeasurementSet,
+    reference: &str,
+    estimates: Vec<MlChainEstimate>,
+    parents: Vec<Option<String>>,
+    static_sus: Vec<StaticSu>,
+    config: &MlConfig,
+    pattern: ExcitationPattern,
+) -> BodyModel {
+    let mut builder = RobotBuilder::new("calibrated", reference);
+    let mut limbs: Vec<BodyLimb> = Vec::new();
+    for (estimate, parent) in estimates.into_iter().zip(parents) {
+        let state = estimate
+            .state
+            .clone()
+            .expect("a fresh estimate has its state");
+        let chain = &estimate.chain;
+        let dofs = chain.dofs();
+        let base_dofs: usize = chain.joints[..chain.base_joints]
+            .iter()
+            .map(|j| j.dofs.len())
+            .sum();
+        let gravity = Vector3::from(estimate.gravity);
+        // A limb on the reference segment is turned so that its gravity points down; one on a
+        // branching segment shares its parent's frame.
+        let (base, body_gravity) = match &parent {
+            None => {
+                let turn = UnitQuaternion::rotation_between(&gravity, &-Vector3::z())
+                    .unwrap_or_else(|| {
+                        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+                    });
+                (
+                    Isometry3::from_parts(Vector3::zeros().into(), turn),
+                    Vector3::new(0.0, 0.0, -gravity.norm()),
+                )
+            }
+            Some(p) => {
+                let parent = limbs.iter().find(|l| &l.name == p).expect("parents first");
+                (
+                    parent.base_frame.to_isometry(),
+                    Vector3::from(parent.gravity),
+                )
+            }
+        };
+        for (k, dof) in dofs.iter().enumerate().skip(base_dofs) {
+            let origin = if k == 0 {
+                base * state.joints[0]
+            } else {
+                state.joints[k]
+            };
+            builder.dofs.push(DofSpec {
+                name: dof.clone(),
+                parent: if k == 0 {
+                    reference.to_string()
+                } else {
+                    chain.segment_after(k - 1)
+                },
+                child: chain.segment_after(k),
+                origin: PlacementSpec::from_isometry(&origin),
+                axis: Vector3::z(),
+                limits: observed_limits(set, dof),
+            });
+        }
+        let sus = chain.sus();
+        let depth: Vec<usize> = chain.joints[chain.base_joints..]
+            .iter()
+            .scan(base_dofs, |d, j| {
+                *d += j.dofs.len();
+                Some(vec![*d; j.sus.len()])
+            })
+            .flatten()
+            .collect();
+        for (u, su) in sus.iter().enumerate() {
+            builder.sus.push(SuSpec {
+                name: su.clone(),
+                segment: chain.segment_after(depth[u] - 1),
+                placement: PlacementSpec::from_isometry(&state.sus[u]),
+            });
+        }
+        limbs.push(BodyLimb {
+            name: chain.name.clone(),
+            parent,
+            base_frame: Frame::from_isometry(&base),
+            gravity: body_gravity.into(),
+            dofs: dofs[base_dofs..].to_vec(),
+            sus,
+            estimate,
+        });
+    }
+    for s in &static_sus {
+        let reading = Vector3::from(s.reading);
+        let turn = UnitQuaternion::rotation_between(&reading, &Vector3::z())
+            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+        builder.sus.push(SuSpec {
+            name: s.su.clone(),
+            segment: reference.to_string(),
+            placement: PlacementSpec::from_isometry(&Isometry3::from_parts(
+                Vector3::zeros().into(),
+                turn,
+            )),
+        });
+    }
+    let robot = builder
+        .build()
+        .expect("limbs with distinct names form a valid tree");
+    BodyModel {
+        format: MODEL_FORMAT.into(),
+        version: MODEL_VERSION,
+        method: "ml".into(),
+        noise_sd: config.noise_sd,
+        pattern,
+        reference: reference.to_string(),
+        robot: RobotFile::from_robot(&robot, Some("calibrated by skincal (maximum likelihood)".into())),
+        limbs,
+        static_sus,
+    }
+}

@@ -1,0 +1,392 @@
+//! What a calibrated model predicts the skin reads, and the check of a calibration against a second
+//! measurement set (held-out poses).
+//!
+//! Predictions follow the measurement set's conventions (docs/measurements.md): a static reading is
+//! the specific force `R_SUᵀ·(−g)` in the SU frame, a dynamic acceleration the tangential
+//! acceleration `α·R_SUᵀ·(z × r)` at the pattern's peak, in m/s². Only the DoFs that move an SU
+//! have a dynamic entry for it (the others read zero by definition).
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use crate::estimate::body::BodyModel;
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::{peak_dynamic_accelerations_at, specific_force, ExcitationPattern};
+use crate::model::{forward_kinematics, Robot};
+use nalgebra::Vector3;
+
+/// Errors of prediction and validation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PredictError {
+    /// The model file is not a usable model.
+    #[error("the model is not usable: {0}")]
+    Model(String),
+    /// Names of the model are missing from the other side.
+    #[error("{what} of the model missing from {other}: {}; the model and the data must name the same {what}", missing.join(", "))]
+    Missing {
+        /// `DoFs` or `SUs`.
+        what: &'static str,
+        /// The data compared with.
+        other: String,
+        /// The names.
+        missing: Vec<String>,
+    },
+    /// A pose table is malformed.
+    #[error("poses: {0}")]
+    Poses(String),
+    /// The measurement set has no training experiment to compare with.
+    #[error("the measurement set has no training experiment (`training`) to compare with")]
+    NoTraining,
+}
+
+/// Joint positions by DoF name: the `--poses` input of `skincal predict`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseTable {
+    /// DoF names, one per column.
+    pub dofs: Vec<String>,
+    /// One row of positions (rad) per pose.
+    pub poses: Vec<Vec<f64>>,
+}
+
+impl PoseTable {
+    /// From CSV: a header of DoF names, one pose per row (rad). Blank lines and lines starting
+    /// with `#` are skipped.
+    pub fn from_csv(text: &str) -> Result<Self, PredictError> {
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
+        let (_, header) = lines
+            .next()
+            .ok_or_else(|| PredictError::Poses("empty file: expected a header of DoF names".into()))?;
+        let dofs: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
+        let mut poses = Vec::new();
+        for (n, line) in lines {
+            let row: Vec<f64> = line
+                .split(',')
+                .enumerate()
+                .map(|(c, v)| {
+                    v.trim().parse::<f64>().map_err(|_| {
+                        PredictError::Poses(format!(
+                            "line {}, column {} (`{}`): `{}` is not a number",
+                            n + 1,
+                            c + 1,
+                            dofs.get(c).map_or("?", String::as_str),
+                            v.trim()
+                        ))
+                    })
+                })
+                .collect::<Result<_, _>>()?;
+            poses.push(row);
+        }
+        let table = Self { dofs, poses };
+        table.check()?;
+        Ok(table)
+    }
+
+    /// From JSON: `{"dofs": [names], "poses": [[q per DoF]]}` (the output of `predict` has this shape).
+    pub fn from_json(text: &str) -> Result<Self, PredictError> {
+        let table: Self =
+            serde_json::from_str(text).map_err(|e| PredictError::Poses(e.to_string()))?;
+        table.check()?;
+        Ok(table)
+    }
+
+    fn check(&self) -> Result<(), PredictError> {
+        let mut seen = std::collections::HashSet::new();
+        for d in &self.dofs {
+            if d.is_empty() || !seen.insert(d) {
+                return Err(PredictError::Poses(format!(
+                    "DoF name `{d}` is empty or appears twice in the header"
+                )));
+            }
+        }
+        for (p, row) in self.poses.iter().enumerate() {
+            if row.len() != self.dofs.len() {
+                return Err(PredictError::Poses(format!(
+                    "pose {} has {} values for {} DoFs",
+                    p + 1,
+                    row.len(),
+                    self.dofs.len()
+                )));
+            }
+            if let Some(c) = row.iter().position(|v| !v.is_finite()) {
+                return Err(PredictError::Poses(format!(
+                    "pose {}, DoF `{}`: not a finite number",
+                    p + 1,
+                    self.dofs[c]
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A calibrated model ready to predict.
+#[derive(Debug, Clone)]
+pub struct Predictor {
+    robot: Robot,
+    /// Gravity (body frame) per SU of the robot.
+    gravity: Vec<Vector3<f64>>,
+}
+
+/// Readings of every SU in one pose, in the model's SU order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseReadings {
+    /// Static readings, m/s².
+    pub statics: Vec<Vector3<f64>>,
+    /// Per model DoF: `(SU index, dynamic acceleration)` for every SU it moves.
+    pub dynamic: Vec<Vec<(usize, Vector3<f64>)>>,
+}
+
+impl Predictor {
+    /// Checks the model and builds its robot.
+    pub fn new(model: &BodyModel) -> Result<Self, PredictError> {
+        let robot = model.check().map_err(PredictError::Model)?;
+        let by_su = model.gravity_by_su();
+        let gravity = robot
+            .model
+            .su_names()
+            .iter()
+            .map(|s| {
+                by_su.get(s).copied().ok_or_else(|| {
+                    PredictError::Model(format!("SU `{s}` belongs to no limb and is not static"))
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Self { robot, gravity })
+    }
+
+    /// The model's DoF names.
+    pub fn dofs(&self) -> Vec<String> {
+        self.robot.model.dof_names()
+    }
+
+    /// The model's SU names.
+    pub fn sus(&self) -> Vec<String> {
+        self.robot.model.su_names()
+    }
+
+    /// Readings in pose `q` (model DoF order) under `pattern`.
+    pub fn readings(&self, q: &[f64], pattern: &ExcitationPattern) -> PoseReadings {
+        let m = &self.robot.model;
+        let k = forward_kinematics(m, &self.robot.parameters, q);
+        let statics = k
+            .sus
+            .iter()
+            .zip(&self.gravity)
+            .map(|(frame, g)| specific_force(frame, &Vector3::zeros(), g))
+            .collect();
+        let dynamic = (0..m.dofs().len())
+            .map(|d| {
+                peak_dynamic_accelerations_at(m, &k, d, pattern)
+                    .into_iter()
+                    .enumerate()
+                    .filter(|(u, _)| m.moves_su(d, *u))
+                    .collect()
+            })
+            .collect();
+        PoseReadings { statics, dynamic }
+    }
+
+    /// The columns of `table` in model DoF order; every model DoF must be there and no other.
+    pub fn arrange(&self, table: &PoseTable, source: &str) -> Result<Vec<Vec<f64>>, PredictError> {
+        let dofs = self.dofs();
+        let index = columns(&dofs, &table.dofs, source)?;
+        Ok(table
+            .poses
+            .iter()
+            .map(|row| index.iter().map(|&c| row[c]).collect())
+            .collect())
+    }
+
+    /// Predictions for every pose of `table` as JSON:
+    /// `{"dofs", "pattern", "poses", "static": {su: [[x,y,z] per pose]}, "dynamic": {su: {dof: [...]}}}`.
+    pub fn predict(
+        &self,
+        table: &PoseTable,
+        pattern: &ExcitationPattern,
+        source: &str,
+    ) -> Result<Value, PredictError> {
+        let poses = self.arrange(table, source)?;
+        let dofs = self.dofs();
+        let sus = self.sus();
+        let mut statics: Vec<Vec<Value>> = vec![Vec::new(); sus.len()];
+        let mut dynamic: Vec<Map<String, Value>> = vec![Map::new(); sus.len()];
+        let vector = |v: &Vector3<f64>| serde_json::json!([v.x, v.y, v.z]);
+        for q in &poses {
+            let r = self.readings(q, pattern);
+            for (u, s) in r.statics.iter().enumerate() {
+                statics[u].push(vector(s));
+            }
+            for (d, moved) in r.dynamic.iter().enumerate() {
+                for (u, a) in moved {
+                    dynamic[*u]
+                        .entry(dofs[d].clone())
+                        .or_insert_with(|| Value::Array(Vec::new()))
+                        .as_array_mut()
+                        .expect("arrays only")
+                        .push(vector(a));
+                }
+            }
+        }
+        let mut out = Map::new();
+        out.insert("dofs".into(), serde_json::json!(dofs));
+        out.insert("pattern".into(), serde_json::json!(pattern));
+        out.insert("poses".into(), serde_json::json!(poses));
+        out.insert(
+            "static".into(),
+            Value::Object(
+                sus.iter()
+                    .cloned()
+                    .zip(statics.into_iter().map(Value::Array))
+                    .collect(),
+            ),
+        );
+        out.insert(
+            "dynamic".into(),
+            Value::Object(
+                sus.iter()
+                    .cloned()
+                    .zip(dynamic.into_iter().map(Value::Object))
+                    .filter(|(_, v)| v.as_object().is_some_and(|m| !m.is_empty()))
+                    .collect(),
+            ),
+        );
+        Ok(Value::Object(out))
+    }
+}
+
+/// For every name of `wanted`, its column in `given`; the names must be the same sets.
+fn columns(wanted: &[String], given: &[String], source: &str) -> Result<Vec<usize>, PredictError> {
+    let missing: Vec<String> = wanted
+        .iter()
+        .filter(|d| !given.contains(d))
+        .cloned()
+        .collect();
+    if !missing.is_empty() {
+        return Err(PredictError::Missing {
+            what: "DoFs",
+            other: source.into(),
+            missing,
+        });
+    }
+    if let Some(extra) = given.iter().find(|d| !wanted.contains(d)) {
+        return Err(PredictError::Poses(format!(
+            "{source} names DoF `{extra}`, which the model does not have (its DoFs: {})",
+            wanted.join(", ")
+        )));
+    }
+    Ok(wanted
+        .iter()
+        .map(|d| given.iter().position(|g| g == d).expect("checked"))
+        .collect())
+}
+
+/// Prediction errors of one SU: norm of the 3-vector difference, m/s².
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuError {
+    /// The SU.
+    pub su: String,
+    /// RMS over poses of the static reading error.
+    pub static_rms: f64,
+    /// Largest static reading error.
+    pub static_max: f64,
+    /// RMS over poses and moving DoFs of the dynamic acceleration error (0 if no DoF moves it).
+    pub dynamic_rms: f64,
+    /// Largest dynamic acceleration error.
+    pub dynamic_max: f64,
+    /// Dynamic readings compared.
+    pub dynamic_count: usize,
+}
+
+/// A model checked against a measurement set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Validation {
+    /// Poses compared.
+    pub poses: usize,
+    /// Per SU of the model.
+    pub sus: Vec<SuError>,
+    /// RMS over every static reading compared, m/s².
+    pub static_rms: f64,
+    /// Largest static error, m/s².
+    pub static_max: f64,
+    /// RMS over every dynamic acceleration compared, m/s².
+    pub dynamic_rms: f64,
+    /// Largest dynamic error, m/s².
+    pub dynamic_max: f64,
+    /// SUs of the set that the model does not cover (not compared).
+    pub not_in_model: Vec<String>,
+}
+
+/// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
+/// Every DoF and SU of the model must be in the set.
+pub fn validate(model: &BodyModel, set: &MeasurementSet, source: &str) -> Result<Validation, PredictError> {
+    let predictor = Predictor::new(model)?;
+    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
+    let dofs = predictor.dofs();
+    let sus = predictor.sus();
+    for (what, names, given) in [("DoFs", &dofs, &set.dofs), ("SUs", &sus, &set.sus)] {
+        let missing: Vec<String> = names.iter().filter(|n| !given.contains(n)).cloned().collect();
+        if !missing.is_empty() {
+            return Err(PredictError::Missing {
+                what,
+                other: source.into(),
+                missing,
+            });
+        }
+    }
+    let dof_col: Vec<usize> = dofs
+        .iter()
+        .map(|d| set.dofs.iter().position(|g| g == d).expect("checked"))
+        .collect();
+    let su_col: Vec<usize> = sus
+        .iter()
+        .map(|s| set.sus.iter().position(|g| g == s).expect("checked"))
+        .collect();
+    let n = sus.len();
+    let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) =
+        (vec![0.0; n], vec![0.0f64; n], vec![0.0; n], vec![0.0f64; n], vec![0usize; n]);
+    for pose in &training.poses {
+        let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
+        let r = predictor.readings(&q, &training.pattern);
+        for u in 0..n {
+            let e = (r.statics[u] - Vector3::from(pose.static_readings[su_col[u]])).norm();
+            s_sum[u] += e * e;
+            s_max[u] = s_max[u].max(e);
+        }
+        for (d, moved) in r.dynamic.iter().enumerate() {
+            let Some(measured) = pose.dynamic.get(&dofs[d]) else {
+                continue;
+            };
+            for (u, a) in moved {
+                let e = (a - Vector3::from(measured[su_col[*u]])).norm();
+                d_sum[*u] += e * e;
+                d_max[*u] = d_max[*u].max(e);
+                d_count[*u] += 1;
+            }
+        }
+    }
+    let poses = training.poses.len();
+    let per_su = (0..n)
+        .map(|u| SuError {
+            su: sus[u].clone(),
+            static_rms: (s_sum[u] / poses.max(1) as f64).sqrt(),
+            static_max: s_max[u],
+            dynamic_rms: (d_sum[u] / d_count[u].max(1) as f64).sqrt(),
+            dynamic_max: d_max[u],
+            dynamic_count: d_count[u],
+        })
+        .collect();
+    let total_d: usize = d_count.iter().sum();
+    Ok(Validation {
+        poses,
+        sus: per_su,
+        static_rms: (s_sum.iter().sum::<f64>() / (poses * n).max(1) as f64).sqrt(),
+        static_max: s_max.iter().copied().fold(0.0, f64::max),
+        dynamic_rms: (d_sum.iter().sum::<f64>() / total_d.max(1) as f64).sqrt(),
+        dynamic_max: d_max.iter().copied().fold(0.0, f64::max),
+        not_in_model: set.sus.iter().filter(|s| !sus.contains(s)).cloned().collect(),
+    })
+}
