@@ -57,9 +57,9 @@ impl PoseTable {
             .lines()
             .enumerate()
             .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let (_, header) = lines
-            .next()
-            .ok_or_else(|| PredictError::Poses("empty file: expected a header of DoF names".into()))?;
+        let (_, header) = lines.next().ok_or_else(|| {
+            PredictError::Poses("empty file: expected a header of DoF names".into())
+        })?;
         let dofs: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
         let mut poses = Vec::new();
         for (n, line) in lines {
@@ -322,13 +322,21 @@ pub struct Validation {
 
 /// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
 /// Every DoF and SU of the model must be in the set.
-pub fn validate(model: &BodyModel, set: &MeasurementSet, source: &str) -> Result<Validation, PredictError> {
+pub fn validate(
+    model: &BodyModel,
+    set: &MeasurementSet,
+    source: &str,
+) -> Result<Validation, PredictError> {
     let predictor = Predictor::new(model)?;
     let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
     let dofs = predictor.dofs();
     let sus = predictor.sus();
     for (what, names, given) in [("DoFs", &dofs, &set.dofs), ("SUs", &sus, &set.sus)] {
-        let missing: Vec<String> = names.iter().filter(|n| !given.contains(n)).cloned().collect();
+        let missing: Vec<String> = names
+            .iter()
+            .filter(|n| !given.contains(n))
+            .cloned()
+            .collect();
         if !missing.is_empty() {
             return Err(PredictError::Missing {
                 what,
@@ -346,8 +354,13 @@ pub fn validate(model: &BodyModel, set: &MeasurementSet, source: &str) -> Result
         .map(|s| set.sus.iter().position(|g| g == s).expect("checked"))
         .collect();
     let n = sus.len();
-    let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) =
-        (vec![0.0; n], vec![0.0f64; n], vec![0.0; n], vec![0.0f64; n], vec![0usize; n]);
+    let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) = (
+        vec![0.0; n],
+        vec![0.0f64; n],
+        vec![0.0; n],
+        vec![0.0f64; n],
+        vec![0usize; n],
+    );
     for pose in &training.poses {
         let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
         let r = predictor.readings(&q, &training.pattern);
@@ -387,6 +400,11 @@ pub fn validate(model: &BodyModel, set: &MeasurementSet, source: &str) -> Result
         static_max: s_max.iter().copied().fold(0.0, f64::max),
         dynamic_rms: (d_sum.iter().sum::<f64>() / total_d.max(1) as f64).sqrt(),
         dynamic_max: d_max.iter().copied().fold(0.0, f64::max),
-        not_in_model: set.sus.iter().filter(|s| !sus.contains(s)).cloned().collect(),
+        not_in_model: set
+            .sus
+            .iter()
+            .filter(|s| !sus.contains(s))
+            .cloned()
+            .collect(),
     })
 }

@@ -42,13 +42,207 @@ fn noise_free_humanoid_predicts_held_out_readings_exactly() {
     };
     let model = calibrate_body(&set, Some(&structure), &config, None).unwrap();
     for limb in &model.limbs {
-        assert!(limb.estimate.converged, "{} {}", limb.name, limb.estimate.residual_ratio);
+        assert!(
+            limb.estimate.converged,
+            "{} {}",
+            limb.name, limb.estimate.residual_ratio
+        );
     }
     let check = validate(&model, &held_out(&robot, 99), "held-out").unwrap();
     assert!(check.static_max < 1e-6, "static {:e}", check.static_max);
     assert!(check.dynamic_max < 1e-6, "dynamic {:e}", check.dynamic_max);
-    eprintln!("{} {:e} {:e} {:?}", check.poses, check.static_max, check.dynamic_max, check.sus.iter().map(|s| s.dynamic_count).collect::<Vec<_>>()); for l in &model.limbs { eprintln!("{} {:?} {} {:?}", l.name, l.dofs, l.estimate.iterations, l.estimate.joint_orders.iter().map(|j| j.dofs.clone()).collect::<Vec<_>>()); }
     // Every SU of the robot is covered, the torso's included.
     assert_eq!(check.sus.len(), robot.model.sus().len());
     assert!(check.not_in_model.is_empty());
+    // The multi-DoF joints' DoFs come out in the order of the truth.
+    for limb in &model.limbs {
+        for order in &limb.estimate.joint_orders {
+            let index: Vec<usize> = order
+                .dofs
+                .iter()
+                .map(|d| robot.model.dof_index(d).unwrap())
+                .collect();
+            assert!(index.windows(2).all(|w| w[0] < w[1]), "{:?}", order.dofs);
+        }
+    }
+}
+
+/// A noisy humanoid with two SUs on every skinned segment, calibrated once for the tests below.
+fn noisy_humanoid() -> (Robot, skincal::estimate::body::BodyModel) {
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let robot = with_random_sus(&robot, 2, 7).unwrap();
+    let set = simulate(
+        &robot,
+        &SimulationConfig {
+            seed: 3,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete);
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    (robot, model)
+}
+
+/// Axis lines (direction, point) of `dofs` in the frame of SU `su`, all DoFs at zero.
+fn lines_in_su_frame(robot: &Robot, dofs: &[&str], su: &str) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let m = &robot.model;
+    let k = forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
+    let frame = k.sus[m.su_index(su).unwrap()];
+    dofs.iter()
+        .map(|d| {
+            let i = m.dof_index(d).unwrap();
+            let axis = k.joints[i].rotation * m.dofs()[i].axis.into_inner();
+            let point = k.joints[i].translation.vector;
+            (
+                frame.rotation.inverse() * axis,
+                frame.inverse() * nalgebra::Point3::from(point),
+            )
+        })
+        .map(|(a, p)| (a, p.coords))
+        .collect()
+}
+
+#[test]
+fn a_three_dof_shoulder_without_sus_between_its_dofs_is_calibrated() {
+    let (truth, model) = noisy_humanoid();
+    let estimate = model.check().unwrap();
+    let shoulder = ["l_shoulder_pitch", "l_shoulder_roll", "l_shoulder_yaw"];
+    let limb = model
+        .limbs
+        .iter()
+        .find(|l| l.dofs.contains(&shoulder[0].to_string()))
+        .unwrap();
+    assert!(limb.estimate.converged);
+    assert_eq!(limb.estimate.joint_orders[0].dofs, shoulder);
+    // Seen from an SU on the upper arm (gauge-free: the SU and the axes move together), each axis
+    // direction and the distance between the axis lines and the SU. Tolerance: with σ = 0.057 m/s²
+    // per component, α = 6.3 rad/s² and lever arms of 0.05–0.3 m, one reading fixes a direction to
+    // ~0.04 rad and a lever arm to ~0.01 m; 20 poses × 2 SUs × the later segments average that to
+    // about 0.1° and 2–3 mm (what this data set gives): 0.5° and 6 mm leave room for other seeds.
+    let su = "l_upper_arm_su1";
+    let t = lines_in_su_frame(&truth, &shoulder, su);
+    let e = lines_in_su_frame(&estimate, &shoulder, su);
+    for (i, ((ta, tp), (ea, ep))) in t.iter().zip(&e).enumerate() {
+        let angle = ta.angle(ea);
+        // Distance of the estimated point from the true line.
+        let offset = (ep - tp) - ta * ta.dot(&(ep - tp));
+        assert!(
+            angle < 0.5f64.to_radians(),
+            "{}: axis off by {:.2}°",
+            shoulder[i],
+            angle.to_degrees()
+        );
+        assert!(
+            offset.norm() < 0.006,
+            "{}: axis line off by {:.1} mm",
+            shoulder[i],
+            offset.norm() * 1e3
+        );
+    }
+}
+
+#[test]
+fn urdf_export_keeps_the_forward_kinematics() {
+    let (_, model) = noisy_humanoid();
+    let robot = model.check().unwrap();
+    let text = skincal::model::urdf::to_urdf(&robot).unwrap();
+    let urdf = urdf_rs::read_from_string(&text).unwrap();
+    // Independent forward kinematics of the URDF: compose origin · Rot(axis, q) from the root.
+    let rpy = |p: &urdf_rs::Pose| {
+        Isometry3::from_parts(
+            Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]),
+            UnitQuaternion::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]),
+        )
+    };
+    let m = &robot.model;
+    let mut rng_q = 0.37f64;
+    for _ in 0..5 {
+        let q: Vec<f64> = (0..m.dofs().len())
+            .map(|_| {
+                rng_q = (rng_q * 7.31 + 0.19).fract();
+                (rng_q - 0.5) * 4.0
+            })
+            .collect();
+        let mut poses = std::collections::HashMap::new();
+        poses.insert(model.reference.clone(), Isometry3::identity());
+        while poses.len() < urdf.links.len() {
+            let before = poses.len();
+            for j in &urdf.joints {
+                if poses.contains_key(&j.child.link) {
+                    continue;
+                }
+                let Some(parent) = poses.get(&j.parent.link).copied() else {
+                    continue;
+                };
+                let motion = match &j.joint_type {
+                    urdf_rs::JointType::Revolute => {
+                        assert_eq!(urdf.joints.iter().filter(|k| k.name == j.name).count(), 1);
+                        let d = m.dof_index(&j.name).expect("joints named after the DoFs");
+                        let axis = nalgebra::Unit::new_normalize(Vector3::from(*j.axis.xyz));
+                        Isometry3::from_parts(
+                            Translation3::identity(),
+                            UnitQuaternion::from_axis_angle(&axis, q[d]),
+                        )
+                    }
+                    urdf_rs::JointType::Fixed => Isometry3::identity(),
+                    other => panic!("unexpected joint type {other:?}"),
+                };
+                poses.insert(j.child.link.clone(), parent * rpy(&j.origin) * motion);
+            }
+            assert!(poses.len() > before, "the URDF is not one tree");
+        }
+        let k = forward_kinematics(m, &robot.parameters, &q);
+        for (u, su) in m.sus().iter().enumerate() {
+            let from_urdf = poses[&su.name];
+            let difference = from_urdf.inverse() * k.sus[u];
+            assert!(difference.translation.vector.norm() < 1e-9, "{}", su.name);
+            assert!(difference.rotation.angle() < 1e-9, "{}", su.name);
+        }
+    }
+}
+
+#[test]
+fn names_that_differ_between_model_and_data_are_named_in_the_error() {
+    let (_, model) = noisy_humanoid();
+    // Data of another robot: the humanoid's DoFs are missing and named.
+    let arm = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let err = validate(&model, &held_out(&arm, 1), "arm.json").unwrap_err();
+    let message = err.to_string();
+    assert!(
+        matches!(err, PredictError::Missing { what: "DoFs", .. }),
+        "{message}"
+    );
+    assert!(
+        message.contains("neck_yaw") && message.contains("arm.json"),
+        "{message}"
+    );
+    // The same robot with one SU renamed: that SU is named.
+    let robot =
+        with_random_sus(&presets::find("humanoid").unwrap().robot().unwrap(), 2, 7).unwrap();
+    let mut data = held_out(&robot, 2);
+    data.sus[0] = "mystery".into();
+    let err = validate(&model, &data, "held-out").unwrap_err().to_string();
+    assert!(
+        err.contains("SUs") && err.contains(&robot.model.su_names()[0]),
+        "{err}"
+    );
+    // A pose table without one of the model's DoFs, and one with a DoF the model lacks.
+    let predictor = skincal::predict::Predictor::new(&model).unwrap();
+    let mut dofs = predictor.dofs();
+    dofs.pop();
+    let table = skincal::predict::PoseTable {
+        poses: vec![vec![0.0; dofs.len()]],
+        dofs,
+    };
+    let err = predictor
+        .arrange(&table, "poses.csv")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("r_ankle_roll") && err.contains("poses.csv"),
+        "{err}"
+    );
 }

@@ -169,7 +169,10 @@ pub fn calibrate_body(
             })?;
         chains.retain(|c| {
             c.joints.len() <= target.joints.len()
-                && c.joints.iter().zip(&target.joints).all(|(a, b)| a.id == b.id)
+                && c.joints
+                    .iter()
+                    .zip(&target.joints)
+                    .all(|(a, b)| a.id == b.id)
         });
     }
     let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
@@ -362,8 +365,9 @@ fn assemble(
     }
     for s in &static_sus {
         let reading = Vector3::from(s.reading);
-        let turn = UnitQuaternion::rotation_between(&reading, &Vector3::z())
-            .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
+        let turn = UnitQuaternion::rotation_between(&reading, &Vector3::z()).unwrap_or_else(|| {
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+        });
         builder.sus.push(SuSpec {
             name: s.su.clone(),
             segment: reference.to_string(),
@@ -383,7 +387,10 @@ fn assemble(
         noise_sd: config.noise_sd,
         pattern,
         reference: reference.to_string(),
-        robot: RobotFile::from_robot(&robot, Some("calibrated by skincal (maximum likelihood)".into())),
+        robot: RobotFile::from_robot(
+            &robot,
+            Some("calibrated by skincal (maximum likelihood)".into()),
+        ),
         limbs,
         static_sus,
     }

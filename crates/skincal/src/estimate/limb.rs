@@ -122,12 +122,13 @@ pub fn limb_chains(structure: &Structure) -> Result<Vec<LimbChain>, EstimateErro
     let mut limbs = Vec::new();
     for limb in &structure.limbs {
         let mut path = Vec::new();
-        let mut segment = structure
-            .segment(&limb.to)
-            .ok_or_else(|| EstimateError::UnsupportedLimb {
-                limb: limb.to.clone(),
-                reason: "its end segment is not in the structure".into(),
-            })?;
+        let mut segment =
+            structure
+                .segment(&limb.to)
+                .ok_or_else(|| EstimateError::UnsupportedLimb {
+                    limb: limb.to.clone(),
+                    reason: "its end segment is not in the structure".into(),
+                })?;
         while let Some(joint_id) = &segment.parent_joint {
             let joint = structure.joint(joint_id).expect("parent joints exist");
             if segment.sus.is_empty() {

@@ -71,11 +71,30 @@ pub(super) struct JointLines {
 /// `misfit` is the scatter of the accelerations about that model (m² per rad²·s⁻⁴·α⁻²), so the
 /// order along the chain that explains the data has the smallest.
 pub(super) fn joint_lines(data: &Readings, u: usize, dofs: &[usize]) -> JointLines {
+    joint_line_starts(data, u, dofs, 1)
+        .into_iter()
+        .next()
+        .expect("at least one start")
+}
+
+/// Up to `count` distinct starts for the lines of a multi-DoF joint (the best local minima of the
+/// misfit over ψ), best first, each also with the first axis's sense reversed (noise can make the
+/// closed form pick the wrong one when the lever arms are short).
+pub(super) fn joint_line_starts(
+    data: &Readings,
+    u: usize,
+    dofs: &[usize],
+    count: usize,
+) -> Vec<JointLines> {
     let m = dofs.len();
     let alpha = data.alpha;
     let poses = data.q.len();
     let scaled: Vec<Vec<Vector3<f64>>> = (0..poses)
-        .map(|p| dofs.iter().map(|&d| data.dynamics[p][u][d] / alpha).collect())
+        .map(|p| {
+            dofs.iter()
+                .map(|&d| data.dynamics[p][u][d] / alpha)
+                .collect()
+        })
         .collect();
     let v: Vector3<f64> = scaled.iter().map(|s| s[m - 1]).sum::<Vector3<f64>>() / poses as f64;
     let base_misfit: f64 = scaled.iter().map(|s| (s[m - 1] - v).norm_squared()).sum();
@@ -91,7 +110,8 @@ pub(super) fn joint_lines(data: &Readings, u: usize, dofs: &[usize]) -> JointLin
         direction.cross(&Vector3::y()).normalize()
     };
     let e2 = direction.cross(&e1);
-    let evaluate = |psi: f64| -> JointLines {
+    // `reverse_first`: take the first axis with the sense that fits worse.
+    let evaluate = |psi: f64, reverse_first: bool| -> JointLines {
         let n = e1 * psi.cos() + e2 * psi.sin();
         let mut lines = vec![(Vector3::zeros(), Vector3::zeros()); m];
         lines[m - 1] = (n, n.cross(&v));
@@ -109,53 +129,63 @@ pub(super) fn joint_lines(data: &Readings, u: usize, dofs: &[usize]) -> JointLin
                 .map(|p| motion[p].rotation * scaled[p][stage])
                 .collect();
             let (n, _) = null_direction(&turned);
-            let mut best = (f64::INFINITY, lines[stage]);
-            for sign in [1.0, -1.0] {
-                let n = n * sign;
-                let w: Vec<Vector3<f64>> = (0..poses)
-                    .map(|p| turned[p] - n.cross(&motion[p].translation.vector))
-                    .collect();
-                let mean = w.iter().sum::<Vector3<f64>>() / poses as f64;
-                let scatter: f64 = w.iter().map(|x| (x - mean).norm_squared()).sum();
-                if scatter < best.0 {
-                    best = (scatter, (n, n.cross(&mean)));
-                }
-            }
-            misfit += best.0;
-            lines[stage] = best.1;
+            let mut fits: Vec<(f64, (Vector3<f64>, Vector3<f64>))> = [1.0, -1.0]
+                .iter()
+                .map(|&sign| {
+                    let n = n * sign;
+                    let w: Vec<Vector3<f64>> = (0..poses)
+                        .map(|p| turned[p] - n.cross(&motion[p].translation.vector))
+                        .collect();
+                    let mean = w.iter().sum::<Vector3<f64>>() / poses as f64;
+                    let scatter: f64 = w.iter().map(|x| (x - mean).norm_squared()).sum();
+                    (scatter, (n, n.cross(&mean)))
+                })
+                .collect();
+            fits.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let pick = if stage == 0 && reverse_first { 1 } else { 0 };
+            misfit += fits[pick].0;
+            lines[stage] = fits[pick].1;
         }
         JointLines { lines, misfit }
     };
     let steps = 72;
     let step = 2.0 * std::f64::consts::PI / steps as f64;
-    let mut best_psi = 0.0;
-    let mut best = evaluate(0.0);
-    for i in 1..steps {
-        let psi = i as f64 * step;
-        let candidate = evaluate(psi);
-        if candidate.misfit < best.misfit {
-            best = candidate;
-            best_psi = psi;
-        }
-    }
-    // Golden-section refinement inside the grid cell.
-    let (mut lo, mut hi) = (best_psi - step, best_psi + step);
+    let grid: Vec<f64> = (0..steps)
+        .map(|i| evaluate(i as f64 * step, false).misfit)
+        .collect();
+    let mut minima: Vec<usize> = (0..steps)
+        .filter(|&i| grid[i] <= grid[(i + steps - 1) % steps] && grid[i] <= grid[(i + 1) % steps])
+        .collect();
+    minima.sort_by(|&a, &b| grid[a].total_cmp(&grid[b]));
+    minima.truncate(count.max(1));
     let ratio = 0.5 * (5f64.sqrt() - 1.0);
-    for _ in 0..30 {
-        let a = hi - ratio * (hi - lo);
-        let b = lo + ratio * (hi - lo);
-        if evaluate(a).misfit < evaluate(b).misfit {
-            hi = b;
+    let mut out = Vec::new();
+    for i in minima {
+        // Golden-section refinement inside the grid cell.
+        let centre = i as f64 * step;
+        let (mut lo, mut hi) = (centre - step, centre + step);
+        for _ in 0..30 {
+            let a = hi - ratio * (hi - lo);
+            let b = lo + ratio * (hi - lo);
+            if evaluate(a, false).misfit < evaluate(b, false).misfit {
+                hi = b;
+            } else {
+                lo = a;
+            }
+        }
+        let refined = evaluate(0.5 * (lo + hi), false);
+        let psi = if refined.misfit < grid[i] {
+            0.5 * (lo + hi)
         } else {
-            lo = a;
+            centre
+        };
+        out.push(evaluate(psi, false));
+        if count > 1 {
+            out.push(evaluate(psi, true));
         }
     }
-    let refined = evaluate(0.5 * (lo + hi));
-    if refined.misfit < best.misfit {
-        refined
-    } else {
-        best
-    }
+    out.sort_by(|a, b| a.misfit.total_cmp(&b.misfit));
+    out
 }
 
 /// All orders of `n` items.
@@ -228,7 +258,11 @@ fn wahba(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> (Rotation3<f64>, f64) {
 
 /// Rotations that map the vectors `b` onto `a` (Wahba); when the `b` hardly span a plane, every
 /// turn about their mean direction fits, and `angles` of them are returned.
-fn rotation_starts(a: &[Vector3<f64>], b: &[Vector3<f64>], angles: usize) -> Vec<UnitQuaternion<f64>> {
+fn rotation_starts(
+    a: &[Vector3<f64>],
+    b: &[Vector3<f64>],
+    angles: usize,
+) -> Vec<UnitQuaternion<f64>> {
     let (rotation, spread) = wahba(a, b);
     let base = UnitQuaternion::from_rotation_matrix(&rotation);
     if spread >= 0.2 {
@@ -318,8 +352,8 @@ pub(super) fn joint_starts(
                 let seg = f.segments[k];
                 let turn = data.turns[p][k];
                 let r_world = seg.rotation * r * turn * tail[p].rotation;
-                let c = (seg * nalgebra::Point3::from(r * (turn * tail[p].translation.vector)))
-                    .coords;
+                let c =
+                    (seg * nalgebra::Point3::from(r * (turn * tail[p].translation.vector))).coords;
                 let rseg = seg.rotation.to_rotation_matrix().into_inner();
                 add_lever_rows(&mut lsq, f, k, &rseg, &c, |d| {
                     r_world * data.dynamics[p][u][d] / data.alpha

@@ -233,6 +233,9 @@ fn readings(data: &LimbData) -> Readings {
     }
 }
 
+/// Starts (local minima of the closed-form misfit, each with both senses of the first axis) tried
+/// for the lines of a multi-DoF joint.
+const LINE_STARTS: usize = 2;
 /// Relative cost decrease below which an initialisation solve stops.
 const INIT_TOLERANCE: f64 = 1e-6;
 /// Relative cost decrease below which the final refinement stops.
@@ -426,10 +429,11 @@ pub fn estimate_limb(
             }
         } else {
             let dofs: Vec<usize> = (span.k0..=span.k1).collect();
-            let lines = init::joint_lines(&readings, u, &dofs);
-            let mut s = empty.clone();
-            init::place_joint_lines(&mut s, 0, u, &lines.lines);
-            starts.push(s);
+            for lines in init::joint_line_starts(&readings, u, &dofs, LINE_STARTS) {
+                let mut s = empty.clone();
+                init::place_joint_lines(&mut s, 0, u, &lines.lines);
+                starts.push(s);
+            }
         }
         let mut votes = 0;
         let count = starts.len();
@@ -475,7 +479,13 @@ pub fn estimate_limb(
             }
         }
         vertical = votes == count;
-        let (next, its) = add_segment_sus(beam, &layout, &readings, &spans[first], config);
+        let (next, its) = add_segment_sus(
+            keep_best(beam, config.beam),
+            &layout,
+            &readings,
+            &spans[first],
+            config,
+        );
         beam = next;
         iterations += its;
     }
@@ -500,10 +510,11 @@ pub fn estimate_limb(
                 }
             } else {
                 let dofs: Vec<usize> = (k0..=k1).collect();
-                let lines = init::joint_lines(&readings, u, &dofs);
-                let mut s = state.clone();
-                init::place_joint_lines(&mut s, k0, u, &lines.lines);
-                tails_of.push(s);
+                for lines in init::joint_line_starts(&readings, u, &dofs, LINE_STARTS) {
+                    let mut s = state.clone();
+                    init::place_joint_lines(&mut s, k0, u, &lines.lines);
+                    tails_of.push(s);
+                }
             }
             for s in tails_of {
                 let tail = init::tails(&s, &readings, k0, k1, u);
@@ -523,42 +534,48 @@ pub fn estimate_limb(
         // Phase 1: the joint frame alone from every start; phase 2: the joint's lines and the SU.
         let solved: Vec<(Solved, f64, usize)> = candidates
             .into_par_iter()
-            .map(|Candidate { state, cost, beam: b }| {
-                let spec = Spec {
-                    blocks: vec![Block::JointFull(k0)],
-                    held: vec![],
-                    sus: vec![u],
-                    prefix: Some(caches[b].clone()),
-                };
-                let first = solve(
-                    state,
-                    &layout,
-                    &readings,
-                    &spec,
-                    sigma,
-                    config.max_iterations.min(10),
-                    INIT_TOLERANCE,
-                );
-                let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
-                blocks.push(Block::Su(u));
-                let spec = Spec {
-                    blocks,
-                    held: vec![],
-                    sus: vec![u],
-                    prefix: Some(caches[b].clone()),
-                };
-                let second = solve(
-                    first.state,
-                    &layout,
-                    &readings,
-                    &spec,
-                    sigma,
-                    config.max_iterations,
-                    INIT_TOLERANCE,
-                );
-                let its = first.iterations + second.iterations;
-                (second, cost, its)
-            })
+            .map(
+                |Candidate {
+                     state,
+                     cost,
+                     beam: b,
+                 }| {
+                    let spec = Spec {
+                        blocks: vec![Block::JointFull(k0)],
+                        held: vec![],
+                        sus: vec![u],
+                        prefix: Some(caches[b].clone()),
+                    };
+                    let first = solve(
+                        state,
+                        &layout,
+                        &readings,
+                        &spec,
+                        sigma,
+                        config.max_iterations.min(10),
+                        INIT_TOLERANCE,
+                    );
+                    let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
+                    blocks.push(Block::Su(u));
+                    let spec = Spec {
+                        blocks,
+                        held: vec![],
+                        sus: vec![u],
+                        prefix: Some(caches[b].clone()),
+                    };
+                    let second = solve(
+                        first.state,
+                        &layout,
+                        &readings,
+                        &spec,
+                        sigma,
+                        config.max_iterations,
+                        INIT_TOLERANCE,
+                    );
+                    let its = first.iterations + second.iterations;
+                    (second, cost, its)
+                },
+            )
             .collect();
         iterations += solved.iter().map(|s| s.2).sum::<usize>();
         let ranked = solved
@@ -687,7 +704,15 @@ fn add_segment_sus(
                     .map(|start| {
                         let mut c = state.clone();
                         c.sus[v] = start;
-                        solve(c, layout, data, &spec, sigma, config.max_iterations, INIT_TOLERANCE)
+                        solve(
+                            c,
+                            layout,
+                            data,
+                            &spec,
+                            sigma,
+                            config.max_iterations,
+                            INIT_TOLERANCE,
+                        )
                     })
                     .min_by(|a, b| a.cost.total_cmp(&b.cost))
                     .expect("at least one start");
@@ -703,7 +728,15 @@ fn add_segment_sus(
                 sus: span.sus.clone(),
                 prefix: Some(prefixes(&state, layout, data, first_free)),
             };
-            let solved = solve(state, layout, data, &spec, sigma, config.max_iterations, INIT_TOLERANCE);
+            let solved = solve(
+                state,
+                layout,
+                data,
+                &spec,
+                sigma,
+                config.max_iterations,
+                INIT_TOLERANCE,
+            );
             iterations += solved.iterations;
             ((solved.state, previous.max(0.0) + solved.cost), iterations)
         })
@@ -716,7 +749,13 @@ fn add_segment_sus(
 }
 
 /// The cost of one SU's readings.
-fn single_su_cost(state: &ChainState, layout: &Layout, data: &Readings, u: usize, sigma: f64) -> f64 {
+fn single_su_cost(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    u: usize,
+    sigma: f64,
+) -> f64 {
     let spec = Spec {
         blocks: vec![],
         held: vec![],
@@ -728,7 +767,12 @@ fn single_su_cost(state: &ChainState, layout: &Layout, data: &Readings, u: usize
 
 /// The final problem: gravity (when `with_gravity`), every joint line from `first_joint` on, every
 /// SU; the gauge SU's rotation about and shift along z held.
-fn full_spec(layout: &Layout, first_joint: usize, with_gravity: bool, gauge_su: Option<usize>) -> Spec {
+fn full_spec(
+    layout: &Layout,
+    first_joint: usize,
+    with_gravity: bool,
+    gauge_su: Option<usize>,
+) -> Spec {
     let mut blocks = Vec::new();
     if with_gravity {
         blocks.push(Block::Gravity);
@@ -905,7 +949,13 @@ pub mod internals {
     ) -> (nalgebra::DVector<f64>, DMatrix<f64>) {
         let layout = serial_layout(data.chain.dofs.len());
         let spec = full_spec(&layout, 1, true, Some(0));
-        problem::dense_problem(state, &layout, &readings(&LimbData::from(data)), &spec, sigma)
+        problem::dense_problem(
+            state,
+            &layout,
+            &readings(&LimbData::from(data)),
+            &spec,
+            sigma,
+        )
     }
 
     /// Residuals after a step `delta` of the full problem's columns.

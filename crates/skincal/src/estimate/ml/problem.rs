@@ -725,8 +725,11 @@ pub(super) fn covariance(
         let (inv, pairs) = pseudo_inverse(&su.a, floor);
         for (e, v) in pairs {
             if e < weak {
-                let weights: Vec<(usize, f64)> =
-                    own_index[i].iter().copied().zip(v.iter().copied()).collect();
+                let weights: Vec<(usize, f64)> = own_index[i]
+                    .iter()
+                    .copied()
+                    .zip(v.iter().copied())
+                    .collect();
                 unobservable.push(Unobservable {
                     singular_value: (e.max(0.0) / largest).sqrt(),
                     parameters: name_direction(&weights),
@@ -745,8 +748,11 @@ pub(super) fn covariance(
         .collect();
     for (e, v) in pairs {
         if e < weak {
-            let mut weights: Vec<(usize, f64)> =
-                shared_index.iter().copied().zip(v.iter().copied()).collect();
+            let mut weights: Vec<(usize, f64)> = shared_index
+                .iter()
+                .copied()
+                .zip(v.iter().copied())
+                .collect();
             for (i, ki) in k.iter().enumerate() {
                 let own = -(ki * &v);
                 weights.extend(own_index[i].iter().copied().zip(own.iter().copied()));
