@@ -51,10 +51,20 @@ enum Command {
     /// DIR/structure.json and DIR/structure.dot.
     #[command(after_help = EXIT_CODES)]
     Explore(ExploreArgs),
-    /// Kinematic estimation: fit the serial chain of every limb to DIR/measurements.json; writes
-    /// DIR/model-paper.json.
+    /// Kinematic estimation of every limb in DIR/measurements.json: writes the calibrated body to
+    /// DIR/model.json (method ml) or the paper's chains to DIR/model-paper.json (method paper).
     #[command(after_help = EXIT_CODES)]
     Calibrate(CalibrateArgs),
+    /// Write a calibrated model as URDF: one link per segment, revolute joints named after the
+    /// DoFs, one link per SU on a fixed joint.
+    #[command(name = "export-urdf", after_help = EXIT_CODES)]
+    ExportUrdf(ExportUrdfArgs),
+    /// Predict every SU's static and dynamic readings in given poses (JSON, measurement-set units).
+    #[command(after_help = EXIT_CODES)]
+    Predict(PredictArgs),
+    /// Check a calibrated model against a second measurement set: prediction error per SU.
+    #[command(after_help = EXIT_CODES)]
+    Validate(ValidateArgs),
     /// Measure speed on generated data and print a table (build with --release).
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -98,6 +108,70 @@ enum BenchCommand {
     Explore(BenchExploreArgs),
     /// Kinematic estimation of paper-7dof over many noise seeds: time, evaluations, accuracy.
     Calibrate(BenchCalibrateArgs),
+    /// The whole pipeline (explore, calibrate every limb, validate on held-out poses) on the
+    /// humanoid or a random tree: time, memory, accuracy against the truth.
+    Body(BenchBodyArgs),
+}
+
+#[derive(Debug, Args)]
+struct BenchBodyArgs {
+    /// A random tree with this many DoFs instead of the humanoid.
+    #[arg(long, value_name = "N")]
+    random_dofs: Option<usize>,
+    /// SUs of the random tree.
+    #[arg(long, default_value_t = 200)]
+    random_sus: usize,
+    /// SUs per skinned segment of the humanoid.
+    #[arg(long, default_value_t = 2)]
+    sus_per_segment: usize,
+    /// Training poses.
+    #[arg(long, default_value_t = 20)]
+    poses: usize,
+    /// Noise (uniform ±G, in g).
+    #[arg(long, value_name = "G", default_value_t = 0.01)]
+    noise: f64,
+    /// Data sets (seeds 1…N).
+    #[arg(long, default_value_t = 5)]
+    seeds: u64,
+}
+
+#[derive(Debug, Args)]
+struct ExportUrdfArgs {
+    /// A calibrated model (model.json).
+    model: PathBuf,
+    /// Output file [default: the model's name with .urdf].
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Overwrite an existing output.
+    #[arg(long)]
+    force: bool,
+}
+
+#[derive(Debug, Args)]
+struct PredictArgs {
+    /// A calibrated model (model.json).
+    model: PathBuf,
+    /// Poses: CSV with a header of DoF names and one pose per row (rad), or JSON {"dofs", "poses"}.
+    #[arg(long)]
+    poses: PathBuf,
+    /// Excitation pattern A,f (rad/s, Hz) [default: the model's training pattern].
+    #[arg(long, value_name = "A,F")]
+    pattern: Option<String>,
+    /// Write the JSON here instead of printing it.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Overwrite an existing output.
+    #[arg(long)]
+    force: bool,
+}
+
+#[derive(Debug, Args)]
+struct ValidateArgs {
+    /// A calibrated model (model.json).
+    model: PathBuf,
+    /// Directory with the second measurements.json (or the file itself); its training poses are
+    /// compared.
+    dir: PathBuf,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -243,6 +317,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Robots => robots(),
         Command::Explore(args) => explore(args),
         Command::Calibrate(args) => calibrate(args),
+        Command::ExportUrdf(args) => export_urdf(args),
+        Command::Predict(args) => predict(args),
+        Command::Validate(args) => validate(args),
+        Command::Bench(BenchCommand::Body(args)) => bench_body(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
     }
@@ -293,12 +371,12 @@ fn explore(args: ExploreArgs) -> Result<()> {
     Ok(())
 }
 
-/// The serial chains to calibrate: from DIR/structure.json, else from exploring the set, else the
-/// DoFs in listed order.
-fn chains_of(
+/// The structure to calibrate: DIR/structure.json, else from exploring the set, else none (the
+/// DoFs in listed order as one chain).
+fn structure_of(
     set: &skincal::measurements::MeasurementSet,
     dir: &Path,
-) -> Result<(Vec<SerialChain>, String)> {
+) -> Result<(Option<skincal::explore::Structure>, String)> {
     let structure_path = dir.join("structure.json");
     let (structure, source) = if structure_path.exists() {
         (
@@ -316,22 +394,49 @@ fn chains_of(
             "no structure experiment: the DoFs in listed order as one chain".to_string(),
         )
     };
-    let chains = match structure {
-        Some(s) => {
-            if !s.complete {
-                anyhow::bail!("the explored structure is incomplete (see `skincal explore`): fix the structure experiment before calibrating");
-            }
-            estimate::serial_chains(&s)?
-        }
+    if structure.as_ref().is_some_and(|s| !s.complete) {
+        anyhow::bail!("the explored structure is incomplete (see `skincal explore`): fix the structure experiment before calibrating");
+    }
+    Ok((structure, source))
+}
+
+/// The paper's serial chains of a structure (or the DoFs in listed order).
+fn chains_of(
+    set: &skincal::measurements::MeasurementSet,
+    structure: Option<&skincal::explore::Structure>,
+) -> Result<Vec<SerialChain>> {
+    Ok(match structure {
+        Some(s) => estimate::serial_chains(s)?,
         None => vec![estimate::chain_in_listed_order(set)?],
-    };
-    Ok((chains, source))
+    })
 }
 
 fn calibrate(args: CalibrateArgs) -> Result<()> {
     let (file, dir) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
-    let (mut chains, source) = chains_of(&set, &dir)?;
+    let (structure, source) = structure_of(&set, &dir)?;
+    let truth_path = dir.join("truth.json");
+    let truth = if truth_path.exists() {
+        let t = io::read_truth(&truth_path)?;
+        Some(
+            t.robot
+                .build()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path.display()))?,
+        )
+    } else {
+        None
+    };
+    if args.method == Method::Ml {
+        return calibrate_ml(
+            &args,
+            &set,
+            structure.as_ref(),
+            truth.as_ref(),
+            &source,
+            &dir,
+        );
+    }
+    let mut chains = chains_of(&set, structure.as_ref())?;
     if let Some(limb) = &args.limb {
         let known = chains
             .iter()
@@ -346,20 +451,6 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
             }
             .into());
         }
-    }
-    let truth_path = dir.join("truth.json");
-    let truth = if truth_path.exists() {
-        let t = io::read_truth(&truth_path)?;
-        Some(
-            t.robot
-                .build()
-                .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path.display()))?,
-        )
-    } else {
-        None
-    };
-    if args.method == Method::Ml {
-        return calibrate_ml(&args, &set, &chains, truth.as_ref(), &source, &dir);
     }
     let config = PaperConfig {
         seed: args.seed,
@@ -416,12 +507,12 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
 fn calibrate_ml(
     args: &CalibrateArgs,
     set: &skincal::measurements::MeasurementSet,
-    chains: &[SerialChain],
+    structure: Option<&skincal::explore::Structure>,
     truth: Option<&skincal::model::Robot>,
     source: &str,
     dir: &Path,
 ) -> Result<()> {
-    use skincal::estimate::ml::{self, MlConfig};
+    use skincal::estimate::ml::MlConfig;
     let config = MlConfig {
         noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
         ..MlConfig::default()
@@ -430,43 +521,149 @@ fn calibrate_ml(
         "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g); {source}\n",
         config.noise_sd, args.noise
     );
-    let mut estimates = Vec::new();
-    for chain in chains {
-        let data = ChainData::new(set, chain)?;
-        let estimate = ml::estimate_chain(&data, &config)?;
-        println!(
-            "limb {} ({} DoFs, {} training poses)\n",
-            chain.name,
-            chain.dofs.len(),
-            data.poses()
-        );
-        print!("{}", render::ml_summary(&estimate));
-        if let Some(dh) = &estimate.dh {
-            let true_rows = truth.and_then(|t| estimate::dh_form(t, chain));
-            println!("\nIn the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)\n");
-            print!(
-                "{}",
-                report::dh_tables(chain, &dh.dof_dof, &dh.dof_su, true_rows.as_ref())
-            );
-        }
-        if let Some(t) = truth {
-            let accuracy = estimate::consecutive_su_errors(t, &estimate.to_robot(), chain, 30, 1)?;
-            println!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
-            print!("{}", report::chain_accuracy(&accuracy));
-        }
-        println!();
-        estimates.push(estimate);
+    let model =
+        skincal::estimate::body::calibrate_body(set, structure, &config, args.limb.as_deref())?;
+    for limb in &model.limbs {
+        print!("{}", limb_report(limb, truth)?);
     }
-    let model = serde_json::json!({ "format": "skincal-model", "version": 1, "method": "ml", "noise_sd": config.noise_sd, "limbs": estimates });
     let out = dir.join("model.json");
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
         true,
     )?;
     println!("wrote {}", out.display());
-    if estimates.iter().any(|e| !e.converged) {
+    if model.limbs.iter().any(|l| !l.estimate.converged) {
         eprintln!("warning: some limbs did not converge to the noise level (see above)");
     }
+    Ok(())
+}
+
+/// What `calibrate` prints for one limb: the fit, the DH form of a paper-style chain, and the
+/// accuracy against the truth when there is one.
+fn limb_report(
+    limb: &skincal::estimate::body::BodyLimb,
+    truth: Option<&skincal::model::Robot>,
+) -> Result<String> {
+    use std::fmt::Write as _;
+    let e = &limb.estimate;
+    let mut out = String::new();
+    writeln!(
+        out,
+        "limb {} ({} DoFs: {}; {} SUs){}\n",
+        limb.name,
+        limb.dofs.len(),
+        limb.dofs.join(", "),
+        limb.sus.len(),
+        limb.parent
+            .as_ref()
+            .map_or(String::new(), |p| format!(", on limb {p}"))
+    )?;
+    out.push_str(&render::ml_summary(e));
+    if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
+        let true_rows = truth.and_then(|t| estimate::dh_form(t, &serial));
+        writeln!(
+            out,
+            "\nIn the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)\n"
+        )?;
+        out.push_str(&report::dh_tables(
+            &serial,
+            &dh.dof_dof,
+            &dh.dof_su,
+            true_rows.as_ref(),
+        ));
+    }
+    if let Some(t) = truth {
+        let accuracy =
+            estimate::consecutive_su_errors(t, &e.to_robot(), &e.chain.su_sequence(), 30, 1)?;
+        writeln!(out, "\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n")?;
+        out.push_str(&report::chain_accuracy(&accuracy));
+    }
+    out.push('\n');
+    Ok(out)
+}
+
+fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
+    let model = io::read_model(&args.model)?;
+    let robot = model
+        .check()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let text =
+        skincal::model::urdf::to_urdf(&robot).with_context(|| args.model.display().to_string())?;
+    let out = args
+        .out
+        .unwrap_or_else(|| args.model.with_extension("urdf"));
+    io::write_all(&[(out.clone(), text)], args.force)?;
+    println!(
+        "wrote {} ({} links, {} revolute joints, {} SU links)",
+        out.display(),
+        robot.model.segments().len() + robot.model.sus().len(),
+        robot.model.dofs().len(),
+        robot.model.sus().len()
+    );
+    Ok(())
+}
+
+/// `A,f` → an excitation pattern.
+fn parse_pattern(text: &str) -> Result<ExcitationPattern> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let bad = || {
+        anyhow::anyhow!("--pattern `{text}`: expected A,f (velocity amplitude in rad/s, frequency in Hz), both positive, e.g. 0.5,2")
+    };
+    let [a, f] = parts.as_slice() else {
+        return Err(bad());
+    };
+    let pattern = ExcitationPattern {
+        amplitude: a.parse().map_err(|_| bad())?,
+        frequency: f.parse().map_err(|_| bad())?,
+    };
+    if !pattern.is_valid() {
+        return Err(bad());
+    }
+    Ok(pattern)
+}
+
+fn predict(args: PredictArgs) -> Result<()> {
+    let model = io::read_model(&args.model)?;
+    let pattern = match &args.pattern {
+        Some(p) => parse_pattern(p)?,
+        None => model.pattern,
+    };
+    let table = io::read_poses(&args.poses)?;
+    let predictor = skincal::predict::Predictor::new(&model)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let json = predictor.predict(&table, &pattern, &args.poses.display().to_string())?;
+    let text = serde_json::to_string_pretty(&json)?;
+    match args.out {
+        Some(out) => {
+            io::write_all(&[(out.clone(), text)], args.force)?;
+            println!(
+                "wrote {} ({} poses, {} SUs, pattern A = {} rad/s, f = {} Hz)",
+                out.display(),
+                table.poses.len(),
+                predictor.sus().len(),
+                pattern.amplitude,
+                pattern.frequency
+            );
+        }
+        None => println!("{text}"),
+    }
+    Ok(())
+}
+
+fn validate(args: ValidateArgs) -> Result<()> {
+    let model = io::read_model(&args.model)?;
+    let (file, _) = measurement_paths(&args.dir);
+    let set = io::read_measurements(&file)?;
+    let check = skincal::predict::validate(&model, &set, &file.display().to_string())?;
+    println!(
+        "{} against {} ({} poses, pattern A = {} rad/s, f = {} Hz)\n",
+        args.model.display(),
+        file.display(),
+        check.poses,
+        set.training.as_ref().map_or(0.0, |t| t.pattern.amplitude),
+        set.training.as_ref().map_or(0.0, |t| t.pattern.frequency)
+    );
+    print!("{}", render::validation_table(&check));
     Ok(())
 }
 
@@ -711,16 +908,20 @@ fn write_simulation(
 }
 
 fn demo(args: DemoArgs) -> Result<()> {
-    use skincal::estimate::ml::{self, MlConfig};
+    let started = std::time::Instant::now();
     let out = args
         .out
         .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
-    let robot = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let robot = io::load_robot("humanoid", SuPlacement::default())?;
     let config = SimulationConfig {
         seed: args.seed,
         ..SimulationConfig::default()
     };
-    println!("skincal demo: the paper's 7-DoF arm (paper-7dof)\n");
+    println!(
+        "skincal demo: the built-in humanoid ({} DoFs, {} SUs)\n",
+        robot.model.dofs().len(),
+        robot.model.sus().len()
+    );
     println!("1. Simulated experiments\n");
     let (mut files, summary) = write_simulation(&robot, &config, &out, true)?;
     print!("{summary}");
@@ -730,64 +931,246 @@ fn demo(args: DemoArgs) -> Result<()> {
     print!("{}", report::tree(&structure));
     println!();
     print!("{}", report::diagnostics(&structure));
-    let chains = estimate::serial_chains(&structure)?;
 
-    println!("\n3. Kinematic estimation, maximum likelihood\n");
-    let mut limbs = Vec::new();
-    let mut rows = Vec::new();
-    for chain in &chains {
-        let data = ChainData::new(&set, chain)?;
-        let e = ml::estimate_chain(&data, &MlConfig::default())?;
-        print!("{}", render::ml_summary(&e));
-        let ml_accuracy = estimate::consecutive_su_errors(&robot, &e.to_robot(), chain, 30, 1)?;
-        let paper = estimate::paper::estimate_chain(
-            &data,
-            &PaperConfig {
-                seed: args.seed,
-                ..PaperConfig::default()
-            },
-        )?;
-        let paper_accuracy = estimate::consecutive_su_errors(&robot, &paper.robot(), chain, 30, 1)?;
-        rows.push(render::DemoRow {
-            limb: chain.name.clone(),
-            method: "maximum likelihood",
-            seconds: e.seconds,
-            accuracy: ml_accuracy,
-        });
-        let method = if paper.converged() {
-            "paper (NLopt)"
-        } else {
-            "paper (not converged)"
-        };
-        rows.push(render::DemoRow {
-            limb: chain.name.clone(),
-            method,
-            seconds: paper.seconds(),
-            accuracy: paper_accuracy,
-        });
-        limbs.push(e);
+    println!("\n3. Kinematic estimation of every limb, maximum likelihood\n");
+    let ml = skincal::estimate::ml::MlConfig::default();
+    let model = skincal::estimate::body::calibrate_body(&set, Some(&structure), &ml, None)?;
+    for limb in &model.limbs {
+        let orders: Vec<String> = limb
+            .estimate
+            .joint_orders
+            .iter()
+            .map(|o| format!("{} = {}", o.joint, o.dofs.join(" → ")))
+            .collect();
+        println!(
+            "limb {:<4} {} DoFs, {} SUs, {} LM iterations in {:.1} ms, residual {:.3}× σ{}",
+            limb.name,
+            limb.dofs.len(),
+            limb.sus.len(),
+            limb.estimate.iterations,
+            limb.estimate.seconds * 1e3,
+            limb.estimate.residual_ratio,
+            if orders.is_empty() {
+                String::new()
+            } else {
+                format!("; DoF order found: {}", orders.join(", "))
+            }
+        );
     }
-    println!("\n4. Against the simulator's truth: pose of each SU relative to the previous one, 30 held-out poses\n");
-    print!("{}", render::demo_accuracy(&rows));
 
-    let (json_path, dot_path, model_path) = (
+    println!("\n4. Against the truth: each limb's SU poses (relative to the previous SU, 30 random poses) and its");
+    println!("   predictions on 20 held-out poses of a fresh experiment without noise\n");
+    let held_out_config = SimulationConfig {
+        seed: args.seed + 1000,
+        structure: false,
+        imperfections: Imperfections::none(),
+        ..SimulationConfig::default()
+    };
+    let held_out_dir = out.join("held-out");
+    let (held_files, _) = write_simulation(&robot, &held_out_config, &held_out_dir, true)?;
+    let held_out = io::read_measurements(&held_files[0])?;
+    let check =
+        skincal::predict::validate(&model, &held_out, &held_files[0].display().to_string())?;
+    let rows = model
+        .limbs
+        .iter()
+        .map(|limb| {
+            let e = &limb.estimate;
+            let accuracy = estimate::consecutive_su_errors(
+                &robot,
+                &e.to_robot(),
+                &e.chain.su_sequence(),
+                30,
+                1,
+            )?;
+            Ok(render::LimbRow::new(
+                &limb.name,
+                limb.dofs.len(),
+                &limb.sus,
+                e.converged,
+                Some(&accuracy),
+                &check,
+            ))
+        })
+        .chain(std::iter::once(Ok(render::LimbRow::new(
+            &format!("{} (static)", model.reference),
+            0,
+            &model
+                .static_sus
+                .iter()
+                .map(|s| s.su.clone())
+                .collect::<Vec<_>>(),
+            true,
+            None,
+            &check,
+        ))))
+        .collect::<Result<Vec<_>>>()?;
+    print!("{}", render::body_table(&rows, &check));
+
+    let (json_path, dot_path, model_path, urdf_path) = (
         out.join("structure.json"),
         out.join("structure.dot"),
         out.join("model.json"),
+        out.join("model.urdf"),
     );
-    let model = serde_json::json!({ "format": "skincal-model", "version": 1, "method": "ml", "noise_sd": MlConfig::default().noise_sd, "limbs": limbs });
+    let robot_model = model.check().map_err(|e| anyhow::anyhow!(e))?;
     io::write_all(
         &[
             (json_path.clone(), serde_json::to_string_pretty(&structure)?),
             (dot_path.clone(), report::structure_dot(&structure)),
             (model_path.clone(), serde_json::to_string_pretty(&model)?),
+            (
+                urdf_path.clone(),
+                skincal::model::urdf::to_urdf(&robot_model)?,
+            ),
         ],
         true,
     )?;
-    files.extend([json_path, dot_path, model_path]);
+    files.extend([json_path, dot_path, model_path, urdf_path]);
+    files.extend(held_files);
     println!();
     for f in files {
         println!("wrote {}", f.display());
     }
+    println!(
+        "\nfinished in {:.2} s; check another data set with `skincal validate {} DIR`",
+        started.elapsed().as_secs_f64(),
+        out.join("model.json").display()
+    );
+    Ok(())
+}
+
+/// Whether the structure places every SU of `truth` after exactly the DoFs that move it.
+fn structure_is_exact(truth: &skincal::model::Robot, s: &skincal::explore::Structure) -> bool {
+    let m = &truth.model;
+    if !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty() {
+        return false;
+    }
+    s.segments.iter().all(|segment| {
+        let mut found: Vec<String> = Vec::new();
+        let mut current = segment;
+        while let Some(j) = &current.parent_joint {
+            let joint = s.joint(j).expect("parent joints exist");
+            found.extend(joint.dofs.iter().cloned());
+            current = s.segment(&joint.parent).expect("parents exist");
+        }
+        found.sort();
+        segment.sus.iter().all(|su| {
+            let Some(u) = m.su_index(su) else {
+                return false;
+            };
+            let mut expected: Vec<String> = m
+                .chain_to(m.sus()[u].segment)
+                .into_iter()
+                .map(|d| m.dofs()[d].name.clone())
+                .collect();
+            expected.sort();
+            expected == found
+        })
+    })
+}
+
+/// Peak resident memory of this process, MB (Linux; 0 elsewhere).
+fn peak_memory_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|kb| kb.parse::<f64>().ok())
+        })
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+fn bench_body(args: BenchBodyArgs) -> Result<()> {
+    use skincal::model::description::with_random_sus;
+    let mut rows = Vec::new();
+    let what = match args.random_dofs {
+        Some(d) => format!("random trees, {d} DoFs, {} SUs", args.random_sus),
+        None => format!("humanoid, {} SUs per skinned segment", args.sus_per_segment),
+    };
+    println!(
+        "whole pipeline on {what}; P = {}, uniform ±{} g noise, seeds 1…{}; held-out: 20 fresh noise-free poses\n",
+        args.poses, args.noise, args.seeds
+    );
+    for seed in 1..=args.seeds {
+        let robot = match args.random_dofs {
+            Some(dofs) => sim::random_tree(
+                &RandomTreeConfig {
+                    dofs,
+                    sus: args.random_sus,
+                    ..RandomTreeConfig::default()
+                },
+                seed,
+            )?,
+            None => with_random_sus(
+                &io::load_robot("humanoid", SuPlacement::default())?,
+                args.sus_per_segment,
+                seed,
+            )?,
+        };
+        let config = SimulationConfig {
+            seed,
+            poses: args.poses,
+            imperfections: Imperfections {
+                uniform_noise: args.noise * skincal::model::sensor::STANDARD_GRAVITY,
+                ..Imperfections::none()
+            },
+            ..SimulationConfig::default()
+        };
+        let set = sim::simulate(&robot, &config)?.measurements;
+        let t0 = std::time::Instant::now();
+        let structure = skincal::explore::explore(&set, &ExploreConfig::default())?;
+        let explore_s = t0.elapsed().as_secs_f64();
+        let exact = structure_is_exact(&robot, &structure);
+        let t1 = std::time::Instant::now();
+        let model = skincal::estimate::body::calibrate_body(
+            &set,
+            Some(&structure),
+            &skincal::estimate::ml::MlConfig {
+                noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
+                ..Default::default()
+            },
+            None,
+        );
+        let calibrate_s = t1.elapsed().as_secs_f64();
+        let model = match model {
+            Ok(m) => m,
+            Err(e) => {
+                println!("seed {seed}: {e}");
+                continue;
+            }
+        };
+        let held_out = sim::simulate(
+            &robot,
+            &SimulationConfig {
+                seed: seed + 1000,
+                structure: false,
+                poses: 20,
+                imperfections: Imperfections::none(),
+                ..SimulationConfig::default()
+            },
+        )?
+        .measurements;
+        let check = skincal::predict::validate(&model, &held_out, "held-out")?;
+        rows.push(render::BodyBenchRow {
+            seed,
+            dofs: robot.model.dofs().len(),
+            sus: robot.model.sus().len(),
+            limbs: model.limbs.len(),
+            converged: model.limbs.iter().filter(|l| l.estimate.converged).count(),
+            exact,
+            explore_s,
+            calibrate_s,
+            static_rms: check.static_rms,
+            dynamic_rms: check.dynamic_rms,
+        });
+    }
+    print!("{}", render::body_bench(&rows));
+    println!(
+        "peak resident memory of the whole run: {:.0} MB",
+        peak_memory_mb()
+    );
     Ok(())
 }

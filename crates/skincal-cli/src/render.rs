@@ -368,32 +368,206 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     out
 }
 
-/// One line of the demo's accuracy table.
-pub struct DemoRow {
-    pub limb: String,
-    pub method: &'static str,
-    pub seconds: f64,
-    pub accuracy: skincal::estimate::ChainAccuracy,
+/// One line of the demo's per-limb table.
+pub struct LimbRow {
+    name: String,
+    dofs: usize,
+    sus: usize,
+    converged: bool,
+    position_mm: Option<f64>,
+    rotation_deg: Option<f64>,
+    static_rms: f64,
+    dynamic_rms: Option<f64>,
 }
 
-pub fn demo_accuracy(rows: &[DemoRow]) -> String {
+impl LimbRow {
+    /// A limb's row: its SU pose accuracy against the truth (if any pair is judged) and the
+    /// held-out prediction errors of its SUs.
+    pub fn new(
+        name: &str,
+        dofs: usize,
+        sus: &[String],
+        converged: bool,
+        accuracy: Option<&skincal::estimate::ChainAccuracy>,
+        check: &skincal::predict::Validation,
+    ) -> Self {
+        let mine: Vec<&skincal::predict::SuError> =
+            check.sus.iter().filter(|e| sus.contains(&e.su)).collect();
+        let n = mine.len().max(1) as f64;
+        let static_rms = (mine.iter().map(|e| e.static_rms.powi(2)).sum::<f64>() / n).sqrt();
+        let count: usize = mine.iter().map(|e| e.dynamic_count).sum();
+        let dynamic_rms = (count > 0).then(|| {
+            (mine
+                .iter()
+                .map(|e| e.dynamic_rms.powi(2) * e.dynamic_count as f64)
+                .sum::<f64>()
+                / count as f64)
+                .sqrt()
+        });
+        let judged = accuracy.filter(|a| a.pairs.len() > 1);
+        Self {
+            name: name.to_string(),
+            dofs,
+            sus: sus.len(),
+            converged,
+            position_mm: judged.map(|a| a.position_rms * 1e3),
+            rotation_deg: judged.map(|a| a.rotation_rms.to_degrees()),
+            static_rms,
+            dynamic_rms,
+        }
+    }
+}
+
+fn or_dash(v: Option<f64>, precision: usize) -> String {
+    v.map_or("—".to_string(), |x| format!("{x:.precision$}"))
+}
+
+pub fn body_table(rows: &[LimbRow], check: &skincal::predict::Validation) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{:<8} {:<22} {:>10} {:>12} {:>12}",
-        "limb", "method", "time ms", "pos RMS mm", "rot RMS °"
+        "{:<14} {:>4} {:>4} {:>9} {:>11} {:>10} {:>14} {:>14}",
+        "limb", "DoFs", "SUs", "converged", "SU pos mm", "SU rot °", "static m/s²", "dynamic m/s²"
     );
     for r in rows {
         let _ = writeln!(
             out,
-            "{:<8} {:<22} {:>10.1} {:>12.2} {:>12.3}",
-            r.limb,
-            r.method,
-            r.seconds * 1e3,
-            r.accuracy.position_rms * 1e3,
-            r.accuracy.rotation_rms.to_degrees()
+            "{:<14} {:>4} {:>4} {:>9} {:>11} {:>10} {:>14.4} {:>14}",
+            r.name,
+            r.dofs,
+            r.sus,
+            if r.converged { "yes" } else { "NO" },
+            or_dash(r.position_mm, 2),
+            or_dash(r.rotation_deg, 3),
+            r.static_rms,
+            or_dash(r.dynamic_rms, 4)
         );
     }
-    let _ = writeln!(out, "(summary over the SU pairs after the first; the first pair is only defined up to a screw about the first axis)");
+    let _ = writeln!(
+        out,
+        "{:<14} {:>4} {:>4} {:>9} {:>11} {:>10} {:>14.4} {:>14.4}",
+        "whole body",
+        "",
+        check.sus.len(),
+        "",
+        "",
+        "",
+        check.static_rms,
+        check.dynamic_rms
+    );
+    let _ = writeln!(out, "(SU pos/rot: RMS error of each SU's pose relative to the previous SU of its limb, pairs after the first;");
+    let _ = writeln!(out, " static/dynamic: RMS norm of the prediction error against the noise-free truth, held-out poses;");
+    let _ = writeln!(
+        out,
+        " the noise on the training readings has an RMS norm of 0.098 m/s²)"
+    );
+    out
+}
+
+pub fn validation_table(v: &skincal::predict::Validation) -> String {
+    let g = skincal::model::sensor::STANDARD_GRAVITY;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:<20} {:>12} {:>12} {:>12} {:>12} {:>9}",
+        "SU", "static RMS", "static max", "dynamic RMS", "dynamic max", "dynamic n"
+    );
+    for e in &v.sus {
+        let _ = writeln!(
+            out,
+            "{:<20} {:>12.4} {:>12.4} {:>12.4} {:>12.4} {:>9}",
+            e.su, e.static_rms, e.static_max, e.dynamic_rms, e.dynamic_max, e.dynamic_count
+        );
+    }
+    let _ = writeln!(
+        out,
+        "{:<20} {:>12.4} {:>12.4} {:>12.4} {:>12.4}",
+        "all (m/s²)", v.static_rms, v.static_max, v.dynamic_rms, v.dynamic_max
+    );
+    let _ = writeln!(
+        out,
+        "{:<20} {:>12.5} {:>12.5} {:>12.5} {:>12.5}",
+        "all (g)",
+        v.static_rms / g,
+        v.static_max / g,
+        v.dynamic_rms / g,
+        v.dynamic_max / g
+    );
+    let _ = writeln!(
+        out,
+        "(norm of the 3-vector difference between prediction and measurement, m/s² unless marked)"
+    );
+    if !v.not_in_model.is_empty() {
+        let _ = writeln!(
+            out,
+            "not in the model, not compared: {}",
+            v.not_in_model.join(", ")
+        );
+    }
+    out
+}
+
+/// One data set of `skincal bench body`.
+pub struct BodyBenchRow {
+    pub seed: u64,
+    pub dofs: usize,
+    pub sus: usize,
+    pub limbs: usize,
+    pub converged: usize,
+    pub exact: bool,
+    pub explore_s: f64,
+    pub calibrate_s: f64,
+    pub static_rms: f64,
+    pub dynamic_rms: f64,
+}
+
+pub fn body_bench(rows: &[BodyBenchRow]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{:>5} {:>5} {:>5} {:>6} {:>10} {:>10} {:>11} {:>13} {:>13} {:>14}",
+        "seed",
+        "DoFs",
+        "SUs",
+        "exact",
+        "converged",
+        "explore ms",
+        "calibrate s",
+        "total s",
+        "static m/s²",
+        "dynamic m/s²"
+    );
+    for r in rows {
+        let _ = writeln!(
+            out,
+            "{:>5} {:>5} {:>5} {:>6} {:>10} {:>10.1} {:>11.3} {:>13.3} {:>13.4} {:>14.4}",
+            r.seed,
+            r.dofs,
+            r.sus,
+            if r.exact { "yes" } else { "NO" },
+            format!("{}/{}", r.converged, r.limbs),
+            r.explore_s * 1e3,
+            r.calibrate_s,
+            r.explore_s + r.calibrate_s,
+            r.static_rms,
+            r.dynamic_rms
+        );
+    }
+    if !rows.is_empty() {
+        let rms = |f: &dyn Fn(&BodyBenchRow) -> f64| {
+            (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / rows.len() as f64).sqrt()
+        };
+        let mut totals: Vec<f64> = rows.iter().map(|r| r.explore_s + r.calibrate_s).collect();
+        totals.sort_by(f64::total_cmp);
+        let _ = writeln!(
+            out,
+            "all: structure exact {}/{}, median pipeline {:.3} s, held-out RMS static {:.4} m/s², dynamic {:.4} m/s²",
+            rows.iter().filter(|r| r.exact).count(),
+            rows.len(),
+            totals[totals.len() / 2],
+            rms(&|r| r.static_rms),
+            rms(&|r| r.dynamic_rms)
+        );
+    }
     out
 }
