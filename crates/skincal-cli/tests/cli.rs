@@ -85,10 +85,110 @@ fn demo_runs_and_says_what_it_wrote() {
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(
-        text.contains("paper-7dof") && text.contains("measurements.json"),
+        text.contains("humanoid") && text.contains("whole body") && text.contains("model.urdf"),
         "{text}"
     );
-    assert!(dir.path().join("demo/measurements.json").exists());
+    for f in [
+        "measurements.json",
+        "structure.json",
+        "model.json",
+        "model.urdf",
+        "held-out/measurements.json",
+    ] {
+        assert!(dir.path().join("demo").join(f).exists(), "{f}");
+    }
+}
+
+#[test]
+fn a_calibrated_model_exports_predicts_and_validates() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(&["demo", "--out", "demo"], d).status.success());
+    // export-urdf: one revolute joint per DoF, one link per SU.
+    let out = skincal(&["export-urdf", "demo/model.json", "--out", "arm.urdf"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let urdf = std::fs::read_to_string(d.join("arm.urdf")).unwrap();
+    assert_eq!(urdf.matches("type=\"revolute\"").count(), 26);
+    assert!(urdf.contains("<joint name=\"l_elbow\"") && urdf.contains("<link name=\"torso_back\""));
+    // Refuses to overwrite without --force, and nothing changes.
+    fails_with(
+        &["export-urdf", "demo/model.json", "--out", "arm.urdf"],
+        d,
+        &["arm.urdf", "--force"],
+    );
+    // predict: the rest pose as CSV, every DoF a column; the torso's SUs read gravity, ~9.81.
+    let dofs: Vec<String> = {
+        let model: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap())
+                .unwrap();
+        model["robot"]["dofs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let zeros = vec!["0"; dofs.len()].join(",");
+    std::fs::write(d.join("rest.csv"), format!("{}\n{zeros}\n", dofs.join(","))).unwrap();
+    let out = skincal(
+        &[
+            "predict",
+            "demo/model.json",
+            "--poses",
+            "rest.csv",
+            "--out",
+            "p.json",
+        ],
+        d,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let p: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("p.json")).unwrap()).unwrap();
+    let torso = &p["static"]["torso_back"][0];
+    let norm = (0..3)
+        .map(|i| torso[i].as_f64().unwrap().powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!((norm - 9.81).abs() < 0.05, "{norm}");
+    assert!(p["dynamic"]["l_hand_back"]["l_elbow"][0].is_array(), "{p}");
+    // validate against the held-out set the demo wrote.
+    let out = skincal(&["validate", "demo/model.json", "demo/held-out"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8(out.stdout).unwrap().contains("all (g)"));
+    // Bad input: a pose table missing DoFs, a bad pattern, data of another robot.
+    std::fs::write(d.join("short.csv"), "neck_yaw\n0.1\n").unwrap();
+    fails_with(
+        &["predict", "demo/model.json", "--poses", "short.csv"],
+        d,
+        &["short.csv", "l_elbow"],
+    );
+    fails_with(
+        &[
+            "predict",
+            "demo/model.json",
+            "--poses",
+            "rest.csv",
+            "--pattern",
+            "0.5",
+        ],
+        d,
+        &["--pattern", "A,f"],
+    );
+    assert!(
+        skincal(&["simulate", "--robot", "paper-7dof", "--out", "arm"], d)
+            .status
+            .success()
+    );
+    fails_with(
+        &["validate", "demo/model.json", "arm"],
+        d,
+        &["DoFs", "neck_yaw", "arm"],
+    );
+    fails_with(
+        &["predict", "arm/measurements.json", "--poses", "rest.csv"],
+        d,
+        &["measurements.json"],
+    );
 }
 
 /// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
@@ -426,13 +526,17 @@ fn calibrate_defaults_to_maximum_likelihood_and_writes_model_json() {
         serde_json::from_str(&std::fs::read_to_string(d.join("p/model.json")).unwrap()).unwrap();
     assert_eq!(v["format"], "skincal-model");
     assert_eq!(v["method"], "ml");
+    assert_eq!(v["version"], 2);
     let limb = &v["limbs"][0];
-    assert_eq!(limb["converged"], true);
-    assert_eq!(limb["uncertainty"].as_array().unwrap().len(), 7);
-    assert_eq!(limb["robot"]["dofs"].as_array().unwrap().len(), 7);
+    assert_eq!(limb["estimate"]["converged"], true);
+    assert_eq!(limb["estimate"]["uncertainty"].as_array().unwrap().len(), 7);
+    // In the body frame gravity points down.
     assert!(limb["gravity"][2].as_f64().unwrap() < -9.7);
-    // The exported limb is a robot description that builds.
+    assert!(limb["gravity"][0].as_f64().unwrap().abs() < 1e-9);
+    // The whole body is a robot description that builds.
     let robot: skincal::model::description::RobotFile =
-        serde_json::from_value(limb["robot"].clone()).unwrap();
-    assert_eq!(robot.build().unwrap().model.sus().len(), 7);
+        serde_json::from_value(v["robot"].clone()).unwrap();
+    let robot = robot.build().unwrap();
+    assert_eq!(robot.model.sus().len(), 7);
+    assert_eq!(robot.model.dofs().len(), 7);
 }

@@ -119,7 +119,7 @@ pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, Estimate
                 return Err(EstimateError::UnsupportedLimb {
                     limb: end.clone(),
                     reason: format!(
-                        "joint {} has {} DoFs ({}) with no SU between them; the serial-chain estimators need one SU after every DoF (multi-DoF joints are not calibrated yet)",
+                        "joint {} has {} DoFs ({}) with no SU between them; the paper's serial-chain model needs one SU after every DoF: use `--method ml`, which calibrates multi-DoF joints",
                         joint.id,
                         joint.dofs.len(),
                         joint.dofs.join(", ")

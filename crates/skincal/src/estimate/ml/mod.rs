@@ -479,8 +479,11 @@ pub fn estimate_limb(
             }
         }
         vertical = votes == count;
+        // Mirror images have the same cost here: keep them all (no merging of equal costs).
+        beam.sort_by(|a, b| a.1.total_cmp(&b.1));
+        beam.truncate(config.beam.max(2));
         let (next, its) = add_segment_sus(
-            keep_best(beam, config.beam),
+            beam,
             &layout,
             &readings,
             &spans[first],
