@@ -1114,7 +1114,7 @@ fn bench_body(args: BenchBodyArgs) -> Result<()> {
             seed,
             poses: args.poses,
             imperfections: Imperfections {
-                uniform_noise: args.noise * skincal::model::sensor::STANDARD_GRAVITY,
+                uniform_noise: args.noise,
                 ..Imperfections::none()
             },
             ..SimulationConfig::default()

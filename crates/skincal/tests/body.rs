@@ -247,17 +247,3 @@ fn names_that_differ_between_model_and_data_are_named_in_the_error() {
     );
 }
 
-#[test]
-fn scratch_paper() {
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let set = simulate(&robot, &SimulationConfig { seed: 3, ..SimulationConfig::default() }).unwrap().measurements;
-    let chain = skincal::estimate::SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
-    let e = skincal::estimate::ml::estimate_chain(&skincal::estimate::ChainData::new(&set, &chain).unwrap(), &MlConfig::default()).unwrap();
-    eprintln!("chain {} {}", e.converged, e.residual_ratio);
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    let limbs = skincal::estimate::limb_chains(&structure).unwrap();
-    eprintln!("{:?}", limbs);
-    let data = skincal::estimate::LimbData::new(&set, &limbs[0]).unwrap();
-    let d2 = skincal::estimate::LimbData::from(&skincal::estimate::ChainData::new(&set, &chain).unwrap());
-    eprintln!("same q {} statics {} dyn {} depth {:?} {:?}", data.q == d2.q, data.statics == d2.statics, data.dynamics == d2.dynamics, data.su_depth, d2.su_depth);
-}

@@ -233,6 +233,8 @@ fn readings(data: &LimbData) -> Readings {
     }
 }
 
+/// Most DoFs in one joint whose order is searched (all orders are tried).
+const MAX_JOINT_DOFS: usize = 4;
 /// Starts (local minima of the closed-form misfit, each with both senses of the first axis) tried
 /// for the lines of a multi-DoF joint.
 const LINE_STARTS: usize = 2;
@@ -351,6 +353,16 @@ pub fn estimate_limb(
         let m = span.k1 - span.k0 + 1;
         if m == 1 {
             continue;
+        }
+        if m > MAX_JOINT_DOFS {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: format!(
+                    "joint {} has {m} DoFs ({}) with no SU between them; at most {MAX_JOINT_DOFS} can be put in order from the data: put an SU on a segment between them, or check the structure (`skincal explore`)",
+                    chain.joints[j].id,
+                    chain.joints[j].dofs.join(", ")
+                ),
+            });
         }
         let r = readings(&data);
         let mut tried: Vec<(Vec<usize>, f64)> = init::permutations(m)
