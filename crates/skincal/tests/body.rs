@@ -246,4 +246,3 @@ fn names_that_differ_between_model_and_data_are_named_in_the_error() {
         "{err}"
     );
 }
-

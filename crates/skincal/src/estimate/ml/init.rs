@@ -51,6 +51,9 @@ fn about_line(n: &Vector3<f64>, o: &Vector3<f64>, angle: f64) -> Isometry3<f64> 
     Isometry3::from_parts(Translation3::from(o - r * o), r)
 }
 
+/// An axis line: unit direction and a point on it.
+type Line = (Vector3<f64>, Vector3<f64>);
+
 /// The axis lines `(direction, point)` of a joint of several DoFs, in the frame of an SU on the
 /// segment after it with the joint's DoFs at zero, and how badly they explain the accelerations.
 #[derive(Debug, Clone)]
@@ -129,7 +132,7 @@ pub(super) fn joint_line_starts(
                 .map(|p| motion[p].rotation * scaled[p][stage])
                 .collect();
             let (n, _) = null_direction(&turned);
-            let mut fits: Vec<(f64, (Vector3<f64>, Vector3<f64>))> = [1.0, -1.0]
+            let mut fits: Vec<(f64, Line)> = [1.0, -1.0]
                 .iter()
                 .map(|&sign| {
                     let n = n * sign;

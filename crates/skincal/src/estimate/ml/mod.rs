@@ -494,13 +494,7 @@ pub fn estimate_limb(
         // Mirror images have the same cost here: keep them all (no merging of equal costs).
         beam.sort_by(|a, b| a.1.total_cmp(&b.1));
         beam.truncate(config.beam.max(2));
-        let (next, its) = add_segment_sus(
-            beam,
-            &layout,
-            &readings,
-            &spans[first],
-            config,
-        );
+        let (next, its) = add_segment_sus(beam, &layout, &readings, &spans[first], config);
         beam = next;
         iterations += its;
     }

@@ -418,7 +418,9 @@ pub(super) fn normal_system(
 ) -> Normal {
     let frames = pose_frames(state, layout, data, spec);
     let m = map.shared.len();
-    let parts: Vec<(SuNormal, DMatrix<f64>, DVector<f64>, f64, usize)> = (0..spec.sus.len())
+    // Per SU: its own pieces, J_sᵀJ_s, J_sᵀr, |r|² and the number of residuals.
+    type Part = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
+    let parts: Vec<Part> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
             let block = su_block(state, layout, data, spec, map, &frames, i, sigma, true);
