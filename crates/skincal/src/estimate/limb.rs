@@ -182,28 +182,15 @@ pub struct LimbData {
 impl LimbData {
     /// Extracts and checks the data of `chain`.
     pub fn new(set: &MeasurementSet, chain: &LimbChain) -> Result<Self, EstimateError> {
-        set.validate()
-            .map_err(|e| EstimateError::Measurements(e.to_string()))?;
-        let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
-        if training.poses.is_empty() {
-            return Err(EstimateError::NoTrainingData);
-        }
+        let training = super::checked_training(set)?;
         if chain.joints.len() <= chain.base_joints {
             return Err(EstimateError::UnsupportedLimb {
                 limb: chain.name.clone(),
                 reason: "it has no joint to estimate".into(),
             });
         }
-        let find = |what, names: &[String], name: &String| {
-            names
-                .iter()
-                .position(|n| n == name)
-                .ok_or_else(|| EstimateError::Unknown {
-                    what,
-                    name: name.clone(),
-                    limb: chain.name.clone(),
-                })
-        };
+        let find =
+            |what, names: &[String], name: &String| super::position(what, names, name, &chain.name);
         let dofs = chain.dofs();
         let dof_index: Vec<usize> = dofs
             .iter()

@@ -183,25 +183,41 @@ pub struct ChainData {
     pub pattern: crate::model::sensor::ExcitationPattern,
 }
 
+/// The training experiment of a valid set with at least one pose.
+pub(crate) fn checked_training(
+    set: &MeasurementSet,
+) -> Result<&crate::measurements::TrainingExperiment, EstimateError> {
+    set.validate()
+        .map_err(|e| EstimateError::Measurements(e.to_string()))?;
+    let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
+    if training.poses.is_empty() {
+        return Err(EstimateError::NoTrainingData);
+    }
+    Ok(training)
+}
+
+/// Where `name` (a DoF or SU of limb `limb`) stands in `names`.
+pub(crate) fn position(
+    what: &'static str,
+    names: &[String],
+    name: &String,
+    limb: &str,
+) -> Result<usize, EstimateError> {
+    names
+        .iter()
+        .position(|n| n == name)
+        .ok_or_else(|| EstimateError::Unknown {
+            what,
+            name: name.clone(),
+            limb: limb.to_string(),
+        })
+}
+
 impl ChainData {
     /// Extracts and checks the data of `chain`.
     pub fn new(set: &MeasurementSet, chain: &SerialChain) -> Result<Self, EstimateError> {
-        set.validate()
-            .map_err(|e| EstimateError::Measurements(e.to_string()))?;
-        let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
-        if training.poses.is_empty() {
-            return Err(EstimateError::NoTrainingData);
-        }
-        let find = |what, names: &[String], name: &String| {
-            names
-                .iter()
-                .position(|n| n == name)
-                .ok_or_else(|| EstimateError::Unknown {
-                    what,
-                    name: name.clone(),
-                    limb: chain.name.clone(),
-                })
-        };
+        let training = checked_training(set)?;
+        let find = |what, names: &[String], name: &String| position(what, names, name, &chain.name);
         let dof_index: Vec<usize> = chain
             .dofs
             .iter()

@@ -346,10 +346,13 @@ pub fn estimate_limb(
     }
 
     // The order of the DoFs inside every joint that has several, from the closed-form axis model.
+    // Reordering one joint permutes only its own DoF indices, so the input's readings and spans
+    // serve every joint.
+    let input_readings = readings(data);
+    let input_spans = spans(data);
     let mut data = data.clone();
     let mut joint_orders = Vec::new();
-    for j in chain.base_joints..chain.joints.len() {
-        let span = &spans(&data)[j];
+    for (j, span) in input_spans.iter().enumerate().skip(chain.base_joints) {
         let m = span.k1 - span.k0 + 1;
         if m == 1 {
             continue;
@@ -364,12 +367,11 @@ pub fn estimate_limb(
                 ),
             });
         }
-        let r = readings(&data);
         let mut tried: Vec<(Vec<usize>, f64)> = init::permutations(m)
             .into_iter()
             .map(|order| {
                 let dofs: Vec<usize> = order.iter().map(|&i| span.k0 + i).collect();
-                let misfit = init::joint_lines(&r, span.sus[0], &dofs).misfit;
+                let misfit = init::joint_lines(&input_readings, span.sus[0], &dofs).misfit;
                 (order, misfit)
             })
             .collect();
