@@ -27,9 +27,12 @@
 
 pub mod estimate;
 pub mod explore;
+pub mod ingest;
 pub mod io;
+pub mod log;
 pub mod measurements;
 pub mod model;
+pub mod plan;
 pub mod predict;
 pub mod report;
 pub mod sim;

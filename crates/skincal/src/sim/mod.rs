@@ -36,6 +36,8 @@ use crate::model::sensor::{
 };
 use crate::model::{forward_kinematics, Robot};
 
+pub mod timeseries;
+
 /// Sensor imperfections, in units of g (9.81 m/s²).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Imperfections {
@@ -82,6 +84,33 @@ impl Imperfections {
             quantization_bits: Some(10),
             ..self
         }
+    }
+
+    /// Checks every setting.
+    pub fn validate(&self) -> Result<(), SimulationError> {
+        let i = self;
+        let bad =
+            |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
+        for (setting, v) in [
+            ("noise", i.uniform_noise),
+            ("gaussian_noise", i.gaussian_noise),
+            ("bias", i.bias),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(setting, format!("{v} g must be zero or positive"));
+            }
+        }
+        if let Some(s) = i.saturation {
+            if !(s.is_finite() && s > 0.0) {
+                return bad("saturation", format!("{s} g must be positive"));
+            }
+        }
+        if let Some(b) = i.quantization_bits {
+            if !(2..=24).contains(&b) {
+                return bad("quantization_bits", format!("{b} bits: use 2 to 24"));
+            }
+        }
+        Ok(())
     }
 
     fn range(&self) -> Option<f64> {
@@ -180,27 +209,7 @@ impl SimulationConfig {
         if !self.pattern.is_valid() {
             return bad("pattern", "amplitude and frequency must be positive".into());
         }
-        let i = &self.imperfections;
-        for (setting, v) in [
-            ("noise", i.uniform_noise),
-            ("gaussian_noise", i.gaussian_noise),
-            ("bias", i.bias),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(setting, format!("{v} g must be zero or positive"));
-            }
-        }
-        if let Some(s) = i.saturation {
-            if !(s.is_finite() && s > 0.0) {
-                return bad("saturation", format!("{s} g must be positive"));
-            }
-        }
-        if let Some(b) = i.quantization_bits {
-            if !(2..=24).contains(&b) {
-                return bad("quantization_bits", format!("{b} bits: use 2 to 24"));
-            }
-        }
-        Ok(())
+        self.imperfections.validate()
     }
 }
 
@@ -211,6 +220,25 @@ pub struct BaseOrientation {
     pub label: String,
     /// Gravity in the reference frame, m/s².
     pub gravity: [f64; 3],
+}
+
+impl BaseOrientation {
+    /// The reference segment upright: gravity `(0, 0, −9.81)`.
+    pub fn upright() -> Self {
+        BaseOrientation {
+            label: "upright".into(),
+            gravity: gravity_upright().into(),
+        }
+    }
+
+    /// The reference segment tilted by 90° about its x axis.
+    pub fn tilted() -> Self {
+        let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+        BaseOrientation {
+            label: "tilted".into(),
+            gravity: tilt.inverse_transform_vector(&gravity_upright()).into(),
+        }
+    }
 }
 
 /// The ground truth of a simulation (written to `truth.json`; estimators never read it).
@@ -245,20 +273,58 @@ const POSE_STREAM: u64 = 1;
 const NOISE_STREAM: u64 = 2;
 const BIAS_STREAM: u64 = 3;
 
-fn stream(seed: u64, id: u64) -> ChaCha8Rng {
+pub(crate) fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(id);
     rng
 }
 
-struct Sensors<'a> {
+/// The accelerometers of a simulated robot: per-SU bias, noise, saturation and quantisation.
+pub(crate) struct Sensors<'a> {
     imperfections: &'a Imperfections,
-    bias: Vec<Vector3<f64>>,
+    pub(crate) bias: Vec<Vector3<f64>>,
     rng: ChaCha8Rng,
     gaussian: Option<Normal<f64>>,
 }
 
-impl Sensors<'_> {
+/// The random stream of the training poses for `seed`.
+pub(crate) fn pose_stream(seed: u64) -> ChaCha8Rng {
+    stream(seed, POSE_STREAM)
+}
+
+impl<'a> Sensors<'a> {
+    /// `sus` sensors with biases drawn from `seed` (the bias stream) and noise from its noise
+    /// stream. `imperfections` must be valid.
+    pub(crate) fn new(imperfections: &'a Imperfections, sus: usize, seed: u64) -> Self {
+        let mut bias_rng = stream(seed, BIAS_STREAM);
+        let b = imperfections.bias * STANDARD_GRAVITY;
+        let bias: Vec<Vector3<f64>> = (0..sus)
+            .map(|_| {
+                Vector3::from_fn(|_, _| {
+                    if b > 0.0 {
+                        bias_rng.random_range(-b..=b)
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect();
+        Sensors {
+            imperfections,
+            bias,
+            rng: stream(seed, NOISE_STREAM),
+            gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
+                Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY)
+                    .expect("validated")
+            }),
+        }
+    }
+
+    /// One raw sample of SU `su` whose true specific force is `f`: `sense(f + b) + n`.
+    pub(crate) fn sample(&mut self, su: usize, f: &Vector3<f64>) -> Vector3<f64> {
+        self.sense(&(f + self.bias[su])) + self.noise()
+    }
+
     fn noise(&mut self) -> Vector3<f64> {
         let u = self.imperfections.uniform_noise * STANDARD_GRAVITY;
         Vector3::from_fn(|_, _| {
@@ -279,8 +345,7 @@ impl Sensors<'_> {
     }
 
     fn static_reading(&mut self, su: usize, f: &Vector3<f64>) -> Reading {
-        let v = self.sense(&(f + self.bias[su])) + self.noise();
-        v.into()
+        self.sample(su, f).into()
     }
 
     fn dynamic_reading(&mut self, su: usize, f: &Vector3<f64>, a: &Vector3<f64>) -> Reading {
@@ -296,40 +361,13 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
     let model = &robot.model;
     let (nd, nu) = (model.dofs().len(), model.sus().len());
     let imperfections = &config.imperfections;
-    let mut bias_rng = stream(config.seed, BIAS_STREAM);
-    let b = imperfections.bias * STANDARD_GRAVITY;
-    let bias: Vec<Vector3<f64>> = (0..nu)
-        .map(|_| {
-            Vector3::from_fn(|_, _| {
-                if b > 0.0 {
-                    bias_rng.random_range(-b..=b)
-                } else {
-                    0.0
-                }
-            })
-        })
-        .collect();
-    let mut sensors = Sensors {
-        imperfections,
-        bias,
-        rng: stream(config.seed, NOISE_STREAM),
-        gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
-            Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY).expect("validated")
-        }),
-    };
+    let mut sensors = Sensors::new(imperfections, nu, config.seed);
     let mut pose_rng = stream(config.seed, POSE_STREAM);
 
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
-    let mut orientations = vec![BaseOrientation {
-        label: "upright".into(),
-        gravity: gravity_upright().into(),
-    }];
+    let mut orientations = vec![BaseOrientation::upright()];
     if config.tilted_orientation {
-        let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
-        orientations.push(BaseOrientation {
-            label: "tilted".into(),
-            gravity: tilt.inverse_transform_vector(&gravity_upright()).into(),
-        });
+        orientations.push(BaseOrientation::tilted());
     }
 
     let static_all = |sensors: &mut Sensors<'_>, q: &[f64], g: &Vector3<f64>| -> Vec<Reading> {

@@ -1,0 +1,331 @@
+//! ROS 2 MCAP logs: writing ([`McapSink`]) and streaming reading ([`read`]).
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufWriter, Read};
+use std::path::{Path, PathBuf};
+
+use mcap::records::{op, MessageHeader, Record};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+
+use super::ros::{self, Imu, ImuAcceleration, JointState, Time};
+use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
+
+/// Chunk compression of a written MCAP file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Compression {
+    /// No compression (fastest to read).
+    None,
+    /// LZ4.
+    Lz4,
+    /// Zstandard (what ROS 2 recorders use by default; smallest).
+    #[default]
+    Zstd,
+}
+
+/// Writes a skin log as ROS 2 MCAP: `sensor_msgs/msg/JointState` and `sensor_msgs/msg/Imu`.
+pub struct McapSink {
+    path: PathBuf,
+    force: bool,
+    compression: Compression,
+    topics: Topics,
+    staged: Option<Staged>,
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    channels: (u16, u16),
+    sequence: (u32, u32),
+    dofs: Vec<String>,
+    sus: Vec<String>,
+}
+
+impl McapSink {
+    /// A sink that writes `path` (whole, at [`LogSink::finish`]); without `force` an existing
+    /// file is an error.
+    pub fn new(path: &Path, topics: Topics, compression: Compression, force: bool) -> McapSink {
+        McapSink {
+            path: path.to_path_buf(),
+            force,
+            compression,
+            topics,
+            staged: None,
+            writer: None,
+            channels: (0, 0),
+            sequence: (0, 0),
+            dofs: Vec::new(),
+            sus: Vec::new(),
+        }
+    }
+
+    fn error(&self, e: mcap::McapError) -> LogError {
+        LogError::Mcap {
+            path: self.path.clone(),
+            reason: e.to_string(),
+        }
+    }
+
+    fn write(&mut self, channel: u16, sequence: u32, log_time: u64, data: &[u8]) -> Result<(), LogError> {
+        let header = MessageHeader {
+            channel_id: channel,
+            sequence,
+            log_time,
+            publish_time: log_time,
+        };
+        let Some(writer) = self.writer.as_mut() else {
+            return Err(LogError::Stopped("MCAP sink used before start".into()));
+        };
+        writer
+            .write_to_known_channel(&header, data)
+            .map_err(|e| LogError::Mcap {
+                path: self.path.clone(),
+                reason: e.to_string(),
+            })
+    }
+}
+
+impl LogSink for McapSink {
+    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError> {
+        let (staged, file) = Staged::create(&self.path, self.force)?;
+        let compression = match self.compression {
+            Compression::None => None,
+            Compression::Lz4 => Some(mcap::Compression::Lz4),
+            Compression::Zstd => Some(mcap::Compression::Zstd),
+        };
+        let mut writer = mcap::WriteOptions::new()
+            .compression(compression)
+            .profile("ros2")
+            .library(concat!("skincal ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|e| self.error(e))?;
+        let no_metadata = BTreeMap::new();
+        let joints_schema = writer
+            .add_schema(
+                ros::JOINT_STATE,
+                ros::SCHEMA_ENCODING,
+                ros::joint_state_schema().as_bytes(),
+            )
+            .map_err(|e| self.error(e))?;
+        let imu_schema = writer
+            .add_schema(ros::IMU, ros::SCHEMA_ENCODING, ros::imu_schema().as_bytes())
+            .map_err(|e| self.error(e))?;
+        let joints = writer
+            .add_channel(
+                joints_schema,
+                &self.topics.joints,
+                ros::MESSAGE_ENCODING,
+                &no_metadata,
+            )
+            .map_err(|e| self.error(e))?;
+        let imu = writer
+            .add_channel(imu_schema, &self.topics.imu, ros::MESSAGE_ENCODING, &no_metadata)
+            .map_err(|e| self.error(e))?;
+        self.channels = (joints, imu);
+        self.staged = Some(staged);
+        self.writer = Some(writer);
+        self.dofs = dofs.to_vec();
+        self.sus = sus.to_vec();
+        Ok(())
+    }
+
+    fn joint_state(
+        &mut self,
+        stamp: f64,
+        receive: f64,
+        positions: &[f64],
+        velocities: &[f64],
+    ) -> Result<(), LogError> {
+        let message = JointState {
+            header: ros::Header {
+                stamp: Time::from_seconds(stamp),
+                frame_id: String::new(),
+            },
+            name: self.dofs.clone(),
+            position: positions.to_vec(),
+            velocity: velocities.to_vec(),
+            effort: Vec::new(),
+        };
+        let data = ros::encode(&message).map_err(|e| LogError::Encode {
+            schema: ros::JOINT_STATE,
+            reason: e.to_string(),
+        })?;
+        self.sequence.0 = self.sequence.0.wrapping_add(1);
+        let log_time = Time::from_seconds(receive).nanoseconds();
+        self.write(self.channels.0, self.sequence.0, log_time, &data)
+    }
+
+    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError> {
+        let name = self.sus.get(su).map(String::as_str).unwrap_or_default();
+        let message = Imu::accelerometer(Time::from_seconds(stamp), name, a);
+        let data = ros::encode(&message).map_err(|e| LogError::Encode {
+            schema: ros::IMU,
+            reason: e.to_string(),
+        })?;
+        self.sequence.1 = self.sequence.1.wrapping_add(1);
+        let log_time = Time::from_seconds(receive).nanoseconds();
+        self.write(self.channels.1, self.sequence.1, log_time, &data)
+    }
+
+    fn finish(&mut self) -> Result<Vec<PathBuf>, LogError> {
+        let (Some(mut writer), Some(mut staged)) = (self.writer.take(), self.staged.take()) else {
+            return Ok(Vec::new());
+        };
+        writer.finish().map_err(|e| self.error(e))?;
+        let mut inner = writer.into_inner();
+        std::io::Write::flush(&mut inner).map_err(|source| LogError::Io {
+            path: staged.tmp().to_path_buf(),
+            source,
+        })?;
+        drop(inner);
+        Ok(vec![staged.commit()?])
+    }
+}
+
+#[derive(Debug, Clone)]
+enum ChannelKind {
+    Joints,
+    Imu,
+    Other(String),
+    /// The topic is one of ours but the schema or encoding is not.
+    Wrong(String),
+}
+
+/// Streams the samples of `stream` from the MCAP file at `path`.
+pub fn read(
+    path: &Path,
+    stream: Stream,
+    topics: &Topics,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<ReadStats, LogError> {
+    let io_error = |source| LogError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mcap_error = |e: mcap::McapError| LogError::Mcap {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let mut file = File::open(path).map_err(io_error)?;
+    let mut reader = LinearReader::new();
+    let mut schemas: HashMap<u16, String> = HashMap::new();
+    let mut channels: HashMap<u16, ChannelKind> = HashMap::new();
+    let mut stats = ReadStats::default();
+    let mut read_bytes = 0u64;
+    let mut since_progress = 0u64;
+    while let Some(event) = reader.next_event() {
+        match event.map_err(mcap_error)? {
+            LinearReadEvent::ReadRequest(need) => {
+                let want = need.max(1 << 20);
+                let n = file.read(reader.insert(want)).map_err(io_error)?;
+                reader.notify_read(n);
+                read_bytes += n as u64;
+                since_progress += n as u64;
+                if since_progress >= 1 << 22 || n == 0 {
+                    progress(read_bytes);
+                    since_progress = 0;
+                }
+            }
+            LinearReadEvent::Record { opcode, data } => match opcode {
+                op::MESSAGE => {
+                    let Some((channel, body)) = message_body(data) else {
+                        stats.problem("a message record shorter than its header".into());
+                        continue;
+                    };
+                    match channels.get(&channel) {
+                        Some(ChannelKind::Imu) if stream == Stream::Imu => {
+                            match ros::decode::<ImuAcceleration>(body) {
+                                Ok(m) => {
+                                    stats.samples += 1;
+                                    let a = m.linear_acceleration;
+                                    visit(Sample::Imu {
+                                        stamp: m.header.stamp.seconds(),
+                                        frame_id: &m.header.frame_id,
+                                        acceleration: [a.x, a.y, a.z],
+                                    })?;
+                                }
+                                Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
+                            }
+                        }
+                        Some(ChannelKind::Joints) if stream == Stream::Joints => {
+                            match ros::decode::<JointState>(body) {
+                                Ok(joint) => {
+                                    if joint.position.len() != joint.name.len() {
+                                        stats.problem(format!(
+                                            "{}: {} names but {} positions",
+                                            topics.joints,
+                                            joint.name.len(),
+                                            joint.position.len()
+                                        ));
+                                        continue;
+                                    }
+                                    stats.samples += 1;
+                                    visit(Sample::Joints {
+                                        stamp: joint.header.stamp.seconds(),
+                                        names: &joint.name,
+                                        positions: &joint.position,
+                                    })?;
+                                }
+                                Err(e) => stats.problem(format!("{}: {e}", topics.joints)),
+                            }
+                        }
+                        Some(ChannelKind::Joints | ChannelKind::Imu) => {}
+                        Some(ChannelKind::Other(topic)) => {
+                            if stream == Stream::Joints {
+                                *stats.other_topics.entry(topic.clone()).or_default() += 1;
+                            }
+                        }
+                        Some(ChannelKind::Wrong(why)) => {
+                            if stream == Stream::Joints {
+                                stats.problem(why.clone());
+                            }
+                        }
+                        None => stats.problem(format!("a message on unknown channel {channel}")),
+                    }
+                }
+                op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, data).map_err(mcap_error)? {
+                    Record::Schema { header, .. } => {
+                        schemas.insert(header.id, header.name);
+                    }
+                    Record::Channel(c) => {
+                        let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                        let expected = if c.topic == topics.joints {
+                            Some((ros::JOINT_STATE, ChannelKind::Joints))
+                        } else if c.topic == topics.imu {
+                            Some((ros::IMU, ChannelKind::Imu))
+                        } else {
+                            None
+                        };
+                        let kind = match expected {
+                            None => ChannelKind::Other(c.topic.clone()),
+                            Some((name, kind)) => {
+                                if schema == name && c.message_encoding == ros::MESSAGE_ENCODING {
+                                    kind
+                                } else {
+                                    ChannelKind::Wrong(format!(
+                                        "topic {} carries `{schema}` in `{}`; expected `{name}` in \
+                                         `cdr` (choose the topics with --joint-topic/--imu-topic)",
+                                        c.topic, c.message_encoding
+                                    ))
+                                }
+                            }
+                        };
+                        channels.insert(c.id, kind);
+                    }
+                    _ => {}
+                },
+                _ => {}
+            },
+        }
+    }
+    progress(read_bytes);
+    Ok(stats)
+}
+
+/// Channel id and CDR payload of a message record (opcode 0x05): `channel_id u16, sequence u32,
+/// log_time u64, publish_time u64, data`.
+fn message_body(record: &[u8]) -> Option<(u16, &[u8])> {
+    const HEADER: usize = 2 + 4 + 8 + 8;
+    if record.len() < HEADER {
+        return None;
+    }
+    let channel = u16::from_le_bytes([record[0], record[1]]);
+    Some((channel, &record[HEADER..]))
+}

@@ -1,0 +1,319 @@
+//! Time-series logs of a skin-covered robot: joint states and raw accelerometer samples.
+//!
+//! Two formats, both written by the time-series simulator and read by the ingestion:
+//!
+//! * **MCAP** ([`mcap`](self::mcap)): ROS 2 messages, CDR-encoded ([`ros`]); joint states on
+//!   `/joint_states`, skin samples on `/skin/imu` (topic names are options when reading).
+//! * **CSV** ([`csv`](self::csv)): a directory with `joint_states.csv` (`stamp,<DoF names…>`, rad)
+//!   and `imu.csv` (`stamp,frame_id,ax,ay,az`, m/s²); stamps in seconds.
+//!
+//! Writers implement [`LogSink`] and write whole files or nothing (a temporary file renamed at
+//! [`LogSink::finish`]). Readers stream: [`read_log`] calls back once per sample of the topics asked
+//! for, so a log never has to fit in memory.
+
+pub mod csv;
+pub mod mcap;
+pub mod ros;
+
+use std::path::{Path, PathBuf};
+
+/// Default topic of the joint states.
+pub const JOINT_TOPIC: &str = "/joint_states";
+/// Default topic of the skin samples.
+pub const IMU_TOPIC: &str = "/skin/imu";
+
+/// Errors reading or writing a log.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LogError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The MCAP container is damaged or not MCAP.
+    #[error("{path}: not a readable MCAP file: {reason}")]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// What the MCAP reader said.
+        reason: String,
+    },
+    /// A CSV file does not follow the format.
+    #[error("{path}, line {line}: {reason}")]
+    Csv {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong and what is expected.
+        reason: String,
+    },
+    /// The path is neither an `.mcap` file nor a directory of CSV files.
+    #[error("{path}: {reason}")]
+    Unrecognised {
+        /// The path.
+        path: PathBuf,
+        /// What was expected.
+        reason: String,
+    },
+    /// The output exists and overwriting was not asked for.
+    #[error("{path} exists; choose another output or pass --force to overwrite it")]
+    Exists {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A message could not be encoded.
+    #[error("encoding a {schema} message: {reason}")]
+    Encode {
+        /// The message type.
+        schema: &'static str,
+        /// The encoder's message.
+        reason: String,
+    },
+    /// The consumer of a log stopped reading.
+    #[error("{0}")]
+    Stopped(String),
+}
+
+/// Receives a time-series log in time order.
+pub trait LogSink {
+    /// Declares the DoF and SU names before the first sample.
+    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError>;
+    /// One joint state: `stamp` (s, the header stamp), `receive` (s, when it was logged), positions
+    /// (rad) and velocities (rad/s) of every DoF.
+    fn joint_state(
+        &mut self,
+        stamp: f64,
+        receive: f64,
+        positions: &[f64],
+        velocities: &[f64],
+    ) -> Result<(), LogError>;
+    /// One accelerometer sample of SU `su` (index into the names given to `start`), m/s².
+    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError>;
+    /// Completes the files (renames them into place).
+    fn finish(&mut self) -> Result<Vec<PathBuf>, LogError>;
+}
+
+/// One sample read from a log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Sample<'a> {
+    /// A joint state: stamp (s), names and positions (rad), in the same order.
+    Joints {
+        /// Header stamp, s.
+        stamp: f64,
+        /// Joint names.
+        names: &'a [String],
+        /// Positions, rad.
+        positions: &'a [f64],
+    },
+    /// An accelerometer sample.
+    Imu {
+        /// Header stamp, s.
+        stamp: f64,
+        /// The SU.
+        frame_id: &'a str,
+        /// Specific force, m/s².
+        acceleration: [f64; 3],
+    },
+}
+
+/// Which samples a pass over a log wants.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stream {
+    /// The joint states only.
+    Joints,
+    /// The accelerometer samples only.
+    Imu,
+}
+
+/// Topic names of an MCAP log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Topics {
+    /// `sensor_msgs/msg/JointState` topic.
+    pub joints: String,
+    /// `sensor_msgs/msg/Imu` topic.
+    pub imu: String,
+}
+
+impl Default for Topics {
+    fn default() -> Self {
+        Self {
+            joints: JOINT_TOPIC.into(),
+            imu: IMU_TOPIC.into(),
+        }
+    }
+}
+
+/// What a pass over a log met besides the samples it delivered.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct ReadStats {
+    /// Samples delivered.
+    pub samples: u64,
+    /// Messages on other topics, by topic.
+    pub other_topics: std::collections::BTreeMap<String, u64>,
+    /// Messages (or CSV rows) that could not be decoded.
+    pub undecodable: u64,
+    /// The first decoding problem, for the report.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_problem: Option<String>,
+}
+
+impl ReadStats {
+    fn problem(&mut self, what: String) {
+        self.undecodable += 1;
+        if self.first_problem.is_none() {
+            self.first_problem = Some(what);
+        }
+    }
+}
+
+/// The kind of a log path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogFormat {
+    /// An `.mcap` file.
+    Mcap,
+    /// A directory with `joint_states.csv` and `imu.csv`.
+    Csv,
+}
+
+/// Tells the format of `path`: a directory is a CSV log, any file is tried as MCAP.
+pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
+    if path.is_dir() {
+        Ok(LogFormat::Csv)
+    } else if path.is_file() {
+        Ok(LogFormat::Mcap)
+    } else {
+        Err(LogError::Unrecognised {
+            path: path.to_path_buf(),
+            reason: "no such file or directory (give an .mcap file or a directory with \
+                     joint_states.csv and imu.csv)"
+                .into(),
+        })
+    }
+}
+
+/// Size in bytes of what a pass over `path` reads, for progress.
+pub fn size_of(path: &Path, stream: Stream) -> u64 {
+    let file = match (format_of(path), stream) {
+        (Ok(LogFormat::Csv), Stream::Joints) => path.join(csv::JOINTS_FILE),
+        (Ok(LogFormat::Csv), Stream::Imu) => path.join(csv::IMU_FILE),
+        _ => path.to_path_buf(),
+    };
+    std::fs::metadata(file).map(|m| m.len()).unwrap_or(0)
+}
+
+/// Streams the samples of `stream` from the log at `path` to `visit`, in file order; `progress`
+/// gets the bytes read so far. Samples that cannot be decoded are counted, not fatal.
+pub fn read_log(
+    path: &Path,
+    stream: Stream,
+    topics: &Topics,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<ReadStats, LogError> {
+    match format_of(path)? {
+        LogFormat::Mcap => mcap::read(path, stream, topics, visit, progress),
+        LogFormat::Csv => csv::read(path, stream, visit, progress),
+    }
+}
+
+/// A temporary file beside `path`, renamed onto it by [`Staged::commit`] and removed if dropped
+/// before that.
+#[derive(Debug)]
+pub(crate) struct Staged {
+    tmp: PathBuf,
+    path: PathBuf,
+    committed: bool,
+}
+
+impl Staged {
+    pub(crate) fn create(path: &Path, force: bool) -> Result<(Staged, std::fs::File), LogError> {
+        if !force && path.exists() {
+            return Err(LogError::Exists {
+                path: path.to_path_buf(),
+            });
+        }
+        let dir = path
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).map_err(|source| LogError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
+        let file = std::fs::File::create(&tmp).map_err(|source| LogError::Io {
+            path: tmp.clone(),
+            source,
+        })?;
+        Ok((
+            Staged {
+                tmp,
+                path: path.to_path_buf(),
+                committed: false,
+            },
+            file,
+        ))
+    }
+
+    pub(crate) fn commit(&mut self) -> Result<PathBuf, LogError> {
+        std::fs::rename(&self.tmp, &self.path).map_err(|source| LogError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.committed = true;
+        Ok(self.path.clone())
+    }
+
+    pub(crate) fn tmp(&self) -> &Path {
+        &self.tmp
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// Writes to several sinks at once (e.g. MCAP and CSV from one simulation).
+pub struct Tee(pub Vec<Box<dyn LogSink>>);
+
+impl LogSink for Tee {
+    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError> {
+        self.0.iter_mut().try_for_each(|s| s.start(dofs, sus))
+    }
+    fn joint_state(
+        &mut self,
+        stamp: f64,
+        receive: f64,
+        positions: &[f64],
+        velocities: &[f64],
+    ) -> Result<(), LogError> {
+        self.0
+            .iter_mut()
+            .try_for_each(|s| s.joint_state(stamp, receive, positions, velocities))
+    }
+    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError> {
+        self.0
+            .iter_mut()
+            .try_for_each(|s| s.imu(stamp, receive, su, a))
+    }
+    fn finish(&mut self) -> Result<Vec<PathBuf>, LogError> {
+        let mut out = Vec::new();
+        for s in &mut self.0 {
+            out.extend(s.finish()?);
+        }
+        Ok(out)
+    }
+}

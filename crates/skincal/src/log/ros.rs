@@ -1,0 +1,199 @@
+//! The ROS 2 messages of a skin log, CDR-encoded with the standard schemas.
+//!
+//! * `sensor_msgs/msg/JointState` on the joint topic: `name` = DoF names, `position` in rad,
+//!   `velocity` in rad/s (may be empty), `effort` (ignored).
+//! * `sensor_msgs/msg/Imu` on the skin topic, one message per SU sample: `header.frame_id` = SU
+//!   name, `linear_acceleration` in m/s² (the specific force, +9.81 up at rest), orientation unknown
+//!   (`orientation_covariance[0] = −1`), angular velocity unknown (`angular_velocity_covariance[0] =
+//!   −1`).
+//!
+//! The schema texts are the `ros2msg` definitions with their dependencies appended, as ROS 2
+//! bag recorders write them.
+
+use serde::{Deserialize, Serialize};
+
+/// Schema name of the joint states.
+pub const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
+/// Schema name of the accelerometer samples.
+pub const IMU: &str = "sensor_msgs/msg/Imu";
+/// Schema encoding.
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+/// Message encoding.
+pub const MESSAGE_ENCODING: &str = "cdr";
+
+const SEPARATOR: &str =
+    "================================================================================\n";
+
+const HEADER_MSG: &str = "builtin_interfaces/Time stamp\nstring frame_id\n";
+const TIME_MSG: &str = "int32 sec\nuint32 nanosec\n";
+
+/// The `ros2msg` schema of `sensor_msgs/msg/JointState`.
+pub fn joint_state_schema() -> String {
+    format!(
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n\
+         float64[] effort\n{SEPARATOR}MSG: std_msgs/Header\n{HEADER_MSG}{SEPARATOR}\
+         MSG: builtin_interfaces/Time\n{TIME_MSG}"
+    )
+}
+
+/// The `ros2msg` schema of `sensor_msgs/msg/Imu`.
+pub fn imu_schema() -> String {
+    format!(
+        "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\n\
+         float64[9] orientation_covariance\ngeometry_msgs/Vector3 angular_velocity\n\
+         float64[9] angular_velocity_covariance\ngeometry_msgs/Vector3 linear_acceleration\n\
+         float64[9] linear_acceleration_covariance\n{SEPARATOR}MSG: std_msgs/Header\n{HEADER_MSG}\
+         {SEPARATOR}MSG: builtin_interfaces/Time\n{TIME_MSG}{SEPARATOR}\
+         MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n\
+         {SEPARATOR}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    )
+}
+
+/// `builtin_interfaces/Time`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Time {
+    /// Whole seconds.
+    pub sec: i32,
+    /// Nanoseconds, `0..1e9`.
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// The time `seconds` (rounded to the nanosecond).
+    pub fn from_seconds(seconds: f64) -> Time {
+        let total = (seconds * 1e9).round() as i64;
+        Time {
+            sec: total.div_euclid(1_000_000_000) as i32,
+            nanosec: total.rem_euclid(1_000_000_000) as u32,
+        }
+    }
+
+    /// Seconds.
+    pub fn seconds(&self) -> f64 {
+        f64::from(self.sec) + f64::from(self.nanosec) * 1e-9
+    }
+
+    /// Nanoseconds since the epoch (negative times clamp to 0), as MCAP log times.
+    pub fn nanoseconds(&self) -> u64 {
+        (i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)).max(0) as u64
+    }
+}
+
+/// `std_msgs/Header`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Header {
+    /// Time of the sample.
+    pub stamp: Time,
+    /// Frame of the data (the SU name for skin samples).
+    pub frame_id: String,
+}
+
+/// `geometry_msgs/Quaternion`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+/// `geometry_msgs/Vector3`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `sensor_msgs/msg/Imu`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Imu {
+    /// Stamp and SU name.
+    pub header: Header,
+    /// Unknown for skin (covariance[0] = −1).
+    pub orientation: Quaternion,
+    /// Row-major 3×3.
+    pub orientation_covariance: [f64; 9],
+    /// rad/s; unknown for skin.
+    pub angular_velocity: Vector3,
+    /// Row-major 3×3.
+    pub angular_velocity_covariance: [f64; 9],
+    /// m/s².
+    pub linear_acceleration: Vector3,
+    /// Row-major 3×3; all zero = unknown.
+    pub linear_acceleration_covariance: [f64; 9],
+}
+
+impl Imu {
+    /// An accelerometer-only sample of SU `frame_id`.
+    pub fn accelerometer(stamp: Time, frame_id: &str, a: [f64; 3]) -> Imu {
+        let mut unknown = [0.0; 9];
+        unknown[0] = -1.0;
+        Imu {
+            header: Header {
+                stamp,
+                frame_id: frame_id.to_string(),
+            },
+            orientation: Quaternion::default(),
+            orientation_covariance: unknown,
+            angular_velocity: Vector3::default(),
+            angular_velocity_covariance: unknown,
+            linear_acceleration: Vector3 {
+                x: a[0],
+                y: a[1],
+                z: a[2],
+            },
+            linear_acceleration_covariance: [0.0; 9],
+        }
+    }
+}
+
+/// The part of `sensor_msgs/msg/Imu` the ingestion needs: everything up to the linear acceleration
+/// (CDR is read in order; the last covariance is not decoded).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct ImuAcceleration {
+    /// Stamp and SU name.
+    pub header: Header,
+    /// Unused.
+    pub orientation: Quaternion,
+    /// Unused.
+    pub orientation_covariance: [f64; 9],
+    /// Unused.
+    pub angular_velocity: Vector3,
+    /// Unused.
+    pub angular_velocity_covariance: [f64; 9],
+    /// m/s².
+    pub linear_acceleration: Vector3,
+}
+
+/// `sensor_msgs/msg/JointState`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct JointState {
+    /// Stamp.
+    pub header: Header,
+    /// DoF names.
+    pub name: Vec<String>,
+    /// rad.
+    pub position: Vec<f64>,
+    /// rad/s, or empty.
+    pub velocity: Vec<f64>,
+    /// N·m, or empty.
+    pub effort: Vec<f64>,
+}
+
+/// CDR (little-endian, with the encapsulation header) of a message.
+pub fn encode<T: Serialize>(message: &T) -> Result<Vec<u8>, cdr::Error> {
+    cdr::serialize::<_, _, cdr::CdrLe>(message, cdr::Infinite)
+}
+
+/// A message from CDR with the encapsulation header (either byte order).
+pub fn decode<'de, T: Deserialize<'de>>(bytes: &[u8]) -> Result<T, cdr::Error> {
+    cdr::deserialize(bytes)
+}

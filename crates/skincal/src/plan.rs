@@ -1,0 +1,843 @@
+//! The exploration program a real robot executes (paper Section II-C.2, eqs. 10–13).
+//!
+//! A [`Plan`] is a sequence of [`Phase`]s, one DoF moving at a time except in transfers:
+//!
+//! * **structure**: still at the rest pose, then for every DoF a move by the structure angle, a
+//!   still period, the move back and another still period. The operator runs this part once per
+//!   base orientation (upright, then tilted by about 90°), recording one log each;
+//! * **training**: for each of P random poses a transfer (all DoFs, smooth), a still period for the
+//!   static readings, then one excitation per DoF followed by a short still period.
+//!
+//! An excitation is the paper's pattern `θ(t) = A/(2πf)·(1 − cos 2πft)` (eq. 10) inside a smooth
+//! window `F(t)` (eq. 13): `F` rises from 0 to 1 over `ramp_cycles` periods with the quintic
+//! smoothstep, holds for `hold_cycles` periods and falls back, so the DoF starts and ends at its pose
+//! with zero velocity and acceleration. Moves and transfers follow the same quintic from one pose to
+//! the next, as fast as the velocity and acceleration limits allow.
+//!
+//! `A` and `f` are chosen from the limits ([`choose_pattern`]): the largest peak acceleration
+//! `2πfA` that keeps every DoF's velocity and acceleration within its limit and the excursion
+//! `A/(πf)` within `max_excursion`, starting from the paper's `A = 0.5 rad/s`, `f = 2 Hz`.
+
+use std::f64::consts::PI;
+
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::model::sensor::ExcitationPattern;
+use crate::model::Robot;
+
+/// `format` of a plan file.
+pub const FORMAT: &str = "skincal-plan";
+/// Plan file version.
+pub const VERSION: u32 = 1;
+
+/// Velocity assumed when a DoF has no velocity limit, rad/s.
+pub const DEFAULT_VELOCITY: f64 = 1.0;
+/// Acceleration assumed when a DoF has no acceleration limit, rad/s².
+pub const DEFAULT_ACCELERATION: f64 = 10.0;
+
+/// Errors in a plan request or a plan file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlanError {
+    /// A setting is out of range.
+    #[error("{field}: {reason}")]
+    InvalidConfig {
+        /// The setting.
+        field: &'static str,
+        /// What is wrong and what is allowed.
+        reason: String,
+    },
+    /// A DoF's limits are unusable.
+    #[error("DoF `{dof}`: {reason}")]
+    InvalidLimits {
+        /// The DoF.
+        dof: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A requested pattern breaks a limit.
+    #[error("the pattern A = {amplitude} rad/s, f = {frequency} Hz breaks a limit of DoF `{dof}`: {reason}")]
+    PatternTooFast {
+        /// A, rad/s.
+        amplitude: f64,
+        /// f, Hz.
+        frequency: f64,
+        /// The DoF whose limit it breaks.
+        dof: String,
+        /// Which limit, with numbers.
+        reason: String,
+    },
+    /// A plan file is not consistent.
+    #[error("plan: {0}")]
+    Inconsistent(String),
+}
+
+/// What a plan is made of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PlanConfig {
+    /// Include the structure experiment.
+    pub structure: bool,
+    /// Include the training experiment.
+    pub training: bool,
+    /// Number of training poses P.
+    pub poses: usize,
+    /// Training poses are drawn within `±pose_range` (and the DoF limits), rad.
+    pub pose_range: f64,
+    /// How far each DoF moves in the structure experiment, rad.
+    pub structure_angle: f64,
+    /// Duration of a still period for static readings, s.
+    pub still: f64,
+    /// Still period after each excitation, s.
+    pub settle: f64,
+    /// Periods of the window's rise and fall.
+    pub ramp_cycles: f64,
+    /// Periods at full amplitude between rise and fall.
+    pub hold_cycles: f64,
+    /// Largest excursion `A/(πf)` of a pattern, rad.
+    pub max_excursion: f64,
+    /// Highest pattern frequency considered, Hz.
+    pub max_frequency: f64,
+    /// Use this pattern instead of choosing one (checked against the limits).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pattern: Option<ExcitationPattern>,
+    /// Fraction of each velocity and acceleration limit the plan may use.
+    pub limit_fraction: f64,
+    /// Seed of the training poses.
+    pub seed: u64,
+}
+
+impl Default for PlanConfig {
+    fn default() -> Self {
+        Self {
+            structure: true,
+            training: true,
+            poses: 20,
+            pose_range: PI / 2.0,
+            structure_angle: crate::sim::SimulationConfig::default().structure_angle,
+            still: 1.0,
+            settle: 0.5,
+            ramp_cycles: 1.0,
+            hold_cycles: 2.0,
+            max_excursion: 0.1,
+            max_frequency: 10.0,
+            pattern: None,
+            limit_fraction: 0.95,
+            seed: 0,
+        }
+    }
+}
+
+impl PlanConfig {
+    fn validate(&self) -> Result<(), PlanError> {
+        let positive = |field: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(PlanError::InvalidConfig {
+                    field,
+                    reason: format!("{v} must be a positive number"),
+                })
+            }
+        };
+        positive("pose_range", self.pose_range)?;
+        positive("structure_angle", self.structure_angle)?;
+        positive("still", self.still)?;
+        positive("ramp_cycles", self.ramp_cycles)?;
+        positive("max_excursion", self.max_excursion)?;
+        positive("max_frequency", self.max_frequency)?;
+        if !(self.settle.is_finite() && self.settle >= 0.0) {
+            return Err(PlanError::InvalidConfig {
+                field: "settle",
+                reason: format!("{} must be zero or positive", self.settle),
+            });
+        }
+        if !(self.hold_cycles.is_finite() && self.hold_cycles >= 0.0) {
+            return Err(PlanError::InvalidConfig {
+                field: "hold_cycles",
+                reason: format!("{} must be zero or positive", self.hold_cycles),
+            });
+        }
+        if !(self.limit_fraction > 0.0 && self.limit_fraction <= 1.0) {
+            return Err(PlanError::InvalidConfig {
+                field: "limit_fraction",
+                reason: format!("{} must be in (0, 1]", self.limit_fraction),
+            });
+        }
+        if ((self.ramp_cycles * 2.0 + self.hold_cycles).fract()).abs() > 1e-9 {
+            return Err(PlanError::InvalidConfig {
+                field: "hold_cycles",
+                reason: "2 × ramp_cycles + hold_cycles must be a whole number of periods, so that \
+                         the pattern ends at its pose"
+                    .into(),
+            });
+        }
+        if !self.structure && !self.training {
+            return Err(PlanError::InvalidConfig {
+                field: "structure/training",
+                reason: "a plan needs the structure or the training experiment".into(),
+            });
+        }
+        if self.training && self.poses == 0 {
+            return Err(PlanError::InvalidConfig {
+                field: "poses",
+                reason: "the training experiment needs at least one pose".into(),
+            });
+        }
+        if let Some(p) = &self.pattern {
+            if !p.is_valid() {
+                return Err(PlanError::InvalidConfig {
+                    field: "pattern",
+                    reason: "amplitude and frequency must be positive".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The limits a plan respects for one DoF.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanDof {
+    /// DoF name.
+    pub name: String,
+    /// Lowest position, rad.
+    pub lower: f64,
+    /// Highest position, rad.
+    pub upper: f64,
+    /// Largest speed, rad/s.
+    pub velocity: f64,
+    /// Largest angular acceleration, rad/s².
+    pub acceleration: f64,
+    /// The velocity limit was not given and [`DEFAULT_VELOCITY`] was assumed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub velocity_assumed: bool,
+    /// The acceleration limit was not given and [`DEFAULT_ACCELERATION`] was assumed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub acceleration_assumed: bool,
+}
+
+impl PlanDof {
+    /// The limits of every DoF of `robot`, with the defaults where a limit is not given.
+    pub fn from_robot(robot: &Robot) -> Vec<PlanDof> {
+        robot
+            .model
+            .dofs()
+            .iter()
+            .map(|d| PlanDof {
+                name: d.name.clone(),
+                lower: d.limits.lower,
+                upper: d.limits.upper,
+                velocity: d.limits.velocity.unwrap_or(DEFAULT_VELOCITY),
+                acceleration: d.limits.acceleration.unwrap_or(DEFAULT_ACCELERATION),
+                velocity_assumed: d.limits.velocity.is_none(),
+                acceleration_assumed: d.limits.acceleration.is_none(),
+            })
+            .collect()
+    }
+
+    fn check(&self) -> Result<(), PlanError> {
+        let bad = |reason: String| PlanError::InvalidLimits {
+            dof: self.name.clone(),
+            reason,
+        };
+        if !(self.lower.is_finite() && self.upper.is_finite() && self.lower <= self.upper) {
+            return Err(bad(format!(
+                "position limits [{}, {}] must be finite with lower ≤ upper",
+                self.lower, self.upper
+            )));
+        }
+        for (what, v) in [
+            ("velocity", self.velocity),
+            ("acceleration", self.acceleration),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(format!("{what} limit {v} must be a positive number")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The part of the exploration program a phase belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Part {
+    /// The structure experiment (run once per base orientation).
+    Structure,
+    /// The training experiment.
+    Training,
+}
+
+/// What the robot does during a phase.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "action", rename_all = "snake_case")]
+pub enum Action {
+    /// Hold the pose (static readings).
+    Still,
+    /// Move one DoF to a new position (structure experiment).
+    Move {
+        /// The DoF.
+        dof: String,
+    },
+    /// Move several DoFs to the next training pose.
+    Transfer,
+    /// The windowed excitation pattern on one DoF, returning to the pose.
+    Excitation {
+        /// The DoF.
+        dof: String,
+    },
+}
+
+/// One phase of a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Phase {
+    /// Structure or training.
+    pub part: Part,
+    /// What happens.
+    #[serde(flatten)]
+    pub action: Action,
+    /// Start time, s from the start of the plan.
+    pub start: f64,
+    /// Duration, s.
+    pub duration: f64,
+    /// The pose at the start (rad, one per DoF).
+    pub from: Vec<f64>,
+    /// The pose at the end.
+    pub to: Vec<f64>,
+    /// Index of the training pose, for training phases.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose: Option<usize>,
+}
+
+/// The shape of the excitation window, in periods of the pattern.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Window {
+    /// Periods of the rise (and of the fall).
+    pub ramp_cycles: f64,
+    /// Periods at full amplitude.
+    pub hold_cycles: f64,
+}
+
+impl Window {
+    /// Duration of a windowed pattern of frequency `f`, s.
+    pub fn duration(&self, frequency: f64) -> f64 {
+        (2.0 * self.ramp_cycles + self.hold_cycles) / frequency
+    }
+
+    /// `F(τ)` and its first two derivatives for a pattern of frequency `f`.
+    fn at(&self, tau: f64, frequency: f64) -> [f64; 3] {
+        let ramp = self.ramp_cycles / frequency;
+        let total = self.duration(frequency);
+        if tau <= 0.0 || tau >= total {
+            [0.0, 0.0, 0.0]
+        } else if tau < ramp {
+            let [s, ds, dds] = smoothstep(tau / ramp);
+            [s, ds / ramp, dds / (ramp * ramp)]
+        } else if tau > total - ramp {
+            let [s, ds, dds] = smoothstep((total - tau) / ramp);
+            [s, -ds / ramp, dds / (ramp * ramp)]
+        } else {
+            [1.0, 0.0, 0.0]
+        }
+    }
+
+    /// The windowed pattern (eq. 13) at `τ`: displacement, velocity and acceleration.
+    pub fn pattern_at(&self, pattern: &ExcitationPattern, tau: f64) -> [f64; 3] {
+        let [f, df, ddf] = self.at(tau, pattern.frequency);
+        let (p, dp, ddp) = (
+            pattern.angle(tau),
+            pattern.velocity(tau),
+            pattern.acceleration(tau),
+        );
+        [
+            p * f,
+            dp * f + p * df,
+            ddp * f + 2.0 * dp * df + p * ddf,
+        ]
+    }
+
+    /// Peak `|velocity| / A` and `|acceleration| / (2πfA)` of the windowed pattern (independent of
+    /// A and f), found on a fine grid.
+    pub fn peak_factors(&self) -> (f64, f64) {
+        let unit = ExcitationPattern {
+            amplitude: 1.0,
+            frequency: 1.0,
+        };
+        let total = self.duration(1.0);
+        let n = 20_000;
+        let (mut v, mut a) = (0.0f64, 0.0f64);
+        for i in 0..=n {
+            let [_, dq, ddq] = self.pattern_at(&unit, total * i as f64 / n as f64);
+            v = v.max(dq.abs());
+            a = a.max(ddq.abs());
+        }
+        (v, a / (2.0 * PI))
+    }
+}
+
+/// The quintic smoothstep `10u³ − 15u⁴ + 6u⁵` and its first two derivatives (zero velocity and
+/// acceleration at both ends).
+fn smoothstep(u: f64) -> [f64; 3] {
+    let u = u.clamp(0.0, 1.0);
+    let (u2, u3) = (u * u, u * u * u);
+    [
+        u3 * (10.0 - 15.0 * u + 6.0 * u2),
+        30.0 * u2 * (1.0 - u) * (1.0 - u),
+        60.0 * u * (1.0 - u) * (1.0 - 2.0 * u),
+    ]
+}
+
+/// Peak velocity of the smoothstep per unit distance and duration: `15/8`.
+const SMOOTHSTEP_VELOCITY: f64 = 1.875;
+/// Peak acceleration of the smoothstep per unit distance and squared duration: `10/√3`.
+const SMOOTHSTEP_ACCELERATION: f64 = 5.773_502_691_896_258;
+
+/// The pattern of a plan: `A`, `f` and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PatternChoice {
+    /// The pattern.
+    pub pattern: ExcitationPattern,
+    /// What limits it (a sentence).
+    pub limited_by: String,
+}
+
+/// Chooses `A` and `f` for `dofs` (see the module documentation). With `config.pattern` set, checks
+/// that pattern instead.
+pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternChoice, PlanError> {
+    let window = Window {
+        ramp_cycles: config.ramp_cycles,
+        hold_cycles: config.hold_cycles,
+    };
+    let (cv, ca) = window.peak_factors();
+    let fraction = config.limit_fraction;
+    if let Some(p) = config.pattern {
+        for d in dofs {
+            let v = cv * p.amplitude;
+            let a = ca * p.peak_acceleration();
+            let reason = if v > fraction * d.velocity {
+                Some(format!(
+                    "peak velocity {v:.3} rad/s > {:.3} rad/s ({} of the limit {})",
+                    fraction * d.velocity,
+                    fraction,
+                    d.velocity
+                ))
+            } else if a > fraction * d.acceleration {
+                Some(format!(
+                    "peak acceleration {a:.3} rad/s² > {:.3} rad/s² ({} of the limit {})",
+                    fraction * d.acceleration,
+                    fraction,
+                    d.acceleration
+                ))
+            } else if p.excursion() > d.upper - d.lower {
+                Some(format!(
+                    "excursion {:.4} rad exceeds the range [{}, {}]",
+                    p.excursion(),
+                    d.lower,
+                    d.upper
+                ))
+            } else {
+                None
+            };
+            if let Some(reason) = reason {
+                return Err(PlanError::PatternTooFast {
+                    amplitude: p.amplitude,
+                    frequency: p.frequency,
+                    dof: d.name.clone(),
+                    reason,
+                });
+            }
+        }
+        return Ok(PatternChoice {
+            pattern: p,
+            limited_by: "given".into(),
+        });
+    }
+    let paper = ExcitationPattern::default();
+    let slowest_velocity = dofs
+        .iter()
+        .min_by(|a, b| a.velocity.total_cmp(&b.velocity));
+    let slowest_acceleration = dofs
+        .iter()
+        .min_by(|a, b| a.acceleration.total_cmp(&b.acceleration));
+    let (Some(sv), Some(sa)) = (slowest_velocity, slowest_acceleration) else {
+        return Err(PlanError::InvalidConfig {
+            field: "dofs",
+            reason: "the robot has no DoF".into(),
+        });
+    };
+    let vmax = fraction * sv.velocity / cv;
+    let amplitude_at = |f: f64| -> (f64, String) {
+        let by_acc = fraction * sa.acceleration / (ca * 2.0 * PI * f);
+        let mut best = (paper.amplitude, "the paper's A = 0.5 rad/s".to_string());
+        if vmax < best.0 {
+            best = (
+                vmax,
+                format!("the velocity limit of `{}` ({} rad/s)", sv.name, sv.velocity),
+            );
+        }
+        if by_acc < best.0 {
+            best = (
+                by_acc,
+                format!(
+                    "the acceleration limit of `{}` ({} rad/s²)",
+                    sa.name, sa.acceleration
+                ),
+            );
+        }
+        best
+    };
+    let mut f = paper.frequency;
+    let (mut a, mut why) = amplitude_at(f);
+    while a / (PI * f) > config.max_excursion && f < config.max_frequency {
+        f = (f * 1.02).min(config.max_frequency);
+        (a, why) = amplitude_at(f);
+    }
+    if a / (PI * f) > config.max_excursion {
+        // Even at the highest frequency the excursion is too large: shrink A.
+        a = config.max_excursion * PI * f;
+        why = format!(
+            "the excursion limit {} rad at the highest frequency {} Hz",
+            config.max_excursion, config.max_frequency
+        );
+    } else if f > paper.frequency {
+        why = format!(
+            "{why}, with f raised to keep the excursion within {} rad",
+            config.max_excursion
+        );
+    }
+    Ok(PatternChoice {
+        pattern: ExcitationPattern {
+            amplitude: a,
+            frequency: f,
+        },
+        limited_by: why,
+    })
+}
+
+/// An exploration program.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// Always [`VERSION`].
+    pub version: u32,
+    /// The DoFs in pose order, with the limits the plan respects.
+    pub dofs: Vec<PlanDof>,
+    /// The excitation pattern.
+    pub pattern: ExcitationPattern,
+    /// Why this pattern.
+    pub pattern_limited_by: String,
+    /// The window around each pattern.
+    pub window: Window,
+    /// What the plan was made from.
+    pub config: PlanConfig,
+    /// The rest pose of the structure experiment.
+    pub rest_pose: Vec<f64>,
+    /// End of the structure experiment, s (0 without one).
+    pub structure_duration: f64,
+    /// Total duration, s.
+    pub duration: f64,
+    /// The phases in time order.
+    pub phases: Vec<Phase>,
+}
+
+/// Position, velocity and acceleration of every DoF at one instant.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointState {
+    /// rad.
+    pub q: Vec<f64>,
+    /// rad/s.
+    pub qd: Vec<f64>,
+    /// rad/s².
+    pub qdd: Vec<f64>,
+}
+
+impl Plan {
+    /// Builds the plan for DoFs with `dofs`' limits.
+    pub fn new(dofs: Vec<PlanDof>, config: &PlanConfig) -> Result<Plan, PlanError> {
+        config.validate()?;
+        for d in &dofs {
+            d.check()?;
+        }
+        let choice = choose_pattern(&dofs, config)?;
+        let pattern = choice.pattern;
+        let window = Window {
+            ramp_cycles: config.ramp_cycles,
+            hold_cycles: config.hold_cycles,
+        };
+        let nd = dofs.len();
+        let rest: Vec<f64> = dofs.iter().map(|d| 0f64.clamp(d.lower, d.upper)).collect();
+        let mut builder = Builder {
+            dofs: &dofs,
+            fraction: config.limit_fraction,
+            phases: Vec::new(),
+            t: 0.0,
+            pose: rest.clone(),
+        };
+        if config.structure {
+            builder.still(Part::Structure, config.still, None);
+            for d in 0..nd {
+                let limits = crate::model::Limits {
+                    lower: dofs[d].lower,
+                    upper: dofs[d].upper,
+                    velocity: None,
+                    acceleration: None,
+                };
+                let target = crate::sim::structure_move(&limits, rest[d], config.structure_angle);
+                let mut moved = rest.clone();
+                moved[d] = target;
+                builder.go(Part::Structure, &moved, None);
+                builder.still(Part::Structure, config.still, None);
+                builder.go(Part::Structure, &rest, None);
+                builder.still(Part::Structure, config.still, None);
+            }
+        }
+        let structure_duration = builder.t;
+        if config.training {
+            let mut rng = crate::sim::pose_stream(config.seed);
+            let excursion = pattern.excursion() * 1.01;
+            for p in 0..config.poses {
+                let q: Vec<f64> = dofs
+                    .iter()
+                    .map(|d| {
+                        let lo = d.lower.max(-config.pose_range);
+                        let hi = (d.upper - excursion).min(config.pose_range);
+                        let (lo, hi) = if lo <= hi {
+                            (lo, hi)
+                        } else {
+                            (d.lower, (d.upper - excursion).max(d.lower))
+                        };
+                        if hi > lo {
+                            rng.random_range(lo..=hi)
+                        } else {
+                            lo
+                        }
+                    })
+                    .collect();
+                builder.go(Part::Training, &q, Some(p));
+                builder.still(Part::Training, config.still, Some(p));
+                for d in 0..nd {
+                    builder.excite(d, &pattern, &window, p);
+                    if config.settle > 0.0 {
+                        builder.still(Part::Training, config.settle, Some(p));
+                    }
+                }
+            }
+        }
+        let duration = builder.t;
+        let phases = builder.phases;
+        Ok(Plan {
+            format: FORMAT.into(),
+            version: VERSION,
+            dofs,
+            pattern,
+            pattern_limited_by: choice.limited_by,
+            window,
+            config: config.clone(),
+            rest_pose: rest,
+            structure_duration,
+            duration,
+            phases,
+        })
+    }
+
+    /// DoF names in pose order.
+    pub fn dof_names(&self) -> Vec<String> {
+        self.dofs.iter().map(|d| d.name.clone()).collect()
+    }
+
+    /// Checks a plan read from a file: format, shapes, DoF names, times in order.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        if self.format != FORMAT || self.version != VERSION {
+            return Err(PlanError::Inconsistent(format!(
+                "format `{}` version {} is not a {FORMAT} version {VERSION} file",
+                self.format, self.version
+            )));
+        }
+        for d in &self.dofs {
+            d.check()?;
+        }
+        if !self.pattern.is_valid() {
+            return Err(PlanError::Inconsistent(
+                "pattern amplitude and frequency must be positive".into(),
+            ));
+        }
+        let nd = self.dofs.len();
+        let mut t = 0.0;
+        for (i, p) in self.phases.iter().enumerate() {
+            if p.from.len() != nd || p.to.len() != nd {
+                return Err(PlanError::Inconsistent(format!(
+                    "phases[{i}]: from/to need one angle per DoF ({nd})"
+                )));
+            }
+            if !(p.duration.is_finite() && p.duration >= 0.0) || (p.start - t).abs() > 1e-6 {
+                return Err(PlanError::Inconsistent(format!(
+                    "phases[{i}]: starts at {} s, expected {t} s (phases follow each other)",
+                    p.start
+                )));
+            }
+            if let Action::Move { dof } | Action::Excitation { dof } = &p.action {
+                if !self.dofs.iter().any(|d| &d.name == dof) {
+                    return Err(PlanError::Inconsistent(format!(
+                        "phases[{i}]: unknown DoF `{dof}`"
+                    )));
+                }
+            }
+            t += p.duration;
+        }
+        Ok(())
+    }
+
+    /// Index of the phase running at `t` (the last one after the end).
+    pub fn phase_at(&self, t: f64) -> usize {
+        self.phases
+            .partition_point(|p| p.start <= t)
+            .saturating_sub(1)
+    }
+
+    /// The commanded state at `t` (s); the rest pose before the start, the last pose after the end.
+    pub fn state(&self, t: f64) -> JointState {
+        let nd = self.dofs.len();
+        let Some(first) = self.phases.first() else {
+            return JointState {
+                q: self.rest_pose.clone(),
+                qd: vec![0.0; nd],
+                qdd: vec![0.0; nd],
+            };
+        };
+        if t <= first.start {
+            return JointState {
+                q: first.from.clone(),
+                qd: vec![0.0; nd],
+                qdd: vec![0.0; nd],
+            };
+        }
+        let phase = &self.phases[self.phase_at(t)];
+        let tau = t - phase.start;
+        let mut s = JointState {
+            q: phase.from.clone(),
+            qd: vec![0.0; nd],
+            qdd: vec![0.0; nd],
+        };
+        if tau >= phase.duration {
+            s.q.clone_from(&phase.to);
+            return s;
+        }
+        match &phase.action {
+            Action::Still => {}
+            Action::Move { .. } | Action::Transfer => {
+                let [u, du, ddu] = smoothstep(tau / phase.duration);
+                for d in 0..nd {
+                    let delta = phase.to[d] - phase.from[d];
+                    s.q[d] = phase.from[d] + delta * u;
+                    s.qd[d] = delta * du / phase.duration;
+                    s.qdd[d] = delta * ddu / (phase.duration * phase.duration);
+                }
+            }
+            Action::Excitation { dof } => {
+                if let Some(d) = self.dofs.iter().position(|x| &x.name == dof) {
+                    let [x, v, a] = self.window.pattern_at(&self.pattern, tau);
+                    s.q[d] += x;
+                    s.qd[d] = v;
+                    s.qdd[d] = a;
+                }
+            }
+        }
+        s
+    }
+
+    /// The trajectory sampled at `rate` Hz from 0 to the end: `(time, positions)` rows.
+    pub fn sample(&self, rate: f64) -> Vec<(f64, Vec<f64>)> {
+        let n = (self.duration * rate).floor() as usize;
+        (0..=n)
+            .map(|i| {
+                let t = i as f64 / rate;
+                (t, self.state(t).q)
+            })
+            .collect()
+    }
+
+    /// Total time spent in each kind of phase: `(still, moves and transfers, excitations)`, s.
+    pub fn time_by_action(&self) -> (f64, f64, f64) {
+        let mut out = (0.0, 0.0, 0.0);
+        for p in &self.phases {
+            match p.action {
+                Action::Still => out.0 += p.duration,
+                Action::Move { .. } | Action::Transfer => out.1 += p.duration,
+                Action::Excitation { .. } => out.2 += p.duration,
+            }
+        }
+        out
+    }
+}
+
+struct Builder<'a> {
+    dofs: &'a [PlanDof],
+    fraction: f64,
+    phases: Vec<Phase>,
+    t: f64,
+    pose: Vec<f64>,
+}
+
+impl Builder<'_> {
+    fn push(&mut self, part: Part, action: Action, duration: f64, to: Vec<f64>, pose: Option<usize>) {
+        self.phases.push(Phase {
+            part,
+            action,
+            start: self.t,
+            duration,
+            from: self.pose.clone(),
+            to: to.clone(),
+            pose,
+        });
+        self.t += duration;
+        self.pose = to;
+    }
+
+    fn still(&mut self, part: Part, duration: f64, pose: Option<usize>) {
+        let here = self.pose.clone();
+        self.push(part, Action::Still, duration, here, pose);
+    }
+
+    /// A smoothstep move to `target` as fast as every moving DoF's limits allow.
+    fn go(&mut self, part: Part, target: &[f64], pose: Option<usize>) {
+        let mut duration: f64 = 0.0;
+        let mut moving = Vec::new();
+        for (d, lim) in self.dofs.iter().enumerate() {
+            let delta = (target[d] - self.pose[d]).abs();
+            if delta > 0.0 {
+                moving.push(d);
+                duration = duration
+                    .max(SMOOTHSTEP_VELOCITY * delta / (self.fraction * lim.velocity))
+                    .max((SMOOTHSTEP_ACCELERATION * delta / (self.fraction * lim.acceleration)).sqrt());
+            }
+        }
+        if moving.is_empty() {
+            return;
+        }
+        // Round up to whole milliseconds so that phase boundaries fall on common sample grids.
+        let duration = (duration * 1000.0).ceil() / 1000.0;
+        let action = match (part, moving.as_slice()) {
+            (Part::Structure, [d]) => Action::Move {
+                dof: self.dofs[*d].name.clone(),
+            },
+            _ => Action::Transfer,
+        };
+        self.push(part, action, duration, target.to_vec(), pose);
+    }
+
+    fn excite(&mut self, d: usize, pattern: &ExcitationPattern, window: &Window, pose: usize) {
+        let here = self.pose.clone();
+        self.push(
+            Part::Training,
+            Action::Excitation {
+                dof: self.dofs[d].name.clone(),
+            },
+            window.duration(pattern.frequency),
+            here,
+            Some(pose),
+        );
+    }
+}
