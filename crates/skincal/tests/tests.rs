@@ -8,6 +8,7 @@ mod descriptions;
 mod estimation;
 mod exploration;
 mod kinematics;
+mod logs;
 mod measurements;
 mod ml_estimation;
 mod paper;

@@ -1,0 +1,287 @@
+//! Plans, time-series logs and their ingestion: plan → 1 kHz simulation (MCAP or CSV) → ingest
+//! must give the readings the condensed simulator's physics gives at the same poses (computed here
+//! from the true robot), and explore + calibrate on it must do as well as on condensed data.
+
+use std::path::Path;
+
+use nalgebra::Vector3;
+use skincal::estimate::body::calibrate_body;
+use skincal::estimate::ml::MlConfig;
+use skincal::explore::{explore, ExploreConfig};
+use skincal::ingest::{ingest, IngestConfig};
+use skincal::log::csv::CsvSink;
+use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::{LogSink, Topics};
+use skincal::measurements::MeasurementSet;
+use skincal::model::sensor::{peak_dynamic_accelerations, static_readings};
+use skincal::model::{presets, Robot};
+use skincal::plan::{Action, Part, Plan, PlanConfig, PlanDof};
+use skincal::predict::validate;
+use skincal::sim::timeseries::{record, LogConfig};
+use skincal::sim::{simulate, BaseOrientation, Imperfections, SimulationConfig};
+
+fn robot(name: &str) -> Robot {
+    presets::find(name).unwrap().robot().unwrap()
+}
+
+fn record_to(robot: &Robot, plan: &Plan, config: &LogConfig, path: &Path, mcap: bool) {
+    let mut sink: Box<dyn LogSink> = if mcap {
+        Box::new(McapSink::new(path, Topics::default(), Compression::Zstd, false))
+    } else {
+        Box::new(CsvSink::new(path, false))
+    };
+    record(robot, plan, config, sink.as_mut(), &mut |_| {}).unwrap();
+}
+
+/// Largest |ingested − truth| over static and dynamic readings of the training poses, m/s².
+fn training_errors(robot: &Robot, set: &MeasurementSet) -> (f64, f64) {
+    let t = set.training.as_ref().unwrap();
+    let g = Vector3::new(0.0, 0.0, -9.81);
+    let (mut s_max, mut d_max) = (0.0f64, 0.0f64);
+    for pose in &t.poses {
+        let truth = static_readings(&robot.model, &robot.parameters, &pose.q, &g);
+        for (r, e) in pose.static_readings.iter().zip(&truth) {
+            s_max = s_max.max((Vector3::from(*r) - e).amax());
+        }
+        for (dof, readings) in &pose.dynamic {
+            let d = set.dof_index(dof).unwrap();
+            let truth =
+                peak_dynamic_accelerations(&robot.model, &robot.parameters, &pose.q, d, &t.pattern);
+            for (r, e) in readings.iter().zip(&truth) {
+                d_max = d_max.max((Vector3::from(*r) - e).amax());
+            }
+        }
+    }
+    (s_max, d_max)
+}
+
+#[test]
+fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 12,
+            seed: 3,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let upright = dir.path().join("upright.mcap");
+    let tilted = dir.path().join("tilted");
+    let noise = LogConfig {
+        seed: 5,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &noise, &upright, true);
+    record_to(
+        &robot,
+        &plan,
+        &LogConfig {
+            part: Some(Part::Structure),
+            orientation: BaseOrientation::tilted(),
+            seed: 6,
+            ..LogConfig::default()
+        },
+        &tilted,
+        false,
+    );
+    let ingested = ingest(
+        &[upright.clone(), tilted.clone()],
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let set = ingested.measurements;
+    set.validate().unwrap();
+    let report = &ingested.report;
+    assert_eq!(report.orientations, 2, "{report:#?}");
+    assert_eq!(report.training_poses, 12);
+    assert_eq!(report.dynamic, 12 * 7);
+    assert!(report.warnings.is_empty(), "{:?}", report.warnings);
+    // The estimated pattern is the plan's within the smoothing of the peak estimates.
+    assert!((report.pattern.peak_acceleration() / plan.pattern.peak_acceleration() - 1.0).abs() < 0.05);
+    // Within the noise: one sample has ±0.098 m/s² of uniform noise (σ 0.057); a static reading
+    // averages thousands of samples, a dynamic one is fitted over a 2 s window.
+    let (s_max, d_max) = training_errors(&robot, &set);
+    assert!(s_max < 0.01, "static {s_max}");
+    assert!(d_max < 0.06, "dynamic {d_max}");
+
+    // Explore and calibrate as on condensed data with the same sensor noise.
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let condensed = simulate(
+        &robot,
+        &SimulationConfig {
+            poses: 12,
+            seed: 3,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let condensed_structure = explore(&condensed, &ExploreConfig::default()).unwrap();
+    assert_eq!(structure.matrix, condensed_structure.matrix, "the same sorted activity matrix");
+    assert!(structure.uncertain.is_empty(), "{:?}", structure.uncertain);
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            seed: 77,
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let config = MlConfig::default();
+    let from_log = calibrate_body(&set, Some(&structure), &config, None).unwrap();
+    let from_condensed = calibrate_body(&condensed, Some(&condensed_structure), &config, None).unwrap();
+    let a = validate(&from_log, &held_out, "held-out").unwrap();
+    let b = validate(&from_condensed, &held_out, "held-out").unwrap();
+    eprintln!(
+        "held-out RMS static/dynamic: from the log {:.4}/{:.4}, condensed {:.4}/{:.4} m/s²",
+        a.static_rms, a.dynamic_rms, b.static_rms, b.dynamic_rms
+    );
+    assert!(a.static_rms <= b.static_rms * 1.2 + 0.005, "{} vs {}", a.static_rms, b.static_rms);
+    assert!(a.dynamic_rms <= b.dynamic_rms * 1.2 + 0.005, "{} vs {}", a.dynamic_rms, b.dynamic_rms);
+}
+
+#[test]
+fn noise_free_log_gives_the_exact_readings_whatever_the_servo_did() {
+    // The robot runs the pattern backwards, at 2.5 Hz instead of 2, with another window; the
+    // ingestion, told the nominal pattern, must still give the response to the nominal positive
+    // pattern — from a CSV log with jittered stamps and lost samples.
+    let robot = robot("paper-7dof");
+    let nominal = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 3,
+            seed: 9,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    for (variant, csv) in [(false, false), (true, true)] {
+        let mut plan = nominal.clone();
+        let mut config = LogConfig {
+            imperfections: Imperfections::none(),
+            ..LogConfig::default()
+        };
+        if variant {
+            plan.pattern.amplitude = -0.4;
+            plan.pattern.frequency = 2.5;
+            plan.window.ramp_cycles = 1.5;
+            plan.window.hold_cycles = 1.0;
+            // Re-time the phases for the new pattern length.
+            let mut t = 0.0;
+            for p in &mut plan.phases {
+                p.start = t;
+                if matches!(p.action, Action::Excitation { .. }) {
+                    p.duration = plan.window.duration(plan.pattern.frequency);
+                }
+                t += p.duration;
+            }
+            plan.duration = t;
+            config.jitter = 2e-5;
+            config.drop_probability = 0.01;
+            config.seed = 4;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(if csv { "log" } else { "log.mcap" });
+        record_to(&robot, &plan, &config, &path, !csv);
+        let ingested = ingest(
+            &[path],
+            &IngestConfig {
+                pattern: Some(nominal.pattern),
+                ..IngestConfig::default()
+            },
+            &mut |_, _, _| {},
+        )
+        .unwrap();
+        let report = &ingested.report;
+        assert_eq!(report.training_poses, 3, "{report:#?}");
+        assert_eq!(report.orientations, 1);
+        if variant {
+            assert!(report.logs[0].filled > 0, "lost samples are filled and counted");
+        }
+        let (s_max, d_max) = training_errors(&robot, &ingested.measurements);
+        // Exact physics leaves only the stamps' resolution (0.24 µs at ROS epoch times): 1e-3.
+        // Jitter of 20 µs on the joint stamps misplaces positions by up to 1e-5 rad, an
+        // acceleration noise of ~0.06 rad/s² in the ±20 ms difference: 5e-3. CSV keeps 6 decimals.
+        let (s_tol, d_tol) = if variant { (1e-5, 5e-3) } else { (1e-9, 1e-3) };
+        assert!(s_max < s_tol, "variant {variant}: static {s_max:e}");
+        assert!(d_max < d_tol, "variant {variant}: dynamic {d_max:e}");
+        // Structure moves: one per DoF, at the planned poses.
+        let structure = ingested.measurements.structure.as_ref().unwrap();
+        assert_eq!(structure.orientations[0].moves.len(), 7);
+    }
+}
+
+/// Largest |finite difference| of the sampled trajectory against each DoF's limits.
+#[test]
+fn plans_respect_every_limit() {
+    let mut robot = robot("humanoid");
+    // Mixed limits: some DoFs slow, some with a narrow range; one with no limits given.
+    let mut dofs = PlanDof::from_robot(&robot);
+    for (i, d) in dofs.iter_mut().enumerate() {
+        if i % 3 == 0 {
+            d.velocity = 0.3;
+            d.acceleration = 2.0;
+        }
+        if i % 5 == 1 {
+            d.lower = -0.2;
+            d.upper = 0.35;
+        }
+    }
+    let _ = &mut robot;
+    let config = PlanConfig {
+        poses: 3,
+        seed: 1,
+        ..PlanConfig::default()
+    };
+    let plan = Plan::new(dofs.clone(), &config).unwrap();
+    // A and f were chosen from the slowest DoF.
+    assert!(plan.pattern.amplitude <= 0.3 * 0.95 + 1e-12);
+    assert!(plan.pattern.excursion() <= config.max_excursion + 1e-12);
+    let rate = 1000.0;
+    let samples = plan.sample(rate);
+    let dt = 1.0 / rate;
+    for (d, lim) in dofs.iter().enumerate() {
+        let q: Vec<f64> = samples.iter().map(|(_, q)| q[d]).collect();
+        let (lo, hi) = q.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        assert!(lo >= lim.lower - 1e-12 && hi <= lim.upper + 1e-12, "{}: range {lo}..{hi}", lim.name);
+        let v = q.windows(2).map(|w| ((w[1] - w[0]) / dt).abs()).fold(0.0, f64::max);
+        let a = q
+            .windows(3)
+            .map(|w| ((w[2] - 2.0 * w[1] + w[0]) / (dt * dt)).abs())
+            .fold(0.0, f64::max);
+        assert!(v <= lim.velocity, "{}: velocity {v} > {}", lim.name, lim.velocity);
+        assert!(a <= lim.acceleration, "{}: acceleration {a} > {}", lim.name, lim.acceleration);
+    }
+    // One DoF at a time except transfers; every excitation ends where it started.
+    for p in &plan.phases {
+        let moved = p.from.iter().zip(&p.to).filter(|(a, b)| a != b).count();
+        match p.action {
+            Action::Still | Action::Excitation { .. } => assert_eq!(moved, 0),
+            Action::Move { .. } => assert_eq!(moved, 1),
+            Action::Transfer => {}
+        }
+    }
+    // A given pattern that is too fast for a DoF is refused, naming it.
+    let err = Plan::new(
+        dofs,
+        &PlanConfig {
+            pattern: Some(skincal::model::sensor::ExcitationPattern {
+                amplitude: 0.5,
+                frequency: 2.0,
+            }),
+            ..config
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains(&robot.model.dofs()[0].name), "{err}");
+}
+
