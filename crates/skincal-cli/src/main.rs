@@ -2,6 +2,7 @@
 //!
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
+mod logs;
 mod render;
 
 use std::path::{Path, PathBuf};
@@ -68,6 +69,13 @@ enum Command {
     /// Measure speed on generated data and print a table (build with --release).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Write the exploration program for a real robot (structure moves, training poses with one
+    /// excitation pattern per DoF) from its DoF limits: DIR/plan.json, trajectory.csv/.json.
+    Plan(logs::PlanArgs),
+    /// Execute a plan on a simulated robot and record its log (ROS 2 MCAP or CSV, 1 kHz).
+    Record(logs::RecordArgs),
+    /// Extract a measurement set from logs of joint states and skin samples (MCAP or CSV).
+    Ingest(logs::IngestArgs),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -111,6 +119,8 @@ enum BenchCommand {
     /// The whole pipeline (explore, calibrate every limb, validate on held-out poses) on the
     /// humanoid or a random tree: time, memory, accuracy against the truth.
     Body(BenchBodyArgs),
+    /// Ingestion of a 1 kHz log with many SUs (MCAP and CSV): time against real time.
+    Ingest(logs::BenchIngestArgs),
 }
 
 #[derive(Debug, Args)]
@@ -323,6 +333,10 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCommand::Body(args)) => bench_body(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
+        Command::Bench(BenchCommand::Ingest(args)) => logs::bench_ingest(args),
+        Command::Plan(args) => logs::plan(args),
+        Command::Record(args) => logs::record_log(args),
+        Command::Ingest(args) => logs::ingest_logs(args),
     }
 }
 

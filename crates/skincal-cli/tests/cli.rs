@@ -540,3 +540,184 @@ fn calibrate_defaults_to_maximum_likelihood_and_writes_model_json() {
     assert_eq!(robot.model.sus().len(), 7);
     assert_eq!(robot.model.dofs().len(), 7);
 }
+
+/// Runs the Python interoperability script (needs `pip install mcap mcap-ros2-support`).
+fn python(args: &[&str], dir: &Path) -> Output {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/mcap_interop.py");
+    let out = Command::new("python3")
+        .arg(&script)
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("python3 must be installed");
+    assert!(
+        !stderr(&out).contains("ModuleNotFoundError"),
+        "the MCAP interoperability test needs the Python packages: \
+         python3 -m pip install mcap mcap-ros2-support\n{}",
+        stderr(&out)
+    );
+    out
+}
+
+#[test]
+fn mcap_logs_interoperate_with_the_python_ros2_reader_and_writer() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |o: Output| {
+        assert!(
+            o.status.success(),
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            stderr(&o)
+        );
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let plan = ok(skincal(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "p",
+            "--poses",
+            "1",
+            "--no-structure",
+        ],
+        d,
+    ));
+    assert!(plan.contains("A = 0.5000 rad/s, f = 2.000 Hz"), "{plan}");
+    ok(skincal(
+        &[
+            "record",
+            "--robot",
+            "paper-7dof",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "a.mcap",
+        ],
+        d,
+    ));
+    // The Python reader decodes our messages and finds the planned first pose and 1 g at rest.
+    let checked = ok(python(&["check", "a.mcap", "p/plan.json"], d));
+    assert!(checked.starts_with("ok:"), "{checked}");
+    // The Python writer's MCAP of the same log ingests to the same measurements as the CSV.
+    ok(skincal(
+        &[
+            "record",
+            "--robot",
+            "paper-7dof",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "csv",
+            "--format",
+            "csv",
+        ],
+        d,
+    ));
+    ok(python(&["convert", "csv", "b.mcap"], d));
+    ok(skincal(
+        &[
+            "ingest",
+            "b.mcap",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "from-python",
+        ],
+        d,
+    ));
+    ok(skincal(
+        &[
+            "ingest",
+            "csv",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "from-csv",
+        ],
+        d,
+    ));
+    let read = |p: &str| {
+        let text = std::fs::read_to_string(d.join(p).join("measurements.json")).unwrap();
+        serde_json::from_str::<serde_json::Value>(&text).unwrap()
+    };
+    let (a, b) = (read("from-python"), read("from-csv"));
+    assert_eq!(a["training"]["poses"].as_array().unwrap().len(), 1);
+    let flat = |v: &serde_json::Value| -> Vec<f64> {
+        let mut out = Vec::new();
+        fn walk(v: &serde_json::Value, out: &mut Vec<f64>) {
+            match v {
+                serde_json::Value::Number(n) => out.push(n.as_f64().unwrap()),
+                serde_json::Value::Array(a) => a.iter().for_each(|x| walk(x, out)),
+                serde_json::Value::Object(o) => o.values().for_each(|x| walk(x, out)),
+                _ => {}
+            }
+        }
+        walk(&v["training"], &mut out);
+        out
+    };
+    let (fa, fb) = (flat(&a), flat(&b));
+    assert_eq!(fa.len(), fb.len());
+    // The same samples; only the stamps differ in their last digits (the CSV's decimal seconds
+    // against the Python writer's integer nanoseconds, both near the f64 resolution of 0.24 µs at
+    // ROS epoch times), which moves the fitted grid by far less than a sample: equal to 1e-5.
+    let worst = fa
+        .iter()
+        .zip(&fb)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-5, "largest difference {worst}");
+}
+
+#[test]
+fn ingest_reports_what_it_cannot_use() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::create_dir(d.join("log")).unwrap();
+    std::fs::write(d.join("log/joint_states.csv"), "time,a\n0,0\n").unwrap();
+    std::fs::write(d.join("log/imu.csv"), "stamp,frame_id,ax,ay,az\n").unwrap();
+    fails_with(
+        &["ingest", "log", "--out", "o"],
+        d,
+        &["joint_states.csv", "line 1", "stamp"],
+    );
+    fails_with(
+        &["ingest", "missing.mcap", "--out", "o"],
+        d,
+        &["missing.mcap", "no such file"],
+    );
+    std::fs::write(d.join("junk.mcap"), "not an mcap file").unwrap();
+    fails_with(
+        &["ingest", "junk.mcap", "--out", "o"],
+        d,
+        &["junk.mcap", "MCAP"],
+    );
+    fails_with(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "p",
+            "--velocity",
+            "nope=1",
+        ],
+        d,
+        &["--velocity nope=1", "no DoF `nope`"],
+    );
+    fails_with(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "p",
+            "--pattern",
+            "3,5",
+        ],
+        d,
+        &["pattern", "velocity", "dof1"],
+    );
+}

@@ -171,8 +171,8 @@ pub struct LogReport {
     pub duration: f64,
     /// Rate of the joint states, Hz.
     pub rate: f64,
-    /// Joint-state samples read (per DoF, summed).
-    pub joint_samples: u64,
+    /// Joint-state messages (or rows) read.
+    pub joint_states: u64,
     /// Accelerometer samples read.
     pub imu_samples: u64,
     /// Joint stamps earlier than the one before (sorted before use).
@@ -295,7 +295,9 @@ pub fn ingest(
         .zip(&timelines)
         .zip(plans.iter().zip(&mut reports))
     {
-        accumulators.push(read_skin(path, timeline, plan, config, &mut sus, report, progress)?);
+        accumulators.push(read_skin(
+            path, timeline, plan, config, &mut sus, report, progress,
+        )?);
     }
 
     assemble(
@@ -370,6 +372,7 @@ fn read_joints(
         },
         &mut |done| progress(&label, done, total),
     )?;
+    report.joint_states = stats.samples;
     report.joint_read = stats;
     let dofs: Vec<String> = match dof_names {
         Some(known) => {
@@ -409,7 +412,6 @@ fn read_joints(
     let mut cleaned: Vec<Vec<(f64, f64)>> = Vec::with_capacity(dofs.len());
     for d in &dofs {
         let mut s = series.remove(d).unwrap_or_default();
-        report.joint_samples += s.len() as u64;
         report.unsorted_joint_stamps += s.windows(2).filter(|w| w[1].0 < w[0].0).count() as u64;
         s.sort_by(|a, b| a.0.total_cmp(&b.0));
         let before = s.len();
@@ -424,7 +426,10 @@ fn read_joints(
         cleaned.push(s);
     }
     // The rate from the DoF with most samples.
-    let densest = cleaned.iter().max_by_key(|s| s.len()).expect("at least one DoF");
+    let densest = cleaned
+        .iter()
+        .max_by_key(|s| s.len())
+        .expect("at least one DoF");
     let mut steps: Vec<f64> = densest.windows(2).map(|w| w[1].0 - w[0].0).collect();
     steps.sort_by(f64::total_cmp);
     let rough = steps[steps.len() / 2];
@@ -472,7 +477,7 @@ fn read_joints(
             reason: "the DoFs' joint states do not overlap in time".into(),
         });
     }
-    let n = ((t1 - t0) / dt).floor() as usize + 1;
+    let n = ((t1 - t0) / dt).round() as usize + 1;
     report.duration = t1 - t0;
     report.rate = 1.0 / dt;
     let mut invalid = vec![false; n];
@@ -912,7 +917,10 @@ fn read_skin(
             };
             report.imu_samples += 1;
             let Some(su) = sus.find(frame_id, hint) else {
-                *report.unknown_frames.entry(frame_id.to_string()).or_default() += 1;
+                *report
+                    .unknown_frames
+                    .entry(frame_id.to_string())
+                    .or_default() += 1;
                 return Ok(());
             };
             hint = su + 1;
@@ -949,9 +957,9 @@ fn read_skin(
                 grow(sums, su + 1);
                 let s = &mut sums[su];
                 s.n += 1;
-                for k in 0..3 {
-                    s.sum[k] += acceleration[k];
-                    s.squares[k] += acceleration[k] * acceleration[k];
+                for (k, a) in acceleration.iter().enumerate() {
+                    s.sum[k] += a;
+                    s.squares[k] += a * a;
                 }
             } else {
                 let x = &seg.excitations[w];
@@ -1096,8 +1104,8 @@ fn assemble(
                 for &w in &st.stills {
                     if let Some(s) = acc.stills[w].get(su) {
                         n += s.n;
-                        for k in 0..3 {
-                            sum[k] += s.sum[k];
+                        for (total, v) in sum.iter_mut().zip(&s.sum) {
+                            *total += v;
                         }
                     }
                 }
@@ -1218,8 +1226,16 @@ fn assemble(
         let (rest_index, _) = members
             .iter()
             .enumerate()
-            .map(|(i, s)| (i, members.iter().filter(|o| close(&o.pose, &s.pose)).count()))
-            .fold((0, 0), |best, (i, c)| if c > best.1 { (i, c) } else { best });
+            .map(|(i, s)| {
+                (
+                    i,
+                    members.iter().filter(|o| close(&o.pose, &s.pose)).count(),
+                )
+            })
+            .fold(
+                (0, 0),
+                |best, (i, c)| if c > best.1 { (i, c) } else { best },
+            );
         let rest_pose = members[rest_index].pose.clone();
         let mut rest_sum = vec![[0.0; 3]; nu];
         let mut rest_n = 0usize;
@@ -1267,10 +1283,7 @@ fn assemble(
         let mut extra = Map::new();
         extra.insert(
             "source".into(),
-            serde_json::Value::String(format!(
-                "{path} from {:.3} s",
-                at(members[0])
-            )),
+            serde_json::Value::String(format!("{path} from {:.3} s", at(members[0]))),
         );
         orientations.push(Orientation {
             rest_pose,
@@ -1337,10 +1350,7 @@ fn assemble(
         }
     }
     let report = IngestReport {
-        orientations: set
-            .structure
-            .as_ref()
-            .map_or(0, |s| s.orientations.len()),
+        orientations: set.structure.as_ref().map_or(0, |s| s.orientations.len()),
         training_poses,
         dynamic: dynamic_count,
         logs: reports,

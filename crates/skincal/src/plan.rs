@@ -351,11 +351,7 @@ impl Window {
             pattern.velocity(tau),
             pattern.acceleration(tau),
         );
-        [
-            p * f,
-            dp * f + p * df,
-            ddp * f + 2.0 * dp * df + p * ddf,
-        ]
+        [p * f, dp * f + p * df, ddp * f + 2.0 * dp * df + p * ddf]
     }
 
     /// Peak `|velocity| / A` and `|acceleration| / (2πfA)` of the windowed pattern (independent of
@@ -455,9 +451,7 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
         });
     }
     let paper = ExcitationPattern::default();
-    let slowest_velocity = dofs
-        .iter()
-        .min_by(|a, b| a.velocity.total_cmp(&b.velocity));
+    let slowest_velocity = dofs.iter().min_by(|a, b| a.velocity.total_cmp(&b.velocity));
     let slowest_acceleration = dofs
         .iter()
         .min_by(|a, b| a.acceleration.total_cmp(&b.acceleration));
@@ -474,7 +468,10 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
         if vmax < best.0 {
             best = (
                 vmax,
-                format!("the velocity limit of `{}` ({} rad/s)", sv.name, sv.velocity),
+                format!(
+                    "the velocity limit of `{}` ({} rad/s)",
+                    sv.name, sv.velocity
+                ),
             );
         }
         if by_acc < best.0 {
@@ -782,7 +779,14 @@ struct Builder<'a> {
 }
 
 impl Builder<'_> {
-    fn push(&mut self, part: Part, action: Action, duration: f64, to: Vec<f64>, pose: Option<usize>) {
+    fn push(
+        &mut self,
+        part: Part,
+        action: Action,
+        duration: f64,
+        to: Vec<f64>,
+        pose: Option<usize>,
+    ) {
         self.phases.push(Phase {
             part,
             action,
@@ -811,7 +815,10 @@ impl Builder<'_> {
                 moving.push(d);
                 duration = duration
                     .max(SMOOTHSTEP_VELOCITY * delta / (self.fraction * lim.velocity))
-                    .max((SMOOTHSTEP_ACCELERATION * delta / (self.fraction * lim.acceleration)).sqrt());
+                    .max(
+                        (SMOOTHSTEP_ACCELERATION * delta / (self.fraction * lim.acceleration))
+                            .sqrt(),
+                    );
             }
         }
         if moving.is_empty() {

@@ -26,7 +26,12 @@ fn robot(name: &str) -> Robot {
 
 fn record_to(robot: &Robot, plan: &Plan, config: &LogConfig, path: &Path, mcap: bool) {
     let mut sink: Box<dyn LogSink> = if mcap {
-        Box::new(McapSink::new(path, Topics::default(), Compression::Zstd, false))
+        Box::new(McapSink::new(
+            path,
+            Topics::default(),
+            Compression::Zstd,
+            false,
+        ))
     } else {
         Box::new(CsvSink::new(path, false))
     };
@@ -101,7 +106,9 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
     assert_eq!(report.dynamic, 12 * 7);
     assert!(report.warnings.is_empty(), "{:?}", report.warnings);
     // The estimated pattern is the plan's within the smoothing of the peak estimates.
-    assert!((report.pattern.peak_acceleration() / plan.pattern.peak_acceleration() - 1.0).abs() < 0.05);
+    assert!(
+        (report.pattern.peak_acceleration() / plan.pattern.peak_acceleration() - 1.0).abs() < 0.05
+    );
     // Within the noise: one sample has ±0.098 m/s² of uniform noise (σ 0.057); a static reading
     // averages thousands of samples, a dynamic one is fitted over a 2 s window.
     let (s_max, d_max) = training_errors(&robot, &set);
@@ -122,7 +129,10 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
     .unwrap()
     .measurements;
     let condensed_structure = explore(&condensed, &ExploreConfig::default()).unwrap();
-    assert_eq!(structure.matrix, condensed_structure.matrix, "the same sorted activity matrix");
+    assert_eq!(
+        structure.matrix, condensed_structure.matrix,
+        "the same sorted activity matrix"
+    );
     assert!(structure.uncertain.is_empty(), "{:?}", structure.uncertain);
     let held_out = simulate(
         &robot,
@@ -137,15 +147,26 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
     .measurements;
     let config = MlConfig::default();
     let from_log = calibrate_body(&set, Some(&structure), &config, None).unwrap();
-    let from_condensed = calibrate_body(&condensed, Some(&condensed_structure), &config, None).unwrap();
+    let from_condensed =
+        calibrate_body(&condensed, Some(&condensed_structure), &config, None).unwrap();
     let a = validate(&from_log, &held_out, "held-out").unwrap();
     let b = validate(&from_condensed, &held_out, "held-out").unwrap();
     eprintln!(
         "held-out RMS static/dynamic: from the log {:.4}/{:.4}, condensed {:.4}/{:.4} m/s²",
         a.static_rms, a.dynamic_rms, b.static_rms, b.dynamic_rms
     );
-    assert!(a.static_rms <= b.static_rms * 1.2 + 0.005, "{} vs {}", a.static_rms, b.static_rms);
-    assert!(a.dynamic_rms <= b.dynamic_rms * 1.2 + 0.005, "{} vs {}", a.dynamic_rms, b.dynamic_rms);
+    assert!(
+        a.static_rms <= b.static_rms * 1.2 + 0.005,
+        "{} vs {}",
+        a.static_rms,
+        b.static_rms
+    );
+    assert!(
+        a.dynamic_rms <= b.dynamic_rms * 1.2 + 0.005,
+        "{} vs {}",
+        a.dynamic_rms,
+        b.dynamic_rms
+    );
 }
 
 #[test]
@@ -204,7 +225,10 @@ fn noise_free_log_gives_the_exact_readings_whatever_the_servo_did() {
         assert_eq!(report.training_poses, 3, "{report:#?}");
         assert_eq!(report.orientations, 1);
         if variant {
-            assert!(report.logs[0].filled > 0, "lost samples are filled and counted");
+            assert!(
+                report.logs[0].filled > 0,
+                "lost samples are filled and counted"
+            );
         }
         let (s_max, d_max) = training_errors(&robot, &ingested.measurements);
         // Exact physics leaves only the stamps' resolution (0.24 µs at ROS epoch times): 1e-3.
@@ -250,15 +274,34 @@ fn plans_respect_every_limit() {
     let dt = 1.0 / rate;
     for (d, lim) in dofs.iter().enumerate() {
         let q: Vec<f64> = samples.iter().map(|(_, q)| q[d]).collect();
-        let (lo, hi) = q.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
-        assert!(lo >= lim.lower - 1e-12 && hi <= lim.upper + 1e-12, "{}: range {lo}..{hi}", lim.name);
-        let v = q.windows(2).map(|w| ((w[1] - w[0]) / dt).abs()).fold(0.0, f64::max);
+        let (lo, hi) = q
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        assert!(
+            lo >= lim.lower - 1e-12 && hi <= lim.upper + 1e-12,
+            "{}: range {lo}..{hi}",
+            lim.name
+        );
+        let v = q
+            .windows(2)
+            .map(|w| ((w[1] - w[0]) / dt).abs())
+            .fold(0.0, f64::max);
         let a = q
             .windows(3)
             .map(|w| ((w[2] - 2.0 * w[1] + w[0]) / (dt * dt)).abs())
             .fold(0.0, f64::max);
-        assert!(v <= lim.velocity, "{}: velocity {v} > {}", lim.name, lim.velocity);
-        assert!(a <= lim.acceleration, "{}: acceleration {a} > {}", lim.name, lim.acceleration);
+        assert!(
+            v <= lim.velocity,
+            "{}: velocity {v} > {}",
+            lim.name,
+            lim.velocity
+        );
+        assert!(
+            a <= lim.acceleration,
+            "{}: acceleration {a} > {}",
+            lim.name,
+            lim.acceleration
+        );
     }
     // One DoF at a time except transfers; every excitation ends where it started.
     for p in &plan.phases {
@@ -284,4 +327,3 @@ fn plans_respect_every_limit() {
     .to_string();
     assert!(err.contains(&robot.model.dofs()[0].name), "{err}");
 }
-

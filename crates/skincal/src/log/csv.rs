@@ -136,12 +136,10 @@ pub fn read(
     };
     loop {
         line.clear();
-        let n = reader
-            .read_line(&mut line)
-            .map_err(|source| LogError::Io {
-                path: path.clone(),
-                source,
-            })?;
+        let n = reader.read_line(&mut line).map_err(|source| LogError::Io {
+            path: path.clone(),
+            source,
+        })?;
         if n == 0 {
             break;
         }
@@ -189,7 +187,10 @@ pub fn read(
             continue;
         }
         let Ok(stamp) = first.parse::<f64>() else {
-            stats.problem(format!("{}, line {number}: stamp `{first}` is not a number", path.display()));
+            stats.problem(format!(
+                "{}, line {number}: stamp `{first}` is not a number",
+                path.display()
+            ));
             continue;
         };
         match stream {
@@ -231,7 +232,11 @@ pub fn read(
                     }
                     count += 1;
                 }
-                if count != 3 || frame.is_empty() || !stamp.is_finite() || a.iter().any(|v| !v.is_finite()) {
+                if count != 3
+                    || frame.is_empty()
+                    || !stamp.is_finite()
+                    || a.iter().any(|v| !v.is_finite())
+                {
                     stats.problem(format!(
                         "{}, line {number}: expected `stamp,frame_id,ax,ay,az` with finite numbers",
                         path.display()

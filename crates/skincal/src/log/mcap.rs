@@ -62,7 +62,13 @@ impl McapSink {
         }
     }
 
-    fn write(&mut self, channel: u16, sequence: u32, log_time: u64, data: &[u8]) -> Result<(), LogError> {
+    fn write(
+        &mut self,
+        channel: u16,
+        sequence: u32,
+        log_time: u64,
+        data: &[u8],
+    ) -> Result<(), LogError> {
         let header = MessageHeader {
             channel_id: channel,
             sequence,
@@ -115,7 +121,12 @@ impl LogSink for McapSink {
             )
             .map_err(|e| self.error(e))?;
         let imu = writer
-            .add_channel(imu_schema, &self.topics.imu, ros::MESSAGE_ENCODING, &no_metadata)
+            .add_channel(
+                imu_schema,
+                &self.topics.imu,
+                ros::MESSAGE_ENCODING,
+                &no_metadata,
+            )
             .map_err(|e| self.error(e))?;
         self.channels = (joints, imu);
         self.staged = Some(staged);
@@ -280,7 +291,9 @@ pub fn read(
                         None => stats.problem(format!("a message on unknown channel {channel}")),
                     }
                 }
-                op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, data).map_err(mcap_error)? {
+                op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, data)
+                    .map_err(mcap_error)?
+                {
                     Record::Schema { header, .. } => {
                         schemas.insert(header.id, header.name);
                     }

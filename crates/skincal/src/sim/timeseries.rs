@@ -67,14 +67,18 @@ impl Default for LogConfig {
 impl LogConfig {
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), SimulationError> {
-        let bad = |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
+        let bad =
+            |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
         if !(self.rate.is_finite() && self.rate >= 10.0 && self.rate <= 100_000.0) {
             return bad("rate", format!("{} Hz: use 10 Hz to 100 kHz", self.rate));
         }
         if !(self.start_stamp.is_finite() && self.start_stamp >= 0.0 && self.start_stamp < 2.0e9) {
             return bad(
                 "start_stamp",
-                format!("{} s must be a ROS time between 0 and 2e9", self.start_stamp),
+                format!(
+                    "{} s must be a ROS time between 0 and 2e9",
+                    self.start_stamp
+                ),
             );
         }
         for (setting, v) in [
@@ -130,7 +134,9 @@ pub enum RecordError {
     #[error(transparent)]
     Setting(#[from] SimulationError),
     /// The plan does not fit the robot.
-    #[error("the plan's DoFs {plan:?} are not the robot's {robot:?}: make the plan for this robot")]
+    #[error(
+        "the plan's DoFs {plan:?} are not the robot's {robot:?}: make the plan for this robot"
+    )]
     PlanMismatch {
         /// DoFs of the plan.
         plan: Vec<String>,
@@ -168,10 +174,10 @@ pub fn record(
     let mut rng = stream(config.seed, JITTER_STREAM);
     let jitter = (config.jitter > 0.0).then(|| Normal::new(0.0, config.jitter).expect("validated"));
     let gravity = Vector3::from(config.orientation.gravity);
-    let saturation = config.imperfections.saturation.or(config
+    let saturation = config
         .imperfections
-        .quantization_bits
-        .map(|_| 2.0))
+        .saturation
+        .or(config.imperfections.quantization_bits.map(|_| 2.0))
         .map(|g| g * crate::model::sensor::STANDARD_GRAVITY);
 
     sink.start(&model.dof_names(), &model.su_names())?;

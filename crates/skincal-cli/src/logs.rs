@@ -1,0 +1,876 @@
+//! `plan`, `record`, `ingest` and `bench ingest`: from a real robot's logs to a measurement set.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use skincal::ingest::{ingest, IngestConfig, IngestReport};
+use skincal::io::{self, SuPlacement};
+use skincal::log::csv::CsvSink;
+use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::{LogSink, Topics};
+use skincal::model::sensor::STANDARD_GRAVITY;
+use skincal::plan::{Action, Part, Plan, PlanConfig, PlanDof};
+use skincal::sim::timeseries::{record, LogConfig};
+use skincal::sim::{BaseOrientation, Imperfections};
+
+use crate::{parse_pattern, peak_memory_mb};
+
+/// A progress bar on stderr, hidden when stderr is not a terminal.
+fn progress_bar(total: u64, what: &str) -> ProgressBar {
+    let bar = if std::io::stderr().is_terminal() {
+        ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr())
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{msg:40} [{bar:30}] {percent:>3}% {elapsed} (eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+#[derive(Debug, Args)]
+pub(crate) struct PlanArgs {
+    /// A built-in robot, a .toml description or a .urdf file: DoF names and limits.
+    #[arg(long)]
+    robot: String,
+    /// Output directory: plan.json, trajectory.csv, trajectory.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Overwrite existing output files.
+    #[arg(long)]
+    force: bool,
+    /// Number of training poses P.
+    #[arg(long, default_value_t = 20)]
+    poses: usize,
+    /// Use this pattern A,f (rad/s, Hz) instead of choosing one; it is checked against the limits.
+    #[arg(long, value_name = "A,f")]
+    pattern: Option<String>,
+    /// Velocity limit, rad/s, for every DoF (`X`) or one (`DOF=X`); repeatable.
+    #[arg(long, value_name = "[DOF=]X")]
+    velocity: Vec<String>,
+    /// Acceleration limit, rad/s², for every DoF (`X`) or one (`DOF=X`); repeatable.
+    #[arg(long, value_name = "[DOF=]X")]
+    acceleration: Vec<String>,
+    /// Position range of one DoF, rad; repeatable.
+    #[arg(long, value_name = "DOF=LO,HI")]
+    range: Vec<String>,
+    /// Largest pattern excursion A/(πf), rad.
+    #[arg(long, default_value_t = 0.1)]
+    max_excursion: f64,
+    /// Half-range of the random training poses, rad (clipped to the limits).
+    #[arg(long, default_value_t = std::f64::consts::FRAC_PI_2)]
+    pose_range: f64,
+    /// How far each DoF moves in the structure experiment, rad.
+    #[arg(long, default_value_t = 0.3)]
+    structure_angle: f64,
+    /// Still period for static readings, s.
+    #[arg(long, default_value_t = 1.0)]
+    still: f64,
+    /// Still period after each excitation, s.
+    #[arg(long, default_value_t = 0.5)]
+    settle: f64,
+    /// Leave out the structure experiment.
+    #[arg(long)]
+    no_structure: bool,
+    /// Leave out the training experiment.
+    #[arg(long)]
+    no_training: bool,
+    /// Sample rate of the trajectory files, Hz.
+    #[arg(long, default_value_t = 1000.0)]
+    rate: f64,
+    /// Seed of the training poses.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+/// `[DOF=]X` options applied to `dofs` through `set`.
+fn apply_limits(
+    dofs: &mut [PlanDof],
+    options: &[String],
+    flag: &str,
+    set: impl Fn(&mut PlanDof, &str) -> Result<()>,
+) -> Result<()> {
+    for option in options {
+        let (target, value) = match option.split_once('=') {
+            Some((d, v)) => (Some(d.trim()), v.trim()),
+            None => (None, option.trim()),
+        };
+        match target {
+            None => {
+                for d in dofs.iter_mut() {
+                    set(d, value).with_context(|| format!("--{flag} {option}"))?;
+                }
+            }
+            Some(name) => {
+                let Some(d) = dofs.iter_mut().find(|d| d.name == name) else {
+                    let names: Vec<&str> = dofs.iter().map(|d| d.name.as_str()).collect();
+                    bail!("--{flag} {option}: the robot has no DoF `{name}` (its DoFs: {names:?})");
+                };
+                set(d, value).with_context(|| format!("--{flag} {option}"))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn positive(text: &str, unit: &str) -> Result<f64> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => bail!("`{text}` must be a positive number in {unit}"),
+    }
+}
+
+pub(crate) fn plan(args: PlanArgs) -> Result<()> {
+    let robot = io::load_robot(&args.robot, SuPlacement::default())?;
+    let mut dofs = PlanDof::from_robot(&robot);
+    apply_limits(&mut dofs, &args.velocity, "velocity", |d, v| {
+        d.velocity = positive(v, "rad/s")?;
+        d.velocity_assumed = false;
+        Ok(())
+    })?;
+    apply_limits(&mut dofs, &args.acceleration, "acceleration", |d, v| {
+        d.acceleration = positive(v, "rad/s²")?;
+        d.acceleration_assumed = false;
+        Ok(())
+    })?;
+    for option in &args.range {
+        let parsed = option.split_once('=').and_then(|(name, r)| {
+            let (lo, hi) = r.split_once(',')?;
+            Some((
+                name.trim(),
+                lo.trim().parse::<f64>().ok()?,
+                hi.trim().parse::<f64>().ok()?,
+            ))
+        });
+        let Some((name, lo, hi)) = parsed else {
+            bail!("--range {option}: expected DOF=LO,HI in rad, e.g. elbow=-1.2,0.8");
+        };
+        let Some(d) = dofs.iter_mut().find(|d| d.name == name) else {
+            bail!("--range {option}: the robot has no DoF `{name}`");
+        };
+        d.lower = lo;
+        d.upper = hi;
+    }
+    let config = PlanConfig {
+        structure: !args.no_structure,
+        training: !args.no_training,
+        poses: args.poses,
+        pose_range: args.pose_range,
+        structure_angle: args.structure_angle,
+        still: args.still,
+        settle: args.settle,
+        max_excursion: args.max_excursion,
+        pattern: args.pattern.as_deref().map(parse_pattern).transpose()?,
+        seed: args.seed,
+        ..PlanConfig::default()
+    };
+    if !(args.rate.is_finite() && args.rate >= 1.0) {
+        bail!("--rate {}: use at least 1 Hz", args.rate);
+    }
+    let plan = Plan::new(dofs, &config).context("cannot plan the exploration")?;
+    let samples = plan.sample(args.rate);
+    let names = plan.dof_names();
+    let mut csv = format!("time,{}\n", names.join(","));
+    for (t, q) in &samples {
+        csv.push_str(&format!("{t:.6}"));
+        for v in q {
+            csv.push_str(&format!(",{v:.9}"));
+        }
+        csv.push('\n');
+    }
+    let trajectory = serde_json::json!({
+        "format": "skincal-trajectory",
+        "version": 1,
+        "dofs": names,
+        "rate": args.rate,
+        "time": samples.iter().map(|(t, _)| *t).collect::<Vec<_>>(),
+        "positions": samples.iter().map(|(_, q)| q).collect::<Vec<_>>(),
+    });
+    let files = [
+        (
+            args.out.join("plan.json"),
+            serde_json::to_string_pretty(&plan)?,
+        ),
+        (args.out.join("trajectory.csv"), csv),
+        (
+            args.out.join("trajectory.json"),
+            serde_json::to_string(&trajectory)?,
+        ),
+    ];
+    io::write_all(&files, args.force)?;
+    print!("{}", render_plan(&plan));
+    for (f, _) in &files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+fn render_plan(plan: &Plan) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let p = &plan.pattern;
+    let _ = writeln!(
+        s,
+        "Excitation pattern: A = {:.4} rad/s, f = {:.3} Hz → peak α = 2πfA = {:.3} rad/s², excursion \
+         A/(πf) = {:.4} rad ({:.2}°)",
+        p.amplitude,
+        p.frequency,
+        p.peak_acceleration(),
+        p.excursion(),
+        p.excursion().to_degrees()
+    );
+    let _ = writeln!(s, "  limited by {}", plan.pattern_limited_by);
+    let _ = writeln!(
+        s,
+        "  window: {} period(s) rise, {} at full amplitude, {} fall ({:.2} s per excitation)",
+        plan.window.ramp_cycles,
+        plan.window.hold_cycles,
+        plan.window.ramp_cycles,
+        plan.window.duration(p.frequency)
+    );
+    let assumed: Vec<&str> = plan
+        .dofs
+        .iter()
+        .filter(|d| d.velocity_assumed || d.acceleration_assumed)
+        .map(|d| d.name.as_str())
+        .collect();
+    if !assumed.is_empty() {
+        let _ = writeln!(
+            s,
+            "  note: no velocity/acceleration limit given for {} DoF(s) ({}…); assumed {} rad/s and \
+             {} rad/s² — give real limits with --velocity/--acceleration",
+            assumed.len(),
+            assumed.iter().take(3).copied().collect::<Vec<_>>().join(", "),
+            skincal::plan::DEFAULT_VELOCITY,
+            skincal::plan::DEFAULT_ACCELERATION
+        );
+    }
+    let (still, moving, exciting) = plan.time_by_action();
+    let count = |f: &dyn Fn(&Action) -> bool| plan.phases.iter().filter(|p| f(&p.action)).count();
+    let _ = writeln!(
+        s,
+        "\nProgram: {:.1} s in all ({:.1} s still, {:.1} s moves and transfers, {:.1} s excitations)",
+        plan.duration, still, moving, exciting
+    );
+    if plan.config.structure {
+        let _ = writeln!(
+            s,
+            "  structure experiment: 0 – {:.1} s, {} single-DoF moves of {} rad from the rest pose \
+             and back",
+            plan.structure_duration,
+            count(&|a| matches!(a, Action::Move { .. })),
+            plan.config.structure_angle
+        );
+        let _ = writeln!(
+            s,
+            "  OPERATOR: record the structure part twice, in two base orientations — upright, then \
+             with the base\n  tilted by about 90° — as separate logs, and give both to `skincal \
+             ingest` (a vertical axis cannot be seen in one orientation)."
+        );
+    }
+    if plan.config.training {
+        let _ = writeln!(
+            s,
+            "  training experiment: {:.1} – {:.1} s, {} poses × {} DoFs = {} excitations",
+            plan.structure_duration,
+            plan.duration,
+            plan.config.poses,
+            plan.dofs.len(),
+            count(&|a| matches!(a, Action::Excitation { .. }))
+        );
+    }
+    s
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum LogFormatArg {
+    /// ROS 2 MCAP (sensor_msgs/JointState and sensor_msgs/Imu, CDR).
+    Mcap,
+    /// A directory with joint_states.csv and imu.csv.
+    Csv,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum CompressionArg {
+    /// Zstandard (the ROS 2 default).
+    Zstd,
+    /// LZ4.
+    Lz4,
+    /// None.
+    None,
+}
+
+impl From<CompressionArg> for Compression {
+    fn from(c: CompressionArg) -> Self {
+        match c {
+            CompressionArg::Zstd => Compression::Zstd,
+            CompressionArg::Lz4 => Compression::Lz4,
+            CompressionArg::None => Compression::None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum PartArg {
+    /// The structure experiment only.
+    Structure,
+    /// The training experiment only.
+    Training,
+}
+
+#[derive(Debug, Args)]
+pub(crate) struct RecordArgs {
+    /// The simulated robot: a built-in robot, a .toml description or a .urdf file.
+    #[arg(long)]
+    robot: String,
+    /// The plan (plan.json from `skincal plan`).
+    #[arg(long)]
+    plan: PathBuf,
+    /// The log to write: an .mcap file, or a directory for CSV.
+    #[arg(long)]
+    out: PathBuf,
+    /// Overwrite an existing log.
+    #[arg(long)]
+    force: bool,
+    /// Log format.
+    #[arg(long, value_enum, default_value_t = LogFormatArg::Mcap)]
+    format: LogFormatArg,
+    /// MCAP chunk compression.
+    #[arg(long, value_enum, default_value_t = CompressionArg::Zstd)]
+    compression: CompressionArg,
+    /// Run only one part of the plan.
+    #[arg(long, value_enum)]
+    part: Option<PartArg>,
+    /// The base tilted by 90° about its x axis (the second orientation of the structure part).
+    #[arg(long)]
+    tilted: bool,
+    /// Place K random SUs per segment instead of the described ones.
+    #[arg(long, value_name = "K")]
+    sus_per_link: Option<usize>,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 1000.0)]
+    rate: f64,
+    /// Uniform noise ±G on every sample component, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.01)]
+    noise: f64,
+    /// Constant bias per SU and axis, uniform in ±G, in g.
+    #[arg(long, value_name = "G", default_value_t = 0.0)]
+    bias: f64,
+    /// Quantise like the BMA150: 10 bit over ±2 g (and saturate there).
+    #[arg(long)]
+    bma150: bool,
+    /// Joint positions reported in steps of this size, rad.
+    #[arg(long, value_name = "RAD", default_value_t = 0.0)]
+    encoder_resolution: f64,
+    /// Standard deviation of the timestamp jitter, s.
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    jitter: f64,
+    /// Probability that a message is lost.
+    #[arg(long, value_name = "P", default_value_t = 0.0)]
+    drop: f64,
+    /// Seed of noise, bias, jitter and losses (and of random SUs).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn read_plan(path: &Path) -> Result<Plan> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let plan: Plan = serde_json::from_str(&text).with_context(|| {
+        format!(
+            "{}: not a plan file (make one with `skincal plan`)",
+            path.display()
+        )
+    })?;
+    plan.validate()
+        .with_context(|| format!("{}", path.display()))?;
+    Ok(plan)
+}
+
+fn sink_for(
+    format: LogFormatArg,
+    out: &Path,
+    compression: Compression,
+    force: bool,
+) -> Box<dyn LogSink> {
+    match format {
+        LogFormatArg::Mcap => Box::new(McapSink::new(out, Topics::default(), compression, force)),
+        LogFormatArg::Csv => Box::new(CsvSink::new(out, force)),
+    }
+}
+
+pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
+    let robot = io::load_robot(
+        &args.robot,
+        SuPlacement {
+            per_link: args.sus_per_link,
+            seed: args.seed,
+        },
+    )?;
+    let plan = read_plan(&args.plan)?;
+    let mut imperfections = Imperfections {
+        uniform_noise: args.noise,
+        bias: args.bias,
+        ..Imperfections::none()
+    };
+    if args.bma150 {
+        imperfections = imperfections.with_bma150();
+    }
+    let config = LogConfig {
+        rate: args.rate,
+        orientation: if args.tilted {
+            BaseOrientation::tilted()
+        } else {
+            BaseOrientation::upright()
+        },
+        part: args.part.map(|p| match p {
+            PartArg::Structure => Part::Structure,
+            PartArg::Training => Part::Training,
+        }),
+        imperfections,
+        encoder_resolution: args.encoder_resolution,
+        jitter: args.jitter,
+        drop_probability: args.drop,
+        seed: args.seed,
+        ..LogConfig::default()
+    };
+    let truth_path = truth_path(&args.out);
+    if !args.force && truth_path.exists() {
+        bail!(
+            "{} exists; choose another output or pass --force",
+            truth_path.display()
+        );
+    }
+    let mut sink = sink_for(args.format, &args.out, args.compression.into(), args.force);
+    let started = Instant::now();
+    let bar = progress_bar(1000, "simulating");
+    let summary = record(&robot, &plan, &config, sink.as_mut(), &mut |f| {
+        bar.set_position((f * 1000.0) as u64)
+    })
+    .context("cannot record the log")?;
+    bar.finish_and_clear();
+    let truth = serde_json::json!({
+        "format": "skincal-log-truth",
+        "version": 1,
+        "robot": skincal::model::description::RobotFile::from_robot(&robot, None),
+        "gravity": config.orientation.gravity,
+        "orientation": config.orientation.label,
+        "su_bias": summary.su_bias,
+        "config": config,
+    });
+    io::write_all(
+        &[(truth_path.clone(), serde_json::to_string_pretty(&truth)?)],
+        args.force,
+    )?;
+    println!(
+        "Recorded {:.1} s at {} Hz ({} orientation{}): {} joint states, {} skin samples ({} SUs), \
+         {} lost, {} saturated, in {:.1} s",
+        summary.duration,
+        config.rate,
+        config.orientation.label,
+        config
+            .part
+            .map_or(String::new(), |p| format!(", {p:?} part only")
+                .to_lowercase()),
+        summary.joint_messages,
+        summary.imu_messages,
+        robot.model.sus().len(),
+        summary.dropped,
+        summary.saturated,
+        started.elapsed().as_secs_f64()
+    );
+    println!("wrote {}", args.out.display());
+    println!("wrote {}", truth_path.display());
+    Ok(())
+}
+
+/// `run/upright.mcap` → `run/upright.truth.json`; a CSV directory `run/log` → `run/log.truth.json`.
+fn truth_path(log: &Path) -> PathBuf {
+    let stem = log
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "log".into());
+    log.with_file_name(format!("{stem}.truth.json"))
+}
+
+#[derive(Debug, Args)]
+pub(crate) struct IngestArgs {
+    /// Logs: .mcap files or CSV directories (joint_states.csv + imu.csv); e.g. one per base
+    /// orientation.
+    #[arg(required = true)]
+    logs: Vec<PathBuf>,
+    /// Output directory: measurements.json and ingest-report.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Overwrite existing output files.
+    #[arg(long)]
+    force: bool,
+    /// The robot the logs are of (built-in, .toml or .urdf): fixes the DoF and SU names and
+    /// their order; other names are reported as unknown.
+    #[arg(long)]
+    robot: Option<String>,
+    /// The plan the logs followed: its pattern is the nominal one.
+    #[arg(long)]
+    plan: Option<PathBuf>,
+    /// The nominal pattern A,f (rad/s, Hz); estimated from the motion when neither this nor
+    /// --plan is given.
+    #[arg(long, value_name = "A,f")]
+    pattern: Option<String>,
+    /// MCAP topic of sensor_msgs/msg/JointState.
+    #[arg(long, default_value = skincal::log::JOINT_TOPIC)]
+    joint_topic: String,
+    /// MCAP topic of sensor_msgs/msg/Imu.
+    #[arg(long, default_value = skincal::log::IMU_TOPIC)]
+    imu_topic: String,
+    /// A DoF is still below this speed, rad/s.
+    #[arg(long, default_value_t = 0.01)]
+    still_velocity: f64,
+    /// A DoF has moved when it left its position by more than this, rad.
+    #[arg(long, default_value_t = 0.002)]
+    motion_threshold: f64,
+    /// Shortest still window, s.
+    #[arg(long, default_value_t = 0.25)]
+    min_still: f64,
+    /// Dropped at both ends of a still window, s.
+    #[arg(long, default_value_t = 0.1)]
+    trim: f64,
+    /// Half-width of the differentiation filter, s.
+    #[arg(long, default_value_t = 0.02)]
+    filter: f64,
+    /// Joint-state gaps longer than this make a motion unusable, s.
+    #[arg(long, default_value_t = 0.05)]
+    max_gap: f64,
+    /// Accelerometer range: samples at ±G or beyond are saturated, in g.
+    #[arg(long, value_name = "G", default_value_t = 2.0)]
+    saturation: f64,
+}
+
+pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
+    let mut config = IngestConfig {
+        topics: Topics {
+            joints: args.joint_topic.clone(),
+            imu: args.imu_topic.clone(),
+        },
+        still_velocity: args.still_velocity,
+        motion_threshold: args.motion_threshold,
+        min_still: args.min_still,
+        trim: args.trim,
+        filter: args.filter,
+        max_gap: args.max_gap,
+        saturation: args.saturation * STANDARD_GRAVITY,
+        ..IngestConfig::default()
+    };
+    if let Some(spec) = &args.robot {
+        let robot = io::load_robot(spec, SuPlacement::default())?;
+        config.dofs = Some(robot.model.dof_names());
+        config.sus = Some(robot.model.su_names());
+    }
+    if let Some(path) = &args.plan {
+        let plan = read_plan(path)?;
+        config.pattern = Some(plan.pattern);
+        if config.dofs.is_none() {
+            config.dofs = Some(plan.dof_names());
+        }
+    }
+    if let Some(p) = &args.pattern {
+        config.pattern = Some(parse_pattern(p)?);
+    }
+    let measurements = args.out.join("measurements.json");
+    let report_path = args.out.join("ingest-report.json");
+    if !args.force {
+        for p in [&measurements, &report_path] {
+            if p.exists() {
+                bail!(
+                    "{} exists; choose another --out or pass --force",
+                    p.display()
+                );
+            }
+        }
+    }
+    let started = Instant::now();
+    let bar = progress_bar(1, "reading");
+    let mut current = String::new();
+    let ingested = ingest(&args.logs, &config, &mut |what, done, total| {
+        if what != current {
+            current = what.to_string();
+            bar.set_message(what.to_string());
+            bar.set_length(total.max(1));
+        }
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    io::write_all(
+        &[
+            (measurements.clone(), ingested.measurements.to_json()),
+            (
+                report_path.clone(),
+                serde_json::to_string_pretty(&ingested.report)?,
+            ),
+        ],
+        args.force,
+    )?;
+    print!("{}", render_report(&ingested.report));
+    println!("in {:.2} s", started.elapsed().as_secs_f64());
+    println!("wrote {}", measurements.display());
+    println!("wrote {}", report_path.display());
+    Ok(())
+}
+
+fn render_report(r: &IngestReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    for l in &r.logs {
+        let _ = writeln!(
+            s,
+            "{} ({}): {:.1} s at {:.1} Hz, {} joint states, {} skin samples",
+            l.path.display(),
+            l.format,
+            l.duration,
+            l.rate,
+            l.joint_states,
+            l.imu_samples
+        );
+        let _ = writeln!(
+            s,
+            "  windows: {} still, {} excitations, {} structure moves; {} transfers skipped",
+            l.still_windows, l.excitations, l.moves, l.transfers
+        );
+        let mut issues = Vec::new();
+        for (n, what) in [
+            (l.unsorted_joint_stamps, "unsorted joint stamps"),
+            (l.duplicate_joint_stamps, "duplicate joint stamps"),
+            (l.joint_gaps, "joint-state gaps"),
+            (l.unsorted_imu_stamps, "unsorted skin stamps"),
+            (l.imu_outside, "skin samples outside the joint states' time"),
+            (l.filled, "missing skin samples filled"),
+            (l.joint_read.undecodable, "undecodable joint messages"),
+            (l.imu_read.undecodable, "undecodable skin messages"),
+        ] {
+            if n > 0 {
+                issues.push(format!("{n} {what}"));
+            }
+        }
+        let saturated: u64 = l.saturated.values().sum();
+        if saturated > 0 {
+            issues.push(format!(
+                "{saturated} saturated samples in windows (not used)"
+            ));
+        }
+        let unknown: u64 = l.unknown_frames.values().sum();
+        if unknown > 0 {
+            issues.push(format!(
+                "{unknown} samples of unknown frame ids {:?}",
+                l.unknown_frames.keys().collect::<Vec<_>>()
+            ));
+        }
+        if !l.unknown_joints.is_empty() {
+            issues.push(format!(
+                "unknown joints {:?}",
+                l.unknown_joints.keys().collect::<Vec<_>>()
+            ));
+        }
+        if !l.skipped.is_empty() {
+            issues.push(format!("{} motions skipped", l.skipped.len()));
+        }
+        for (topic, n) in &l.joint_read.other_topics {
+            issues.push(format!("{n} messages on {topic} (ignored)"));
+        }
+        if let Some(p) = l
+            .joint_read
+            .first_problem
+            .as_ref()
+            .or(l.imu_read.first_problem.as_ref())
+        {
+            issues.push(format!("first decoding problem: {p}"));
+        }
+        if issues.is_empty() {
+            let _ = writeln!(s, "  clean: no gaps, losses, unknown names or saturation");
+        } else {
+            let _ = writeln!(s, "  {}", issues.join("; "));
+        }
+    }
+    let p = &r.pattern;
+    let _ = writeln!(
+        s,
+        "\nNominal pattern: A = {:.4} rad/s, f = {:.3} Hz (2πfA = {:.3} rad/s²), {}",
+        p.amplitude,
+        p.frequency,
+        p.peak_acceleration(),
+        r.pattern_source
+    );
+    let _ = writeln!(
+        s,
+        "Measurement set: {} base orientation(s) of structure moves, {} training poses, {} dynamic \
+         accelerations",
+        r.orientations, r.training_poses, r.dynamic
+    );
+    if let Some(n) = r.sample_noise {
+        let _ = writeln!(
+            s,
+            "Sensor noise in still windows: {:.4} m/s² RMS per axis ({:.4} g)",
+            n,
+            n / STANDARD_GRAVITY
+        );
+    }
+    for w in &r.warnings {
+        let _ = writeln!(s, "warning: {w}");
+    }
+    s
+}
+
+#[derive(Debug, Args)]
+pub(crate) struct BenchIngestArgs {
+    /// SUs on the robot (random, on the paper's 7-DoF arm).
+    #[arg(long, default_value_t = 1000)]
+    sus: usize,
+    /// Seconds of log (training excitations at 1 kHz).
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Log formats to measure.
+    #[arg(long, value_enum, default_values_t = [LogFormatArg::Mcap, LogFormatArg::Csv])]
+    format: Vec<LogFormatArg>,
+    /// MCAP chunk compression.
+    #[arg(long, value_enum, default_values_t = [CompressionArg::Zstd, CompressionArg::None])]
+    compression: Vec<CompressionArg>,
+    /// Keep the logs in this directory (a temporary one otherwise).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+}
+
+pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
+    if args.sus == 0 || !args.seconds.is_finite() || args.seconds <= 0.0 {
+        bail!("--sus and --seconds must be positive");
+    }
+    let base = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let segments = base
+        .model
+        .sus()
+        .iter()
+        .map(|su| su.segment)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let robot = skincal::model::description::with_random_sus(&base, args.sus.div_ceil(segments), 1)
+        .context("cannot place the SUs")?;
+    let sus = robot.model.sus().len();
+    let mut plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            structure: false,
+            poses: 50,
+            ..PlanConfig::default()
+        },
+    )?;
+    // Cut the program to the requested length.
+    plan.phases.retain(|p| p.start < args.seconds);
+    plan.duration = args.seconds.min(plan.duration);
+    let tmp;
+    let dir = match &args.dir {
+        Some(d) => d.clone(),
+        None => {
+            tmp = tempfile_dir()?;
+            tmp.clone()
+        }
+    };
+    println!(
+        "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), one core",
+        plan.duration,
+        sus,
+        sus * 1000
+    );
+    println!(
+        "{:<12} {:>10} {:>12} {:>10} {:>12} {:>14} {:>10}",
+        "format", "size MB", "samples", "read s", "× real time", "samples/s", "peak MB"
+    );
+    let mut variants: Vec<(LogFormatArg, Option<CompressionArg>)> = Vec::new();
+    for f in &args.format {
+        match f {
+            LogFormatArg::Mcap => {
+                for c in &args.compression {
+                    variants.push((*f, Some(*c)));
+                }
+            }
+            LogFormatArg::Csv => variants.push((*f, None)),
+        }
+    }
+    for (format, compression) in variants {
+        let name = match (format, compression) {
+            (LogFormatArg::Mcap, Some(c)) => format!("mcap-{c:?}").to_lowercase(),
+            _ => "csv".into(),
+        };
+        let path = dir.join(if format == LogFormatArg::Mcap {
+            format!("{name}.mcap")
+        } else {
+            name.clone()
+        });
+        let mut sink = sink_for(
+            format,
+            &path,
+            compression.unwrap_or(CompressionArg::None).into(),
+            true,
+        );
+        record(
+            &robot,
+            &plan,
+            &LogConfig::default(),
+            sink.as_mut(),
+            &mut |_| {},
+        )?;
+        let size = dir_size(&path);
+        let config = IngestConfig {
+            pattern: Some(plan.pattern),
+            dofs: Some(robot.model.dof_names()),
+            sus: Some(robot.model.su_names()),
+            ..IngestConfig::default()
+        };
+        let started = Instant::now();
+        let ingested = ingest(std::slice::from_ref(&path), &config, &mut |_, _, _| {})?;
+        let seconds = started.elapsed().as_secs_f64();
+        let samples = ingested.report.logs[0].imu_samples;
+        println!(
+            "{:<12} {:>10.1} {:>12} {:>10.2} {:>12.1} {:>14.0} {:>10.0}",
+            name,
+            size as f64 / 1e6,
+            samples,
+            seconds,
+            plan.duration / seconds,
+            samples as f64 / seconds,
+            peak_memory_mb()
+        );
+        if args.dir.is_none() {
+            let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
+        }
+    }
+    if args.dir.is_none() {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    Ok(())
+}
+
+fn tempfile_dir() -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("skincal-bench-ingest-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}
+
+fn dir_size(path: &Path) -> u64 {
+    if path.is_dir() {
+        std::fs::read_dir(path)
+            .map(|entries| {
+                entries
+                    .filter_map(|e| e.ok())
+                    .filter_map(|e| e.metadata().ok())
+                    .map(|m| m.len())
+                    .sum()
+            })
+            .unwrap_or(0)
+    } else {
+        std::fs::metadata(path).map(|m| m.len()).unwrap_or(0)
+    }
+}
