@@ -285,35 +285,3 @@ impl Drop for Staged {
         }
     }
 }
-
-/// Writes to several sinks at once (e.g. MCAP and CSV from one simulation).
-pub struct Tee(pub Vec<Box<dyn LogSink>>);
-
-impl LogSink for Tee {
-    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError> {
-        self.0.iter_mut().try_for_each(|s| s.start(dofs, sus))
-    }
-    fn joint_state(
-        &mut self,
-        stamp: f64,
-        receive: f64,
-        positions: &[f64],
-        velocities: &[f64],
-    ) -> Result<(), LogError> {
-        self.0
-            .iter_mut()
-            .try_for_each(|s| s.joint_state(stamp, receive, positions, velocities))
-    }
-    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError> {
-        self.0
-            .iter_mut()
-            .try_for_each(|s| s.imu(stamp, receive, su, a))
-    }
-    fn finish(&mut self) -> Result<Vec<PathBuf>, LogError> {
-        let mut out = Vec::new();
-        for s in &mut self.0 {
-            out.extend(s.finish()?);
-        }
-        Ok(out)
-    }
-}
