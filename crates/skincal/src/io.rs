@@ -5,6 +5,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use crate::log::Staged;
 use crate::measurements::{MeasurementError, MeasurementSet};
 use crate::model::description::{with_random_sus, DescriptionError, RobotFile};
 use crate::model::presets;
@@ -189,42 +190,30 @@ pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError
             return Err(IoError::Exists { path: path.clone() });
         }
     }
-    let mut staged: Vec<(PathBuf, &Path)> = Vec::new();
-    let result = (|| {
-        for (path, contents) in files {
-            let dir = path
-                .parent()
-                .filter(|d| !d.as_os_str().is_empty())
-                .unwrap_or(Path::new("."));
-            fs::create_dir_all(dir).map_err(|source| IoError::Write {
-                path: dir.to_path_buf(),
+    let as_io = |e: crate::log::LogError| match e {
+        crate::log::LogError::Exists { path } => IoError::Exists { path },
+        crate::log::LogError::Io { path, source } => IoError::Write { path, source },
+        other => IoError::Write {
+            path: PathBuf::new(),
+            source: std::io::Error::other(other.to_string()),
+        },
+    };
+    // Staged files are removed again if anything fails before every one is written.
+    let mut staged = Vec::with_capacity(files.len());
+    for (path, contents) in files {
+        let (stage, mut file) = Staged::create(path, true).map_err(as_io)?;
+        std::io::Write::write_all(&mut file, contents.as_bytes()).map_err(|source| {
+            IoError::Write {
+                path: stage.tmp().to_path_buf(),
                 source,
-            })?;
-            let name = path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-            fs::write(&tmp, contents).map_err(|source| IoError::Write {
-                path: tmp.clone(),
-                source,
-            })?;
-            staged.push((tmp, path));
-        }
-        for (tmp, path) in &staged {
-            fs::rename(tmp, path).map_err(|source| IoError::Write {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        }
-        Ok(())
-    })();
-    if result.is_err() {
-        for (tmp, _) in &staged {
-            let _ = fs::remove_file(tmp);
-        }
+            }
+        })?;
+        staged.push(stage);
     }
-    result
+    for stage in &mut staged {
+        stage.commit().map_err(as_io)?;
+    }
+    Ok(())
 }
 
 /// Reads a structure written by exploration (`structure.json`).
