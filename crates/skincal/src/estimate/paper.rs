@@ -27,8 +27,8 @@ use std::f64::consts::PI;
 use std::time::Instant;
 
 use nalgebra::Vector3;
-use nlopt::{Algorithm, Nlopt, Target};
 use serde::{Deserialize, Serialize};
+use skincal_nlopt::{Algorithm, Optimizer};
 
 use super::{dh_chain_robot, ChainData, DhRow, EstimateError, SerialChain, SuRow};
 use crate::model::forward_kinematics;
@@ -280,53 +280,24 @@ pub fn estimate_chain(
             }
             v
         };
-        let objective =
-            |x: &[f64], _gradient: Option<&mut [f64]>, evaluations: &mut usize| -> f64 {
-                *evaluations += 1;
-                problem.error(&assemble(x))
-            };
         let mut x: Vec<f64> = lower
             .iter()
             .zip(&upper)
             .map(|(lo, hi)| 0.5 * (lo + hi))
             .collect();
         let started = Instant::now();
-        Nlopt::<fn(&[f64], Option<&mut [f64]>, &mut ()) -> f64, ()>::srand_seed(Some(
+        let mut evaluations = 0usize;
+        let stop = minimize_step(
+            config,
             config.seed.wrapping_add(n as u64),
-        ));
-        let mut opt = Nlopt::new(
-            Algorithm::GMlslLds,
-            x.len(),
-            objective,
-            Target::Minimize,
-            0usize,
-        );
-        let setup = [
-            opt.set_lower_bounds(&lower),
-            opt.set_upper_bounds(&upper),
-            opt.set_stopval(config.e_stop),
-            opt.set_maxeval(config.max_evaluations),
-        ];
-        let mut local = opt.get_local_optimizer(Algorithm::Neldermead);
-        let local_setup = local.set_ftol_rel(config.ftol_rel);
-        let setup_local = opt.set_local_optimizer(local);
-        if setup
-            .iter()
-            .chain([&local_setup, &setup_local])
-            .any(|r| r.is_err())
-        {
-            return Err(EstimateError::InvalidSetting {
-                setting: "nlopt",
-                reason: "NLopt refused the bounds or stop criteria".into(),
-            });
-        }
-        let outcome = opt.optimize(&mut x);
-        let evaluations = opt.recover_user_data();
+            (&lower, &upper),
+            &mut x,
+            |x| {
+                evaluations += 1;
+                problem.error(&assemble(x))
+            },
+        )?;
         let seconds = started.elapsed().as_secs_f64();
-        let stop = match &outcome {
-            Ok((state, _)) => format!("{state:?}"),
-            Err((state, _)) => format!("{state:?}"),
-        };
         let v = assemble(&x);
         let e_t = problem.error(&v);
         if n > 0 {
@@ -383,4 +354,35 @@ fn validate(config: &PaperConfig) -> Result<(), EstimateError> {
         return bad("excited_dofs", "must be at least 1".into());
     }
     Ok(())
+}
+
+/// One progressive step's search, as the paper runs it: NLopt's MLSL-LDS over the box `bounds`
+/// with Nelder–Mead as the local optimiser, stopped at `e_T ≤ e_stop` or after the evaluation cap,
+/// NLopt's random numbers seeded with `seed`. Leaves the best point in `x` and returns NLopt's stop
+/// reason (its failure codes, such as a round-off limit, are reasons too: the point is still its best).
+fn minimize_step(
+    config: &PaperConfig,
+    seed: u64,
+    (lower, upper): (&[f64], &[f64]),
+    x: &mut [f64],
+    error: impl FnMut(&[f64]) -> f64,
+) -> Result<String, EstimateError> {
+    let refused = |e: skincal_nlopt::Error| EstimateError::InvalidSetting {
+        setting: "nlopt",
+        reason: format!("NLopt refused the bounds or stop criteria: {e}"),
+    };
+    skincal_nlopt::seed(seed);
+    let mut local = Optimizer::new(Algorithm::NelderMead, x.len()).map_err(refused)?;
+    local.set_ftol_rel(config.ftol_rel).map_err(refused)?;
+    let mut global = Optimizer::new(Algorithm::MlslLds, x.len()).map_err(refused)?;
+    global.set_bounds(lower, upper).map_err(refused)?;
+    global.set_stopval(config.e_stop).map_err(refused)?;
+    global
+        .set_maxeval(config.max_evaluations as usize)
+        .map_err(refused)?;
+    global.set_local_optimizer(&local).map_err(refused)?;
+    Ok(match global.minimize(x, error) {
+        Ok(minimum) => format!("{:?}", minimum.stop),
+        Err(failure) => format!("{:?}", failure.error.kind),
+    })
 }
