@@ -7,7 +7,7 @@
         Writes the CSV log (joint_states.csv, imu.csv) as a ROS 2 MCAP with the Python writer,
         for skincal to ingest.
 
-Needs: pip install mcap mcap-ros2-support
+Needs the packages of tests/python/requirements.txt (`cargo xtask test` installs them).
 """
 
 import csv

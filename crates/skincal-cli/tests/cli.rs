@@ -541,19 +541,23 @@ fn calibrate_defaults_to_maximum_likelihood_and_writes_model_json() {
     assert_eq!(robot.model.dofs().len(), 7);
 }
 
-/// Runs the Python interoperability script (needs `pip install mcap mcap-ros2-support`).
+/// Runs the Python interoperability script with the test environment's Python (`cargo xtask test`
+/// makes it and sets `SKINCAL_TEST_PYTHON`), or `python3` when run by other means.
 fn python(args: &[&str], dir: &Path) -> Output {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/mcap_interop.py");
-    let out = Command::new("python3")
+    let interpreter = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let out = Command::new(&interpreter)
         .arg(&script)
         .args(args)
         .current_dir(dir)
         .output()
-        .expect("python3 must be installed");
+        .unwrap_or_else(|e| {
+            panic!("cannot run {interpreter:?} ({e}): run the tests with `cargo xtask test`")
+        });
     assert!(
         !stderr(&out).contains("ModuleNotFoundError"),
-        "the MCAP interoperability test needs the Python packages: \
-         python3 -m pip install mcap mcap-ros2-support\n{}",
+        "the MCAP interoperability test needs the Python packages of tests/python/requirements.txt: \
+         run the tests with `cargo xtask test`, which installs them into target/test-env\n{}",
         stderr(&out)
     );
     out

@@ -1,0 +1,237 @@
+//! Project tasks, run as `cargo xtask <task>` (an alias in `.cargo/config.toml`).
+//!
+//! `cargo xtask test [ARGS…]` makes sure everything the tests need is there, then runs
+//! `cargo test --workspace [ARGS…]`:
+//! - the Python packages of `tests/python/requirements.txt` (pinned), in a virtual environment at
+//!   `target/test-env` that is made once and updated only when the requirements change, so the
+//!   second run costs nothing; the tests find it through `SKINCAL_TEST_PYTHON`;
+//! - system packages (Debian's `python3` and `python3-venv` when the environment cannot be made
+//!   without them), installed with apt-get only when running as root and only when missing; as
+//!   another user the task stops and prints the command that installs them.
+//!
+//! Nothing is skipped silently: what cannot be installed ends the task with the command that fixes it.
+//! `cargo xtask test-env` does the installation alone and prints the environment's Python.
+
+use std::env;
+use std::ffi::OsString;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+const USAGE: &str = "\
+usage: cargo xtask <task>
+
+tasks:
+  test [ARGS...]   install what the tests need (once), then cargo test --workspace [ARGS...]
+  test-env         only install what the tests need; prints the test environment's Python";
+
+fn main() -> ExitCode {
+    let mut args = env::args_os().skip(1);
+    let task = args.next();
+    let rest: Vec<OsString> = args.collect();
+    let result = match task.as_ref().and_then(|t| t.to_str()) {
+        Some("test") => test_env().and_then(|python| run_tests(&python, &rest)),
+        Some("test-env") => test_env().map(|python| {
+            println!("{}", python.display());
+            ExitCode::SUCCESS
+        }),
+        Some("-h" | "--help" | "help") => {
+            println!("{USAGE}");
+            Ok(ExitCode::SUCCESS)
+        }
+        _ => {
+            eprintln!("{USAGE}");
+            Ok(ExitCode::from(2))
+        }
+    };
+    result.unwrap_or_else(|message| {
+        eprintln!("xtask: {message}");
+        ExitCode::FAILURE
+    })
+}
+
+/// The workspace root (the parent of this crate's directory).
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask lives in the workspace")
+        .to_path_buf()
+}
+
+/// Cargo's target directory, as cargo itself chooses it.
+fn target_dir(root: &Path) -> PathBuf {
+    env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .map(|dir| {
+            if dir.is_absolute() {
+                dir
+            } else {
+                root.join(dir)
+            }
+        })
+        .unwrap_or_else(|| root.join("target"))
+}
+
+/// Runs every test with the test environment's Python.
+fn run_tests(python: &Path, args: &[OsString]) -> Result<ExitCode, String> {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let status = Command::new(cargo)
+        .args(["test", "--workspace"])
+        .args(args)
+        .current_dir(workspace_root())
+        .env("SKINCAL_TEST_PYTHON", python)
+        .status()
+        .map_err(|e| format!("could not run cargo test: {e}"))?;
+    Ok(match status.code() {
+        Some(0) => ExitCode::SUCCESS,
+        Some(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
+        None => ExitCode::FAILURE,
+    })
+}
+
+/// Makes (or reuses) the Python environment of the tests and returns its interpreter.
+fn test_env() -> Result<PathBuf, String> {
+    let root = workspace_root();
+    let requirements_file = root.join("tests/python/requirements.txt");
+    let requirements = fs::read_to_string(&requirements_file)
+        .map_err(|e| format!("{}: {e}", requirements_file.display()))?;
+    let dir = target_dir(&root).join("test-env");
+    let python = venv_python(&dir);
+    let stamp = dir.join("skincal-requirements.txt");
+    if python.exists() && fs::read_to_string(&stamp).is_ok_and(|s| s == requirements) {
+        return Ok(python);
+    }
+    if !python.exists() {
+        make_venv(&dir)?;
+    }
+    say(&format!(
+        "installing the tests' Python packages ({}) into {}",
+        pinned(&requirements).join(", "),
+        dir.display()
+    ));
+    let pip = Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+        ])
+        .arg("--requirement")
+        .arg(&requirements_file)
+        .status()
+        .map_err(|e| format!("could not run {}: {e}", python.display()))?;
+    if !pip.success() {
+        return Err(format!(
+            "pip could not install {} into {} (is PyPI reachable?); retry with \
+             `{} -m pip install -r {}`",
+            requirements_file.display(),
+            dir.display(),
+            python.display(),
+            requirements_file.display()
+        ));
+    }
+    fs::write(&stamp, &requirements).map_err(|e| format!("{}: {e}", stamp.display()))?;
+    Ok(python)
+}
+
+/// The pinned `name==version` lines of a requirements file.
+fn pinned(requirements: &str) -> Vec<&str> {
+    requirements
+        .lines()
+        .map(|line| line.split('#').next().unwrap_or("").trim())
+        .filter(|line| !line.is_empty())
+        .collect()
+}
+
+/// The interpreter inside a virtual environment.
+fn venv_python(dir: &Path) -> PathBuf {
+    if cfg!(windows) {
+        dir.join("Scripts").join("python.exe")
+    } else {
+        dir.join("bin").join("python")
+    }
+}
+
+/// Creates the virtual environment, installing Debian's `python3`/`python3-venv` if they are what
+/// is missing (as root), or saying how to.
+fn make_venv(dir: &Path) -> Result<(), String> {
+    let base = if succeeds("python3", &["--version"]) {
+        "python3"
+    } else {
+        install_system_packages(
+            &["python3", "python3-venv"],
+            "Python 3 runs the interop tests",
+        )?;
+        "python3"
+    };
+    say(&format!("making the test environment {}", dir.display()));
+    let venv = |quiet: bool| {
+        let mut command = Command::new(base);
+        command.arg("-m").arg("venv").arg("--clear").arg(dir);
+        if quiet {
+            command.stderr(std::process::Stdio::null());
+        }
+        command.status().is_ok_and(|s| s.success())
+    };
+    if venv(true) {
+        return Ok(());
+    }
+    // Debian and Ubuntu ship `venv`'s pip bootstrap in a package of its own.
+    install_system_packages(&["python3-venv"], "`python3 -m venv` needs it")?;
+    if venv(false) {
+        Ok(())
+    } else {
+        Err(format!(
+            "`{base} -m venv {}` failed (see above); install Python's venv module and retry",
+            dir.display()
+        ))
+    }
+}
+
+/// Installs Debian packages with apt-get when running as root; otherwise fails with the command.
+fn install_system_packages(packages: &[&str], why: &str) -> Result<(), String> {
+    let command = format!("apt-get install -y {}", packages.join(" "));
+    let root = Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|out| String::from_utf8_lossy(&out.stdout).trim() == "0");
+    if !root || !succeeds("apt-get", &["--version"]) {
+        return Err(format!(
+            "the tests need {} ({why}); install it, e.g. `sudo {command}`, and run again",
+            packages.join(" ")
+        ));
+    }
+    say(&format!(
+        "installing {} ({why}): {command}",
+        packages.join(" ")
+    ));
+    let apt = |args: &[&str]| {
+        Command::new("apt-get")
+            .args(args)
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    let installed =
+        apt(&["update", "-qq"]) && apt(&[&["install", "-y", "-qq"][..], packages].concat());
+    if installed {
+        Ok(())
+    } else {
+        Err(format!("`{command}` failed (see above)"))
+    }
+}
+
+/// Whether a program runs and exits 0.
+fn succeeds(program: &str, args: &[&str]) -> bool {
+    Command::new(program)
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+fn say(message: &str) {
+    eprintln!("xtask: {message}");
+}
