@@ -4,6 +4,7 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::out::{out, outln};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -205,9 +206,9 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         ),
     ];
     io::write_all(&files, args.force)?;
-    print!("{}", render_plan(&plan));
+    out!("{}", render_plan(&plan));
     for (f, _) in &files {
-        println!("wrote {}", f.display());
+        outln!("wrote {}", f.display());
     }
     Ok(())
 }
@@ -469,7 +470,7 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
         &[(truth_path.clone(), serde_json::to_string_pretty(&truth)?)],
         args.force,
     )?;
-    println!(
+    outln!(
         "Recorded {:.1} s at {} Hz ({} orientation{}): {} joint states, {} skin samples ({} SUs), \
          {} lost, {} saturated, in {:.1} s",
         summary.duration,
@@ -486,8 +487,8 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
         summary.saturated,
         started.elapsed().as_secs_f64()
     );
-    println!("wrote {}", args.out.display());
-    println!("wrote {}", truth_path.display());
+    outln!("wrote {}", args.out.display());
+    outln!("wrote {}", truth_path.display());
     Ok(())
 }
 
@@ -616,10 +617,10 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         ],
         args.force,
     )?;
-    print!("{}", render_report(&ingested.report));
-    println!("in {:.2} s", started.elapsed().as_secs_f64());
-    println!("wrote {}", measurements.display());
-    println!("wrote {}", report_path.display());
+    out!("{}", render_report(&ingested.report));
+    outln!("in {:.2} s", started.elapsed().as_secs_f64());
+    outln!("wrote {}", measurements.display());
+    outln!("wrote {}", report_path.display());
     Ok(())
 }
 
@@ -778,15 +779,21 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             tmp.clone()
         }
     };
-    println!(
+    outln!(
         "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), one core",
         plan.duration,
         sus,
         sus * 1000
     );
-    println!(
+    outln!(
         "{:<12} {:>10} {:>12} {:>10} {:>12} {:>14} {:>10}",
-        "format", "size MB", "samples", "read s", "× real time", "samples/s", "peak MB"
+        "format",
+        "size MB",
+        "samples",
+        "read s",
+        "× real time",
+        "samples/s",
+        "peak MB"
     );
     let mut variants: Vec<(LogFormatArg, Option<CompressionArg>)> = Vec::new();
     for f in &args.format {
@@ -833,7 +840,7 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         let ingested = ingest(std::slice::from_ref(&path), &config, &mut |_, _, _| {})?;
         let seconds = started.elapsed().as_secs_f64();
         let samples = ingested.report.logs[0].imu_samples;
-        println!(
+        outln!(
             "{:<12} {:>10.1} {:>12} {:>10.2} {:>12.1} {:>14.0} {:>10.0}",
             name,
             size as f64 / 1e6,

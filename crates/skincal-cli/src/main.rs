@@ -3,6 +3,7 @@
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
 mod logs;
+mod out;
 mod render;
 
 use std::path::{Path, PathBuf};
@@ -10,6 +11,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
+use out::{out, outln};
 use skincal::estimate::paper::PaperConfig;
 use skincal::estimate::{self, ChainData, SerialChain};
 use skincal::explore::ExploreConfig;
@@ -373,11 +375,11 @@ fn explore(args: ExploreArgs) -> Result<()> {
         true,
     )?;
     if args.json {
-        println!("{json}");
+        outln!("{json}");
         return Ok(());
     }
-    print!("{}", render::structure_summary(&structure));
-    println!(
+    out!("{}", render::structure_summary(&structure));
+    outln!(
         "\nwrote {}\nwrote {}",
         json_path.display(),
         dot_path.display()
@@ -472,12 +474,12 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         max_evaluations: args.max_evaluations,
         ..PaperConfig::default()
     };
-    println!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
+    outln!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
     let mut estimates = Vec::new();
     for chain in &chains {
         let data = ChainData::new(&set, chain)?;
         let estimate = estimate::paper::estimate_chain(&data, &config)?;
-        println!(
+        outln!(
             "limb {} ({} DoFs, {} training poses)\n",
             chain.name,
             chain.dofs.len(),
@@ -486,7 +488,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         let true_rows = truth
             .as_ref()
             .and_then(|t| estimate::true_dh_table(t, chain));
-        print!(
+        out!(
             "{}",
             report::dh_tables(
                 &estimate.chain,
@@ -495,14 +497,14 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
                 true_rows.as_ref()
             )
         );
-        println!("\nOptimization steps\n");
-        print!("{}", report::optimization_steps(&estimate));
+        outln!("\nOptimization steps\n");
+        out!("{}", report::optimization_steps(&estimate));
         if let Some(t) = &truth {
             let accuracy = estimate::consecutive_su_errors(t, &estimate.robot(), chain, 30, 1)?;
-            println!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
-            print!("{}", report::chain_accuracy(&accuracy));
+            outln!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
+            out!("{}", report::chain_accuracy(&accuracy));
         }
-        println!();
+        outln!();
         estimates.push(estimate);
     }
     let model = serde_json::json!({ "format": "skincal-model-paper", "version": 1, "method": "paper", "limbs": estimates });
@@ -511,7 +513,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
         true,
     )?;
-    println!("wrote {}", out.display());
+    outln!("wrote {}", out.display());
     if estimates.iter().any(|e| !e.converged()) {
         eprintln!("warning: some steps did not reach e_T ≤ e_stop (marked !)");
     }
@@ -531,21 +533,21 @@ fn calibrate_ml(
         noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
         ..MlConfig::default()
     };
-    println!(
+    outln!(
         "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g); {source}\n",
         config.noise_sd, args.noise
     );
     let model =
         skincal::estimate::body::calibrate_body(set, structure, &config, args.limb.as_deref())?;
     for limb in &model.limbs {
-        print!("{}", limb_report(limb, truth)?);
+        out!("{}", limb_report(limb, truth)?);
     }
     let out = dir.join("model.json");
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
         true,
     )?;
-    println!("wrote {}", out.display());
+    outln!("wrote {}", out.display());
     if model.limbs.iter().any(|l| !l.estimate.converged) {
         eprintln!("warning: some limbs did not converge to the noise level (see above)");
     }
@@ -607,7 +609,7 @@ fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
         .out
         .unwrap_or_else(|| args.model.with_extension("urdf"));
     io::write_all(&[(out.clone(), text)], args.force)?;
-    println!(
+    outln!(
         "wrote {} ({} links, {} revolute joints, {} SU links)",
         out.display(),
         robot.model.segments().len() + robot.model.sus().len(),
@@ -650,7 +652,7 @@ fn predict(args: PredictArgs) -> Result<()> {
     match args.out {
         Some(out) => {
             io::write_all(&[(out.clone(), text)], args.force)?;
-            println!(
+            outln!(
                 "wrote {} ({} poses, {} SUs, pattern A = {} rad/s, f = {} Hz)",
                 out.display(),
                 table.poses.len(),
@@ -659,7 +661,7 @@ fn predict(args: PredictArgs) -> Result<()> {
                 pattern.frequency
             );
         }
-        None => println!("{text}"),
+        None => outln!("{text}"),
     }
     Ok(())
 }
@@ -669,7 +671,7 @@ fn validate(args: ValidateArgs) -> Result<()> {
     let (file, _) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
     let check = skincal::predict::validate(&model, &set, &file.display().to_string())?;
-    println!(
+    outln!(
         "{} against {} ({} poses, pattern A = {} rad/s, f = {} Hz)\n",
         args.model.display(),
         file.display(),
@@ -677,7 +679,7 @@ fn validate(args: ValidateArgs) -> Result<()> {
         set.training.as_ref().map_or(0.0, |t| t.pattern.amplitude),
         set.training.as_ref().map_or(0.0, |t| t.pattern.frequency)
     );
-    print!("{}", render::validation_table(&check));
+    out!("{}", render::validation_table(&check));
     Ok(())
 }
 
@@ -691,7 +693,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     };
     let g = skincal::model::sensor::STANDARD_GRAVITY;
     let sd = args.noise * g / 3f64.sqrt();
-    println!(
+    outln!(
         "{}, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds 1…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
         if args.random_chains { "random 7-DoF DH chains (robot seed = data seed)" } else { "paper-7dof" },
         args.poses,
@@ -777,7 +779,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     let fig6_accuracy = (!args.random_chains)
         .then(|| estimate::consecutive_su_errors(&paper, &fig6, &chain, 30, 1000))
         .transpose()?;
-    print!(
+    out!(
         "{}",
         render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), bound)
     );
@@ -816,18 +818,18 @@ fn bench_explore(args: BenchExploreArgs) -> Result<()> {
         structure = Some(s);
     }
     let s = structure.expect("at least one repetition");
-    println!(
+    outln!(
         "structural exploration, one thread: {} SUs × {} DoFs, {} base orientations, {} repetitions",
         args.sus, args.dofs, config.tilted_orientation as usize + 1, repeat
     );
-    println!(
+    outln!(
         "found {} segments, {} joints, {} limbs; complete: {}\n",
         s.segments.len(),
         s.joints.len(),
         s.limbs.len(),
         s.complete
     );
-    print!(
+    out!(
         "{}",
         render::timing_table(&[
             ("activity matrix", activity_ms),
@@ -853,7 +855,7 @@ fn robots() -> Result<()> {
             description,
         });
     }
-    print!("{}", render::robots_table(&rows));
+    out!("{}", render::robots_table(&rows));
     Ok(())
 }
 
@@ -892,9 +894,9 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         ..SimulationConfig::default()
     };
     let files = write_simulation(&robot, &config, &args.out, args.force)?;
-    print!("{}", files.1);
+    out!("{}", files.1);
     for f in files.0 {
-        println!("wrote {}", f.display());
+        outln!("wrote {}", f.display());
     }
     Ok(())
 }
@@ -931,22 +933,22 @@ fn demo(args: DemoArgs) -> Result<()> {
         seed: args.seed,
         ..SimulationConfig::default()
     };
-    println!(
+    outln!(
         "skincal demo: the built-in humanoid ({} DoFs, {} SUs)\n",
         robot.model.dofs().len(),
         robot.model.sus().len()
     );
-    println!("1. Simulated experiments\n");
+    outln!("1. Simulated experiments\n");
     let (mut files, summary) = write_simulation(&robot, &config, &out, true)?;
-    print!("{summary}");
-    println!("\n2. Structural exploration\n");
+    out!("{summary}");
+    outln!("\n2. Structural exploration\n");
     let set = io::read_measurements(&files[0])?;
     let structure = skincal::explore::explore(&set, &ExploreConfig::default())?;
-    print!("{}", report::tree(&structure));
-    println!();
-    print!("{}", report::diagnostics(&structure));
+    out!("{}", report::tree(&structure));
+    outln!();
+    out!("{}", report::diagnostics(&structure));
 
-    println!("\n3. Kinematic estimation of every limb, maximum likelihood\n");
+    outln!("\n3. Kinematic estimation of every limb, maximum likelihood\n");
     let ml = skincal::estimate::ml::MlConfig::default();
     let model = skincal::estimate::body::calibrate_body(&set, Some(&structure), &ml, None)?;
     for limb in &model.limbs {
@@ -956,7 +958,7 @@ fn demo(args: DemoArgs) -> Result<()> {
             .iter()
             .map(|o| format!("{} = {}", o.joint, o.dofs.join(" → ")))
             .collect();
-        println!(
+        outln!(
             "limb {:<4} {} DoFs, {} SUs, {} LM iterations in {:.1} ms, residual {:.3}× σ{}",
             limb.name,
             limb.dofs.len(),
@@ -972,8 +974,8 @@ fn demo(args: DemoArgs) -> Result<()> {
         );
     }
 
-    println!("\n4. Against the truth: each limb's SU poses (relative to the previous SU, 30 random poses) and its");
-    println!("   predictions on 20 held-out poses of a fresh experiment without noise\n");
+    outln!("\n4. Against the truth: each limb's SU poses (relative to the previous SU, 30 random poses) and its");
+    outln!("   predictions on 20 held-out poses of a fresh experiment without noise\n");
     let held_out_config = SimulationConfig {
         seed: args.seed + 1000,
         structure: false,
@@ -1019,7 +1021,7 @@ fn demo(args: DemoArgs) -> Result<()> {
             &check,
         ))))
         .collect::<Result<Vec<_>>>()?;
-    print!("{}", render::body_table(&rows, &check));
+    out!("{}", render::body_table(&rows, &check));
 
     let (json_path, dot_path, model_path, urdf_path) = (
         out.join("structure.json"),
@@ -1042,11 +1044,11 @@ fn demo(args: DemoArgs) -> Result<()> {
     )?;
     files.extend([json_path, dot_path, model_path, urdf_path]);
     files.extend(held_files);
-    println!();
+    outln!();
     for f in files {
-        println!("wrote {}", f.display());
+        outln!("wrote {}", f.display());
     }
-    println!(
+    outln!(
         "\nfinished in {:.2} s; check another data set with `skincal validate {} DIR`",
         started.elapsed().as_secs_f64(),
         out.join("model.json").display()
@@ -1104,7 +1106,7 @@ fn bench_body(args: BenchBodyArgs) -> Result<()> {
         Some(d) => format!("random trees, {d} DoFs, {} SUs", args.random_sus),
         None => format!("humanoid, {} SUs per skinned segment", args.sus_per_segment),
     };
-    println!(
+    outln!(
         "whole pipeline on {what}; P = {}, uniform ±{} g noise, seeds 1…{}; held-out: 20 fresh noise-free poses\n",
         args.poses, args.noise, args.seeds
     );
@@ -1152,7 +1154,7 @@ fn bench_body(args: BenchBodyArgs) -> Result<()> {
         let model = match model {
             Ok(m) => m,
             Err(e) => {
-                println!("seed {seed}: {e}");
+                outln!("seed {seed}: {e}");
                 continue;
             }
         };
@@ -1181,8 +1183,8 @@ fn bench_body(args: BenchBodyArgs) -> Result<()> {
             dynamic_rms: check.dynamic_rms,
         });
     }
-    print!("{}", render::body_bench(&rows));
-    println!(
+    out!("{}", render::body_bench(&rows));
+    outln!(
         "peak resident memory of the whole run: {:.0} MB",
         peak_memory_mb()
     );

@@ -725,3 +725,66 @@ fn ingest_reports_what_it_cannot_use() {
         &["pattern", "velocity", "dof1"],
     );
 }
+
+/// Runs skincal with its standard output read by nobody: the pipe's reading end is closed before
+/// the command writes anything, as with `skincal … | head -0`.
+fn skincal_into_closed_pipe(args: &[&str], dir: &Path) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_skincal"))
+        .args(args)
+        .current_dir(dir)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run skincal");
+    drop(child.stdout.take());
+    child.wait_with_output().expect("wait for skincal")
+}
+
+#[test]
+fn a_closed_output_pipe_neither_panics_nor_loses_results() {
+    // Regression: every command panicked at its first print once the reader had gone, and
+    // `calibrate DIR | head -1` never wrote model.json.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let quiet = |args: &[&str]| {
+        let out = skincal_into_closed_pipe(args, d);
+        let err = stderr(&out);
+        assert!(out.status.success(), "{args:?} failed: {err}");
+        assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+        assert!(!err.contains("Broken pipe"), "{args:?}: {err}");
+    };
+    quiet(&["robots"]);
+    quiet(&[
+        "simulate",
+        "--robot",
+        "paper-7dof",
+        "--out",
+        "a",
+        "--poses",
+        "10",
+    ]);
+    assert!(d.join("a/measurements.json").is_file());
+    quiet(&["explore", "a"]);
+    assert!(d.join("a/structure.json").is_file());
+    quiet(&["calibrate", "a"]);
+    assert!(
+        d.join("a/model.json").is_file(),
+        "model.json was not written"
+    );
+    quiet(&["calibrate", "a", "--method", "paper"]);
+    assert!(d.join("a/model-paper.json").is_file());
+    quiet(&[
+        "simulate",
+        "--robot",
+        "paper-7dof",
+        "--out",
+        "b",
+        "--poses",
+        "3",
+        "--seed",
+        "2",
+    ]);
+    quiet(&["validate", "a/model.json", "b"]);
+    quiet(&["export-urdf", "a/model.json"]);
+    assert!(d.join("a/model.urdf").is_file());
+}

@@ -1,0 +1,39 @@
+//! Standard output that a closed pipe cannot break.
+//!
+//! `skincal calibrate DIR | head -1` must still write `DIR/model.json`: once the reader has gone,
+//! further output is dropped and the command carries on and ends normally. Any other failure to
+//! write standard output (a full disk behind a redirection) is reported once on standard error.
+
+use std::fmt;
+use std::io::{self, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Set once standard output can no longer be written.
+static CLOSED: AtomicBool = AtomicBool::new(false);
+
+/// Writes to standard output unless it has been closed; what `out!` and `outln!` call.
+pub fn write(args: fmt::Arguments<'_>) {
+    if CLOSED.load(Ordering::Relaxed) {
+        return;
+    }
+    let mut stdout = io::stdout().lock();
+    if let Err(e) = stdout.write_fmt(args).and_then(|()| stdout.flush()) {
+        CLOSED.store(true, Ordering::Relaxed);
+        if e.kind() != io::ErrorKind::BrokenPipe {
+            eprintln!("warning: cannot write standard output ({e}); carrying on without it");
+        }
+    }
+}
+
+/// `print!` that survives a closed standard output.
+macro_rules! out {
+    ($($arg:tt)*) => { $crate::out::write(format_args!($($arg)*)) };
+}
+
+/// `println!` that survives a closed standard output.
+macro_rules! outln {
+    () => { $crate::out::write(format_args!("\n")) };
+    ($($arg:tt)*) => { $crate::out::write(format_args!("{}\n", format_args!($($arg)*))) };
+}
+
+pub(crate) use {out, outln};
