@@ -384,15 +384,7 @@ pub(crate) struct RecordArgs {
 fn read_plan(path: &Path) -> Result<Plan> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let plan: Plan = serde_json::from_str(&text).with_context(|| {
-        format!(
-            "{}: not a plan file (make one with `skincal plan`)",
-            path.display()
-        )
-    })?;
-    plan.validate()
-        .with_context(|| format!("{}", path.display()))?;
-    Ok(plan)
+    Plan::from_json(&text).with_context(|| path.display().to_string())
 }
 
 fn sink_for(

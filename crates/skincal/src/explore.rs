@@ -339,6 +339,169 @@ impl Structure {
     pub fn joint(&self, id: &str) -> Option<&JointNode> {
         self.joints.iter().find(|j| j.id == id)
     }
+
+    /// Checks that the structure is a tree that estimation can walk: unique ids, every reference
+    /// resolved, one parent joint per segment, no loop, every SU and DoF in one place, limbs that
+    /// are chains of the tree. A structure read from a file (edited by hand, or of another robot)
+    /// is checked before use; the error names the field.
+    pub fn check(&self) -> Result<(), String> {
+        let mut seen = std::collections::HashSet::new();
+        for (i, s) in self.segments.iter().enumerate() {
+            if !seen.insert(s.id.as_str()) {
+                return Err(format!("segments[{i}].id: `{}` is listed twice", s.id));
+            }
+        }
+        let mut seen = std::collections::HashSet::new();
+        for (i, j) in self.joints.iter().enumerate() {
+            if !seen.insert(j.id.as_str()) {
+                return Err(format!("joints[{i}].id: `{}` is listed twice", j.id));
+            }
+        }
+        let segment = |field: String, id: &str| match self.segment(id) {
+            Some(s) => Ok(s),
+            None => Err(format!("{field}: no segment `{id}` in `segments`")),
+        };
+        let root = segment("root".into(), &self.root)?;
+        if let Some(j) = &root.parent_joint {
+            return Err(format!(
+                "root: the reference segment `{}` has a parent joint `{j}`",
+                self.root
+            ));
+        }
+        let mut place = HashMap::new();
+        for (i, j) in self.joints.iter().enumerate() {
+            segment(format!("joints[{i}].parent"), &j.parent)?;
+            let child = segment(format!("joints[{i}].child"), &j.child)?;
+            if child.parent_joint.as_deref() != Some(&j.id) {
+                return Err(format!(
+                    "joints[{i}].child: segment `{}` names {} as its parent joint, not `{}`",
+                    j.child,
+                    child
+                        .parent_joint
+                        .as_deref()
+                        .map_or("none".to_string(), |p| format!("`{p}`")),
+                    j.id
+                ));
+            }
+            if j.dofs.is_empty() {
+                return Err(format!("joints[{i}].dofs: joint `{}` has no DoF", j.id));
+            }
+            for d in &j.dofs {
+                if let Some(other) = place.insert(d.as_str(), j.id.as_str()) {
+                    return Err(format!(
+                        "joints[{i}].dofs: DoF `{d}` is in joints `{other}` and `{}`",
+                        j.id
+                    ));
+                }
+            }
+        }
+        let mut place = HashMap::new();
+        for (i, s) in self.segments.iter().enumerate() {
+            if s.id != self.root {
+                let Some(j) = &s.parent_joint else {
+                    return Err(format!(
+                        "segments[{i}].parent_joint: segment `{}` is not the root but has no parent joint",
+                        s.id
+                    ));
+                };
+                if self.joint(j).is_none() {
+                    return Err(format!(
+                        "segments[{i}].parent_joint: no joint `{j}` in `joints`"
+                    ));
+                }
+            }
+            for su in &s.sus {
+                if let Some(other) = place.insert(su.as_str(), s.id.as_str()) {
+                    return Err(if other == s.id {
+                        format!("segments[{i}].sus: SU `{su}` is listed twice")
+                    } else {
+                        format!(
+                            "segments[{i}].sus: SU `{su}` is on segments `{other}` and `{}`",
+                            s.id
+                        )
+                    });
+                }
+            }
+        }
+        // Walking up from any segment must reach the root without meeting a segment twice.
+        for s in &self.segments {
+            let mut path = vec![s.id.as_str()];
+            let mut at = s;
+            while let Some(j) = &at.parent_joint {
+                let joint = self.joint(j).expect("checked above");
+                at = self.segment(&joint.parent).expect("checked above");
+                if let Some(start) = path.iter().position(|p| *p == at.id) {
+                    let mut cycle: Vec<&str> = path[start..].to_vec();
+                    cycle.push(at.id.as_str());
+                    return Err(format!(
+                        "joints: the parents form a loop ({}), not a tree: each joint's `parent` must be nearer the root `{}` than its `child`",
+                        cycle.join(" → "),
+                        self.root
+                    ));
+                }
+                path.push(at.id.as_str());
+            }
+        }
+        for (field, ids) in [
+            ("end_effectors", &self.end_effectors),
+            ("branching", &self.branching),
+        ] {
+            for (i, id) in ids.iter().enumerate() {
+                segment(format!("{field}[{i}]"), id)?;
+            }
+        }
+        for (l, limb) in self.limbs.iter().enumerate() {
+            let field = format!("limbs[{l}]");
+            segment(format!("{field}.from"), &limb.from)?;
+            if limb.joints.len() != limb.segments.len() || limb.joints.is_empty() {
+                return Err(format!(
+                    "{field}: {} joints for {} segments; a limb has one joint per segment",
+                    limb.joints.len(),
+                    limb.segments.len()
+                ));
+            }
+            let mut parent = limb.from.as_str();
+            let mut dofs = Vec::new();
+            for (k, (j, s)) in limb.joints.iter().zip(&limb.segments).enumerate() {
+                let Some(joint) = self.joint(j) else {
+                    return Err(format!("{field}.joints[{k}]: no joint `{j}` in `joints`"));
+                };
+                if joint.parent != parent || &joint.child != s {
+                    return Err(format!(
+                        "{field}.joints[{k}]: joint `{j}` connects `{}` to `{}`, but the limb runs from `{parent}` to `{s}`",
+                        joint.parent, joint.child
+                    ));
+                }
+                dofs.extend(joint.dofs.iter().cloned());
+                parent = s;
+            }
+            if limb.to != parent {
+                return Err(format!(
+                    "{field}.to: `{}`, but the limb's segments end at `{parent}`",
+                    limb.to
+                ));
+            }
+            if limb.dofs != dofs {
+                return Err(format!(
+                    "{field}.dofs: [{}], but its joints have [{}]",
+                    limb.dofs.join(", "),
+                    dofs.join(", ")
+                ));
+            }
+            for (k, su) in limb.sus.iter().enumerate() {
+                if !limb
+                    .segments
+                    .iter()
+                    .any(|s| place.get(su.as_str()) == Some(&s.as_str()))
+                {
+                    return Err(format!(
+                        "{field}.sus[{k}]: SU `{su}` is not on a segment of the limb"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Structural exploration of a measurement set: activity matrix, then [`structure_from_activity`].

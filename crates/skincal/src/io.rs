@@ -176,9 +176,9 @@ pub fn read_measurements(path: &Path) -> Result<MeasurementSet, IoError> {
 
 /// Reads a ground-truth file.
 pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
-    serde_json::from_str(&read(path)?).map_err(|e| IoError::Json {
+    crate::json::parse(&read(path)?, "a ground truth").map_err(|message| IoError::Json {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        message,
     })
 }
 
@@ -218,10 +218,14 @@ pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError
 
 /// Reads a structure written by exploration (`structure.json`).
 pub fn read_structure(path: &Path) -> Result<crate::explore::Structure, IoError> {
-    serde_json::from_str(&read(path)?).map_err(|e| IoError::Json {
+    let json = |message| IoError::Json {
         path: path.to_path_buf(),
-        message: e.to_string(),
-    })
+        message,
+    };
+    let structure: crate::explore::Structure =
+        crate::json::parse(&read(path)?, "a structure").map_err(json)?;
+    structure.check().map_err(json)?;
+    Ok(structure)
 }
 
 /// Reads a calibrated model (`model.json`) and checks that it is one.
@@ -231,7 +235,7 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
         message,
     };
     let model: crate::estimate::body::BodyModel =
-        serde_json::from_str(&read(path)?).map_err(|e| json(e.to_string()))?;
+        crate::json::parse(&read(path)?, "a calibrated model").map_err(json)?;
     model.check().map_err(json)?;
     Ok(model)
 }

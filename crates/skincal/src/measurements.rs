@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use crate::model::sensor::ExcitationPattern;
+use crate::model::sensor::{ExcitationPattern, MAX_ANGLE, MAX_READING, STANDARD_GRAVITY};
 
 /// The value of the `format` field.
 pub const FORMAT: &str = "skincal-measurements";
@@ -210,14 +210,8 @@ impl MeasurementSet {
 
     /// Parses and validates JSON text.
     pub fn from_json(text: &str) -> Result<Self, MeasurementError> {
-        let set: Self = serde_json::from_str(text).map_err(|e| {
-            let hint = if e.to_string().contains("null") {
-                " (NaN and infinite readings are written as null by most JSON writers: remove or re-record them)"
-            } else {
-                ""
-            };
-            MeasurementError::Syntax(format!("{e}{hint}"))
-        })?;
+        let set: Self =
+            crate::json::parse(text, "a measurement set").map_err(MeasurementError::Syntax)?;
         set.validate()?;
         Ok(set)
     }
@@ -256,14 +250,33 @@ impl MeasurementSet {
                 }
             }
         }
+        self.units.check()?;
         let (nd, nu) = (self.dofs.len(), self.sus.len());
         let pose = |field: String, q: &[f64]| -> Result<(), MeasurementError> {
             shape(&field, q.len(), nd, "one angle per DoF")?;
-            finite(&field, q.iter().copied())
+            bounded(
+                q.iter().copied(),
+                MAX_ANGLE,
+                "rad",
+                "wrap the angle into ±π",
+            )
+            .map_err(|(i, reason)| MeasurementError::InvalidValue {
+                field: format!("{field}[{i}] (DoF {})", self.dofs[i]),
+                reason,
+            })
         };
         let readings = |field: String, r: &[Reading]| -> Result<(), MeasurementError> {
             shape(&field, r.len(), nu, "one reading per SU")?;
-            finite(&field, r.iter().flatten().copied())
+            bounded(
+                r.iter().flatten().copied(),
+                MAX_READING,
+                "m/s²",
+                "no accelerometer reads that much: is the file in another unit, or the reading corrupt?",
+            )
+            .map_err(|(i, reason)| MeasurementError::InvalidValue {
+                field: format!("{field}[{}][{}] (SU {})", i / 3, i % 3, self.sus[i / 3]),
+                reason,
+            })
         };
         if let Some(s) = &self.structure {
             for (o, orientation) in s.orientations.iter().enumerate() {
@@ -284,13 +297,10 @@ impl MeasurementSet {
             }
         }
         if let Some(t) = &self.training {
-            if !t.pattern.is_valid() {
+            if let Err(reason) = t.pattern.check() {
                 return Err(MeasurementError::InvalidValue {
                     field: "training.pattern".into(),
-                    reason: format!(
-                        "amplitude {} rad/s and frequency {} Hz must be positive",
-                        t.pattern.amplitude, t.pattern.frequency
-                    ),
+                    reason,
                 });
             }
             for (p, tp) in t.poses.iter().enumerate() {
@@ -308,6 +318,89 @@ impl MeasurementSet {
                     readings(field, r)?;
                 }
             }
+        }
+        self.check_gravity_scale()
+    }
+
+    /// A resting accelerometer reads |g|: when the median norm of the static readings is far from
+    /// it, the readings are in another unit (g, mg) or not accelerometer readings at all. A few dead
+    /// or biased SUs do not move the median.
+    fn check_gravity_scale(&self) -> Result<(), MeasurementError> {
+        let norm = |r: &Reading| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+        let mut norms: Vec<f64> = Vec::new();
+        for o in self.structure.iter().flat_map(|s| &s.orientations) {
+            norms.extend(o.rest.iter().map(norm));
+            norms.extend(o.moves.iter().flat_map(|m| m.readings.iter().map(norm)));
+        }
+        for p in self.training.iter().flat_map(|t| &t.poses) {
+            norms.extend(p.static_readings.iter().map(norm));
+        }
+        if norms.is_empty() {
+            return Ok(());
+        }
+        let mid = norms.len() / 2;
+        let median = *norms.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let ratio = median / STANDARD_GRAVITY;
+        if (0.5..=2.0).contains(&ratio) {
+            return Ok(());
+        }
+        let looks_like = if (0.5..=2.0).contains(&median) {
+            "they look like g: multiply every reading by 9.81".to_string()
+        } else if (500.0..=2000.0).contains(&median) {
+            "they look like mg: multiply every reading by 0.00981".to_string()
+        } else if median == 0.0 {
+            "most SUs read zero: dead sensors, or readings not filled in".to_string()
+        } else {
+            format!(
+                "scale them by {:.4} if they are in another unit",
+                1.0 / ratio
+            )
+        };
+        Err(MeasurementError::InvalidValue {
+            field: "static readings".into(),
+            reason: format!(
+                "their median norm is {median:.4} m/s², but a resting accelerometer reads |g| = {STANDARD_GRAVITY} m/s² (`units.acceleration` says {}): {looks_like}",
+                self.units.acceleration
+            ),
+        })
+    }
+}
+
+impl Units {
+    /// Refuses units other than SI, saying how to convert.
+    pub fn check(&self) -> Result<(), MeasurementError> {
+        let acceleration = self.acceleration.trim();
+        if !matches!(
+            acceleration,
+            "m/s^2" | "m/s²" | "m s^-2" | "m*s^-2" | "m/s/s"
+        ) {
+            let convert = match acceleration.to_ascii_lowercase().as_str() {
+                "g" | "g0" | "gee" => "multiply every reading by 9.81",
+                "mg" | "milli-g" => "multiply every reading by 0.00981",
+                "cm/s^2" | "cm/s²" | "gal" => "multiply every reading by 0.01",
+                _ => "convert every reading to m/s²",
+            };
+            return Err(MeasurementError::InvalidValue {
+                field: "units.acceleration".into(),
+                reason: format!(
+                    "`{}` is not supported: skincal reads specific force in m/s² only; {convert} and write \"m/s^2\"",
+                    self.acceleration
+                ),
+            });
+        }
+        let angle = self.angle.trim();
+        if angle != "rad" {
+            let convert = match angle.to_ascii_lowercase().as_str() {
+                "deg" | "degree" | "degrees" | "°" => "multiply every angle by π/180 = 0.0174533",
+                _ => "convert every angle to rad",
+            };
+            return Err(MeasurementError::InvalidValue {
+                field: "units.angle".into(),
+                reason: format!(
+                    "`{}` is not supported: skincal reads joint angles in rad only; {convert} and write \"rad\"",
+                    self.angle
+                ),
+            });
         }
         Ok(())
     }
@@ -331,13 +424,25 @@ fn shape(
     }
 }
 
-fn finite(field: &str, values: impl Iterator<Item = f64>) -> Result<(), MeasurementError> {
-    for v in values {
+/// Every value finite and within ±`limit`, else the index of the first that is not and why.
+fn bounded(
+    values: impl Iterator<Item = f64>,
+    limit: f64,
+    unit: &str,
+    hint: &str,
+) -> Result<(), (usize, String)> {
+    for (i, v) in values.enumerate() {
         if !v.is_finite() {
-            return Err(MeasurementError::InvalidValue {
-                field: field.to_string(),
-                reason: format!("{v} is not a finite number"),
-            });
+            return Err((i, format!("{v} is not a finite number")));
+        }
+        if v.abs() > limit {
+            return Err((
+                i,
+                format!(
+                    "{} {unit} is beyond ±{limit} {unit}: {hint}",
+                    crate::show::number(v)
+                ),
+            ));
         }
     }
     Ok(())

@@ -645,6 +645,14 @@ impl Plan {
         self.dofs.iter().map(|d| d.name.clone()).collect()
     }
 
+    /// Parses and checks a plan file's text.
+    pub fn from_json(text: &str) -> Result<Self, PlanError> {
+        let plan: Self =
+            crate::json::parse(text, "an exploration plan").map_err(PlanError::Inconsistent)?;
+        plan.validate()?;
+        Ok(plan)
+    }
+
     /// Checks a plan read from a file: format, shapes, DoF names, times in order.
     pub fn validate(&self) -> Result<(), PlanError> {
         if self.format != FORMAT || self.version != VERSION {
@@ -656,10 +664,8 @@ impl Plan {
         for d in &self.dofs {
             d.check()?;
         }
-        if !self.pattern.is_valid() {
-            return Err(PlanError::Inconsistent(
-                "pattern amplitude and frequency must be positive".into(),
-            ));
+        if let Err(reason) = self.pattern.check() {
+            return Err(PlanError::Inconsistent(format!("pattern: {reason}")));
         }
         let nd = self.dofs.len();
         let mut t = 0.0;

@@ -87,8 +87,7 @@ impl PoseTable {
 
     /// From JSON: `{"dofs": [names], "poses": [[q per DoF]]}` (the output of `predict` has this shape).
     pub fn from_json(text: &str) -> Result<Self, PredictError> {
-        let table: Self =
-            serde_json::from_str(text).map_err(|e| PredictError::Poses(e.to_string()))?;
+        let table: Self = crate::json::parse(text, "a pose table").map_err(PredictError::Poses)?;
         table.check()?;
         Ok(table)
     }

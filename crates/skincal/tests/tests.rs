@@ -12,5 +12,6 @@ mod logs;
 mod measurements;
 mod ml_estimation;
 mod paper;
+mod robustness;
 mod simulator;
 mod urdf_import;

@@ -119,6 +119,7 @@ impl From<&SerialChain> for LimbChain {
 /// at its base: each limb runs from the static reference (through the joints of its base path,
 /// held) to an end effector or the next branching segment, with every SU of its segments.
 pub fn limb_chains(structure: &Structure) -> Result<Vec<LimbChain>, EstimateError> {
+    structure.check().map_err(EstimateError::InvalidStructure)?;
     let mut limbs = Vec::new();
     for limb in &structure.limbs {
         let mut path = Vec::new();

@@ -67,6 +67,17 @@ pub enum EstimateError {
     /// The measurement set is not valid.
     #[error("invalid measurement set: {0}")]
     Measurements(String),
+    /// The fit ran away from finite numbers: the data cannot be what the model assumes.
+    #[error("limb {limb}: the estimate is not a finite number ({reason}); the readings cannot be what the model assumes: check them for corrupt values and record again")]
+    NotFinite {
+        /// The limb.
+        limb: String,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The structure is not a tree (see [`Structure::check`]).
+    #[error("invalid structure: {0}")]
+    InvalidStructure(String),
     /// A limb that the method cannot model.
     #[error("limb {limb}: {reason}")]
     UnsupportedLimb {
@@ -108,6 +119,7 @@ pub struct SerialChain {
 /// with the first SU of every segment. Every joint on them must have a single DoF (the paper's
 /// chain model); the error names the joint otherwise.
 pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, EstimateError> {
+    structure.check().map_err(EstimateError::InvalidStructure)?;
     let mut chains = Vec::new();
     for end in &structure.end_effectors {
         let mut dofs = Vec::new();

@@ -300,6 +300,12 @@ pub fn estimate_chain(
         let seconds = started.elapsed().as_secs_f64();
         let v = assemble(&x);
         let e_t = problem.error(&v);
+        if !e_t.is_finite() || v.iter().any(|p| !p.is_finite()) {
+            return Err(EstimateError::NotFinite {
+                limb: chain.name.clone(),
+                reason: format!("step {} (SU {}): e_T = {}", n + 1, chain.sus[n], e_t),
+            });
+        }
         if n > 0 {
             dof_dof.push(DhRow::from_values(&v[4 * (n - 1)..]));
         }

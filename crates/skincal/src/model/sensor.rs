@@ -33,6 +33,20 @@ use super::{DofIndex, RobotModel, SuIndex};
 /// Gravitational acceleration used throughout, m/s² (1 g).
 pub const STANDARD_GRAVITY: f64 = 9.81;
 
+/// The largest magnitude of one reading component that any accelerometer of a robot skin can
+/// report, m/s² (±500 g; MEMS parts range from ±2 g to ±400 g). Larger values are refused as
+/// corrupt or in another unit.
+pub const MAX_READING: f64 = 500.0 * STANDARD_GRAVITY;
+
+/// The largest joint angle accepted, rad (about 1600 turns of an unwrapped continuous joint).
+pub const MAX_ANGLE: f64 = 1.0e4;
+
+/// Velocity amplitudes `A` of an excitation pattern that a servo can run, rad/s.
+pub const PATTERN_AMPLITUDE: std::ops::RangeInclusive<f64> = 1.0e-4..=100.0;
+
+/// Frequencies `f` of an excitation pattern, Hz.
+pub const PATTERN_FREQUENCY: std::ops::RangeInclusive<f64> = 1.0e-3..=1.0e3;
+
 /// Gravity in a reference frame whose z axis points up: `(0, 0, −9.81)` m/s².
 pub fn gravity_upright() -> Vector3<f64> {
     Vector3::new(0.0, 0.0, -STANDARD_GRAVITY)
@@ -85,12 +99,32 @@ impl ExcitationPattern {
         self.amplitude / (PI * self.frequency)
     }
 
-    /// Whether both numbers are positive and finite.
+    /// Whether both numbers lie in the ranges a servo can run ([`PATTERN_AMPLITUDE`],
+    /// [`PATTERN_FREQUENCY`]).
     pub fn is_valid(&self) -> bool {
-        self.amplitude.is_finite()
-            && self.amplitude > 0.0
-            && self.frequency.is_finite()
-            && self.frequency > 0.0
+        self.check().is_ok()
+    }
+
+    /// Why the pattern cannot be run, naming the number at fault and its range.
+    pub fn check(&self) -> Result<(), String> {
+        let (a, f) = (PATTERN_AMPLITUDE, PATTERN_FREQUENCY);
+        if !a.contains(&self.amplitude) {
+            return Err(format!(
+                "amplitude {} rad/s is outside {}…{} rad/s",
+                crate::show::number(self.amplitude),
+                a.start(),
+                a.end()
+            ));
+        }
+        if !f.contains(&self.frequency) {
+            return Err(format!(
+                "frequency {} Hz is outside {}…{} Hz",
+                crate::show::number(self.frequency),
+                f.start(),
+                f.end()
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -18,6 +18,8 @@
 //! poses. The ground truth (the robot, the gravity of every orientation, the biases) goes to a
 //! separate [`Truth`]; the measurement set never contains it.
 
+use std::f64::consts::PI;
+
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -31,12 +33,15 @@ use crate::measurements::{
 };
 use crate::model::description::RobotFile;
 use crate::model::sensor::{
-    gravity_upright, peak_dynamic_accelerations_at, specific_force, ExcitationPattern,
+    gravity_upright, peak_dynamic_accelerations_at, specific_force, ExcitationPattern, MAX_READING,
     STANDARD_GRAVITY,
 };
 use crate::model::{forward_kinematics, Robot};
 
 pub mod timeseries;
+
+/// The largest noise or bias the simulator accepts, g.
+pub const MAX_IMPERFECTION: f64 = 10.0;
 
 /// Sensor imperfections, in units of g (9.81 m/s²).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -96,13 +101,23 @@ impl Imperfections {
             ("gaussian_noise", i.gaussian_noise),
             ("bias", i.bias),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(setting, format!("{v} g must be zero or positive"));
+            if !(0.0..=MAX_IMPERFECTION).contains(&v) {
+                return bad(
+                    setting,
+                    format!(
+                        "{} g must lie in 0…{MAX_IMPERFECTION} g (no accelerometer errs by more)",
+                        crate::show::number(v)
+                    ),
+                );
             }
         }
         if let Some(s) = i.saturation {
-            if !(s.is_finite() && s > 0.0) {
-                return bad("saturation", format!("{s} g must be positive"));
+            let most = MAX_READING / STANDARD_GRAVITY;
+            if !(s > 0.0 && s <= most) {
+                return bad(
+                    "saturation",
+                    format!("{} g must lie in 0…{most} g", crate::show::number(s)),
+                );
             }
         }
         if let Some(b) = i.quantization_bits {
@@ -194,20 +209,26 @@ impl SimulationConfig {
         if self.training && self.poses == 0 {
             return bad("poses", "must be at least 1".into());
         }
-        if !(self.pose_range.is_finite() && self.pose_range > 0.0) {
+        if !(self.pose_range > 0.0 && self.pose_range <= PI) {
             return bad(
                 "pose_range",
-                format!("{} rad must be positive", self.pose_range),
+                format!(
+                    "{} rad must lie in 0…π rad",
+                    crate::show::number(self.pose_range)
+                ),
             );
         }
-        if !(self.structure_angle.is_finite() && self.structure_angle > 0.0) {
+        if !(self.structure_angle > 0.0 && self.structure_angle <= PI) {
             return bad(
                 "structure_angle",
-                format!("{} rad must be positive", self.structure_angle),
+                format!(
+                    "{} rad must lie in 0…π rad",
+                    crate::show::number(self.structure_angle)
+                ),
             );
         }
-        if !self.pattern.is_valid() {
-            return bad("pattern", "amplitude and frequency must be positive".into());
+        if let Err(reason) = self.pattern.check() {
+            return bad("pattern", reason);
         }
         self.imperfections.validate()
     }

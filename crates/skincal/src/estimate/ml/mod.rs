@@ -660,7 +660,13 @@ pub fn estimate_limb(
     if vertical {
         fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
     }
-    let limb = limb_robot(&data.chain, &state, &data.su_depth);
+    if !residual_ratio.is_finite() {
+        return Err(EstimateError::NotFinite {
+            limb: data.chain.name.clone(),
+            reason: format!("residual / noise = {residual_ratio}"),
+        });
+    }
+    let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
     let dh = data.chain.as_serial().and_then(|serial| {
         super::dh_form(&limb, &serial).map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su })
     });
@@ -890,7 +896,11 @@ fn su_uncertainty(
 
 /// The estimated limb as a robot: reference = the first joint frame, DoF `k` on the segment after
 /// DoF `k−1`, every SU on its segment.
-fn limb_robot(chain: &LimbChain, state: &ChainState, su_depth: &[usize]) -> Robot {
+fn limb_robot(
+    chain: &LimbChain,
+    state: &ChainState,
+    su_depth: &[usize],
+) -> Result<Robot, EstimateError> {
     let dofs = chain.dofs();
     let sus = chain.sus();
     let mut b = RobotBuilder::new(chain.name.clone(), "reference");
@@ -915,8 +925,11 @@ fn limb_robot(chain: &LimbChain, state: &ChainState, su_depth: &[usize]) -> Robo
             placement: PlacementSpec::from_isometry(&state.sus[u]),
         });
     }
-    b.build()
-        .expect("a limb with distinct names is a valid tree")
+    // Names are distinct by construction, so only non-finite numbers can be refused here.
+    b.build().map_err(|e| EstimateError::NotFinite {
+        limb: chain.name.clone(),
+        reason: e.to_string(),
+    })
 }
 
 fn validate(config: &MlConfig) -> Result<(), EstimateError> {

@@ -1,0 +1,270 @@
+//! Hostile input: each case here once panicked, hung or gave a confident wrong answer. Every one
+//! must now end in an error that names the file, field or SU and says what to do.
+
+use std::path::Path;
+
+use serde_json::{json, Value};
+use skincal::estimate::body::calibrate_body;
+use skincal::estimate::ml::MlConfig;
+use skincal::estimate::EstimateError;
+use skincal::explore::{explore, ExploreConfig, Structure};
+use skincal::io;
+use skincal::measurements::MeasurementSet;
+use skincal::model::presets;
+use skincal::sim::{simulate, Imperfections, SimulationConfig};
+
+fn paper_set(poses: usize) -> MeasurementSet {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    simulate(
+        &robot,
+        &SimulationConfig {
+            poses,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements
+}
+
+fn as_value(set: &MeasurementSet) -> Value {
+    serde_json::from_str(&set.to_json()).unwrap()
+}
+
+/// The error of a measurement set edited by `edit`.
+fn refused(edit: impl FnOnce(&mut Value)) -> String {
+    let mut v = as_value(&paper_set(3));
+    edit(&mut v);
+    MeasurementSet::from_json(&v.to_string())
+        .expect_err("an impossible set must be refused")
+        .to_string()
+}
+
+/// Multiplies every reading (static and dynamic) by `k`: the set in another unit.
+fn scaled(v: &mut Value, k: f64) {
+    fn walk(v: &mut Value, k: f64) {
+        match v {
+            Value::Array(a) if a.len() == 3 && a.iter().all(Value::is_f64) => {
+                for x in a {
+                    *x = json!(x.as_f64().unwrap() * k);
+                }
+            }
+            Value::Array(a) => a.iter_mut().for_each(|x| walk(x, k)),
+            Value::Object(o) => o.iter_mut().for_each(|(_, x)| walk(x, k)),
+            _ => {}
+        }
+    }
+    for o in v["structure"]["orientations"].as_array_mut().unwrap() {
+        walk(&mut o["rest"], k);
+        for m in o["moves"].as_array_mut().unwrap() {
+            walk(&mut m["readings"], k);
+        }
+    }
+    for p in v["training"]["poses"].as_array_mut().unwrap() {
+        walk(&mut p["static"], k);
+        walk(&mut p["dynamic"], k);
+    }
+}
+
+#[test]
+fn huge_readings_and_angles_are_refused_by_field_and_su() {
+    let e = refused(|v| v["training"]["poses"][0]["static"][1][0] = json!(1e308));
+    assert!(
+        e.starts_with("training.poses[0].static[1][0] (SU su2): 1e308 m/s²"),
+        "{e}"
+    );
+    let e = refused(|v| v["training"]["poses"][2]["dynamic"]["dof4"][6][2] = json!(-7e5));
+    assert!(e.contains("dynamic[\"dof4\"][6][2] (SU su7)"), "{e}");
+    let e = refused(|v| v["structure"]["orientations"][0]["rest_pose"][3] = json!(1e300));
+    assert!(
+        e.contains("rest_pose[3] (DoF dof4)") && e.contains("rad"),
+        "{e}"
+    );
+}
+
+#[test]
+fn patterns_no_servo_can_run_are_refused() {
+    for (field, value) in [
+        ("amplitude", 1e308),
+        ("frequency", 1e-300),
+        ("amplitude", -1.0),
+    ] {
+        let e = refused(|v| v["training"]["pattern"][field] = json!(value));
+        assert!(
+            e.starts_with("training.pattern") && e.contains(field),
+            "{field} = {value}: {e}"
+        );
+    }
+}
+
+#[test]
+fn units_other_than_si_are_refused_with_the_conversion() {
+    let e = refused(|v| v["units"]["acceleration"] = json!("g"));
+    assert!(
+        e.starts_with("units.acceleration") && e.contains("9.81"),
+        "{e}"
+    );
+    let e = refused(|v| v["units"]["acceleration"] = json!("furlong/fortnight^2"));
+    assert!(e.contains("m/s²"), "{e}");
+    let e = refused(|v| v["units"]["angle"] = json!("deg"));
+    assert!(e.starts_with("units.angle") && e.contains("π/180"), "{e}");
+}
+
+#[test]
+fn readings_in_g_or_mg_are_recognised_by_their_magnitude() {
+    // 1 g = 9.81 m/s²: the same physical set written in g and in mg, labelled m/s².
+    let e = refused(|v| scaled(v, 1.0 / 9.81));
+    assert!(e.contains("look like g") && e.contains("1.0"), "{e}");
+    let e = refused(|v| scaled(v, 1000.0 / 9.81));
+    assert!(e.contains("look like mg"), "{e}");
+    // A few dead SUs (all zeros) do not make a set look like another unit.
+    let mut v = as_value(&paper_set(3));
+    for p in v["training"]["poses"].as_array_mut().unwrap() {
+        p["static"][2] = json!([0.0, 0.0, 0.0]);
+    }
+    assert!(MeasurementSet::from_json(&v.to_string()).is_ok());
+}
+
+#[test]
+fn json_errors_name_the_field_and_the_usual_cause() {
+    let text = as_value(&paper_set(3)).to_string();
+    // A NaN literal, as Python's json.dump writes it.
+    let nan = text.replacen("[0.0,", "[NaN,", 1);
+    let e = MeasurementSet::from_json(&nan).unwrap_err().to_string();
+    assert!(e.contains("NaN") && e.contains("not JSON"), "{e}");
+    // A reading with four components.
+    let mut v: Value = serde_json::from_str(&text).unwrap();
+    v["training"]["poses"][0]["static"][1] = json!([0.0, 0.0, 9.81, 1.0]);
+    let e = MeasurementSet::from_json(&v.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("training.poses[0].static[1]") && e.contains("[x, y, z]"),
+        "{e}"
+    );
+    // A missing field names its place.
+    let mut v: Value = serde_json::from_str(&text).unwrap();
+    v["training"]["poses"][1]
+        .as_object_mut()
+        .unwrap()
+        .remove("q");
+    let e = MeasurementSet::from_json(&v.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("training.poses[1]") && e.contains("`q`"),
+        "{e}"
+    );
+}
+
+#[test]
+fn impossible_simulation_settings_are_refused_not_panicked_on() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sim = |imperfections: Imperfections, amplitude: f64, frequency: f64| {
+        let mut config = SimulationConfig {
+            poses: 2,
+            imperfections,
+            ..SimulationConfig::default()
+        };
+        config.pattern.amplitude = amplitude;
+        config.pattern.frequency = frequency;
+        simulate(&robot, &config).map(|_| ())
+    };
+    let ok = Imperfections::default();
+    for (imperfections, a, f, setting) in [
+        (Imperfections { bias: 1e308, ..ok }, 0.5, 2.0, "bias"),
+        (
+            Imperfections {
+                uniform_noise: 1e308,
+                ..ok
+            },
+            0.5,
+            2.0,
+            "noise",
+        ),
+        (
+            Imperfections {
+                gaussian_noise: 1e308,
+                ..ok
+            },
+            0.5,
+            2.0,
+            "gaussian_noise",
+        ),
+        (ok, 1e308, 2.0, "amplitude"),
+        (ok, 0.5, 1e-300, "frequency"),
+    ] {
+        let e = sim(imperfections, a, f).unwrap_err().to_string();
+        assert!(e.contains(setting), "{setting}: {e}");
+    }
+}
+
+fn explored() -> (MeasurementSet, Structure) {
+    let set = paper_set(12);
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    (set, structure)
+}
+
+fn write_structure(dir: &Path, edit: impl FnOnce(&mut Value)) -> std::path::PathBuf {
+    let (_, s) = explored();
+    let mut v = serde_json::to_value(&s).unwrap();
+    edit(&mut v);
+    let path = dir.join("structure.json");
+    std::fs::write(&path, v.to_string()).unwrap();
+    path
+}
+
+#[test]
+fn a_structure_with_a_loop_is_refused_at_once() {
+    // Regression: calibrate ran for minutes and took gigabytes walking J2 → S5 → … → S2 forever.
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_structure(dir.path(), |v| v["joints"][1]["parent"] = json!("S5"));
+    let e = io::read_structure(&path).unwrap_err().to_string();
+    assert!(e.contains("structure.json") && e.contains("loop"), "{e}");
+    assert!(e.contains("S2 → S5 → S4 → S3 → S2"), "{e}");
+    // The library refuses it too when it is handed over in memory.
+    let (set, mut s) = explored();
+    s.joints[1].parent = "S5".into();
+    let e = calibrate_body(&set, Some(&s), &MlConfig::default(), None).unwrap_err();
+    assert!(matches!(e, EstimateError::InvalidStructure(_)), "{e}");
+    assert!(skincal::estimate::serial_chains(&s).is_err());
+}
+
+#[test]
+fn a_structure_listing_an_su_twice_or_naming_nothing_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_structure(dir.path(), |v| {
+        v["segments"][3]["sus"]
+            .as_array_mut()
+            .unwrap()
+            .push(json!("su3"))
+    });
+    let e = io::read_structure(&path).unwrap_err().to_string();
+    assert!(e.contains("segments[3].sus") && e.contains("su3"), "{e}");
+    let path = write_structure(dir.path(), |v| v["limbs"][0]["joints"][2] = json!("J9"));
+    let e = io::read_structure(&path).unwrap_err().to_string();
+    assert!(e.contains("limbs[0].joints[2]") && e.contains("J9"), "{e}");
+    let path = write_structure(dir.path(), |v| {
+        v["segments"][4]["parent_joint"] = json!(null)
+    });
+    let e = io::read_structure(&path).unwrap_err().to_string();
+    assert!(e.contains("`S4`") && e.contains("parent joint"), "{e}");
+}
+
+#[test]
+fn a_file_of_another_kind_is_named_for_what_it_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let (set, s) = explored();
+    let m = dir.path().join("measurements.json");
+    std::fs::write(&m, set.to_json()).unwrap();
+    let e = io::read_model(&m).unwrap_err().to_string();
+    assert!(
+        e.contains("measurements.json") && e.contains("this is a measurement set"),
+        "{e}"
+    );
+    let st = dir.path().join("structure.json");
+    std::fs::write(&st, serde_json::to_string(&s).unwrap()).unwrap();
+    let e = io::read_model(&st).unwrap_err().to_string();
+    assert!(e.contains("this is a structure"), "{e}");
+    let e = io::read_measurements(&st).unwrap_err().to_string();
+    assert!(e.contains("this is a structure"), "{e}");
+}
