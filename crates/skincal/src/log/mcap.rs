@@ -6,7 +6,7 @@ use std::io::{BufWriter, Read};
 use std::path::{Path, PathBuf};
 
 use mcap::records::{op, MessageHeader, Record};
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::ros::{self, Imu, ImuAcceleration, JointState, Time};
 use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
@@ -198,6 +198,11 @@ enum ChannelKind {
     Wrong(String),
 }
 
+/// How many times its file size a decompressed chunk may be.
+const MAX_INFLATION: u64 = 256;
+/// The longest record read, bytes, whatever the file size (ROS 2 writes chunks of a few MB).
+const MAX_RECORD: usize = 1 << 30;
+
 /// Streams the samples of `stream` from the MCAP file at `path`.
 pub fn read(
     path: &Path,
@@ -210,12 +215,21 @@ pub fn read(
         path: path.to_path_buf(),
         source,
     };
+    let mut file = File::open(path).map_err(io_error)?;
+    let size = file.metadata().map_err(io_error)?.len();
     let mcap_error = |e: mcap::McapError| LogError::Mcap {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        reason: damage(&e, size),
     };
-    let mut file = File::open(path).map_err(io_error)?;
-    let mut reader = LinearReader::new();
+    // Lengths come from the file: a damaged one may claim exabytes. No record can be longer than
+    // the file, nor a chunk decompress to more than MAX_INFLATION times its size (zstd's best
+    // ratio on skin logs is far below).
+    let limit = usize::try_from(size.saturating_mul(MAX_INFLATION))
+        .unwrap_or(usize::MAX)
+        .clamp(1 << 20, MAX_RECORD);
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default().with_record_length_limit(limit),
+    );
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, ChannelKind> = HashMap::new();
     let mut stats = ReadStats::default();
@@ -330,6 +344,35 @@ pub fn read(
     }
     progress(read_bytes);
     Ok(stats)
+}
+
+/// What a reader error means for the user's file, and what to do.
+fn damage(e: &mcap::McapError, size: u64) -> String {
+    use mcap::McapError as E;
+    let salvage = "copy it again, or salvage its complete part with `mcap recover`";
+    match e {
+        _ if size == 0 => "the file is empty: was the recording started?".into(),
+        _ if size < 8 => format!("{size} bytes are too few for an MCAP file"),
+        E::BadMagic => "it does not start with MCAP's magic bytes: give a ROS 2 bag recorded with \
+                        `--storage mcap` (or its .mcap file)"
+            .into(),
+        E::UnexpectedEof => format!(
+            "it ends in the middle of a record after {size} bytes: it was cut short (recording \
+             interrupted, or an incomplete copy); {salvage}"
+        ),
+        E::RecordTooLarge { opcode, len } => format!(
+            "a record (opcode {opcode:#04x}) claims {len} bytes, more than a {size}-byte file \
+             can hold: the file is damaged; {salvage}"
+        ),
+        E::ChunkTooLarge(len) => format!(
+            "a chunk claims {len} bytes, more than a {size}-byte file can hold: the file is \
+             damaged; {salvage}"
+        ),
+        E::BadChunkCrc { .. } | E::BadDataCrc { .. } | E::BadSummaryCrc { .. } => {
+            format!("{e}: the file is damaged; {salvage}")
+        }
+        other => format!("{other}; if the file is damaged, {salvage}"),
+    }
 }
 
 /// Channel id and CDR payload of a message record (opcode 0x05): `channel_id u16, sequence u32,
