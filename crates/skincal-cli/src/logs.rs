@@ -381,12 +381,6 @@ pub(crate) struct RecordArgs {
     seed: u64,
 }
 
-fn read_plan(path: &Path) -> Result<Plan> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    Plan::from_json(&text).with_context(|| path.display().to_string())
-}
-
 fn sink_for(
     format: LogFormatArg,
     out: &Path,
@@ -407,7 +401,7 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
             seed: args.seed,
         },
     )?;
-    let plan = read_plan(&args.plan)?;
+    let plan = skincal::io::read_plan(&args.plan)?;
     let mut imperfections = Imperfections {
         uniform_noise: args.noise,
         bias: args.bias,
@@ -566,7 +560,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         config.sus = Some(robot.model.su_names());
     }
     if let Some(path) = &args.plan {
-        let plan = read_plan(path)?;
+        let plan = skincal::io::read_plan(path)?;
         config.pattern = Some(plan.pattern);
         if config.dofs.is_none() {
             config.dofs = Some(plan.dof_names());

@@ -76,7 +76,7 @@ pub enum IngestError {
         reason: String,
     },
     /// Nothing usable was found in the logs.
-    #[error("no measurements found: {0}")]
+    #[error("no measurements found {0}")]
     Empty(String),
 }
 
@@ -250,9 +250,26 @@ pub fn ingest(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Ingested, IngestError> {
+    ingest_logs(logs, config, progress).map_err(|e| match e {
+        IngestError::Empty(reason) if !logs.is_empty() => IngestError::Empty(format!(
+            "in {}: {reason}",
+            logs.iter()
+                .map(|l| l.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )),
+        other => other,
+    })
+}
+
+fn ingest_logs(
+    logs: &[PathBuf],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Ingested, IngestError> {
     config.validate()?;
     if logs.is_empty() {
-        return Err(IngestError::Empty("no log given".into()));
+        return Err(IngestError::Empty(": no log given".into()));
     }
     let mut timelines = Vec::new();
     let mut reports = Vec::new();
@@ -312,6 +329,11 @@ pub fn ingest(
         reports,
     )
 }
+
+/// Slowest joint-state rate that can resolve an excitation pattern, Hz.
+const MIN_JOINT_RATE: f64 = 20.0;
+/// Longest pause without joint states inside one log, s.
+const MAX_PAUSE: f64 = 600.0;
 
 /// Joint positions of one log on a uniform grid.
 #[derive(Debug, Clone)]
@@ -477,7 +499,38 @@ fn read_joints(
             reason: "the DoFs' joint states do not overlap in time".into(),
         });
     }
-    let n = ((t1 - t0) / dt).round() as usize + 1;
+    let rate = 1.0 / dt;
+    if rate < MIN_JOINT_RATE {
+        return Err(IngestError::Unusable {
+            path: path.to_path_buf(),
+            reason: format!(
+                "the joint states come every {} (stamp units) — {rate:.3} Hz if the stamps are \
+                 seconds, too slow to see an excitation pattern (at least {MIN_JOINT_RATE} Hz): \
+                 stamps must be in seconds; if they are in ms, µs or ns, divide them by 1e3, 1e6 \
+                 or 1e9",
+                crate::show::number(dt)
+            ),
+        });
+    }
+    // Lengths come from the stamps: one far-off stamp must not make a grid of years.
+    let span_points = (t1 - t0) / dt;
+    let samples = densest.len() as f64;
+    if span_points > 4.0 * samples + MAX_PAUSE * rate {
+        return Err(IngestError::Unusable {
+            path: path.to_path_buf(),
+            reason: format!(
+                "the joint states span {} s, but their {} samples at {rate:.1} Hz cover {:.1} s: \
+                 a stamp is far off (corrupt), or the log holds recordings with long pauses \
+                 between them (split it); the stamps run from {} to {}",
+                crate::show::number(t1 - t0),
+                densest.len(),
+                samples / rate,
+                crate::show::number(t0),
+                crate::show::number(t1)
+            ),
+        });
+    }
+    let n = span_points.round() as usize + 1;
     report.duration = t1 - t0;
     report.rate = 1.0 / dt;
     let mut invalid = vec![false; n];
@@ -1210,6 +1263,18 @@ fn assemble(
         });
     }
 
+    let found = stations
+        .iter()
+        .filter(|s| !s.excitations.is_empty())
+        .count();
+    if found > 0 && poses.is_empty() {
+        return Err(IngestError::Empty(format!(
+            "all {found} training poses found in the joint states were skipped, so the result \
+             would have none; the first reason: {}",
+            warnings.first().map_or("unknown", String::as_str)
+        )));
+    }
+
     // Structure groups.
     let mut orientations = Vec::new();
     for g in 0..group_count {
@@ -1296,6 +1361,12 @@ fn assemble(
         });
     }
 
+    if group_count > 0 && orientations.is_empty() && poses.is_empty() {
+        return Err(IngestError::Empty(format!(
+            "every structure pose found in the joint states was skipped; the first reason: {}",
+            warnings.first().map_or("unknown", String::as_str)
+        )));
+    }
     let mut set = MeasurementSet::new(dofs.to_vec(), sus.names.clone());
     if !orientations.is_empty() {
         set.structure = Some(StructureExperiment {

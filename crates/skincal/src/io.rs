@@ -240,6 +240,14 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
     Ok(model)
 }
 
+/// Reads and checks an exploration plan (`plan.json`).
+pub fn read_plan(path: &Path) -> Result<crate::plan::Plan, IoError> {
+    crate::plan::Plan::from_json(&read(path)?).map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
 /// Reads a pose table: CSV (header of DoF names, one pose per row) or, for `.json`, `{"dofs",
 /// "poses"}`.
 pub fn read_poses(path: &Path) -> Result<crate::predict::PoseTable, IoError> {

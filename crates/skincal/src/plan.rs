@@ -73,6 +73,9 @@ pub enum PlanError {
     Inconsistent(String),
 }
 
+/// The longest plan accepted from a file, s.
+const MAX_DURATION: f64 = 86_400.0;
+
 /// What a plan is made of.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -667,6 +670,14 @@ impl Plan {
         if let Err(reason) = self.pattern.check() {
             return Err(PlanError::Inconsistent(format!("pattern: {reason}")));
         }
+        let (ramp, hold) = (self.window.ramp_cycles, self.window.hold_cycles);
+        if !((0.0..=1000.0).contains(&ramp) && (0.0..=1000.0).contains(&hold)) {
+            return Err(PlanError::Inconsistent(format!(
+                "window: ramp_cycles {} and hold_cycles {} must lie in 0…1000",
+                crate::show::number(ramp),
+                crate::show::number(hold)
+            )));
+        }
         let nd = self.dofs.len();
         let mut t = 0.0;
         for (i, p) in self.phases.iter().enumerate() {
@@ -688,7 +699,40 @@ impl Plan {
                     )));
                 }
             }
+            let angles = p.from.iter().chain(&p.to);
+            if angles.clone().any(|q| {
+                !(-crate::model::sensor::MAX_ANGLE..=crate::model::sensor::MAX_ANGLE).contains(q)
+            }) {
+                return Err(PlanError::Inconsistent(format!(
+                    "phases[{i}]: from/to hold an angle that is not a finite number of rad"
+                )));
+            }
             t += p.duration;
+        }
+        if self.rest_pose.len() != nd {
+            return Err(PlanError::Inconsistent(format!(
+                "rest_pose: has {} angles, expected one per DoF ({nd})",
+                self.rest_pose.len()
+            )));
+        }
+        if !(0.0..=MAX_DURATION).contains(&t) {
+            return Err(PlanError::Inconsistent(format!(
+                "the phases last {} s, more than a day: no plan skincal makes is that long",
+                crate::show::number(t)
+            )));
+        }
+        if (self.duration - t).abs() > 1e-6 * t.max(1.0) {
+            return Err(PlanError::Inconsistent(format!(
+                "duration: {} s, but the phases add up to {t} s",
+                crate::show::number(self.duration)
+            )));
+        }
+        if !(0.0..=self.duration).contains(&self.structure_duration) {
+            return Err(PlanError::Inconsistent(format!(
+                "structure_duration: {} s is not within the plan's {} s",
+                crate::show::number(self.structure_duration),
+                self.duration
+            )));
         }
         Ok(())
     }

@@ -150,7 +150,11 @@ pub fn read(
             progress(bytes);
             since_progress = 0;
         }
-        let row = line.trim_end_matches(['\n', '\r']);
+        let mut row = line.trim_end_matches(['\n', '\r']);
+        if number == 1 {
+            // Spreadsheet programs start UTF-8 files with a byte-order mark.
+            row = row.trim_start_matches('\u{feff}');
+        }
         if row.is_empty() || row.starts_with('#') {
             continue;
         }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use mcap::records::{op, MessageHeader, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
-use super::ros::{self, Imu, ImuAcceleration, JointState, Time};
+use super::ros::{self, Imu, JointState, Time};
 use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
 
 /// Chunk compression of a written MCAP file.
@@ -256,7 +256,7 @@ pub fn read(
                     };
                     match channels.get(&channel) {
                         Some(ChannelKind::Imu) if stream == Stream::Imu => {
-                            match ros::decode::<ImuAcceleration>(body) {
+                            match ros::decode_imu(body) {
                                 Ok(m) => {
                                     stats.samples += 1;
                                     let a = m.linear_acceleration;
@@ -270,7 +270,7 @@ pub fn read(
                             }
                         }
                         Some(ChannelKind::Joints) if stream == Stream::Joints => {
-                            match ros::decode::<JointState>(body) {
+                            match ros::decode_joint_state(body) {
                                 Ok(joint) => {
                                     if joint.position.len() != joint.name.len() {
                                         stats.problem(format!(

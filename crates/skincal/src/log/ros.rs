@@ -193,7 +193,109 @@ pub fn encode<T: Serialize>(message: &T) -> Result<Vec<u8>, cdr::Error> {
     cdr::serialize::<_, _, cdr::CdrLe>(message, cdr::Infinite)
 }
 
-/// A message from CDR with the encapsulation header (either byte order).
+/// A message from CDR with the encapsulation header (either byte order). Trusted input only:
+/// the decoder allocates whatever a string's length field claims; logs are read with
+/// [`decode_imu`] and [`decode_joint_state`].
 pub fn decode<'de, T: Deserialize<'de>>(bytes: &[u8]) -> Result<T, cdr::Error> {
     cdr::deserialize(bytes)
+}
+
+/// A `sensor_msgs/msg/Imu` sample from a log, its lengths checked against the message first.
+pub fn decode_imu(bytes: &[u8]) -> Result<ImuAcceleration, cdr::Error> {
+    strings_fit(bytes, false)?;
+    cdr::deserialize(bytes)
+}
+
+/// A `sensor_msgs/msg/JointState` from a log, its lengths checked against the message first.
+pub fn decode_joint_state(bytes: &[u8]) -> Result<JointState, cdr::Error> {
+    strings_fit(bytes, true)?;
+    cdr::deserialize(bytes)
+}
+
+/// Walks the strings of a message (the header's `frame_id`, and a JointState's `name`) and checks
+/// that every length field fits in what is left of the message: a damaged log may claim gigabytes.
+fn strings_fit(bytes: &[u8], names: bool) -> Result<(), cdr::Error> {
+    let (Some(encapsulation), Some(body)) = (bytes.get(..4), bytes.get(4..)) else {
+        return Err(cdr::Error::InvalidEncapsulation);
+    };
+    let little = encapsulation[1] & 1 == 1;
+    let string = |at: &mut usize| -> Result<(), cdr::Error> {
+        let n = length(body, little, at)?;
+        if n > body.len().saturating_sub(*at) {
+            return Err(too_long());
+        }
+        *at += n;
+        Ok(())
+    };
+    // Offsets are aligned relative to the body; the stamp (sec, nanosec) comes first.
+    let mut at = 8usize;
+    string(&mut at)?;
+    if names {
+        let n = length(body, little, &mut at)?;
+        // Every name takes at least its 4-byte length.
+        if n > body.len().saturating_sub(at) / 4 {
+            return Err(too_long());
+        }
+        for _ in 0..n {
+            string(&mut at)?;
+        }
+    }
+    Ok(())
+}
+
+fn too_long() -> cdr::Error {
+    cdr::Error::Message("a string or sequence is longer than the message".into())
+}
+
+/// The 4-aligned `u32` length field at `at`, which moves past it.
+fn length(body: &[u8], little: bool, at: &mut usize) -> Result<usize, cdr::Error> {
+    *at = at.next_multiple_of(4);
+    let field: [u8; 4] = body
+        .get(*at..*at + 4)
+        .and_then(|b| b.try_into().ok())
+        .ok_or_else(too_long)?;
+    *at += 4;
+    Ok(if little {
+        u32::from_le_bytes(field)
+    } else {
+        u32::from_be_bytes(field)
+    } as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn damaged_length_fields_are_refused_before_decoding() {
+        let imu = Imu::accelerometer(Time::from_seconds(12.5), "su7", [0.1, -0.2, 9.81]);
+        let joints = JointState {
+            header: Header {
+                stamp: Time::from_seconds(3.0),
+                frame_id: String::new(),
+            },
+            name: vec!["shoulder".into(), "elbow".into()],
+            position: vec![0.5, -1.0],
+            velocity: vec![],
+            effort: vec![],
+        };
+        let (imu_cdr, joints_cdr) = (encode(&imu).unwrap(), encode(&joints).unwrap());
+        assert_eq!(decode_imu(&imu_cdr).unwrap().header.frame_id, "su7");
+        assert_eq!(decode_joint_state(&joints_cdr).unwrap(), joints);
+        // frame_id's length sits after the encapsulation (4) and the stamp (8): claim 3 GB.
+        let mut bad = imu_cdr.clone();
+        bad[12..16].copy_from_slice(&3_000_000_000u32.to_le_bytes());
+        assert!(decode_imu(&bad).is_err());
+        // The length of the second name: after header (4 + 8 + 4 + 1 → 20), count (4),
+        // "shoulder\0" (4 + 9 → 37), aligned to 40.
+        let mut bad = joints_cdr.clone();
+        assert_eq!(
+            &bad[40..44],
+            &6u32.to_le_bytes(),
+            "\"elbow\\0\" is where it should be"
+        );
+        bad[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(decode_joint_state(&bad).is_err());
+        assert!(decode_imu(&imu_cdr[..10]).is_err());
+    }
 }
