@@ -26,7 +26,12 @@ Exit codes:
   0  success
   1  error: bad input (unknown robot, malformed file, impossible setting) or a file that cannot be
      read or written; the message names the file or field and what to do
-  2  usage error: unknown command or option";
+  2  usage error: unknown command or option
+  3  incomplete: the results were written, but part of them is missing or unreliable (explore:
+     the tree has error-level diagnostics); the message says which
+
+No command overwrites an existing result unless --force is given (demo replaces only the
+directory it made itself).";
 
 /// Self-calibration of robots covered with artificial skin, from the skin's own accelerometers.
 ///
@@ -110,6 +115,9 @@ struct CalibrateArgs {
     /// Cap on error-function evaluations per step (method paper).
     #[arg(long, default_value_t = 100_000)]
     max_evaluations: u32,
+    /// Overwrite an existing model file.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -247,6 +255,9 @@ struct ExploreArgs {
     /// Print the structure as JSON on standard output instead of the tables.
     #[arg(long)]
     json: bool,
+    /// Overwrite an existing structure.json and structure.dot.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Debug, Args)]
@@ -257,6 +268,9 @@ struct DemoArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Write into --out even if it holds files that demo did not make.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Debug, Args)]
@@ -317,10 +331,22 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", message(&e));
-            ExitCode::from(1)
+            ExitCode::from(if e.is::<Incomplete>() { 3 } else { 1 })
         }
     }
 }
+
+/// The results were written, but part of them is missing or unreliable: exit code 3.
+#[derive(Debug)]
+struct Incomplete(String);
+
+impl std::fmt::Display for Incomplete {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Incomplete {}
 
 /// An error and its causes in one line, each said once: library errors often repeat their cause
 /// in their own text (`cannot read F: No such file (os error 2)`).
@@ -388,18 +414,32 @@ fn explore(args: ExploreArgs) -> Result<()> {
             (json_path.clone(), json.clone()),
             (dot_path.clone(), report::structure_dot(&structure)),
         ],
-        true,
+        args.force,
     )?;
     if args.json {
         outln!("{json}");
-        return Ok(());
+    } else {
+        out!("{}", render::structure_summary(&structure));
+        outln!(
+            "\nwrote {}\nwrote {}",
+            json_path.display(),
+            dot_path.display()
+        );
     }
-    out!("{}", render::structure_summary(&structure));
-    outln!(
-        "\nwrote {}\nwrote {}",
-        json_path.display(),
-        dot_path.display()
-    );
+    if !structure.complete {
+        let errors = structure
+            .diagnostics
+            .iter()
+            .filter(|d| d.severity == skincal::explore::Severity::Error)
+            .count();
+        return Err(Incomplete(format!(
+            "the tree is incomplete ({errors} error-level diagnostic(s); {} SUs and {} DoFs left out): {} was written, but calibrate will refuse it until the structure experiment is fixed",
+            structure.unplaced_sus.len(),
+            structure.unplaced_dofs.len(),
+            json_path.display()
+        ))
+        .into());
+    }
     Ok(())
 }
 
@@ -524,10 +564,10 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         estimates.push(estimate);
     }
     let model = serde_json::json!({ "format": "skincal-model-paper", "version": 1, "method": "paper", "limbs": estimates });
-    let out = dir.join("model-paper.json");
+    let out = dir.join(model_file("model-paper", args.limb.as_deref()));
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
-        true,
+        args.force,
     )?;
     outln!("wrote {}", out.display());
     if estimates.iter().any(|e| !e.converged()) {
@@ -558,16 +598,24 @@ fn calibrate_ml(
     for limb in &model.limbs {
         out!("{}", limb_report(limb, truth)?);
     }
-    let out = dir.join("model.json");
+    let out = dir.join(model_file("model", args.limb.as_deref()));
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
-        true,
+        args.force,
     )?;
     outln!("wrote {}", out.display());
     if model.limbs.iter().any(|l| !l.estimate.converged) {
         eprintln!("warning: some limbs did not converge to the noise level (see above)");
     }
     Ok(())
+}
+
+/// `model.json`, or `model-S4.json` for a run on one limb: a part never replaces the whole.
+fn model_file(stem: &str, limb: Option<&str>) -> String {
+    match limb {
+        Some(l) => format!("{stem}-{l}.json"),
+        None => format!("{stem}.json"),
+    }
 }
 
 /// What `calibrate` prints for one limb: the fit, the DH form of a paper-style chain, and the
@@ -944,6 +992,21 @@ fn demo(args: DemoArgs) -> Result<()> {
     let out = args
         .out
         .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
+    // The demo replaces its own directory on every run, and nothing else.
+    let marker = out.join(".skincal-demo");
+    let holds_other_files = std::fs::read_dir(&out).is_ok_and(|mut d| d.next().is_some());
+    if holds_other_files && !marker.exists() && !args.force {
+        anyhow::bail!(
+            "{} holds files that skincal demo did not make: choose another --out, or pass --force to overwrite them",
+            out.display()
+        );
+    }
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    std::fs::write(
+        &marker,
+        "made by skincal demo, which replaces this directory's files on every run\n",
+    )
+    .with_context(|| format!("cannot write {}", marker.display()))?;
     let robot = io::load_robot("humanoid", SuPlacement::default())?;
     let config = SimulationConfig {
         seed: args.seed,

@@ -407,7 +407,7 @@ fn explore_prints_the_tree_and_writes_json_and_dot() {
         "{dot}"
     );
 
-    let out = skincal(&["explore", "h/measurements.json", "--json"], d);
+    let out = skincal(&["explore", "h/measurements.json", "--json", "--force"], d);
     assert!(out.status.success());
     let printed: serde_json::Value =
         serde_json::from_slice(&out.stdout).expect("--json prints only JSON");
@@ -457,7 +457,7 @@ fn calibrate_with_the_papers_method_prints_fig6_and_writes_the_model() {
         assert!(text.contains(needle), "`{needle}` missing in:\n{text}");
     }
     let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("p/model-paper.json")).unwrap())
+        serde_json::from_str(&std::fs::read_to_string(d.join("p/model-paper-S7.json")).unwrap())
             .unwrap();
     assert_eq!(v["method"], "paper");
     let limb = &v["limbs"][0];
@@ -787,4 +787,61 @@ fn a_closed_output_pipe_neither_panics_nor_loses_results() {
     quiet(&["validate", "a/model.json", "b"]);
     quiet(&["export-urdf", "a/model.json"]);
     assert!(d.join("a/model.urdf").is_file());
+}
+
+#[test]
+fn no_result_is_overwritten_unasked_and_an_incomplete_tree_exits_with_3() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |args: &[&str]| {
+        let out = skincal(args, d);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    };
+    ok(&[
+        "simulate",
+        "--robot",
+        "paper-7dof",
+        "--out",
+        "p",
+        "--poses",
+        "12",
+    ]);
+    ok(&["explore", "p"]);
+    fails_with(
+        &["explore", "p"],
+        d,
+        &["structure.json already exists", "--force"],
+    );
+    ok(&["explore", "p", "--force"]);
+    ok(&["calibrate", "p"]);
+    let whole = std::fs::read_to_string(d.join("p/model.json")).unwrap();
+    fails_with(
+        &["calibrate", "p"],
+        d,
+        &["model.json already exists", "--force"],
+    );
+    // One limb goes beside the whole model, never over it.
+    ok(&["calibrate", "p", "--limb", "S7"]);
+    assert!(d.join("p/model-S7.json").is_file());
+    assert_eq!(
+        std::fs::read_to_string(d.join("p/model.json")).unwrap(),
+        whole
+    );
+    ok(&["calibrate", "p", "--force"]);
+
+    // A DoF that was never moved leaves the tree incomplete: results written, exit code 3.
+    let path = d.join("p/measurements.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    for o in v["structure"]["orientations"].as_array_mut().unwrap() {
+        o["moves"]
+            .as_array_mut()
+            .unwrap()
+            .retain(|m| m["dof"] != "dof4");
+    }
+    std::fs::write(&path, v.to_string()).unwrap();
+    let out = skincal(&["explore", "p", "--force"], d);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    assert!(stderr(&out).contains("incomplete"), "{}", stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("wrote"));
 }

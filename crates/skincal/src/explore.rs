@@ -450,6 +450,7 @@ impl Structure {
                 segment(format!("{field}[{i}]"), id)?;
             }
         }
+        let mut in_limb = HashMap::new();
         for (l, limb) in self.limbs.iter().enumerate() {
             let field = format!("limbs[{l}]");
             segment(format!("{field}.from"), &limb.from)?;
@@ -488,6 +489,13 @@ impl Structure {
                     dofs.join(", ")
                 ));
             }
+            for j in &limb.joints {
+                if let Some(other) = in_limb.insert(j.as_str(), l) {
+                    return Err(format!(
+                        "{field}.joints: joint `{j}` is also in limbs[{other}]; every joint is in one limb"
+                    ));
+                }
+            }
             for (k, su) in limb.sus.iter().enumerate() {
                 if !limb
                     .segments
@@ -499,6 +507,16 @@ impl Structure {
                     ));
                 }
             }
+        }
+        if let Some(j) = self
+            .joints
+            .iter()
+            .find(|j| !in_limb.contains_key(j.id.as_str()))
+        {
+            return Err(format!(
+                "limbs: joint `{}` is in no limb; every joint is in one limb",
+                j.id
+            ));
         }
         Ok(())
     }

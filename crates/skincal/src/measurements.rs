@@ -297,6 +297,12 @@ impl MeasurementSet {
             }
         }
         if let Some(t) = &self.training {
+            if t.poses.is_empty() {
+                return Err(MeasurementError::InvalidValue {
+                    field: "training.poses".into(),
+                    reason: "is empty: record training poses, or leave `training` out".into(),
+                });
+            }
             if let Err(reason) = t.pattern.check() {
                 return Err(MeasurementError::InvalidValue {
                     field: "training.pattern".into(),

@@ -175,6 +175,11 @@ pub fn calibrate_body(
                     .all(|(a, b)| a.id == b.id)
         });
     }
+    if chains.is_empty() {
+        return Err(EstimateError::InvalidStructure(
+            "it has no limbs: there is nothing to calibrate".into(),
+        ));
+    }
     let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
     let mut estimates: Vec<MlChainEstimate> = Vec::new();
     let mut parents = Vec::new();

@@ -305,7 +305,8 @@ pub fn read(
                         None => stats.problem(format!("a message on unknown channel {channel}")),
                     }
                 }
-                op::SCHEMA | op::CHANNEL => match mcap::parse_record(opcode, data)
+                op::SCHEMA | op::CHANNEL => match lengths_fit(opcode, data)
+                    .and_then(|()| mcap::parse_record(opcode, data))
                     .map_err(mcap_error)?
                 {
                     Record::Schema { header, .. } => {
@@ -373,6 +374,47 @@ fn damage(e: &mcap::McapError, size: u64) -> String {
         }
         other => format!("{other}; if the file is damaged, {salvage}"),
     }
+}
+
+/// Checks that every length inside a schema or channel record fits in the record before the mcap
+/// crate parses it (it allocates a string's claimed length first).
+fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), mcap::McapError> {
+    let mut at;
+    let bytes = |at: &mut usize, limit: usize| -> Option<()> {
+        let field: [u8; 4] = data.get(*at..*at + 4)?.try_into().ok()?;
+        let n = u32::from_le_bytes(field) as usize;
+        *at += 4;
+        (n <= limit.saturating_sub(*at)).then(|| *at += n)
+    };
+    let fits = match opcode {
+        // id u16, name, encoding, data
+        op::SCHEMA => {
+            at = 2;
+            (0..3).try_for_each(|_| bytes(&mut at, data.len()))
+        }
+        // id u16, schema_id u16, topic, message_encoding, metadata map<string, string>
+        op::CHANNEL => {
+            at = 4;
+            (0..2)
+                .try_for_each(|_| bytes(&mut at, data.len()))
+                .and_then(|()| {
+                    let start = at + 4;
+                    bytes(&mut at, data.len())?;
+                    let end = at;
+                    let mut entry = start;
+                    while entry < end {
+                        bytes(&mut entry, end)?;
+                        bytes(&mut entry, end)?;
+                    }
+                    Some(())
+                })
+        }
+        _ => Some(()),
+    };
+    fits.ok_or(mcap::McapError::RecordTooLarge {
+        opcode,
+        len: data.len() as u64,
+    })
 }
 
 /// Channel id and CDR payload of a message record (opcode 0x05): `channel_id u16, sequence u32,
