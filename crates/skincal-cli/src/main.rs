@@ -466,6 +466,29 @@ fn structure_of(
             "no structure experiment: the DoFs in listed order as one chain".to_string(),
         )
     };
+    if let (Some(s), true) = (&structure, structure_path.exists()) {
+        // A structure.json of another robot, or of an older recording, is named with the fix.
+        let missing = s
+            .segments
+            .iter()
+            .flat_map(|g| g.sus.iter().map(|u| ("SU", u)))
+            .chain(
+                s.joints
+                    .iter()
+                    .flat_map(|j| j.dofs.iter().map(|d| ("DoF", d))),
+            )
+            .find(|(what, name)| {
+                let names = if *what == "SU" { &set.sus } else { &set.dofs };
+                !names.contains(name)
+            });
+        if let Some((what, name)) = missing {
+            anyhow::bail!(
+                "{}: {what} `{name}` is not in the measurement set beside it: is the structure of another robot or recording? Run `skincal explore {} --force` to explore this set again",
+                structure_path.display(),
+                dir.display()
+            );
+        }
+    }
     if structure.as_ref().is_some_and(|s| !s.complete) {
         anyhow::bail!("the explored structure is incomplete (see `skincal explore`): fix the structure experiment before calibrating");
     }

@@ -828,6 +828,18 @@ fn no_result_is_overwritten_unasked_and_an_incomplete_tree_exits_with_3() {
         whole
     );
     ok(&["calibrate", "p", "--force"]);
+    // A structure.json of another robot is named as the culprit.
+    ok(&[
+        "simulate", "--robot", "humanoid", "--out", "h", "--poses", "2",
+    ]);
+    ok(&["explore", "h"]);
+    std::fs::copy(d.join("h/structure.json"), d.join("p/structure.json")).unwrap();
+    fails_with(
+        &["calibrate", "p", "--force"],
+        d,
+        &["p/structure.json", "another robot"],
+    );
+    std::fs::remove_file(d.join("p/structure.json")).unwrap();
 
     // A DoF that was never moved leaves the tree incomplete: results written, exit code 3.
     let path = d.join("p/measurements.json");

@@ -297,11 +297,24 @@ fn ingest_logs(
 
     let (pattern, pattern_source) = match config.pattern {
         Some(p) => (p, "given".to_string()),
-        None => estimate_pattern(&plans).ok_or_else(|| {
-            IngestError::Empty(
-                "no excitation found to estimate the pattern from, and none given".into(),
-            )
-        })?,
+        None => {
+            let excitations: usize = plans.iter().map(|p| p.excitations.len()).sum();
+            match estimate_pattern(&plans) {
+                Some(found) => found,
+                // A structure-only log: no training pose will need the pattern.
+                None if excitations == 0 => (
+                    ExcitationPattern::default(),
+                    "none needed: the logs hold no excitation".to_string(),
+                ),
+                None => {
+                    return Err(IngestError::Empty(format!(
+                        "the {excitations} excitations found give no usable pattern (peak speed \
+                         and acceleration out of range): give the nominal one with --plan or \
+                         --pattern A,f"
+                    )))
+                }
+            }
+        }
     };
 
     // Pass 2: the skin samples.

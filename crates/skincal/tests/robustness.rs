@@ -268,3 +268,42 @@ fn a_file_of_another_kind_is_named_for_what_it_is() {
     let e = io::read_measurements(&st).unwrap_err().to_string();
     assert!(e.contains("this is a structure"), "{e}");
 }
+
+#[test]
+fn a_structure_only_log_ingests_without_a_pattern() {
+    // Regression: "no measurements found" although the structure moves were all there, because
+    // no excitation pattern could be estimated from a log that has none.
+    use skincal::ingest::{ingest, IngestConfig};
+    use skincal::log::csv::CsvSink;
+    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+    use skincal::sim::timeseries::{record, LogConfig};
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 1,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("log");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    record(
+        &robot,
+        &plan,
+        &config,
+        &mut CsvSink::new(&log, false),
+        &mut |_| {},
+    )
+    .unwrap();
+    let ingested = ingest(&[log], &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let set = &ingested.measurements;
+    assert!(set.training.is_none());
+    let moves = &set.structure.as_ref().unwrap().orientations[0].moves;
+    assert_eq!(moves.len(), 7, "one move per DoF");
+}
