@@ -731,24 +731,39 @@ fn predict(args: PredictArgs) -> Result<()> {
         Some(p) => parse_pattern(p)?,
         None => model.pattern,
     };
-    let table = io::read_poses(&args.poses)?;
     let predictor = skincal::predict::Predictor::new(&model)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
-    let json = predictor.predict(&table, &pattern, &args.poses.display().to_string())?;
-    let text = serde_json::to_string_pretty(&json)?;
     match args.out {
         Some(out) => {
-            io::write_all(&[(out.clone(), text)], args.force)?;
+            let poses = io::write_predictions(&predictor, &args.poses, &pattern, &out, args.force)?;
             outln!(
-                "wrote {} ({} poses, {} SUs, pattern A = {} rad/s, f = {} Hz)",
+                "wrote {} ({poses} poses, {} SUs, pattern A = {} rad/s, f = {} Hz)",
                 out.display(),
-                table.poses.len(),
                 predictor.sus().len(),
                 pattern.amplitude,
                 pattern.frequency
             );
         }
-        None => outln!("{text}"),
+        None => {
+            let mut stdout = std::io::stdout().lock();
+            let streamed = io::stream_predictions(
+                &predictor,
+                &args.poses,
+                &pattern,
+                &std::env::temp_dir(),
+                &mut stdout,
+                Path::new("standard output"),
+            );
+            match streamed {
+                // The reader has gone (`| head`): nothing is lost but the rest of the text.
+                Err(io::IoError::Write { path, source })
+                    if source.kind() == std::io::ErrorKind::BrokenPipe
+                        && path == Path::new("standard output") => {}
+                other => {
+                    other?;
+                }
+            }
+        }
     }
     Ok(())
 }

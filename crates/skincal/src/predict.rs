@@ -60,29 +60,52 @@ impl PoseTable {
         let (_, header) = lines.next().ok_or_else(|| {
             PredictError::Poses("empty file: expected a header of DoF names".into())
         })?;
-        let dofs: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
+        let dofs = Self::csv_header(header);
         let mut poses = Vec::new();
         for (n, line) in lines {
-            let row: Vec<f64> = line
-                .split(',')
-                .enumerate()
-                .map(|(c, v)| {
-                    v.trim().parse::<f64>().map_err(|_| {
+            poses.push(Self::csv_row(line, n + 1, &dofs)?);
+        }
+        let table = Self { dofs, poses };
+        table.check()?;
+        Ok(table)
+    }
+
+    /// The DoF names of a CSV header line.
+    pub fn csv_header(line: &str) -> Vec<String> {
+        line.trim_start_matches('\u{feff}')
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .collect()
+    }
+
+    /// One CSV pose row (line number `line` for messages): one finite number per DoF.
+    pub fn csv_row(text: &str, line: usize, dofs: &[String]) -> Result<Vec<f64>, PredictError> {
+        let row: Vec<f64> = text
+            .split(',')
+            .enumerate()
+            .map(|(c, v)| {
+                v.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| {
                         PredictError::Poses(format!(
-                            "line {}, column {} (`{}`): `{}` is not a number",
-                            n + 1,
+                            "line {line}, column {} (`{}`): `{}` is not a finite number",
                             c + 1,
                             dofs.get(c).map_or("?", String::as_str),
                             v.trim()
                         ))
                     })
-                })
-                .collect::<Result<_, _>>()?;
-            poses.push(row);
+            })
+            .collect::<Result<_, _>>()?;
+        if row.len() != dofs.len() {
+            return Err(PredictError::Poses(format!(
+                "line {line} has {} values for {} DoFs",
+                row.len(),
+                dofs.len()
+            )));
         }
-        let table = Self { dofs, poses };
-        table.check()?;
-        Ok(table)
+        Ok(row)
     }
 
     /// From JSON: `{"dofs": [names], "poses": [[q per DoF]]}` (the output of `predict` has this shape).
@@ -187,6 +210,12 @@ impl Predictor {
             })
             .collect();
         PoseReadings { statics, dynamic }
+    }
+
+    /// For every model DoF, its column among `given` (a pose table's header); every model DoF must
+    /// be there and no other.
+    pub fn columns(&self, given: &[String], source: &str) -> Result<Vec<usize>, PredictError> {
+        columns(&self.dofs(), given, source)
     }
 
     /// The columns of `table` in model DoF order; every model DoF must be there and no other.

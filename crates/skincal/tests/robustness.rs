@@ -307,3 +307,35 @@ fn a_structure_only_log_ingests_without_a_pattern() {
     let moves = &set.structure.as_ref().unwrap().orientations[0].moves;
     assert_eq!(moves.len(), 7, "one move per DoF");
 }
+
+#[test]
+fn streamed_predictions_equal_the_in_memory_ones() {
+    // `predict` streams (a million poses once took 10 GB); the streamed JSON must hold exactly
+    // what Predictor::predict builds in memory, whatever the column order of the pose file.
+    use skincal::predict::{PoseTable, Predictor};
+    let (set, s) = explored();
+    let model = calibrate_body(&set, Some(&s), &MlConfig::default(), None).unwrap();
+    let predictor = Predictor::new(&model).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let csv = "# poses\ndof7,dof1,dof2,dof3,dof4,dof5,dof6\n0.1,0.2,0.3,0.4,0.5,0.6,0.7\n\n-1,0,1e-7,0,-1,0,1\n";
+    let path = dir.path().join("poses.csv");
+    std::fs::write(&path, csv).unwrap();
+    let out = dir.path().join("predicted.json");
+    let n = io::write_predictions(&predictor, &path, &model.pattern, &out, false).unwrap();
+    assert_eq!(n, 2);
+    let streamed: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let table = PoseTable::from_csv(csv).unwrap();
+    let in_memory = predictor
+        .predict(&table, &model.pattern, "poses.csv")
+        .unwrap();
+    assert_eq!(streamed, in_memory);
+    // No spill files are left beside the output, and it is not overwritten unasked.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    assert!(io::write_predictions(&predictor, &path, &model.pattern, &out, false).is_err());
+    // A bad row names the file and the line.
+    std::fs::write(&path, "dof1,dof2,dof3,dof4,dof5,dof6,dof7\n1,2,3,x,5,6,7\n").unwrap();
+    let e = io::write_predictions(&predictor, &path, &model.pattern, &out, true)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("poses.csv") && e.contains("line 2"), "{e}");
+}
