@@ -757,13 +757,13 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
     // Cut the program to the requested length.
     plan.phases.retain(|p| p.start < args.seconds);
     plan.duration = args.seconds.min(plan.duration);
-    let tmp;
-    let dir = match &args.dir {
-        Some(d) => d.clone(),
-        None => {
-            tmp = tempfile_dir()?;
-            tmp.clone()
-        }
+    let scratch = match &args.dir {
+        Some(_) => None,
+        None => Some(Scratch::create()?),
+    };
+    let dir = match (&args.dir, &scratch) {
+        (Some(d), _) => d.clone(),
+        (_, s) => s.as_ref().map(|s| s.0.clone()).unwrap_or_default(),
     };
     outln!(
         "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), one core",
@@ -840,16 +840,28 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
         }
     }
-    if args.dir.is_none() {
-        let _ = std::fs::remove_dir_all(&dir);
-    }
+    drop(scratch);
     Ok(())
 }
 
-fn tempfile_dir() -> Result<PathBuf> {
-    let dir = std::env::temp_dir().join(format!("skincal-bench-ingest-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(dir)
+/// A scratch directory, removed when dropped, on an error, or by a signal.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn create() -> Result<Scratch> {
+        let dir = std::env::temp_dir().join(format!("skincal-bench-ingest-{}", std::process::id()));
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        skincal::log::hold_transient(&dir);
+        Ok(Scratch(dir))
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+        skincal::log::release_transient(&self.0);
+    }
 }
 
 fn dir_size(path: &Path) -> u64 {

@@ -29,6 +29,7 @@ Exit codes:
   2  usage error: unknown command or option
   3  incomplete: the results were written, but part of them is missing or unreliable (explore:
      the tree has error-level diagnostics); the message says which
+  130 interrupted (Ctrl-C, SIGTERM, SIGHUP): half-written outputs were removed
 
 No command overwrites an existing result unless --force is given (demo replaces only the
 directory it made itself).";
@@ -327,6 +328,12 @@ struct SimulateArgs {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // Ctrl-C, SIGTERM or SIGHUP: remove half-written outputs and scratch files, then stop.
+    let _ = ctrlc::set_handler(|| {
+        skincal::log::remove_transient();
+        eprintln!("interrupted: partial outputs removed");
+        std::process::exit(130);
+    });
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

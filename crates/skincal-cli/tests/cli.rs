@@ -857,3 +857,52 @@ fn no_result_is_overwritten_unasked_and_an_incomplete_tree_exits_with_3() {
     assert!(stderr(&out).contains("incomplete"), "{}", stderr(&out));
     assert!(String::from_utf8_lossy(&out.stdout).contains("wrote"));
 }
+
+#[test]
+fn an_interrupted_recording_leaves_no_partial_files() {
+    // Regression: Ctrl-C during `record` left hidden .PID.tmp files of tens of MB.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let plan = skincal(&["plan", "--robot", "paper-7dof", "--out", "plan"], d);
+    assert!(plan.status.success(), "{}", stderr(&plan));
+    for (signal, format, out) in [("-INT", "mcap", "log.mcap"), ("-TERM", "csv", "csvlog")] {
+        let child = Command::new(env!("CARGO_BIN_EXE_skincal"))
+            .args([
+                "record",
+                "--robot",
+                "paper-7dof",
+                "--plan",
+                "plan/plan.json",
+            ])
+            .args(["--format", format, "--out", out])
+            .current_dir(d)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait until the recording has started writing.
+        let started = std::time::Instant::now();
+        while !std::fs::read_dir(d)
+            .unwrap()
+            .chain(std::fs::read_dir(d.join(out)).into_iter().flatten())
+            .any(|e| e.unwrap().file_name().to_string_lossy().ends_with(".tmp"))
+        {
+            assert!(started.elapsed().as_secs() < 30, "record wrote nothing");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        let kill = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let output = child.wait_with_output().unwrap();
+        assert_eq!(output.status.code(), Some(130), "{}", stderr(&output));
+        let left: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .chain(std::fs::read_dir(d.join(out)).into_iter().flatten())
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".tmp") || n == out)
+            .collect();
+        assert!(left.is_empty(), "{signal}: left behind {left:?}");
+    }
+}

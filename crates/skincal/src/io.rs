@@ -543,6 +543,7 @@ impl SpillDir {
             .map_or(0, |d| d.subsec_nanos());
         let path = beside.join(format!(".skincal-spill-{}-{nanos}", std::process::id()));
         fs::create_dir_all(&path)?;
+        crate::log::hold_transient(&path);
         Ok(SpillDir(path))
     }
 }
@@ -550,5 +551,6 @@ impl SpillDir {
 impl Drop for SpillDir {
     fn drop(&mut self) {
         let _ = fs::remove_dir_all(&self.0);
+        crate::log::release_transient(&self.0);
     }
 }

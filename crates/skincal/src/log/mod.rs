@@ -221,13 +221,51 @@ pub fn read_log(
     }
 }
 
+/// Files and directories that exist only while an operation runs: staged outputs, spilled
+/// sections, scratch directories.
+static TRANSIENT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Records a file or directory that must not outlive the operation that made it.
+pub fn hold_transient(path: &Path) {
+    if let Ok(mut t) = TRANSIENT.lock() {
+        t.push(path.to_path_buf());
+    }
+}
+
+/// Forgets a transient path again (it was committed or removed).
+pub fn release_transient(path: &Path) {
+    if let Ok(mut t) = TRANSIENT.lock() {
+        if let Some(i) = t.iter().rposition(|p| p == path) {
+            t.swap_remove(i);
+        }
+    }
+}
+
+/// Removes every transient file and directory still held: what a process interrupted by a signal
+/// calls before it exits, so that no half-written output is left behind.
+pub fn remove_transient() {
+    let paths = match TRANSIENT.lock() {
+        Ok(mut t) => std::mem::take(&mut *t),
+        Err(_) => return,
+    };
+    for p in paths {
+        if p.is_dir() {
+            let _ = std::fs::remove_dir_all(&p);
+        } else {
+            let _ = std::fs::remove_file(&p);
+        }
+    }
+}
+
 /// A temporary file beside `path`, renamed onto it by [`Staged::commit`] and removed if dropped
-/// before that.
+/// before that (or by [`remove_transient`] on a signal).
 #[derive(Debug)]
 pub(crate) struct Staged {
     tmp: PathBuf,
     path: PathBuf,
     committed: bool,
+    /// The directory it made for `path`, if there was none.
+    made_dir: Option<PathBuf>,
 }
 
 impl Staged {
@@ -241,10 +279,14 @@ impl Staged {
             .parent()
             .filter(|d| !d.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
+        let made_dir = (!dir.exists()).then(|| dir.to_path_buf());
         std::fs::create_dir_all(dir).map_err(|source| LogError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
+        if let Some(d) = &made_dir {
+            hold_transient(d);
+        }
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -254,11 +296,13 @@ impl Staged {
             path: tmp.clone(),
             source,
         })?;
+        hold_transient(&tmp);
         Ok((
             Staged {
                 tmp,
                 path: path.to_path_buf(),
                 committed: false,
+                made_dir,
             },
             file,
         ))
@@ -270,6 +314,10 @@ impl Staged {
             source,
         })?;
         self.committed = true;
+        release_transient(&self.tmp);
+        if let Some(d) = &self.made_dir {
+            release_transient(d);
+        }
         Ok(self.path.clone())
     }
 
@@ -282,6 +330,12 @@ impl Drop for Staged {
     fn drop(&mut self) {
         if !self.committed {
             let _ = std::fs::remove_file(&self.tmp);
+            release_transient(&self.tmp);
+            if let Some(d) = &self.made_dir {
+                // Only if nothing else was put there.
+                let _ = std::fs::remove_dir(d);
+                release_transient(d);
+            }
         }
     }
 }
