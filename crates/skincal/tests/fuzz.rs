@@ -9,7 +9,7 @@
 //! end without a panic, within a time limit, within a memory limit (the allocator refuses to hold
 //! more), and a refusal must name the file.
 //!
-//! `SKINCAL_FUZZ_CASES` (mutants per format, default 120) and `SKINCAL_FUZZ_SEED` (default 1) run
+//! `SKINCAL_FUZZ_CASES` (mutants per format, default 1000) and `SKINCAL_FUZZ_SEED` (default 1) run
 //! it longer or elsewhere: `SKINCAL_FUZZ_CASES=5000 cargo test --release -p skincal --test fuzz --
 //! --nocapture`. The table of what ran is printed at the end; a failing case is written to
 //! `fuzz-case.txt` in the test's temporary directory before it runs, so that an abort (memory)
@@ -83,7 +83,7 @@ struct Tally {
 
 #[test]
 fn every_format_survives_mutation() {
-    let cases: usize = env_or("SKINCAL_FUZZ_CASES", 120);
+    let cases: usize = env_or("SKINCAL_FUZZ_CASES", 1000);
     let seed: u64 = env_or("SKINCAL_FUZZ_SEED", 1);
     // `format:case` runs that case alone (with the same seed and case count).
     let only: Option<(String, usize)> = std::env::var("SKINCAL_FUZZ_ONLY").ok().and_then(|v| {
