@@ -1037,9 +1037,24 @@ fn demo(args: DemoArgs) -> Result<()> {
     let out = args
         .out
         .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
-    // The demo replaces its own directory on every run, and nothing else.
+    // The demo replaces its own directory on every run, and nothing else: a directory it marked,
+    // or one that holds only the files a demo writes.
     let marker = out.join(".skincal-demo");
-    let holds_other_files = std::fs::read_dir(&out).is_ok_and(|mut d| d.next().is_some());
+    const DEMO_FILES: [&str; 8] = [
+        ".skincal-demo",
+        "measurements.json",
+        "truth.json",
+        "structure.json",
+        "structure.dot",
+        "model.json",
+        "model.urdf",
+        "held-out",
+    ];
+    let holds_other_files = std::fs::read_dir(&out).is_ok_and(|entries| {
+        entries
+            .filter_map(Result::ok)
+            .any(|e| !DEMO_FILES.contains(&e.file_name().to_string_lossy().as_ref()))
+    });
     if holds_other_files && !marker.exists() && !args.force {
         anyhow::bail!(
             "{} holds files that skincal demo did not make: choose another --out, or pass --force to overwrite them",

@@ -828,6 +828,8 @@ fn no_result_is_overwritten_unasked_and_an_incomplete_tree_exits_with_3() {
         whole
     );
     ok(&["calibrate", "p", "--force"]);
+    // demo replaces only a directory of its own.
+    fails_with(&["demo", "--out", "p"], d, &["did not make", "--force"]);
     // A structure.json of another robot is named as the culprit.
     ok(&[
         "simulate", "--robot", "humanoid", "--out", "h", "--poses", "2",

@@ -339,3 +339,86 @@ fn streamed_predictions_equal_the_in_memory_ones() {
         .to_string();
     assert!(e.contains("poses.csv") && e.contains("line 2"), "{e}");
 }
+
+#[test]
+fn explore_refuses_trees_that_the_readings_contradict() {
+    // Regressions: a base that tilted 10° during one structure move hung the whole body off
+    // l_shoulder_pitch, and 10× noise merged dof1…dof6 into one joint — both called complete.
+    use nalgebra::{Rotation3, Vector3};
+    use skincal::explore::{DiagnosticKind, Severity};
+    use skincal::model::sensor::static_readings;
+    let kinds = |s: &Structure| -> Vec<DiagnosticKind> {
+        s.diagnostics
+            .iter()
+            .filter(|d| d.severity == Severity::Error)
+            .map(|d| d.kind)
+            .collect()
+    };
+    let humanoid = presets::find("humanoid").unwrap().robot().unwrap();
+    for bias in [0.0, 0.05] {
+        let config = SimulationConfig {
+            poses: 2,
+            imperfections: Imperfections {
+                bias,
+                ..Imperfections::default()
+            },
+            ..SimulationConfig::default()
+        };
+        let set = simulate(&humanoid, &config).unwrap().measurements;
+        let s = explore(&set, &ExploreConfig::default()).unwrap();
+        assert!(s.complete, "bias {bias} g: {:?}", kinds(&s));
+    }
+    // The base tilted by 10° about x during the move of l_shoulder_pitch (noise-free readings).
+    let mut set = simulate(
+        &humanoid,
+        &SimulationConfig {
+            poses: 2,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let tilt = Rotation3::from_axis_angle(&Vector3::x_axis(), 10f64.to_radians());
+    let g = tilt * Vector3::new(0.0, 0.0, -9.81);
+    let o = &mut set.structure.as_mut().unwrap().orientations[0];
+    let mv = o
+        .moves
+        .iter_mut()
+        .find(|m| m.dof == "l_shoulder_pitch")
+        .unwrap();
+    mv.readings = static_readings(&humanoid.model, &humanoid.parameters, &mv.pose, &g)
+        .iter()
+        .map(|r| [r.x, r.y, r.z])
+        .collect();
+    let s = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(!s.complete);
+    let d = s
+        .diagnostics
+        .iter()
+        .find(|d| d.kind == DiagnosticKind::MoveNotRigid)
+        .expect("the tilted move is named");
+    assert_eq!(d.dofs, ["l_shoulder_pitch"]);
+    assert!(d.message.contains("base"), "{}", d.message);
+
+    // Ten times the paper's noise: ±0.1 g against a 0.05 g threshold.
+    let paper = presets::find("paper-7dof").unwrap().robot().unwrap();
+    for (noise, noisy) in [(0.01, false), (0.1, true)] {
+        let config = SimulationConfig {
+            poses: 2,
+            imperfections: Imperfections {
+                uniform_noise: noise,
+                ..Imperfections::default()
+            },
+            ..SimulationConfig::default()
+        };
+        let set = simulate(&paper, &config).unwrap().measurements;
+        let s = explore(&set, &ExploreConfig::default()).unwrap();
+        assert_eq!(
+            kinds(&s).contains(&DiagnosticKind::TooNoisy),
+            noisy,
+            "noise {noise} g: {:?}",
+            kinds(&s)
+        );
+        assert_eq!(s.complete, !noisy, "noise {noise} g");
+    }
+}
