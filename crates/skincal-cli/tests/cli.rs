@@ -785,6 +785,15 @@ fn a_closed_output_pipe_neither_panics_nor_loses_results() {
         "2",
     ]);
     quiet(&["validate", "a/model.json", "b"]);
+    let rows: String = (0..500)
+        .map(|i| format!("{}\n", vec![format!("{:.3}", i as f64 * 0.01); 7].join(",")))
+        .collect();
+    std::fs::write(
+        d.join("poses.csv"),
+        format!("dof1,dof2,dof3,dof4,dof5,dof6,dof7\n{rows}"),
+    )
+    .unwrap();
+    quiet(&["predict", "a/model.json", "--poses", "poses.csv"]);
     quiet(&["export-urdf", "a/model.json"]);
     assert!(d.join("a/model.urdf").is_file());
 }

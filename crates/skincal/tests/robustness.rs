@@ -422,3 +422,89 @@ fn explore_refuses_trees_that_the_readings_contradict() {
         assert_eq!(s.complete, !noisy, "noise {noise} g");
     }
 }
+
+/// A 200 Hz CSV log of paper-7dof's structure moves.
+fn structure_log(dir: &Path) -> std::path::PathBuf {
+    use skincal::log::csv::CsvSink;
+    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+    use skincal::sim::timeseries::{record, LogConfig};
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 1,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let log = dir.join("log");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    record(
+        &robot,
+        &plan,
+        &config,
+        &mut CsvSink::new(&log, false),
+        &mut |_| {},
+    )
+    .unwrap();
+    log
+}
+
+#[test]
+fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
+    use skincal::ingest::{ingest, IngestConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let log = structure_log(dir.path());
+    // Stamps in ms: every stamp × 1000.
+    for file in ["joint_states.csv", "imu.csv"] {
+        let path = log.join(file);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let ms: String = text
+            .lines()
+            .map(|l| match l.split_once(',') {
+                Some((stamp, rest)) => match stamp.parse::<f64>() {
+                    Ok(t) => format!("{:.6},{rest}\n", t * 1000.0),
+                    Err(_) => format!("{l}\n"),
+                },
+                None => format!("{l}\n"),
+            })
+            .collect();
+        std::fs::write(log.join(format!("ms-{file}")), ms).unwrap();
+    }
+    let ms = dir.path().join("ms");
+    std::fs::create_dir(&ms).unwrap();
+    for file in ["joint_states.csv", "imu.csv"] {
+        std::fs::rename(log.join(format!("ms-{file}")), ms.join(file)).unwrap();
+    }
+    let e = ingest(&[ms.clone()], &IngestConfig::default(), &mut |_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("ms") && e.contains("seconds") && e.contains("/ms"),
+        "{e}"
+    );
+    // The SU su3 never sends a sample, but the robot says it is there.
+    let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
+    let without: String = text
+        .lines()
+        .filter(|l| !l.contains(",su3,"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(log.join("imu.csv"), without).unwrap();
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let config = IngestConfig {
+        sus: Some(robot.model.su_names()),
+        ..IngestConfig::default()
+    };
+    let e = ingest(&[log.clone()], &config, &mut |_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("su3") && e.contains("skipped") && e.contains("/log"),
+        "{e}"
+    );
+}
