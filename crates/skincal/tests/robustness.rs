@@ -480,9 +480,13 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
     for file in ["joint_states.csv", "imu.csv"] {
         std::fs::rename(log.join(format!("ms-{file}")), ms.join(file)).unwrap();
     }
-    let e = ingest(&[ms.clone()], &IngestConfig::default(), &mut |_, _, _| {})
-        .unwrap_err()
-        .to_string();
+    let e = ingest(
+        std::slice::from_ref(&ms),
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap_err()
+    .to_string();
     assert!(
         e.contains("ms") && e.contains("seconds") && e.contains("/ms"),
         "{e}"
@@ -500,7 +504,7 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
         sus: Some(robot.model.su_names()),
         ..IngestConfig::default()
     };
-    let e = ingest(&[log.clone()], &config, &mut |_, _, _| {})
+    let e = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})
         .unwrap_err()
         .to_string();
     assert!(
