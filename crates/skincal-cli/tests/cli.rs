@@ -419,6 +419,9 @@ fn explore_refuses_what_it_cannot_use() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     fails_with(&["explore", "nowhere"], d, &["nowhere/measurements.json"]);
+    // The OS error is said once, not repeated by every layer.
+    let err = stderr(&skincal(&["explore", "nowhere"], d));
+    assert_eq!(err.matches("os error").count(), 1, "{err}");
     std::fs::create_dir(d.join("t")).unwrap();
     std::fs::write(d.join("t/measurements.json"), r#"{"format":"skincal-measurements","version":1,"units":{"acceleration":"m/s^2","angle":"rad"},"dofs":["a"],"sus":["s"]}"#).unwrap();
     fails_with(&["explore", "t"], d, &["no structure experiment"]);

@@ -512,3 +512,50 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
         "{e}"
     );
 }
+
+#[test]
+fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
+    // Regression: one flipped byte in a length field made the reader allocate 4 EB and abort.
+    use skincal::ingest::{ingest, IngestConfig};
+    use skincal::log::mcap::{Compression, McapSink};
+    use skincal::log::Topics;
+    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+    use skincal::sim::timeseries::{record, LogConfig};
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("log.mcap");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
+    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // The footer record (opcode, length u64, …, 29 bytes) sits before the 8 magic bytes.
+    let footer = bytes.len() - 8 - 29;
+    assert_eq!(bytes[footer], 0x02, "footer opcode");
+    bytes[footer + 8] ^= 0x40; // the length's top byte: 4.6e18
+    let damaged = dir.path().join("damaged.mcap");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let empty = dir.path().join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    for (path, words) in [(damaged, "damaged"), (empty, "empty")] {
+        let e = ingest(&[path.clone()], &IngestConfig::default(), &mut |_, _, _| {})
+            .unwrap_err()
+            .to_string();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        assert!(e.contains(&name) && e.contains(words), "{e}");
+    }
+}
+
+#[test]
+fn a_training_experiment_without_poses_is_refused() {
+    // Regression: `validate` against it printed all zeros.
+    let e = refused(|v| v["training"]["poses"] = json!([]));
+    assert!(
+        e.starts_with("training.poses") && e.contains("empty"),
+        "{e}"
+    );
+}
