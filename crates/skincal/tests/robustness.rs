@@ -542,9 +542,13 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
     let empty = dir.path().join("empty.mcap");
     std::fs::write(&empty, b"").unwrap();
     for (path, words) in [(damaged, "damaged"), (empty, "empty")] {
-        let e = ingest(&[path.clone()], &IngestConfig::default(), &mut |_, _, _| {})
-            .unwrap_err()
-            .to_string();
+        let e = ingest(
+            std::slice::from_ref(&path),
+            &IngestConfig::default(),
+            &mut |_, _, _| {},
+        )
+        .unwrap_err()
+        .to_string();
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         assert!(e.contains(&name) && e.contains(words), "{e}");
     }
