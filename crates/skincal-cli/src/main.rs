@@ -475,20 +475,7 @@ fn structure_of(
     };
     if let (Some(s), true) = (&structure, structure_path.exists()) {
         // A structure.json of another robot, or of an older recording, is named with the fix.
-        let missing = s
-            .segments
-            .iter()
-            .flat_map(|g| g.sus.iter().map(|u| ("SU", u)))
-            .chain(
-                s.joints
-                    .iter()
-                    .flat_map(|j| j.dofs.iter().map(|d| ("DoF", d))),
-            )
-            .find(|(what, name)| {
-                let names = if *what == "SU" { &set.sus } else { &set.dofs };
-                !names.contains(name)
-            });
-        if let Some((what, name)) = missing {
+        if let Some((what, name)) = s.first_unknown(set) {
             anyhow::bail!(
                 "{}: {what} `{name}` is not in the measurement set beside it: is the structure of another robot or recording? Run `skincal explore {} --force` to explore this set again",
                 structure_path.display(),

@@ -345,11 +345,33 @@ impl Structure {
         self.joints.iter().find(|j| j.id == id)
     }
 
+    /// The first SU or DoF of the structure that `set` does not name: a structure of another
+    /// robot or recording.
+    pub fn first_unknown(&self, set: &MeasurementSet) -> Option<(&'static str, &str)> {
+        let sus = self.segments.iter().flat_map(|g| &g.sus);
+        let dofs = self.joints.iter().flat_map(|j| &j.dofs);
+        sus.filter(|u| !set.sus.contains(u))
+            .map(|u| ("SU", u.as_str()))
+            .chain(
+                dofs.filter(|d| !set.dofs.contains(d))
+                    .map(|d| ("DoF", d.as_str())),
+            )
+            .next()
+    }
+
     /// Checks that the structure is a tree that estimation can walk: unique ids, every reference
     /// resolved, one parent joint per segment, no loop, every SU and DoF in one place, limbs that
     /// are chains of the tree. A structure read from a file (edited by hand, or of another robot)
     /// is checked before use; the error names the field.
     pub fn check(&self) -> Result<(), String> {
+        self.check_ids()?;
+        let place = self.check_links()?;
+        self.check_acyclic()?;
+        self.check_limbs(&place)
+    }
+
+    /// Segment and joint ids are unique.
+    fn check_ids(&self) -> Result<(), String> {
         let mut seen = std::collections::HashSet::new();
         for (i, s) in self.segments.iter().enumerate() {
             if !seen.insert(s.id.as_str()) {
@@ -362,21 +384,29 @@ impl Structure {
                 return Err(format!("joints[{i}].id: `{}` is listed twice", j.id));
             }
         }
-        let segment = |field: String, id: &str| match self.segment(id) {
-            Some(s) => Ok(s),
-            None => Err(format!("{field}: no segment `{id}` in `segments`")),
-        };
-        let root = segment("root".into(), &self.root)?;
+        Ok(())
+    }
+
+    /// The segment `id`, or an error naming `field`.
+    fn named_segment(&self, field: String, id: &str) -> Result<&SegmentNode, String> {
+        self.segment(id)
+            .ok_or_else(|| format!("{field}: no segment `{id}` in `segments`"))
+    }
+
+    /// The root, joints and segments refer to each other consistently, every DoF is in one joint
+    /// and every SU on one segment; returns the segment of each SU.
+    fn check_links(&self) -> Result<HashMap<&str, &str>, String> {
+        let root = self.named_segment("root".into(), &self.root)?;
         if let Some(j) = &root.parent_joint {
             return Err(format!(
                 "root: the reference segment `{}` has a parent joint `{j}`",
                 self.root
             ));
         }
-        let mut place = HashMap::new();
+        let mut joint_of_dof = HashMap::new();
         for (i, j) in self.joints.iter().enumerate() {
-            segment(format!("joints[{i}].parent"), &j.parent)?;
-            let child = segment(format!("joints[{i}].child"), &j.child)?;
+            self.named_segment(format!("joints[{i}].parent"), &j.parent)?;
+            let child = self.named_segment(format!("joints[{i}].child"), &j.child)?;
             if child.parent_joint.as_deref() != Some(&j.id) {
                 return Err(format!(
                     "joints[{i}].child: segment `{}` names {} as its parent joint, not `{}`",
@@ -392,7 +422,7 @@ impl Structure {
                 return Err(format!("joints[{i}].dofs: joint `{}` has no DoF", j.id));
             }
             for d in &j.dofs {
-                if let Some(other) = place.insert(d.as_str(), j.id.as_str()) {
+                if let Some(other) = joint_of_dof.insert(d.as_str(), j.id.as_str()) {
                     return Err(format!(
                         "joints[{i}].dofs: DoF `{d}` is in joints `{other}` and `{}`",
                         j.id
@@ -428,7 +458,11 @@ impl Structure {
                 }
             }
         }
-        // Walking up from any segment must reach the root without meeting a segment twice.
+        Ok(place)
+    }
+
+    /// Walking up from any segment reaches the root without meeting a segment twice.
+    fn check_acyclic(&self) -> Result<(), String> {
         for s in &self.segments {
             let mut path = vec![s.id.as_str()];
             let mut at = s;
@@ -447,18 +481,24 @@ impl Structure {
                 path.push(at.id.as_str());
             }
         }
+        Ok(())
+    }
+
+    /// End effectors and branching segments exist, limbs are chains of the tree, and every joint
+    /// is in exactly one limb. `place`: the segment of each SU.
+    fn check_limbs(&self, place: &HashMap<&str, &str>) -> Result<(), String> {
         for (field, ids) in [
             ("end_effectors", &self.end_effectors),
             ("branching", &self.branching),
         ] {
             for (i, id) in ids.iter().enumerate() {
-                segment(format!("{field}[{i}]"), id)?;
+                self.named_segment(format!("{field}[{i}]"), id)?;
             }
         }
         let mut in_limb = HashMap::new();
         for (l, limb) in self.limbs.iter().enumerate() {
             let field = format!("limbs[{l}]");
-            segment(format!("{field}.from"), &limb.from)?;
+            self.named_segment(format!("{field}.from"), &limb.from)?;
             if limb.joints.len() != limb.segments.len() || limb.joints.is_empty() {
                 return Err(format!(
                     "{field}: {} joints for {} segments; a limb has one joint per segment",

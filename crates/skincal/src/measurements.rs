@@ -332,15 +332,7 @@ impl MeasurementSet {
     /// it, the readings are in another unit (g, mg) or not accelerometer readings at all. A few dead
     /// or biased SUs do not move the median.
     fn check_gravity_scale(&self) -> Result<(), MeasurementError> {
-        let norm = |r: &Reading| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-        let mut norms: Vec<f64> = Vec::new();
-        for o in self.structure.iter().flat_map(|s| &s.orientations) {
-            norms.extend(o.rest.iter().map(norm));
-            norms.extend(o.moves.iter().flat_map(|m| m.readings.iter().map(norm)));
-        }
-        for p in self.training.iter().flat_map(|t| &t.poses) {
-            norms.extend(p.static_readings.iter().map(norm));
-        }
+        let mut norms: Vec<f64> = self.static_readings().map(norm).collect();
         if norms.is_empty() {
             return Ok(());
         }
@@ -430,6 +422,11 @@ fn shape(
     }
 }
 
+/// The norm of a reading, m/s².
+fn norm(r: &Reading) -> f64 {
+    (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt()
+}
+
 /// Every value finite and within ±`limit`, else the index of the first that is not and why.
 fn bounded(
     values: impl Iterator<Item = f64>,
@@ -476,23 +473,30 @@ pub struct Summary {
 }
 
 impl MeasurementSet {
+    /// Every static reading: structure rest and moves, training poses.
+    fn static_readings(&self) -> impl Iterator<Item = &Reading> {
+        let structure = self.structure.iter().flat_map(|s| &s.orientations);
+        let training = self.training.iter().flat_map(|t| &t.poses);
+        structure
+            .flat_map(|o| {
+                o.rest
+                    .iter()
+                    .chain(o.moves.iter().flat_map(|m| &m.readings))
+            })
+            .chain(training.flat_map(|p| &p.static_readings))
+    }
+
     /// Figures that tell at a glance what the set holds.
     pub fn summary(&self) -> Summary {
-        let norm = |r: &Reading| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-        let mut norms = Vec::new();
-        let mut structure_poses = 0;
+        let norms: Vec<f64> = self.static_readings().map(norm).collect();
         let orientations = self.structure.as_ref().map_or(0, |s| s.orientations.len());
-        for o in self.structure.iter().flat_map(|s| &s.orientations) {
-            structure_poses += 1 + o.moves.len();
-            norms.extend(o.rest.iter().map(norm));
-            norms.extend(o.moves.iter().flat_map(|m| m.readings.iter().map(norm)));
-        }
+        let structure_poses = self
+            .structure
+            .iter()
+            .flat_map(|s| &s.orientations)
+            .map(|o| 1 + o.moves.len())
+            .sum();
         let poses = self.training.as_ref().map_or(&[][..], |t| &t.poses[..]);
-        norms.extend(
-            poses
-                .iter()
-                .flat_map(|p| p.static_readings.iter().map(norm)),
-        );
         let n = norms.len().max(1) as f64;
         let mean = norms.iter().sum::<f64>() / n;
         let sd = (norms.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();

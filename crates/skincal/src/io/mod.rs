@@ -1,0 +1,276 @@
+//! Files: robot descriptions, measurement sets and ground truth. The only module that touches the
+//! file system. Outputs are written whole or not at all: every file goes to a temporary name in
+//! its final directory first and is renamed into place only when all of them were written.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use crate::log::Staged;
+use crate::measurements::{MeasurementError, MeasurementSet};
+use crate::model::description::{with_random_sus, DescriptionError, RobotFile};
+use crate::model::presets;
+use crate::model::urdf::{from_urdf, UrdfSus};
+use crate::model::Robot;
+use crate::sim::Truth;
+
+mod predictions;
+
+pub use predictions::{stream_predictions, write_predictions};
+
+/// Errors reading or writing files; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IoError {
+    /// A file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// An output exists and overwriting was not asked for.
+    #[error(
+        "{path} already exists: choose another output directory or pass --force to overwrite it"
+    )]
+    Exists {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A robot description is invalid.
+    #[error("{path}: {source}")]
+    Description {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        source: DescriptionError,
+    },
+    /// A measurement set is invalid.
+    #[error("{path}: {source}")]
+    Measurements {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        source: MeasurementError,
+    },
+    /// A JSON file does not parse.
+    #[error("{path}: {message}")]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// Neither a built-in robot nor a robot file.
+    #[error("unknown robot `{name}`: give a built-in robot ({known}) or a .toml or .urdf file")]
+    UnknownRobot {
+        /// What was given.
+        name: String,
+        /// The built-in robots.
+        known: String,
+    },
+}
+
+/// How SUs are placed when a robot is loaded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SuPlacement {
+    /// Replace the described SUs by this many random ones per segment (per link for a URDF).
+    pub per_link: Option<usize>,
+    /// Seed of the random placement.
+    pub seed: u64,
+}
+
+/// Loads a robot: a built-in name, a `.toml` description or a `.urdf` file.
+///
+/// A URDF has no SUs of its own: unless `sus.per_link` says otherwise, one random SU is placed on
+/// every link.
+pub fn load_robot(spec: &str, sus: SuPlacement) -> Result<Robot, IoError> {
+    let path = Path::new(spec);
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let description = |source| IoError::Description {
+        path: path.to_path_buf(),
+        source,
+    };
+    match ext.as_deref() {
+        Some("urdf") => {
+            let text = read(path)?;
+            let per_link = sus.per_link.unwrap_or(1);
+            from_urdf(
+                &text,
+                UrdfSus::RandomPerLink {
+                    per_link,
+                    seed: sus.seed,
+                },
+            )
+            .map_err(description)
+        }
+        Some("toml") => {
+            let file = RobotFile::from_toml(&read(path)?).map_err(description)?;
+            match &file.urdf {
+                Some(urdf) => {
+                    let urdf_path = path.parent().unwrap_or(Path::new(".")).join(urdf);
+                    let text = read(&urdf_path)?;
+                    let source = match sus.per_link {
+                        Some(per_link) => UrdfSus::RandomPerLink {
+                            per_link,
+                            seed: sus.seed,
+                        },
+                        None => UrdfSus::Listed(&file.sus),
+                    };
+                    from_urdf(&text, source).map_err(|source| IoError::Description {
+                        path: urdf_path,
+                        source,
+                    })
+                }
+                None => {
+                    let robot = file.build().map_err(description)?;
+                    randomise(robot, sus).map_err(description)
+                }
+            }
+        }
+        _ => match presets::find(spec) {
+            Some(preset) => {
+                let robot = preset.robot().map_err(description)?;
+                randomise(robot, sus).map_err(description)
+            }
+            None => Err(IoError::UnknownRobot {
+                name: spec.to_string(),
+                known: presets::PRESETS
+                    .iter()
+                    .map(|p| p.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            }),
+        },
+    }
+}
+
+fn randomise(robot: Robot, sus: SuPlacement) -> Result<Robot, DescriptionError> {
+    match sus.per_link {
+        Some(k) => with_random_sus(&robot, k, sus.seed),
+        None => Ok(robot),
+    }
+}
+
+fn read(path: &Path) -> Result<String, IoError> {
+    fs::read_to_string(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads and validates a measurement set.
+pub fn read_measurements(path: &Path) -> Result<MeasurementSet, IoError> {
+    MeasurementSet::from_json(&read(path)?).map_err(|source| IoError::Measurements {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a ground-truth file.
+pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
+    crate::json::parse(&read(path)?, "a ground truth").map_err(|message| IoError::Json {
+        path: path.to_path_buf(),
+        message,
+    })
+}
+
+/// Writes every `(path, contents)` pair whole or not at all. Without `force`, fails before writing
+/// anything if one of the paths exists. Creates missing directories.
+pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError> {
+    if !force {
+        if let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
+            return Err(IoError::Exists { path: path.clone() });
+        }
+    }
+    let as_io = |e| staging_error(e, Path::new(""));
+    // Staged files are removed again if anything fails before every one is written.
+    let mut staged = Vec::with_capacity(files.len());
+    for (path, contents) in files {
+        let (stage, mut file) = Staged::create(path, true).map_err(as_io)?;
+        std::io::Write::write_all(&mut file, contents.as_bytes()).map_err(|source| {
+            IoError::Write {
+                path: stage.tmp().to_path_buf(),
+                source,
+            }
+        })?;
+        staged.push(stage);
+    }
+    for stage in &mut staged {
+        stage.commit().map_err(as_io)?;
+    }
+    Ok(())
+}
+
+/// A staging failure as an [`IoError`]; `path` names the output when the error does not.
+fn staging_error(e: crate::log::LogError, path: &Path) -> IoError {
+    match e {
+        crate::log::LogError::Exists { path } => IoError::Exists { path },
+        crate::log::LogError::Io { path, source } => IoError::Write { path, source },
+        other => IoError::Write {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(other.to_string()),
+        },
+    }
+}
+
+/// Reads a structure written by exploration (`structure.json`).
+pub fn read_structure(path: &Path) -> Result<crate::explore::Structure, IoError> {
+    let json = |message| IoError::Json {
+        path: path.to_path_buf(),
+        message,
+    };
+    let structure: crate::explore::Structure =
+        crate::json::parse(&read(path)?, "a structure").map_err(json)?;
+    structure.check().map_err(json)?;
+    Ok(structure)
+}
+
+/// Reads a calibrated model (`model.json`) and checks that it is one.
+pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoError> {
+    let json = |message: String| IoError::Json {
+        path: path.to_path_buf(),
+        message,
+    };
+    let model: crate::estimate::body::BodyModel =
+        crate::json::parse(&read(path)?, "a calibrated model").map_err(json)?;
+    model.check().map_err(json)?;
+    Ok(model)
+}
+
+/// Reads and checks an exploration plan (`plan.json`).
+pub fn read_plan(path: &Path) -> Result<crate::plan::Plan, IoError> {
+    crate::plan::Plan::from_json(&read(path)?).map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Reads a pose table: CSV (header of DoF names, one pose per row) or, for `.json`, `{"dofs",
+/// "poses"}`.
+pub fn read_poses(path: &Path) -> Result<crate::predict::PoseTable, IoError> {
+    let text = read(path)?;
+    let is_json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let table = if is_json {
+        crate::predict::PoseTable::from_json(&text)
+    } else {
+        crate::predict::PoseTable::from_csv(&text)
+    };
+    table.map_err(|e| IoError::Json {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
