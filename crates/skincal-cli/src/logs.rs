@@ -449,7 +449,7 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
         "robot": skincal::model::description::RobotFile::from_robot(&robot, None),
         "gravity": config.orientation.gravity,
         "orientation": config.orientation.label,
-        "su_bias": summary.su_bias,
+        "su_intrinsics": summary.su_intrinsics,
         "config": config,
     });
     io::write_all(

@@ -86,6 +86,31 @@ enum Command {
     Ingest(logs::IngestArgs),
 }
 
+/// Which accelerometer intrinsics `ml` estimates per SU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum IntrinsicsArg {
+    /// Ideal accelerometers.
+    None,
+    /// A zero-g offset per axis.
+    Bias,
+    /// Offset and sensitivity (scale) per axis.
+    BiasScale,
+    /// Offset, scale and the 3 axis misalignments.
+    Full,
+}
+
+impl From<IntrinsicsArg> for skincal::estimate::ml::IntrinsicsModel {
+    fn from(a: IntrinsicsArg) -> Self {
+        use skincal::estimate::ml::IntrinsicsModel as M;
+        match a {
+            IntrinsicsArg::None => M::None,
+            IntrinsicsArg::Bias => M::Bias,
+            IntrinsicsArg::BiasScale => M::BiasScale,
+            IntrinsicsArg::Full => M::Full,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Method {
     /// Maximum likelihood on the raw readings: closed-form start, Levenberg-Marquardt, covariance.
@@ -107,6 +132,9 @@ struct CalibrateArgs {
     /// Only the limb that ends at this segment (e.g. S7; see `skincal explore`).
     #[arg(long, value_name = "ID")]
     limb: Option<String>,
+    /// Accelerometer intrinsics estimated per SU with the kinematics (method ml).
+    #[arg(long, value_enum, default_value_t = IntrinsicsArg::BiasScale)]
+    intrinsics: IntrinsicsArg,
     /// Seed of NLopt's random numbers (method paper; method ml is deterministic).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -184,6 +212,10 @@ struct PredictArgs {
     /// Overwrite an existing output.
     #[arg(long)]
     force: bool,
+    /// Predict what an ideal accelerometer in each SU frame would read (the specific force and
+    /// the acceleration), not what the SU reads with its calibrated bias and scale.
+    #[arg(long)]
+    ideal: bool,
 }
 
 #[derive(Debug, Args)]
@@ -225,6 +257,15 @@ struct BenchCalibrateArgs {
     /// Instead of paper-7dof, a different random 7-DoF DH chain for every seed (eq. 18's bounds).
     #[arg(long)]
     random_chains: bool,
+    /// Accelerometer intrinsics that `ml` estimates.
+    #[arg(long, value_enum, default_value_t = IntrinsicsArg::BiasScale)]
+    intrinsics: IntrinsicsArg,
+    /// Simulated bias per SU and axis, uniform in ±G, g.
+    #[arg(long, value_name = "G", default_value_t = 0.0)]
+    bias: f64,
+    /// Simulated scale error per SU and axis, uniform in ±F (0.03: ±3 %).
+    #[arg(long, value_name = "F", default_value_t = 0.0)]
+    scale: f64,
 }
 
 #[derive(Debug, Args)]
@@ -315,15 +356,25 @@ struct SimulateArgs {
     /// Constant bias per SU and axis, uniform in ±G, in g.
     #[arg(long, value_name = "G", default_value_t = 0.0)]
     bias: f64,
+    /// Scale (sensitivity) error per SU and axis, uniform in ±F (0.03: ±3 %).
+    #[arg(long, value_name = "F", default_value_t = 0.0)]
+    scale: f64,
+    /// Misalignment of each SU's axes (3 angles), uniform in ±DEG, in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 0.0)]
+    misalignment: f64,
     /// Saturate every axis at ±G, in g.
     #[arg(long, value_name = "G")]
     saturation: Option<f64>,
     /// Quantise like the BMA150: 10 bit over ±2 g.
     #[arg(long)]
     bma150: bool,
-    /// Seed of every random choice (poses, noise, bias, random SUs).
+    /// Seed of every random choice (poses, noise, sensor intrinsics, random SUs).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Draw the training poses and the noise from this seed instead: the same skin (SU placement
+    /// and intrinsics from --seed) recorded again, e.g. as a held-out set for `validate`.
+    #[arg(long, value_name = "SEED")]
+    pose_seed: Option<u64>,
 }
 
 fn main() -> ExitCode {
@@ -604,11 +655,12 @@ fn calibrate_ml(
     use skincal::estimate::ml::MlConfig;
     let config = MlConfig {
         noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
+        intrinsics: args.intrinsics.into(),
         ..MlConfig::default()
     };
     outln!(
-        "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g); {source}\n",
-        config.noise_sd, args.noise
+        "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g; intrinsics per SU: {}); {source}\n",
+        config.noise_sd, args.noise, config.intrinsics.name()
     );
     let model =
         skincal::estimate::body::calibrate_body(set, structure, &config, args.limb.as_deref())?;
@@ -725,8 +777,11 @@ fn predict(args: PredictArgs) -> Result<()> {
         Some(p) => parse_pattern(p)?,
         None => model.pattern,
     };
-    let predictor = skincal::predict::Predictor::new(&model)
+    let mut predictor = skincal::predict::Predictor::new(&model)
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    if args.ideal {
+        predictor = predictor.ideal();
+    }
     match args.out {
         Some(out) => {
             let poses = io::write_predictions(&predictor, &args.poses, &pattern, &out, args.force)?;
@@ -804,13 +859,19 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     };
     let mut rows: Vec<(Method, Vec<render::BenchRow>)> =
         methods.iter().map(|&m| (m, Vec::new())).collect();
-    let (mut bound_position, mut bound_rotation) = (0.0, 0.0);
+    let intrinsics: ml::IntrinsicsModel = args.intrinsics.into();
+    let mut bounds = vec![(ml::IntrinsicsModel::None, 0.0, 0.0)];
+    if intrinsics != ml::IntrinsicsModel::None {
+        bounds.push((intrinsics, 0.0, 0.0));
+    }
     for seed in 1..=args.seeds {
         let config = SimulationConfig {
             poses: args.poses,
             seed,
             imperfections: Imperfections {
                 uniform_noise: args.noise,
+                bias: args.bias,
+                scale: args.scale,
                 ..Imperfections::none()
             },
             ..SimulationConfig::default()
@@ -822,17 +883,21 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         };
         let set = sim::simulate(&truth, &config)?.measurements;
         let data = ChainData::new(&set, &chain)?;
-        let seed_bound = ml::cramer_rao_bound(
-            &truth,
-            &skincal::model::sensor::gravity_upright(),
-            &data,
-            sd.max(1e-9),
-            30,
-            1000 + seed,
-        );
-        if let Some((p, r)) = seed_bound {
-            bound_position += p * p;
-            bound_rotation += r * r;
+        let mut seed_bound = None;
+        for (model, position, rotation) in &mut bounds {
+            seed_bound = ml::cramer_rao_bound(
+                &truth,
+                &skincal::model::sensor::gravity_upright(),
+                &data,
+                sd.max(1e-9),
+                30,
+                1000 + seed,
+                *model,
+            );
+            if let Some((p, r)) = seed_bound {
+                *position += p * p;
+                *rotation += r * r;
+            }
         }
         for (method, list) in &mut rows {
             let (robot, converged, seconds, evaluations) = match method {
@@ -851,6 +916,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
                         &data,
                         &MlConfig {
                             noise_sd: sd.max(1e-6),
+                            intrinsics,
                             ..MlConfig::default()
                         },
                     )?;
@@ -870,14 +936,25 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         }
     }
     let n = args.seeds.max(1) as f64;
-    let bound = ((bound_position / n).sqrt(), (bound_rotation / n).sqrt());
+    let bounds: Vec<(String, (f64, f64))> = bounds
+        .into_iter()
+        .map(|(model, p, r)| {
+            (
+                match model {
+                    ml::IntrinsicsModel::None => "Cramér–Rao bound, ideal sensors".to_string(),
+                    m => format!("Cramér–Rao bound, {} fitted", m.name()),
+                },
+                ((p / n).sqrt(), (r / n).sqrt()),
+            )
+        })
+        .collect();
     let fig6 = skincal::model::presets::PAPER_FIG6_ESTIMATE.robot()?;
     let fig6_accuracy = (!args.random_chains)
         .then(|| estimate::consecutive_su_errors(&paper, &fig6, &chain, 30, 1000))
         .transpose()?;
     out!(
         "{}",
-        render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), bound)
+        render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), &bounds)
     );
     Ok(())
 }
@@ -967,6 +1044,8 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         uniform_noise: args.noise,
         gaussian_noise: args.gaussian_noise,
         bias: args.bias,
+        scale: args.scale,
+        misalignment: args.misalignment.to_radians(),
         saturation: args.saturation,
         quantization_bits: None,
     };
@@ -987,6 +1066,7 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         },
         imperfections,
         seed: args.seed,
+        pose_seed: args.pose_seed,
         ..SimulationConfig::default()
     };
     let files = write_simulation(&robot, &config, &args.out, args.force)?;

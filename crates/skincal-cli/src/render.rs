@@ -182,7 +182,7 @@ pub fn calibration_bench(
     methods: &[(crate::Method, Vec<BenchRow>)],
     verbose: bool,
     fig6: Option<&skincal::estimate::ChainAccuracy>,
-    bound: (f64, f64),
+    bounds: &[(String, (f64, f64))],
 ) -> String {
     let mut out = String::new();
     let header = format!(
@@ -278,17 +278,19 @@ pub fn calibration_bench(
             }
         );
     }
-    let _ = writeln!(
-        out,
-        "{:<34} {:>10} {:>12} {:>12.2} {:>12} {:>11.3} {:>11}",
-        "Cramér–Rao bound (RMS)",
-        "",
-        "",
-        bound.0 * 1e3,
-        "",
-        bound.1.to_degrees(),
-        ""
-    );
+    for (label, bound) in bounds {
+        let _ = writeln!(
+            out,
+            "{:<34} {:>10} {:>12} {:>12.2} {:>12} {:>11.3} {:>11}",
+            label,
+            "",
+            "",
+            bound.0 * 1e3,
+            "",
+            bound.1.to_degrees(),
+            ""
+        );
+    }
     if let Some(fig6) = fig6 {
         line(
             &mut out,

@@ -4,13 +4,19 @@
 //! Predictions follow the measurement set's conventions (docs/measurements.md): a static reading is
 //! the specific force `R_SUᵀ·(−g)` in the SU frame, a dynamic acceleration the tangential
 //! acceleration `α·R_SUᵀ·(z × r)` at the pattern's peak, in m/s². Only the DoFs that move an SU
-//! have a dynamic entry for it (the others read zero by definition).
+//! have a dynamic entry for it (the others read zero by definition). Where the model holds an SU's
+//! accelerometer intrinsics, a prediction is what that SU *reads* — `K·f + b` static, `K·a`
+//! dynamic ([`crate::model::intrinsics`]) — which is what `validate` compares with measured
+//! readings; [`Predictor::ideal`] predicts what an ideal accelerometer in the same frame would.
+
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::estimate::body::BodyModel;
 use crate::measurements::MeasurementSet;
+use crate::model::intrinsics::Intrinsics;
 use crate::model::sensor::{peak_dynamic_accelerations_at, specific_force, ExcitationPattern};
 use crate::model::{forward_kinematics, Robot};
 use nalgebra::Vector3;
@@ -151,6 +157,8 @@ pub struct Predictor {
     robot: Robot,
     /// Gravity (body frame) per SU of the robot.
     gravity: Vec<Vector3<f64>>,
+    /// Accelerometer intrinsics per SU of the robot (ideal where the model has none).
+    intrinsics: Vec<Intrinsics>,
 }
 
 /// Readings of every SU in one pose, in the model's SU order.
@@ -177,7 +185,30 @@ impl Predictor {
                 })
             })
             .collect::<Result<_, _>>()?;
-        Ok(Self { robot, gravity })
+        let by_su: BTreeMap<&str, Intrinsics> = model
+            .limbs
+            .iter()
+            .flat_map(|l| &l.estimate.intrinsics)
+            .map(|i| (i.su.as_str(), i.value))
+            .collect();
+        let intrinsics = robot
+            .model
+            .su_names()
+            .iter()
+            .map(|s| by_su.get(s.as_str()).copied().unwrap_or_default())
+            .collect();
+        Ok(Self {
+            robot,
+            gravity,
+            intrinsics,
+        })
+    }
+
+    /// The same model with ideal accelerometers: predictions are the specific force (static) and
+    /// the acceleration (dynamic) in each SU frame, not what the SU reads.
+    pub fn ideal(mut self) -> Self {
+        self.intrinsics = vec![Intrinsics::default(); self.intrinsics.len()];
+        self
     }
 
     /// The model's DoF names.
@@ -190,7 +221,8 @@ impl Predictor {
         self.robot.model.su_names()
     }
 
-    /// Readings in pose `q` (model DoF order) under `pattern`.
+    /// Readings in pose `q` (model DoF order) under `pattern`: what each SU reads, with its
+    /// intrinsics (see [`Predictor::ideal`]).
     pub fn readings(&self, q: &[f64], pattern: &ExcitationPattern) -> PoseReadings {
         let m = &self.robot.model;
         let k = forward_kinematics(m, &self.robot.parameters, q);
@@ -198,7 +230,8 @@ impl Predictor {
             .sus
             .iter()
             .zip(&self.gravity)
-            .map(|(frame, g)| specific_force(frame, &Vector3::zeros(), g))
+            .zip(&self.intrinsics)
+            .map(|((frame, g), i)| i.read(&specific_force(frame, &Vector3::zeros(), g)))
             .collect();
         let dynamic = (0..m.dofs().len())
             .map(|d| {
@@ -206,6 +239,7 @@ impl Predictor {
                     .into_iter()
                     .enumerate()
                     .filter(|(u, _)| m.moves_su(d, *u))
+                    .map(|(u, a)| (u, self.intrinsics[u].read_dynamic(&a)))
                     .collect()
             })
             .collect();

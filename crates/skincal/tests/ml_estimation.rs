@@ -211,6 +211,7 @@ fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
             sd,
             30,
             seed,
+            skincal::estimate::ml::IntrinsicsModel::BiasScale,
         )
         .unwrap();
         bound += p * p;

@@ -253,13 +253,18 @@ fn a_constant_bias_shifts_static_readings_and_cancels_in_dynamic_ones() {
         simulate(&robot, &base).unwrap(),
         simulate(&robot, &biased).unwrap(),
     );
-    let bias = &b.truth.su_bias;
+    let bias: Vec<[f64; 3]> = b.truth.su_intrinsics.iter().map(|i| i.bias).collect();
     let (ta, tb) = (
         a.measurements.training.unwrap(),
         b.measurements.training.unwrap(),
     );
     for (pa, pb) in ta.poses.iter().zip(&tb.poses) {
-        for ((sb, sa), b) in pb.static_readings.iter().zip(&pa.static_readings).zip(bias) {
+        for ((sb, sa), b) in pb
+            .static_readings
+            .iter()
+            .zip(&pa.static_readings)
+            .zip(&bias)
+        {
             let shift = Vector3::from(*sb) - Vector3::from(*sa);
             assert_relative_eq!(shift, Vector3::from(*b), epsilon = 1e-12);
         }

@@ -24,6 +24,7 @@
 
 mod builder;
 pub mod description;
+pub mod intrinsics;
 mod kinematics;
 pub mod presets;
 pub mod sensor;

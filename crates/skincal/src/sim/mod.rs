@@ -7,16 +7,19 @@
 //! * **Training experiment** (paper II-C.2): `P` random poses, each DoF uniform in
 //!   `±pose_range ∩ [lower, upper]`; in each pose every SU's static reading and, for every DoF, every
 //!   SU's dynamic acceleration at the peak of the excitation pattern (eqs. 10–12).
-//! * **Imperfections**, all seeded: uniform noise (the paper's ±0.01 g), Gaussian noise, a constant
-//!   bias per SU and axis, saturation and quantisation (10 bit over ±2 g, the paper's BMA150).
-//!   A static reading is `sense(f + b) + n`; a dynamic acceleration is what remains of the sensed
-//!   peak reading after subtracting the sensed static one, `sense(f + a) − sense(f) + n`, so a
-//!   constant bias cancels in it while saturation and quantisation act on the whole signal, as on
-//!   a real sensor. Without saturation and quantisation `sense` is the identity.
+//! * **Imperfections**, all seeded: uniform noise (the paper's ±0.01 g), Gaussian noise, each SU's
+//!   accelerometer intrinsics (a constant bias, a scale error and misalignments per axis, see
+//!   [`crate::model::intrinsics`]), saturation and quantisation (10 bit over ±2 g, the paper's
+//!   BMA150). A static reading is `sense(K·f + b) + n`; a dynamic acceleration is what remains of
+//!   the sensed peak reading after subtracting the sensed static one,
+//!   `sense(K·(f + a) + b) − sense(K·f + b) + n`, so a constant bias cancels in it while
+//!   saturation and quantisation act on the whole signal, as on a real sensor. Without saturation
+//!   and quantisation `sense` is the identity.
 //!
-//! Random streams are separate for poses, noise and bias, so changing the noise level keeps the
-//! poses. The ground truth (the robot, the gravity of every orientation, the biases) goes to a
-//! separate [`Truth`]; the measurement set never contains it.
+//! Random streams are separate for poses, noise, biases and scales, so changing the noise level
+//! keeps the poses; [`SimulationConfig::pose_seed`] draws poses and noise anew for the same skin
+//! (a held-out set). The ground truth (the robot, the gravity of every orientation, the
+//! intrinsics) goes to a separate [`Truth`]; the measurement set never contains it.
 
 use std::f64::consts::PI;
 
@@ -32,6 +35,7 @@ use crate::measurements::{
     TrainingPose,
 };
 use crate::model::description::RobotFile;
+use crate::model::intrinsics::Intrinsics;
 use crate::model::sensor::{
     gravity_upright, peak_dynamic_accelerations_at, specific_force, ExcitationPattern, MAX_READING,
     STANDARD_GRAVITY,
@@ -42,6 +46,10 @@ pub mod timeseries;
 
 /// The largest noise or bias the simulator accepts, g.
 pub const MAX_IMPERFECTION: f64 = 10.0;
+/// The largest relative scale error the simulator accepts.
+pub const MAX_SCALE_ERROR: f64 = 0.5;
+/// The largest axis misalignment the simulator accepts, rad (about 17°).
+pub const MAX_MISALIGNMENT: f64 = 0.3;
 
 /// Sensor imperfections, in units of g (9.81 m/s²).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -52,6 +60,13 @@ pub struct Imperfections {
     pub gaussian_noise: f64,
     /// Half-width of the uniform distribution of each SU's constant bias per axis, g.
     pub bias: f64,
+    /// Half-width of the uniform distribution of each SU's relative scale error per axis
+    /// (0.03: ±3 %).
+    #[serde(default)]
+    pub scale: f64,
+    /// Half-width of the uniform distribution of each SU's 3 axis misalignments, rad.
+    #[serde(default)]
+    pub misalignment: f64,
     /// Saturation of every axis at ±this, g.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub saturation: Option<f64>,
@@ -67,6 +82,8 @@ impl Default for Imperfections {
             uniform_noise: 0.01,
             gaussian_noise: 0.0,
             bias: 0.0,
+            scale: 0.0,
+            misalignment: 0.0,
             saturation: None,
             quantization_bits: None,
         }
@@ -110,6 +127,25 @@ impl Imperfections {
                     ),
                 );
             }
+        }
+        if !(0.0..=MAX_SCALE_ERROR).contains(&i.scale) {
+            return bad(
+                "scale",
+                format!(
+                    "{} must lie in 0…{MAX_SCALE_ERROR} (a relative error; 0.03 is ±3 %)",
+                    crate::show::number(i.scale)
+                ),
+            );
+        }
+        if !(0.0..=MAX_MISALIGNMENT).contains(&i.misalignment) {
+            return bad(
+                "misalignment",
+                format!(
+                    "{} rad must lie in 0…{MAX_MISALIGNMENT} rad ({}°)",
+                    crate::show::number(i.misalignment),
+                    MAX_MISALIGNMENT.to_degrees()
+                ),
+            );
         }
         if let Some(s) = i.saturation {
             let most = MAX_READING / STANDARD_GRAVITY;
@@ -183,6 +219,10 @@ pub struct SimulationConfig {
     pub imperfections: Imperfections,
     /// Seed of every random choice.
     pub seed: u64,
+    /// When given, the seed of the training poses and the noise instead of `seed`: the same
+    /// physical skin (sensor intrinsics from `seed`) recorded again in other poses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_seed: Option<u64>,
 }
 
 impl Default for SimulationConfig {
@@ -197,6 +237,7 @@ impl Default for SimulationConfig {
             pattern: ExcitationPattern::default(),
             imperfections: Imperfections::default(),
             seed: 1,
+            pose_seed: None,
         }
     }
 }
@@ -275,8 +316,9 @@ pub struct Truth {
     pub orientations: Vec<BaseOrientation>,
     /// Gravity in the reference frame during training, m/s².
     pub training_gravity: [f64; 3],
-    /// Each SU's constant bias per axis, m/s², in SU order.
-    pub su_bias: Vec<Reading>,
+    /// Each SU's accelerometer intrinsics (bias m/s², scale, misalignment rad), in SU order.
+    #[serde(default)]
+    pub su_intrinsics: Vec<Intrinsics>,
     /// The settings used.
     pub config: SimulationConfig,
 }
@@ -293,6 +335,7 @@ pub struct Simulation {
 const POSE_STREAM: u64 = 1;
 const NOISE_STREAM: u64 = 2;
 const BIAS_STREAM: u64 = 3;
+const SCALE_STREAM: u64 = 4;
 
 pub(crate) fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -300,10 +343,10 @@ pub(crate) fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     rng
 }
 
-/// The accelerometers of a simulated robot: per-SU bias, noise, saturation and quantisation.
+/// The accelerometers of a simulated robot: per-SU intrinsics, noise, saturation and quantisation.
 pub(crate) struct Sensors<'a> {
     imperfections: &'a Imperfections,
-    pub(crate) bias: Vec<Vector3<f64>>,
+    pub(crate) intrinsics: Vec<Intrinsics>,
     rng: ChaCha8Rng,
     gaussian: Option<Normal<f64>>,
 }
@@ -313,27 +356,41 @@ pub(crate) fn pose_stream(seed: u64) -> ChaCha8Rng {
     stream(seed, POSE_STREAM)
 }
 
+/// `n` values uniform in ±`half` (zeros without drawing when `half` is 0).
+fn uniform3(rng: &mut ChaCha8Rng, half: f64) -> [f64; 3] {
+    std::array::from_fn(|_| {
+        if half > 0.0 {
+            rng.random_range(-half..=half)
+        } else {
+            0.0
+        }
+    })
+}
+
 impl<'a> Sensors<'a> {
-    /// `sus` sensors with biases drawn from `seed` (the bias stream) and noise from its noise
-    /// stream. `imperfections` must be valid.
-    pub(crate) fn new(imperfections: &'a Imperfections, sus: usize, seed: u64) -> Self {
+    /// `sus` sensors with intrinsics drawn from `seed` (biases from the bias stream, scales and
+    /// misalignments from their own) and noise from the noise stream of `noise_seed`.
+    /// `imperfections` must be valid.
+    pub(crate) fn new(
+        imperfections: &'a Imperfections,
+        sus: usize,
+        seed: u64,
+        noise_seed: u64,
+    ) -> Self {
         let mut bias_rng = stream(seed, BIAS_STREAM);
+        let mut scale_rng = stream(seed, SCALE_STREAM);
         let b = imperfections.bias * STANDARD_GRAVITY;
-        let bias: Vec<Vector3<f64>> = (0..sus)
-            .map(|_| {
-                Vector3::from_fn(|_, _| {
-                    if b > 0.0 {
-                        bias_rng.random_range(-b..=b)
-                    } else {
-                        0.0
-                    }
-                })
+        let intrinsics = (0..sus)
+            .map(|_| Intrinsics {
+                bias: uniform3(&mut bias_rng, b),
+                scale: uniform3(&mut scale_rng, imperfections.scale),
+                misalignment: uniform3(&mut scale_rng, imperfections.misalignment),
             })
             .collect();
         Sensors {
             imperfections,
-            bias,
-            rng: stream(seed, NOISE_STREAM),
+            intrinsics,
+            rng: stream(noise_seed, NOISE_STREAM),
             gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
                 Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY)
                     .expect("validated")
@@ -341,9 +398,9 @@ impl<'a> Sensors<'a> {
         }
     }
 
-    /// One raw sample of SU `su` whose true specific force is `f`: `sense(f + b) + n`.
+    /// One raw sample of SU `su` whose true specific force is `f`: `sense(K·f + b) + n`.
     pub(crate) fn sample(&mut self, su: usize, f: &Vector3<f64>) -> Vector3<f64> {
-        self.sense(&(f + self.bias[su])) + self.noise()
+        self.sense(&self.intrinsics[su].read(f)) + self.noise()
     }
 
     fn noise(&mut self) -> Vector3<f64> {
@@ -370,8 +427,8 @@ impl<'a> Sensors<'a> {
     }
 
     fn dynamic_reading(&mut self, su: usize, f: &Vector3<f64>, a: &Vector3<f64>) -> Reading {
-        let f = f + self.bias[su];
-        let v = self.sense(&(f + a)) - self.sense(&f) + self.noise();
+        let i = &self.intrinsics[su];
+        let v = self.sense(&i.read(&(f + a))) - self.sense(&i.read(f)) + self.noise();
         v.into()
     }
 }
@@ -382,8 +439,9 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
     let model = &robot.model;
     let (nd, nu) = (model.dofs().len(), model.sus().len());
     let imperfections = &config.imperfections;
-    let mut sensors = Sensors::new(imperfections, nu, config.seed);
-    let mut pose_rng = stream(config.seed, POSE_STREAM);
+    let data_seed = config.pose_seed.unwrap_or(config.seed);
+    let mut sensors = Sensors::new(imperfections, nu, config.seed, data_seed);
+    let mut pose_rng = stream(data_seed, POSE_STREAM);
 
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
     let mut orientations = vec![BaseOrientation::upright()];
@@ -506,7 +564,7 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
         robot: RobotFile::from_robot(robot, None),
         orientations,
         training_gravity: training_gravity.into(),
-        su_bias: sensors.bias.iter().map(|b| (*b).into()).collect(),
+        su_intrinsics: sensors.intrinsics.clone(),
         config: config.clone(),
     };
     Ok(Simulation {

@@ -122,8 +122,8 @@ pub struct LogSummary {
     pub dropped: u64,
     /// Samples with an axis at the saturation limit.
     pub saturated: u64,
-    /// Per-SU bias used, m/s² (the ground truth).
-    pub su_bias: Vec<[f64; 3]>,
+    /// Per-SU accelerometer intrinsics used (the ground truth).
+    pub su_intrinsics: Vec<crate::model::intrinsics::Intrinsics>,
 }
 
 /// Errors of a time-series simulation.
@@ -170,7 +170,7 @@ pub fn record(
         Some(Part::Structure) => (0.0, plan.structure_duration),
         Some(Part::Training) => (plan.structure_duration, plan.duration),
     };
-    let mut sensors = Sensors::new(&config.imperfections, nu, config.seed);
+    let mut sensors = Sensors::new(&config.imperfections, nu, config.seed, config.seed);
     let mut rng = stream(config.seed, JITTER_STREAM);
     let jitter = (config.jitter > 0.0).then(|| Normal::new(0.0, config.jitter).expect("validated"));
     let gravity = Vector3::from(config.orientation.gravity);
@@ -187,7 +187,7 @@ pub fn record(
         imu_messages: 0,
         dropped: 0,
         saturated: 0,
-        su_bias: sensors.bias.iter().map(|b| (*b).into()).collect(),
+        su_intrinsics: sensors.intrinsics.clone(),
     };
     let n = ((end - begin) * config.rate).floor() as u64;
     let h = 1e-4;

@@ -52,6 +52,7 @@ use serde::{Deserialize, Serialize};
 use super::limb::{LimbChain, LimbData};
 use super::{ChainData, EstimateError, SerialChain};
 use crate::model::description::RobotFile;
+use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
@@ -78,6 +79,46 @@ pub struct MlConfig {
     /// A parameter direction that the data determine only to worse than this (m or rad) is
     /// reported as unobservable.
     pub observable_limit: f64,
+    /// Which accelerometer intrinsics are estimated with the kinematics.
+    #[serde(default)]
+    pub intrinsics: IntrinsicsModel,
+}
+
+/// Which accelerometer intrinsics ([`Intrinsics`]) the estimator fits per SU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum IntrinsicsModel {
+    /// Ideal accelerometers.
+    None,
+    /// A bias per axis.
+    Bias,
+    /// A bias and a scale error per axis.
+    #[default]
+    BiasScale,
+    /// Bias, scale and the 3 axis misalignments.
+    Full,
+}
+
+impl IntrinsicsModel {
+    /// How many of the 9 components ([`INTRINSIC_NAMES`] order) are estimated.
+    pub fn components(self) -> usize {
+        match self {
+            IntrinsicsModel::None => 0,
+            IntrinsicsModel::Bias => 3,
+            IntrinsicsModel::BiasScale => 6,
+            IntrinsicsModel::Full => 9,
+        }
+    }
+
+    /// Its name on the command line and in files.
+    pub fn name(self) -> &'static str {
+        match self {
+            IntrinsicsModel::None => "none",
+            IntrinsicsModel::Bias => "bias",
+            IntrinsicsModel::BiasScale => "bias-scale",
+            IntrinsicsModel::Full => "full",
+        }
+    }
 }
 
 impl Default for MlConfig {
@@ -90,6 +131,7 @@ impl Default for MlConfig {
             beam: 2,
             vertical_test: 9.21,
             observable_limit: 1.0,
+            intrinsics: IntrinsicsModel::default(),
         }
     }
 }
@@ -103,6 +145,8 @@ pub struct ChainState {
     pub joints: Vec<Isometry3<f64>>,
     /// SU frames on their segments.
     pub sus: Vec<Isometry3<f64>>,
+    /// Each SU's accelerometer intrinsics.
+    pub intrinsics: Vec<Intrinsics>,
 }
 
 /// The part of a limb that an earlier estimate fixed: the joint frames of the DoFs from the static
@@ -136,6 +180,22 @@ pub struct SuUncertainty {
     pub position_sd: f64,
     /// Standard deviation of its orientation, rad (root of the trace of the rotation covariance).
     pub orientation_sd: f64,
+}
+
+/// One SU's estimated accelerometer intrinsics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuIntrinsics {
+    /// The SU.
+    pub su: String,
+    /// The estimate (components not estimated are 0).
+    pub value: Intrinsics,
+    /// Standard deviation of each component (0 where not estimated).
+    pub sd: Intrinsics,
+    /// Components the readings do not determine (e.g. the bias along an axis that gravity never
+    /// turns about): held near the ideal sensor's value by the prior, with about the prior's
+    /// standard deviation.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held: Vec<String>,
 }
 
 /// A parameter direction the data cannot determine.
@@ -202,6 +262,9 @@ pub struct MlChainEstimate {
     pub unobservable: Vec<Unobservable>,
     /// Per SU: standard deviations.
     pub uncertainty: Vec<SuUncertainty>,
+    /// Per SU: the accelerometer intrinsics estimated with the kinematics (empty when none are).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub intrinsics: Vec<SuIntrinsics>,
     /// The same limb in the paper's DH+2 form (only for a paper-style chain: single-DoF joints,
     /// one SU per segment).
     pub dh: Option<DhTable>,
@@ -416,6 +479,7 @@ pub fn estimate_limb(
         gravity: Vector3::zeros(),
         joints: vec![Isometry3::identity(); dofs],
         sus: vec![Isometry3::identity(); sus],
+        intrinsics: vec![Intrinsics::default(); sus],
     };
     let solve_init = |state: ChainState, spec: &Spec, max: usize| {
         solve(state, &layout, &readings, spec, sigma, max, INIT_TOLERANCE)
@@ -605,15 +669,30 @@ pub fn estimate_limb(
     }
     let state = beam.swap_remove(0).0;
 
-    // The whole limb at once.
+    // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
     let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
-    let mut spec = full_spec(&layout, base_dofs.max(1), base.is_none(), gauge_su);
-    if vertical {
-        // Gravity along the first axis: its horizontal components are held at zero, which leaves
-        // the turn of everything after segment 1 about that axis exactly free (reported below).
-        spec.held.extend([(0, 0), (0, 1)]);
-    }
-    let solved = solve(
+    let final_spec = |intrinsics: IntrinsicsModel| {
+        let mut spec = full_spec(
+            &layout,
+            base_dofs.max(1),
+            base.is_none(),
+            gauge_su,
+            intrinsics,
+        );
+        if vertical {
+            // Gravity along the first axis: its direction is held, which leaves the turn of
+            // everything after segment 1 about that axis exactly free (reported below).
+            spec.held.extend([(0, 0), (0, 1)]);
+        }
+        if base.is_none() && intrinsics.components() > 3 {
+            // A common scale error of every SU and a gravity as much weaker read the same: the
+            // magnitude of gravity is what scales are measured against.
+            spec.held.push((0, 2));
+        }
+        spec
+    };
+    let spec = final_spec(IntrinsicsModel::None);
+    let mut solved = solve(
         state,
         &layout,
         &readings,
@@ -623,6 +702,26 @@ pub fn estimate_limb(
         FINAL_TOLERANCE,
     );
     iterations += solved.iterations;
+    let spec = if config.intrinsics == IntrinsicsModel::None {
+        spec
+    } else {
+        let spec = final_spec(config.intrinsics);
+        let mut start = solved.state;
+        if spec.held.contains(&(0, 2)) {
+            start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
+        }
+        solved = solve(
+            start,
+            &layout,
+            &readings,
+            &spec,
+            sigma,
+            config.max_iterations,
+            FINAL_TOLERANCE,
+        );
+        iterations += solved.iterations;
+        spec
+    };
     let state = solved.state;
     let dof_count = spec.columns().len();
     let noise_sd_estimate =
@@ -642,6 +741,7 @@ pub fn estimate_limb(
         config.observable_limit,
     );
     let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
+    let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, config.intrinsics);
     let mut fixed = Vec::new();
     match (base, gauge_su) {
         (Some(_), _) => fixed.push(format!(
@@ -658,7 +758,12 @@ pub fn estimate_limb(
         )),
     }
     if vertical {
-        fixed.extend(["gravity.x".to_string(), "gravity.y".to_string()]);
+        fixed.push(format!("gravity.direction (along {}'s axis)", flat_dofs[0]));
+    }
+    if spec.held.contains(&(0, 2)) && base.is_none() {
+        fixed.push(format!(
+            "gravity.magnitude ({STANDARD_GRAVITY} m/s²: what the scales are measured against)"
+        ));
     }
     if !residual_ratio.is_finite() {
         return Err(EstimateError::NotFinite {
@@ -682,6 +787,7 @@ pub fn estimate_limb(
         fixed,
         unobservable,
         uncertainty,
+        intrinsics,
         iterations,
         seconds: started.elapsed().as_secs_f64(),
         state: Some(state),
@@ -783,12 +889,14 @@ fn single_su_cost(
 }
 
 /// The final problem: gravity (when `with_gravity`), every joint line from `first_joint` on, every
-/// SU; the gauge SU's rotation about and shift along z held.
+/// SU and, per `intrinsics`, its accelerometer intrinsics; the gauge SU's rotation about and shift
+/// along z held.
 fn full_spec(
     layout: &Layout,
     first_joint: usize,
     with_gravity: bool,
     gauge_su: Option<usize>,
+    intrinsics: IntrinsicsModel,
 ) -> Spec {
     let mut blocks = Vec::new();
     if with_gravity {
@@ -796,22 +904,66 @@ fn full_spec(
     }
     blocks.extend((first_joint..layout.dofs).map(Block::Joint));
     let first_su = blocks.len();
-    blocks.extend((0..layout.su_segment.len()).map(Block::Su));
+    let sus = layout.su_segment.len();
+    blocks.extend((0..sus).map(Block::Su));
+    let mut held: Vec<(usize, usize)> = gauge_su
+        .map(|u| vec![(first_su + u, 2), (first_su + u, 5)])
+        .unwrap_or_default();
+    if intrinsics != IntrinsicsModel::None {
+        let first_intrinsics = blocks.len();
+        blocks.extend((0..sus).map(Block::Intrinsics));
+        for u in 0..sus {
+            held.extend((intrinsics.components()..9).map(|c| (first_intrinsics + u, c)));
+        }
+    }
     Spec {
         prefix: None,
-        held: gauge_su
-            .map(|u| vec![(first_su + u, 2), (first_su + u, 5)])
-            .unwrap_or_default(),
+        held,
         blocks,
-        sus: (0..layout.su_segment.len()).collect(),
+        sus: (0..sus).collect(),
     }
+}
+
+/// Each SU's intrinsics with their standard deviations from the covariance, and the components
+/// whose standard deviation is more than half the prior's (the readings hardly tell them).
+fn su_intrinsics(
+    state: &ChainState,
+    spec: &Spec,
+    names: &[String],
+    covariance: &DMatrix<f64>,
+    model: IntrinsicsModel,
+) -> Vec<SuIntrinsics> {
+    if model == IntrinsicsModel::None {
+        return Vec::new();
+    }
+    let columns = spec.columns();
+    let mut sd = vec![[0.0f64; 9]; names.len()];
+    for (col, &(b, c)) in columns.iter().enumerate() {
+        if let Block::Intrinsics(u) = spec.blocks[b] {
+            sd[u][c] = covariance[(col, col)].max(0.0).sqrt();
+        }
+    }
+    names
+        .iter()
+        .enumerate()
+        .map(|(u, su)| SuIntrinsics {
+            su: su.clone(),
+            value: state.intrinsics[u],
+            sd: Intrinsics::from_array(&sd[u]),
+            held: (0..model.components())
+                .filter(|&c| sd[u][c] > 0.5 * problem::INTRINSIC_PRIOR_SD[c])
+                .map(|c| INTRINSIC_NAMES[c].to_string())
+                .collect(),
+        })
+        .collect()
 }
 
 fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
     spec.columns()
         .iter()
         .map(|&(b, c)| match spec.blocks[b] {
-            Block::Gravity => format!("gravity.{}", ["x", "y", "z"][c]),
+            Block::Gravity => format!("gravity.{}", ["tilt_1", "tilt_2", "magnitude"][c]),
+            Block::Intrinsics(u) => format!("{}.{}", sus[u], INTRINSIC_NAMES[c]),
             Block::Joint(k) => format!(
                 "{}.{}",
                 dofs[k],
@@ -972,7 +1124,7 @@ pub mod internals {
         sigma: f64,
     ) -> (nalgebra::DVector<f64>, DMatrix<f64>) {
         let layout = serial_layout(data.chain.dofs.len());
-        let spec = full_spec(&layout, 1, true, Some(0));
+        let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
         problem::dense_problem(
             state,
             &layout,
@@ -990,7 +1142,7 @@ pub mod internals {
         delta: &[f64],
     ) -> nalgebra::DVector<f64> {
         let layout = serial_layout(data.chain.dofs.len());
-        let spec = full_spec(&layout, 1, true, Some(0));
+        let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
         problem::dense_problem(
             &retract(state, &spec, delta),
             &layout,
@@ -1012,7 +1164,7 @@ pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> O
     for i in 1..world.len() {
         joints[i] = world[i - 1].inverse() * world[i];
     }
-    let su_states = su_world
+    let su_states: Vec<Isometry3<f64>> = su_world
         .iter()
         .enumerate()
         .map(|(u, s)| world[u].inverse() * (to_reference * s))
@@ -1020,6 +1172,7 @@ pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> O
     Some(ChainState {
         gravity: to_reference.rotation * gravity,
         joints,
+        intrinsics: vec![Intrinsics::default(); su_states.len()],
         sus: su_states,
     })
 }
@@ -1029,7 +1182,8 @@ pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> O
 /// of `data`; readings do not enter), propagated to each SU's pose relative to the previous one over
 /// `poses` random held-out poses (seeded, each DoF uniform in ±2.62 rad). Returns the RMS position
 /// bound (m) and the RMS rotation bound (rad) over the pairs that the metric aggregates (all but the
-/// first).
+/// first). With `intrinsics`, the bound of an estimator that fits those intrinsics too (ideal
+/// sensors at the truth, the gravity magnitude held when scales are fitted, as the estimator does).
 pub fn cramer_rao_bound(
     truth: &Robot,
     gravity: &Vector3<f64>,
@@ -1037,12 +1191,16 @@ pub fn cramer_rao_bound(
     sigma: f64,
     poses: usize,
     seed: u64,
+    intrinsics: IntrinsicsModel,
 ) -> Option<(f64, f64)> {
     use rand::{Rng, SeedableRng};
     let state = state_of(truth, &data.chain, gravity)?;
     let dofs = data.chain.dofs.len();
     let layout = serial_layout(dofs);
-    let spec = full_spec(&layout, 1, true, Some(0));
+    let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
+    if intrinsics.components() > 3 {
+        spec.held.push((0, 2));
+    }
     let map = ColumnMap::new(&spec);
     let normal = normal_system(
         &state,

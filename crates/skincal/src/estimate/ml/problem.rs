@@ -14,6 +14,22 @@ use nalgebra::{DMatrix, DVector, Isometry3, Translation3, UnitQuaternion, Vector
 use rayon::prelude::*;
 
 use super::{ChainState, Unobservable};
+use crate::model::sensor::STANDARD_GRAVITY;
+
+/// The prior standard deviation of each intrinsic component (bias 0.1 g, scale 5 %,
+/// misalignment 0.05 rad): weak beside what the readings tell when they tell it, it holds the
+/// directions that no reading determines at the ideal sensor's values.
+pub(super) const INTRINSIC_PRIOR_SD: [f64; 9] = [
+    0.1 * STANDARD_GRAVITY,
+    0.1 * STANDARD_GRAVITY,
+    0.1 * STANDARD_GRAVITY,
+    0.05,
+    0.05,
+    0.05,
+    0.05,
+    0.05,
+    0.05,
+];
 
 /// Which SU sits on which segment (1-based: segment `k` is moved directly by DoF `k−1`).
 #[derive(Debug, Clone, PartialEq)]
@@ -44,6 +60,8 @@ pub(super) enum Block {
     JointFull(usize),
     /// The 6 parameters of SU `u`.
     Su(usize),
+    /// The 9 accelerometer intrinsics of SU `u`: bias (3), scale (3), misalignment (3).
+    Intrinsics(usize),
 }
 
 impl Block {
@@ -52,6 +70,7 @@ impl Block {
             Block::Gravity => 3,
             Block::Joint(_) => 4,
             Block::JointFull(_) | Block::Su(_) => 6,
+            Block::Intrinsics(_) => 9,
         }
     }
 }
@@ -104,7 +123,7 @@ impl ColumnMap {
         let mut own = vec![Vec::new(); spec.sus.len()];
         for (b, c) in spec.columns() {
             let owner = match spec.blocks[b] {
-                Block::Su(u) => spec.sus.iter().position(|&v| v == u),
+                Block::Su(u) | Block::Intrinsics(u) => spec.sus.iter().position(|&v| v == u),
                 _ => None,
             };
             match owner {
@@ -202,6 +221,40 @@ pub(super) fn frames(
     }
 }
 
+/// Two unit vectors perpendicular to `g` and to each other (a fixed choice for every `g`).
+fn gravity_tangents(g: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let n = g.try_normalize(1e-300).unwrap_or_else(Vector3::z);
+    let least = (0..3)
+        .min_by(|&a, &b| n[a].abs().total_cmp(&n[b].abs()))
+        .unwrap_or(0);
+    let e1 = Vector3::ith(least, 1.0).cross(&n).normalize();
+    (e1, n.cross(&e1))
+}
+
+/// How gravity changes with the 3 components of its block: turns about the two tangents of
+/// [`gravity_tangents`] (its direction) and a change of its magnitude, m/s².
+pub(super) fn gravity_directions(g: &Vector3<f64>) -> [Vector3<f64>; 3] {
+    let (e1, e2) = gravity_tangents(g);
+    [
+        e1.cross(g),
+        e2.cross(g),
+        g.try_normalize(1e-300).unwrap_or_else(Vector3::z),
+    ]
+}
+
+/// The gravity block's retraction: turn by `(x0, x1)` about the tangents, then change the
+/// magnitude by `x2`.
+fn move_gravity(g: &Vector3<f64>, x: &[f64]) -> Vector3<f64> {
+    let (e1, e2) = gravity_tangents(g);
+    let turned = UnitQuaternion::from_scaled_axis(e1 * x[0] + e2 * x[1]) * g;
+    let norm = g.norm();
+    if norm > 0.0 {
+        turned * ((norm + x[2]) / norm)
+    } else {
+        Vector3::new(0.0, 0.0, x[2])
+    }
+}
+
 /// The local motion of component `c` of a joint block, as a world twist `(ω, v)` such that a point
 /// `p` downstream moves by `ω × p + v` and a direction rotates by `ω`.
 fn joint_twist(joint: &Isometry3<f64>, c: usize) -> (Vector3<f64>, Vector3<f64>) {
@@ -230,9 +283,17 @@ enum Effect {
     },
 }
 
-fn effect(block: Block, c: usize, f: &Frames, s: usize, pu: &Vector3<f64>) -> Option<Effect> {
+fn effect(
+    block: Block,
+    c: usize,
+    f: &Frames,
+    s: usize,
+    pu: &Vector3<f64>,
+    gravity: &[Vector3<f64>; 3],
+) -> Option<Effect> {
     match block {
-        Block::Gravity => Some(Effect::Gravity(Vector3::ith(c, 1.0))),
+        Block::Gravity => Some(Effect::Gravity(gravity[c])),
+        Block::Intrinsics(_) => None,
         Block::Joint(k) | Block::JointFull(k) => {
             if k >= s {
                 return None;
@@ -310,7 +371,15 @@ fn su_block(
     let u = spec.sus[i];
     let s = layout.su_segment[u];
     let per_pose = 3 * (1 + s);
-    let rows = per_pose * data.q.len();
+    // Free intrinsics of this SU: (own column, component); each has a prior row after the readings.
+    let priors: Vec<(usize, usize)> = map.own[i]
+        .iter()
+        .enumerate()
+        .filter(|(_, &(b, _))| matches!(spec.blocks[b], Block::Intrinsics(_)))
+        .map(|(col, &(_, c))| (col, c))
+        .collect();
+    let readings_rows = per_pose * data.q.len();
+    let rows = readings_rows + priors.len();
     let mut r = DVector::zeros(rows);
     let (mut own, mut shared) = if jacobian {
         (
@@ -321,14 +390,19 @@ fn su_block(
         (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
     };
     let g = state.gravity;
+    let gravity = gravity_directions(&g);
     let alpha = data.alpha;
+    let intrinsics = &state.intrinsics[u];
+    let k = intrinsics.matrix();
+    let bias = Vector3::from(intrinsics.bias);
     for (p, f) in frames.iter().enumerate() {
         let row = p * per_pose;
         let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
         let rut = ru.transpose();
         let pu = f.sus[u].translation.vector;
+        let ideal_static = rut * (-g);
         r.fixed_rows_mut::<3>(row)
-            .copy_from(&((rut * (-g) - data.statics[p][u]) / sigma));
+            .copy_from(&((k * ideal_static + bias - data.statics[p][u]) / sigma));
         let axes: Vec<(Vector3<f64>, Vector3<f64>)> = (0..s)
             .map(|d| {
                 (
@@ -337,10 +411,13 @@ fn su_block(
                 )
             })
             .collect();
-        for (d, (z, o)) in axes.iter().enumerate() {
-            let predicted = rut * (z.cross(&(pu - o)) * alpha);
+        let ideal_dynamic: Vec<Vector3<f64>> = axes
+            .iter()
+            .map(|(z, o)| rut * (z.cross(&(pu - o)) * alpha))
+            .collect();
+        for (d, a) in ideal_dynamic.iter().enumerate() {
             r.fixed_rows_mut::<3>(row + 3 * (1 + d))
-                .copy_from(&((predicted - data.dynamics[p][u][d]) / sigma));
+                .copy_from(&((k * a - data.dynamics[p][u][d]) / sigma));
         }
         if !jacobian {
             continue;
@@ -348,7 +425,7 @@ fn su_block(
         let fill = |target: &mut DMatrix<f64>, col: usize, e: Effect| match e {
             Effect::Gravity(dir) => target
                 .fixed_view_mut::<3, 1>(row, col)
-                .copy_from(&(-(rut * dir) / sigma)),
+                .copy_from(&(-(k * (rut * dir)) / sigma)),
             Effect::Motion {
                 omega,
                 dp,
@@ -356,31 +433,50 @@ fn su_block(
             } => {
                 target
                     .fixed_view_mut::<3, 1>(row, col)
-                    .copy_from(&(rut * omega.cross(&g) / sigma));
+                    .copy_from(&(k * (rut * omega.cross(&g)) / sigma));
                 // Axes from `moved_from` on move with the SU: their accelerations do not change.
                 for (d, (z, o)) in axes.iter().enumerate().take(moved_from.min(s)) {
                     let w = z.cross(&(pu - o));
                     let delta = rut * (w.cross(&omega) + z.cross(&dp)) * alpha;
                     target
                         .fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
-                        .copy_from(&(delta / sigma));
+                        .copy_from(&(k * delta / sigma));
                 }
             }
         };
+        let static_partials = intrinsics.partials(&ideal_static, true);
+        let dynamic_partials: Vec<[Vector3<f64>; 9]> = ideal_dynamic
+            .iter()
+            .map(|a| intrinsics.partials(a, false))
+            .collect();
         for (col, &(b, c)) in map.own[i].iter().enumerate() {
-            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu) {
+            if let Block::Intrinsics(_) = spec.blocks[b] {
+                own.fixed_view_mut::<3, 1>(row, col)
+                    .copy_from(&(static_partials[c] / sigma));
+                for (d, partials) in dynamic_partials.iter().enumerate() {
+                    own.fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
+                        .copy_from(&(partials[c] / sigma));
+                }
+            } else if let Some(e) = effect(spec.blocks[b], c, f, s, &pu, &gravity) {
                 fill(&mut own, col, e);
             }
         }
         for (col, &(b, c)) in map.shared.iter().enumerate() {
-            if let Block::Su(v) = spec.blocks[b] {
+            if let Block::Su(v) | Block::Intrinsics(v) = spec.blocks[b] {
                 if v != u {
                     continue;
                 }
             }
-            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu) {
+            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu, &gravity) {
                 fill(&mut shared, col, e);
             }
+        }
+    }
+    let values = intrinsics.to_array();
+    for (n, &(col, c)) in priors.iter().enumerate() {
+        r[readings_rows + n] = values[c] / INTRINSIC_PRIOR_SD[c];
+        if jacobian {
+            own[(readings_rows + n, col)] = 1.0 / INTRINSIC_PRIOR_SD[c];
         }
     }
     SuBlock { r, own, shared }
@@ -562,7 +658,7 @@ fn schur_step(normal: &Normal, map: &ColumnMap, lambda: f64) -> Option<Vec<f64>>
 
 /// Applies a step of the free columns to the state (the retraction).
 pub(super) fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainState {
-    let mut full: Vec<[f64; 6]> = vec![[0.0; 6]; spec.blocks.len()];
+    let mut full: Vec<[f64; 9]> = vec![[0.0; 9]; spec.blocks.len()];
     for (&(b, c), &x) in spec.columns().iter().zip(delta) {
         full[b][c] = x;
     }
@@ -570,7 +666,8 @@ pub(super) fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainSt
     for (b, block) in spec.blocks.iter().enumerate() {
         let x = full[b];
         match *block {
-            Block::Gravity => next.gravity += Vector3::new(x[0], x[1], x[2]),
+            Block::Gravity => next.gravity = move_gravity(&state.gravity, &x),
+            Block::Intrinsics(u) => next.intrinsics[u] = state.intrinsics[u].moved(&x),
             Block::Joint(k) => {
                 let local = Isometry3::from_parts(
                     Translation3::new(x[2], x[3], 0.0),
