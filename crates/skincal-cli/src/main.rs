@@ -245,6 +245,9 @@ struct BenchCalibrateArgs {
     /// Number of noise seeds (data sets), 1…N.
     #[arg(long, default_value_t = 10)]
     seeds: u64,
+    /// The first seed (to rerun one case: --first-seed 280 --seeds 1).
+    #[arg(long, default_value_t = 1)]
+    first_seed: u64,
     /// Training poses P.
     #[arg(long, default_value_t = 20)]
     poses: usize,
@@ -667,6 +670,13 @@ fn calibrate_ml(
     for limb in &model.limbs {
         out!("{}", limb_report(limb, truth)?);
     }
+    if !model.not_calibrated.is_empty() {
+        outln!("Not calibrated ({}):", model.not_calibrated.len());
+        for n in &model.not_calibrated {
+            outln!("  {} {}: {}", n.kind, n.name, n.reason);
+        }
+        outln!();
+    }
     let out = dir.join(model_file("model", args.limb.as_deref()));
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],
@@ -736,8 +746,22 @@ fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
     let robot = model
         .check()
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
-    let text =
+    let mut text =
         skincal::model::urdf::to_urdf(&robot).with_context(|| args.model.display().to_string())?;
+    if !model.not_calibrated.is_empty() {
+        // Said in the file itself, after the XML declaration.
+        let list: Vec<String> = model
+            .not_calibrated
+            .iter()
+            .map(|n| format!("{} {} ({})", n.kind, n.name, n.reason.replace("--", "-")))
+            .collect();
+        let comment = format!(
+            "<!-- Not calibrated by skincal (absent from this description):\n     {}\n-->\n",
+            list.join("\n     ")
+        );
+        let at = text.find("?>\n").map_or(0, |i| i + 3);
+        text.insert_str(at, &comment);
+    }
     let out = args
         .out
         .unwrap_or_else(|| args.model.with_extension("urdf"));
@@ -781,6 +805,17 @@ fn predict(args: PredictArgs) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     if args.ideal {
         predictor = predictor.ideal();
+    }
+    if !model.not_calibrated.is_empty() {
+        let names: Vec<String> = model
+            .not_calibrated
+            .iter()
+            .map(|n| format!("{} {}", n.kind, n.name))
+            .collect();
+        eprintln!(
+            "note: not calibrated, so not predicted (their angles in the poses are ignored): {}",
+            names.join(", ")
+        );
     }
     match args.out {
         Some(out) => {
@@ -845,12 +880,13 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     let g = skincal::model::sensor::STANDARD_GRAVITY;
     let sd = args.noise * g / 3f64.sqrt();
     outln!(
-        "{}, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds 1…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
+        "{}, P = {}, uniform ±{} g noise (σ = {:.4} m/s²), seeds {}…{}; accuracy: pose of each SU relative to the previous one over 30 held-out poses\n",
         if args.random_chains { "random 7-DoF DH chains (robot seed = data seed)" } else { "paper-7dof" },
         args.poses,
         args.noise,
         sd,
-        args.seeds
+        args.first_seed,
+        args.first_seed + args.seeds.saturating_sub(1)
     );
     let methods: Vec<Method> = match args.method {
         BenchMethod::Both => vec![Method::Ml, Method::Paper],
@@ -864,7 +900,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     if intrinsics != ml::IntrinsicsModel::None {
         bounds.push((intrinsics, 0.0, 0.0));
     }
-    for seed in 1..=args.seeds {
+    for seed in args.first_seed..args.first_seed.saturating_add(args.seeds) {
         let config = SimulationConfig {
             poses: args.poses,
             seed,

@@ -125,21 +125,23 @@ pub fn structure_summary(s: &Structure) -> String {
         let _ = writeln!(out, "\nDiagnostics\n");
         out.push_str(&report::diagnostics(s));
     }
-    if !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty() {
-        let _ = writeln!(
-            out,
-            "\nLeft out of the tree: {} SUs, {} DoFs",
-            s.unplaced_sus.len(),
-            s.unplaced_dofs.len()
-        );
+    let left_out = !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty();
+    if left_out {
+        let _ = writeln!(out, "\nLeft out of the tree (not calibrated):");
+        for (what, names) in [("SUs", &s.unplaced_sus), ("DoFs", &s.unplaced_dofs)] {
+            if !names.is_empty() {
+                let _ = writeln!(out, "  {} {what}: {}", names.len(), names.join(", "));
+            }
+        }
     }
     let _ = writeln!(
         out,
         "\n{}",
-        if s.complete {
-            "The tree is complete."
-        } else {
-            "The tree is INCOMPLETE: see the errors above."
+        match (s.complete, left_out) {
+            (true, false) => "The tree is complete.",
+            (true, true) =>
+                "The tree of the rest is consistent: `calibrate` calibrates every limb of it and lists what was left out.",
+            (false, _) => "The tree is INCOMPLETE: see the errors above.",
         }
     );
     out

@@ -744,14 +744,16 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             continue;
         }
         let largest = (0..nu).map(|u| a.change[u][d]).fold(0.0, f64::max) / STANDARD_GRAVITY;
-        let cause = if a.orientations < 2 {
-            "its axis was probably vertical (turning about gravity changes no reading): record the structure experiment again with the reference segment tilted by 90° about a horizontal axis; or the segment it moves carries no SU"
+        // With two base orientations no axis is vertical in both: the DoF moves no SU at all, so
+        // it sits at a chain's end and leaving it out changes nothing else.
+        let (cause, severity) = if a.orientations < 2 {
+            ("its axis was probably vertical (turning about gravity changes no reading): record the structure experiment again with the reference segment tilted by 90° about a horizontal axis; or the segment it moves carries no SU", Severity::Error)
         } else {
-            "the segment it moves carries no SU (a chain's end without skin), or the DoF did not actually move"
+            ("the segment it moves carries no SU (a chain's end without skin), or the DoF did not actually move; it is left out and not calibrated", Severity::Warning)
         };
         diagnostics.push(Diagnostic {
             kind: DiagnosticKind::DofMovesNoSu,
-            severity: Severity::Error,
+            severity,
             message: format!("DoF `{}` changed no SU's reading by more than {:.3} g (largest change {largest:.3} g): {cause}", a.dofs[d], a.threshold / STANDARD_GRAVITY),
             sus: vec![],
             dofs: vec![a.dofs[d].clone()],
@@ -813,7 +815,7 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             }
             diagnostics.push(Diagnostic {
                 kind: DiagnosticKind::SeveralStaticGroups,
-                severity: Severity::Error,
+                severity: Severity::Warning,
                 message: format!(
                     "more than one null row: these SUs stayed still in every move, but their gravity reading turned by a different angle than the reference segment's ({:.0}°) when the base was re-oriented, so they are not on the reference segment: loose SUs, SUs on another static body, or SUs on a segment whose DoFs were not moved; left out of the tree",
                     median.to_degrees()
@@ -862,10 +864,12 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
                 } else {
                     excluded.iter_mut().for_each(|e| *e = true);
                 }
+                // SUs set aside leave a consistent tree of the rest (a warning); a conflict that
+                // no SU explains leaves no tree to trust.
                 diagnostics.push(Diagnostic {
                     kind: DiagnosticKind::Unsortable,
-                    severity: Severity::Error,
-                    message: format!("the activity matrix cannot be sorted into a tree: {reason}. Likely causes: a closed kinematic loop, a reference segment that moved, a segment without SU in mid-chain, or a misread entry; these SUs are left out of the tree"),
+                    severity: if segment.is_empty() { Severity::Error } else { Severity::Warning },
+                    message: format!("the activity matrix cannot be sorted into a tree: {reason}. Likely causes: a closed kinematic loop, a reference segment that moved, a segment without SU in mid-chain, or a misread entry; these SUs are left out of the tree and not calibrated"),
                     sus: su_names(&segment),
                     dofs: dof_names(&dofs),
                 });

@@ -159,6 +159,9 @@ pub struct Predictor {
     gravity: Vec<Vector3<f64>>,
     /// Accelerometer intrinsics per SU of the robot (ideal where the model has none).
     intrinsics: Vec<Intrinsics>,
+    /// DoFs of the robot's measurement set that the model does not calibrate: a pose may name
+    /// them (their values do not matter).
+    ignored: Vec<String>,
 }
 
 /// Readings of every SU in one pose, in the model's SU order.
@@ -197,10 +200,17 @@ impl Predictor {
             .iter()
             .map(|s| by_su.get(s.as_str()).copied().unwrap_or_default())
             .collect();
+        let ignored = model
+            .not_calibrated
+            .iter()
+            .filter(|n| n.kind == "dof")
+            .map(|n| n.name.clone())
+            .collect();
         Ok(Self {
             robot,
             gravity,
             intrinsics,
+            ignored,
         })
     }
 
@@ -249,13 +259,13 @@ impl Predictor {
     /// For every model DoF, its column among `given` (a pose table's header); every model DoF must
     /// be there and no other.
     pub fn columns(&self, given: &[String], source: &str) -> Result<Vec<usize>, PredictError> {
-        columns(&self.dofs(), given, source)
+        columns(&self.dofs(), given, &self.ignored, source)
     }
 
     /// The columns of `table` in model DoF order; every model DoF must be there and no other.
     pub fn arrange(&self, table: &PoseTable, source: &str) -> Result<Vec<Vec<f64>>, PredictError> {
         let dofs = self.dofs();
-        let index = columns(&dofs, &table.dofs, source)?;
+        let index = columns(&dofs, &table.dofs, &self.ignored, source)?;
         Ok(table
             .poses
             .iter()
@@ -320,8 +330,14 @@ impl Predictor {
     }
 }
 
-/// For every name of `wanted`, its column in `given`; the names must be the same sets.
-fn columns(wanted: &[String], given: &[String], source: &str) -> Result<Vec<usize>, PredictError> {
+/// For every name of `wanted`, its column in `given`; `given` must hold every wanted name and no
+/// other but those of `ignored`.
+fn columns(
+    wanted: &[String],
+    given: &[String],
+    ignored: &[String],
+    source: &str,
+) -> Result<Vec<usize>, PredictError> {
     let missing: Vec<String> = wanted
         .iter()
         .filter(|d| !given.contains(d))
@@ -334,7 +350,10 @@ fn columns(wanted: &[String], given: &[String], source: &str) -> Result<Vec<usiz
             missing,
         });
     }
-    if let Some(extra) = given.iter().find(|d| !wanted.contains(d)) {
+    if let Some(extra) = given
+        .iter()
+        .find(|d| !wanted.contains(d) && !ignored.contains(d))
+    {
         return Err(PredictError::Poses(format!(
             "{source} names DoF `{extra}`, which the model does not have (its DoFs: {})",
             wanted.join(", ")

@@ -13,5 +13,6 @@ mod measurements;
 mod ml_estimation;
 mod paper;
 mod robustness;
+mod sensors;
 mod simulator;
 mod urdf_import;

@@ -86,6 +86,17 @@ pub struct StaticSu {
     pub reading: [f64; 3],
 }
 
+/// A DoF or SU of the measurement set that the model does not calibrate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NotCalibrated {
+    /// `dof` or `su`.
+    pub kind: String,
+    /// Its name in the measurement set.
+    pub name: String,
+    /// Why, in plain words.
+    pub reason: String,
+}
+
 /// A calibrated body: the file `model.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BodyModel {
@@ -107,6 +118,10 @@ pub struct BodyModel {
     pub limbs: Vec<BodyLimb>,
     /// SUs on the static reference segment.
     pub static_sus: Vec<StaticSu>,
+    /// DoFs and SUs of the measurement set that are not calibrated, and why: their readings and
+    /// angles do not enter, and a pose may give any value for such a DoF.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub not_calibrated: Vec<NotCalibrated>,
 }
 
 impl BodyModel {
@@ -239,7 +254,8 @@ pub fn calibrate_body(
         None => Vec::new(),
     };
     let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
-    Ok(assemble(
+    let not_calibrated = left_out(set, structure, &estimates, &static_sus, only);
+    let mut model = assemble(
         set,
         &reference,
         estimates,
@@ -247,7 +263,62 @@ pub fn calibrate_body(
         static_sus,
         config,
         training.pattern,
-    ))
+    );
+    model.not_calibrated = not_calibrated;
+    Ok(model)
+}
+
+/// Every DoF and SU of `set` that no estimate and no static SU covers, with the reason the
+/// structure gives (the diagnostic that names it) or the limb selection.
+fn left_out(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    estimates: &[MlChainEstimate],
+    static_sus: &[StaticSu],
+    only: Option<&str>,
+) -> Vec<NotCalibrated> {
+    use crate::explore::DiagnosticKind as K;
+    let dofs: Vec<String> = estimates.iter().flat_map(|e| e.chain.dofs()).collect();
+    let sus: Vec<String> = estimates
+        .iter()
+        .flat_map(|e| e.chain.sus())
+        .chain(static_sus.iter().map(|s| s.su.clone()))
+        .collect();
+    let reason = |kind: &str, name: &str| -> String {
+        let found = structure.and_then(|s| {
+            s.diagnostics.iter().find(|d| {
+                if kind == "dof" {
+                    d.dofs.iter().any(|n| n == name)
+                } else {
+                    d.sus.iter().any(|n| n == name)
+                }
+            })
+        });
+        match (found.map(|d| d.kind), only) {
+            (Some(K::DofMovesNoSu), _) => "it moves no SU (no skin on the segment it moves)".into(),
+            (Some(K::DofNotExplored), _) => "it was never moved in the structure experiment".into(),
+            (Some(K::SeveralStaticGroups), _) => {
+                "it stayed still in every move but is not on the reference segment".into()
+            }
+            (Some(K::Unsortable), _) => {
+                "its activity row does not fit the tree (set aside by explore)".into()
+            }
+            (Some(k), _) => format!("left out by explore ({k:?}; see structure.json)"),
+            (None, Some(limb)) => format!("not on limb {limb} (calibrate --limb {limb})"),
+            (None, None) => "left out by explore (see structure.json)".into(),
+        }
+    };
+    let mut out = Vec::new();
+    for (kind, names, covered) in [("dof", &set.dofs, &dofs), ("su", &set.sus, &sus)] {
+        for name in names.iter().filter(|n| !covered.contains(n)) {
+            out.push(NotCalibrated {
+                kind: kind.into(),
+                name: name.clone(),
+                reason: reason(kind, name),
+            });
+        }
+    }
+    out
 }
 
 /// The range each DoF covered in the set's poses, as its limits in the calibrated model.
@@ -398,5 +469,6 @@ fn assemble(
         ),
         limbs,
         static_sus,
+        not_calibrated: Vec::new(),
     }
 }

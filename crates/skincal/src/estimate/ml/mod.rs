@@ -687,7 +687,7 @@ pub fn estimate_limb(
         if base.is_none() && intrinsics.components() > 3 {
             // A common scale error of every SU and a gravity as much weaker read the same: the
             // magnitude of gravity is what scales are measured against.
-            spec.held.push((0, 2));
+            spec.blocks[0] = Block::GravityDirection;
         }
         spec
     };
@@ -707,7 +707,7 @@ pub fn estimate_limb(
     } else {
         let spec = final_spec(config.intrinsics);
         let mut start = solved.state;
-        if spec.held.contains(&(0, 2)) {
+        if spec.blocks.first() == Some(&Block::GravityDirection) {
             start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
         }
         solved = solve(
@@ -760,7 +760,7 @@ pub fn estimate_limb(
     if vertical {
         fixed.push(format!("gravity.direction (along {}'s axis)", flat_dofs[0]));
     }
-    if spec.held.contains(&(0, 2)) && base.is_none() {
+    if spec.blocks.first() == Some(&Block::GravityDirection) {
         fixed.push(format!(
             "gravity.magnitude ({STANDARD_GRAVITY} m/s²: what the scales are measured against)"
         ));
@@ -962,7 +962,8 @@ fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
     spec.columns()
         .iter()
         .map(|&(b, c)| match spec.blocks[b] {
-            Block::Gravity => format!("gravity.{}", ["tilt_1", "tilt_2", "magnitude"][c]),
+            Block::Gravity => format!("gravity.{}", ["x", "y", "z"][c]),
+            Block::GravityDirection => format!("gravity.{}", ["tilt_1", "tilt_2"][c]),
             Block::Intrinsics(u) => format!("{}.{}", sus[u], INTRINSIC_NAMES[c]),
             Block::Joint(k) => format!(
                 "{}.{}",
@@ -1199,7 +1200,7 @@ pub fn cramer_rao_bound(
     let layout = serial_layout(dofs);
     let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
     if intrinsics.components() > 3 {
-        spec.held.push((0, 2));
+        spec.blocks[0] = Block::GravityDirection;
     }
     let map = ColumnMap::new(&spec);
     let normal = normal_system(

@@ -53,7 +53,10 @@ pub(super) struct Readings {
 /// A parameter block of the least-squares problem.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum Block {
+    /// Gravity's 3 components, m/s².
     Gravity,
+    /// Gravity's direction alone (2 turns about its tangents; its magnitude held).
+    GravityDirection,
     /// The 4 line parameters of joint `k`.
     Joint(usize),
     /// All 6 parameters of joint `k` (initialisation only).
@@ -68,6 +71,7 @@ impl Block {
     fn len(self) -> usize {
         match self {
             Block::Gravity => 3,
+            Block::GravityDirection => 2,
             Block::Joint(_) => 4,
             Block::JointFull(_) | Block::Su(_) => 6,
             Block::Intrinsics(_) => 9,
@@ -231,28 +235,17 @@ fn gravity_tangents(g: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     (e1, n.cross(&e1))
 }
 
-/// How gravity changes with the 3 components of its block: turns about the two tangents of
-/// [`gravity_tangents`] (its direction) and a change of its magnitude, m/s².
+/// How gravity changes with the 2 components of its direction block (turns about the two
+/// tangents of [`gravity_tangents`]); the third entry is unused.
 pub(super) fn gravity_directions(g: &Vector3<f64>) -> [Vector3<f64>; 3] {
     let (e1, e2) = gravity_tangents(g);
-    [
-        e1.cross(g),
-        e2.cross(g),
-        g.try_normalize(1e-300).unwrap_or_else(Vector3::z),
-    ]
+    [e1.cross(g), e2.cross(g), Vector3::zeros()]
 }
 
-/// The gravity block's retraction: turn by `(x0, x1)` about the tangents, then change the
-/// magnitude by `x2`.
-fn move_gravity(g: &Vector3<f64>, x: &[f64]) -> Vector3<f64> {
+/// The direction block's retraction: `g` turned by `x0` and `x1` about its tangents.
+fn turn_gravity(g: &Vector3<f64>, x0: f64, x1: f64) -> Vector3<f64> {
     let (e1, e2) = gravity_tangents(g);
-    let turned = UnitQuaternion::from_scaled_axis(e1 * x[0] + e2 * x[1]) * g;
-    let norm = g.norm();
-    if norm > 0.0 {
-        turned * ((norm + x[2]) / norm)
-    } else {
-        Vector3::new(0.0, 0.0, x[2])
-    }
+    UnitQuaternion::from_scaled_axis(e1 * x0 + e2 * x1) * g
 }
 
 /// The local motion of component `c` of a joint block, as a world twist `(ω, v)` such that a point
@@ -292,7 +285,8 @@ fn effect(
     gravity: &[Vector3<f64>; 3],
 ) -> Option<Effect> {
     match block {
-        Block::Gravity => Some(Effect::Gravity(gravity[c])),
+        Block::Gravity => Some(Effect::Gravity(Vector3::ith(c, 1.0))),
+        Block::GravityDirection => Some(Effect::Gravity(gravity[c])),
         Block::Intrinsics(_) => None,
         Block::Joint(k) | Block::JointFull(k) => {
             if k >= s {
@@ -666,7 +660,8 @@ pub(super) fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainSt
     for (b, block) in spec.blocks.iter().enumerate() {
         let x = full[b];
         match *block {
-            Block::Gravity => next.gravity = move_gravity(&state.gravity, &x),
+            Block::Gravity => next.gravity += Vector3::new(x[0], x[1], x[2]),
+            Block::GravityDirection => next.gravity = turn_gravity(&state.gravity, x[0], x[1]),
             Block::Intrinsics(u) => next.intrinsics[u] = state.intrinsics[u].moved(&x),
             Block::Joint(k) => {
                 let local = Isometry3::from_parts(

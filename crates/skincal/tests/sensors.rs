@@ -1,0 +1,209 @@
+//! Real sensors and imperfect skins: accelerometer bias and scale estimated with the kinematics
+//! (against the simulator's drawn intrinsics), held-out sets of the same skin, and skins with
+//! gaps calibrated where they can be.
+
+use skincal::estimate::body::calibrate_body;
+use skincal::estimate::ml::{IntrinsicsModel, MlConfig};
+use skincal::explore::{explore, DiagnosticKind, ExploreConfig, Severity};
+use skincal::model::{presets, Robot};
+use skincal::predict::{validate, PoseTable, Predictor};
+use skincal::sim::{simulate, Imperfections, SimulationConfig};
+
+/// The paper's noise with BMA150-class intrinsics: bias ±0.06 g, scale ±3 % per axis.
+fn real_sensors(seed: u64) -> SimulationConfig {
+    SimulationConfig {
+        seed,
+        imperfections: Imperfections {
+            bias: 0.06,
+            scale: 0.03,
+            ..Imperfections::default()
+        },
+        ..SimulationConfig::default()
+    }
+}
+
+/// The same skin in 20 other poses, without noise.
+fn same_skin_held_out(config: &SimulationConfig) -> SimulationConfig {
+    SimulationConfig {
+        structure: false,
+        pose_seed: Some(99),
+        imperfections: Imperfections {
+            uniform_noise: 0.0,
+            ..config.imperfections
+        },
+        ..config.clone()
+    }
+}
+
+fn config(intrinsics: IntrinsicsModel) -> MlConfig {
+    MlConfig {
+        intrinsics,
+        ..MlConfig::default()
+    }
+}
+
+#[test]
+fn a_pose_seed_records_the_same_skin_in_other_poses() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let a = simulate(&robot, &real_sensors(4)).unwrap();
+    let b = simulate(&robot, &same_skin_held_out(&real_sensors(4))).unwrap();
+    assert_eq!(a.truth.su_intrinsics, b.truth.su_intrinsics);
+    assert!(a.truth.su_intrinsics.iter().all(|i| {
+        i.bias.iter().all(|b| b.abs() <= 0.06 * 9.81 && *b != 0.0)
+            && i.scale.iter().all(|s| s.abs() <= 0.03 && *s != 0.0)
+    }));
+    let (ta, tb) = (
+        a.measurements.training.unwrap(),
+        b.measurements.training.unwrap(),
+    );
+    assert_ne!(ta.poses[0].q, tb.poses[0].q);
+}
+
+#[test]
+fn bias_and_scale_are_estimated_with_the_kinematics_and_predictions_read_like_the_skin() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sim = simulate(&robot, &real_sensors(2)).unwrap();
+    let set = &sim.measurements;
+    let held_out = simulate(&robot, &same_skin_held_out(&real_sensors(2)))
+        .unwrap()
+        .measurements;
+
+    // Ideal accelerometers cannot explain 0.06 g offsets at the paper's noise.
+    let ideal = calibrate_body(set, None, &config(IntrinsicsModel::None), None).unwrap();
+    assert!(ideal.limbs[0].estimate.residual_ratio > 1.5);
+
+    let model = calibrate_body(set, None, &config(IntrinsicsModel::BiasScale), None).unwrap();
+    let e = &model.limbs[0].estimate;
+    assert!(e.converged, "residual {}", e.residual_ratio);
+    assert!((e.residual_ratio - 1.0).abs() < 0.15);
+    // Each SU's estimate against the drawn truth, within 4.5 standard deviations per component
+    // where the readings determine it.
+    let names = robot.model.su_names();
+    let mut checked = 0;
+    for i in &e.intrinsics {
+        let truth = sim.truth.su_intrinsics[names.iter().position(|n| *n == i.su).unwrap()];
+        let pairs = [
+            (
+                i.value.bias,
+                i.sd.bias,
+                truth.bias,
+                ["bias_x", "bias_y", "bias_z"],
+            ),
+            (
+                i.value.scale,
+                i.sd.scale,
+                truth.scale,
+                ["scale_x", "scale_y", "scale_z"],
+            ),
+        ];
+        for (value, sd, truth, labels) in pairs {
+            for c in 0..3 {
+                if i.held.iter().any(|h| h == labels[c]) {
+                    continue;
+                }
+                assert!(sd[c] > 0.0);
+                assert!(
+                    (value[c] - truth[c]).abs() < 4.5 * sd[c],
+                    "{} {}: {} vs truth {} (sd {})",
+                    i.su,
+                    labels[c],
+                    value[c],
+                    truth[c],
+                    sd[c]
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 36, "only {checked} components determined");
+
+    // Predictions are what the skin reads: close to the held-out readings of the same skin, and
+    // far closer than the ideal-sensor model's.
+    let with = validate(&model, &held_out, "held-out").unwrap();
+    let without = validate(&ideal, &held_out, "held-out").unwrap();
+    assert!(with.static_rms < 0.06, "static {}", with.static_rms);
+    assert!(with.static_rms * 5.0 < without.static_rms);
+    // `ideal` predicts the specific force: it differs from the reading by K·f + b − f.
+    let predictor = Predictor::new(&model).unwrap();
+    let q = &held_out.training.as_ref().unwrap().poses[0].q;
+    let pattern = model.pattern;
+    let read = predictor.readings(q, &pattern);
+    let ideal_force = predictor.clone().ideal().readings(q, &pattern);
+    for (u, i) in e.intrinsics.iter().enumerate() {
+        let expected = i.value.read(&ideal_force.statics[u]);
+        assert!((read.statics[u] - expected).norm() < 1e-9);
+        assert!(
+            (i.value.correct(&read.statics[u]).unwrap() - ideal_force.statics[u]).norm() < 1e-9
+        );
+    }
+}
+
+/// The humanoid with no SU on its hands: the wrist DoFs move no SU.
+fn handless_humanoid() -> Robot {
+    let mut file = presets::find("humanoid").unwrap().file().unwrap();
+    file.sus.retain(|s| !s.segment.ends_with("_hand"));
+    file.build().unwrap()
+}
+
+#[test]
+fn a_skin_with_gaps_is_calibrated_where_it_can_be_and_says_what_it_left_out() {
+    let robot = handless_humanoid();
+    let set = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let wrists = [
+        "l_wrist_yaw",
+        "l_wrist_pitch",
+        "r_wrist_yaw",
+        "r_wrist_pitch",
+    ];
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    assert_eq!(structure.unplaced_dofs, wrists);
+    assert!(structure
+        .diagnostics
+        .iter()
+        .filter(|d| d.kind == DiagnosticKind::DofMovesNoSu)
+        .all(|d| d.severity == Severity::Warning));
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    assert_eq!(model.limbs.len(), 5);
+    assert!(model.limbs.iter().all(|l| l.estimate.converged));
+    let left: Vec<&str> = model
+        .not_calibrated
+        .iter()
+        .map(|n| n.name.as_str())
+        .collect();
+    assert_eq!(left, wrists);
+    assert!(model
+        .not_calibrated
+        .iter()
+        .all(|n| n.kind == "dof" && n.reason.contains("moves no SU")));
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            pose_seed: Some(99),
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    assert!(
+        check.static_rms < 0.06 && check.dynamic_rms < 0.05,
+        "{check:?}"
+    );
+    // A pose table of every DoF of the robot, wrists included, is accepted; another name is not.
+    let predictor = Predictor::new(&model).unwrap();
+    let mut table = PoseTable {
+        dofs: held_out.dofs.clone(),
+        poses: vec![held_out.training.as_ref().unwrap().poses[0].q.clone()],
+    };
+    let rows = predictor.arrange(&table, "poses.csv").unwrap();
+    assert_eq!(rows[0].len(), robot.model.dofs().len() - 4);
+    table.dofs.push("tail".into());
+    table.poses[0].push(0.0);
+    let error = predictor.arrange(&table, "poses.csv").unwrap_err();
+    assert!(error.to_string().contains("`tail`"), "{error}");
+}
