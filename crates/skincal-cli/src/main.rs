@@ -365,6 +365,9 @@ struct SimulateArgs {
     /// Misalignment of each SU's axes (3 angles), uniform in ±DEG, in degrees.
     #[arg(long, value_name = "DEG", default_value_t = 0.0)]
     misalignment: f64,
+    /// Replace this fraction of all readings by glitches: random vectors of 0.2–1.5 g.
+    #[arg(long, value_name = "FRACTION", default_value_t = 0.0)]
+    glitches: f64,
     /// Saturate every axis at ±G, in g.
     #[arg(long, value_name = "G")]
     saturation: Option<f64>,
@@ -1082,6 +1085,7 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         bias: args.bias,
         scale: args.scale,
         misalignment: args.misalignment.to_radians(),
+        glitches: args.glitches,
         saturation: args.saturation,
         quantization_bits: None,
     };

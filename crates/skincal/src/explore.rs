@@ -93,6 +93,279 @@ pub struct ActivityMatrix {
     /// Per SU: the angle, rad, between its rest readings in the first and the second orientation
     /// (`None` with a single orientation).
     pub rest_turn: Vec<Option<f64>>,
+    /// Readings that cannot be what an accelerometer at rest reads (their norm is far from the
+    /// SU's |g|): the entries they would decide come from the other orientation.
+    #[serde(default)]
+    pub misread: Vec<Misread>,
+    /// Entries that no orientation could decide once misread readings were left out (the only
+    /// orientation left turned the DoF about gravity), decided by the other SUs whose rows agree.
+    #[serde(default)]
+    pub inferred: Vec<Inferred>,
+    /// `(SU, DoF)` entries that neither the readings nor the other SUs nor the tree decide: the
+    /// SU is set aside.
+    #[serde(default)]
+    pub undecided: Vec<(String, String)>,
+}
+
+/// An entry decided from the SUs whose rows agree, not from its own readings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Inferred {
+    /// The SU.
+    pub su: String,
+    /// The DoF.
+    pub dof: String,
+    /// The decision.
+    pub active: bool,
+}
+
+/// `[o][d]`: whether DoF `d` clearly moved at least two SUs in orientation `o` (its axis was not
+/// vertical there).
+fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
+    per.iter()
+        .map(|o| {
+            let nd = o.first().map_or(0, Vec::len);
+            (0..nd)
+                .map(|d| {
+                    o.iter()
+                        .filter(|row| row[d].is_some_and(|c| c > clear))
+                        .count()
+                        >= 2
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The change behind every entry, the largest over the orientations that read it. An entry that
+/// only orientations blind to the DoF (it moved no SU there: its axis was vertical) or none at all
+/// could read, because misread readings were left out, takes the majority decision of the SUs
+/// whose other entries agree with its own (SUs of the same segment share a row). Returns the
+/// changes and the entries so decided `(su, dof, active)`.
+///
+/// First, a DoF turns gravity by the same angle for every SU it moves, so in an orientation where
+/// it clearly moves at least two SUs, an SU it leaves clearly still is not downstream of it: an
+/// activity of that SU in another orientation is a misread reading, left out (returned as
+/// `(su, orientation, dof)`).
+#[allow(clippy::type_complexity)]
+fn combine_orientations(
+    per: &mut [Vec<Vec<Option<f64>>>],
+    threshold: f64,
+    uncertainty_factor: f64,
+    nu: usize,
+    nd: usize,
+) -> (
+    Vec<Vec<f64>>,
+    Vec<(usize, usize, bool)>,
+    Vec<(usize, usize, usize)>,
+    Vec<(usize, usize)>,
+) {
+    let clear_still = threshold / uncertainty_factor;
+    let sighted = sighted_dofs(per, threshold * uncertainty_factor);
+    let mut contradicted = Vec::new();
+    for u in 0..nu {
+        for d in 0..nd {
+            let still_where_sighted = (0..per.len())
+                .any(|o| sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still));
+            if !still_where_sighted {
+                continue;
+            }
+            for (o, p) in per.iter_mut().enumerate() {
+                if p[u][d].is_some_and(|c| c > threshold) {
+                    p[u][d] = None;
+                    contradicted.push((u, o, d));
+                }
+            }
+        }
+    }
+    let blind: Vec<Vec<bool>> = per
+        .iter()
+        .map(|o| {
+            (0..nd)
+                .map(|d| !(0..nu).any(|u| o[u][d].is_some_and(|c| c > threshold)))
+                .collect()
+        })
+        .collect();
+    let mut change = vec![vec![0.0; nd]; nu];
+    // Known entries: Some(active); unknown: None.
+    let mut known = vec![vec![None; nd]; nu];
+    for u in 0..nu {
+        for d in 0..nd {
+            let readable: Vec<(usize, f64)> = per
+                .iter()
+                .enumerate()
+                .filter_map(|(o, p)| p[u][d].map(|c| (o, c)))
+                .collect();
+            change[u][d] = readable.iter().map(|r| r.1).fold(0.0, f64::max);
+            // Unknown: not seen moving, and every orientation that sees the DoF move SUs could
+            // not read this one.
+            let sighted = readable.iter().any(|&(o, _)| !blind[o][d]);
+            let lost = (0..per.len()).any(|o| !blind[o][d] && per[o][u][d].is_none());
+            known[u][d] = if change[u][d] > threshold || sighted || !lost {
+                Some(change[u][d] > threshold)
+            } else {
+                None
+            };
+        }
+    }
+    // Entries only one orientation supports while another saw the DoF move some other SU and
+    // this one stay still: a misread or a DoF that moved just one SU there; the tree decides.
+    let suspicious = |u: usize, d: usize| {
+        let support: Vec<usize> = (0..per.len())
+            .filter(|&o| per[o][u][d].is_some_and(|c| c > threshold))
+            .collect();
+        support.len() == 1
+            && (0..per.len()).any(|o| {
+                o != support[0]
+                    && per[o][u][d].is_some_and(|c| c < clear_still)
+                    && (0..nu).any(|v| {
+                        v != u && per[o][v][d].is_some_and(|c| c > threshold * uncertainty_factor)
+                    })
+            })
+    };
+    let mut active: Vec<Vec<bool>> = change
+        .iter()
+        .map(|row| row.iter().map(|&c| c > threshold).collect())
+        .collect();
+    // First guesses: an unknown entry as the SUs whose other entries agree decide, when at least
+    // two do and alike (the SU's segment mates); otherwise it is undecided unless the tree below
+    // decides it. A suspicious entry stays.
+    let mut undecided: Vec<(usize, usize)> = Vec::new();
+    let questionable: Vec<(usize, usize, bool)> = (0..nu)
+        .flat_map(|u| (0..nd).map(move |d| (u, d)))
+        .filter_map(|(u, d)| {
+            let unknown = known[u][d].is_none();
+            (unknown || suspicious(u, d)).then_some((u, d, unknown))
+        })
+        .collect();
+    for &(u, d, unknown) in &questionable {
+        if !unknown {
+            continue;
+        }
+        let agree = |v: usize| {
+            v != u
+                && (0..nd).all(|e| match (known[u][e], known[v][e]) {
+                    (Some(a), Some(b)) => a == b,
+                    _ => true,
+                })
+        };
+        let votes: Vec<bool> = (0..nu)
+            .filter(|&v| agree(v))
+            .filter_map(|v| known[v][d])
+            .collect();
+        if votes.len() >= 2 && votes.iter().all(|&a| a == votes[0]) {
+            active[u][d] = votes[0];
+        } else {
+            undecided.push((u, d));
+        }
+    }
+    // Then the tree: the flip that leaves the fewest rows without a parent, one at a time, while
+    // one helps; an entry whose flip would add such rows is decided as it stands.
+    for _ in 0..questionable.len() {
+        let now = orphan_rows(&active);
+        let best = questionable
+            .iter()
+            .map(|&(u, d, _)| {
+                active[u][d] = !active[u][d];
+                let n = orphan_rows(&active);
+                active[u][d] = !active[u][d];
+                (n, u, d)
+            })
+            .min();
+        match best {
+            Some((n, u, d)) if n < now => {
+                active[u][d] = !active[u][d];
+                undecided.retain(|&x| x != (u, d));
+            }
+            _ => break,
+        }
+    }
+    let now = orphan_rows(&active);
+    undecided.retain(|&(u, d)| {
+        active[u][d] = !active[u][d];
+        let n = orphan_rows(&active);
+        active[u][d] = !active[u][d];
+        n == now
+    });
+    let mut inferred = Vec::new();
+    for &(u, d, unknown) in &questionable {
+        let decision = active[u][d];
+        if decision != (change[u][d] > threshold) {
+            change[u][d] = if decision {
+                let mut c: Vec<f64> = (0..nu)
+                    .filter(|&v| v != u && change[v][d] > threshold)
+                    .map(|v| change[v][d])
+                    .collect();
+                c.sort_by(f64::total_cmp);
+                c.get(c.len() / 2).copied().unwrap_or(2.0 * threshold)
+            } else {
+                0.0
+            };
+        }
+        if undecided.contains(&(u, d)) {
+            continue;
+        }
+        if unknown || !decision {
+            inferred.push((u, d, decision));
+        }
+    }
+    (change, inferred, contradicted, undecided)
+}
+
+/// How many distinct non-empty rows of `active` have no parent: no other row (or the empty one)
+/// that lacks exactly one of its joints (columns equal over every SU form one joint).
+fn orphan_rows(active: &[Vec<bool>]) -> usize {
+    let nd = active.first().map_or(0, Vec::len);
+    let column = |d: usize| active.iter().map(|row| row[d]).collect::<Vec<bool>>();
+    let mut joints: Vec<Vec<bool>> = Vec::new();
+    let mut joint_of = vec![usize::MAX; nd];
+    for (d, joint) in joint_of.iter_mut().enumerate() {
+        let c = column(d);
+        if !c.iter().any(|&x| x) {
+            continue;
+        }
+        *joint = match joints.iter().position(|j| *j == c) {
+            Some(j) => j,
+            None => {
+                joints.push(c);
+                joints.len() - 1
+            }
+        };
+    }
+    let mut rows: Vec<Vec<usize>> = active
+        .iter()
+        .map(|row| {
+            let mut r: Vec<usize> = (0..nd).filter(|&d| row[d]).map(|d| joint_of[d]).collect();
+            r.sort_unstable();
+            r.dedup();
+            r
+        })
+        .collect();
+    rows.sort();
+    rows.dedup();
+    rows.iter()
+        .filter(|r| !r.is_empty())
+        .filter(|r| {
+            !r.iter().any(|&j| {
+                let parent: Vec<usize> = r.iter().copied().filter(|&x| x != j).collect();
+                parent.is_empty() || rows.contains(&parent)
+            })
+        })
+        .count()
+}
+
+/// A structure-experiment reading left out as misread.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Misread {
+    /// The SU.
+    pub su: String,
+    /// The base orientation (1-based).
+    pub orientation: usize,
+    /// The move's DoF, or `None` for the rest reading.
+    pub dof: Option<String>,
+    /// Its norm, g.
+    pub norm_g: f64,
+    /// The SU's usual norm, g.
+    pub expected_g: f64,
 }
 
 impl ActivityMatrix {
@@ -132,26 +405,159 @@ pub fn activity_matrix(
         .as_ref()
         .ok_or(ExploreError::NoStructureExperiment)?;
     let (nu, nd) = (set.sus.len(), set.dofs.len());
-    let mut change = vec![vec![0.0; nd]; nu];
+    // Every static reading's norm is the SU's |g| (up to its bias and scale): one far from the
+    // SU's median norm is misread, and the entries it would decide are left to the other
+    // orientation.
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let expected: Vec<f64> = (0..nu)
+        .map(|u| {
+            let mut norms: Vec<f64> = structure
+                .orientations
+                .iter()
+                .flat_map(|o| {
+                    std::iter::once(&o.rest[u]).chain(o.moves.iter().map(|m| &m.readings[u]))
+                })
+                .map(norm)
+                .collect();
+            norms.sort_by(f64::total_cmp);
+            norms[norms.len() / 2]
+        })
+        .collect();
+    let misread = |u: usize, r: &[f64; 3]| {
+        (norm(r) - expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
+    };
+    let mut misreads = Vec::new();
+    let no = structure.orientations.len();
+    // `per[o][u][d]`: the change in orientation `o`, `None` where not moved or misread.
+    let mut per = vec![vec![vec![None; nd]; nu]; no];
     let mut explored = vec![false; nd];
-    for orientation in &structure.orientations {
+    for (oi, orientation) in structure.orientations.iter().enumerate() {
+        let mut note = |u: usize, dof: Option<&str>, r: &[f64; 3]| {
+            misreads.push(Misread {
+                su: set.sus[u].clone(),
+                orientation: oi + 1,
+                dof: dof.map(str::to_string),
+                norm_g: norm(r) / STANDARD_GRAVITY,
+                expected_g: expected[u] / STANDARD_GRAVITY,
+            })
+        };
+        let rest_ok: Vec<bool> = (0..nu).map(|u| !misread(u, &orientation.rest[u])).collect();
+        for (u, ok) in rest_ok.iter().enumerate() {
+            if !ok {
+                note(u, None, &orientation.rest[u]);
+            }
+        }
         for mv in &orientation.moves {
             let d = set.dof_index(&mv.dof).expect("validated measurement set");
             explored[d] = true;
+            let mut changes: Vec<Option<f64>> = Vec::with_capacity(nu);
             for (u, (before, after)) in orientation.rest.iter().zip(&mv.readings).enumerate() {
-                let c = (0..3)
-                    .map(|k| (after[k] - before[k]).abs())
-                    .fold(0.0, f64::max);
-                change[u][d] = f64::max(change[u][d], c);
+                if misread(u, after) {
+                    note(u, Some(&mv.dof), after);
+                    changes.push(None);
+                    continue;
+                }
+                changes.push(rest_ok[u].then(|| {
+                    (0..3)
+                        .map(|k| (after[k] - before[k]).abs())
+                        .fold(0.0, f64::max)
+                }));
+            }
+            // One DoF turns everything it moves by one rotation: an SU that alone turned by
+            // another angle than several that agree read wrongly (a glitch of |g|'s norm).
+            let clear = config.threshold * STANDARD_GRAVITY * config.uncertainty_factor;
+            let mut turned: Vec<(f64, usize)> = (0..nu)
+                .filter(|&u| changes[u].is_some_and(|c| c > clear))
+                .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
+                .collect();
+            if turned.len() >= 4 {
+                turned.sort_by(|x, y| x.0.total_cmp(&y.0));
+                let median = turned[turned.len() / 2].0;
+                let odd: Vec<usize> = turned
+                    .iter()
+                    .filter(|(angle, _)| (angle - median).abs() > LONE_TURN_TOLERANCE)
+                    .map(|&(_, u)| u)
+                    .collect();
+                if odd.len() == 1 {
+                    let u = odd[0];
+                    note(u, Some(&mv.dof), &mv.readings[u]);
+                    changes[u] = None;
+                }
+            }
+            for (u, c) in changes.into_iter().enumerate() {
+                per[oi][u][d] = c;
             }
         }
     }
+    let threshold = config.threshold * STANDARD_GRAVITY;
+    // A misread rest reading: the rest is what the SU read in the moves of DoFs that, where they
+    // visibly turn other SUs, leave it still; its other entries are measured against that.
+    let sighted = sighted_dofs(&per, threshold * config.uncertainty_factor);
+    let clear_still = threshold / config.uncertainty_factor;
+    for (oi, orientation) in structure.orientations.iter().enumerate() {
+        for u in (0..nu).filter(|&u| misread(u, &orientation.rest[u])) {
+            let still: Vec<&[f64; 3]> = orientation
+                .moves
+                .iter()
+                .filter(|mv| !misread(u, &mv.readings[u]))
+                .filter(|mv| {
+                    let d = set.dof_index(&mv.dof).expect("validated measurement set");
+                    (0..no).any(|o| {
+                        o != oi && sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still)
+                    })
+                })
+                .map(|mv| &mv.readings[u])
+                .collect();
+            if still.is_empty() {
+                continue;
+            }
+            let rest: [f64; 3] = std::array::from_fn(|k| {
+                let mut v: Vec<f64> = still.iter().map(|r| r[k]).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            });
+            for mv in &orientation.moves {
+                let d = set.dof_index(&mv.dof).expect("validated measurement set");
+                if !misread(u, &mv.readings[u]) {
+                    per[oi][u][d] = Some(
+                        (0..3)
+                            .map(|k| (mv.readings[u][k] - rest[k]).abs())
+                            .fold(0.0, f64::max),
+                    );
+                }
+            }
+        }
+    }
+    let (change, inferred, contradicted, undecided) =
+        combine_orientations(&mut per, threshold, config.uncertainty_factor, nu, nd);
+    for (u, o, d) in contradicted {
+        let orientation = &structure.orientations[o];
+        if let Some(mv) = orientation.moves.iter().find(|m| m.dof == set.dofs[d]) {
+            misreads.push(Misread {
+                su: set.sus[u].clone(),
+                orientation: o + 1,
+                dof: Some(set.dofs[d].clone()),
+                norm_g: norm(&mv.readings[u]) / STANDARD_GRAVITY,
+                expected_g: expected[u] / STANDARD_GRAVITY,
+            });
+        }
+    }
+    let inferred = inferred
+        .into_iter()
+        .map(|(u, d, active)| Inferred {
+            su: set.sus[u].clone(),
+            dof: set.dofs[d].clone(),
+            active,
+        })
+        .collect();
     if !explored.iter().any(|&e| e) {
         return Err(ExploreError::NoMoves);
     }
     let rest_turn = (0..nu)
         .map(|u| match structure.orientations.as_slice() {
-            [first, second, ..] => Some(angle_between(&first.rest[u], &second.rest[u])),
+            [first, second, ..] if !misread(u, &first.rest[u]) && !misread(u, &second.rest[u]) => {
+                Some(angle_between(&first.rest[u], &second.rest[u]))
+            }
             _ => None,
         })
         .collect();
@@ -164,6 +570,12 @@ pub fn activity_matrix(
         uncertainty_factor: config.uncertainty_factor,
         orientations: structure.orientations.len(),
         rest_turn,
+        misread: misreads,
+        inferred,
+        undecided: undecided
+            .into_iter()
+            .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
+            .collect(),
     })
 }
 
@@ -214,6 +626,9 @@ pub enum DiagnosticKind {
     MoveNotRigid,
     /// The readings are too noisy for the threshold: entries are decided by noise.
     TooNoisy,
+    /// Readings that no accelerometer at rest reads (a glitch): left out, their entries decided
+    /// by the other orientation.
+    MisreadReading,
 }
 
 /// A finding, with the SUs and DoFs involved and the likely cause in plain words.
@@ -607,21 +1022,21 @@ fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<Diagnostic> 
     let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
     // Noise from the norms: for each (SU, move), |r_move| − |r_rest| has twice the variance of
     // the noise along gravity.
-    let (mut sum, mut n) = (0.0, 0usize);
+    // The median of the squares (robust to misread readings) over that of χ² with one degree of
+    // freedom (0.455) estimates the variance.
+    let mut squares: Vec<f64> = Vec::new();
     for o in &structure.orientations {
         for mv in &o.moves {
             for (before, after) in o.rest.iter().zip(&mv.readings) {
                 let d = norm(after) - norm(before);
-                sum += d * d;
-                n += 1;
+                squares.push(d * d);
             }
         }
     }
-    let sigma = if n > 0 {
-        (sum / n as f64 / 2.0).sqrt()
-    } else {
-        0.0
-    };
+    squares.sort_by(f64::total_cmp);
+    let sigma = squares
+        .get(squares.len() / 2)
+        .map_or(0.0, |m| (m / 0.455 / 2.0).sqrt());
     if sigma * NOISE_MARGIN > a.threshold {
         found.push(Diagnostic {
             kind: DiagnosticKind::TooNoisy,
@@ -646,7 +1061,15 @@ fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<Diagnostic> 
                 continue;
             };
             // The SUs it clearly moved, and the angle their gravity reading turned by.
+            let misread = |u: usize| {
+                a.misread.iter().any(|m| {
+                    m.orientation == oi + 1
+                        && m.su == a.sus[u]
+                        && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
+                })
+            };
             let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
+                .filter(|&u| !misread(u) && a.is_active(u, d))
                 .filter(|&u| {
                     let c = (0..3)
                         .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
@@ -672,9 +1095,20 @@ fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<Diagnostic> 
                     .collect::<Vec<_>>()
                     .join(", ")
             };
+            // One SU alone against several that agree: its reading is the odd one (a glitch),
+            // not the move.
+            let lone = odd.len() == 1 && rest.len() >= 3;
             found.push(Diagnostic {
-                kind: DiagnosticKind::MoveNotRigid,
-                severity: Severity::Error,
+                kind: if lone {
+                    DiagnosticKind::MisreadReading
+                } else {
+                    DiagnosticKind::MoveNotRigid
+                },
+                severity: if lone {
+                    Severity::Warning
+                } else {
+                    Severity::Error
+                },
                 message: format!(
                     "in the move of {} (orientation {}), the SUs' gravity readings turned by different angles: {} SUs by about {:.1}°, but {}. One DoF turns everything it moves by one rotation, so something else moved during this move — most often the base (the reference segment) tilted, or another DoF slipped. Hold the base still and record this move again",
                     mv.dof,
@@ -691,6 +1125,12 @@ fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<Diagnostic> 
     found
 }
 
+/// A static reading whose norm differs from its SU's median norm by more than this, g, is misread
+/// (bias and scale errors move the norm by well under 0.1 g).
+const MISREAD_TOLERANCE: f64 = 0.15;
+/// An SU whose reading alone turned by more than this, rad, from the angle that the others moved by
+/// the same DoF agree on, is misread.
+const LONE_TURN_TOLERANCE: f64 = 0.15;
 /// The noise must stay below the threshold by this factor.
 const NOISE_MARGIN: f64 = 3.0;
 /// Smallest difference between two SUs' gravity turn angles in one move that counts, rad.
@@ -737,6 +1177,49 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             dofs: vec![a.dofs[d].clone()],
         });
     }
+    if !a.misread.is_empty() {
+        let list: Vec<String> = a
+            .misread
+            .iter()
+            .map(|m| {
+                format!(
+                    "{} ({}, orientation {}: |r| = {:.2} g, usually {:.2} g)",
+                    m.su,
+                    m.dof
+                        .as_deref()
+                        .map_or("rest".to_string(), |d| format!("move of {d}")),
+                    m.orientation,
+                    m.norm_g,
+                    m.expected_g
+                )
+            })
+            .collect();
+        let mut sus: Vec<String> = a.misread.iter().map(|m| m.su.clone()).collect();
+        sus.dedup();
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::MisreadReading,
+            severity: Severity::Warning,
+            message: format!(
+                "{} reading(s) are not what an accelerometer at rest reads (a norm far from the SU's |g|, a turn unlike that of every other SU the same move turned, or a change where the other orientation, which sees the DoF turn other SUs, saw this one still): glitches, left out; the entries they would decide come from the other base orientation: {}{}",
+                a.misread.len(),
+                list.join("; "),
+                if a.inferred.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        ". Entries no orientation could read then, decided by the SUs whose rows agree: {}",
+                        a.inferred
+                            .iter()
+                            .map(|i| format!("{} × {} ({})", i.su, i.dof, if i.active { "moves" } else { "still" }))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                }
+            ),
+            sus,
+            dofs: Vec::new(),
+        });
+    }
     let mut moving: Vec<usize> = Vec::new();
     for d in (0..nd).filter(|&d| a.explored[d]) {
         if (0..nu).any(|u| a.is_active(u, d)) {
@@ -774,6 +1257,29 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
         .map(|u| moving.iter().filter(|&&d| a.is_uncertain(u, d)).count())
         .collect();
     let mut excluded = vec![false; nu];
+    if !a.undecided.is_empty() {
+        let mut sus: Vec<String> = a.undecided.iter().map(|(s, _)| s.clone()).collect();
+        sus.dedup();
+        for s in &sus {
+            if let Some(u) = a.sus.iter().position(|x| x == s) {
+                excluded[u] = true;
+            }
+        }
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::MisreadReading,
+            severity: Severity::Warning,
+            message: format!(
+                "whether these DoFs move these SUs cannot be told: the reading that would tell was misread, the other orientation turned the DoF about gravity, and neither the SUs with the same row nor the tree decide it: {}; the SUs are left out of the tree and not calibrated (record the move again to place them)",
+                a.undecided
+                    .iter()
+                    .map(|(s, d)| format!("{s} × {d}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            sus,
+            dofs: a.undecided.iter().map(|(_, d)| d.clone()).collect(),
+        });
+    }
 
     // Null-row SUs must turn together with the reference segment when the base is re-oriented.
     let still: Vec<usize> = (0..nu).filter(|&u| dof_rows[u].is_clear()).collect();

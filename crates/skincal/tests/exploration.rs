@@ -204,6 +204,9 @@ fn matrix(sus: &[&str], dofs: &[&str], rows: &[&[u8]]) -> ActivityMatrix {
         uncertainty_factor: 2.0,
         orientations: 2,
         rest_turn: vec![Some(std::f64::consts::FRAC_PI_2); sus.len()],
+        misread: Vec::new(),
+        inferred: Vec::new(),
+        undecided: Vec::new(),
     }
 }
 

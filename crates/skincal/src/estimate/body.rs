@@ -237,15 +237,14 @@ pub fn calibrate_body(
                     .iter()
                     .filter_map(|su| {
                         let u = set.sus.iter().position(|n| n == su)?;
-                        let mean = training
+                        let readings: Vec<Vector3<f64>> = training
                             .poses
                             .iter()
                             .map(|p| Vector3::from(p.static_readings[u]))
-                            .sum::<Vector3<f64>>()
-                            / training.poses.len() as f64;
+                            .collect();
                         Some(StaticSu {
                             su: su.clone(),
-                            reading: mean.into(),
+                            reading: robust_mean(&readings, 6.0 * config.noise_sd).into(),
                         })
                     })
                     .collect()
@@ -319,6 +318,25 @@ fn left_out(
         }
     }
     out
+}
+
+/// The mean of the readings within `radius` of their component-wise median: a glitch among the
+/// readings of an SU that never moves does not shift it.
+fn robust_mean(readings: &[Vector3<f64>], radius: f64) -> Vector3<f64> {
+    let median = Vector3::from_fn(|i, _| {
+        let mut v: Vec<f64> = readings.iter().map(|r| r[i]).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    });
+    let near: Vec<&Vector3<f64>> = readings
+        .iter()
+        .filter(|r| (*r - median).norm() <= radius)
+        .collect();
+    if near.is_empty() {
+        median
+    } else {
+        near.iter().copied().sum::<Vector3<f64>>() / near.len() as f64
+    }
 }
 
 /// The range each DoF covered in the set's poses, as its limits in the calibrated model.

@@ -67,6 +67,10 @@ pub struct Imperfections {
     /// Half-width of the uniform distribution of each SU's 3 axis misalignments, rad.
     #[serde(default)]
     pub misalignment: f64,
+    /// Fraction of all readings (structure and training, static and dynamic) replaced by a
+    /// glitch: a random vector of 0.2–1.5 g in a random direction.
+    #[serde(default)]
+    pub glitches: f64,
     /// Saturation of every axis at ±this, g.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub saturation: Option<f64>,
@@ -84,6 +88,7 @@ impl Default for Imperfections {
             bias: 0.0,
             scale: 0.0,
             misalignment: 0.0,
+            glitches: 0.0,
             saturation: None,
             quantization_bits: None,
         }
@@ -134,6 +139,15 @@ impl Imperfections {
                 format!(
                     "{} must lie in 0…{MAX_SCALE_ERROR} (a relative error; 0.03 is ±3 %)",
                     crate::show::number(i.scale)
+                ),
+            );
+        }
+        if !(0.0..=0.5).contains(&i.glitches) {
+            return bad(
+                "glitches",
+                format!(
+                    "{} must lie in 0…0.5 (the fraction of readings replaced)",
+                    crate::show::number(i.glitches)
                 ),
             );
         }
@@ -336,6 +350,7 @@ const POSE_STREAM: u64 = 1;
 const NOISE_STREAM: u64 = 2;
 const BIAS_STREAM: u64 = 3;
 const SCALE_STREAM: u64 = 4;
+const GLITCH_STREAM: u64 = 5;
 
 pub(crate) fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -348,7 +363,10 @@ pub(crate) struct Sensors<'a> {
     imperfections: &'a Imperfections,
     pub(crate) intrinsics: Vec<Intrinsics>,
     rng: ChaCha8Rng,
+    glitch_rng: ChaCha8Rng,
     gaussian: Option<Normal<f64>>,
+    /// Readings replaced by glitches so far.
+    pub(crate) glitched: usize,
 }
 
 /// The random stream of the training poses for `seed`.
@@ -391,6 +409,8 @@ impl<'a> Sensors<'a> {
             imperfections,
             intrinsics,
             rng: stream(noise_seed, NOISE_STREAM),
+            glitch_rng: stream(noise_seed, GLITCH_STREAM),
+            glitched: 0,
             gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
                 Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY)
                     .expect("validated")
@@ -422,14 +442,30 @@ impl<'a> Sensors<'a> {
         v.map(|x| self.imperfections.sense(x))
     }
 
+    /// With the glitch rate's probability, a random vector of 0.2–1.5 g instead of `v`.
+    fn glitch(&mut self, v: Vector3<f64>) -> Vector3<f64> {
+        let rate = self.imperfections.glitches;
+        if rate <= 0.0 || !self.glitch_rng.random_bool(rate) {
+            return v;
+        }
+        self.glitched += 1;
+        let r = &mut self.glitch_rng;
+        let z: f64 = r.random_range(-1.0..=1.0);
+        let phi: f64 = r.random_range(0.0..2.0 * PI);
+        let norm = r.random_range(0.2..=1.5) * STANDARD_GRAVITY;
+        let h = (1.0 - z * z).max(0.0).sqrt();
+        Vector3::new(h * phi.cos(), h * phi.sin(), z) * norm
+    }
+
     fn static_reading(&mut self, su: usize, f: &Vector3<f64>) -> Reading {
-        self.sample(su, f).into()
+        let v = self.sample(su, f);
+        self.glitch(v).into()
     }
 
     fn dynamic_reading(&mut self, su: usize, f: &Vector3<f64>, a: &Vector3<f64>) -> Reading {
         let i = &self.intrinsics[su];
         let v = self.sense(&i.read(&(f + a))) - self.sense(&i.read(f)) + self.noise();
-        v.into()
+        self.glitch(v).into()
     }
 }
 

@@ -182,6 +182,47 @@ pub struct SuUncertainty {
     pub orientation_sd: f64,
 }
 
+/// Readings of one SU left out of the fit as wild: their residual was more than
+/// 6 noise standard deviations (in norm) from the fit of everything else.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuRejected {
+    /// The SU.
+    pub su: String,
+    /// Static readings left out.
+    pub static_readings: usize,
+    /// Dynamic readings left out.
+    pub dynamic_readings: usize,
+    /// Readings of this SU in the fit, all kinds (for the share).
+    pub readings: usize,
+}
+
+/// The readings left out, per SU that has any.
+fn rejected_counts(readings: &Readings, names: &[String]) -> Vec<SuRejected> {
+    names
+        .iter()
+        .enumerate()
+        .filter_map(|(u, su)| {
+            let (mut s, mut d, mut n) = (0, 0, 0);
+            for pose in &readings.rejected {
+                for (j, &r) in pose[u].iter().enumerate() {
+                    n += 1;
+                    match (r, j) {
+                        (true, 0) => s += 1,
+                        (true, _) => d += 1,
+                        _ => {}
+                    }
+                }
+            }
+            (s + d > 0).then(|| SuRejected {
+                su: su.clone(),
+                static_readings: s,
+                dynamic_readings: d,
+                readings: n,
+            })
+        })
+        .collect()
+}
+
 /// One SU's estimated accelerometer intrinsics.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SuIntrinsics {
@@ -262,6 +303,9 @@ pub struct MlChainEstimate {
     pub unobservable: Vec<Unobservable>,
     /// Per SU: standard deviations.
     pub uncertainty: Vec<SuUncertainty>,
+    /// Per SU with wild readings (glitches): how many were left out of the fit.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rejected: Vec<SuRejected>,
     /// Per SU: the accelerometer intrinsics estimated with the kinematics (empty when none are).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics: Vec<SuIntrinsics>,
@@ -293,8 +337,21 @@ fn readings(data: &LimbData) -> Readings {
         statics: data.statics.clone(),
         dynamics: data.dynamics.clone(),
         alpha: data.pattern.peak_acceleration(),
+        huber: Some(HUBER),
+        rejected: Vec::new(),
     }
 }
+
+/// Huber's threshold on a reading's whitened residual norm: the 99.9 % point of χ² with 3 degrees
+/// of freedom is 16.3, so nearly every reading of an honest fit counts fully.
+const HUBER: f64 = 4.03;
+/// A reading whose whitened residual norm exceeds this after the fit is left out as wild (χ² with
+/// 3 degrees of freedom passes 36 with probability 4·10⁻⁸), and the fit is repeated without it.
+const REJECT: f64 = 6.0;
+/// The largest share of one SU's readings that may be left out as wild.
+const MAX_GLITCH_SHARE: f64 = 0.1;
+/// Most rounds of leaving wild readings out and fitting again.
+const REJECT_ROUNDS: usize = 4;
 
 /// Most DoFs in one joint whose order is searched (all orders are tried).
 const MAX_JOINT_DOFS: usize = 4;
@@ -722,6 +779,52 @@ pub fn estimate_limb(
         iterations += solved.iterations;
         spec
     };
+    // Wild readings (glitches) out, and the fit repeated by plain least squares on the rest.
+    let mut readings = readings.clone();
+    readings.huber = None;
+    for _ in 0..REJECT_ROUNDS {
+        let norms = problem::reading_norms(&solved.state, &layout, &readings, &spec, sigma);
+        let mut rejected: Vec<Vec<Vec<bool>>> = norms
+            .iter()
+            .map(|pose| {
+                pose.iter()
+                    .map(|su| su.iter().map(|&n| n > REJECT).collect())
+                    .collect()
+            })
+            .collect();
+        // Glitches are rare: an SU with many readings off the fit is misfit (a broken SU or a
+        // wrong model), not glitching, and keeps them all.
+        for u in 0..layout.su_segment.len() {
+            let (off, all) = rejected.iter().fold((0, 0), |(o, a), pose| {
+                (
+                    o + pose[u].iter().filter(|&&r| r).count(),
+                    a + pose[u].len(),
+                )
+            });
+            if off as f64 > MAX_GLITCH_SHARE * all as f64 {
+                for pose in &mut rejected {
+                    pose[u].iter_mut().for_each(|r| *r = false);
+                }
+            }
+        }
+        let unchanged = rejected == readings.rejected
+            || (readings.rejected.is_empty() && rejected.iter().flatten().flatten().all(|r| !r));
+        readings.rejected = rejected;
+        if unchanged {
+            break;
+        }
+        solved = solve(
+            solved.state,
+            &layout,
+            &readings,
+            &spec,
+            sigma,
+            config.max_iterations,
+            FINAL_TOLERANCE,
+        );
+        iterations += solved.iterations;
+    }
+    let rejected = rejected_counts(&readings, &data.chain.sus());
     let state = solved.state;
     let dof_count = spec.columns().len();
     let noise_sd_estimate =
@@ -788,6 +891,7 @@ pub fn estimate_limb(
         unobservable,
         uncertainty,
         intrinsics,
+        rejected,
         iterations,
         seconds: started.elapsed().as_secs_f64(),
         state: Some(state),

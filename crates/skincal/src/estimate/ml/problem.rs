@@ -48,6 +48,32 @@ pub(super) struct Readings {
     /// `dynamics[p][u][d]` for every DoF `d` before the SU.
     pub dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
     pub alpha: f64,
+    /// Huber's threshold on the whitened norm of one reading's 3-vector residual: beyond it a
+    /// reading counts linearly, so a few wild ones cannot drag the fit. `None`: least squares.
+    pub huber: Option<f64>,
+    /// Readings left out (wild ones found after the fit): `rejected[p][u][0]` the static reading,
+    /// `[1 + d]` the dynamic one of DoF `d`. Empty: none.
+    pub rejected: Vec<Vec<Vec<bool>>>,
+}
+
+impl Readings {
+    fn is_rejected(&self, p: usize, u: usize, row: usize) -> bool {
+        self.rejected
+            .get(p)
+            .and_then(|r| r.get(u))
+            .and_then(|r| r.get(row))
+            .copied()
+            .unwrap_or(false)
+    }
+
+    /// The weight of a reading whose whitened residual has norm `s` (1 within the Huber
+    /// threshold), and its share of the cost.
+    fn robust(&self, s: f64) -> (f64, f64) {
+        match self.huber {
+            Some(k) if s > k => (k / s, 2.0 * k * s - k * k),
+            _ => (1.0, s * s),
+        }
+    }
 }
 
 /// A parameter block of the least-squares problem.
@@ -348,6 +374,10 @@ struct SuBlock {
     r: DVector<f64>,
     own: DMatrix<f64>,
     shared: DMatrix<f64>,
+    /// The (robust) cost of these residuals.
+    cost: f64,
+    /// Residuals that count (rejected readings' rows are zero and do not).
+    count: usize,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -389,6 +419,9 @@ fn su_block(
     let intrinsics = &state.intrinsics[u];
     let k = intrinsics.matrix();
     let bias = Vector3::from(intrinsics.bias);
+    let (mut cost, mut count) = (0.0, 0);
+    // √weight of the static reading and of each dynamic one, this pose.
+    let mut scales = vec![1.0; 1 + s];
     for (p, f) in frames.iter().enumerate() {
         let row = p * per_pose;
         let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
@@ -412,6 +445,23 @@ fn su_block(
         for (d, a) in ideal_dynamic.iter().enumerate() {
             r.fixed_rows_mut::<3>(row + 3 * (1 + d))
                 .copy_from(&((k * a - data.dynamics[p][u][d]) / sigma));
+        }
+        // Each reading's weight (its rows and Jacobian rows scaled by √w) and cost.
+        scales.fill(1.0);
+        for (j, scale) in scales.iter_mut().enumerate() {
+            let at = row + 3 * j;
+            if data.is_rejected(p, u, j) {
+                *scale = 0.0;
+                r.fixed_rows_mut::<3>(at).fill(0.0);
+                continue;
+            }
+            let (w, c) = data.robust(r.fixed_rows::<3>(at).norm());
+            cost += c;
+            count += 3;
+            if w < 1.0 {
+                *scale = w.sqrt();
+                r.fixed_rows_mut::<3>(at).scale_mut(*scale);
+            }
         }
         if !jacobian {
             continue;
@@ -465,15 +515,30 @@ fn su_block(
                 fill(&mut shared, col, e);
             }
         }
+        for (j, &scale) in scales.iter().enumerate() {
+            if scale < 1.0 {
+                own.rows_mut(row + 3 * j, 3).scale_mut(scale);
+                shared.rows_mut(row + 3 * j, 3).scale_mut(scale);
+            }
+        }
     }
     let values = intrinsics.to_array();
     for (n, &(col, c)) in priors.iter().enumerate() {
-        r[readings_rows + n] = values[c] / INTRINSIC_PRIOR_SD[c];
+        let x = values[c] / INTRINSIC_PRIOR_SD[c];
+        r[readings_rows + n] = x;
+        cost += x * x;
+        count += 1;
         if jacobian {
             own[(readings_rows + n, col)] = 1.0 / INTRINSIC_PRIOR_SD[c];
         }
     }
-    SuBlock { r, own, shared }
+    SuBlock {
+        r,
+        own,
+        shared,
+        cost,
+        count,
+    }
 }
 
 /// One SU's pieces of the normal equations: `A = J_oᵀJ_o`, `B = J_oᵀJ_s`, `g_o = J_oᵀr`.
@@ -522,8 +587,8 @@ pub(super) fn normal_system(
                 },
                 block.shared.tr_mul(&block.shared),
                 block.shared.tr_mul(&block.r),
-                block.r.norm_squared(),
-                block.r.len(),
+                block.cost,
+                block.count,
             )
         })
         .collect();
@@ -559,12 +624,45 @@ pub(super) fn cost_of(
     let frames = pose_frames(state, layout, data, spec);
     (0..spec.sus.len())
         .into_par_iter()
-        .map(|i| {
-            su_block(state, layout, data, spec, map, &frames, i, sigma, false)
-                .r
-                .norm_squared()
-        })
+        .map(|i| su_block(state, layout, data, spec, map, &frames, i, sigma, false).cost)
         .sum()
+}
+
+/// The whitened residual norm of every reading at a state (`[p][u][0]` static, `[1 + d]` the
+/// dynamic one of DoF `d`; SUs outside `spec.sus` empty), plain least squares, nothing left out.
+pub(super) fn reading_norms(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> Vec<Vec<Vec<f64>>> {
+    let plain = Readings {
+        huber: None,
+        rejected: Vec::new(),
+        ..data.clone()
+    };
+    let map = ColumnMap::new(spec);
+    let frames = pose_frames(state, layout, &plain, spec);
+    let blocks: Vec<(usize, SuBlock)> = (0..spec.sus.len())
+        .into_par_iter()
+        .map(|i| {
+            (
+                spec.sus[i],
+                su_block(state, layout, &plain, spec, &map, &frames, i, sigma, false),
+            )
+        })
+        .collect();
+    let mut out = vec![vec![Vec::new(); layout.su_segment.len()]; data.q.len()];
+    for (u, block) in blocks {
+        let per_pose = 1 + layout.su_segment[u];
+        for (p, pose) in out.iter_mut().enumerate() {
+            pose[u] = (0..per_pose)
+                .map(|j| block.r.fixed_rows::<3>(3 * (p * per_pose + j)).norm())
+                .collect();
+        }
+    }
+    out
 }
 
 /// Residuals and the dense Jacobian (columns in `spec.columns()` order, rows SU by SU).
