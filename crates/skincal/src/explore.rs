@@ -207,20 +207,13 @@ fn combine_orientations(
             };
         }
     }
-    // Entries only one orientation supports while another saw the DoF move some other SU and
-    // this one stay still: a misread or a DoF that moved just one SU there; the tree decides.
+    // Entries that only one orientation supports (where the other turned the DoF about gravity,
+    // or saw the SU still): a misread reading would look the same, so the tree has a say.
     let suspicious = |u: usize, d: usize| {
-        let support: Vec<usize> = (0..per.len())
+        (0..per.len())
             .filter(|&o| per[o][u][d].is_some_and(|c| c > threshold))
-            .collect();
-        support.len() == 1
-            && (0..per.len()).any(|o| {
-                o != support[0]
-                    && per[o][u][d].is_some_and(|c| c < clear_still)
-                    && (0..nu).any(|v| {
-                        v != u && per[o][v][d].is_some_and(|c| c > threshold * uncertainty_factor)
-                    })
-            })
+            .count()
+            == 1
     };
     let mut active: Vec<Vec<bool>> = change
         .iter()
@@ -311,8 +304,9 @@ fn combine_orientations(
     (change, inferred, contradicted, undecided)
 }
 
-/// How many distinct non-empty rows of `active` have no parent: no other row (or the empty one)
-/// that lacks exactly one of its joints (columns equal over every SU form one joint).
+/// How far `active` is from a tree: the distinct non-empty rows that have no parent (no other row,
+/// or the empty one, lacks exactly one of their joints; columns equal over every SU form one
+/// joint), plus the joints whose rows do not all hold the shortest of them.
 fn orphan_rows(active: &[Vec<bool>]) -> usize {
     let nd = active.first().map_or(0, Vec::len);
     let column = |d: usize| active.iter().map(|row| row[d]).collect::<Vec<bool>>();
@@ -342,7 +336,8 @@ fn orphan_rows(active: &[Vec<bool>]) -> usize {
         .collect();
     rows.sort();
     rows.dedup();
-    rows.iter()
+    let orphans = rows
+        .iter()
         .filter(|r| !r.is_empty())
         .filter(|r| {
             !r.iter().any(|&j| {
@@ -350,7 +345,17 @@ fn orphan_rows(active: &[Vec<bool>]) -> usize {
                 parent.is_empty() || rows.contains(&parent)
             })
         })
-        .count()
+        .count();
+    // A joint moves one segment and what hangs from it: every row with the joint holds the
+    // shortest such row.
+    let split = (0..joints.len())
+        .filter(|&j| {
+            let with: Vec<&Vec<usize>> = rows.iter().filter(|r| r.contains(&j)).collect();
+            let shortest = with.iter().min_by_key(|r| r.len());
+            shortest.is_some_and(|s| with.iter().any(|r| !s.iter().all(|x| r.contains(x))))
+        })
+        .count();
+    orphans + split
 }
 
 /// A structure-experiment reading left out as misread.
