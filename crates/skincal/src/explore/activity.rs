@@ -1,0 +1,541 @@
+//! The activity matrix (step 1 of the module documentation) from the structure experiment's
+//! readings, robust to misread ones: a reading whose norm is not the SU's |g|, a lone SU that
+//! turned unlike every other one the same move turned, or a change that the other orientation
+//! contradicts, is left out; a misread rest is rebuilt from the moves that left the SU still; an
+//! entry no orientation can then read is decided by the SU's row mates or by the tree, or left
+//! undecided (the SU is set aside).
+
+use serde::{Deserialize, Serialize};
+
+use super::{ExploreConfig, ExploreError};
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::STANDARD_GRAVITY;
+
+/// A static reading whose norm differs from its SU's median norm by more than this, g, is misread
+/// (bias and scale errors move the norm by well under 0.1 g).
+const MISREAD_TOLERANCE: f64 = 0.15;
+/// An SU whose reading alone turned by more than this, rad, from the angle that the others moved by
+/// the same DoF agree on, is misread.
+const LONE_TURN_TOLERANCE: f64 = 0.15;
+
+/// The activity matrix with the measured change behind every entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActivityMatrix {
+    /// SU names (rows).
+    pub sus: Vec<String>,
+    /// DoF names (columns).
+    pub dofs: Vec<String>,
+    /// `change[u][d]`: the largest change of any axis of SU `u`'s reading when DoF `d` moved, over
+    /// all orientations, m/s² (0 for a DoF that was never moved).
+    pub change: Vec<Vec<f64>>,
+    /// Whether each DoF was moved in at least one orientation.
+    pub explored: Vec<bool>,
+    /// The threshold, m/s².
+    pub threshold: f64,
+    /// The uncertainty factor.
+    pub uncertainty_factor: f64,
+    /// Number of base orientations.
+    pub orientations: usize,
+    /// Per SU: the angle, rad, between its rest readings in the first and the second orientation
+    /// (`None` with a single orientation).
+    pub rest_turn: Vec<Option<f64>>,
+    /// Readings that cannot be what an accelerometer at rest reads (their norm is far from the
+    /// SU's |g|): the entries they would decide come from the other orientation.
+    #[serde(default)]
+    pub misread: Vec<Misread>,
+    /// Entries that no orientation could decide once misread readings were left out (the only
+    /// orientation left turned the DoF about gravity), decided by the other SUs whose rows agree.
+    #[serde(default)]
+    pub inferred: Vec<Inferred>,
+    /// `(SU, DoF)` entries that neither the readings nor the other SUs nor the tree decide: the
+    /// SU is set aside.
+    #[serde(default)]
+    pub undecided: Vec<(String, String)>,
+}
+
+/// An entry decided from the SUs whose rows agree, not from its own readings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Inferred {
+    /// The SU.
+    pub su: String,
+    /// The DoF.
+    pub dof: String,
+    /// The decision.
+    pub active: bool,
+}
+
+/// `[o][d]`: whether DoF `d` clearly moved at least two SUs in orientation `o` (its axis was not
+/// vertical there).
+fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
+    per.iter()
+        .map(|o| {
+            let nd = o.first().map_or(0, Vec::len);
+            (0..nd)
+                .map(|d| {
+                    o.iter()
+                        .filter(|row| row[d].is_some_and(|c| c > clear))
+                        .count()
+                        >= 2
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The change behind every entry, the largest over the orientations that read it. An entry that
+/// only orientations blind to the DoF (it moved no SU there: its axis was vertical) or none at all
+/// could read, because misread readings were left out, takes the majority decision of the SUs
+/// whose other entries agree with its own (SUs of the same segment share a row). Returns the
+/// changes and the entries so decided `(su, dof, active)`.
+///
+/// First, a DoF turns gravity by the same angle for every SU it moves, so in an orientation where
+/// it clearly moves at least two SUs, an SU it leaves clearly still is not downstream of it: an
+/// activity of that SU in another orientation is a misread reading, left out (returned as
+/// `(su, orientation, dof)`).
+#[allow(clippy::type_complexity)]
+fn combine_orientations(
+    per: &mut [Vec<Vec<Option<f64>>>],
+    threshold: f64,
+    uncertainty_factor: f64,
+    nu: usize,
+    nd: usize,
+) -> (
+    Vec<Vec<f64>>,
+    Vec<(usize, usize, bool)>,
+    Vec<(usize, usize, usize)>,
+    Vec<(usize, usize)>,
+) {
+    let clear_still = threshold / uncertainty_factor;
+    let sighted = sighted_dofs(per, threshold * uncertainty_factor);
+    let mut contradicted = Vec::new();
+    for u in 0..nu {
+        for d in 0..nd {
+            let still_where_sighted = (0..per.len())
+                .any(|o| sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still));
+            if !still_where_sighted {
+                continue;
+            }
+            for (o, p) in per.iter_mut().enumerate() {
+                if p[u][d].is_some_and(|c| c > threshold) {
+                    p[u][d] = None;
+                    contradicted.push((u, o, d));
+                }
+            }
+        }
+    }
+    let blind: Vec<Vec<bool>> = per
+        .iter()
+        .map(|o| {
+            (0..nd)
+                .map(|d| !(0..nu).any(|u| o[u][d].is_some_and(|c| c > threshold)))
+                .collect()
+        })
+        .collect();
+    let mut change = vec![vec![0.0; nd]; nu];
+    // Known entries: Some(active); unknown: None.
+    let mut known = vec![vec![None; nd]; nu];
+    for u in 0..nu {
+        for d in 0..nd {
+            let readable: Vec<(usize, f64)> = per
+                .iter()
+                .enumerate()
+                .filter_map(|(o, p)| p[u][d].map(|c| (o, c)))
+                .collect();
+            change[u][d] = readable.iter().map(|r| r.1).fold(0.0, f64::max);
+            // Unknown: not seen moving, and every orientation that sees the DoF move SUs could
+            // not read this one.
+            let sighted = readable.iter().any(|&(o, _)| !blind[o][d]);
+            let lost = (0..per.len()).any(|o| !blind[o][d] && per[o][u][d].is_none());
+            known[u][d] = if change[u][d] > threshold || sighted || !lost {
+                Some(change[u][d] > threshold)
+            } else {
+                None
+            };
+        }
+    }
+    // Entries that only one orientation supports (where the other turned the DoF about gravity,
+    // or saw the SU still): a misread reading would look the same, so the tree has a say.
+    let suspicious = |u: usize, d: usize| {
+        (0..per.len())
+            .filter(|&o| per[o][u][d].is_some_and(|c| c > threshold))
+            .count()
+            == 1
+    };
+    let mut active: Vec<Vec<bool>> = change
+        .iter()
+        .map(|row| row.iter().map(|&c| c > threshold).collect())
+        .collect();
+    // First guesses: an unknown entry as the SUs whose other entries agree decide, when at least
+    // two do and alike (the SU's segment mates); otherwise it is undecided unless the tree below
+    // decides it. A suspicious entry stays.
+    let mut undecided: Vec<(usize, usize)> = Vec::new();
+    let questionable: Vec<(usize, usize, bool)> = (0..nu)
+        .flat_map(|u| (0..nd).map(move |d| (u, d)))
+        .filter_map(|(u, d)| {
+            let unknown = known[u][d].is_none();
+            (unknown || suspicious(u, d)).then_some((u, d, unknown))
+        })
+        .collect();
+    for &(u, d, unknown) in &questionable {
+        if !unknown {
+            continue;
+        }
+        let agree = |v: usize| {
+            v != u
+                && (0..nd).all(|e| match (known[u][e], known[v][e]) {
+                    (Some(a), Some(b)) => a == b,
+                    _ => true,
+                })
+        };
+        let votes: Vec<bool> = (0..nu)
+            .filter(|&v| agree(v))
+            .filter_map(|v| known[v][d])
+            .collect();
+        if votes.len() >= 2 && votes.iter().all(|&a| a == votes[0]) {
+            active[u][d] = votes[0];
+        } else {
+            undecided.push((u, d));
+        }
+    }
+    // Then the tree: the flip that leaves the fewest rows without a parent, one at a time, while
+    // one helps; an entry whose flip would add such rows is decided as it stands.
+    for _ in 0..questionable.len() {
+        let now = orphan_rows(&active);
+        let best = questionable
+            .iter()
+            .map(|&(u, d, _)| {
+                active[u][d] = !active[u][d];
+                let n = orphan_rows(&active);
+                active[u][d] = !active[u][d];
+                (n, u, d)
+            })
+            .min();
+        match best {
+            Some((n, u, d)) if n < now => {
+                active[u][d] = !active[u][d];
+                undecided.retain(|&x| x != (u, d));
+            }
+            _ => break,
+        }
+    }
+    let now = orphan_rows(&active);
+    undecided.retain(|&(u, d)| {
+        active[u][d] = !active[u][d];
+        let n = orphan_rows(&active);
+        active[u][d] = !active[u][d];
+        n == now
+    });
+    let mut inferred = Vec::new();
+    for &(u, d, unknown) in &questionable {
+        let decision = active[u][d];
+        if decision != (change[u][d] > threshold) {
+            change[u][d] = if decision {
+                let mut c: Vec<f64> = (0..nu)
+                    .filter(|&v| v != u && change[v][d] > threshold)
+                    .map(|v| change[v][d])
+                    .collect();
+                c.sort_by(f64::total_cmp);
+                c.get(c.len() / 2).copied().unwrap_or(2.0 * threshold)
+            } else {
+                0.0
+            };
+        }
+        if undecided.contains(&(u, d)) {
+            continue;
+        }
+        if unknown || !decision {
+            inferred.push((u, d, decision));
+        }
+    }
+    (change, inferred, contradicted, undecided)
+}
+
+/// How far `active` is from a tree: the distinct non-empty rows that have no parent (no other row,
+/// or the empty one, lacks exactly one of their joints; columns equal over every SU form one
+/// joint), plus the joints whose rows do not all hold the shortest of them.
+fn orphan_rows(active: &[Vec<bool>]) -> usize {
+    let nd = active.first().map_or(0, Vec::len);
+    let column = |d: usize| active.iter().map(|row| row[d]).collect::<Vec<bool>>();
+    let mut joints: Vec<Vec<bool>> = Vec::new();
+    let mut joint_of = vec![usize::MAX; nd];
+    for (d, joint) in joint_of.iter_mut().enumerate() {
+        let c = column(d);
+        if !c.iter().any(|&x| x) {
+            continue;
+        }
+        *joint = match joints.iter().position(|j| *j == c) {
+            Some(j) => j,
+            None => {
+                joints.push(c);
+                joints.len() - 1
+            }
+        };
+    }
+    let mut rows: Vec<Vec<usize>> = active
+        .iter()
+        .map(|row| {
+            let mut r: Vec<usize> = (0..nd).filter(|&d| row[d]).map(|d| joint_of[d]).collect();
+            r.sort_unstable();
+            r.dedup();
+            r
+        })
+        .collect();
+    rows.sort();
+    rows.dedup();
+    let orphans = rows
+        .iter()
+        .filter(|r| !r.is_empty())
+        .filter(|r| {
+            !r.iter().any(|&j| {
+                let parent: Vec<usize> = r.iter().copied().filter(|&x| x != j).collect();
+                parent.is_empty() || rows.contains(&parent)
+            })
+        })
+        .count();
+    // A joint moves one segment and what hangs from it: every row with the joint holds the
+    // shortest such row.
+    let split = (0..joints.len())
+        .filter(|&j| {
+            let with: Vec<&Vec<usize>> = rows.iter().filter(|r| r.contains(&j)).collect();
+            let shortest = with.iter().min_by_key(|r| r.len());
+            shortest.is_some_and(|s| with.iter().any(|r| !s.iter().all(|x| r.contains(x))))
+        })
+        .count();
+    orphans + split
+}
+
+/// A structure-experiment reading left out as misread.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Misread {
+    /// The SU.
+    pub su: String,
+    /// The base orientation (1-based).
+    pub orientation: usize,
+    /// The move's DoF, or `None` for the rest reading.
+    pub dof: Option<String>,
+    /// Its norm, g.
+    pub norm_g: f64,
+    /// The SU's usual norm, g.
+    pub expected_g: f64,
+}
+
+impl ActivityMatrix {
+    /// Whether DoF `d` moves SU `u`.
+    pub fn is_active(&self, u: usize, d: usize) -> bool {
+        self.explored[d] && self.change[u][d] > self.threshold
+    }
+
+    /// Whether the entry lies within the uncertainty band around the threshold.
+    pub fn is_uncertain(&self, u: usize, d: usize) -> bool {
+        let c = self.change[u][d];
+        self.explored[d]
+            && c >= self.threshold / self.uncertainty_factor
+            && c <= self.threshold * self.uncertainty_factor
+    }
+}
+
+/// Builds the activity matrix from the structure experiment of a measurement set.
+pub fn activity_matrix(
+    set: &MeasurementSet,
+    config: &ExploreConfig,
+) -> Result<ActivityMatrix, ExploreError> {
+    if !(config.threshold.is_finite() && config.threshold > 0.0) {
+        return Err(ExploreError::InvalidSetting {
+            setting: "threshold",
+            reason: format!("{} g must be positive", config.threshold),
+        });
+    }
+    if !(config.uncertainty_factor.is_finite() && config.uncertainty_factor >= 1.0) {
+        return Err(ExploreError::InvalidSetting {
+            setting: "uncertainty_factor",
+            reason: format!("{} must be at least 1", config.uncertainty_factor),
+        });
+    }
+    let structure = set
+        .structure
+        .as_ref()
+        .ok_or(ExploreError::NoStructureExperiment)?;
+    let (nu, nd) = (set.sus.len(), set.dofs.len());
+    // Every static reading's norm is the SU's |g| (up to its bias and scale): one far from the
+    // SU's median norm is misread, and the entries it would decide are left to the other
+    // orientation.
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let expected: Vec<f64> = (0..nu)
+        .map(|u| {
+            let mut norms: Vec<f64> = structure
+                .orientations
+                .iter()
+                .flat_map(|o| {
+                    std::iter::once(&o.rest[u]).chain(o.moves.iter().map(|m| &m.readings[u]))
+                })
+                .map(norm)
+                .collect();
+            norms.sort_by(f64::total_cmp);
+            norms[norms.len() / 2]
+        })
+        .collect();
+    let misread = |u: usize, r: &[f64; 3]| {
+        (norm(r) - expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
+    };
+    let mut misreads = Vec::new();
+    let no = structure.orientations.len();
+    // `per[o][u][d]`: the change in orientation `o`, `None` where not moved or misread.
+    let mut per = vec![vec![vec![None; nd]; nu]; no];
+    let mut explored = vec![false; nd];
+    for (oi, orientation) in structure.orientations.iter().enumerate() {
+        let mut note = |u: usize, dof: Option<&str>, r: &[f64; 3]| {
+            misreads.push(Misread {
+                su: set.sus[u].clone(),
+                orientation: oi + 1,
+                dof: dof.map(str::to_string),
+                norm_g: norm(r) / STANDARD_GRAVITY,
+                expected_g: expected[u] / STANDARD_GRAVITY,
+            })
+        };
+        let rest_ok: Vec<bool> = (0..nu).map(|u| !misread(u, &orientation.rest[u])).collect();
+        for (u, ok) in rest_ok.iter().enumerate() {
+            if !ok {
+                note(u, None, &orientation.rest[u]);
+            }
+        }
+        for mv in &orientation.moves {
+            let d = set.dof_index(&mv.dof).expect("validated measurement set");
+            explored[d] = true;
+            let mut changes: Vec<Option<f64>> = Vec::with_capacity(nu);
+            for (u, (before, after)) in orientation.rest.iter().zip(&mv.readings).enumerate() {
+                if misread(u, after) {
+                    note(u, Some(&mv.dof), after);
+                    changes.push(None);
+                    continue;
+                }
+                changes.push(rest_ok[u].then(|| {
+                    (0..3)
+                        .map(|k| (after[k] - before[k]).abs())
+                        .fold(0.0, f64::max)
+                }));
+            }
+            // One DoF turns everything it moves by one rotation: an SU that alone turned by
+            // another angle than several that agree read wrongly (a glitch of |g|'s norm).
+            let clear = config.threshold * STANDARD_GRAVITY * config.uncertainty_factor;
+            let mut turned: Vec<(f64, usize)> = (0..nu)
+                .filter(|&u| changes[u].is_some_and(|c| c > clear))
+                .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
+                .collect();
+            if turned.len() >= 4 {
+                turned.sort_by(|x, y| x.0.total_cmp(&y.0));
+                let median = turned[turned.len() / 2].0;
+                let odd: Vec<usize> = turned
+                    .iter()
+                    .filter(|(angle, _)| (angle - median).abs() > LONE_TURN_TOLERANCE)
+                    .map(|&(_, u)| u)
+                    .collect();
+                if odd.len() == 1 {
+                    let u = odd[0];
+                    note(u, Some(&mv.dof), &mv.readings[u]);
+                    changes[u] = None;
+                }
+            }
+            for (u, c) in changes.into_iter().enumerate() {
+                per[oi][u][d] = c;
+            }
+        }
+    }
+    let threshold = config.threshold * STANDARD_GRAVITY;
+    // A misread rest reading: the rest is what the SU read in the moves of DoFs that, where they
+    // visibly turn other SUs, leave it still; its other entries are measured against that.
+    let sighted = sighted_dofs(&per, threshold * config.uncertainty_factor);
+    let clear_still = threshold / config.uncertainty_factor;
+    for (oi, orientation) in structure.orientations.iter().enumerate() {
+        for u in (0..nu).filter(|&u| misread(u, &orientation.rest[u])) {
+            let still: Vec<&[f64; 3]> = orientation
+                .moves
+                .iter()
+                .filter(|mv| !misread(u, &mv.readings[u]))
+                .filter(|mv| {
+                    let d = set.dof_index(&mv.dof).expect("validated measurement set");
+                    (0..no).any(|o| {
+                        o != oi && sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still)
+                    })
+                })
+                .map(|mv| &mv.readings[u])
+                .collect();
+            if still.is_empty() {
+                continue;
+            }
+            let rest: [f64; 3] = std::array::from_fn(|k| {
+                let mut v: Vec<f64> = still.iter().map(|r| r[k]).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            });
+            for mv in &orientation.moves {
+                let d = set.dof_index(&mv.dof).expect("validated measurement set");
+                if !misread(u, &mv.readings[u]) {
+                    per[oi][u][d] = Some(
+                        (0..3)
+                            .map(|k| (mv.readings[u][k] - rest[k]).abs())
+                            .fold(0.0, f64::max),
+                    );
+                }
+            }
+        }
+    }
+    let (change, inferred, contradicted, undecided) =
+        combine_orientations(&mut per, threshold, config.uncertainty_factor, nu, nd);
+    for (u, o, d) in contradicted {
+        let orientation = &structure.orientations[o];
+        if let Some(mv) = orientation.moves.iter().find(|m| m.dof == set.dofs[d]) {
+            misreads.push(Misread {
+                su: set.sus[u].clone(),
+                orientation: o + 1,
+                dof: Some(set.dofs[d].clone()),
+                norm_g: norm(&mv.readings[u]) / STANDARD_GRAVITY,
+                expected_g: expected[u] / STANDARD_GRAVITY,
+            });
+        }
+    }
+    let inferred = inferred
+        .into_iter()
+        .map(|(u, d, active)| Inferred {
+            su: set.sus[u].clone(),
+            dof: set.dofs[d].clone(),
+            active,
+        })
+        .collect();
+    if !explored.iter().any(|&e| e) {
+        return Err(ExploreError::NoMoves);
+    }
+    let rest_turn = (0..nu)
+        .map(|u| match structure.orientations.as_slice() {
+            [first, second, ..] if !misread(u, &first.rest[u]) && !misread(u, &second.rest[u]) => {
+                Some(angle_between(&first.rest[u], &second.rest[u]))
+            }
+            _ => None,
+        })
+        .collect();
+    Ok(ActivityMatrix {
+        sus: set.sus.clone(),
+        dofs: set.dofs.clone(),
+        change,
+        explored,
+        threshold: config.threshold * STANDARD_GRAVITY,
+        uncertainty_factor: config.uncertainty_factor,
+        orientations: structure.orientations.len(),
+        rest_turn,
+        misread: misreads,
+        inferred,
+        undecided: undecided
+            .into_iter()
+            .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
+            .collect(),
+    })
+}
+
+pub(super) fn angle_between(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    let dot: f64 = (0..3).map(|k| a[k] * b[k]).sum();
+    let na = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let nb = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if na == 0.0 || nb == 0.0 {
+        return 0.0;
+    }
+    (dot / (na * nb)).clamp(-1.0, 1.0).acos()
+}

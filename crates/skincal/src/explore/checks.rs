@@ -1,0 +1,129 @@
+//! Checks of the structure experiment's physics beyond the activity matrix.
+
+use super::activity::angle_between;
+use super::{ActivityMatrix, Diagnostic, DiagnosticKind, Severity};
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::STANDARD_GRAVITY;
+
+/// What the readings say about themselves, beyond the activity matrix:
+///
+/// * One DoF turns everything it moves by one rotation, so every SU it moves sees gravity turn by
+///   the same angle. Moved SUs whose angles fall apart mean that something else moved during the
+///   move (most often the base): the tree built from it is wrong, so it is an error.
+/// * The norm of a static reading is |g| in every pose, so its change between the rest pose and a
+///   move is noise. Noise comparable to the threshold decides entries by chance.
+pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<Diagnostic> {
+    let mut found = Vec::new();
+    let Some(structure) = &set.structure else {
+        return found;
+    };
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    // Noise from the norms: for each (SU, move), |r_move| − |r_rest| has twice the variance of
+    // the noise along gravity.
+    // The median of the squares (robust to misread readings) over that of χ² with one degree of
+    // freedom (0.455) estimates the variance.
+    let mut squares: Vec<f64> = Vec::new();
+    for o in &structure.orientations {
+        for mv in &o.moves {
+            for (before, after) in o.rest.iter().zip(&mv.readings) {
+                let d = norm(after) - norm(before);
+                squares.push(d * d);
+            }
+        }
+    }
+    squares.sort_by(f64::total_cmp);
+    let sigma = squares
+        .get(squares.len() / 2)
+        .map_or(0.0, |m| (m / 0.455 / 2.0).sqrt());
+    if sigma * NOISE_MARGIN > a.threshold {
+        found.push(Diagnostic {
+            kind: DiagnosticKind::TooNoisy,
+            severity: Severity::Error,
+            message: format!(
+                "the static readings scatter by about {:.3} g (from how much their norm, which is |g| in every pose, changes between the rest pose and the moves), too close to the threshold {:.3} g: which SU moved with which DoF is decided by noise. Average more samples per still pose (longer still periods), or raise --threshold above {:.3} g if the moves turn the SUs far enough",
+                sigma / STANDARD_GRAVITY,
+                a.threshold / STANDARD_GRAVITY,
+                sigma * NOISE_MARGIN / STANDARD_GRAVITY
+            ),
+            sus: Vec::new(),
+            dofs: Vec::new(),
+        });
+        // The angle check below would only repeat the noise.
+        return found;
+    }
+    // Angles are compared with a tolerance well above the noise of one angle (σ/|g| per reading).
+    let tolerance = RIGID_TOLERANCE.max(6.0 * sigma / STANDARD_GRAVITY);
+    for (oi, o) in structure.orientations.iter().enumerate() {
+        for mv in &o.moves {
+            let Some(d) = a.dofs.iter().position(|x| *x == mv.dof) else {
+                continue;
+            };
+            // The SUs it clearly moved, and the angle their gravity reading turned by.
+            let misread = |u: usize| {
+                a.misread.iter().any(|m| {
+                    m.orientation == oi + 1
+                        && m.su == a.sus[u]
+                        && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
+                })
+            };
+            let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
+                .filter(|&u| !misread(u) && a.is_active(u, d))
+                .filter(|&u| {
+                    let c = (0..3)
+                        .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
+                        .fold(0.0, f64::max);
+                    c > a.threshold * a.uncertainty_factor
+                })
+                .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
+                .collect();
+            if turned.len() < 2 {
+                continue;
+            }
+            turned.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let median = turned[turned.len() / 2].0;
+            let (odd, rest): (Vec<_>, Vec<_>) = turned
+                .iter()
+                .partition(|(angle, _)| (angle - median).abs() > tolerance);
+            if odd.is_empty() {
+                continue;
+            }
+            let names = |g: &[&(f64, usize)]| {
+                g.iter()
+                    .map(|(angle, u)| format!("{} {:.1}°", a.sus[*u], angle.to_degrees()))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            // One SU alone against several that agree: its reading is the odd one (a glitch),
+            // not the move.
+            let lone = odd.len() == 1 && rest.len() >= 3;
+            found.push(Diagnostic {
+                kind: if lone {
+                    DiagnosticKind::MisreadReading
+                } else {
+                    DiagnosticKind::MoveNotRigid
+                },
+                severity: if lone {
+                    Severity::Warning
+                } else {
+                    Severity::Error
+                },
+                message: format!(
+                    "in the move of {} (orientation {}), the SUs' gravity readings turned by different angles: {} SUs by about {:.1}°, but {}. One DoF turns everything it moves by one rotation, so something else moved during this move — most often the base (the reference segment) tilted, or another DoF slipped. Hold the base still and record this move again",
+                    mv.dof,
+                    oi + 1,
+                    rest.len(),
+                    median.to_degrees(),
+                    names(&odd)
+                ),
+                sus: odd.iter().map(|(_, u)| a.sus[*u].clone()).collect(),
+                dofs: vec![a.dofs[d].clone()],
+            });
+        }
+    }
+    found
+}
+
+/// The noise must stay below the threshold by this factor.
+const NOISE_MARGIN: f64 = 3.0;
+/// Smallest difference between two SUs' gravity turn angles in one move that counts, rad.
+const RIGID_TOLERANCE: f64 = 0.05;
