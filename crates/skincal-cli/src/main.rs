@@ -368,6 +368,9 @@ struct SimulateArgs {
     /// Replace this fraction of all readings by glitches: random vectors of 0.2–1.5 g.
     #[arg(long, value_name = "FRACTION", default_value_t = 0.0)]
     glitches: f64,
+    /// Break an SU: SU=dead|frozen|railed|swap-xy|negate-z (repeat for several).
+    #[arg(long, value_name = "SU=FAULT")]
+    broken: Vec<String>,
     /// Saturate every axis at ±G, in g.
     #[arg(long, value_name = "G")]
     saturation: Option<f64>,
@@ -779,6 +782,30 @@ fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
     Ok(())
 }
 
+/// `SU=FAULT` → a broken SU of the simulation.
+fn parse_fault(text: &str) -> Result<sim::SuFault> {
+    let names: Vec<&str> = sim::Fault::ALL.iter().map(|f| f.name()).collect();
+    let (su, fault) = text.split_once('=').ok_or_else(|| {
+        anyhow::anyhow!(
+            "--broken `{text}`: expected SU=FAULT, FAULT one of {}",
+            names.join(", ")
+        )
+    })?;
+    let fault = sim::Fault::ALL
+        .into_iter()
+        .find(|f| f.name() == fault)
+        .ok_or_else(|| {
+            anyhow::anyhow!(
+                "--broken `{text}`: unknown fault `{fault}`; use one of {}",
+                names.join(", ")
+            )
+        })?;
+    Ok(sim::SuFault {
+        su: su.to_string(),
+        fault,
+    })
+}
+
 /// `A,f` → an excitation pattern.
 fn parse_pattern(text: &str) -> Result<ExcitationPattern> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
@@ -1107,6 +1134,11 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         imperfections,
         seed: args.seed,
         pose_seed: args.pose_seed,
+        faults: args
+            .broken
+            .iter()
+            .map(|b| parse_fault(b))
+            .collect::<Result<_>>()?,
         ..SimulationConfig::default()
     };
     let files = write_simulation(&robot, &config, &args.out, args.force)?;

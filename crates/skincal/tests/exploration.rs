@@ -207,6 +207,7 @@ fn matrix(sus: &[&str], dofs: &[&str], rows: &[&[u8]]) -> ActivityMatrix {
         misread: Vec::new(),
         inferred: Vec::new(),
         undecided: Vec::new(),
+        broken: Vec::new(),
     }
 }
 

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::limb::{limb_chains, LimbChain, LimbData};
 use super::ml::{estimate_limb, LimbBase, MlChainEstimate, MlConfig};
 use super::{chain_in_listed_order, EstimateError};
-use crate::explore::Structure;
+use crate::explore::{BrokenSu, Structure};
 use crate::measurements::MeasurementSet;
 use crate::model::description::RobotFile;
 use crate::model::sensor::ExcitationPattern;
@@ -118,6 +118,9 @@ pub struct BodyModel {
     pub limbs: Vec<BodyLimb>,
     /// SUs on the static reference segment.
     pub static_sus: Vec<StaticSu>,
+    /// SUs that the calibration found broken and set aside.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub broken: Vec<BrokenSu>,
     /// DoFs and SUs of the measurement set that are not calibrated, and why: their readings and
     /// angles do not enter, and a pose may give any value for such a DoF.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -159,12 +162,30 @@ impl BodyModel {
 
 /// Calibrates every limb of `structure` (or, without one, the DoFs of the set in listed order as
 /// one chain with one SU per segment). With `only`, just that limb and the limbs it hangs on.
+/// SUs whose readings the fit cannot explain are set aside (see [`calibrate_body_keeping`]).
 pub fn calibrate_body(
     set: &MeasurementSet,
     structure: Option<&Structure>,
     config: &MlConfig,
     only: Option<&str>,
 ) -> Result<BodyModel, EstimateError> {
+    calibrate_body_keeping(set, structure, config, only, &[])
+}
+
+/// [`calibrate_body`], keeping the SUs of `keep` in the fit whatever their residuals.
+///
+/// An SU whose residual is more than [`MISFIT_RATIO`] times the noise and twice its limb's median
+/// SU is broken: if its readings with one axis negated fit at the noise level, its frame is
+/// improper (swapped or negated axes); otherwise it is noisy or loose. Either way the limb is
+/// fitted again without it (unless it is the only SU of its segment), worst first.
+pub fn calibrate_body_keeping(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+    keep: &[String],
+) -> Result<BodyModel, EstimateError> {
+    let mut broken: Vec<BrokenSu> = Vec::new();
     let mut chains = match structure {
         Some(s) => limb_chains(s)?,
         None => vec![LimbChain::from(&chain_in_listed_order(set)?)],
@@ -200,6 +221,10 @@ pub fn calibrate_body(
     let mut parents = Vec::new();
     for chain in &chains {
         let mut chain = chain.clone();
+        // SUs set aside in a parent limb stay out of its sub-limbs' base path.
+        for j in &mut chain.joints {
+            j.sus.retain(|su| !broken.iter().any(|b| b.su == *su));
+        }
         let mut base = None;
         let mut parent = None;
         if chain.base_joints > 0 {
@@ -226,7 +251,10 @@ pub fn calibrate_body(
             parent = Some(p.chain.name.clone());
         }
         let data = LimbData::new(set, &chain)?;
-        estimates.push(estimate_limb(&data, base.as_ref(), config)?);
+        let first = estimate_limb(&data, base.as_ref(), config)?;
+        let estimate =
+            set_aside_misfits(set, chain, base.as_ref(), config, first, keep, &mut broken)?;
+        estimates.push(estimate);
         parents.push(parent);
     }
     let static_sus = match structure {
@@ -253,7 +281,7 @@ pub fn calibrate_body(
         None => Vec::new(),
     };
     let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
-    let not_calibrated = left_out(set, structure, &estimates, &static_sus, only);
+    let not_calibrated = left_out(set, structure, &estimates, &static_sus, only, &broken);
     let mut model = assemble(
         set,
         &reference,
@@ -264,7 +292,139 @@ pub fn calibrate_body(
         training.pattern,
     );
     model.not_calibrated = not_calibrated;
+    model.broken = broken;
     Ok(model)
+}
+
+/// A residual this many times the noise, and twice the limb's median SU's, marks a broken SU.
+pub const MISFIT_RATIO: f64 = 3.0;
+/// A fitted relative scale error beyond this marks a broken SU (real parts err by a few %).
+const MAX_SCALE_ERROR: f64 = 0.5;
+/// Most SUs set aside per limb.
+const MAX_SET_ASIDE: usize = 3;
+
+/// Sets aside, worst first, the SUs of `estimate` whose residuals are far above the others' (see
+/// [`calibrate_body_keeping`]), fitting the limb again each time; returns the final estimate and
+/// adds what it found to `broken`.
+fn set_aside_misfits(
+    set: &MeasurementSet,
+    mut chain: LimbChain,
+    base: Option<&LimbBase>,
+    config: &MlConfig,
+    mut estimate: MlChainEstimate,
+    keep: &[String],
+    broken: &mut Vec<BrokenSu>,
+) -> Result<MlChainEstimate, EstimateError> {
+    for _ in 0..MAX_SET_ASIDE {
+        let sus = estimate.chain.sus();
+        let ratios = &estimate.su_residual_ratio;
+        let mut sorted = ratios.clone();
+        sorted.sort_by(f64::total_cmp);
+        let Some(&median) = sorted.get(sorted.len() / 2) else {
+            break;
+        };
+        // A sensitivity far from 1 is no calibration error: a negative one is an axis that
+        // reads mirrored (an improper frame the scale absorbed).
+        let scale = |u: usize| {
+            estimate
+                .intrinsics
+                .iter()
+                .find(|i| i.su == sus[u])
+                .map_or([0.0; 3], |i| i.value.scale)
+        };
+        let odd_scale = |u: usize| scale(u).iter().any(|s| s.abs() > MAX_SCALE_ERROR);
+        let worst = (0..sus.len())
+            .filter(|&u| odd_scale(u) || (ratios[u] > MISFIT_RATIO && ratios[u] > 2.0 * median))
+            .filter(|&u| !keep.contains(&sus[u]))
+            .max_by(|&a, &b| {
+                (odd_scale(a), ratios[a])
+                    .partial_cmp(&(odd_scale(b), ratios[b]))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+        let Some(u) = worst else { break };
+        let su = sus[u].clone();
+        // The only SU of its segment carries the segment: it stays.
+        let Some(joint) = chain.joints.iter().position(|j| j.sus.contains(&su)) else {
+            break;
+        };
+        if chain.joints[joint].sus.len() < 2 {
+            break;
+        }
+        // Does a reflection explain it? Its readings with z negated, fitted again.
+        let mirrored = mirror_su(set, &su);
+        let reflected = LimbData::new(&mirrored, &chain)
+            .and_then(|data| estimate_limb(&data, base, config))
+            .ok()
+            .and_then(|e| e.su_residual_ratio.get(u).copied());
+        let negated: Vec<&str> = (0..3)
+            .filter(|&k| 1.0 + scale(u)[k] < 0.0)
+            .map(|k| ["x", "y", "z"][k])
+            .collect();
+        let (kind, detail) = match reflected {
+            _ if !negated.is_empty() => (
+                "improper frame",
+                format!(
+                    "its {} axis reads mirrored (fitted sensitivity {}): its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; a rotation of the frame absorbs which)",
+                    negated.join(" and "),
+                    scale(u)
+                        .iter()
+                        .map(|s| format!("{:+.2}", 1.0 + s))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ),
+            _ if odd_scale(u) => (
+                "scale",
+                format!(
+                    "its fitted sensitivities ({}) are far from 1: a wrong range setting or a faulty part",
+                    scale(u)
+                        .iter()
+                        .map(|s| format!("{:+.2}", 1.0 + s))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ),
+            Some(r) if r < config.converged_ratio => (
+                "improper frame",
+                format!(
+                    "its readings fit {:.1}× the noise, but {r:.2}× with one axis negated: its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; which ones no reading can tell, a rotation of the frame absorbs the rest)",
+                    ratios[u]
+                ),
+            ),
+            _ => (
+                "noisy",
+                format!(
+                    "its readings fit {:.1}× the noise while its limb's SUs fit {median:.1}× (a noisy, loose or intermittent sensor)",
+                    ratios[u]
+                ),
+            ),
+        };
+        broken.push(BrokenSu {
+            su: su.clone(),
+            kind: kind.into(),
+            detail,
+        });
+        chain.joints[joint].sus.retain(|s| *s != su);
+        estimate = estimate_limb(&LimbData::new(set, &chain)?, base, config)?;
+    }
+    Ok(estimate)
+}
+
+/// `set` with SU `su`'s training readings mirrored (z negated).
+fn mirror_su(set: &MeasurementSet, su: &str) -> MeasurementSet {
+    let mut out = set.clone();
+    let Some(u) = set.sus.iter().position(|s| s == su) else {
+        return out;
+    };
+    if let Some(t) = &mut out.training {
+        for pose in &mut t.poses {
+            pose.static_readings[u][2] = -pose.static_readings[u][2];
+            for readings in pose.dynamic.values_mut() {
+                readings[u][2] = -readings[u][2];
+            }
+        }
+    }
+    out
 }
 
 /// Every DoF and SU of `set` that no estimate and no static SU covers, with the reason the
@@ -275,6 +435,7 @@ fn left_out(
     estimates: &[MlChainEstimate],
     static_sus: &[StaticSu],
     only: Option<&str>,
+    broken: &[BrokenSu],
 ) -> Vec<NotCalibrated> {
     use crate::explore::DiagnosticKind as K;
     let dofs: Vec<String> = estimates.iter().flat_map(|e| e.chain.dofs()).collect();
@@ -284,6 +445,10 @@ fn left_out(
         .chain(static_sus.iter().map(|s| s.su.clone()))
         .collect();
     let reason = |kind: &str, name: &str| -> String {
+        let explored = structure.and_then(|s| s.broken.iter().find(|b| b.su == name));
+        if let Some(b) = broken.iter().find(|b| b.su == name).or(explored) {
+            return format!("broken ({}): {}", b.kind, b.detail);
+        }
         let found = structure.and_then(|s| {
             s.diagnostics.iter().find(|d| {
                 if kind == "dof" {
@@ -487,6 +652,7 @@ fn assemble(
         ),
         limbs,
         static_sus,
+        broken: Vec::new(),
         not_calibrated: Vec::new(),
     }
 }

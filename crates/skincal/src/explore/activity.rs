@@ -51,6 +51,94 @@ pub struct ActivityMatrix {
     /// SU is set aside.
     #[serde(default)]
     pub undecided: Vec<(String, String)>,
+    /// SUs whose readings no working accelerometer gives: set aside.
+    #[serde(default)]
+    pub broken: Vec<BrokenSu>,
+}
+
+/// An SU whose readings cannot come from a working accelerometer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BrokenSu {
+    /// The SU.
+    pub su: String,
+    /// `dead`, `frozen` or `railed`.
+    pub kind: String,
+    /// What was seen.
+    pub detail: String,
+}
+
+/// Below this norm, g, in every reading an SU is dead.
+const DEAD_NORM: f64 = 0.05;
+/// An axis whose median static reading is beyond this, g, is railed: gravity and any bias of a
+/// working SU stay well below it.
+const RAIL: f64 = 1.5;
+
+/// The SUs whose static readings (structure and training) no working accelerometer gives: all
+/// (near) zero, exactly the same in every pose and base orientation, or an axis stuck beyond what
+/// gravity can give.
+pub fn broken_sus(set: &MeasurementSet) -> Vec<BrokenSu> {
+    let Some(structure) = &set.structure else {
+        return Vec::new();
+    };
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let mut out = Vec::new();
+    for (u, su) in set.sus.iter().enumerate() {
+        let training = set.training.iter().flat_map(|t| &t.poses);
+        let readings: Vec<&[f64; 3]> = structure
+            .orientations
+            .iter()
+            .flat_map(|o| std::iter::once(&o.rest).chain(o.moves.iter().map(|m| &m.readings)))
+            .chain(training.map(|p| &p.static_readings))
+            .filter_map(|r| r.get(u))
+            .collect();
+        if readings.is_empty() {
+            continue;
+        }
+        let broken = |kind: &str, detail: String| BrokenSu {
+            su: su.clone(),
+            kind: kind.into(),
+            detail,
+        };
+        if readings
+            .iter()
+            .all(|r| norm(r) < DEAD_NORM * STANDARD_GRAVITY)
+        {
+            out.push(broken(
+                "dead",
+                format!("every reading is below {DEAD_NORM} g (it reads zeros: no power, no data, or a broken link)"),
+            ));
+            continue;
+        }
+        if structure.orientations.len() >= 2 && readings.iter().all(|r| *r == readings[0]) {
+            out.push(broken(
+                "frozen",
+                format!(
+                    "it reads ({:.3}, {:.3}, {:.3}) g in every pose and base orientation, even when the base turned (a stale value: the sensor stopped updating)",
+                    readings[0][0] / STANDARD_GRAVITY,
+                    readings[0][1] / STANDARD_GRAVITY,
+                    readings[0][2] / STANDARD_GRAVITY
+                ),
+            ));
+            continue;
+        }
+        for k in 0..3 {
+            let mut axis: Vec<f64> = readings.iter().map(|r| r[k]).collect();
+            axis.sort_by(f64::total_cmp);
+            let median = axis[axis.len() / 2];
+            if median.abs() > RAIL * STANDARD_GRAVITY {
+                out.push(broken(
+                    "railed",
+                    format!(
+                        "its {} axis reads {:+.2} g (median over all poses), more than gravity can give: stuck at the end of its range",
+                        ["x", "y", "z"][k],
+                        median / STANDARD_GRAVITY
+                    ),
+                ));
+                break;
+            }
+        }
+    }
+    out
 }
 
 /// An entry decided from the SUs whose rows agree, not from its own readings.
@@ -374,8 +462,15 @@ pub fn activity_matrix(
             norms[norms.len() / 2]
         })
         .collect();
+    // Broken SUs read nothing: every entry of theirs is unreadable, and none is a misread.
+    let broken = broken_sus(set);
+    let is_broken: Vec<bool> = set
+        .sus
+        .iter()
+        .map(|su| broken.iter().any(|b| b.su == *su))
+        .collect();
     let misread = |u: usize, r: &[f64; 3]| {
-        (norm(r) - expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
+        !is_broken[u] && (norm(r) - expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
     };
     let mut misreads = Vec::new();
     let no = structure.orientations.len();
@@ -436,7 +531,7 @@ pub fn activity_matrix(
                 }
             }
             for (u, c) in changes.into_iter().enumerate() {
-                per[oi][u][d] = c;
+                per[oi][u][d] = c.filter(|_| !is_broken[u]);
             }
         }
     }
@@ -479,8 +574,10 @@ pub fn activity_matrix(
             }
         }
     }
-    let (change, inferred, contradicted, undecided) =
+    let (change, mut inferred, contradicted, mut undecided) =
         combine_orientations(&mut per, threshold, config.uncertainty_factor, nu, nd);
+    inferred.retain(|&(u, _, _)| !is_broken[u]);
+    undecided.retain(|&(u, _)| !is_broken[u]);
     for (u, o, d) in contradicted {
         let orientation = &structure.orientations[o];
         if let Some(mv) = orientation.moves.iter().find(|m| m.dof == set.dofs[d]) {
@@ -527,6 +624,7 @@ pub fn activity_matrix(
             .into_iter()
             .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
             .collect(),
+        broken,
     })
 }
 

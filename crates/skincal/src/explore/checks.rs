@@ -68,6 +68,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             };
             let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
                 .filter(|&u| !misread(u) && a.is_active(u, d))
+                .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
                 .filter(|&u| {
                     let c = (0..3)
                         .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())

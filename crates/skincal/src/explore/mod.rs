@@ -31,7 +31,7 @@ use crate::model::sensor::STANDARD_GRAVITY;
 mod activity;
 mod checks;
 
-pub use activity::{activity_matrix, ActivityMatrix, Inferred, Misread};
+pub use activity::{activity_matrix, broken_sus, ActivityMatrix, BrokenSu, Inferred, Misread};
 use checks::physical_checks;
 
 /// Settings of the exploration.
@@ -118,6 +118,8 @@ pub enum DiagnosticKind {
     /// Readings that no accelerometer at rest reads (a glitch): left out, their entries decided
     /// by the other orientation.
     MisreadReading,
+    /// An SU that reads zeros, the same value in every pose, or an axis stuck at its range.
+    BrokenSu,
 }
 
 /// A finding, with the SUs and DoFs involved and the likely cause in plain words.
@@ -226,6 +228,9 @@ pub struct Structure {
     pub complete: bool,
     /// SUs left out of the tree.
     pub unplaced_sus: Vec<String>,
+    /// SUs whose readings no working accelerometer gives (among those left out).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub broken: Vec<BrokenSu>,
     /// DoFs left out of the tree.
     pub unplaced_dofs: Vec<String>,
     /// The merged and sorted activity matrix (paper Fig. 2).
@@ -617,6 +622,21 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
         .map(|u| moving.iter().filter(|&&d| a.is_uncertain(u, d)).count())
         .collect();
     let mut excluded = vec![false; nu];
+    for b in &a.broken {
+        if let Some(u) = a.sus.iter().position(|x| *x == b.su) {
+            excluded[u] = true;
+        }
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::BrokenSu,
+            severity: Severity::Warning,
+            message: format!(
+                "SU `{}` is broken ({}): {}; it is left out of the tree and not calibrated",
+                b.su, b.kind, b.detail
+            ),
+            sus: vec![b.su.clone()],
+            dofs: vec![],
+        });
+    }
     if !a.undecided.is_empty() {
         let mut sus: Vec<String> = a.undecided.iter().map(|(s, _)| s.clone()).collect();
         sus.dedup();
@@ -642,7 +662,9 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
     }
 
     // Null-row SUs must turn together with the reference segment when the base is re-oriented.
-    let still: Vec<usize> = (0..nu).filter(|&u| dof_rows[u].is_clear()).collect();
+    let still: Vec<usize> = (0..nu)
+        .filter(|&u| dof_rows[u].is_clear() && !excluded[u])
+        .collect();
     if still.is_empty() {
         let everything: Vec<usize> = moving
             .iter()
@@ -1129,6 +1151,7 @@ fn finish(
             .map(|u| a.sus[u].clone())
             .collect(),
         unplaced_dofs: unplaced_dofs.iter().map(|&d| a.dofs[d].clone()).collect(),
+        broken: a.broken.clone(),
         matrix,
         uncertain,
         threshold_g: a.threshold / STANDARD_GRAVITY,

@@ -237,6 +237,56 @@ pub struct SimulationConfig {
     /// physical skin (sensor intrinsics from `seed`) recorded again in other poses.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pose_seed: Option<u64>,
+    /// Broken SUs.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub faults: Vec<SuFault>,
+}
+
+/// A broken SU of the simulation.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SuFault {
+    /// The SU.
+    pub su: String,
+    /// What is wrong with it.
+    pub fault: Fault,
+}
+
+/// How an SU is broken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fault {
+    /// Reads zeros.
+    Dead,
+    /// Repeats its first reading forever.
+    Frozen,
+    /// Its z axis is stuck at +2 g.
+    Railed,
+    /// Mounted or wired with its x and y axes swapped (an improper frame).
+    SwapXy,
+    /// Its z axis negated (an improper frame).
+    NegateZ,
+}
+
+impl Fault {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fault::Dead => "dead",
+            Fault::Frozen => "frozen",
+            Fault::Railed => "railed",
+            Fault::SwapXy => "swap-xy",
+            Fault::NegateZ => "negate-z",
+        }
+    }
+
+    /// All faults.
+    pub const ALL: [Fault; 5] = [
+        Fault::Dead,
+        Fault::Frozen,
+        Fault::Railed,
+        Fault::SwapXy,
+        Fault::NegateZ,
+    ];
 }
 
 impl Default for SimulationConfig {
@@ -252,6 +302,7 @@ impl Default for SimulationConfig {
             imperfections: Imperfections::default(),
             seed: 1,
             pose_seed: None,
+            faults: Vec::new(),
         }
     }
 }
@@ -367,6 +418,8 @@ pub(crate) struct Sensors<'a> {
     gaussian: Option<Normal<f64>>,
     /// Readings replaced by glitches so far.
     pub(crate) glitched: usize,
+    /// Per SU: how it is broken, and (frozen) the value it repeats.
+    faults: Vec<Option<(Fault, Option<Vector3<f64>>)>>,
 }
 
 /// The random stream of the training poses for `seed`.
@@ -411,6 +464,7 @@ impl<'a> Sensors<'a> {
             rng: stream(noise_seed, NOISE_STREAM),
             glitch_rng: stream(noise_seed, GLITCH_STREAM),
             glitched: 0,
+            faults: vec![None; sus],
             gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
                 Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY)
                     .expect("validated")
@@ -457,14 +511,33 @@ impl<'a> Sensors<'a> {
         Vector3::new(h * phi.cos(), h * phi.sin(), z) * norm
     }
 
+    /// What a broken SU makes of a reading `v` (`static`: a static reading, else a dynamic one, a
+    /// difference of two readings).
+    fn break_reading(&mut self, su: usize, v: Vector3<f64>, is_static: bool) -> Vector3<f64> {
+        let Some((fault, frozen)) = &mut self.faults[su] else {
+            return v;
+        };
+        match fault {
+            Fault::Dead => Vector3::zeros(),
+            Fault::Frozen if is_static => *frozen.get_or_insert(v),
+            Fault::Frozen => Vector3::zeros(),
+            Fault::Railed if is_static => Vector3::new(v.x, v.y, 2.0 * STANDARD_GRAVITY),
+            Fault::Railed => Vector3::new(v.x, v.y, 0.0),
+            Fault::SwapXy => Vector3::new(v.y, v.x, v.z),
+            Fault::NegateZ => Vector3::new(v.x, v.y, -v.z),
+        }
+    }
+
     fn static_reading(&mut self, su: usize, f: &Vector3<f64>) -> Reading {
         let v = self.sample(su, f);
+        let v = self.break_reading(su, v, true);
         self.glitch(v).into()
     }
 
     fn dynamic_reading(&mut self, su: usize, f: &Vector3<f64>, a: &Vector3<f64>) -> Reading {
         let i = &self.intrinsics[su];
         let v = self.sense(&i.read(&(f + a))) - self.sense(&i.read(f)) + self.noise();
+        let v = self.break_reading(su, v, false);
         self.glitch(v).into()
     }
 }
@@ -477,6 +550,17 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
     let imperfections = &config.imperfections;
     let data_seed = config.pose_seed.unwrap_or(config.seed);
     let mut sensors = Sensors::new(imperfections, nu, config.seed, data_seed);
+    for f in &config.faults {
+        let u = model
+            .su_names()
+            .iter()
+            .position(|n| *n == f.su)
+            .ok_or_else(|| SimulationError::InvalidSetting {
+                setting: "faults",
+                reason: format!("the robot has no SU `{}`", f.su),
+            })?;
+        sensors.faults[u] = Some((f.fault, None));
+    }
     let mut pose_rng = stream(data_seed, POSE_STREAM);
 
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());

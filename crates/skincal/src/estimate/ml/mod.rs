@@ -303,6 +303,10 @@ pub struct MlChainEstimate {
     pub unobservable: Vec<Unobservable>,
     /// Per SU: standard deviations.
     pub uncertainty: Vec<SuUncertainty>,
+    /// Per SU, in [`LimbChain::sus`] order: the RMS of its residuals relative to the noise (≈ 1
+    /// for an SU the model explains; far above the others: a broken or loose SU).
+    #[serde(default)]
+    pub su_residual_ratio: Vec<f64>,
     /// Per SU with wild readings (glitches): how many were left out of the fit.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rejected: Vec<SuRejected>,
@@ -825,6 +829,24 @@ pub fn estimate_limb(
         iterations += solved.iterations;
     }
     let rejected = rejected_counts(&readings, &data.chain.sus());
+    let su_residual_ratio = {
+        let norms = problem::reading_norms(&solved.state, &layout, &readings, &spec, sigma);
+        (0..layout.su_segment.len())
+            .map(|u| {
+                let (sum, n) = norms
+                    .iter()
+                    .enumerate()
+                    .fold((0.0, 0), |(s, n), (p, pose)| {
+                        pose[u]
+                            .iter()
+                            .enumerate()
+                            .filter(|&(j, _)| !readings.is_rejected(p, u, j))
+                            .fold((s, n), |(s, n), (_, x)| (s + x * x, n + 3))
+                    });
+                (sum / n.max(1) as f64).sqrt()
+            })
+            .collect()
+    };
     let state = solved.state;
     let dof_count = spec.columns().len();
     let noise_sd_estimate =
@@ -892,6 +914,7 @@ pub fn estimate_limb(
         uncertainty,
         intrinsics,
         rejected,
+        su_residual_ratio,
         iterations,
         seconds: started.elapsed().as_secs_f64(),
         state: Some(state),

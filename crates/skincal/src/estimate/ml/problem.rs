@@ -57,7 +57,7 @@ pub(super) struct Readings {
 }
 
 impl Readings {
-    fn is_rejected(&self, p: usize, u: usize, row: usize) -> bool {
+    pub(super) fn is_rejected(&self, p: usize, u: usize, row: usize) -> bool {
         self.rejected
             .get(p)
             .and_then(|r| r.get(u))
