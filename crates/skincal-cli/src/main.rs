@@ -135,6 +135,9 @@ struct CalibrateArgs {
     /// Accelerometer intrinsics estimated per SU with the kinematics (method ml).
     #[arg(long, value_enum, default_value_t = IntrinsicsArg::BiasScale)]
     intrinsics: IntrinsicsArg,
+    /// Keep this SU in the fit even if its readings look broken (repeatable; method ml).
+    #[arg(long, value_name = "SU")]
+    keep: Vec<String>,
     /// Seed of NLopt's random numbers (method paper; method ml is deterministic).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -671,8 +674,13 @@ fn calibrate_ml(
         "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g; intrinsics per SU: {}); {source}\n",
         config.noise_sd, args.noise, config.intrinsics.name()
     );
-    let model =
-        skincal::estimate::body::calibrate_body(set, structure, &config, args.limb.as_deref())?;
+    let model = skincal::estimate::body::calibrate_body_keeping(
+        set,
+        structure,
+        &config,
+        args.limb.as_deref(),
+        &args.keep,
+    )?;
     for limb in &model.limbs {
         out!("{}", limb_report(limb, truth)?);
     }

@@ -356,17 +356,70 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     }
     let _ = writeln!(
         out,
-        "\n{:>12} {:>16} {:>18}",
-        "SU", "position sd mm", "orientation sd °"
+        "\n{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
+        "SU",
+        "position sd mm",
+        "orientation sd °",
+        "residual/σ",
+        "bias mg (x, y, z)",
+        "scale % (x, y, z)",
+        "rejected"
     );
+    let sus = e.chain.sus();
     for u in &e.uncertainty {
+        let i = sus.iter().position(|s| *s == u.su);
+        let ratio = i
+            .and_then(|i| e.su_residual_ratio.get(i))
+            .map_or("—".to_string(), |r| format!("{r:.2}"));
+        let intrinsics = e.intrinsics.iter().find(|x| x.su == u.su);
+        let triple = |v: [f64; 3], f: f64, held: &[&str]| {
+            v.iter()
+                .zip(held)
+                .map(|(x, h)| {
+                    let mark = if intrinsics.is_some_and(|i| i.held.iter().any(|n| n == h)) {
+                        "*"
+                    } else {
+                        ""
+                    };
+                    format!("{:.0}{mark}", x * f)
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let (bias, scale) = intrinsics.map_or(("—".to_string(), "—".to_string()), |i| {
+            (
+                triple(
+                    i.value.bias,
+                    1e3 / skincal::model::sensor::STANDARD_GRAVITY,
+                    &["bias_x", "bias_y", "bias_z"],
+                ),
+                triple(i.value.scale, 100.0, &["scale_x", "scale_y", "scale_z"]),
+            )
+        });
+        let rejected = e
+            .rejected
+            .iter()
+            .find(|r| r.su == u.su)
+            .map_or(String::new(), |r| {
+                (r.static_readings + r.dynamic_readings).to_string()
+            });
         let _ = writeln!(
             out,
-            "{:>12} {:>16.2} {:>18.3}",
+            "{:>12} {:>16.2} {:>18.3} {:>11} {:>22} {:>20} {:>9}",
             u.su,
             u.position_sd * 1e3,
-            u.orientation_sd.to_degrees()
+            u.orientation_sd.to_degrees(),
+            ratio,
+            bias,
+            scale,
+            rejected
         );
+    }
+    if e.intrinsics.iter().any(|i| !i.held.is_empty()) {
+        let _ = writeln!(out, "(* not determined by the readings: held near 0 by the prior)");
+    }
+    if !e.rejected.is_empty() {
+        let _ = writeln!(out, "(rejected: readings left out as glitches, more than 6σ off the fit)");
     }
     let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
     out

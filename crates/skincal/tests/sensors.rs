@@ -207,3 +207,153 @@ fn a_skin_with_gaps_is_calibrated_where_it_can_be_and_says_what_it_left_out() {
     let error = predictor.arrange(&table, "poses.csv").unwrap_err();
     assert!(error.to_string().contains("`tail`"), "{error}");
 }
+
+/// The segments (as sorted SU lists, without `aside`) and joints (sorted DoF lists) of a tree.
+fn shape(
+    s: &skincal::explore::Structure,
+    aside: &[String],
+) -> (Vec<Vec<String>>, Vec<Vec<String>>) {
+    let mut segments: Vec<Vec<String>> = s
+        .segments
+        .iter()
+        .map(|seg| {
+            let mut v: Vec<String> = seg
+                .sus
+                .iter()
+                .filter(|su| !aside.contains(su))
+                .cloned()
+                .collect();
+            v.sort();
+            v
+        })
+        .filter(|v| !v.is_empty())
+        .collect();
+    segments.sort();
+    let mut joints: Vec<Vec<String>> = s
+        .joints
+        .iter()
+        .map(|j| {
+            let mut v = j.dofs.clone();
+            v.sort();
+            v
+        })
+        .collect();
+    joints.sort();
+    (segments, joints)
+}
+
+#[test]
+fn glitches_neither_break_the_tree_nor_drag_the_fit() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    // Seed 5 glitches the rest reading of su2 in the upright orientation, among others.
+    let clean = SimulationConfig {
+        seed: 5,
+        ..SimulationConfig::default()
+    };
+    let glitchy = SimulationConfig {
+        imperfections: Imperfections {
+            glitches: 0.01,
+            ..Imperfections::default()
+        },
+        ..clean.clone()
+    };
+    let held_out = simulate(&robot, &same_skin_held_out(&clean))
+        .unwrap()
+        .measurements;
+    let mut errors = Vec::new();
+    let mut trees = Vec::new();
+    for config in [&clean, &glitchy] {
+        let set = simulate(&robot, config).unwrap().measurements;
+        let structure = explore(&set, &ExploreConfig::default()).unwrap();
+        assert!(structure.complete, "{:?}", structure.diagnostics);
+        let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+        assert!(model.limbs.iter().all(|l| l.estimate.converged));
+        let check = validate(&model, &held_out, "held-out").unwrap();
+        errors.push((check.static_rms, check.dynamic_rms));
+        trees.push((structure, model));
+    }
+    // The glitches were there, were seen, and changed nothing of the tree.
+    let (glitch_tree, glitch_model) = &trees[1];
+    assert!(glitch_tree
+        .diagnostics
+        .iter()
+        .any(|d| d.kind == DiagnosticKind::MisreadReading));
+    assert_eq!(shape(&trees[0].0, &[]), shape(glitch_tree, &[]));
+    let rejected: usize = glitch_model
+        .limbs
+        .iter()
+        .flat_map(|l| &l.estimate.rejected)
+        .map(|r| r.static_readings + r.dynamic_readings)
+        .sum();
+    assert!(rejected > 0);
+    assert!(errors[1].0 < 1.3 * errors[0].0, "{errors:?}");
+    assert!(errors[1].1 < 1.3 * errors[0].1, "{errors:?}");
+}
+
+#[test]
+fn broken_sus_are_named_set_aside_and_the_rest_is_calibrated() {
+    use skincal::sim::{Fault, SuFault};
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let faults = [
+        ("l_forearm_side", Fault::Dead, "dead"),
+        ("r_thigh_back", Fault::Frozen, "frozen"),
+        ("head_top", Fault::Railed, "railed"),
+        ("l_shank_front", Fault::SwapXy, "improper frame"),
+    ];
+    let config = SimulationConfig {
+        seed: 3,
+        faults: faults
+            .iter()
+            .map(|&(su, fault, _)| SuFault {
+                su: su.into(),
+                fault,
+            })
+            .collect(),
+        ..SimulationConfig::default()
+    };
+    let set = simulate(&robot, &config).unwrap().measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    assert!(model.limbs.iter().all(|l| l.estimate.converged));
+    for (su, _, kind) in faults {
+        let n = model
+            .not_calibrated
+            .iter()
+            .find(|n| n.name == su)
+            .unwrap_or_else(|| panic!("{su} not named: {:?}", model.not_calibrated));
+        assert!(n.reason.contains(&format!("broken ({kind})")), "{su}: {}", n.reason);
+    }
+    assert_eq!(model.not_calibrated.len(), 4, "{:?}", model.not_calibrated);
+    // The other SUs predict a held-out set about as well as from the same data without faults.
+    let clean_set = simulate(
+        &robot,
+        &SimulationConfig {
+            faults: Vec::new(),
+            ..config.clone()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let clean_structure = explore(&clean_set, &ExploreConfig::default()).unwrap();
+    let clean = calibrate_body(&clean_set, Some(&clean_structure), &MlConfig::default(), None)
+        .unwrap();
+    let held_out = simulate(&robot, &same_skin_held_out(&SimulationConfig::default()))
+        .unwrap()
+        .measurements;
+    let rms = |m: &skincal::estimate::body::BodyModel| {
+        let check = validate(m, &held_out, "held-out").unwrap();
+        let others: Vec<_> = check
+            .sus
+            .iter()
+            .filter(|e| !faults.iter().any(|f| f.0 == e.su))
+            .collect();
+        let n = others.len() as f64;
+        (
+            (others.iter().map(|e| e.static_rms.powi(2)).sum::<f64>() / n).sqrt(),
+            (others.iter().map(|e| e.dynamic_rms.powi(2)).sum::<f64>() / n).sqrt(),
+        )
+    };
+    let (with, without) = (rms(&model), rms(&clean));
+    assert!(with.0 < 1.3 * without.0 && with.1 < 1.3 * without.1, "{with:?} vs {without:?}");
+}
