@@ -2,6 +2,7 @@
 //!
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
+mod bench_sensors;
 mod logs;
 mod out;
 mod render;
@@ -163,6 +164,8 @@ enum BenchCommand {
     Body(BenchBodyArgs),
     /// Ingestion of a 1 kHz log with many SUs (MCAP and CSV): time against real time.
     Ingest(logs::BenchIngestArgs),
+    /// Real sensors and imperfect skins (intrinsics, glitches, broken SUs) against clean data.
+    Sensors(bench_sensors::BenchSensorsArgs),
 }
 
 #[derive(Debug, Args)]
@@ -445,6 +448,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Predict(args) => predict(args),
         Command::Validate(args) => validate(args),
         Command::Bench(BenchCommand::Body(args)) => bench_body(args),
+        Command::Bench(BenchCommand::Sensors(args)) => bench_sensors::bench_sensors(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
         Command::Bench(BenchCommand::Ingest(args)) => logs::bench_ingest(args),

@@ -416,10 +416,16 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
         );
     }
     if e.intrinsics.iter().any(|i| !i.held.is_empty()) {
-        let _ = writeln!(out, "(* not determined by the readings: held near 0 by the prior)");
+        let _ = writeln!(
+            out,
+            "(* not determined by the readings: held near 0 by the prior)"
+        );
     }
     if !e.rejected.is_empty() {
-        let _ = writeln!(out, "(rejected: readings left out as glitches, more than 6σ off the fit)");
+        let _ = writeln!(
+            out,
+            "(rejected: readings left out as glitches, more than 6σ off the fit)"
+        );
     }
     let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
     out

@@ -322,7 +322,11 @@ fn broken_sus_are_named_set_aside_and_the_rest_is_calibrated() {
             .iter()
             .find(|n| n.name == su)
             .unwrap_or_else(|| panic!("{su} not named: {:?}", model.not_calibrated));
-        assert!(n.reason.contains(&format!("broken ({kind})")), "{su}: {}", n.reason);
+        assert!(
+            n.reason.contains(&format!("broken ({kind})")),
+            "{su}: {}",
+            n.reason
+        );
     }
     assert_eq!(model.not_calibrated.len(), 4, "{:?}", model.not_calibrated);
     // The other SUs predict a held-out set about as well as from the same data without faults.
@@ -336,8 +340,13 @@ fn broken_sus_are_named_set_aside_and_the_rest_is_calibrated() {
     .unwrap()
     .measurements;
     let clean_structure = explore(&clean_set, &ExploreConfig::default()).unwrap();
-    let clean = calibrate_body(&clean_set, Some(&clean_structure), &MlConfig::default(), None)
-        .unwrap();
+    let clean = calibrate_body(
+        &clean_set,
+        Some(&clean_structure),
+        &MlConfig::default(),
+        None,
+    )
+    .unwrap();
     let held_out = simulate(&robot, &same_skin_held_out(&SimulationConfig::default()))
         .unwrap()
         .measurements;
@@ -355,5 +364,8 @@ fn broken_sus_are_named_set_aside_and_the_rest_is_calibrated() {
         )
     };
     let (with, without) = (rms(&model), rms(&clean));
-    assert!(with.0 < 1.3 * without.0 && with.1 < 1.3 * without.1, "{with:?} vs {without:?}");
+    assert!(
+        with.0 < 1.3 * without.0 && with.1 < 1.3 * without.1,
+        "{with:?} vs {without:?}"
+    );
 }

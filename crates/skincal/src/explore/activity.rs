@@ -286,20 +286,37 @@ fn combine_orientations(
         }
     }
     // Then the tree: the flip that leaves the fewest rows without a parent, one at a time, while
-    // one helps; an entry whose flip would add such rows is decided as it stands.
+    // one helps; among equals, the one that overrides the fewest readings (an entry with no
+    // reading of its own costs nothing), then the one with fewer distinct rows. An entry whose flip would add conflicts is decided as it
+    // stands.
+    let measured: Vec<Vec<bool>> = change
+        .iter()
+        .map(|row| row.iter().map(|&c| c > threshold).collect())
+        .collect();
+    let cost = |active: &Vec<Vec<bool>>| {
+        let overrides = questionable
+            .iter()
+            .filter(|&&(u, d, unknown)| !unknown && active[u][d] != measured[u][d])
+            .count();
+        let mut rows = active.clone();
+        rows.sort();
+        rows.dedup();
+        // Last, the fewer segments: a misread entry gives its SU a row of its own.
+        (orphan_rows(active), overrides, rows.len())
+    };
     for _ in 0..questionable.len() {
-        let now = orphan_rows(&active);
+        let now = cost(&active);
         let best = questionable
             .iter()
             .map(|&(u, d, _)| {
                 active[u][d] = !active[u][d];
-                let n = orphan_rows(&active);
+                let c = cost(&active);
                 active[u][d] = !active[u][d];
-                (n, u, d)
+                (c, u, d)
             })
             .min();
         match best {
-            Some((n, u, d)) if n < now => {
+            Some((c, u, d)) if c < now => {
                 active[u][d] = !active[u][d];
                 undecided.retain(|&x| x != (u, d));
             }

@@ -1,0 +1,278 @@
+//! `skincal bench sensors`: the whole pipeline on real sensors and imperfect skins (intrinsics,
+//! glitches, broken SUs, a skin with gaps) against the same seed's clean data.
+
+use std::fmt::Write as _;
+
+use anyhow::Result;
+use clap::Args;
+use skincal::estimate::body::{calibrate_body, BodyModel};
+use skincal::estimate::ml::MlConfig;
+use skincal::explore::{explore, ExploreConfig, Structure};
+use skincal::io::{self, SuPlacement};
+use skincal::model::Robot;
+use skincal::sim::{self, Fault, Imperfections, SimulationConfig, SuFault};
+
+use crate::out::{out, outln};
+
+#[derive(Debug, Args)]
+pub struct BenchSensorsArgs {
+    /// A built-in robot, a .toml description or a .urdf file.
+    #[arg(long, default_value = "humanoid")]
+    robot: String,
+    /// Data seeds 1…N.
+    #[arg(long, default_value_t = 8)]
+    seeds: u64,
+}
+
+/// One scenario's figures over the seeds.
+#[derive(Default)]
+struct Tally {
+    runs: usize,
+    exact: usize,
+    set_aside: usize,
+    limbs: usize,
+    converged: usize,
+    /// Σ over seeds of the ratios to the clean run: SU pose RMS, held-out static, dynamic.
+    ratios: [f64; 3],
+    /// The largest of those ratios.
+    worst: [f64; 3],
+}
+
+/// What a run gives: SU pose RMS against the truth (m), held-out static and dynamic RMS (m/s²) of
+/// the SUs every run calibrates, and the structure.
+struct Run {
+    pose: f64,
+    statics: f64,
+    dynamics: f64,
+    model: BodyModel,
+    structure: Structure,
+}
+
+fn run(
+    robot: &Robot,
+    config: &SimulationConfig,
+    held_out: &skincal::measurements::MeasurementSet,
+    ignore: &[String],
+) -> Result<Run> {
+    let set = sim::simulate(robot, config)?.measurements;
+    let structure = explore(&set, &ExploreConfig::default())?;
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None)?;
+    let (mut pose, mut pairs) = (0.0, 0usize);
+    for limb in &model.limbs {
+        let e = &limb.estimate;
+        let a = skincal::estimate::consecutive_su_errors(
+            robot,
+            &e.to_robot(),
+            &e.chain.su_sequence(),
+            30,
+            1,
+        )?;
+        let n = e.chain.sus().len().saturating_sub(2);
+        pose += a.position_rms.powi(2) * n as f64;
+        pairs += n;
+    }
+    let check = skincal::predict::validate(&model, held_out, "held-out")?;
+    let kept: Vec<_> = check
+        .sus
+        .iter()
+        .filter(|e| !ignore.contains(&e.su))
+        .collect();
+    let n = kept.len().max(1) as f64;
+    let rms = |f: fn(&skincal::predict::SuError) -> f64| {
+        (kept.iter().map(|e| f(e).powi(2)).sum::<f64>() / n).sqrt()
+    };
+    Ok(Run {
+        pose: (pose / pairs.max(1) as f64).sqrt(),
+        statics: rms(|e| e.static_rms),
+        dynamics: rms(|e| e.dynamic_rms),
+        model,
+        structure,
+    })
+}
+
+/// The joints as sorted DoF sets, and every placed SU's segment as its sorted SU set.
+fn shape(s: &Structure) -> (Vec<Vec<String>>, Vec<Vec<String>>) {
+    let sorted = |v: &[String]| {
+        let mut v = v.to_vec();
+        v.sort();
+        v
+    };
+    let mut joints: Vec<Vec<String>> = s.joints.iter().map(|j| sorted(&j.dofs)).collect();
+    joints.sort();
+    let mut segments: Vec<Vec<String>> = s.segments.iter().map(|g| sorted(&g.sus)).collect();
+    segments.sort();
+    (joints, segments)
+}
+
+/// The tree of `s` is the clean one's with the SUs it set aside removed.
+fn same_tree(clean: &Structure, s: &Structure) -> bool {
+    let (joints, segments) = shape(s);
+    let (clean_joints, clean_segments) = shape(clean);
+    let mut expected: Vec<Vec<String>> = clean_segments
+        .into_iter()
+        .map(|g| {
+            g.into_iter()
+                .filter(|su| !s.unplaced_sus.contains(su))
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| !g.is_empty())
+        .collect();
+    expected.sort();
+    let segments: Vec<Vec<String>> = segments.into_iter().filter(|g| !g.is_empty()).collect();
+    s.unplaced_dofs.is_empty() && joints == clean_joints && segments == expected
+}
+
+pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
+    let robot = io::load_robot(&args.robot, SuPlacement::default())?;
+    let names = robot.model.su_names();
+    // Four broken SUs, on different limbs where the robot has them (the humanoid's).
+    let broken: Vec<SuFault> = [
+        ("l_forearm_side", Fault::Dead),
+        ("r_thigh_back", Fault::Frozen),
+        ("head_top", Fault::Railed),
+        ("l_shank_front", Fault::SwapXy),
+    ]
+    .into_iter()
+    .filter(|(su, _)| names.iter().any(|n| n == su))
+    .map(|(su, fault)| SuFault {
+        su: su.into(),
+        fault,
+    })
+    .collect();
+    let broken_names: Vec<String> = broken.iter().map(|f| f.su.clone()).collect();
+    outln!(
+        "{} on real sensors, seeds 1…{}; P = 20, uniform ±0.01 g noise; every scenario against the same seed without it: SU pose RMS (relative to the previous SU, against the truth), held-out prediction of the same skin (20 other noise-free poses), static and dynamic RMS\n",
+        args.robot, args.seeds
+    );
+    let scenarios: Vec<(&str, Box<dyn Fn(&mut SimulationConfig)>)> = vec![
+        (
+            "bias ±0.06 g, scale ±3 %",
+            Box::new(|c: &mut SimulationConfig| {
+                c.imperfections.bias = 0.06;
+                c.imperfections.scale = 0.03;
+            }),
+        ),
+        (
+            "1 % glitches (0.2–1.5 g)",
+            Box::new(|c: &mut SimulationConfig| c.imperfections.glitches = 0.01),
+        ),
+        (
+            "4 broken SUs",
+            Box::new(move |c: &mut SimulationConfig| c.faults = broken.clone()),
+        ),
+    ];
+    let mut tallies: Vec<Tally> = scenarios.iter().map(|_| Tally::default()).collect();
+    let mut named = 0;
+    for seed in 1..=args.seeds {
+        let clean_config = SimulationConfig {
+            seed,
+            ..SimulationConfig::default()
+        };
+        for (i, (name, apply)) in scenarios.iter().enumerate() {
+            let mut config = clean_config.clone();
+            apply(&mut config);
+            // The same skin in other poses, noise-free: its intrinsics, no glitch, no fault.
+            let held_out = |c: &SimulationConfig| -> Result<_> {
+                let mut held = c.clone();
+                held.structure = false;
+                held.pose_seed = Some(1000 + seed);
+                held.faults.clear();
+                held.imperfections = Imperfections {
+                    uniform_noise: 0.0,
+                    glitches: 0.0,
+                    ..c.imperfections
+                };
+                Ok(sim::simulate(&robot, &held)?.measurements)
+            };
+            let ignore = if config.faults.is_empty() {
+                Vec::new()
+            } else {
+                broken_names.clone()
+            };
+            let clean = run(&robot, &clean_config, &held_out(&clean_config)?, &ignore)?;
+            let r = match run(&robot, &config, &held_out(&config)?, &ignore) {
+                Ok(r) => r,
+                Err(e) => {
+                    outln!("seed {seed}, {name}: {e}");
+                    continue;
+                }
+            };
+            let t = &mut tallies[i];
+            t.runs += 1;
+            t.exact += usize::from(same_tree(&clean.structure, &r.structure));
+            t.set_aside += r.structure.unplaced_sus.len();
+            t.limbs += r.model.limbs.len();
+            t.converged += r
+                .model
+                .limbs
+                .iter()
+                .filter(|l| l.estimate.converged)
+                .count();
+            let ratios = [
+                r.pose / clean.pose,
+                r.statics / clean.statics,
+                r.dynamics / clean.dynamics,
+            ];
+            for k in 0..3 {
+                t.ratios[k] += ratios[k];
+                t.worst[k] = t.worst[k].max(ratios[k]);
+            }
+            if !config.faults.is_empty() {
+                named += config
+                    .faults
+                    .iter()
+                    .filter(|f| {
+                        let kind = match f.fault {
+                            Fault::Dead => "dead",
+                            Fault::Frozen => "frozen",
+                            Fault::Railed => "railed",
+                            Fault::SwapXy | Fault::NegateZ => "improper frame",
+                        };
+                        r.model.not_calibrated.iter().any(|n| {
+                            n.name == f.su && n.reason.starts_with(&format!("broken ({kind})"))
+                        })
+                    })
+                    .count();
+            }
+        }
+    }
+    let mut table = String::new();
+    let _ = writeln!(
+        table,
+        "{:<28} {:>6} {:>10} {:>10} {:>12} {:>16} {:>16} {:>16}",
+        "scenario",
+        "runs",
+        "tree exact",
+        "set aside",
+        "limbs conv.",
+        "pose RMS ratio",
+        "static ratio",
+        "dynamic ratio"
+    );
+    for ((name, _), t) in scenarios.iter().zip(&tallies) {
+        let n = t.runs.max(1) as f64;
+        let ratio = |k: usize| format!("{:.2} (≤ {:.2})", t.ratios[k] / n, t.worst[k]);
+        let _ = writeln!(
+            table,
+            "{:<28} {:>6} {:>10} {:>10} {:>12} {:>16} {:>16} {:>16}",
+            name,
+            t.runs,
+            format!("{}/{}", t.exact, t.runs),
+            t.set_aside,
+            format!("{}/{}", t.converged, t.limbs),
+            ratio(0),
+            ratio(1),
+            ratio(2)
+        );
+    }
+    out!("{table}");
+    if !broken_names.is_empty() {
+        outln!(
+            "\nbroken SUs ({}) named with the right fault: {named} of {}",
+            broken_names.join(", "),
+            broken_names.len() * args.seeds as usize
+        );
+    }
+    outln!("(ratios: mean over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
+    Ok(())
+}
