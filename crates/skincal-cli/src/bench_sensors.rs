@@ -144,7 +144,8 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         "{} on real sensors, seeds 1…{}; P = 20, uniform ±0.01 g noise; every scenario against the same seed without it: SU pose RMS (relative to the previous SU, against the truth), held-out prediction of the same skin (20 other noise-free poses), static and dynamic RMS\n",
         args.robot, args.seeds
     );
-    let scenarios: Vec<(&str, Box<dyn Fn(&mut SimulationConfig)>)> = vec![
+    type Scenario = (&'static str, Box<dyn Fn(&mut SimulationConfig)>);
+    let scenarios: Vec<Scenario> = vec![
         (
             "bias ±0.06 g, scale ±3 %",
             Box::new(|c: &mut SimulationConfig| {
@@ -213,9 +214,9 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
                 r.statics / clean.statics,
                 r.dynamics / clean.dynamics,
             ];
-            for k in 0..3 {
-                t.ratios[k] += ratios[k];
-                t.worst[k] = t.worst[k].max(ratios[k]);
+            for (k, ratio) in ratios.iter().enumerate() {
+                t.ratios[k] += ratio;
+                t.worst[k] = t.worst[k].max(*ratio);
             }
             if !config.faults.is_empty() {
                 named += config
