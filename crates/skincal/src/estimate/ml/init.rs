@@ -91,9 +91,14 @@ pub(super) fn joint_line_starts(
 ) -> Vec<JointLines> {
     let m = dofs.len();
     let alpha = data.alpha;
-    let poses = data.q.len();
-    let scaled: Vec<Vec<Vector3<f64>>> = (0..poses)
-        .map(|p| {
+    // Poses whose readings of these DoFs are all trusted.
+    let kept: Vec<usize> = (0..data.q.len())
+        .filter(|&p| !dofs.iter().any(|&d| data.is_rejected(p, u, 1 + d)))
+        .collect();
+    let poses = kept.len().max(1);
+    let scaled: Vec<Vec<Vector3<f64>>> = kept
+        .iter()
+        .map(|&p| {
             dofs.iter()
                 .map(|&d| data.dynamics[p][u][d] / alpha)
                 .collect()
@@ -121,14 +126,14 @@ pub(super) fn joint_line_starts(
         let mut misfit = base_misfit;
         for stage in (0..m - 1).rev() {
             // The SU's motion relative to the joint's zero position, caused by the later DoFs.
-            let motion: Vec<Isometry3<f64>> = (0..poses)
+            let motion: Vec<Isometry3<f64>> = (0..kept.len())
                 .map(|p| {
                     ((stage + 1)..m).fold(Isometry3::identity(), |g, t| {
-                        g * about_line(&lines[t].0, &lines[t].1, data.q[p][dofs[t]])
+                        g * about_line(&lines[t].0, &lines[t].1, data.q[kept[p]][dofs[t]])
                     })
                 })
                 .collect();
-            let turned: Vec<Vector3<f64>> = (0..poses)
+            let turned: Vec<Vector3<f64>> = (0..kept.len())
                 .map(|p| motion[p].rotation * scaled[p][stage])
                 .collect();
             let (n, _) = null_direction(&turned);
@@ -136,7 +141,7 @@ pub(super) fn joint_line_starts(
                 .iter()
                 .map(|&sign| {
                     let n = n * sign;
-                    let w: Vec<Vector3<f64>> = (0..poses)
+                    let w: Vec<Vector3<f64>> = (0..kept.len())
                         .map(|p| turned[p] - n.cross(&motion[p].translation.vector))
                         .collect();
                     let mean = w.iter().sum::<Vector3<f64>>() / poses as f64;

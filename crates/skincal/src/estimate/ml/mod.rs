@@ -357,6 +357,40 @@ const MAX_GLITCH_SHARE: f64 = 0.1;
 /// Most rounds of leaving wild readings out and fitting again.
 const REJECT_ROUNDS: usize = 4;
 
+/// Readings the search should not trust, before any fit (`[p][u][row]` as
+/// [`Readings::rejected`]): a static reading whose norm is 0.15 g off the SU's median norm (a
+/// static reading's norm is |g|), and a dynamic one more than 3 times the SU's median for that DoF
+/// (plus 8σ). The final fit judges every reading again by its residual.
+fn screen(data: &Readings, sigma: f64) -> Vec<Vec<Vec<bool>>> {
+    let poses = data.q.len();
+    let sus = data.statics.first().map_or(0, Vec::len);
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let mut out: Vec<Vec<Vec<bool>>> = (0..poses)
+        .map(|p| {
+            (0..sus)
+                .map(|u| vec![false; 1 + data.dynamics[p][u].len()])
+                .collect()
+        })
+        .collect();
+    for u in 0..sus {
+        let norm = median((0..poses).map(|p| data.statics[p][u].norm()).collect());
+        for (p, pose) in out.iter_mut().enumerate() {
+            pose[u][0] = (data.statics[p][u].norm() - norm).abs() > 0.15 * STANDARD_GRAVITY;
+        }
+        let depth = data.dynamics.first().map_or(0, |d| d[u].len());
+        for d in 0..depth {
+            let typical = median((0..poses).map(|p| data.dynamics[p][u][d].norm()).collect());
+            for (p, pose) in out.iter_mut().enumerate() {
+                pose[u][1 + d] = data.dynamics[p][u][d].norm() > 3.0 * typical + 8.0 * sigma;
+            }
+        }
+    }
+    out
+}
+
 /// Most DoFs in one joint whose order is searched (all orders are tried).
 const MAX_JOINT_DOFS: usize = 4;
 /// Starts (local minima of the closed-form misfit, each with both senses of the first axis) tried
@@ -472,7 +506,8 @@ pub fn estimate_limb(
     // The order of the DoFs inside every joint that has several, from the closed-form axis model.
     // Reordering one joint permutes only its own DoF indices, so the input's readings and spans
     // serve every joint.
-    let input_readings = readings(data);
+    let mut input_readings = readings(data);
+    input_readings.rejected = screen(&input_readings, config.noise_sd);
     let input_spans = spans(data);
     let mut data = data.clone();
     let mut joint_orders = Vec::new();
@@ -532,7 +567,9 @@ pub fn estimate_limb(
         dofs,
         su_segment: data.su_depth.clone(),
     };
-    let readings = readings(&data);
+    let mut readings = readings(&data);
+    readings.rejected = screen(&readings, config.noise_sd);
+    let readings = readings;
     let spans = spans(&data);
     let sigma = config.noise_sd;
     let mut iterations = 0;
@@ -786,6 +823,7 @@ pub fn estimate_limb(
     // Wild readings (glitches) out, and the fit repeated by plain least squares on the rest.
     let mut readings = readings.clone();
     readings.huber = None;
+    readings.rejected = Vec::new();
     for _ in 0..REJECT_ROUNDS {
         let norms = problem::reading_norms(&solved.state, &layout, &readings, &spec, sigma);
         let mut rejected: Vec<Vec<Vec<bool>>> = norms
