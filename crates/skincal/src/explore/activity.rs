@@ -13,9 +13,8 @@ use crate::model::sensor::STANDARD_GRAVITY;
 
 /// A static reading whose norm differs from its SU's median norm by more than this, g, is misread
 /// (bias and scale errors move the norm by well under 0.1 g).
-const MISREAD_TOLERANCE: f64 = 0.15;
-/// An SU whose reading alone turned by more than this, rad, from the angle that the others moved by
-/// the same DoF agree on, is misread.
+pub(super) const MISREAD_TOLERANCE: f64 = 0.15;
+/// SUs that one move turned by angles this close, rad, agree (intrinsics bend angles a little).
 const LONE_TURN_TOLERANCE: f64 = 0.15;
 
 /// The activity matrix with the measured change behind every entry.
@@ -150,6 +149,39 @@ pub struct Inferred {
     pub dof: String,
     /// The decision.
     pub active: bool,
+}
+
+/// The SUs of one move whose gravity turned unlike the others' (`turned`: angle, SU): those
+/// outside the largest group that agrees within [`LONE_TURN_TOLERANCE`], when that group has at
+/// least two and more than half of them and the others are a few (when no two agree, which is
+/// right cannot be told here).
+fn odd_turns(turned: &[(f64, usize)]) -> Vec<usize> {
+    if turned.len() < 2 {
+        return Vec::new();
+    }
+    let group = |centre: f64| {
+        turned
+            .iter()
+            .filter(|(a, _)| (a - centre).abs() <= LONE_TURN_TOLERANCE)
+            .count()
+    };
+    let (best, size) = turned
+        .iter()
+        .map(|&(a, _)| (a, group(a)))
+        .max_by_key(|&(_, n)| n)
+        .expect("at least two");
+    let odd: Vec<usize> = turned
+        .iter()
+        .filter(|(a, _)| (a - best).abs() > LONE_TURN_TOLERANCE)
+        .map(|&(_, u)| u)
+        .collect();
+    // Glitches are a few; many SUs turning otherwise is the move itself going wrong (the base
+    // tilted), which the physics check reports.
+    if size >= 2 && 2 * size > turned.len() && odd.len() <= (turned.len() / 5).max(2) {
+        odd
+    } else {
+        Vec::new()
+    }
 }
 
 /// `[o][d]`: whether DoF `d` clearly moved at least two SUs in orientation `o` (its axis was not
@@ -526,26 +558,17 @@ pub fn activity_matrix(
                         .fold(0.0, f64::max)
                 }));
             }
-            // One DoF turns everything it moves by one rotation: an SU that alone turned by
-            // another angle than several that agree read wrongly (a glitch of |g|'s norm).
+            // One DoF turns everything it moves by one rotation: the SUs it clearly moved agree on
+            // the angle gravity turned by. Those outside the largest agreeing group, when that
+            // group is most of them, read wrongly (glitches of |g|'s norm).
             let clear = config.threshold * STANDARD_GRAVITY * config.uncertainty_factor;
-            let mut turned: Vec<(f64, usize)> = (0..nu)
+            let turned: Vec<(f64, usize)> = (0..nu)
                 .filter(|&u| changes[u].is_some_and(|c| c > clear))
                 .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
                 .collect();
-            if turned.len() >= 4 {
-                turned.sort_by(|x, y| x.0.total_cmp(&y.0));
-                let median = turned[turned.len() / 2].0;
-                let odd: Vec<usize> = turned
-                    .iter()
-                    .filter(|(angle, _)| (angle - median).abs() > LONE_TURN_TOLERANCE)
-                    .map(|&(_, u)| u)
-                    .collect();
-                if odd.len() == 1 {
-                    let u = odd[0];
-                    note(u, Some(&mv.dof), &mv.readings[u]);
-                    changes[u] = None;
-                }
+            for u in odd_turns(&turned) {
+                note(u, Some(&mv.dof), &mv.readings[u]);
+                changes[u] = None;
             }
             for (u, c) in changes.into_iter().enumerate() {
                 per[oi][u][d] = c.filter(|_| !is_broken[u]);

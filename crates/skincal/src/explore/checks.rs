@@ -59,15 +59,17 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
                 continue;
             };
             // The SUs it clearly moved, and the angle their gravity reading turned by.
+            // Readings whose norm is not |g| say nothing about how the move turned.
             let misread = |u: usize| {
                 a.misread.iter().any(|m| {
                     m.orientation == oi + 1
                         && m.su == a.sus[u]
                         && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
+                        && (m.norm_g - m.expected_g).abs() > super::activity::MISREAD_TOLERANCE
                 })
             };
             let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
-                .filter(|&u| !misread(u) && a.is_active(u, d))
+                .filter(|&u| !misread(u))
                 .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
                 .filter(|&u| {
                     let c = (0..3)
@@ -82,7 +84,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             }
             turned.sort_by(|x, y| x.0.total_cmp(&y.0));
             let median = turned[turned.len() / 2].0;
-            let (odd, rest): (Vec<_>, Vec<_>) = turned
+            let (odd, rest): (Vec<&(f64, usize)>, Vec<&(f64, usize)>) = turned
                 .iter()
                 .partition(|(angle, _)| (angle - median).abs() > tolerance);
             if odd.is_empty() {
@@ -94,9 +96,13 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
                     .collect::<Vec<_>>()
                     .join(", ")
             };
-            // One SU alone against several that agree: its reading is the odd one (a glitch),
-            // not the move.
-            let lone = odd.len() == 1 && rest.len() >= 3;
+            // Odd SUs that agree with each other turned by a second rotation: the move went wrong
+            // (the base tilted). Odd SUs that agree with nobody read wrongly (glitches).
+            let agreeing = odd.iter().any(|&&(x, u)| {
+                odd.iter()
+                    .any(|&&(y, v)| u != v && (x - y).abs() <= tolerance)
+            });
+            let lone = !agreeing && rest.len() >= 2;
             found.push(Diagnostic {
                 kind: if lone {
                     DiagnosticKind::MisreadReading
