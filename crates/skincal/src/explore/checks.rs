@@ -84,7 +84,8 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             }
             turned.sort_by(|x, y| x.0.total_cmp(&y.0));
             let median = turned[turned.len() / 2].0;
-            let (odd, rest): (Vec<&(f64, usize)>, Vec<&(f64, usize)>) = turned
+            type Turned<'t> = Vec<&'t (f64, usize)>;
+            let (odd, rest): (Turned, Turned) = turned
                 .iter()
                 .partition(|(angle, _)| (angle - median).abs() > tolerance);
             if odd.is_empty() {
