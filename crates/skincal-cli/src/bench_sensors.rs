@@ -145,7 +145,7 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         args.robot, args.seeds
     );
     type Scenario = (&'static str, Box<dyn Fn(&mut SimulationConfig)>);
-    let scenarios: Vec<Scenario> = vec![
+    let mut scenarios: Vec<Scenario> = vec![
         (
             "bias ±0.06 g, scale ±3 %",
             Box::new(|c: &mut SimulationConfig| {
@@ -162,6 +162,9 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
             Box::new(move |c: &mut SimulationConfig| c.faults = broken.clone()),
         ),
     ];
+    if broken_names.is_empty() {
+        scenarios.pop();
+    }
     let mut tallies: Vec<Tally> = scenarios.iter().map(|_| Tally::default()).collect();
     let mut named = 0;
     for seed in 1..=args.seeds {

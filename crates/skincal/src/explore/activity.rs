@@ -289,11 +289,17 @@ fn combine_orientations(
     // two do and alike (the SU's segment mates); otherwise it is undecided unless the tree below
     // decides it. A suspicious entry stays.
     let mut undecided: Vec<(usize, usize)> = Vec::new();
+    // A suspicious entry matters only where the tree has conflicts, and a misread one gives its
+    // SU a row no other SU shares: only those are weighed (this keeps large skins fast).
+    let conflicts = orphan_rows(&active) > 0;
+    let shared: Vec<bool> = (0..nu)
+        .map(|u| (0..nu).any(|v| v != u && active[v] == active[u]))
+        .collect();
     let questionable: Vec<(usize, usize, bool)> = (0..nu)
         .flat_map(|u| (0..nd).map(move |d| (u, d)))
         .filter_map(|(u, d)| {
             let unknown = known[u][d].is_none();
-            (unknown || suspicious(u, d)).then_some((u, d, unknown))
+            (unknown || (conflicts && !shared[u] && suspicious(u, d))).then_some((u, d, unknown))
         })
         .collect();
     for &(u, d, unknown) in &questionable {

@@ -56,8 +56,8 @@ use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
-    covariance, frames, normal_system, prefixes, retract, solve, turns_of, Block, ColumnMap,
-    Layout, Readings, Solved, Spec,
+    covariance, frames, normal_system, prefixes, retract, retract_columns, solve, turns_of, Block,
+    ColumnMap, Layout, Readings, Solved, Spec,
 };
 
 /// Settings of the maximum-likelihood estimator.
@@ -1188,9 +1188,11 @@ fn su_uncertainty(
             for (j, &c) in relevant.iter().enumerate() {
                 let mut delta = vec![0.0; n];
                 delta[c] = h;
-                let plus = relative_pose(&retract(state, spec, &delta), layout, u);
+                let plus =
+                    relative_pose(&retract_columns(state, spec, &columns, &delta), layout, u);
                 delta[c] = -h;
-                let minus = relative_pose(&retract(state, spec, &delta), layout, u);
+                let minus =
+                    relative_pose(&retract_columns(state, spec, &columns, &delta), layout, u);
                 let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
                 let dr = (base.rotation.inverse() * plus.rotation).scaled_axis()
                     - (base.rotation.inverse() * minus.rotation).scaled_axis();
@@ -1368,15 +1370,14 @@ pub fn cramer_rao_bound(
         spec.blocks[0] = Block::GravityDirection;
     }
     let map = ColumnMap::new(&spec);
-    let normal = normal_system(
-        &state,
-        &layout,
-        &readings(&LimbData::from(data)),
-        &spec,
-        &map,
-        sigma,
-    );
-    let n = spec.columns().len();
+    // Least squares: the Jacobian alone, whatever the readings' residuals at the truth.
+    let plain = Readings {
+        huber: None,
+        ..readings(&LimbData::from(data))
+    };
+    let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);
+    let columns = spec.columns();
+    let n = columns.len();
     let (covariance, _) = covariance(
         &normal,
         &map,
@@ -1404,9 +1405,9 @@ pub fn cramer_rao_bound(
             for c in 0..n {
                 let mut delta = vec![0.0; n];
                 delta[c] = h;
-                let plus = pair(&retract(&state, &spec, &delta), i);
+                let plus = pair(&retract_columns(&state, &spec, &columns, &delta), i);
                 delta[c] = -h;
-                let minus = pair(&retract(&state, &spec, &delta), i);
+                let minus = pair(&retract_columns(&state, &spec, &columns, &delta), i);
                 let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
                 let dr = ((base.rotation.inverse() * plus.rotation).scaled_axis()
                     - (base.rotation.inverse() * minus.rotation).scaled_axis())

@@ -121,11 +121,12 @@ pub(super) struct Spec {
 impl Spec {
     /// Free columns: (block index, component).
     pub fn columns(&self) -> Vec<(usize, usize)> {
+        let held: std::collections::HashSet<&(usize, usize)> = self.held.iter().collect();
         self.blocks
             .iter()
             .enumerate()
             .flat_map(|(b, block)| (0..block.len()).map(move |c| (b, c)))
-            .filter(|bc| !self.held.contains(bc))
+            .filter(|bc| !held.contains(bc))
             .collect()
     }
 }
@@ -750,8 +751,18 @@ fn schur_step(normal: &Normal, map: &ColumnMap, lambda: f64) -> Option<Vec<f64>>
 
 /// Applies a step of the free columns to the state (the retraction).
 pub(super) fn retract(state: &ChainState, spec: &Spec, delta: &[f64]) -> ChainState {
+    retract_columns(state, spec, &spec.columns(), delta)
+}
+
+/// [`retract`] with the spec's free columns computed once by the caller.
+pub(super) fn retract_columns(
+    state: &ChainState,
+    spec: &Spec,
+    columns: &[(usize, usize)],
+    delta: &[f64],
+) -> ChainState {
     let mut full: Vec<[f64; 9]> = vec![[0.0; 9]; spec.blocks.len()];
-    for (&(b, c), &x) in spec.columns().iter().zip(delta) {
+    for (&(b, c), &x) in columns.iter().zip(delta) {
         full[b][c] = x;
     }
     let mut next = state.clone();
@@ -808,6 +819,7 @@ pub(super) fn solve(
     tolerance: f64,
 ) -> Solved {
     let map = ColumnMap::new(spec);
+    let columns = spec.columns();
     let mut state = state;
     let mut normal = normal_system(&state, layout, data, spec, &map, sigma);
     let mut cost = normal.cost;
@@ -821,7 +833,7 @@ pub(super) fn solve(
                 lambda *= 10.0;
                 continue;
             };
-            let trial = retract(&state, spec, &step);
+            let trial = retract_columns(&state, spec, &columns, &step);
             let trial_cost = cost_of(&trial, layout, data, spec, &map, sigma);
             if trial_cost < cost {
                 let relative = (cost - trial_cost) / cost.max(1e-300);
