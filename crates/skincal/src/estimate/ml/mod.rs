@@ -1177,11 +1177,13 @@ fn su_uncertainty(
         .into_par_iter()
         .map(|u| {
             let base = relative_pose(state, layout, u);
-            // Only the two SUs' own blocks and the shared parameters move the relative pose.
+            // Only the two SUs' own blocks and the joints move the relative pose (no intrinsics,
+            // no gravity).
             let relevant: Vec<usize> = (0..n)
                 .filter(|&c| match spec.blocks[columns[c].0] {
                     Block::Su(v) => v == u || v + 1 == u,
-                    _ => true,
+                    Block::Intrinsics(_) | Block::Gravity | Block::GravityDirection => false,
+                    Block::Joint(_) | Block::JointFull(_) => true,
                 })
                 .collect();
             let mut jac = DMatrix::zeros(6, relevant.len());
