@@ -350,54 +350,54 @@ fn set_aside_misfits(
         if chain.joints[joint].sus.len() < 2 {
             break;
         }
-        // Does a reflection explain it? Its readings with z negated, fitted again.
-        let mirrored = mirror_su(set, &su);
-        let reflected = LimbData::new(&mirrored, &chain)
-            .and_then(|data| estimate_limb(&data, base, config))
-            .ok()
-            .and_then(|e| e.su_residual_ratio.get(u).copied());
         let negated: Vec<&str> = (0..3)
             .filter(|&k| 1.0 + scale(u)[k] < 0.0)
             .map(|k| ["x", "y", "z"][k])
             .collect();
-        let (kind, detail) = match reflected {
-            _ if !negated.is_empty() => (
+        let sensitivities = scale(u)
+            .iter()
+            .map(|s| format!("{:+.2}", 1.0 + s))
+            .collect::<Vec<_>>()
+            .join(", ");
+        // Does a reflection explain it? Its readings with z negated, fitted again (only asked
+        // when the fitted sensitivities do not already tell).
+        let reflected = || {
+            LimbData::new(&mirror_su(set, &su), &chain)
+                .and_then(|data| estimate_limb(&data, base, config))
+                .ok()
+                .and_then(|e| e.su_residual_ratio.get(u).copied())
+        };
+        let (kind, detail) = if !negated.is_empty() {
+            (
                 "improper frame",
                 format!(
-                    "its {} axis reads mirrored (fitted sensitivity {}): its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; a rotation of the frame absorbs which)",
+                    "its {} axis reads mirrored (fitted sensitivity {sensitivities}): its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; a rotation of the frame absorbs which)",
                     negated.join(" and "),
-                    scale(u)
-                        .iter()
-                        .map(|s| format!("{:+.2}", 1.0 + s))
-                        .collect::<Vec<_>>()
-                        .join(", ")
                 ),
-            ),
-            _ if odd_scale(u) => (
+            )
+        } else if odd_scale(u) {
+            (
                 "scale",
                 format!(
-                    "its fitted sensitivities ({}) are far from 1: a wrong range setting or a faulty part",
-                    scale(u)
-                        .iter()
-                        .map(|s| format!("{:+.2}", 1.0 + s))
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    "its fitted sensitivities ({sensitivities}) are far from 1: a wrong range setting or a faulty part"
                 ),
-            ),
-            Some(r) if r < config.converged_ratio => (
+            )
+        } else if let Some(r) = reflected().filter(|&r| r < config.converged_ratio) {
+            (
                 "improper frame",
                 format!(
                     "its readings fit {:.1}× the noise, but {r:.2}× with one axis negated: its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; which ones no reading can tell, a rotation of the frame absorbs the rest)",
                     ratios[u]
                 ),
-            ),
-            _ => (
+            )
+        } else {
+            (
                 "noisy",
                 format!(
                     "its readings fit {:.1}× the noise while its limb's SUs fit {median:.1}× (a noisy, loose or intermittent sensor)",
                     ratios[u]
                 ),
-            ),
+            )
         };
         broken.push(BrokenSu {
             su: su.clone(),

@@ -204,9 +204,11 @@ fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
 
 /// The change behind every entry, the largest over the orientations that read it. An entry that
 /// only orientations blind to the DoF (it moved no SU there: its axis was vertical) or none at all
-/// could read, because misread readings were left out, takes the majority decision of the SUs
-/// whose other entries agree with its own (SUs of the same segment share a row). Returns the
-/// changes and the entries so decided `(su, dof, active)`.
+/// could read, because misread readings were left out, is unknown: its segment mates
+/// ([`segment_mates_say`]) and the tree ([`settle_by_tree`]) decide it, or it stays undecided.
+/// Entries only one orientation supports are weighed by the tree too where it has conflicts.
+/// Returns the changes, the entries decided so `(su, dof, active)`, the readings contradicted
+/// (below) and the undecided entries `(su, dof)`.
 ///
 /// First, a DoF turns gravity by the same angle for every SU it moves, so in an orientation where
 /// it clearly moves at least two SUs, an SU it leaves clearly still is not downstream of it: an
@@ -281,10 +283,11 @@ fn combine_orientations(
             .count()
             == 1
     };
-    let mut active: Vec<Vec<bool>> = change
+    let measured: Vec<Vec<bool>> = change
         .iter()
         .map(|row| row.iter().map(|&c| c > threshold).collect())
         .collect();
+    let mut active = measured.clone();
     // First guesses: an unknown entry as the SUs whose other entries agree decide, when at least
     // two do and alike (the SU's segment mates); otherwise it is undecided unless the tree below
     // decides it. A suspicious entry stays.
@@ -302,76 +305,17 @@ fn combine_orientations(
             (unknown || (conflicts && !shared[u] && suspicious(u, d))).then_some((u, d, unknown))
         })
         .collect();
-    for &(u, d, unknown) in &questionable {
-        if !unknown {
-            continue;
-        }
-        let agree = |v: usize| {
-            v != u
-                && (0..nd).all(|e| match (known[u][e], known[v][e]) {
-                    (Some(a), Some(b)) => a == b,
-                    _ => true,
-                })
-        };
-        let votes: Vec<bool> = (0..nu)
-            .filter(|&v| agree(v))
-            .filter_map(|v| known[v][d])
-            .collect();
-        if votes.len() >= 2 && votes.iter().all(|&a| a == votes[0]) {
-            active[u][d] = votes[0];
-        } else {
-            undecided.push((u, d));
+    for &(u, d, _) in questionable.iter().filter(|q| q.2) {
+        match segment_mates_say(&known, u, d) {
+            Some(a) => active[u][d] = a,
+            None => undecided.push((u, d)),
         }
     }
-    // Then the tree: the flip that leaves the fewest rows without a parent, one at a time, while
-    // one helps; among equals, the one that overrides the fewest readings (an entry with no
-    // reading of its own costs nothing), then the one with fewer distinct rows. An entry whose flip would add conflicts is decided as it
-    // stands.
-    let measured: Vec<Vec<bool>> = change
-        .iter()
-        .map(|row| row.iter().map(|&c| c > threshold).collect())
-        .collect();
-    let cost = |active: &Vec<Vec<bool>>| {
-        let overrides = questionable
-            .iter()
-            .filter(|&&(u, d, unknown)| !unknown && active[u][d] != measured[u][d])
-            .count();
-        let mut rows = active.clone();
-        rows.sort();
-        rows.dedup();
-        // Last, the fewer segments: a misread entry gives its SU a row of its own.
-        (orphan_rows(active), overrides, rows.len())
-    };
-    for _ in 0..questionable.len() {
-        let now = cost(&active);
-        let best = questionable
-            .iter()
-            .map(|&(u, d, _)| {
-                active[u][d] = !active[u][d];
-                let c = cost(&active);
-                active[u][d] = !active[u][d];
-                (c, u, d)
-            })
-            .min();
-        match best {
-            Some((c, u, d)) if c < now => {
-                active[u][d] = !active[u][d];
-                undecided.retain(|&x| x != (u, d));
-            }
-            _ => break,
-        }
-    }
-    let now = orphan_rows(&active);
-    undecided.retain(|&(u, d)| {
-        active[u][d] = !active[u][d];
-        let n = orphan_rows(&active);
-        active[u][d] = !active[u][d];
-        n == now
-    });
+    settle_by_tree(&mut active, &questionable, &measured, &mut undecided);
     let mut inferred = Vec::new();
     for &(u, d, unknown) in &questionable {
         let decision = active[u][d];
-        if decision != (change[u][d] > threshold) {
+        if decision != measured[u][d] {
             change[u][d] = if decision {
                 let mut c: Vec<f64> = (0..nu)
                     .filter(|&v| v != u && change[v][d] > threshold)
@@ -391,6 +335,73 @@ fn combine_orientations(
         }
     }
     (change, inferred, contradicted, undecided)
+}
+
+/// What the SUs whose known entries all agree with SU `u`'s say of entry `(u, d)`, when at least
+/// two of them know it and agree (the SU's segment mates); `None` otherwise (the one SU that
+/// agrees may be its parent segment's).
+fn segment_mates_say(known: &[Vec<Option<bool>>], u: usize, d: usize) -> Option<bool> {
+    let agree = |v: usize| {
+        v != u
+            && known[u].iter().zip(&known[v]).all(|pair| match pair {
+                (Some(a), Some(b)) => a == b,
+                _ => true,
+            })
+    };
+    let votes: Vec<bool> = (0..known.len())
+        .filter(|&v| agree(v))
+        .filter_map(|v| known[v][d])
+        .collect();
+    (votes.len() >= 2 && votes.iter().all(|&a| a == votes[0])).then(|| votes[0])
+}
+
+/// Settles the `questionable` entries `(su, dof, unknown)` of `active` by the tree: the flip that
+/// leaves the fewest rows without a parent ([`orphan_rows`]), one at a time, while one helps;
+/// among equals, the one that overrides the fewest readings (`measured`; an unknown entry has
+/// none), then the one with fewer distinct rows (a misread entry gives its SU a row of its own).
+/// An undecided entry stays undecided only if neither value adds a conflict.
+fn settle_by_tree(
+    active: &mut [Vec<bool>],
+    questionable: &[(usize, usize, bool)],
+    measured: &[Vec<bool>],
+    undecided: &mut Vec<(usize, usize)>,
+) {
+    let cost = |active: &[Vec<bool>]| {
+        let overrides = questionable
+            .iter()
+            .filter(|&&(u, d, unknown)| !unknown && active[u][d] != measured[u][d])
+            .count();
+        let mut rows = active.to_vec();
+        rows.sort();
+        rows.dedup();
+        (orphan_rows(active), overrides, rows.len())
+    };
+    for _ in 0..questionable.len() {
+        let now = cost(active);
+        let best = questionable
+            .iter()
+            .map(|&(u, d, _)| {
+                active[u][d] = !active[u][d];
+                let c = cost(active);
+                active[u][d] = !active[u][d];
+                (c, u, d)
+            })
+            .min();
+        match best {
+            Some((c, u, d)) if c < now => {
+                active[u][d] = !active[u][d];
+                undecided.retain(|&x| x != (u, d));
+            }
+            _ => break,
+        }
+    }
+    let now = orphan_rows(active);
+    undecided.retain(|&(u, d)| {
+        active[u][d] = !active[u][d];
+        let n = orphan_rows(active);
+        active[u][d] = !active[u][d];
+        n == now
+    });
 }
 
 /// How far `active` is from a tree: the distinct non-empty rows that have no parent (no other row,

@@ -416,8 +416,6 @@ pub(crate) struct Sensors<'a> {
     rng: ChaCha8Rng,
     glitch_rng: ChaCha8Rng,
     gaussian: Option<Normal<f64>>,
-    /// Readings replaced by glitches so far.
-    pub(crate) glitched: usize,
     /// Per SU: how it is broken, and (frozen) the value it repeats.
     faults: Vec<Option<(Fault, Option<Vector3<f64>>)>>,
 }
@@ -463,7 +461,6 @@ impl<'a> Sensors<'a> {
             intrinsics,
             rng: stream(noise_seed, NOISE_STREAM),
             glitch_rng: stream(noise_seed, GLITCH_STREAM),
-            glitched: 0,
             faults: vec![None; sus],
             gaussian: (imperfections.gaussian_noise > 0.0).then(|| {
                 Normal::new(0.0, imperfections.gaussian_noise * STANDARD_GRAVITY)
@@ -502,7 +499,6 @@ impl<'a> Sensors<'a> {
         if rate <= 0.0 || !self.glitch_rng.random_bool(rate) {
             return v;
         }
-        self.glitched += 1;
         let r = &mut self.glitch_rng;
         let z: f64 = r.random_range(-1.0..=1.0);
         let phi: f64 = r.random_range(0.0..2.0 * PI);

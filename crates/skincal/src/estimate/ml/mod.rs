@@ -789,102 +789,12 @@ pub fn estimate_limb(
         }
         spec
     };
-    let spec = final_spec(IntrinsicsModel::None);
-    let mut solved = solve(
-        state,
-        &layout,
-        &readings,
-        &spec,
-        sigma,
-        config.max_iterations,
-        FINAL_TOLERANCE,
-    );
-    iterations += solved.iterations;
-    let spec = if config.intrinsics == IntrinsicsModel::None {
-        spec
-    } else {
-        let spec = final_spec(config.intrinsics);
-        let mut start = solved.state;
-        if spec.blocks.first() == Some(&Block::GravityDirection) {
-            start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
-        }
-        solved = solve(
-            start,
-            &layout,
-            &readings,
-            &spec,
-            sigma,
-            config.max_iterations,
-            FINAL_TOLERANCE,
-        );
-        iterations += solved.iterations;
-        spec
-    };
-    // Wild readings (glitches) out, and the fit repeated by plain least squares on the rest.
-    let mut readings = readings.clone();
-    readings.huber = None;
-    readings.rejected = Vec::new();
-    for _ in 0..REJECT_ROUNDS {
-        let norms = problem::reading_norms(&solved.state, &layout, &readings, &spec, sigma);
-        let mut rejected: Vec<Vec<Vec<bool>>> = norms
-            .iter()
-            .map(|pose| {
-                pose.iter()
-                    .map(|su| su.iter().map(|&n| n > REJECT).collect())
-                    .collect()
-            })
-            .collect();
-        // Glitches are rare: an SU with many readings off the fit is misfit (a broken SU or a
-        // wrong model), not glitching, and keeps them all.
-        for u in 0..layout.su_segment.len() {
-            let (off, all) = rejected.iter().fold((0, 0), |(o, a), pose| {
-                (
-                    o + pose[u].iter().filter(|&&r| r).count(),
-                    a + pose[u].len(),
-                )
-            });
-            if off as f64 > MAX_GLITCH_SHARE * all as f64 {
-                for pose in &mut rejected {
-                    pose[u].iter_mut().for_each(|r| *r = false);
-                }
-            }
-        }
-        let unchanged = rejected == readings.rejected
-            || (readings.rejected.is_empty() && rejected.iter().flatten().flatten().all(|r| !r));
-        readings.rejected = rejected;
-        if unchanged {
-            break;
-        }
-        solved = solve(
-            solved.state,
-            &layout,
-            &readings,
-            &spec,
-            sigma,
-            config.max_iterations,
-            FINAL_TOLERANCE,
-        );
-        iterations += solved.iterations;
-    }
+    let (solved, spec, its) = fit_with_intrinsics(state, &layout, &readings, final_spec, config);
+    iterations += its;
+    let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
+    iterations += its;
     let rejected = rejected_counts(&readings, &data.chain.sus());
-    let su_residual_ratio = {
-        let norms = problem::reading_norms(&solved.state, &layout, &readings, &spec, sigma);
-        (0..layout.su_segment.len())
-            .map(|u| {
-                let (sum, n) = norms
-                    .iter()
-                    .enumerate()
-                    .fold((0.0, 0), |(s, n), (p, pose)| {
-                        pose[u]
-                            .iter()
-                            .enumerate()
-                            .filter(|&(j, _)| !readings.is_rejected(p, u, j))
-                            .fold((s, n), |(s, n), (_, x)| (s + x * x, n + 3))
-                    });
-                (sum / n.max(1) as f64).sqrt()
-            })
-            .collect()
-    };
+    let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
     let state = solved.state;
     let dof_count = spec.columns().len();
     let noise_sd_estimate =
@@ -957,6 +867,138 @@ pub fn estimate_limb(
         seconds: started.elapsed().as_secs_f64(),
         state: Some(state),
     })
+}
+
+/// The final fit from the search's best state: the kinematics alone, then, with `config`'s
+/// intrinsics, everything together (gravity set to 9.81 m/s² when only its direction is free).
+/// Returns the solution, its problem and the LM iterations.
+fn fit_with_intrinsics(
+    state: ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    final_spec: impl Fn(IntrinsicsModel) -> Spec,
+    config: &MlConfig,
+) -> (Solved, Spec, usize) {
+    let fit = |state: ChainState, spec: &Spec| {
+        solve(
+            state,
+            layout,
+            readings,
+            spec,
+            config.noise_sd,
+            config.max_iterations,
+            FINAL_TOLERANCE,
+        )
+    };
+    let spec = final_spec(IntrinsicsModel::None);
+    let solved = fit(state, &spec);
+    if config.intrinsics == IntrinsicsModel::None {
+        let its = solved.iterations;
+        return (solved, spec, its);
+    }
+    let spec = final_spec(config.intrinsics);
+    let mut start = solved.state;
+    if spec.blocks.first() == Some(&Block::GravityDirection) {
+        start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
+    }
+    let its = solved.iterations;
+    let solved = fit(start, &spec);
+    let its = its + solved.iterations;
+    (solved, spec, its)
+}
+
+/// Wild readings (glitches) out and the fit repeated by plain least squares on the rest, until
+/// the set left out stops changing ([`REJECT_ROUNDS`] at most). Returns the solution, the
+/// readings with those left out marked, and the LM iterations.
+fn leave_out_glitches(
+    mut solved: Solved,
+    layout: &Layout,
+    readings: &Readings,
+    spec: &Spec,
+    config: &MlConfig,
+) -> (Solved, Readings, usize) {
+    let sigma = config.noise_sd;
+    let mut readings = Readings {
+        huber: None,
+        rejected: Vec::new(),
+        ..readings.clone()
+    };
+    let mut iterations = 0;
+    for _ in 0..REJECT_ROUNDS {
+        let norms = problem::reading_norms(&solved.state, layout, &readings, spec, sigma);
+        let rejected = wild_readings(&norms, layout.su_segment.len());
+        let unchanged = rejected == readings.rejected
+            || (readings.rejected.is_empty() && rejected.iter().flatten().flatten().all(|r| !r));
+        readings.rejected = rejected;
+        if unchanged {
+            break;
+        }
+        solved = solve(
+            solved.state,
+            layout,
+            &readings,
+            spec,
+            sigma,
+            config.max_iterations,
+            FINAL_TOLERANCE,
+        );
+        iterations += solved.iterations;
+    }
+    (solved, readings, iterations)
+}
+
+/// `[p][u][row]`: the readings more than [`REJECT`] off (whitened norms `norms`), except for an
+/// SU with more than [`MAX_GLITCH_SHARE`] of its readings off: glitches are rare, so that SU is
+/// misfit (a broken SU or a wrong model), not glitching, and keeps them all.
+fn wild_readings(norms: &[Vec<Vec<f64>>], sus: usize) -> Vec<Vec<Vec<bool>>> {
+    let mut wild: Vec<Vec<Vec<bool>>> = norms
+        .iter()
+        .map(|pose| {
+            pose.iter()
+                .map(|su| su.iter().map(|&n| n > REJECT).collect())
+                .collect()
+        })
+        .collect();
+    for u in 0..sus {
+        let (off, all) = wild.iter().fold((0, 0), |(o, a), pose| {
+            (
+                o + pose[u].iter().filter(|&&r| r).count(),
+                a + pose[u].len(),
+            )
+        });
+        if off as f64 > MAX_GLITCH_SHARE * all as f64 {
+            for pose in &mut wild {
+                pose[u].iter_mut().for_each(|r| *r = false);
+            }
+        }
+    }
+    wild
+}
+
+/// Per SU: the RMS of its whitened residuals over the readings that count, per component.
+fn su_residual_ratios(
+    state: &ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> Vec<f64> {
+    let norms = problem::reading_norms(state, layout, readings, spec, sigma);
+    (0..layout.su_segment.len())
+        .map(|u| {
+            let (sum, n) = norms
+                .iter()
+                .enumerate()
+                .fold((0.0, 0), |(s, n), (p, pose)| {
+                    pose[u]
+                        .iter()
+                        .enumerate()
+                        .filter(|&(j, _)| !readings.is_rejected(p, u, j))
+                        .fold((s, n), |(s, n), (_, x)| (s + x * x, n + 3))
+                });
+            (sum / n.max(1) as f64).sqrt()
+        })
+        .collect()
 }
 
 /// Places the other SUs of a joint's segment (closed-form starts, each refined alone with the
