@@ -221,6 +221,31 @@ impl MeasurementSet {
         serde_json::to_string_pretty(self).expect("a measurement set always serialises")
     }
 
+    /// The same set without the readings of the SUs named in `drop` (names it does not have are
+    /// ignored): what the skin would have recorded without them.
+    pub fn without_sus(&self, drop: &[String]) -> Self {
+        let keep: Vec<bool> = self.sus.iter().map(|su| !drop.contains(su)).collect();
+        let filter = |readings: &mut Vec<Reading>| {
+            let mut kept = keep.iter();
+            readings.retain(|_| kept.next().copied().unwrap_or(true));
+        };
+        let mut set = self.clone();
+        set.sus.retain(|su| !drop.contains(su));
+        for o in set.structure.iter_mut().flat_map(|s| &mut s.orientations) {
+            filter(&mut o.rest);
+            for mv in &mut o.moves {
+                filter(&mut mv.readings);
+            }
+        }
+        for pose in set.training.iter_mut().flat_map(|t| &mut t.poses) {
+            filter(&mut pose.static_readings);
+            for readings in pose.dynamic.values_mut() {
+                filter(readings);
+            }
+        }
+        set
+    }
+
     /// Index of a DoF by name.
     pub fn dof_index(&self, name: &str) -> Option<usize> {
         self.dofs.iter().position(|d| d == name)

@@ -1,9 +1,11 @@
 //! The activity matrix (step 1 of the module documentation) from the structure experiment's
-//! readings, robust to misread ones: a reading whose norm is not the SU's |g|, a lone SU that
-//! turned unlike every other one the same move turned, or a change that the other orientation
-//! contradicts, is left out; a misread rest is rebuilt from the moves that left the SU still; an
+//! readings, robust to misread ones: a reading whose norm is not the SU's |g|, one that turned
+//! further than the DoF travelled (a rotation about one axis turns gravity by its angle at most),
+//! a lone SU that turned unlike every other one the same move turned, or a change that the other
+//! orientation contradicts, is left out; a misread rest is rebuilt from the moves that left the SU still; an
 //! entry no orientation can then read is decided by the SU's row mates or by the tree, or left
-//! undecided (the SU is set aside).
+//! undecided (the SU is set aside). Where the tree must choose between two readings, the more
+//! doubtful one (turned beyond the travel, norm off |g|) gives way.
 
 use serde::{Deserialize, Serialize};
 
@@ -16,6 +18,16 @@ use crate::model::sensor::STANDARD_GRAVITY;
 pub(super) const MISREAD_TOLERANCE: f64 = 0.15;
 /// SUs that one move turned by angles this close, rad, agree (intrinsics bend angles a little).
 const LONE_TURN_TOLERANCE: f64 = 0.15;
+/// A recorded travel below this, rad, says too little to bound the turn of gravity.
+const MIN_TRAVEL: f64 = 0.02;
+/// How much further than recorded a DoF may really travel (servo compliance, backlash), relative.
+const TRAVEL_SLACK: f64 = 0.2;
+/// A move's turn tells moved from still SUs when it is this many times the still SUs' turn.
+const TURN_OVER_NOISE: f64 = 4.0;
+/// The smallest still turn assumed, rad (noise-free data turns still SUs by nothing).
+const TURN_FLOOR: f64 = 0.002;
+/// How many SUs must share a turn beyond the travel to be believed (a turn counts itself).
+const TILT_GROUP: usize = 3;
 
 /// The activity matrix with the measured change behind every entry.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -184,6 +196,48 @@ fn odd_turns(turned: &[(f64, usize)]) -> Vec<usize> {
     }
 }
 
+/// The SUs of one move whose gravity turned further than the DoF travelled (`travel`, rad), which
+/// no rotation about one axis can do (gravity turns by the travel at most, when the axis is
+/// horizontal): glitches, unless at least [`TILT_GROUP`] of them agree on the turn within `agree`,
+/// rad (the base tilted or another DoF slipped, which the physics check reports; two glitches
+/// agree by chance too often to tell). A travel too small to tell is no law.
+pub(super) fn beyond_travel(turned: &[(f64, usize)], travel: f64, agree: f64) -> Vec<usize> {
+    if travel < MIN_TRAVEL {
+        return Vec::new();
+    }
+    let limit = travel * (1.0 + TRAVEL_SLACK) + LONE_TURN_TOLERANCE;
+    let beyond: Vec<f64> = turned
+        .iter()
+        .map(|&(a, _)| a)
+        .filter(|&a| a > limit)
+        .collect();
+    turned
+        .iter()
+        .filter(|&&(a, _)| {
+            a > limit && beyond.iter().filter(|&&b| (a - b).abs() <= agree).count() < TILT_GROUP
+        })
+        .map(|&(_, u)| u)
+        .collect()
+}
+
+/// Whether an SU's `rest` reading differs by more than `threshold` (largest axis) from the
+/// component-wise median of its move readings `reads` of the same orientation, while more than
+/// half of those lie within `threshold` of that median (the SU was still in most moves) and at
+/// least three tell.
+fn rest_unlike_moves(rest: &[f64; 3], reads: &[&[f64; 3]], threshold: f64) -> bool {
+    if reads.len() < 3 {
+        return false;
+    }
+    let median: [f64; 3] = std::array::from_fn(|k| {
+        let mut v: Vec<f64> = reads.iter().map(|r| r[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    });
+    let off = |r: &[f64; 3]| (0..3).map(|k| (r[k] - median[k]).abs()).fold(0.0, f64::max);
+    let still = reads.iter().filter(|r| off(r) <= threshold).count();
+    2 * still > reads.len() && off(rest) > threshold
+}
+
 /// `[o][d]`: whether DoF `d` clearly moved at least two SUs in orientation `o` (its axis was not
 /// vertical there).
 fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
@@ -217,16 +271,17 @@ fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
 #[allow(clippy::type_complexity)]
 fn combine_orientations(
     per: &mut [Vec<Vec<Option<f64>>>],
+    turns: &[Vec<Vec<Option<f64>>>],
+    doubt: &[Vec<f64>],
     threshold: f64,
     uncertainty_factor: f64,
-    nu: usize,
-    nd: usize,
 ) -> (
     Vec<Vec<f64>>,
     Vec<(usize, usize, bool)>,
     Vec<(usize, usize, usize)>,
     Vec<(usize, usize)>,
 ) {
+    let (nu, nd) = (doubt.len(), doubt.first().map_or(0, Vec::len));
     let clear_still = threshold / uncertainty_factor;
     let sighted = sighted_dofs(per, threshold * uncertainty_factor);
     let mut contradicted = Vec::new();
@@ -253,7 +308,10 @@ fn combine_orientations(
                 .collect()
         })
         .collect();
+    let unseen: Vec<bool> = (0..nd).map(|d| blind.iter().all(|o| o[d])).collect();
     let mut change = vec![vec![0.0; nd]; nu];
+    let turned_with = turns_say(per, turns, threshold, clear_still);
+    let mut by_turns = Vec::new();
     // Known entries: Some(active); unknown: None.
     let mut known = vec![vec![None; nd]; nu];
     for u in 0..nu {
@@ -265,15 +323,26 @@ fn combine_orientations(
                 .collect();
             change[u][d] = readable.iter().map(|r| r.1).fold(0.0, f64::max);
             // Unknown: not seen moving, and every orientation that sees the DoF move SUs could
-            // not read this one.
-            let sighted = readable.iter().any(|&(o, _)| !blind[o][d]);
-            let lost = (0..per.len()).any(|o| !blind[o][d] && per[o][u][d].is_none());
+            // not read this one clearly (or, for a DoF seen moving no SU, some orientation could
+            // not: that may be the one reading that would show it move).
+            let clear = |c: f64| c > threshold || c < clear_still;
+            let sighted = readable.iter().any(|&(o, c)| !blind[o][d] && clear(c));
+            let lost =
+                (0..per.len()).any(|o| (!blind[o][d] || unseen[d]) && per[o][u][d].is_none());
             known[u][d] = if change[u][d] > threshold || sighted || !lost {
                 Some(change[u][d] > threshold)
             } else {
-                None
+                turned_with(u, d).inspect(|&a| by_turns.push((u, d, a)))
             };
         }
+    }
+    // An entry the turns decided reads as the SUs it turned with.
+    for &(u, d, a) in &by_turns {
+        change[u][d] = if a {
+            typical_change(&change, u, d, threshold)
+        } else {
+            change[u][d].min(clear_still)
+        };
     }
     // Entries that only one orientation supports (where the other turned the DoF about gravity,
     // or saw the SU still): a misread reading would look the same, so the tree has a say.
@@ -311,18 +380,13 @@ fn combine_orientations(
             None => undecided.push((u, d)),
         }
     }
-    settle_by_tree(&mut active, &questionable, &measured, &mut undecided);
+    settle_by_tree(&mut active, &questionable, &measured, doubt, &mut undecided);
     let mut inferred = Vec::new();
     for &(u, d, unknown) in &questionable {
         let decision = active[u][d];
         if decision != measured[u][d] {
             change[u][d] = if decision {
-                let mut c: Vec<f64> = (0..nu)
-                    .filter(|&v| v != u && change[v][d] > threshold)
-                    .map(|v| change[v][d])
-                    .collect();
-                c.sort_by(f64::total_cmp);
-                c.get(c.len() / 2).copied().unwrap_or(2.0 * threshold)
+                typical_change(&change, u, d, threshold)
             } else {
                 0.0
             };
@@ -334,7 +398,64 @@ fn combine_orientations(
             inferred.push((u, d, decision));
         }
     }
+    inferred.extend(by_turns);
     (change, inferred, contradicted, undecided)
+}
+
+/// The median change of the SUs other than `u` that DoF `d` moves (for an entry decided active
+/// without a reading of its own).
+fn typical_change(change: &[Vec<f64>], u: usize, d: usize, threshold: f64) -> f64 {
+    let mut c: Vec<f64> = (0..change.len())
+        .filter(|&v| v != u && change[v][d] > threshold)
+        .map(|v| change[v][d])
+        .collect();
+    c.sort_by(f64::total_cmp);
+    c.get(c.len() / 2).copied().unwrap_or(2.0 * threshold)
+}
+
+/// Whether the turns of the moves say DoF `d` moves SU `u`: one DoF turns gravity by one angle
+/// for every SU it moves, so where it clearly moved SUs by an angle well above the still SUs'
+/// noise, an SU that turned by about that angle moved with them and one that barely turned did
+/// not, whatever its change on one axis (a DoF whose axis is near vertical turns SUs too little
+/// for the threshold to tell). `None` where no orientation tells, or they disagree.
+fn turns_say<'a>(
+    per: &'a [Vec<Vec<Option<f64>>>],
+    turns: &'a [Vec<Vec<Option<f64>>>],
+    threshold: f64,
+    clear_still: f64,
+) -> impl Fn(usize, usize) -> Option<bool> + 'a {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied()
+    };
+    move |u: usize, d: usize| {
+        let says: Vec<bool> = per
+            .iter()
+            .zip(turns)
+            .filter_map(|(p, t)| {
+                let turn = t[u][d]?;
+                let of = |keep: &dyn Fn(f64) -> bool| -> Vec<f64> {
+                    (0..p.len())
+                        .filter(|&v| v != u && p[v][d].is_some_and(keep))
+                        .filter_map(|v| t[v][d])
+                        .collect()
+                };
+                let moved = median(of(&|c| c > threshold))?;
+                let noise = median(of(&|c| c < clear_still)).unwrap_or(0.0);
+                if moved < TURN_OVER_NOISE * noise.max(TURN_FLOOR) {
+                    return None;
+                }
+                if (turn - moved).abs() < moved / 3.0 {
+                    Some(true)
+                } else if turn < moved / 3.0 {
+                    Some(false)
+                } else {
+                    None
+                }
+            })
+            .collect();
+        (!says.is_empty() && says.iter().all(|&x| x == says[0])).then(|| says[0])
+    }
 }
 
 /// What the SUs whose known entries all agree with SU `u`'s say of entry `(u, d)`, when at least
@@ -358,12 +479,15 @@ fn segment_mates_say(known: &[Vec<Option<bool>>], u: usize, d: usize) -> Option<
 /// Settles the `questionable` entries `(su, dof, unknown)` of `active` by the tree: the flip that
 /// leaves the fewest rows without a parent ([`orphan_rows`]), one at a time, while one helps;
 /// among equals, the one that overrides the fewest readings (`measured`; an unknown entry has
-/// none), then the one with fewer distinct rows (a misread entry gives its SU a row of its own).
-/// An undecided entry stays undecided only if neither value adds a conflict.
+/// none), then the one with fewer distinct rows (a misread entry gives its SU a row of its own),
+/// then the one whose reading is most in `doubt` (how far its turn went beyond the DoF's travel and
+/// its norm from |g|). An undecided entry (no reading, no segment mates) flips only to remove a
+/// conflict, and stays undecided if neither value adds one.
 fn settle_by_tree(
     active: &mut [Vec<bool>],
     questionable: &[(usize, usize, bool)],
     measured: &[Vec<bool>],
+    doubt: &[Vec<f64>],
     undecided: &mut Vec<(usize, usize)>,
 ) {
     let cost = |active: &[Vec<bool>]| {
@@ -380,15 +504,18 @@ fn settle_by_tree(
         let now = cost(active);
         let best = questionable
             .iter()
-            .map(|&(u, d, _)| {
+            .filter_map(|&(u, d, _)| {
                 active[u][d] = !active[u][d];
                 let c = cost(active);
                 active[u][d] = !active[u][d];
-                (c, u, d)
+                // An entry nothing could read is decided only by a conflict it removes: fewer
+                // rows alone is no evidence that an SU shares a segment.
+                let blind_guess = undecided.contains(&(u, d)) && c.0 >= now.0;
+                (!blind_guess).then_some((c, doubt[u][d], u, d))
             })
-            .min();
+            .min_by(|x, y| x.0.cmp(&y.0).then(y.1.total_cmp(&x.1)));
         match best {
-            Some((c, u, d)) if c < now => {
+            Some((c, _, u, d)) if c < now => {
                 active[u][d] = !active[u][d];
                 undecided.retain(|&x| x != (u, d));
             }
@@ -404,9 +531,9 @@ fn settle_by_tree(
     });
 }
 
-/// How far `active` is from a tree: the distinct non-empty rows that have no parent (no other row,
-/// or the empty one, lacks exactly one of their joints; columns equal over every SU form one
-/// joint), plus the joints whose rows do not all hold the shortest of them.
+/// How far `active` is from a tree: the distinct non-empty rows that have no parent or several (no
+/// other row, or the empty one, lacks exactly one of their joints, or several do; columns equal
+/// over every SU form one joint), plus the joints whose rows do not all hold the shortest of them.
 fn orphan_rows(active: &[Vec<bool>]) -> usize {
     let nd = active.first().map_or(0, Vec::len);
     let column = |d: usize| active.iter().map(|row| row[d]).collect::<Vec<bool>>();
@@ -436,15 +563,20 @@ fn orphan_rows(active: &[Vec<bool>]) -> usize {
         .collect();
     rows.sort();
     rows.dedup();
-    let orphans = rows
-        .iter()
-        .filter(|r| !r.is_empty())
-        .filter(|r| {
-            !r.iter().any(|&j| {
+    // A row's parents: the rows (or the empty one) it holds all but one joint of. A tree gives
+    // every row exactly one; none is an orphan, two a segment hanging from two (crossing joints).
+    let parents = |r: &Vec<usize>| {
+        r.iter()
+            .filter(|&&j| {
                 let parent: Vec<usize> = r.iter().copied().filter(|&x| x != j).collect();
                 parent.is_empty() || rows.contains(&parent)
             })
-        })
+            .count()
+    };
+    let orphans = rows
+        .iter()
+        .filter(|r| !r.is_empty())
+        .filter(|r| parents(r) != 1)
         .count();
     // A joint moves one segment and what hangs from it: every row with the joint holds the
     // shortest such row.
@@ -540,9 +672,37 @@ pub fn activity_matrix(
     };
     let mut misreads = Vec::new();
     let no = structure.orientations.len();
+    // A rest reading is misread if its norm is off, or if it is unlike what the SU read in most
+    // moves of its orientation while those agree (most DoFs leave an SU still, so a glitch of
+    // |g|'s norm at rest shows as every move turning it).
+    let rest_misread: Vec<Vec<bool>> = structure
+        .orientations
+        .iter()
+        .map(|o| {
+            (0..nu)
+                .map(|u| {
+                    let reads: Vec<&[f64; 3]> = o
+                        .moves
+                        .iter()
+                        .map(|m| &m.readings[u])
+                        .filter(|r| !misread(u, r))
+                        .collect();
+                    misread(u, &o.rest[u])
+                        || rest_unlike_moves(
+                            &o.rest[u],
+                            &reads,
+                            config.threshold * STANDARD_GRAVITY,
+                        )
+                })
+                .collect()
+        })
+        .collect();
     // `per[o][u][d]`: the change in orientation `o`, `None` where not moved or misread.
     let mut per = vec![vec![vec![None; nd]; nu]; no];
+    // `turns[o][u][d]`: the angle gravity turned by, where `per` reads the change.
+    let mut turns = vec![vec![vec![None; nd]; nu]; no];
     let mut explored = vec![false; nd];
+    let mut doubt = vec![vec![0.0; nd]; nu];
     for (oi, orientation) in structure.orientations.iter().enumerate() {
         let mut note = |u: usize, dof: Option<&str>, r: &[f64; 3]| {
             misreads.push(Misread {
@@ -553,7 +713,7 @@ pub fn activity_matrix(
                 expected_g: expected[u] / STANDARD_GRAVITY,
             })
         };
-        let rest_ok: Vec<bool> = (0..nu).map(|u| !misread(u, &orientation.rest[u])).collect();
+        let rest_ok: Vec<bool> = (0..nu).map(|u| !rest_misread[oi][u]).collect();
         for (u, ok) in rest_ok.iter().enumerate() {
             if !ok {
                 note(u, None, &orientation.rest[u]);
@@ -583,12 +743,27 @@ pub fn activity_matrix(
                 .filter(|&u| changes[u].is_some_and(|c| c > clear))
                 .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
                 .collect();
-            for u in odd_turns(&turned) {
+            let travel = (mv.pose[d] - orientation.rest_pose[d]).abs();
+            let beyond = beyond_travel(&turned, travel, super::checks::RIGID_TOLERANCE);
+            let turned: Vec<(f64, usize)> = turned
+                .into_iter()
+                .filter(|(_, u)| !beyond.contains(u))
+                .collect();
+            // How doubtful each turn is, for the tree to weigh: how far it went beyond the
+            // travel, and how far its norm is from |g|, both relative.
+            for &(angle, u) in &turned {
+                let excess = (angle - travel).max(0.0) / travel.max(MIN_TRAVEL);
+                let off = (norm(&mv.readings[u]) - expected[u]).abs() / expected[u];
+                doubt[u][d] = f64::max(doubt[u][d], excess + off);
+            }
+            for u in beyond.into_iter().chain(odd_turns(&turned)) {
                 note(u, Some(&mv.dof), &mv.readings[u]);
                 changes[u] = None;
             }
             for (u, c) in changes.into_iter().enumerate() {
                 per[oi][u][d] = c.filter(|_| !is_broken[u]);
+                turns[oi][u][d] =
+                    per[oi][u][d].map(|_| angle_between(&orientation.rest[u], &mv.readings[u]));
             }
         }
     }
@@ -598,7 +773,7 @@ pub fn activity_matrix(
     let sighted = sighted_dofs(&per, threshold * config.uncertainty_factor);
     let clear_still = threshold / config.uncertainty_factor;
     for (oi, orientation) in structure.orientations.iter().enumerate() {
-        for u in (0..nu).filter(|&u| misread(u, &orientation.rest[u])) {
+        for u in (0..nu).filter(|&u| rest_misread[oi][u]) {
             let still: Vec<&[f64; 3]> = orientation
                 .moves
                 .iter()
@@ -631,8 +806,13 @@ pub fn activity_matrix(
             }
         }
     }
-    let (change, mut inferred, contradicted, mut undecided) =
-        combine_orientations(&mut per, threshold, config.uncertainty_factor, nu, nd);
+    let (change, mut inferred, contradicted, mut undecided) = combine_orientations(
+        &mut per,
+        &turns,
+        &doubt,
+        threshold,
+        config.uncertainty_factor,
+    );
     inferred.retain(|&(u, _, _)| !is_broken[u]);
     undecided.retain(|&(u, _)| !is_broken[u]);
     for (u, o, d) in contradicted {
@@ -660,7 +840,7 @@ pub fn activity_matrix(
     }
     let rest_turn = (0..nu)
         .map(|u| match structure.orientations.as_slice() {
-            [first, second, ..] if !misread(u, &first.rest[u]) && !misread(u, &second.rest[u]) => {
+            [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
                 Some(angle_between(&first.rest[u], &second.rest[u]))
             }
             _ => None,

@@ -1,6 +1,6 @@
 //! Checks of the structure experiment's physics beyond the activity matrix.
 
-use super::activity::angle_between;
+use super::activity::{angle_between, beyond_travel};
 use super::{ActivityMatrix, Diagnostic, DiagnosticKind, Severity};
 use crate::measurements::MeasurementSet;
 use crate::model::sensor::STANDARD_GRAVITY;
@@ -79,11 +79,27 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
                 })
                 .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
                 .collect();
+            // SUs that turned further than the DoF travelled, each alone, read wrongly: the
+            // activity matrix left them out already.
+            let travel = (mv.pose[d] - o.rest_pose[d]).abs();
+            let lone = beyond_travel(&turned, travel, tolerance);
+            turned.retain(|(_, u)| !lone.contains(u));
             if turned.len() < 2 {
                 continue;
             }
+            // The angle of the move is that of the SUs the matrix says it moves (where a glitch
+            // and a moved SU are all there is, the glitch must not set it).
+            let mut moved: Vec<f64> = turned
+                .iter()
+                .filter(|&&(_, u)| a.is_active(u, d))
+                .map(|&(angle, _)| angle)
+                .collect();
+            if moved.is_empty() {
+                moved = turned.iter().map(|&(angle, _)| angle).collect();
+            }
+            moved.sort_by(f64::total_cmp);
+            let median = moved[moved.len() / 2];
             turned.sort_by(|x, y| x.0.total_cmp(&y.0));
-            let median = turned[turned.len() / 2].0;
             type Turned<'t> = Vec<&'t (f64, usize)>;
             let (odd, rest): (Turned, Turned) = turned
                 .iter()
@@ -103,7 +119,8 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
                 odd.iter()
                     .any(|&&(y, v)| u != v && (x - y).abs() <= tolerance)
             });
-            let lone = !agreeing && rest.len() >= 2;
+            let lone =
+                !agreeing && (rest.len() >= 2 || odd.iter().all(|&&(_, u)| !a.is_active(u, d)));
             found.push(Diagnostic {
                 kind: if lone {
                     DiagnosticKind::MisreadReading
@@ -134,4 +151,4 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
 /// The noise must stay below the threshold by this factor.
 const NOISE_MARGIN: f64 = 3.0;
 /// Smallest difference between two SUs' gravity turn angles in one move that counts, rad.
-const RIGID_TOLERANCE: f64 = 0.05;
+pub(super) const RIGID_TOLERANCE: f64 = 0.05;

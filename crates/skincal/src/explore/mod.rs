@@ -565,7 +565,7 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             kind: DiagnosticKind::MisreadReading,
             severity: Severity::Warning,
             message: format!(
-                "{} reading(s) are not what an accelerometer at rest reads (a norm far from the SU's |g|, a turn unlike that of every other SU the same move turned, or a change where the other orientation, which sees the DoF turn other SUs, saw this one still): glitches, left out; the entries they would decide come from the other base orientation: {}{}",
+                "{} reading(s) are not what an accelerometer at rest reads (a norm far from the SU's |g|, a turn further than the DoF travelled or unlike that of every other SU the same move turned, or a change where the other orientation, which sees the DoF turn other SUs, saw this one still): glitches, left out; the entries they would decide come from the other base orientation: {}{}",
                 a.misread.len(),
                 list.join("; "),
                 if a.inferred.is_empty() {
@@ -594,7 +594,17 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
         let largest = (0..nu).map(|u| a.change[u][d]).fold(0.0, f64::max) / STANDARD_GRAVITY;
         // With two base orientations no axis is vertical in both: the DoF moves no SU at all, so
         // it sits at a chain's end and leaving it out changes nothing else.
-        let (cause, severity) = if a.orientations < 2 {
+        let unread: Vec<&str> = a
+            .undecided
+            .iter()
+            .filter(|(_, dof)| *dof == a.dofs[d])
+            .map(|(su, _)| su.as_str())
+            .collect();
+        let lost;
+        let (cause, severity) = if !unread.is_empty() {
+            lost = format!("but the readings of {} in its moves were misread, so whether it moves them cannot be told; the DoF is left out and not calibrated (record its move again)", unread.join(", "));
+            (lost.as_str(), Severity::Warning)
+        } else if a.orientations < 2 {
             ("its axis was probably vertical (turning about gravity changes no reading): record the structure experiment again with the reference segment tilted by 90° about a horizontal axis; or the segment it moves carries no SU", Severity::Error)
         } else {
             ("the segment it moves carries no SU (a chain's end without skin), or the DoF did not actually move; it is left out and not calibrated", Severity::Warning)
