@@ -426,6 +426,30 @@ fn glitches_that_look_like_moves_are_told_by_the_physics_of_one_rotation() {
 }
 
 #[test]
+fn a_lost_entry_is_decided_by_segment_mates_not_by_sus_with_lost_entries_of_their_own() {
+    // torso_chest's readings in both moves of neck_yaw are lost, and so are head_face's in both
+    // moves of neck_pitch. torso_chest's mates say neck_yaw leaves it still; head_face, whose
+    // own row is open where torso_chest is known, must not outvote them. head_face itself is on
+    // the head or on a segment between the two neck DoFs: nothing in the readings tells, so it
+    // is set aside and named.
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let clean_set = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let clean = explore(&clean_set, &ExploreConfig::default()).unwrap();
+    let mut set = clean_set.clone();
+    for o in 0..2 {
+        glitch(&mut set, o, "neck_yaw", "torso_chest", 100.0, 0.4);
+        glitch(&mut set, o, "neck_pitch", "head_face", 100.0, 0.4);
+    }
+    let s = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(s.complete, "{:?}", s.diagnostics);
+    assert_eq!(s.unplaced_sus, ["head_face"]);
+    let aside = vec!["head_face".to_string()];
+    assert_eq!(shape(&s, &aside), shape(&clean, &aside));
+}
+
+#[test]
 fn a_lost_reading_is_told_by_how_far_gravity_turned() {
     // paper-7dof: dof4's axis is near vertical in the tilted orientation, where it turns su4…su7
     // by about 3° (0.05 g, at the threshold). With su4's reading in the upright orientation

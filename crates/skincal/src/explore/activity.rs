@@ -460,20 +460,27 @@ fn turns_say<'a>(
 
 /// What the SUs whose known entries all agree with SU `u`'s say of entry `(u, d)`, when at least
 /// two of them know it and agree (the SU's segment mates); `None` otherwise (the one SU that
-/// agrees may be its parent segment's).
+/// agrees may be its parent segment's, and where the segments before and after `d` both agree,
+/// which one `u` is on cannot be told). The SUs known wherever `u` is are asked first: one with
+/// unknown entries of its own agrees with more than its mates (a child segment's SU, unknown
+/// where `u` is still, agrees with `u`), so it only votes when they do not settle it.
 fn segment_mates_say(known: &[Vec<Option<bool>>], u: usize, d: usize) -> Option<bool> {
-    let agree = |v: usize| {
+    let agree = |v: usize, strict: bool| {
         v != u
             && known[u].iter().zip(&known[v]).all(|pair| match pair {
                 (Some(a), Some(b)) => a == b,
+                (Some(_), None) => !strict,
                 _ => true,
             })
     };
-    let votes: Vec<bool> = (0..known.len())
-        .filter(|&v| agree(v))
-        .filter_map(|v| known[v][d])
-        .collect();
-    (votes.len() >= 2 && votes.iter().all(|&a| a == votes[0])).then(|| votes[0])
+    let say = |strict: bool| {
+        let votes: Vec<bool> = (0..known.len())
+            .filter(|&v| agree(v, strict))
+            .filter_map(|v| known[v][d])
+            .collect();
+        (votes.len() >= 2 && votes.iter().all(|&a| a == votes[0])).then(|| votes[0])
+    };
+    say(true).or_else(|| say(false))
 }
 
 /// Settles the `questionable` entries `(su, dof, unknown)` of `active` by the tree: the flip that
