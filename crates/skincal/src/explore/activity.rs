@@ -10,7 +10,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::{ExploreConfig, ExploreError};
-use crate::measurements::MeasurementSet;
+use crate::measurements::{MeasurementSet, StructureExperiment};
 use crate::model::sensor::STANDARD_GRAVITY;
 
 /// A static reading whose norm differs from its SU's median norm by more than this, g, is misread
@@ -632,6 +632,71 @@ pub fn activity_matrix(
     set: &MeasurementSet,
     config: &ExploreConfig,
 ) -> Result<ActivityMatrix, ExploreError> {
+    check_config(config)?;
+    let structure = set
+        .structure
+        .as_ref()
+        .ok_or(ExploreError::NoStructureExperiment)?;
+    let screen = Screen::new(set, structure);
+    let threshold = config.threshold * STANDARD_GRAVITY;
+    let rest_misread = screen.rest_misread(threshold);
+    let mut moves = screen.read_moves(&rest_misread, config);
+    if !moves.explored.iter().any(|&e| e) {
+        return Err(ExploreError::NoMoves);
+    }
+    screen.rebuild_rests(&rest_misread, &mut moves.per, config);
+    let (change, mut inferred, contradicted, mut undecided) = combine_orientations(
+        &mut moves.per,
+        &moves.turns,
+        &moves.doubt,
+        threshold,
+        config.uncertainty_factor,
+    );
+    let is_broken = |u: usize| screen.is_broken[u];
+    inferred.retain(|&(u, _, _)| !is_broken(u));
+    undecided.retain(|&(u, _)| !is_broken(u));
+    let mut misread = moves.misreads;
+    for (u, o, d) in contradicted {
+        let orientation = &structure.orientations[o];
+        if let Some(mv) = orientation.moves.iter().find(|m| m.dof == set.dofs[d]) {
+            misread.push(screen.misread_at(u, o, Some(&set.dofs[d]), &mv.readings[u]));
+        }
+    }
+    let rest_turn = (0..set.sus.len())
+        .map(|u| match structure.orientations.as_slice() {
+            [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
+                Some(angle_between(&first.rest[u], &second.rest[u]))
+            }
+            _ => None,
+        })
+        .collect();
+    Ok(ActivityMatrix {
+        sus: set.sus.clone(),
+        dofs: set.dofs.clone(),
+        change,
+        explored: moves.explored,
+        threshold,
+        uncertainty_factor: config.uncertainty_factor,
+        orientations: structure.orientations.len(),
+        rest_turn,
+        misread,
+        inferred: inferred
+            .into_iter()
+            .map(|(u, d, active)| Inferred {
+                su: set.sus[u].clone(),
+                dof: set.dofs[d].clone(),
+                active,
+            })
+            .collect(),
+        undecided: undecided
+            .into_iter()
+            .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
+            .collect(),
+        broken: screen.broken,
+    })
+}
+
+fn check_config(config: &ExploreConfig) -> Result<(), ExploreError> {
     if !(config.threshold.is_finite() && config.threshold > 0.0) {
         return Err(ExploreError::InvalidSetting {
             setting: "threshold",
@@ -644,232 +709,236 @@ pub fn activity_matrix(
             reason: format!("{} must be at least 1", config.uncertainty_factor),
         });
     }
-    let structure = set
-        .structure
-        .as_ref()
-        .ok_or(ExploreError::NoStructureExperiment)?;
-    let (nu, nd) = (set.sus.len(), set.dofs.len());
-    // Every static reading's norm is the SU's |g| (up to its bias and scale): one far from the
-    // SU's median norm is misread, and the entries it would decide are left to the other
-    // orientation.
-    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
-    let expected: Vec<f64> = (0..nu)
-        .map(|u| {
-            let mut norms: Vec<f64> = structure
-                .orientations
-                .iter()
-                .flat_map(|o| {
-                    std::iter::once(&o.rest[u]).chain(o.moves.iter().map(|m| &m.readings[u]))
-                })
-                .map(norm)
-                .collect();
-            norms.sort_by(f64::total_cmp);
-            norms[norms.len() / 2]
-        })
-        .collect();
-    // Broken SUs read nothing: every entry of theirs is unreadable, and none is a misread.
-    let broken = broken_sus(set);
-    let is_broken: Vec<bool> = set
-        .sus
-        .iter()
-        .map(|su| broken.iter().any(|b| b.su == *su))
-        .collect();
-    let misread = |u: usize, r: &[f64; 3]| {
-        !is_broken[u] && (norm(r) - expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
-    };
-    let mut misreads = Vec::new();
-    let no = structure.orientations.len();
-    // A rest reading is misread if its norm is off, or if it is unlike what the SU read in most
-    // moves of its orientation while those agree (most DoFs leave an SU still, so a glitch of
-    // |g|'s norm at rest shows as every move turning it).
-    let rest_misread: Vec<Vec<bool>> = structure
-        .orientations
-        .iter()
-        .map(|o| {
-            (0..nu)
-                .map(|u| {
-                    let reads: Vec<&[f64; 3]> = o
-                        .moves
-                        .iter()
-                        .map(|m| &m.readings[u])
-                        .filter(|r| !misread(u, r))
-                        .collect();
-                    misread(u, &o.rest[u])
-                        || rest_unlike_moves(
-                            &o.rest[u],
-                            &reads,
-                            config.threshold * STANDARD_GRAVITY,
-                        )
-                })
-                .collect()
-        })
-        .collect();
-    // `per[o][u][d]`: the change in orientation `o`, `None` where not moved or misread.
-    let mut per = vec![vec![vec![None; nd]; nu]; no];
-    // `turns[o][u][d]`: the angle gravity turned by, where `per` reads the change.
-    let mut turns = vec![vec![vec![None; nd]; nu]; no];
-    let mut explored = vec![false; nd];
-    let mut doubt = vec![vec![0.0; nd]; nu];
-    for (oi, orientation) in structure.orientations.iter().enumerate() {
-        let mut note = |u: usize, dof: Option<&str>, r: &[f64; 3]| {
-            misreads.push(Misread {
-                su: set.sus[u].clone(),
-                orientation: oi + 1,
-                dof: dof.map(str::to_string),
-                norm_g: norm(r) / STANDARD_GRAVITY,
-                expected_g: expected[u] / STANDARD_GRAVITY,
+    Ok(())
+}
+
+fn norm(r: &[f64; 3]) -> f64 {
+    r.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// The largest change of any axis between two readings.
+fn largest_change(before: &[f64; 3], after: &[f64; 3]) -> f64 {
+    (0..3)
+        .map(|k| (after[k] - before[k]).abs())
+        .fold(0.0, f64::max)
+}
+
+/// What the structure experiment's moves read, per orientation `o`, SU `u` and DoF `d`.
+struct MoveReadings {
+    /// The change, `None` where not moved or misread.
+    per: Vec<Vec<Vec<Option<f64>>>>,
+    /// The angle gravity turned by, where `per` reads the change.
+    turns: Vec<Vec<Vec<Option<f64>>>>,
+    /// `[u][d]`: how doubtful the turn is (see [`settle_by_tree`]).
+    doubt: Vec<Vec<f64>>,
+    /// Whether each DoF was moved at all.
+    explored: Vec<bool>,
+    /// The readings left out.
+    misreads: Vec<Misread>,
+}
+
+/// Which static readings to trust: every static reading's norm is the SU's |g| (up to its bias
+/// and scale), so one far from the SU's median norm is misread; broken SUs read nothing, so none
+/// of theirs is a misread.
+struct Screen<'a> {
+    set: &'a MeasurementSet,
+    structure: &'a StructureExperiment,
+    /// Per SU, the median norm of its readings, m/s².
+    expected: Vec<f64>,
+    broken: Vec<BrokenSu>,
+    is_broken: Vec<bool>,
+}
+
+impl<'a> Screen<'a> {
+    fn new(set: &'a MeasurementSet, structure: &'a StructureExperiment) -> Self {
+        let expected = (0..set.sus.len())
+            .map(|u| {
+                let mut norms: Vec<f64> = structure
+                    .orientations
+                    .iter()
+                    .flat_map(|o| {
+                        std::iter::once(&o.rest[u]).chain(o.moves.iter().map(|m| &m.readings[u]))
+                    })
+                    .map(norm)
+                    .collect();
+                norms.sort_by(f64::total_cmp);
+                norms[norms.len() / 2]
             })
+            .collect();
+        let broken = broken_sus(set);
+        let is_broken = set
+            .sus
+            .iter()
+            .map(|su| broken.iter().any(|b| b.su == *su))
+            .collect();
+        Self {
+            set,
+            structure,
+            expected,
+            broken,
+            is_broken,
+        }
+    }
+
+    fn misread(&self, u: usize, r: &[f64; 3]) -> bool {
+        !self.is_broken[u]
+            && (norm(r) - self.expected[u]).abs() > MISREAD_TOLERANCE * STANDARD_GRAVITY
+    }
+
+    /// The record of SU `u`'s reading `r` left out in orientation index `o`.
+    fn misread_at(&self, u: usize, o: usize, dof: Option<&str>, r: &[f64; 3]) -> Misread {
+        Misread {
+            su: self.set.sus[u].clone(),
+            orientation: o + 1,
+            dof: dof.map(str::to_string),
+            norm_g: norm(r) / STANDARD_GRAVITY,
+            expected_g: self.expected[u] / STANDARD_GRAVITY,
+        }
+    }
+
+    /// `[o][u]`: a rest reading is misread if its norm is off, or if it is unlike what the SU
+    /// read in most moves of its orientation while those agree (most DoFs leave an SU still, so a
+    /// glitch of |g|'s norm at rest shows as every move turning it).
+    fn rest_misread(&self, threshold: f64) -> Vec<Vec<bool>> {
+        self.structure
+            .orientations
+            .iter()
+            .map(|o| {
+                (0..self.set.sus.len())
+                    .map(|u| {
+                        let reads: Vec<&[f64; 3]> = o
+                            .moves
+                            .iter()
+                            .map(|m| &m.readings[u])
+                            .filter(|r| !self.misread(u, r))
+                            .collect();
+                        self.misread(u, &o.rest[u])
+                            || rest_unlike_moves(&o.rest[u], &reads, threshold)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Every move's changes and turns against the rest, leaving out misread readings: a norm off
+    /// |g|, a turn beyond the DoF's travel ([`beyond_travel`]), or a lone turn unlike the clear
+    /// majority's ([`odd_turns`]).
+    fn read_moves(&self, rest_misread: &[Vec<bool>], config: &ExploreConfig) -> MoveReadings {
+        let (nu, nd) = (self.set.sus.len(), self.set.dofs.len());
+        let no = self.structure.orientations.len();
+        let mut out = MoveReadings {
+            per: vec![vec![vec![None; nd]; nu]; no],
+            turns: vec![vec![vec![None; nd]; nu]; no],
+            doubt: vec![vec![0.0; nd]; nu],
+            explored: vec![false; nd],
+            misreads: Vec::new(),
         };
-        let rest_ok: Vec<bool> = (0..nu).map(|u| !rest_misread[oi][u]).collect();
-        for (u, ok) in rest_ok.iter().enumerate() {
-            if !ok {
-                note(u, None, &orientation.rest[u]);
+        let clear = config.threshold * STANDARD_GRAVITY * config.uncertainty_factor;
+        for (oi, orientation) in self.structure.orientations.iter().enumerate() {
+            for (u, &bad) in rest_misread[oi].iter().enumerate() {
+                if bad {
+                    out.misreads
+                        .push(self.misread_at(u, oi, None, &orientation.rest[u]));
+                }
+            }
+            for mv in &orientation.moves {
+                let d = self
+                    .set
+                    .dof_index(&mv.dof)
+                    .expect("validated measurement set");
+                out.explored[d] = true;
+                let mut changes: Vec<Option<f64>> = Vec::with_capacity(nu);
+                for (u, (before, after)) in orientation.rest.iter().zip(&mv.readings).enumerate() {
+                    if self.misread(u, after) {
+                        out.misreads
+                            .push(self.misread_at(u, oi, Some(&mv.dof), after));
+                        changes.push(None);
+                        continue;
+                    }
+                    changes.push((!rest_misread[oi][u]).then(|| largest_change(before, after)));
+                }
+                // One DoF turns everything it moves by one rotation, by its travel at most: the
+                // SUs it clearly moved agree on the angle gravity turned by.
+                let turned: Vec<(f64, usize)> = (0..nu)
+                    .filter(|&u| changes[u].is_some_and(|c| c > clear))
+                    .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
+                    .collect();
+                let travel = (mv.pose[d] - orientation.rest_pose[d]).abs();
+                let beyond = beyond_travel(&turned, travel, super::checks::RIGID_TOLERANCE);
+                let turned: Vec<(f64, usize)> = turned
+                    .into_iter()
+                    .filter(|(_, u)| !beyond.contains(u))
+                    .collect();
+                // How doubtful each turn is, for the tree to weigh: how far it went beyond the
+                // travel, and how far its norm is from |g|, both relative.
+                for &(angle, u) in &turned {
+                    let excess = (angle - travel).max(0.0) / travel.max(MIN_TRAVEL);
+                    let off = (norm(&mv.readings[u]) - self.expected[u]).abs() / self.expected[u];
+                    out.doubt[u][d] = f64::max(out.doubt[u][d], excess + off);
+                }
+                for u in beyond.into_iter().chain(odd_turns(&turned)) {
+                    out.misreads
+                        .push(self.misread_at(u, oi, Some(&mv.dof), &mv.readings[u]));
+                    changes[u] = None;
+                }
+                for (u, c) in changes.into_iter().enumerate() {
+                    let c = c.filter(|_| !self.is_broken[u]);
+                    out.per[oi][u][d] = c;
+                    out.turns[oi][u][d] =
+                        c.map(|_| angle_between(&orientation.rest[u], &mv.readings[u]));
+                }
             }
         }
-        for mv in &orientation.moves {
-            let d = set.dof_index(&mv.dof).expect("validated measurement set");
-            explored[d] = true;
-            let mut changes: Vec<Option<f64>> = Vec::with_capacity(nu);
-            for (u, (before, after)) in orientation.rest.iter().zip(&mv.readings).enumerate() {
-                if misread(u, after) {
-                    note(u, Some(&mv.dof), after);
-                    changes.push(None);
+        out
+    }
+
+    /// A misread rest reading: the rest is what the SU read in the moves of DoFs that, where they
+    /// visibly turn other SUs, leave it still; its other entries are measured against that.
+    fn rebuild_rests(
+        &self,
+        rest_misread: &[Vec<bool>],
+        per: &mut [Vec<Vec<Option<f64>>>],
+        config: &ExploreConfig,
+    ) {
+        let threshold = config.threshold * STANDARD_GRAVITY;
+        let sighted = sighted_dofs(per, threshold * config.uncertainty_factor);
+        let clear_still = threshold / config.uncertainty_factor;
+        let dof = |mv: &crate::measurements::Move| {
+            self.set
+                .dof_index(&mv.dof)
+                .expect("validated measurement set")
+        };
+        for (oi, orientation) in self.structure.orientations.iter().enumerate() {
+            for u in (0..self.set.sus.len()).filter(|&u| rest_misread[oi][u]) {
+                let still: Vec<&[f64; 3]> = orientation
+                    .moves
+                    .iter()
+                    .filter(|mv| !self.misread(u, &mv.readings[u]))
+                    .filter(|mv| {
+                        (0..per.len()).any(|o| {
+                            o != oi
+                                && sighted[o][dof(mv)]
+                                && per[o][u][dof(mv)].is_some_and(|c| c < clear_still)
+                        })
+                    })
+                    .map(|mv| &mv.readings[u])
+                    .collect();
+                if still.is_empty() {
                     continue;
                 }
-                changes.push(rest_ok[u].then(|| {
-                    (0..3)
-                        .map(|k| (after[k] - before[k]).abs())
-                        .fold(0.0, f64::max)
-                }));
-            }
-            // One DoF turns everything it moves by one rotation: the SUs it clearly moved agree on
-            // the angle gravity turned by. Those outside the largest agreeing group, when that
-            // group is most of them, read wrongly (glitches of |g|'s norm).
-            let clear = config.threshold * STANDARD_GRAVITY * config.uncertainty_factor;
-            let turned: Vec<(f64, usize)> = (0..nu)
-                .filter(|&u| changes[u].is_some_and(|c| c > clear))
-                .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
-                .collect();
-            let travel = (mv.pose[d] - orientation.rest_pose[d]).abs();
-            let beyond = beyond_travel(&turned, travel, super::checks::RIGID_TOLERANCE);
-            let turned: Vec<(f64, usize)> = turned
-                .into_iter()
-                .filter(|(_, u)| !beyond.contains(u))
-                .collect();
-            // How doubtful each turn is, for the tree to weigh: how far it went beyond the
-            // travel, and how far its norm is from |g|, both relative.
-            for &(angle, u) in &turned {
-                let excess = (angle - travel).max(0.0) / travel.max(MIN_TRAVEL);
-                let off = (norm(&mv.readings[u]) - expected[u]).abs() / expected[u];
-                doubt[u][d] = f64::max(doubt[u][d], excess + off);
-            }
-            for u in beyond.into_iter().chain(odd_turns(&turned)) {
-                note(u, Some(&mv.dof), &mv.readings[u]);
-                changes[u] = None;
-            }
-            for (u, c) in changes.into_iter().enumerate() {
-                per[oi][u][d] = c.filter(|_| !is_broken[u]);
-                turns[oi][u][d] =
-                    per[oi][u][d].map(|_| angle_between(&orientation.rest[u], &mv.readings[u]));
-            }
-        }
-    }
-    let threshold = config.threshold * STANDARD_GRAVITY;
-    // A misread rest reading: the rest is what the SU read in the moves of DoFs that, where they
-    // visibly turn other SUs, leave it still; its other entries are measured against that.
-    let sighted = sighted_dofs(&per, threshold * config.uncertainty_factor);
-    let clear_still = threshold / config.uncertainty_factor;
-    for (oi, orientation) in structure.orientations.iter().enumerate() {
-        for u in (0..nu).filter(|&u| rest_misread[oi][u]) {
-            let still: Vec<&[f64; 3]> = orientation
-                .moves
-                .iter()
-                .filter(|mv| !misread(u, &mv.readings[u]))
-                .filter(|mv| {
-                    let d = set.dof_index(&mv.dof).expect("validated measurement set");
-                    (0..no).any(|o| {
-                        o != oi && sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still)
-                    })
-                })
-                .map(|mv| &mv.readings[u])
-                .collect();
-            if still.is_empty() {
-                continue;
-            }
-            let rest: [f64; 3] = std::array::from_fn(|k| {
-                let mut v: Vec<f64> = still.iter().map(|r| r[k]).collect();
-                v.sort_by(f64::total_cmp);
-                v[v.len() / 2]
-            });
-            for mv in &orientation.moves {
-                let d = set.dof_index(&mv.dof).expect("validated measurement set");
-                if !misread(u, &mv.readings[u]) {
-                    per[oi][u][d] = Some(
-                        (0..3)
-                            .map(|k| (mv.readings[u][k] - rest[k]).abs())
-                            .fold(0.0, f64::max),
-                    );
+                let rest: [f64; 3] = std::array::from_fn(|k| {
+                    let mut v: Vec<f64> = still.iter().map(|r| r[k]).collect();
+                    v.sort_by(f64::total_cmp);
+                    v[v.len() / 2]
+                });
+                for mv in &orientation.moves {
+                    if !self.misread(u, &mv.readings[u]) {
+                        per[oi][u][dof(mv)] = Some(largest_change(&rest, &mv.readings[u]));
+                    }
                 }
             }
         }
     }
-    let (change, mut inferred, contradicted, mut undecided) = combine_orientations(
-        &mut per,
-        &turns,
-        &doubt,
-        threshold,
-        config.uncertainty_factor,
-    );
-    inferred.retain(|&(u, _, _)| !is_broken[u]);
-    undecided.retain(|&(u, _)| !is_broken[u]);
-    for (u, o, d) in contradicted {
-        let orientation = &structure.orientations[o];
-        if let Some(mv) = orientation.moves.iter().find(|m| m.dof == set.dofs[d]) {
-            misreads.push(Misread {
-                su: set.sus[u].clone(),
-                orientation: o + 1,
-                dof: Some(set.dofs[d].clone()),
-                norm_g: norm(&mv.readings[u]) / STANDARD_GRAVITY,
-                expected_g: expected[u] / STANDARD_GRAVITY,
-            });
-        }
-    }
-    let inferred = inferred
-        .into_iter()
-        .map(|(u, d, active)| Inferred {
-            su: set.sus[u].clone(),
-            dof: set.dofs[d].clone(),
-            active,
-        })
-        .collect();
-    if !explored.iter().any(|&e| e) {
-        return Err(ExploreError::NoMoves);
-    }
-    let rest_turn = (0..nu)
-        .map(|u| match structure.orientations.as_slice() {
-            [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
-                Some(angle_between(&first.rest[u], &second.rest[u]))
-            }
-            _ => None,
-        })
-        .collect();
-    Ok(ActivityMatrix {
-        sus: set.sus.clone(),
-        dofs: set.dofs.clone(),
-        change,
-        explored,
-        threshold: config.threshold * STANDARD_GRAVITY,
-        uncertainty_factor: config.uncertainty_factor,
-        orientations: structure.orientations.len(),
-        rest_turn,
-        misread: misreads,
-        inferred,
-        undecided: undecided
-            .into_iter()
-            .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
-            .collect(),
-        broken,
-    })
 }
 
 pub(super) fn angle_between(a: &[f64; 3], b: &[f64; 3]) -> f64 {
