@@ -139,7 +139,6 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         "{} on real sensors, seeds 1…{}; P = 20, uniform ±0.01 g noise; every scenario against the same seed without it: SU pose RMS (relative to the previous SU, against the truth), held-out prediction of the same skin (20 other noise-free poses), static and dynamic RMS\n",
         args.robot, args.seeds
     );
-    type Scenario = (&'static str, Box<dyn Fn(&mut SimulationConfig)>);
     let mut scenarios: Vec<Scenario> = vec![
         (
             "bias ±0.06 g, scale ±3 %",
@@ -196,45 +195,70 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
                     continue;
                 }
             };
-            let t = &mut tallies[i];
-            t.runs += 1;
-            t.exact += usize::from(same_tree(&clean.set, &r.structure)?);
-            t.set_aside += r.structure.unplaced_sus.len();
-            t.limbs += r.model.limbs.len();
-            t.converged += r
-                .model
-                .limbs
-                .iter()
-                .filter(|l| l.estimate.converged)
-                .count();
-            let ratios = [
-                r.pose / clean.pose,
-                r.statics / clean.statics,
-                r.dynamics / clean.dynamics,
-            ];
-            for (k, ratio) in ratios.iter().enumerate() {
-                t.ratios[k].push(*ratio);
-                t.worst[k] = t.worst[k].max(*ratio);
-            }
-            if !config.faults.is_empty() {
-                named += config
-                    .faults
-                    .iter()
-                    .filter(|f| {
-                        let kind = match f.fault {
-                            Fault::Dead => "dead",
-                            Fault::Frozen => "frozen",
-                            Fault::Railed => "railed",
-                            Fault::SwapXy | Fault::NegateZ => "improper frame",
-                        };
-                        r.model.not_calibrated.iter().any(|n| {
-                            n.name == f.su && n.reason.starts_with(&format!("broken ({kind})"))
-                        })
-                    })
-                    .count();
-            }
+            tallies[i].add(&clean, &r)?;
+            named += named_faults(&config.faults, &r.model);
         }
     }
+    out!("{}", table(&scenarios, &tallies));
+    if !broken_names.is_empty() {
+        outln!(
+            "\nbroken SUs ({}) named with the right fault: {named} of {}",
+            broken_names.join(", "),
+            broken_names.len() * args.seeds as usize
+        );
+    }
+    outln!("(tree exact: the tree the clean readings give without the SUs set aside, which explore names with the reason; ratios: median over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
+    Ok(())
+}
+
+impl Tally {
+    /// Adds one seed's run `r` against the same seed's `clean` run.
+    fn add(&mut self, clean: &Run, r: &Run) -> Result<()> {
+        self.runs += 1;
+        self.exact += usize::from(same_tree(&clean.set, &r.structure)?);
+        self.set_aside += r.structure.unplaced_sus.len();
+        self.limbs += r.model.limbs.len();
+        self.converged += r
+            .model
+            .limbs
+            .iter()
+            .filter(|l| l.estimate.converged)
+            .count();
+        let ratios = [
+            r.pose / clean.pose,
+            r.statics / clean.statics,
+            r.dynamics / clean.dynamics,
+        ];
+        for (k, ratio) in ratios.iter().enumerate() {
+            self.ratios[k].push(*ratio);
+            self.worst[k] = self.worst[k].max(*ratio);
+        }
+        Ok(())
+    }
+}
+
+/// How many of the broken SUs `faults` the model names with the right fault.
+fn named_faults(faults: &[SuFault], model: &BodyModel) -> usize {
+    faults
+        .iter()
+        .filter(|f| {
+            let kind = match f.fault {
+                Fault::Dead => "dead",
+                Fault::Frozen => "frozen",
+                Fault::Railed => "railed",
+                Fault::SwapXy | Fault::NegateZ => "improper frame",
+            };
+            model
+                .not_calibrated
+                .iter()
+                .any(|n| n.name == f.su && n.reason.starts_with(&format!("broken ({kind})")))
+        })
+        .count()
+}
+
+type Scenario = (&'static str, Box<dyn Fn(&mut SimulationConfig)>);
+
+fn table(scenarios: &[Scenario], tallies: &[Tally]) -> String {
     let mut table = String::new();
     let _ = writeln!(
         table,
@@ -248,7 +272,7 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         "static ratio",
         "dynamic ratio"
     );
-    for ((name, _), t) in scenarios.iter().zip(&tallies) {
+    for ((name, _), t) in scenarios.iter().zip(tallies) {
         let ratio = |k: usize| {
             let mut v = t.ratios[k].clone();
             v.sort_by(f64::total_cmp);
@@ -268,14 +292,5 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
             ratio(2)
         );
     }
-    out!("{table}");
-    if !broken_names.is_empty() {
-        outln!(
-            "\nbroken SUs ({}) named with the right fault: {named} of {}",
-            broken_names.join(", "),
-            broken_names.len() * args.seeds as usize
-        );
-    }
-    outln!("(tree exact: the tree the clean readings give without the SUs set aside, which explore names with the reason; ratios: median over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
-    Ok(())
+    table
 }
