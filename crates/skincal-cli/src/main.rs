@@ -2,6 +2,7 @@
 //!
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
+mod bench_limbs;
 mod bench_sensors;
 mod logs;
 mod out;
@@ -166,6 +167,9 @@ enum BenchCommand {
     Ingest(logs::BenchIngestArgs),
     /// Real sensors and imperfect skins (intrinsics, glitches, broken SUs) against clean data.
     Sensors(bench_sensors::BenchSensorsArgs),
+    /// Robot-like limbs (parallel and intersecting axes, joint limits, several SUs per segment):
+    /// convergence, held-out prediction, accuracy against the truth.
+    Limbs(bench_limbs::BenchLimbsArgs),
 }
 
 #[derive(Debug, Args)]
@@ -449,6 +453,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Validate(args) => validate(args),
         Command::Bench(BenchCommand::Body(args)) => bench_body(args),
         Command::Bench(BenchCommand::Sensors(args)) => bench_sensors::bench_sensors(args),
+        Command::Bench(BenchCommand::Limbs(args)) => bench_limbs::bench_limbs(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
         Command::Bench(BenchCommand::Ingest(args)) => logs::bench_ingest(args),

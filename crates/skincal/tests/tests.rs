@@ -12,6 +12,7 @@ mod logs;
 mod measurements;
 mod ml_estimation;
 mod paper;
+mod robot_like;
 mod robustness;
 mod sensors;
 mod simulator;

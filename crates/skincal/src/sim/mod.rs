@@ -42,7 +42,10 @@ use crate::model::sensor::{
 };
 use crate::model::{forward_kinematics, Robot};
 
+mod robot_like;
 pub mod timeseries;
+
+pub use robot_like::{robot_like_limb, RobotLikeConfig};
 
 /// The largest noise or bias the simulator accepts, g.
 pub const MAX_IMPERFECTION: f64 = 10.0;

@@ -649,10 +649,12 @@ pub fn estimate_limb(
             iterations += free.iterations + fixed.iterations;
             if fixed.cost - free.cost < config.vertical_test {
                 votes += 1;
-                beam.push((fixed.state, fixed.cost));
-            } else {
-                beam.push((free.state, free.cost));
             }
+            // The search goes on with gravity free even so: held exactly along the first axis,
+            // it leaves the turn of the next joint about that axis exactly free, and the searches
+            // of the joints after it settle in degenerate minima (on robot-like limbs with a
+            // vertical first axis, about a quarter did). Gravity is put on the axis for the final fit.
+            beam.push((free.state, free.cost));
         }
         vertical = votes == count;
         // Mirror images have the same cost here: keep them all (no merging of equal costs).
@@ -765,7 +767,11 @@ pub fn estimate_limb(
         beam = next;
         iterations += its;
     }
-    let state = beam.swap_remove(0).0;
+    let mut state = beam.swap_remove(0).0;
+    if vertical {
+        // Held along the first axis in the final fit (below).
+        state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
+    }
 
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
     let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
