@@ -125,3 +125,40 @@ fn a_limb_with_a_vertical_first_axis_converges_at_the_noise_level() {
     assert!(check.static_rms < 0.05, "{}", check.static_rms);
     assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
 }
+
+#[test]
+fn what_no_reading_tells_stays_near_the_robot() {
+    // like-H1-P1-A3-P1-41: the first two axes are parallel, so everything after them can slide
+    // along them unseen. The fit used to leave the spherical joint 345 m down that line; held by
+    // weak priors it stays within metres (and the directions are still named as unobservable).
+    let robot = robot_like_limb(&RobotLikeConfig::default(), 41).unwrap();
+    assert!(robot.model.name().starts_with("like-H1-P1"));
+    let set = simulate(
+        &robot,
+        &SimulationConfig {
+            seed: 41,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let limb = &model.limbs[0].estimate;
+    assert!(limb.converged, "residual {:.2} σ", limb.residual_ratio);
+    assert!(!limb.unobservable.is_empty());
+    let estimate = limb.to_robot();
+    let n = estimate.model.dofs().len();
+    let k = forward_kinematics(&estimate.model, &estimate.parameters, &vec![0.0; n]);
+    for d in 0..n {
+        assert!(
+            k.axis_point(d).norm() < 10.0,
+            "dof{}: {}",
+            d + 1,
+            k.axis_point(d)
+        );
+    }
+    for u in 0..estimate.model.sus().len() {
+        assert!(k.su_position(u).norm() < 10.0, "{}", k.su_position(u));
+    }
+}

@@ -301,10 +301,14 @@ impl Lsq3 {
         self.atb += m.transpose() * b;
     }
 
+    /// The least-norm solution: directions the rows do not determine (a shift along axes that are
+    /// all parallel to it) stay at zero instead of growing without bound.
     fn solve(&self) -> Vector3<f64> {
-        (self.ata + Matrix3::identity() * 1e-9)
-            .lu()
-            .solve(&self.atb)
+        let svd = self.ata.svd(true, true);
+        let largest = svd.singular_values.max();
+        svd.solve(&self.atb, largest * 1e-8)
+            .ok()
+            .filter(|t| t.iter().all(|x| x.is_finite()))
             .unwrap_or_else(Vector3::zeros)
     }
 }

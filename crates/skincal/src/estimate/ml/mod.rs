@@ -343,6 +343,7 @@ fn readings(data: &LimbData) -> Readings {
         alpha: data.pattern.peak_acceleration(),
         huber: Some(HUBER),
         rejected: Vec::new(),
+        gauge_prior: true,
     }
 }
 
@@ -800,18 +801,22 @@ pub fn estimate_limb(
     let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
     iterations += its;
     let rejected = rejected_counts(&readings, &data.chain.sus());
+    // What is reported about the fit comes from the readings alone, not the gauge priors.
+    let readings = Readings {
+        gauge_prior: false,
+        ..readings
+    };
     let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
     let state = solved.state;
     let dof_count = spec.columns().len();
-    let noise_sd_estimate =
-        sigma * (solved.cost / (solved.residuals.saturating_sub(dof_count)).max(1) as f64).sqrt();
-    let residual_ratio = noise_sd_estimate / sigma;
-
     let flat_dofs = data.chain.dofs();
     let flat_sus = data.chain.sus();
     let names = column_names(&flat_dofs, &flat_sus, &spec);
     let map = ColumnMap::new(&spec);
     let normal = normal_system(&state, &layout, &readings, &spec, &map, sigma);
+    let noise_sd_estimate =
+        sigma * (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt();
+    let residual_ratio = noise_sd_estimate / sigma;
     let (cov, unobservable) = covariance(
         &normal,
         &map,
@@ -1423,6 +1428,7 @@ pub fn cramer_rao_bound(
     // Least squares: the Jacobian alone, whatever the readings' residuals at the truth.
     let plain = Readings {
         huber: None,
+        gauge_prior: false,
         ..readings(&LimbData::from(data))
     };
     let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);

@@ -31,6 +31,13 @@ pub(super) const INTRINSIC_PRIOR_SD: [f64; 9] = [
     0.05,
 ];
 
+/// The prior standard deviation of an SU's position on its segment and of a joint's on its parent
+/// (from the frame before it), m: far beyond any robot, it leaves every position the readings tell
+/// as they tell it (a bias of (σ/10 m)² of it), and keeps near their frames the directions no
+/// reading tells — a shift along axes that are all parallel — which the solves would otherwise let
+/// drift hundreds of metres away. Stronger, it slows the solves down.
+pub(super) const SU_POSITION_PRIOR_SD: f64 = 10.0;
+
 /// Which SU sits on which segment (1-based: segment `k` is moved directly by DoF `k−1`).
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Layout {
@@ -54,6 +61,10 @@ pub(super) struct Readings {
     /// Readings left out (wild ones found after the fit): `rejected[p][u][0]` the static reading,
     /// `[1 + d]` the dynamic one of DoF `d`. Empty: none.
     pub rejected: Vec<Vec<Vec<bool>>>,
+    /// Whether the solves hold the directions no reading tells near their frames (weak priors on
+    /// the positions of SUs and joints, [`SU_POSITION_PRIOR_SD`]): on for the search and the fit,
+    /// off for what is reported about the fit (residual, covariance, bounds).
+    pub gauge_prior: bool,
 }
 
 impl Readings {
@@ -397,11 +408,16 @@ fn su_block(
     let s = layout.su_segment[u];
     let per_pose = 3 * (1 + s);
     // Free intrinsics of this SU: (own column, component); each has a prior row after the readings.
-    let priors: Vec<(usize, usize)> = map.own[i]
+    // Prior rows: (column, block, component).
+    let priors: Vec<(usize, Block, usize)> = map.own[i]
         .iter()
         .enumerate()
-        .filter(|(_, &(b, _))| matches!(spec.blocks[b], Block::Intrinsics(_)))
-        .map(|(col, &(_, c))| (col, c))
+        .filter(|(_, &(b, c))| match spec.blocks[b] {
+            Block::Intrinsics(_) => true,
+            Block::Su(_) => data.gauge_prior && c >= 3,
+            _ => false,
+        })
+        .map(|(col, &(b, c))| (col, spec.blocks[b], c))
         .collect();
     let readings_rows = per_pose * data.q.len();
     let rows = readings_rows + priors.len();
@@ -524,13 +540,17 @@ fn su_block(
         }
     }
     let values = intrinsics.to_array();
-    for (n, &(col, c)) in priors.iter().enumerate() {
-        let x = values[c] / INTRINSIC_PRIOR_SD[c];
+    for (n, &(col, block, c)) in priors.iter().enumerate() {
+        let (value, sd) = match block {
+            Block::Su(v) => (state.sus[v].translation.vector[c - 3], SU_POSITION_PRIOR_SD),
+            _ => (values[c], INTRINSIC_PRIOR_SD[c]),
+        };
+        let x = value / sd;
         r[readings_rows + n] = x;
         cost += x * x;
         count += 1;
         if jacobian {
-            own[(readings_rows + n, col)] = 1.0 / INTRINSIC_PRIOR_SD[c];
+            own[(readings_rows + n, col)] = 1.0 / sd;
         }
     }
     SuBlock {
@@ -596,6 +616,16 @@ pub(super) fn normal_system(
     let mut c = DMatrix::zeros(m, m);
     let mut gs = DVector::zeros(m);
     let (mut cost, mut rows) = (0.0, 0);
+    for (columns, jacobian, r) in joint_priors(state, data, spec, map) {
+        for (i, &ci) in columns.iter().enumerate() {
+            gs[ci] += jacobian.column(i).dot(&r);
+            for (j, &cj) in columns.iter().enumerate() {
+                c[(ci, cj)] += jacobian.column(i).dot(&jacobian.column(j));
+            }
+        }
+        cost += r.norm_squared();
+        rows += 3;
+    }
     let mut sus = Vec::with_capacity(parts.len());
     for (su, ci, gi, cost_i, rows_i) in parts {
         c += ci;
@@ -623,10 +653,62 @@ pub(super) fn cost_of(
     sigma: f64,
 ) -> f64 {
     let frames = pose_frames(state, layout, data, spec);
-    (0..spec.sus.len())
-        .into_par_iter()
-        .map(|i| su_block(state, layout, data, spec, map, &frames, i, sigma, false).cost)
-        .sum()
+    let priors: f64 = joint_priors(state, data, spec, map)
+        .iter()
+        .map(|(_, _, r)| r.norm_squared())
+        .sum();
+    priors
+        + (0..spec.sus.len())
+            .into_par_iter()
+            .map(|i| su_block(state, layout, data, spec, map, &frames, i, sigma, false).cost)
+            .sum::<f64>()
+}
+
+/// The prior rows of every free joint's position on its parent ([`SU_POSITION_PRIOR_SD`], for
+/// the same reason): per joint, its shared columns, their 3×n Jacobian and the residual
+/// `t / sd`. A joint after axes that are all parallel can slide along them unseen; held near its
+/// parent, it does not drift hundreds of metres away.
+fn joint_priors(
+    state: &ChainState,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+) -> Vec<(Vec<usize>, nalgebra::Matrix3xX<f64>, Vector3<f64>)> {
+    let mut out = Vec::new();
+    if !data.gauge_prior {
+        return out;
+    }
+    for (b, block) in spec.blocks.iter().enumerate() {
+        let (k, first) = match *block {
+            Block::Joint(k) => (k, 2),
+            Block::JointFull(k) => (k, 3),
+            _ => continue,
+        };
+        let joint = &state.joints[k];
+        let columns: Vec<(usize, usize)> = map
+            .shared
+            .iter()
+            .enumerate()
+            .filter(|(_, &(bb, c))| bb == b && c >= first)
+            .map(|(col, &(_, c))| (col, c - first))
+            .collect();
+        if columns.is_empty() {
+            continue;
+        }
+        let axes = joint.rotation.to_rotation_matrix().into_inner();
+        let jacobian = nalgebra::Matrix3xX::from_columns(
+            &columns
+                .iter()
+                .map(|&(_, axis)| axes.column(axis) / SU_POSITION_PRIOR_SD)
+                .collect::<Vec<_>>(),
+        );
+        out.push((
+            columns.iter().map(|&(col, _)| col).collect(),
+            jacobian,
+            joint.translation.vector / SU_POSITION_PRIOR_SD,
+        ));
+    }
+    out
 }
 
 /// The whitened residual norm of every reading at a state (`[p][u][0]` static, `[1 + d]` the
@@ -803,7 +885,6 @@ pub(super) fn retract_columns(
 pub(super) struct Solved {
     pub state: ChainState,
     pub cost: f64,
-    pub residuals: usize,
     pub iterations: usize,
 }
 
@@ -855,7 +936,6 @@ pub(super) fn solve(
         normal = normal_system(&state, layout, data, spec, &map, sigma);
     }
     Solved {
-        residuals: normal.rows,
         state,
         cost,
         iterations,
