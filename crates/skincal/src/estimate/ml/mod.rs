@@ -313,6 +313,10 @@ pub struct MlChainEstimate {
     /// Per SU: the accelerometer intrinsics estimated with the kinematics (empty when none are).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics: Vec<SuIntrinsics>,
+    /// Other orders of joints' DoFs tried because the first fit was not at the noise level, and
+    /// how each fitted.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub retries: Vec<String>,
     /// The same limb in the paper's DH+2 form (only for a paper-style chain: single-DoF joints,
     /// one SU per segment).
     pub dh: Option<DhTable>,
@@ -504,13 +508,78 @@ pub fn estimate_limb(
         });
     }
 
-    // The order of the DoFs inside every joint that has several, from the closed-form axis model.
-    // Reordering one joint permutes only its own DoF indices, so the input's readings and spans
-    // serve every joint.
+    let (orders, joint_orders) = order_joints(data, config)?;
+    let ordered = |choice: &[usize]| {
+        orders
+            .iter()
+            .zip(choice)
+            .fold(data.clone(), |d, ((j, tried), &c)| {
+                d.with_joint_order(*j, &tried[c].0)
+            })
+    };
+    let first_choice = vec![0; orders.len()];
+    let mut best = fit_ordered(&ordered(&first_choice), base, base_dofs, config)?;
+    let mut iterations = best.iterations;
+    // Not at the noise level: the closed-form order of a joint's DoFs may be wrong (joint limits
+    // narrow what its axes show). Try the next orders of each joint in turn, within a budget.
+    let mut retries = Vec::new();
+    'retry: for (n, (j, tried)) in orders.iter().enumerate() {
+        for (c, (order, _)) in tried.iter().enumerate().skip(1).take(ORDER_RETRIES) {
+            if best.converged {
+                break 'retry;
+            }
+            let mut choice = first_choice.clone();
+            choice[n] = c;
+            let names: Vec<String> = order
+                .iter()
+                .map(|&i| data.chain.joints[*j].dofs[i].clone())
+                .collect();
+            let alternative = fit_ordered(&ordered(&choice), base, base_dofs, config)?;
+            iterations += alternative.iterations;
+            retries.push(format!(
+                "joint {} in the order {}: residual {:.2} σ (was {:.2} σ)",
+                data.chain.joints[*j].id,
+                names.join(", "),
+                alternative.residual_ratio,
+                best.residual_ratio
+            ));
+            if alternative.residual_ratio < best.residual_ratio {
+                best = alternative;
+            }
+        }
+    }
+    best.joint_orders = joint_orders
+        .into_iter()
+        .map(|mut o| {
+            if let Some(j) = best.chain.joints.iter().find(|j| j.id == o.joint) {
+                o.dofs = j.dofs.clone();
+            }
+            o
+        })
+        .collect();
+    best.retries = retries;
+    best.iterations = iterations;
+    best.seconds = started.elapsed().as_secs_f64();
+    Ok(best)
+}
+
+/// How many other orders of one joint's DoFs are tried when a fit is not at the noise level.
+const ORDER_RETRIES: usize = 3;
+
+/// The order of the DoFs inside every joint that has several, from the closed-form axis model:
+/// per such joint its index and every order (relative to the input's) with its misfit, best first,
+/// and how it is reported. Reordering one joint permutes only its own DoF indices, so the input's
+/// readings and spans serve every joint.
+#[allow(clippy::type_complexity)]
+fn order_joints(
+    data: &LimbData,
+    config: &MlConfig,
+) -> Result<(Vec<(usize, Vec<(Vec<usize>, f64)>)>, Vec<JointOrder>), EstimateError> {
+    let chain = &data.chain;
     let mut input_readings = readings(data);
     input_readings.rejected = screen(&input_readings, config.noise_sd);
     let input_spans = spans(data);
-    let mut data = data.clone();
+    let mut orders = Vec::new();
     let mut joint_orders = Vec::new();
     for (j, span) in input_spans.iter().enumerate().skip(chain.base_joints) {
         let m = span.k1 - span.k0 + 1;
@@ -536,7 +605,7 @@ pub fn estimate_limb(
             })
             .collect();
         tried.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let names = &data.chain.joints[j].dofs;
+        let names = &chain.joints[j].dofs;
         let alternatives = tried
             .iter()
             .map(|(order, misfit)| OrderMisfit {
@@ -544,14 +613,25 @@ pub fn estimate_limb(
                 misfit: *misfit,
             })
             .collect();
-        data = data.with_joint_order(j, &tried[0].0);
         joint_orders.push(JointOrder {
             joint: chain.joints[j].id.clone(),
-            dofs: data.chain.joints[j].dofs.clone(),
+            dofs: tried[0].0.iter().map(|&i| names[i].clone()).collect(),
             alternatives,
         });
+        orders.push((j, tried));
     }
-    let data = data;
+    Ok((orders, joint_orders))
+}
+
+/// The search and the final fit of a limb whose joints' DoFs are in their order.
+fn fit_ordered(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    base_dofs: usize,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let started = Instant::now();
+    let chain = &data.chain;
     let dofs = data.q.first().map_or(0, |q| q.len());
     let sus = data.su_depth.len();
     let free_dofs = dofs - base_dofs;
@@ -568,10 +648,10 @@ pub fn estimate_limb(
         dofs,
         su_segment: data.su_depth.clone(),
     };
-    let mut readings = readings(&data);
+    let mut readings = readings(data);
     readings.rejected = screen(&readings, config.noise_sd);
     let readings = readings;
-    let spans = spans(&data);
+    let spans = spans(data);
     let sigma = config.noise_sd;
     let mut iterations = 0;
     let empty = ChainState {
@@ -863,7 +943,8 @@ pub fn estimate_limb(
         robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
         dh,
         chain: data.chain.clone(),
-        joint_orders,
+        joint_orders: Vec::new(),
+        retries: Vec::new(),
         gravity: state.gravity.into(),
         residual_ratio,
         noise_sd_estimate,
