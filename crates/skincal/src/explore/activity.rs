@@ -220,22 +220,37 @@ pub(super) fn beyond_travel(turned: &[(f64, usize)], travel: f64, agree: f64) ->
         .collect()
 }
 
-/// Whether an SU's `rest` reading differs by more than `threshold` (largest axis) from the
-/// component-wise median of its move readings `reads` of the same orientation, while more than
-/// half of those lie within `threshold` of that median (the SU was still in most moves) and at
-/// least three tell.
-fn rest_unlike_moves(rest: &[f64; 3], reads: &[&[f64; 3]], threshold: f64) -> bool {
+/// Whether an SU's `rest` reading is misread, judged by its move readings `reads` of the same
+/// orientation, each with the travel of its DoF, rad: more than half of them (and at least three)
+/// lie within `threshold` (largest axis) of their component-wise median, none lies within
+/// `threshold` of the rest, and gravity turned from the rest to that median by more than those
+/// moves' DoFs travelled. A true rest can be unlike most moves: DoFs about parallel axes that
+/// travel alike all turn an SU they move to one reading (a UR arm's lift, elbow and wrist), but
+/// never further than they travelled, while a glitch of |g|'s norm points anywhere.
+fn rest_unlike_moves(rest: &[f64; 3], reads: &[(&[f64; 3], f64)], threshold: f64) -> bool {
     if reads.len() < 3 {
         return false;
     }
     let median: [f64; 3] = std::array::from_fn(|k| {
-        let mut v: Vec<f64> = reads.iter().map(|r| r[k]).collect();
+        let mut v: Vec<f64> = reads.iter().map(|(r, _)| r[k]).collect();
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     });
-    let off = |r: &[f64; 3]| (0..3).map(|k| (r[k] - median[k]).abs()).fold(0.0, f64::max);
-    let still = reads.iter().filter(|r| off(r) <= threshold).count();
-    2 * still > reads.len() && off(rest) > threshold
+    let off = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max);
+    let agreeing: Vec<f64> = reads
+        .iter()
+        .filter(|(r, _)| off(r, &median) <= threshold)
+        .map(|&(_, travel)| travel)
+        .collect();
+    if 2 * agreeing.len() <= reads.len()
+        || off(rest, &median) <= threshold
+        || reads.iter().any(|(r, _)| off(r, rest) <= threshold)
+    {
+        return false;
+    }
+    let travel = agreeing.iter().copied().fold(0.0, f64::max);
+    travel < MIN_TRAVEL
+        || angle_between(rest, &median) > travel * (1.0 + TRAVEL_SLACK) + LONE_TURN_TOLERANCE
 }
 
 /// `[o][d]`: whether DoF `d` clearly moved at least two SUs in orientation `o` (its axis was not
@@ -797,8 +812,8 @@ impl<'a> Screen<'a> {
     }
 
     /// `[o][u]`: a rest reading is misread if its norm is off, or if it is unlike what the SU
-    /// read in most moves of its orientation while those agree (most DoFs leave an SU still, so a
-    /// glitch of |g|'s norm at rest shows as every move turning it).
+    /// read in most moves of its orientation while those agree ([`rest_unlike_moves`]: most DoFs
+    /// leave an SU still, so a glitch of |g|'s norm at rest shows as every move turning it).
     fn rest_misread(&self, threshold: f64) -> Vec<Vec<bool>> {
         self.structure
             .orientations
@@ -806,11 +821,17 @@ impl<'a> Screen<'a> {
             .map(|o| {
                 (0..self.set.sus.len())
                     .map(|u| {
-                        let reads: Vec<&[f64; 3]> = o
+                        let reads: Vec<(&[f64; 3], f64)> = o
                             .moves
                             .iter()
-                            .map(|m| &m.readings[u])
-                            .filter(|r| !self.misread(u, r))
+                            .filter(|m| !self.misread(u, &m.readings[u]))
+                            .map(|m| {
+                                let d = self
+                                    .set
+                                    .dof_index(&m.dof)
+                                    .expect("validated measurement set");
+                                (&m.readings[u], (m.pose[d] - o.rest_pose[d]).abs())
+                            })
                             .collect();
                         self.misread(u, &o.rest[u])
                             || rest_unlike_moves(&o.rest[u], &reads, threshold)
