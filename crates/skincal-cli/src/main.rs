@@ -2,6 +2,7 @@
 //!
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
+mod bench_body;
 mod bench_limbs;
 mod bench_sensors;
 mod logs;
@@ -162,7 +163,7 @@ enum BenchCommand {
     Calibrate(BenchCalibrateArgs),
     /// The whole pipeline (explore, calibrate every limb, validate on held-out poses) on the
     /// humanoid or a random tree: time, memory, accuracy against the truth.
-    Body(BenchBodyArgs),
+    Body(bench_body::BenchBodyArgs),
     /// Ingestion of a 1 kHz log with many SUs (MCAP and CSV): time against real time.
     Ingest(logs::BenchIngestArgs),
     /// Real sensors and imperfect skins (intrinsics, glitches, broken SUs) against clean data.
@@ -170,28 +171,6 @@ enum BenchCommand {
     /// Robot-like limbs (parallel and intersecting axes, joint limits, several SUs per segment):
     /// convergence, held-out prediction, accuracy against the truth.
     Limbs(bench_limbs::BenchLimbsArgs),
-}
-
-#[derive(Debug, Args)]
-struct BenchBodyArgs {
-    /// A random tree with this many DoFs instead of the humanoid.
-    #[arg(long, value_name = "N")]
-    random_dofs: Option<usize>,
-    /// SUs of the random tree.
-    #[arg(long, default_value_t = 200)]
-    random_sus: usize,
-    /// SUs per skinned segment of the humanoid.
-    #[arg(long, default_value_t = 2)]
-    sus_per_segment: usize,
-    /// Training poses.
-    #[arg(long, default_value_t = 20)]
-    poses: usize,
-    /// Noise (uniform ±G, in g).
-    #[arg(long, value_name = "G", default_value_t = 0.01)]
-    noise: f64,
-    /// Data sets (seeds 1…N).
-    #[arg(long, default_value_t = 5)]
-    seeds: u64,
 }
 
 #[derive(Debug, Args)]
@@ -451,7 +430,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::ExportUrdf(args) => export_urdf(args),
         Command::Predict(args) => predict(args),
         Command::Validate(args) => validate(args),
-        Command::Bench(BenchCommand::Body(args)) => bench_body(args),
+        Command::Bench(BenchCommand::Body(args)) => bench_body::bench_body(args),
         Command::Bench(BenchCommand::Sensors(args)) => bench_sensors::bench_sensors(args),
         Command::Bench(BenchCommand::Limbs(args)) => bench_limbs::bench_limbs(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
@@ -1351,38 +1330,8 @@ fn demo(args: DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// Whether the structure places every SU of `truth` after exactly the DoFs that move it.
-fn structure_is_exact(truth: &skincal::model::Robot, s: &skincal::explore::Structure) -> bool {
-    let m = &truth.model;
-    if !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty() {
-        return false;
-    }
-    s.segments.iter().all(|segment| {
-        let mut found: Vec<String> = Vec::new();
-        let mut current = segment;
-        while let Some(j) = &current.parent_joint {
-            let joint = s.joint(j).expect("parent joints exist");
-            found.extend(joint.dofs.iter().cloned());
-            current = s.segment(&joint.parent).expect("parents exist");
-        }
-        found.sort();
-        segment.sus.iter().all(|su| {
-            let Some(u) = m.su_index(su) else {
-                return false;
-            };
-            let mut expected: Vec<String> = m
-                .chain_to(m.sus()[u].segment)
-                .into_iter()
-                .map(|d| m.dofs()[d].name.clone())
-                .collect();
-            expected.sort();
-            expected == found
-        })
-    })
-}
-
 /// Peak resident memory of this process, MB (Linux; 0 elsewhere).
-fn peak_memory_mb() -> f64 {
+pub(crate) fn peak_memory_mb() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {
@@ -1392,96 +1341,4 @@ fn peak_memory_mb() -> f64 {
                 .and_then(|kb| kb.parse::<f64>().ok())
         })
         .map_or(0.0, |kb| kb / 1024.0)
-}
-
-fn bench_body(args: BenchBodyArgs) -> Result<()> {
-    use skincal::model::description::with_random_sus;
-    let mut rows = Vec::new();
-    let what = match args.random_dofs {
-        Some(d) => format!("random trees, {d} DoFs, {} SUs", args.random_sus),
-        None => format!("humanoid, {} SUs per skinned segment", args.sus_per_segment),
-    };
-    outln!(
-        "whole pipeline on {what}; P = {}, uniform ±{} g noise, seeds 1…{}; held-out: 20 fresh noise-free poses\n",
-        args.poses, args.noise, args.seeds
-    );
-    for seed in 1..=args.seeds {
-        let robot = match args.random_dofs {
-            Some(dofs) => sim::random_tree(
-                &RandomTreeConfig {
-                    dofs,
-                    sus: args.random_sus,
-                    ..RandomTreeConfig::default()
-                },
-                seed,
-            )?,
-            None => with_random_sus(
-                &io::load_robot("humanoid", SuPlacement::default())?,
-                args.sus_per_segment,
-                seed,
-            )?,
-        };
-        let config = SimulationConfig {
-            seed,
-            poses: args.poses,
-            imperfections: Imperfections {
-                uniform_noise: args.noise,
-                ..Imperfections::none()
-            },
-            ..SimulationConfig::default()
-        };
-        let set = sim::simulate(&robot, &config)?.measurements;
-        let t0 = std::time::Instant::now();
-        let structure = skincal::explore::explore(&set, &ExploreConfig::default())?;
-        let explore_s = t0.elapsed().as_secs_f64();
-        let exact = structure_is_exact(&robot, &structure);
-        let t1 = std::time::Instant::now();
-        let model = skincal::estimate::body::calibrate_body(
-            &set,
-            Some(&structure),
-            &skincal::estimate::ml::MlConfig {
-                noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
-                ..Default::default()
-            },
-            None,
-        );
-        let calibrate_s = t1.elapsed().as_secs_f64();
-        let model = match model {
-            Ok(m) => m,
-            Err(e) => {
-                outln!("seed {seed}: {e}");
-                continue;
-            }
-        };
-        let held_out = sim::simulate(
-            &robot,
-            &SimulationConfig {
-                seed: seed + 1000,
-                structure: false,
-                poses: 20,
-                imperfections: Imperfections::none(),
-                ..SimulationConfig::default()
-            },
-        )?
-        .measurements;
-        let check = skincal::predict::validate(&model, &held_out, "held-out")?;
-        rows.push(render::BodyBenchRow {
-            seed,
-            dofs: robot.model.dofs().len(),
-            sus: robot.model.sus().len(),
-            limbs: model.limbs.len(),
-            converged: model.limbs.iter().filter(|l| l.estimate.converged).count(),
-            exact,
-            explore_s,
-            calibrate_s,
-            static_rms: check.static_rms,
-            dynamic_rms: check.dynamic_rms,
-        });
-    }
-    out!("{}", render::body_bench(&rows));
-    outln!(
-        "peak resident memory of the whole run: {:.0} MB",
-        peak_memory_mb()
-    );
-    Ok(())
 }

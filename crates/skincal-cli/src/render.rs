@@ -346,6 +346,9 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
         e.seconds * 1e3,
         e.fixed.join(", ")
     );
+    for r in &e.retries {
+        let _ = writeln!(out, "tried: {r}");
+    }
     for u in &e.unobservable {
         let _ = writeln!(
             out,
@@ -565,71 +568,6 @@ pub fn validation_table(v: &skincal::predict::Validation) -> String {
             out,
             "not in the model, not compared: {}",
             v.not_in_model.join(", ")
-        );
-    }
-    out
-}
-
-/// One data set of `skincal bench body`.
-pub struct BodyBenchRow {
-    pub seed: u64,
-    pub dofs: usize,
-    pub sus: usize,
-    pub limbs: usize,
-    pub converged: usize,
-    pub exact: bool,
-    pub explore_s: f64,
-    pub calibrate_s: f64,
-    pub static_rms: f64,
-    pub dynamic_rms: f64,
-}
-
-pub fn body_bench(rows: &[BodyBenchRow]) -> String {
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "{:>5} {:>5} {:>5} {:>6} {:>10} {:>10} {:>11} {:>13} {:>13} {:>14}",
-        "seed",
-        "DoFs",
-        "SUs",
-        "exact",
-        "converged",
-        "explore ms",
-        "calibrate s",
-        "total s",
-        "static m/s²",
-        "dynamic m/s²"
-    );
-    for r in rows {
-        let _ = writeln!(
-            out,
-            "{:>5} {:>5} {:>5} {:>6} {:>10} {:>10.1} {:>11.3} {:>13.3} {:>13.4} {:>14.4}",
-            r.seed,
-            r.dofs,
-            r.sus,
-            if r.exact { "yes" } else { "NO" },
-            format!("{}/{}", r.converged, r.limbs),
-            r.explore_s * 1e3,
-            r.calibrate_s,
-            r.explore_s + r.calibrate_s,
-            r.static_rms,
-            r.dynamic_rms
-        );
-    }
-    if !rows.is_empty() {
-        let rms = |f: &dyn Fn(&BodyBenchRow) -> f64| {
-            (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / rows.len() as f64).sqrt()
-        };
-        let mut totals: Vec<f64> = rows.iter().map(|r| r.explore_s + r.calibrate_s).collect();
-        totals.sort_by(f64::total_cmp);
-        let _ = writeln!(
-            out,
-            "all: structure exact {}/{}, median pipeline {:.3} s, held-out RMS static {:.4} m/s², dynamic {:.4} m/s²",
-            rows.iter().filter(|r| r.exact).count(),
-            rows.len(),
-            totals[totals.len() / 2],
-            rms(&|r| r.static_rms),
-            rms(&|r| r.dynamic_rms)
         );
     }
     out

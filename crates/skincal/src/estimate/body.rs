@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::limb::{limb_chains, LimbChain, LimbData};
 use super::ml::{estimate_limb, LimbBase, MlChainEstimate, MlConfig};
+use super::sublimb;
 use super::{chain_in_listed_order, EstimateError};
 use crate::explore::{BrokenSu, Structure};
 use crate::measurements::MeasurementSet;
@@ -218,17 +219,16 @@ pub fn calibrate_body_keeping(
     }
     let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
     let mut estimates: Vec<MlChainEstimate> = Vec::new();
-    let mut parents = Vec::new();
+    let mut parent_of: Vec<Option<usize>> = Vec::new();
     for chain in &chains {
         let mut chain = chain.clone();
         // SUs set aside in a parent limb stay out of its sub-limbs' base path.
         for j in &mut chain.joints {
             j.sus.retain(|su| !broken.iter().any(|b| b.su == *su));
         }
-        let mut base = None;
         let mut parent = None;
         if chain.base_joints > 0 {
-            let found = estimates.iter().find(|e| {
+            let found = estimates.iter().position(|e| {
                 e.chain.joints.len() == chain.base_joints
                     && e.chain
                         .joints
@@ -244,18 +244,75 @@ pub fn calibrate_body_keeping(
             };
             // The base path with the DoF order its own estimate found.
             for j in 0..chain.base_joints {
-                chain.joints[j].dofs = p.chain.joints[j].dofs.clone();
+                chain.joints[j].dofs = estimates[p].chain.joints[j].dofs.clone();
             }
-            let base_dofs = p.chain.dofs().len();
-            base = LimbBase::of(p, base_dofs);
-            parent = Some(p.chain.name.clone());
+            parent = Some(p);
         }
-        let data = LimbData::new(set, &chain)?;
-        let first = estimate_limb(&data, base.as_ref(), config)?;
-        let estimate =
+        let base_dofs: usize = chain.joints[..chain.base_joints]
+            .iter()
+            .map(|j| j.dofs.len())
+            .sum();
+        let mut base = parent.and_then(|p| LimbBase::of(&estimates[p], base_dofs));
+        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
+        if let (false, Some(p)) = (first.converged, parent) {
+            let grandparent = parent_of[p].map(|g| &estimates[g]);
+            let refitted =
+                sublimb::with_parent_refitted(set, &chain, &estimates[p], grandparent, config)?;
+            if let Some((new_parent, again, note)) = refitted {
+                // The limbs already fitted on the parent's old path are fitted on the new one.
+                let name = new_parent.chain.name.clone();
+                let mut new_parent = new_parent;
+                new_parent.retries.push(format!(
+                    "fitted again from limb {}'s readings searched together with it",
+                    chain.name
+                ));
+                estimates[p] = new_parent;
+                for s in p + 1..estimates.len() {
+                    if !hangs_on(&estimates[s].chain, &estimates[p].chain) {
+                        continue;
+                    }
+                    let mut sibling = estimates[s].chain.clone();
+                    for (j, pj) in sibling.joints.iter_mut().zip(&estimates[p].chain.joints) {
+                        j.dofs = pj.dofs.clone();
+                    }
+                    let dofs: usize = estimates[p].chain.dofs().len();
+                    let held = LimbBase::of(&estimates[p], dofs);
+                    let mut e =
+                        estimate_limb(&LimbData::new(set, &sibling)?, held.as_ref(), config)?;
+                    e.retries
+                        .push(format!("fitted again on {name}'s path as fitted again"));
+                    estimates[s] = e;
+                }
+                first = better_of(first, again, note);
+                chain = first.chain.clone();
+                base = LimbBase::of(&estimates[p], base_dofs);
+            } else if let Some((again, note)) =
+                sublimb::with_path_free(set, &chain, &estimates[p], config)?
+            {
+                first = better_of(first, again, note);
+                chain = first.chain.clone();
+            }
+        }
+        let mut estimate =
             set_aside_misfits(set, chain, base.as_ref(), config, first, keep, &mut broken)?;
+        // A limb that did not converge would take the limbs hanging on it down with it: fitted
+        // again from each of theirs searched together with it, until it converges.
+        let children: Vec<&LimbChain> = chains
+            .iter()
+            .filter(|c| hangs_on(c, &estimate.chain))
+            .collect();
+        for child in children {
+            if estimate.converged {
+                break;
+            }
+            let on = parent.map(|p| &estimates[p]);
+            let tried = sublimb::parent_from_child(set, &estimate.chain, on, child, config)?;
+            if let Some((again, note)) = tried {
+                estimate = better_of(estimate, again, note);
+            }
+        }
         estimates.push(estimate);
-        parents.push(parent);
+        parent_of.push(parent);
     }
     let static_sus = match structure {
         Some(s) => s
@@ -281,6 +338,10 @@ pub fn calibrate_body_keeping(
         None => Vec::new(),
     };
     let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
+    let parents = parent_of
+        .iter()
+        .map(|p| p.map(|p| estimates[p].chain.name.clone()))
+        .collect();
     let not_calibrated = left_out(set, structure, &estimates, &static_sus, only, &broken);
     let mut model = assemble(
         set,
@@ -294,6 +355,31 @@ pub fn calibrate_body_keeping(
     model.not_calibrated = not_calibrated;
     model.broken = broken;
     Ok(model)
+}
+
+/// Whether limb `child` hangs directly on the segment where limb `parent` ends.
+fn hangs_on(child: &LimbChain, parent: &LimbChain) -> bool {
+    child.base_joints == parent.joints.len()
+        && child
+            .joints
+            .iter()
+            .zip(&parent.joints)
+            .all(|(a, b)| a.id == b.id)
+}
+
+/// Of a limb's estimate and another fit of it, the one nearer the noise level, with what was tried
+/// (`note`) added to the first's retries.
+fn better_of(first: MlChainEstimate, again: MlChainEstimate, note: String) -> MlChainEstimate {
+    let mut retries = first.retries.clone();
+    retries.extend(again.retries.iter().cloned());
+    retries.push(note);
+    let mut best = if again.residual_ratio < first.residual_ratio {
+        again
+    } else {
+        first
+    };
+    best.retries = retries;
+    best
 }
 
 /// A residual this many times the noise, and twice the limb's median SU's, marks a broken SU.

@@ -15,6 +15,7 @@ pub mod body;
 pub mod limb;
 pub mod ml;
 pub mod paper;
+mod sublimb;
 
 pub use limb::{limb_chains, LimbChain, LimbData, LimbJoint};
 

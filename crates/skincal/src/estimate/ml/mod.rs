@@ -853,6 +853,60 @@ fn fit_ordered(
         // Held along the first axis in the final fit (below).
         state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
     }
+    final_fit(data, base, state, vertical, iterations, started, config)
+}
+
+/// Refits a limb from `start`, a state of its layout (DoFs in `data`'s order), without the
+/// search: the final fit of [`estimate_limb`]. With `base`, the base path's joints and gravity
+/// are held at `base`, whatever `start` says of them. Gravity exactly along the first axis in
+/// `start` (a limb from the reference whose first axis is vertical) is held there.
+pub fn refine_limb(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    mut start: ChainState,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    validate(config)?;
+    let dofs = data.q.first().map_or(0, |q| q.len());
+    if start.joints.len() != dofs || start.sus.len() != data.su_depth.len() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: data.chain.name.clone(),
+            reason: "the start has another layout than the limb".into(),
+        });
+    }
+    if let Some(b) = base {
+        start.joints[..b.joints.len()].copy_from_slice(&b.joints);
+        start.gravity = b.gravity;
+    }
+    let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
+    final_fit(data, base, start, vertical, 0, Instant::now(), config)
+}
+
+/// The final fit of a limb from `state`, and all that is reported of it: residual, covariance,
+/// what is unobservable, intrinsics. `vertical`: gravity is held along the first axis.
+fn final_fit(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    state: ChainState,
+    vertical: bool,
+    mut iterations: usize,
+    started: Instant,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let chain = &data.chain;
+    let base_dofs: usize = chain.joints[..chain.base_joints]
+        .iter()
+        .map(|j| j.dofs.len())
+        .sum();
+    let layout = Layout {
+        dofs: data.q.first().map_or(0, |q| q.len()),
+        su_segment: data.su_depth.clone(),
+    };
+    let mut readings = readings(data);
+    readings.rejected = screen(&readings, config.noise_sd);
+    let spans = spans(data);
+    let first = chain.base_joints;
+    let sigma = config.noise_sd;
 
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
     let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);

@@ -1,0 +1,288 @@
+//! Limbs that hang on other limbs, when a fit is not at the noise level.
+//!
+//! A sub-limb is fitted with its base path (the DoFs from the reference to the branching segment it
+//! hangs on) and gravity held at its parent's estimate. Two things can go wrong there:
+//!
+//! - **The sub-limb's search fails although its parent converged.** With the base held, the search
+//!   cannot move gravity or the path, and can settle in a degenerate minimum (a humanoid's arms and
+//!   neck on a trunk whose one yaw axis is vertical: gravity held exactly along it). The path and the
+//!   sub-limb are then searched together as one limb from the reference ([`with_path_free`]); that
+//!   fit, carried into the parent's frames, starts the sub-limb's fit with the base held again.
+//! - **The parent itself did not converge.** Its children's readings see its segments move too: the
+//!   path and a child searched together as one limb from the reference start the parent's fit again
+//!   ([`parent_from_child`]), before any child is fitted on the wrong path.
+//!
+//! Carrying a fit from one limb's frames into another's ([`carried_start`]): both fits see the same
+//! SUs on the path, so the rigid motion that takes one's SU frames (at the zero pose) onto the
+//! other's relates their reference frames; what lies beyond the path is relative to its segment
+//! and carries over unchanged.
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use super::limb::{LimbChain, LimbData};
+use super::ml::{estimate_limb, refine_limb, ChainState, LimbBase, MlChainEstimate, MlConfig};
+use super::EstimateError;
+use crate::measurements::MeasurementSet;
+
+/// `chain` as one limb from the reference: its base path is fitted with it, not held.
+fn from_reference(chain: &LimbChain) -> LimbChain {
+    LimbChain {
+        base_joints: 0,
+        ..chain.clone()
+    }
+}
+
+/// The DoFs before each of `chain`'s SUs (the index of its segment), in `chain.sus()` order.
+fn su_depths(chain: &LimbChain) -> Vec<usize> {
+    let mut depth = 0;
+    let mut out = Vec::new();
+    for j in &chain.joints {
+        depth += j.dofs.len();
+        out.extend(std::iter::repeat_n(depth, j.sus.len()));
+    }
+    out
+}
+
+/// Segment frames at the zero pose: `[k]` is the frame of the segment after `k` DoFs.
+fn segments_at_zero(state: &ChainState) -> Vec<Isometry3<f64>> {
+    let mut out = vec![Isometry3::identity()];
+    for j in &state.joints {
+        let next = out.last().expect("starts with the reference") * j;
+        out.push(next);
+    }
+    out
+}
+
+/// SU `name`'s frame in the reference frame of `estimate`, at the zero pose.
+fn su_at_zero(estimate: &MlChainEstimate, name: &str) -> Option<Isometry3<f64>> {
+    let state = estimate.state.as_ref()?;
+    let sus = estimate.chain.sus();
+    let u = sus.iter().position(|s| s == name)?;
+    let depth = su_depths(&estimate.chain)[u];
+    Some(segments_at_zero(state)[depth] * state.sus[u])
+}
+
+/// The rigid motion `a` with `a · from[i] ≈ to[i]` (least squares over rotations, then positions).
+fn align(pairs: &[(Isometry3<f64>, Isometry3<f64>)]) -> Option<Isometry3<f64>> {
+    if pairs.is_empty() {
+        return None;
+    }
+    let sum: Matrix3<f64> = pairs
+        .iter()
+        .map(|(from, to)| {
+            to.rotation.to_rotation_matrix().matrix()
+                * from.rotation.to_rotation_matrix().matrix().transpose()
+        })
+        .sum();
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&sum));
+    let shift: Vector3<f64> = pairs
+        .iter()
+        .map(|(from, to)| to.translation.vector - rotation * from.translation.vector)
+        .sum::<Vector3<f64>>()
+        / pairs.len() as f64;
+    Some(Isometry3::from_parts(Translation3::from(shift), rotation))
+}
+
+/// A start for `target` from `free`, a fit of a limb from the reference whose joints begin with
+/// `target`'s: `target`'s own joints take `free`'s DoF order, frames and SUs; with `base` (the
+/// estimate whose first joints are `target`'s base path), the path and gravity are `base`'s and
+/// the rest is carried into its frames through the SUs both fits share. Returns the chain in that
+/// order and the start, or `None` where the fits share too little.
+pub(crate) fn carried_start(
+    free: &MlChainEstimate,
+    target: &LimbChain,
+    base: Option<&MlChainEstimate>,
+) -> Option<(LimbChain, ChainState)> {
+    let fs = free.state.as_ref()?;
+    let fchain = &free.chain;
+    if fchain.joints.len() < target.joints.len()
+        || fchain
+            .joints
+            .iter()
+            .zip(&target.joints)
+            .any(|(a, b)| a.id != b.id || a.dofs.len() != b.dofs.len())
+    {
+        return None;
+    }
+    let mut chain = target.clone();
+    for j in target.base_joints..target.joints.len() {
+        chain.joints[j].dofs = fchain.joints[j].dofs.clone();
+    }
+    let base_dofs: usize = chain.joints[..chain.base_joints]
+        .iter()
+        .map(|j| j.dofs.len())
+        .sum();
+    let dofs: usize = chain.joints.iter().map(|j| j.dofs.len()).sum();
+    let f_segments = segments_at_zero(fs);
+    let free_sus = fchain.sus();
+    let free_index = |name: &str| free_sus.iter().position(|s| s == name);
+    let (a, path, gravity, b_segments) = match base {
+        None => (Isometry3::identity(), Vec::new(), fs.gravity, Vec::new()),
+        Some(b) => {
+            let bs = b.state.as_ref()?;
+            if bs.joints.len() < base_dofs {
+                return None;
+            }
+            let pairs: Vec<(Isometry3<f64>, Isometry3<f64>)> = b
+                .chain
+                .sus()
+                .iter()
+                .filter_map(|su| Some((su_at_zero(free, su)?, su_at_zero(b, su)?)))
+                .collect();
+            (
+                align(&pairs)?,
+                bs.joints[..base_dofs].to_vec(),
+                bs.gravity,
+                segments_at_zero(bs),
+            )
+        }
+    };
+    let mut joints = path;
+    for k in base_dofs..dofs {
+        joints.push(if k == base_dofs && base.is_some() {
+            b_segments[k].inverse() * a * f_segments[k] * fs.joints[k]
+        } else {
+            fs.joints[k]
+        });
+    }
+    let mut sus = Vec::new();
+    let mut intrinsics = Vec::new();
+    for (name, depth) in chain.sus().iter().zip(su_depths(&chain)) {
+        let u = free_index(name)?;
+        sus.push(if base.is_some() && depth <= base_dofs {
+            b_segments[depth].inverse() * a * f_segments[depth] * fs.sus[u]
+        } else {
+            fs.sus[u]
+        });
+        intrinsics.push(fs.intrinsics[u]);
+    }
+    Some((
+        chain,
+        ChainState {
+            gravity,
+            joints,
+            sus,
+            intrinsics,
+        },
+    ))
+}
+
+/// A sub-limb `chain` (base path held at `parent`'s estimate) fitted again: searched together with
+/// its path as one limb from the reference, then, carried into `parent`'s frames, fitted with the
+/// path held. Returns the estimate and what was tried, or `None` when the search from the
+/// reference found no start.
+pub(crate) fn with_path_free(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    parent: &MlChainEstimate,
+    config: &MlConfig,
+) -> Result<Option<(MlChainEstimate, String)>, EstimateError> {
+    let free = estimate_limb(&LimbData::new(set, &from_reference(chain))?, None, config)?;
+    let Some((ordered, start)) = carried_start(&free, chain, Some(parent)) else {
+        return Ok(None);
+    };
+    let base_dofs: usize = ordered.joints[..ordered.base_joints]
+        .iter()
+        .map(|j| j.dofs.len())
+        .sum();
+    let base = LimbBase::of(parent, base_dofs);
+    let refined = refine_limb(&LimbData::new(set, &ordered)?, base.as_ref(), start, config)?;
+    let note = format!(
+        "searched together with its base path as one limb from the reference ({:.2} σ there), then fitted on {}'s path from that start: residual {:.2} σ",
+        free.residual_ratio, parent.chain.name, refined.residual_ratio
+    );
+    Ok(Some((refined, note)))
+}
+
+/// A limb `chain` that did not converge (`base`: the estimate its base path is held at), fitted
+/// again from the fit of `child` (a limb hanging on it) searched together with its path as one limb
+/// from the reference. Returns the estimate and what was tried, or `None` when that found no start.
+pub(crate) fn parent_from_child(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    base: Option<&MlChainEstimate>,
+    child: &LimbChain,
+    config: &MlConfig,
+) -> Result<Option<(MlChainEstimate, String)>, EstimateError> {
+    let free = estimate_limb(&LimbData::new(set, &from_reference(child))?, None, config)?;
+    if !free.converged {
+        return Ok(None);
+    }
+    let Some((ordered, start)) = carried_start(&free, chain, base) else {
+        return Ok(None);
+    };
+    let base_dofs: usize = ordered.joints[..ordered.base_joints]
+        .iter()
+        .map(|j| j.dofs.len())
+        .sum();
+    let held = base.and_then(|b| LimbBase::of(b, base_dofs));
+    let refined = refine_limb(&LimbData::new(set, &ordered)?, held.as_ref(), start, config)?;
+    let note = format!(
+        "fitted again from limb {}'s readings searched together with this limb ({:.2} σ there): residual {:.2} σ",
+        child.name, free.residual_ratio, refined.residual_ratio
+    );
+    Ok(Some((refined, note)))
+}
+
+/// A parent limb fitted again because a limb hanging on it (`child`, not converged with its base
+/// path held at `parent`) converges when searched together with that path as one limb from the
+/// reference: the parent's own readings can leave a mirror image open (a trunk with one yaw axis
+/// and SUs near it fits with gravity along the axis either way) that the child's readings close.
+/// `grandparent`: the estimate `parent`'s base path is held at. Returns the parent and the child
+/// fitted again, both at the noise level, with what was done; `None` otherwise.
+pub(crate) fn with_parent_refitted(
+    set: &MeasurementSet,
+    child: &LimbChain,
+    parent: &MlChainEstimate,
+    grandparent: Option<&MlChainEstimate>,
+    config: &MlConfig,
+) -> Result<Option<(MlChainEstimate, MlChainEstimate, String)>, EstimateError> {
+    let free = estimate_limb(&LimbData::new(set, &from_reference(child))?, None, config)?;
+    if !free.converged {
+        return Ok(None);
+    }
+    let Some((pchain, pstart)) = carried_start(&free, &parent.chain, grandparent) else {
+        return Ok(None);
+    };
+    let held = |chain: &LimbChain, on: Option<&MlChainEstimate>| {
+        let dofs: usize = chain.joints[..chain.base_joints]
+            .iter()
+            .map(|j| j.dofs.len())
+            .sum();
+        on.and_then(|b| LimbBase::of(b, dofs))
+    };
+    let new_parent = refine_limb(
+        &LimbData::new(set, &pchain)?,
+        held(&pchain, grandparent).as_ref(),
+        pstart,
+        config,
+    )?;
+    if !new_parent.converged {
+        return Ok(None);
+    }
+    let mut child = child.clone();
+    for (j, pj) in child.joints.iter_mut().zip(&new_parent.chain.joints) {
+        j.dofs = pj.dofs.clone();
+    }
+    let Some((cchain, cstart)) = carried_start(&free, &child, Some(&new_parent)) else {
+        return Ok(None);
+    };
+    let new_child = refine_limb(
+        &LimbData::new(set, &cchain)?,
+        held(&cchain, Some(&new_parent)).as_ref(),
+        cstart,
+        config,
+    )?;
+    if !new_child.converged {
+        return Ok(None);
+    }
+    let note = format!(
+        "searched together with its base path as one limb from the reference ({:.2} σ there); limb {} fitted again from that start ({:.2} σ, was {:.2} σ), then this limb on its path: residual {:.2} σ",
+        free.residual_ratio,
+        parent.chain.name,
+        new_parent.residual_ratio,
+        parent.residual_ratio,
+        new_child.residual_ratio
+    );
+    Ok(Some((new_parent, new_child, note)))
+}
