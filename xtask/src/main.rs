@@ -5,6 +5,9 @@
 //! - the Python packages of `tests/python/requirements.txt` (pinned), in a virtual environment at
 //!   `target/test-env` that is made once and updated only when the requirements change, so the
 //!   second run costs nothing; the tests find it through `SKINCAL_TEST_PYTHON`;
+//! - real robots' descriptions: the one wheel of `tests/python/robot-descriptions.txt` (pinned,
+//!   hash checked), downloaded once with the environment's pip and its URDF files unpacked into
+//!   `target/robot-descriptions`; the tests find them through `SKINCAL_ROBOT_DESCRIPTIONS`;
 //! - system packages (Debian's `python3` and `python3-venv` when the environment cannot be made
 //!   without them), installed with apt-get only when running as root and only when missing; as
 //!   another user the task stops and prints the command that installs them.
@@ -30,7 +33,10 @@ fn main() -> ExitCode {
     let task = args.next();
     let rest: Vec<OsString> = args.collect();
     let result = match task.as_ref().and_then(|t| t.to_str()) {
-        Some("test") => test_env().and_then(|python| run_tests(&python, &rest)),
+        Some("test") => test_env().and_then(|python| {
+            let robots = robot_descriptions(&python)?;
+            run_tests(&python, &robots, &rest)
+        }),
         Some("test-env") => test_env().map(|python| {
             println!("{}", python.display());
             ExitCode::SUCCESS
@@ -72,14 +78,15 @@ fn target_dir(root: &Path) -> PathBuf {
         .unwrap_or_else(|| root.join("target"))
 }
 
-/// Runs every test with the test environment's Python.
-fn run_tests(python: &Path, args: &[OsString]) -> Result<ExitCode, String> {
+/// Runs every test with the test environment's Python and the robot descriptions.
+fn run_tests(python: &Path, robots: &Path, args: &[OsString]) -> Result<ExitCode, String> {
     let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let status = Command::new(cargo)
         .args(["test", "--workspace"])
         .args(args)
         .current_dir(workspace_root())
         .env("SKINCAL_TEST_PYTHON", python)
+        .env("SKINCAL_ROBOT_DESCRIPTIONS", robots)
         .status()
         .map_err(|e| format!("could not run cargo test: {e}"))?;
     Ok(match status.code() {
@@ -133,6 +140,90 @@ fn test_env() -> Result<PathBuf, String> {
     }
     fs::write(&stamp, &requirements).map_err(|e| format!("{}: {e}", stamp.display()))?;
     Ok(python)
+}
+
+/// Downloads (once) the wheel of `tests/python/robot-descriptions.txt` with the test
+/// environment's pip, hash checked, and unpacks its URDF files; returns the directory.
+fn robot_descriptions(python: &Path) -> Result<PathBuf, String> {
+    let root = workspace_root();
+    let list_file = root.join("tests/python/robot-descriptions.txt");
+    let list =
+        fs::read_to_string(&list_file).map_err(|e| format!("{}: {e}", list_file.display()))?;
+    let dir = target_dir(&root).join("robot-descriptions");
+    let stamp = dir.join("skincal-robot-descriptions.txt");
+    if fs::read_to_string(&stamp).is_ok_and(|s| s == list) {
+        return Ok(dir);
+    }
+    let wheels = target_dir(&root).join("robot-description-wheels");
+    say(&format!(
+        "downloading the robot descriptions ({}) into {}",
+        pinned(&list)
+            .iter()
+            .map(|l| l.split_whitespace().next().unwrap_or(l))
+            .collect::<Vec<_>>()
+            .join(", "),
+        dir.display()
+    ));
+    let download = Command::new(python)
+        .args([
+            "-m",
+            "pip",
+            "download",
+            "--quiet",
+            "--disable-pip-version-check",
+            "--no-deps",
+            "--only-binary=:all:",
+            "--require-hashes",
+        ])
+        .arg("--requirement")
+        .arg(&list_file)
+        .arg("--dest")
+        .arg(&wheels)
+        .status()
+        .map_err(|e| format!("could not run {}: {e}", python.display()))?;
+    if !download.success() {
+        return Err(format!(
+            "pip could not download {} (is PyPI reachable?); retry with `{} -m pip download \
+             --no-deps --require-hashes -r {} -d {}`",
+            list_file.display(),
+            python.display(),
+            list_file.display(),
+            wheels.display()
+        ));
+    }
+    // The URDF files only (the wheels carry meshes the tests do not need), by the wheel's paths
+    // under its robots/ folder.
+    let unpack = r#"
+import pathlib, sys, zipfile
+wheels, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+count = 0
+for wheel in sorted(wheels.glob("*.whl")):
+    with zipfile.ZipFile(wheel) as z:
+        for name in z.namelist():
+            if name.endswith(".urdf") and "/robots/" in name:
+                target = out / name.split("/robots/", 1)[1]
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(z.read(name))
+                count += 1
+if count == 0:
+    sys.exit("no URDF file in " + str(wheels))
+"#;
+    let _ = fs::remove_dir_all(&dir);
+    let unpacked = Command::new(python)
+        .args(["-c", unpack])
+        .arg(&wheels)
+        .arg(&dir)
+        .status()
+        .map_err(|e| format!("could not run {}: {e}", python.display()))?;
+    if !unpacked.success() {
+        return Err(format!(
+            "could not unpack the URDF files of {} into {} (see above)",
+            wheels.display(),
+            dir.display()
+        ));
+    }
+    fs::write(&stamp, &list).map_err(|e| format!("{}: {e}", stamp.display()))?;
+    Ok(dir)
 }
 
 /// The pinned `name==version` lines of a requirements file.
