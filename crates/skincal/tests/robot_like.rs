@@ -196,6 +196,42 @@ fn a_fit_off_the_noise_level_tries_other_orders_of_a_joints_dofs_and_says_so() {
     assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
 }
 
+#[test]
+fn a_fit_still_off_the_noise_level_searches_wider_and_says_so() {
+    // like-V1-P1-I1-I1-456: a vertical first axis, a parallel second one and two intersecting;
+    // the search with a beam of 2 and the other orders end at 4.4 σ, a wider one converges.
+    let robot = robot_like_limb(&RobotLikeConfig::default(), 456).unwrap();
+    assert!(robot.model.name().starts_with("like-V1-P1-I1-I1"));
+    let config = SimulationConfig {
+        seed: 456,
+        ..SimulationConfig::default()
+    };
+    let set = simulate(&robot, &config).unwrap().measurements;
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            pose_seed: Some(1456),
+            imperfections: Imperfections::none(),
+            ..config
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let limb = &model.limbs[0].estimate;
+    assert!(limb.converged, "residual {:.2} σ", limb.residual_ratio);
+    assert!(
+        limb.retries.iter().any(|r| r.starts_with("a wider search")),
+        "{:?}",
+        limb.retries
+    );
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    assert!(check.static_rms < 0.05, "{}", check.static_rms);
+    assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
+}
+
 /// A trunk that turns about one vertical yaw axis, with its two SUs close to that axis, and two
 /// arms and a head on it (the layout of several humanoids' upper bodies).
 const TRUNK_AND_ARMS: &str = r#"

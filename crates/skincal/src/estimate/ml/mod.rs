@@ -548,6 +548,37 @@ pub fn estimate_limb(
             }
         }
     }
+    // Still not at the noise level: a wider search (more candidates kept per joint, more
+    // rotation starts), with the order that fitted best.
+    if !best.converged {
+        let wider = MlConfig {
+            beam: config.beam * WIDER_BEAM,
+            angle_starts: config.angle_starts * WIDER_ANGLES,
+            ..*config
+        };
+        let order: Vec<usize> = orders
+            .iter()
+            .map(|(j, tried)| {
+                tried
+                    .iter()
+                    .position(|(o, _)| {
+                        o.iter()
+                            .map(|&i| &data.chain.joints[*j].dofs[i])
+                            .eq(best.chain.joints[*j].dofs.iter())
+                    })
+                    .unwrap_or(0)
+            })
+            .collect();
+        let alternative = fit_ordered(&ordered(&order), base, base_dofs, &wider)?;
+        iterations += alternative.iterations;
+        retries.push(format!(
+            "a wider search (beam {}, {} rotation starts): residual {:.2} σ (was {:.2} σ)",
+            wider.beam, wider.angle_starts, alternative.residual_ratio, best.residual_ratio
+        ));
+        if alternative.residual_ratio < best.residual_ratio {
+            best = alternative;
+        }
+    }
     best.joint_orders = joint_orders
         .into_iter()
         .map(|mut o| {
@@ -565,6 +596,10 @@ pub fn estimate_limb(
 
 /// How many other orders of one joint's DoFs are tried when a fit is not at the noise level.
 const ORDER_RETRIES: usize = 3;
+/// How much wider the last search of a fit not at the noise level is: its beam and its rotation
+/// starts, times.
+const WIDER_BEAM: usize = 4;
+const WIDER_ANGLES: usize = 2;
 
 /// The order of the DoFs inside every joint that has several, from the closed-form axis model:
 /// per such joint its index and every order (relative to the input's) with its misfit, best first,
