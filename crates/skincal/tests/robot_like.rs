@@ -2,11 +2,11 @@
 //! lines at the zero pose), and the estimator converges on limbs with a vertical first axis.
 
 use nalgebra::Vector3;
-use skincal::estimate::body::calibrate_body;
+use skincal::estimate::body::{calibrate_body, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
 use skincal::model::forward_kinematics;
-use skincal::predict::validate;
+use skincal::predict::{validate, Validation};
 use skincal::sim::{robot_like_limb, simulate, Imperfections, RobotLikeConfig, SimulationConfig};
 
 /// The distance between two lines (point, unit direction).
@@ -16,6 +16,39 @@ fn line_distance(p: &Vector3<f64>, a: &Vector3<f64>, q: &Vector3<f64>, b: &Vecto
         return (q - p).cross(a).norm();
     }
     (q - p).dot(&n.normalize()).abs()
+}
+
+/// Robot-like limb `seed` simulated (P = 20, ±0.01 g), explored and calibrated, and the model's
+/// held-out check on 20 noise-free poses of the same skin within the limits. Asserts the
+/// limb's name starts with `geometry` and the structure is complete.
+fn calibrated_limb(seed: u64, geometry: &str) -> (BodyModel, Validation) {
+    let robot = robot_like_limb(&RobotLikeConfig::default(), seed).unwrap();
+    assert!(
+        robot.model.name().starts_with(geometry),
+        "{}",
+        robot.model.name()
+    );
+    let config = SimulationConfig {
+        seed,
+        ..SimulationConfig::default()
+    };
+    let set = simulate(&robot, &config).unwrap().measurements;
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            pose_seed: Some(1000 + seed),
+            imperfections: Imperfections::none(),
+            ..config
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete);
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    (model, check)
 }
 
 #[test]
@@ -93,27 +126,7 @@ fn robot_like_limbs_have_the_geometry_their_names_say() {
 fn a_limb_with_a_vertical_first_axis_converges_at_the_noise_level() {
     // like-V1-I1-P1-A1-P1-173: the search used to hold gravity along the vertical first axis and
     // ended at 11 σ; so did a quarter of the robot-like limbs with a vertical first axis.
-    let robot = robot_like_limb(&RobotLikeConfig::default(), 173).unwrap();
-    assert!(robot.model.name().starts_with("like-V"));
-    let config = SimulationConfig {
-        seed: 173,
-        ..SimulationConfig::default()
-    };
-    let set = simulate(&robot, &config).unwrap().measurements;
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            pose_seed: Some(1173),
-            imperfections: Imperfections::none(),
-            ..config
-        },
-    )
-    .unwrap()
-    .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete);
-    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let (model, check) = calibrated_limb(173, "like-V");
     let limb = &model.limbs[0].estimate;
     assert!(limb.converged, "residual {:.2} σ", limb.residual_ratio);
     assert!(limb
@@ -121,7 +134,6 @@ fn a_limb_with_a_vertical_first_axis_converges_at_the_noise_level() {
         .iter()
         .any(|f| f.starts_with("gravity.direction")));
     // Held-out poses within the limits, noise-free: predicted to well under the 0.057 m/s² noise.
-    let check = validate(&model, &held_out, "held-out").unwrap();
     assert!(check.static_rms < 0.05, "{}", check.static_rms);
     assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
 }
@@ -167,31 +179,11 @@ fn what_no_reading_tells_stays_near_the_robot() {
 fn a_fit_off_the_noise_level_tries_other_orders_of_a_joints_dofs_and_says_so() {
     // like-H2-A3-O1-64: within its limits the three DoFs of the spherical joint show their axes
     // too little for the closed-form order; the first fit ends at 2.7 σ, the next order converges.
-    let robot = robot_like_limb(&RobotLikeConfig::default(), 64).unwrap();
-    assert!(robot.model.name().starts_with("like-H2-A3"));
-    let config = SimulationConfig {
-        seed: 64,
-        ..SimulationConfig::default()
-    };
-    let set = simulate(&robot, &config).unwrap().measurements;
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            pose_seed: Some(1064),
-            imperfections: Imperfections::none(),
-            ..config
-        },
-    )
-    .unwrap()
-    .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let (model, check) = calibrated_limb(64, "like-H2-A3");
     let limb = &model.limbs[0].estimate;
     assert!(limb.converged, "residual {:.2} σ", limb.residual_ratio);
     assert!(!limb.retries.is_empty());
     assert!(limb.retries[0].contains("joint"), "{:?}", limb.retries);
-    let check = validate(&model, &held_out, "held-out").unwrap();
     assert!(check.static_rms < 0.05, "{}", check.static_rms);
     assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
 }
@@ -200,26 +192,7 @@ fn a_fit_off_the_noise_level_tries_other_orders_of_a_joints_dofs_and_says_so() {
 fn a_fit_still_off_the_noise_level_searches_wider_and_says_so() {
     // like-V1-P1-I1-I1-456: a vertical first axis, a parallel second one and two intersecting;
     // the search with a beam of 2 and the other orders end at 4.4 σ, a wider one converges.
-    let robot = robot_like_limb(&RobotLikeConfig::default(), 456).unwrap();
-    assert!(robot.model.name().starts_with("like-V1-P1-I1-I1"));
-    let config = SimulationConfig {
-        seed: 456,
-        ..SimulationConfig::default()
-    };
-    let set = simulate(&robot, &config).unwrap().measurements;
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            pose_seed: Some(1456),
-            imperfections: Imperfections::none(),
-            ..config
-        },
-    )
-    .unwrap()
-    .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let (model, check) = calibrated_limb(456, "like-V1-P1-I1-I1");
     let limb = &model.limbs[0].estimate;
     assert!(limb.converged, "residual {:.2} σ", limb.residual_ratio);
     assert!(
@@ -227,7 +200,6 @@ fn a_fit_still_off_the_noise_level_searches_wider_and_says_so() {
         "{:?}",
         limb.retries
     );
-    let check = validate(&model, &held_out, "held-out").unwrap();
     assert!(check.static_rms < 0.05, "{}", check.static_rms);
     assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
 }

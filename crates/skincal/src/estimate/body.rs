@@ -248,10 +248,7 @@ pub fn calibrate_body_keeping(
             }
             parent = Some(p);
         }
-        let base_dofs: usize = chain.joints[..chain.base_joints]
-            .iter()
-            .map(|j| j.dofs.len())
-            .sum();
+        let base_dofs = chain.base_dofs();
         let mut base = parent.and_then(|p| LimbBase::of(&estimates[p], base_dofs));
         let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
         if let (false, Some(p)) = (first.converged, parent) {
@@ -259,30 +256,12 @@ pub fn calibrate_body_keeping(
             let refitted =
                 sublimb::with_parent_refitted(set, &chain, &estimates[p], grandparent, config)?;
             if let Some((new_parent, again, note)) = refitted {
-                // The limbs already fitted on the parent's old path are fitted on the new one.
-                let name = new_parent.chain.name.clone();
                 let mut new_parent = new_parent;
                 new_parent.retries.push(format!(
                     "fitted again from limb {}'s readings searched together with it",
                     chain.name
                 ));
-                estimates[p] = new_parent;
-                for s in p + 1..estimates.len() {
-                    if !hangs_on(&estimates[s].chain, &estimates[p].chain) {
-                        continue;
-                    }
-                    let mut sibling = estimates[s].chain.clone();
-                    for (j, pj) in sibling.joints.iter_mut().zip(&estimates[p].chain.joints) {
-                        j.dofs = pj.dofs.clone();
-                    }
-                    let dofs: usize = estimates[p].chain.dofs().len();
-                    let held = LimbBase::of(&estimates[p], dofs);
-                    let mut e =
-                        estimate_limb(&LimbData::new(set, &sibling)?, held.as_ref(), config)?;
-                    e.retries
-                        .push(format!("fitted again on {name}'s path as fitted again"));
-                    estimates[s] = e;
-                }
+                replace_parent(set, &mut estimates, p, new_parent, config)?;
                 first = better_of(first, again, note);
                 chain = first.chain.clone();
                 base = LimbBase::of(&estimates[p], base_dofs);
@@ -355,6 +334,37 @@ pub fn calibrate_body_keeping(
     model.not_calibrated = not_calibrated;
     model.broken = broken;
     Ok(model)
+}
+
+/// Puts `new_parent` in place of `estimates[p]` and fits the limbs already fitted on its old path
+/// again on the new one.
+fn replace_parent(
+    set: &MeasurementSet,
+    estimates: &mut [MlChainEstimate],
+    p: usize,
+    new_parent: MlChainEstimate,
+    config: &MlConfig,
+) -> Result<(), EstimateError> {
+    estimates[p] = new_parent;
+    let (done, later) = estimates.split_at_mut(p + 1);
+    let parent = &done[p];
+    let held = LimbBase::of(parent, parent.chain.dofs().len());
+    for sibling in later
+        .iter_mut()
+        .filter(|e| hangs_on(&e.chain, &parent.chain))
+    {
+        let mut chain = sibling.chain.clone();
+        for (j, pj) in chain.joints.iter_mut().zip(&parent.chain.joints) {
+            j.dofs = pj.dofs.clone();
+        }
+        let mut again = estimate_limb(&LimbData::new(set, &chain)?, held.as_ref(), config)?;
+        again.retries.push(format!(
+            "fitted again on {}'s path as fitted again",
+            parent.chain.name
+        ));
+        *sibling = again;
+    }
+    Ok(())
 }
 
 /// Whether limb `child` hangs directly on the segment where limb `parent` ends.
@@ -637,10 +647,7 @@ fn assemble(
             .expect("a fresh estimate has its state");
         let chain = &estimate.chain;
         let dofs = chain.dofs();
-        let base_dofs: usize = chain.joints[..chain.base_joints]
-            .iter()
-            .map(|j| j.dofs.len())
-            .sum();
+        let base_dofs = chain.base_dofs();
         let gravity = Vector3::from(estimate.gravity);
         // A limb on the reference segment is turned so that its gravity points down; one on a
         // branching segment shares its parent's frame.

@@ -53,6 +53,27 @@ impl LimbChain {
             .collect()
     }
 
+    /// How many DoFs its base path has (held at the parent limb's estimate).
+    pub fn base_dofs(&self) -> usize {
+        self.joints[..self.base_joints]
+            .iter()
+            .map(|j| j.dofs.len())
+            .sum()
+    }
+
+    /// For each SU of [`Self::sus`], the DoFs before its segment along [`Self::dofs`].
+    pub fn su_depths(&self) -> Vec<usize> {
+        let mut depth = 0;
+        let mut out = Vec::new();
+        for (j, joint) in self.joints.iter().enumerate() {
+            depth += joint.dofs.len();
+            if j >= self.base_joints {
+                out.extend(std::iter::repeat_n(depth, joint.sus.len()));
+            }
+        }
+        out
+    }
+
     /// The name of the segment after DoF `k` of [`Self::dofs`]: the joint's segment after its last
     /// DoF, `segment_dof` between the DoFs of a multi-DoF joint.
     pub fn segment_after(&self, k: usize) -> String {
@@ -198,13 +219,7 @@ impl LimbData {
             .map(|d| find("DoF", &set.dofs, d))
             .collect::<Result<_, _>>()?;
         let mut su_index = Vec::new();
-        let mut su_depth = Vec::new();
-        let mut depth = 0;
-        for (j, joint) in chain.joints.iter().enumerate() {
-            depth += joint.dofs.len();
-            if j < chain.base_joints {
-                continue;
-            }
+        for joint in &chain.joints[chain.base_joints..] {
             if joint.sus.is_empty() {
                 return Err(EstimateError::UnsupportedLimb {
                     limb: chain.name.clone(),
@@ -216,9 +231,9 @@ impl LimbData {
             }
             for su in &joint.sus {
                 su_index.push(find("SU", &set.sus, su)?);
-                su_depth.push(depth);
             }
         }
+        let su_depth = chain.su_depths();
         let mut q = Vec::new();
         let mut statics = Vec::new();
         let mut dynamics = Vec::new();

@@ -32,17 +32,6 @@ fn from_reference(chain: &LimbChain) -> LimbChain {
     }
 }
 
-/// The DoFs before each of `chain`'s SUs (the index of its segment), in `chain.sus()` order.
-fn su_depths(chain: &LimbChain) -> Vec<usize> {
-    let mut depth = 0;
-    let mut out = Vec::new();
-    for j in &chain.joints {
-        depth += j.dofs.len();
-        out.extend(std::iter::repeat_n(depth, j.sus.len()));
-    }
-    out
-}
-
 /// Segment frames at the zero pose: `[k]` is the frame of the segment after `k` DoFs.
 fn segments_at_zero(state: &ChainState) -> Vec<Isometry3<f64>> {
     let mut out = vec![Isometry3::identity()];
@@ -58,7 +47,7 @@ fn su_at_zero(estimate: &MlChainEstimate, name: &str) -> Option<Isometry3<f64>> 
     let state = estimate.state.as_ref()?;
     let sus = estimate.chain.sus();
     let u = sus.iter().position(|s| s == name)?;
-    let depth = su_depths(&estimate.chain)[u];
+    let depth = estimate.chain.su_depths()[u];
     Some(segments_at_zero(state)[depth] * state.sus[u])
 }
 
@@ -108,17 +97,15 @@ pub(crate) fn carried_start(
     for j in target.base_joints..target.joints.len() {
         chain.joints[j].dofs = fchain.joints[j].dofs.clone();
     }
-    let base_dofs: usize = chain.joints[..chain.base_joints]
-        .iter()
-        .map(|j| j.dofs.len())
-        .sum();
-    let dofs: usize = chain.joints.iter().map(|j| j.dofs.len()).sum();
-    let f_segments = segments_at_zero(fs);
-    let free_sus = fchain.sus();
-    let free_index = |name: &str| free_sus.iter().position(|s| s == name);
-    let (a, path, gravity, b_segments) = match base {
-        None => (Isometry3::identity(), Vec::new(), fs.gravity, Vec::new()),
+    let base_dofs = chain.base_dofs();
+    let dofs = chain.dofs().len();
+    let mut joints = fs.joints[..dofs].to_vec();
+    let gravity = match base {
+        None => fs.gravity,
         Some(b) => {
+            // The path and gravity are the base's; the first joint after the path is carried from
+            // `free`'s frames into the base's by the motion that takes the shared SUs' frames onto
+            // each other (at the zero pose).
             let bs = b.state.as_ref()?;
             if bs.joints.len() < base_dofs {
                 return None;
@@ -129,31 +116,21 @@ pub(crate) fn carried_start(
                 .iter()
                 .filter_map(|su| Some((su_at_zero(free, su)?, su_at_zero(b, su)?)))
                 .collect();
-            (
-                align(&pairs)?,
-                bs.joints[..base_dofs].to_vec(),
-                bs.gravity,
-                segments_at_zero(bs),
-            )
+            let a = align(&pairs)?;
+            let on_free = segments_at_zero(fs)[base_dofs];
+            let on_base = segments_at_zero(bs)[base_dofs];
+            joints[..base_dofs].copy_from_slice(&bs.joints[..base_dofs]);
+            joints[base_dofs] = on_base.inverse() * a * on_free * fs.joints[base_dofs];
+            bs.gravity
         }
     };
-    let mut joints = path;
-    for k in base_dofs..dofs {
-        joints.push(if k == base_dofs && base.is_some() {
-            b_segments[k].inverse() * a * f_segments[k] * fs.joints[k]
-        } else {
-            fs.joints[k]
-        });
-    }
+    // The SUs a limb fits are all beyond its base path: relative to their segments, as `free` has them.
     let mut sus = Vec::new();
     let mut intrinsics = Vec::new();
-    for (name, depth) in chain.sus().iter().zip(su_depths(&chain)) {
-        let u = free_index(name)?;
-        sus.push(if base.is_some() && depth <= base_dofs {
-            b_segments[depth].inverse() * a * f_segments[depth] * fs.sus[u]
-        } else {
-            fs.sus[u]
-        });
+    let free_sus = fchain.sus();
+    for name in chain.sus() {
+        let u = free_sus.iter().position(|s| *s == name)?;
+        sus.push(fs.sus[u]);
         intrinsics.push(fs.intrinsics[u]);
     }
     Some((
@@ -181,10 +158,7 @@ pub(crate) fn with_path_free(
     let Some((ordered, start)) = carried_start(&free, chain, Some(parent)) else {
         return Ok(None);
     };
-    let base_dofs: usize = ordered.joints[..ordered.base_joints]
-        .iter()
-        .map(|j| j.dofs.len())
-        .sum();
+    let base_dofs = ordered.base_dofs();
     let base = LimbBase::of(parent, base_dofs);
     let refined = refine_limb(&LimbData::new(set, &ordered)?, base.as_ref(), start, config)?;
     let note = format!(
@@ -211,10 +185,7 @@ pub(crate) fn parent_from_child(
     let Some((ordered, start)) = carried_start(&free, chain, base) else {
         return Ok(None);
     };
-    let base_dofs: usize = ordered.joints[..ordered.base_joints]
-        .iter()
-        .map(|j| j.dofs.len())
-        .sum();
+    let base_dofs = ordered.base_dofs();
     let held = base.and_then(|b| LimbBase::of(b, base_dofs));
     let refined = refine_limb(&LimbData::new(set, &ordered)?, held.as_ref(), start, config)?;
     let note = format!(
@@ -245,10 +216,7 @@ pub(crate) fn with_parent_refitted(
         return Ok(None);
     };
     let held = |chain: &LimbChain, on: Option<&MlChainEstimate>| {
-        let dofs: usize = chain.joints[..chain.base_joints]
-            .iter()
-            .map(|j| j.dofs.len())
-            .sum();
+        let dofs = chain.base_dofs();
         on.and_then(|b| LimbBase::of(b, dofs))
     };
     let new_parent = refine_limb(

@@ -486,10 +486,7 @@ pub fn estimate_limb(
     validate(config)?;
     let started = Instant::now();
     let chain = &data.chain;
-    let base_dofs: usize = chain.joints[..chain.base_joints]
-        .iter()
-        .map(|j| j.dofs.len())
-        .sum();
+    let base_dofs = chain.base_dofs();
     if let Some(b) = base {
         if b.joints.len() != base_dofs {
             return Err(EstimateError::UnsupportedLimb {
@@ -888,7 +885,9 @@ fn fit_ordered(
         // Held along the first axis in the final fit (below).
         state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
     }
-    final_fit(data, base, state, vertical, iterations, started, config)
+    final_fit(
+        data, base, readings, state, vertical, iterations, started, config,
+    )
 }
 
 /// Refits a limb from `start`, a state of its layout (DoFs in `data`'s order), without the
@@ -914,14 +913,28 @@ pub fn refine_limb(
         start.gravity = b.gravity;
     }
     let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
-    final_fit(data, base, start, vertical, 0, Instant::now(), config)
+    let mut readings = readings(data);
+    readings.rejected = screen(&readings, config.noise_sd);
+    final_fit(
+        data,
+        base,
+        readings,
+        start,
+        vertical,
+        0,
+        Instant::now(),
+        config,
+    )
 }
 
 /// The final fit of a limb from `state`, and all that is reported of it: residual, covariance,
-/// what is unobservable, intrinsics. `vertical`: gravity is held along the first axis.
+/// what is unobservable, intrinsics. `readings`: the limb's, screened; `vertical`: gravity is held
+/// along the first axis.
+#[allow(clippy::too_many_arguments)]
 fn final_fit(
     data: &LimbData,
     base: Option<&LimbBase>,
+    readings: Readings,
     state: ChainState,
     vertical: bool,
     mut iterations: usize,
@@ -929,16 +942,11 @@ fn final_fit(
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
     let chain = &data.chain;
-    let base_dofs: usize = chain.joints[..chain.base_joints]
-        .iter()
-        .map(|j| j.dofs.len())
-        .sum();
+    let base_dofs = chain.base_dofs();
     let layout = Layout {
         dofs: data.q.first().map_or(0, |q| q.len()),
         su_segment: data.su_depth.clone(),
     };
-    let mut readings = readings(data);
-    readings.rejected = screen(&readings, config.noise_sd);
     let spans = spans(data);
     let first = chain.base_joints;
     let sigma = config.noise_sd;
