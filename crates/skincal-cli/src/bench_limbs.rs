@@ -7,8 +7,10 @@ use std::time::Instant;
 use anyhow::Result;
 use clap::Args;
 use skincal::estimate::body::calibrate_body;
-use skincal::estimate::ml::MlConfig;
+use skincal::estimate::limb::LimbData;
+use skincal::estimate::ml::{self, MlConfig};
 use skincal::explore::{explore, ExploreConfig};
+use skincal::model::sensor::gravity_upright;
 use skincal::sim::{self, Imperfections, RobotLikeConfig, SimulationConfig};
 
 use crate::out::{out, outln};
@@ -30,6 +32,9 @@ pub struct BenchLimbsArgs {
     /// Training poses P.
     #[arg(long, default_value_t = 20)]
     poses: usize,
+    /// Print one line per limb as it is done.
+    #[arg(long)]
+    each: bool,
 }
 
 /// One limb's outcome.
@@ -42,6 +47,9 @@ struct Outcome {
     statics: f64,
     dynamics: f64,
     pose: f64,
+    /// SU pose error in the directions the readings determine, and its bound, m.
+    observable: f64,
+    bound: f64,
     seconds: f64,
     /// Why the pipeline stopped short, if it did.
     failure: Option<String>,
@@ -80,6 +88,8 @@ fn run(seed: u64, args: &BenchLimbsArgs) -> Result<Outcome> {
         statics: f64::NAN,
         dynamics: f64::NAN,
         pose: f64::NAN,
+        observable: f64::NAN,
+        bound: f64::NAN,
         seconds: 0.0,
         failure: None,
     };
@@ -113,6 +123,21 @@ fn run(seed: u64, args: &BenchLimbsArgs) -> Result<Outcome> {
         seed,
     )?
     .position_rms;
+    if let Some(state) = &e.state {
+        let data = LimbData::new(&set, &e.chain)?;
+        if let Some(errors) = ml::observable_su_errors(
+            &robot,
+            &gravity_upright(),
+            state,
+            &data,
+            &MlConfig::default(),
+            30,
+            seed,
+        ) {
+            outcome.observable = errors.position_rms;
+            outcome.bound = errors.position_bound;
+        }
+    }
     Ok(outcome)
 }
 
@@ -142,7 +167,24 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
     let mut outcomes = Vec::new();
     for seed in args.first_seed..=last {
         match run(seed, &args) {
-            Ok(o) => outcomes.push(o),
+            Ok(o) => {
+                if args.each {
+                    outln!(
+                        "seed {seed:>4}  {:<36} {} DoFs {:>2} SUs  residual {:>6.2} σ  static {:.4}  dynamic {:.4}  SU pose {:>8.2} mm  observable {:>7.2} mm  bound {:>7.2} mm  {:.2} s",
+                        o.name,
+                        o.dofs,
+                        o.sus,
+                        o.residual,
+                        o.statics,
+                        o.dynamics,
+                        o.pose * 1000.0,
+                        o.observable * 1000.0,
+                        o.bound * 1000.0,
+                        o.seconds
+                    );
+                }
+                outcomes.push(o)
+            }
             Err(e) => outln!("seed {seed}: {e}"),
         }
     }
@@ -155,11 +197,13 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         "{:<24} {:>10} {:>10} {:>10}",
         "", "median", "95 %", "max"
     );
-    let rows: [(&str, Vec<f64>, f64); 5] = [
+    let rows: [(&str, Vec<f64>, f64); 7] = [
         ("residual / σ", col(|o| o.residual), 1.0),
         ("held-out static, m/s²", col(|o| o.statics), 1.0),
         ("held-out dynamic, m/s²", col(|o| o.dynamics), 1.0),
         ("SU pose RMS, mm", col(|o| o.pose), 1000.0),
+        ("  observable part, mm", col(|o| o.observable), 1000.0),
+        ("  / its bound", col(|o| o.observable / o.bound), 1.0),
         ("calibrate, s", col(|o| o.seconds), 1.0),
     ];
     for (name, values, scale) in rows {
@@ -176,6 +220,17 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
     outln!(
         "\nconverged (residual ≤ 1.5 σ): {converged} of {n} ({:.1} %)",
         100.0 * converged as f64 / n.max(1) as f64
+    );
+    let bounded: Vec<f64> = outcomes
+        .iter()
+        .map(|o| o.observable / o.bound)
+        .filter(|r| r.is_finite())
+        .collect();
+    outln!(
+        "SU pose error in the directions the readings determine within 1.5× its Cramér–Rao bound: {} of {} ({:.1} %)",
+        bounded.iter().filter(|&&r| r <= 1.5).count(),
+        bounded.len(),
+        100.0 * bounded.iter().filter(|&&r| r <= 1.5).count() as f64 / bounded.len().max(1) as f64
     );
     let failed: Vec<&Outcome> = outcomes.iter().filter(|o| !o.converged).collect();
     if !failed.is_empty() {

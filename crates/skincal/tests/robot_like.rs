@@ -1,11 +1,15 @@
 //! Robot-like limbs: the generator builds the geometry its names say (checked on the axes'
-//! lines at the zero pose), and the estimator converges on limbs with a vertical first axis.
+//! lines at the zero pose), the estimator converges on limbs with a vertical first axis, and its
+//! SU pose errors are measured in the directions the readings tell.
 
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use skincal::estimate::body::{calibrate_body, BodyModel};
-use skincal::estimate::ml::MlConfig;
-use skincal::explore::{explore, ExploreConfig};
-use skincal::model::forward_kinematics;
+use skincal::estimate::limb::{limb_chains, LimbData};
+use skincal::estimate::ml::{limb_state_of, observable_su_errors, MlConfig};
+use skincal::explore::{explore, ExploreConfig, Structure};
+use skincal::measurements::MeasurementSet;
+use skincal::model::sensor::gravity_upright;
+use skincal::model::{forward_kinematics, Robot};
 use skincal::predict::{validate, Validation};
 use skincal::sim::{robot_like_limb, simulate, Imperfections, RobotLikeConfig, SimulationConfig};
 
@@ -385,4 +389,106 @@ fn a_trunk_whose_own_readings_leave_a_mirror_open_is_fitted_again_from_its_limbs
         );
     }
     assert!(refitted > 0, "no seed needed the trunk fitted again");
+}
+
+/// Robot-like limb `seed` simulated and explored: the truth, its measurements, structure and its
+/// one limb's data. Asserts the limb's name starts with `geometry`.
+fn limb_data(seed: u64, geometry: &str) -> (Robot, MeasurementSet, Structure, LimbData) {
+    let robot = robot_like_limb(&RobotLikeConfig::default(), seed).unwrap();
+    assert!(robot.model.name().starts_with(geometry));
+    let set = simulate(
+        &robot,
+        &SimulationConfig {
+            seed,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let chains = limb_chains(&structure).unwrap();
+    assert_eq!(chains.len(), 1);
+    let data = LimbData::new(&set, &chains[0]).unwrap();
+    (robot, set, structure, data)
+}
+
+#[test]
+fn su_pose_errors_along_what_no_reading_tells_do_not_count() {
+    let config = MlConfig::default();
+    let g = gravity_upright();
+    // Every axis parallel: nothing tells how far along them any SU or joint sits.
+    let (robot, _, _, data) = limb_data(6, "like-H1-P1-P1-P1-P1");
+    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    let mut slid = truth.clone();
+    for (u, su) in slid.sus.iter_mut().enumerate() {
+        su.translation.z += 0.05 * u as f64 - 0.3;
+    }
+    for (k, joint) in slid.joints.iter_mut().enumerate().skip(1) {
+        joint.translation.z += 0.2 * k as f64;
+    }
+    let e = observable_su_errors(&robot, &g, &slid, &data, &config, 10, 7).unwrap();
+    assert!(e.raw_position_rms > 0.1, "{e:?}");
+    assert!(e.position_rms < 1e-5 && e.rotation_rms < 1e-5, "{e:?}");
+    assert!(e.free_directions >= data.su_depth.len(), "{e:?}");
+    assert!(e.position_bound > 1e-4 && e.position_bound < 0.05, "{e:?}");
+    assert!(e.rotation_bound > 1e-4 && e.rotation_bound < 0.5, "{e:?}");
+
+    // A vertical first axis: the SUs it alone moves may sit anywhere about it and along it.
+    let (robot, _, _, data) = limb_data(1, "like-V1");
+    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    let on_first = data.su_depth.iter().take_while(|&&d| d == 1).count();
+    assert!(on_first >= 2, "{:?}", data.su_depth);
+    let mut turned = truth.clone();
+    for (u, su) in turned.sus[..on_first].iter_mut().enumerate() {
+        let about = Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 0.1 * u as f64 + 0.05),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 2.5 - 1.9 * u as f64),
+        );
+        *su = about * *su;
+    }
+    let e = observable_su_errors(&robot, &g, &turned, &data, &config, 10, 7).unwrap();
+    assert!(e.raw_position_rms > 0.01, "{e:?}");
+    assert!(e.position_rms < 1e-5 && e.rotation_rms < 1e-5, "{e:?}");
+}
+
+#[test]
+fn su_pose_errors_the_readings_tell_are_kept() {
+    let config = MlConfig::default();
+    let g = gravity_upright();
+    let (robot, _, _, data) = limb_data(6, "like-H1-P1-P1-P1-P1");
+    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    // One SU in the middle 5 mm off across the axes: both its pairs are off by 5 mm.
+    let u = data.su_depth.len() / 2;
+    let mut moved = truth.clone();
+    moved.sus[u].translation.x += 0.005;
+    let e = observable_su_errors(&robot, &g, &moved, &data, &config, 10, 7).unwrap();
+    let pairs = (data.su_depth.len() - 1) as f64;
+    let expected = 0.005 * (2.0 / pairs).sqrt();
+    assert!(
+        (e.raw_position_rms - expected).abs() < 1e-6 * expected.max(1.0) + 1e-7,
+        "{e:?}"
+    );
+    assert!(e.position_rms > 0.9 * expected, "{e:?} against {expected}");
+    assert!(e.position_rms <= e.raw_position_rms + 1e-9, "{e:?}");
+}
+
+#[test]
+fn calibrated_su_poses_are_at_the_bound_in_the_directions_the_readings_tell() {
+    // The estimator against the Cramér–Rao bound at the truth, over limbs with parallel axes,
+    // vertical first axes and several SUs per segment: the RMS over them of error / bound.
+    let config = MlConfig::default();
+    let mut squares = Vec::new();
+    for seed in 1..=12 {
+        let (robot, set, structure, data) = limb_data(seed, "like-");
+        let model = calibrate_body(&set, Some(&structure), &config, None).unwrap();
+        let state = model.limbs[0].estimate.state.as_ref().unwrap();
+        assert_eq!(model.limbs[0].estimate.chain, data.chain);
+        let e = observable_su_errors(&robot, &gravity_upright(), state, &data, &config, 30, seed)
+            .unwrap();
+        let ratio = e.position_rms / e.position_bound;
+        assert!(ratio < 3.0, "seed {seed}: {e:?}");
+        squares.push(ratio * ratio);
+    }
+    let rms = (squares.iter().sum::<f64>() / squares.len() as f64).sqrt();
+    assert!(rms < 1.2, "RMS of error / bound {rms:.2}: {squares:?}");
 }

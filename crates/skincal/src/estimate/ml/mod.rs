@@ -40,8 +40,13 @@
 //! Jacobian's QR (triangular solves, no explicit normal-matrix inverse), and is propagated to each
 //! SU's position and orientation relative to the previous SU.
 
+mod bound;
 mod init;
 mod problem;
+
+pub use bound::{
+    cramer_rao_bound, limb_state_of, observable_su_errors, state_of, ObservableErrors,
+};
 
 use std::time::Instant;
 
@@ -50,7 +55,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::limb::{LimbChain, LimbData};
-use super::{ChainData, EstimateError, SerialChain};
+use super::{ChainData, EstimateError};
 use crate::model::description::RobotFile;
 use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
@@ -347,7 +352,7 @@ fn readings(data: &LimbData) -> Readings {
         alpha: data.pattern.peak_acceleration(),
         huber: Some(HUBER),
         rejected: Vec::new(),
-        gauge_prior: true,
+        gauge_prior: Some(problem::SEARCH_POSITION_PRIOR_SD),
     }
 }
 
@@ -950,6 +955,11 @@ fn final_fit(
     let spans = spans(data);
     let first = chain.base_joints;
     let sigma = config.noise_sd;
+    // Tighter priors on what no reading tells than in the search (FIT_POSITION_PRIOR_SD).
+    let readings = Readings {
+        gauge_prior: Some(problem::FIT_POSITION_PRIOR_SD),
+        ..readings
+    };
 
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
     let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
@@ -980,7 +990,7 @@ fn final_fit(
     let rejected = rejected_counts(&readings, &data.chain.sus());
     // What is reported about the fit comes from the readings alone, not the gauge priors.
     let readings = Readings {
-        gauge_prior: false,
+        gauge_prior: None,
         ..readings
     };
     let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
@@ -1553,107 +1563,4 @@ pub mod internals {
         )
         .0
     }
-}
-
-/// The chain state of a robot that names the chain's DoFs and SUs (e.g. the truth), in this
-/// estimator's frames: reference = the first DoF's joint frame with `z` along its axis.
-pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> Option<ChainState> {
-    let (joint_world, su_world) = super::chain_frames_at_zero(robot, chain)?;
-    let to_reference = joint_world[0].inverse();
-    let world: Vec<Isometry3<f64>> = joint_world.iter().map(|j| to_reference * j).collect();
-    let mut joints = vec![Isometry3::identity(); world.len()];
-    for i in 1..world.len() {
-        joints[i] = world[i - 1].inverse() * world[i];
-    }
-    let su_states: Vec<Isometry3<f64>> = su_world
-        .iter()
-        .enumerate()
-        .map(|(u, s)| world[u].inverse() * (to_reference * s))
-        .collect();
-    Some(ChainState {
-        gravity: to_reference.rotation * gravity,
-        joints,
-        intrinsics: vec![Intrinsics::default(); su_states.len()],
-        sus: su_states,
-    })
-}
-
-/// The Cramér–Rao bound on the consecutive-SU pose errors of [`super::consecutive_su_errors`]:
-/// the parameter covariance `σ²(JᵀJ)⁻¹` of the whitened Jacobian at the truth (for the training poses
-/// of `data`; readings do not enter), propagated to each SU's pose relative to the previous one over
-/// `poses` random held-out poses (seeded, each DoF uniform in ±2.62 rad). Returns the RMS position
-/// bound (m) and the RMS rotation bound (rad) over the pairs that the metric aggregates (all but the
-/// first). With `intrinsics`, the bound of an estimator that fits those intrinsics too (ideal
-/// sensors at the truth, the gravity magnitude held when scales are fitted, as the estimator does).
-pub fn cramer_rao_bound(
-    truth: &Robot,
-    gravity: &Vector3<f64>,
-    data: &ChainData,
-    sigma: f64,
-    poses: usize,
-    seed: u64,
-    intrinsics: IntrinsicsModel,
-) -> Option<(f64, f64)> {
-    use rand::{Rng, SeedableRng};
-    let state = state_of(truth, &data.chain, gravity)?;
-    let dofs = data.chain.dofs.len();
-    let layout = serial_layout(dofs);
-    let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
-    if intrinsics.components() > 3 {
-        spec.blocks[0] = Block::GravityDirection;
-    }
-    let map = ColumnMap::new(&spec);
-    // Least squares: the Jacobian alone, whatever the readings' residuals at the truth.
-    let plain = Readings {
-        huber: None,
-        gauge_prior: false,
-        ..readings(&LimbData::from(data))
-    };
-    let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);
-    let columns = spec.columns();
-    let n = columns.len();
-    let (covariance, _) = covariance(
-        &normal,
-        &map,
-        1.0,
-        &vec![String::new(); n],
-        MlConfig::default().observable_limit,
-    );
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let (mut position, mut rotation, mut count) = (0.0, 0.0, 0usize);
-    let h = 1e-6;
-    for _ in 0..poses {
-        let q = turns_of(
-            &(0..dofs)
-                .map(|_| rng.random_range(-2.62..=2.62))
-                .collect::<Vec<f64>>(),
-        );
-        let pair = |s: &ChainState, i: usize| {
-            let f = frames(s, &layout, &q, None, layout.dofs);
-            f.sus[i].inverse() * f.sus[i + 1]
-        };
-        for i in 1..dofs.saturating_sub(1) {
-            let base = pair(&state, i);
-            let mut jac_t = DMatrix::zeros(3, n);
-            let mut jac_r = DMatrix::zeros(3, n);
-            for c in 0..n {
-                let mut delta = vec![0.0; n];
-                delta[c] = h;
-                let plus = pair(&retract_columns(&state, &spec, &columns, &delta), i);
-                delta[c] = -h;
-                let minus = pair(&retract_columns(&state, &spec, &columns, &delta), i);
-                let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
-                let dr = ((base.rotation.inverse() * plus.rotation).scaled_axis()
-                    - (base.rotation.inverse() * minus.rotation).scaled_axis())
-                    / (2.0 * h);
-                jac_t.set_column(c, &dt);
-                jac_r.set_column(c, &dr);
-            }
-            position += (&jac_t * &covariance * jac_t.transpose()).trace();
-            rotation += (&jac_r * &covariance * jac_r.transpose()).trace();
-            count += 1;
-        }
-    }
-    let count = count.max(1) as f64;
-    Some(((position / count).sqrt(), (rotation / count).sqrt()))
 }

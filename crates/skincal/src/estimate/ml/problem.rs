@@ -32,11 +32,18 @@ pub(super) const INTRINSIC_PRIOR_SD: [f64; 9] = [
 ];
 
 /// The prior standard deviation of an SU's position on its segment and of a joint's on its parent
-/// (from the frame before it), m: far beyond any robot, it leaves every position the readings tell
-/// as they tell it (a bias of (σ/10 m)² of it), and keeps near their frames the directions no
-/// reading tells — a shift along axes that are all parallel — which the solves would otherwise let
-/// drift hundreds of metres away. Stronger, it slows the solves down.
-pub(super) const SU_POSITION_PRIOR_SD: f64 = 10.0;
+/// (from the frame before it) in the search, m: far beyond any robot, it leaves every position the
+/// readings tell as they tell it, and keeps near their frames the directions no reading tells — a
+/// shift along axes that are all parallel — which the solves would otherwise let drift hundreds of
+/// metres away. Stronger, it slows the search down and sways its ranking of candidates.
+pub(super) const SEARCH_POSITION_PRIOR_SD: f64 = 10.0;
+
+/// The same prior in the final fit, m: beyond any segment of a robot, it leaves every position the
+/// readings tell as they tell it (a bias of (σ/1 m)² of it). At 10 m the noise still carried such
+/// shifts metres along the axes, where the small tilt errors of the axes swing them: one
+/// robot-like limb in twelve then had its SU poses off by more than 1.5× the Cramér–Rao bound in
+/// the directions the readings do tell (`skincal bench limbs`).
+pub(super) const FIT_POSITION_PRIOR_SD: f64 = 1.0;
 
 /// Which SU sits on which segment (1-based: segment `k` is moved directly by DoF `k−1`).
 #[derive(Debug, Clone, PartialEq)]
@@ -61,10 +68,11 @@ pub(super) struct Readings {
     /// Readings left out (wild ones found after the fit): `rejected[p][u][0]` the static reading,
     /// `[1 + d]` the dynamic one of DoF `d`. Empty: none.
     pub rejected: Vec<Vec<Vec<bool>>>,
-    /// Whether the solves hold the directions no reading tells near their frames (weak priors on
-    /// the positions of SUs and joints, [`SU_POSITION_PRIOR_SD`]): on for the search and the fit,
-    /// off for what is reported about the fit (residual, covariance, bounds).
-    pub gauge_prior: bool,
+    /// The standard deviation of the weak priors on the positions of SUs and joints that hold the
+    /// directions no reading tells near their frames, m ([`SEARCH_POSITION_PRIOR_SD`] in the search,
+    /// [`FIT_POSITION_PRIOR_SD`] in the final fit); `None` for what is reported about the fit
+    /// (residual, covariance, bounds).
+    pub gauge_prior: Option<f64>,
 }
 
 impl Readings {
@@ -414,7 +422,7 @@ fn su_block(
         .enumerate()
         .filter(|(_, &(b, c))| match spec.blocks[b] {
             Block::Intrinsics(_) => true,
-            Block::Su(_) => data.gauge_prior && c >= 3,
+            Block::Su(_) => data.gauge_prior.is_some() && c >= 3,
             _ => false,
         })
         .map(|(col, &(b, c))| (col, spec.blocks[b], c))
@@ -542,7 +550,10 @@ fn su_block(
     let values = intrinsics.to_array();
     for (n, &(col, block, c)) in priors.iter().enumerate() {
         let (value, sd) = match block {
-            Block::Su(v) => (state.sus[v].translation.vector[c - 3], SU_POSITION_PRIOR_SD),
+            Block::Su(v) => (
+                state.sus[v].translation.vector[c - 3],
+                data.gauge_prior.unwrap_or(f64::INFINITY),
+            ),
             _ => (values[c], INTRINSIC_PRIOR_SD[c]),
         };
         let x = value / sd;
@@ -643,6 +654,24 @@ pub(super) fn normal_system(
     }
 }
 
+/// The dense information matrix `JᵀJ` (columns in `spec.columns()` order) of a normal system.
+pub(super) fn information(normal: &Normal, map: &ColumnMap) -> DMatrix<f64> {
+    let n = map.slots.len();
+    let mut f = DMatrix::zeros(n, n);
+    for (i, si) in map.slots.iter().enumerate() {
+        for (j, sj) in map.slots.iter().enumerate() {
+            f[(i, j)] = match (*si, *sj) {
+                (Slot::Shared(a), Slot::Shared(b)) => normal.c[(a, b)],
+                (Slot::Own(u, a), Slot::Own(v, b)) if u == v => normal.sus[u].a[(a, b)],
+                (Slot::Own(u, a), Slot::Shared(b)) => normal.sus[u].b[(a, b)],
+                (Slot::Shared(a), Slot::Own(v, b)) => normal.sus[v].b[(b, a)],
+                (Slot::Own(..), Slot::Own(..)) => 0.0,
+            };
+        }
+    }
+    f
+}
+
 /// `|r|²` at a state.
 pub(super) fn cost_of(
     state: &ChainState,
@@ -664,8 +693,8 @@ pub(super) fn cost_of(
             .sum::<f64>()
 }
 
-/// The prior rows of every free joint's position on its parent ([`SU_POSITION_PRIOR_SD`], for
-/// the same reason): per joint, its shared columns, their 3×n Jacobian and the residual
+/// The prior rows of every free joint's position on its parent ([`Readings::gauge_prior`], for
+/// the same reason as an SU's): per joint, its shared columns, their 3×n Jacobian and the residual
 /// `t / sd`. A joint after axes that are all parallel can slide along them unseen; held near its
 /// parent, it does not drift hundreds of metres away.
 fn joint_priors(
@@ -675,9 +704,9 @@ fn joint_priors(
     map: &ColumnMap,
 ) -> Vec<(Vec<usize>, nalgebra::Matrix3xX<f64>, Vector3<f64>)> {
     let mut out = Vec::new();
-    if !data.gauge_prior {
+    let Some(sd) = data.gauge_prior else {
         return out;
-    }
+    };
     for (b, block) in spec.blocks.iter().enumerate() {
         let (k, first) = match *block {
             Block::Joint(k) => (k, 2),
@@ -699,13 +728,13 @@ fn joint_priors(
         let jacobian = nalgebra::Matrix3xX::from_columns(
             &columns
                 .iter()
-                .map(|&(_, axis)| axes.column(axis) / SU_POSITION_PRIOR_SD)
+                .map(|&(_, axis)| axes.column(axis) / sd)
                 .collect::<Vec<_>>(),
         );
         out.push((
             columns.iter().map(|&(col, _)| col).collect(),
             jacobian,
-            joint.translation.vector / SU_POSITION_PRIOR_SD,
+            joint.translation.vector / sd,
         ));
     }
     out
