@@ -596,12 +596,13 @@ pub fn estimate_limb(
     Ok(best)
 }
 
-/// How many other orders of one joint's DoFs are tried when a fit is not at the noise level.
-const ORDER_RETRIES: usize = 3;
+/// How many other orders of one joint's DoFs are tried when a fit is not at the noise level: all
+/// five others of a three-DoF joint (the limits can hide which of its axes comes first).
+const ORDER_RETRIES: usize = 5;
 /// How much wider the last search of a fit not at the noise level is: its beam and its rotation
 /// starts, times.
-const WIDER_BEAM: usize = 4;
-const WIDER_ANGLES: usize = 2;
+const WIDER_BEAM: usize = 16;
+const WIDER_ANGLES: usize = 4;
 
 /// The order of the DoFs inside every joint that has several, from the closed-form axis model:
 /// per such joint its index and every order (relative to the input's) with its misfit, best first,
