@@ -590,6 +590,7 @@ pub fn estimate_limb(
             o
         })
         .collect();
+    retries.append(&mut best.retries);
     best.retries = retries;
     best.iterations = iterations;
     best.seconds = started.elapsed().as_secs_f64();
@@ -956,12 +957,6 @@ fn final_fit(
     let spans = spans(data);
     let first = chain.base_joints;
     let sigma = config.noise_sd;
-    // Tighter priors on what no reading tells than in the search (FIT_POSITION_PRIOR_SD).
-    let readings = Readings {
-        gauge_prior: Some(problem::FIT_POSITION_PRIOR_SD),
-        ..readings
-    };
-
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
     let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
     let final_spec = |intrinsics: IntrinsicsModel| {
@@ -984,8 +979,37 @@ fn final_fit(
         }
         spec
     };
-    let (solved, spec, its) = fit_with_intrinsics(state, &layout, &readings, final_spec, config);
+    let (mut solved, spec, its) =
+        fit_with_intrinsics(state, &layout, &readings, final_spec, config);
     iterations += its;
+    // What no reading tells carried beyond REFIT_BEYOND from its frames: fitted again, held nearer
+    // them (FIT_POSITION_PRIOR_SD).
+    let far = |t: &Isometry3<f64>| t.translation.vector.norm() > problem::REFIT_BEYOND;
+    let mut refits = Vec::new();
+    let readings = if solved.state.sus.iter().chain(&solved.state.joints).any(far) {
+        let tight = Readings {
+            gauge_prior: Some(problem::FIT_POSITION_PRIOR_SD),
+            ..readings
+        };
+        let drift = solved
+            .state
+            .sus
+            .iter()
+            .chain(&solved.state.joints)
+            .map(|t| t.translation.vector.norm())
+            .fold(0.0, f64::max);
+        refits.push(format!(
+            "the final fit again with what no reading tells held within {} m of the frames (it had drifted {drift:.2} m)",
+            problem::FIT_POSITION_PRIOR_SD
+        ));
+        let (refit, _, its) =
+            fit_with_intrinsics(solved.state.clone(), &layout, &tight, final_spec, config);
+        iterations += its;
+        solved = refit;
+        tight
+    } else {
+        readings
+    };
     let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
     iterations += its;
     let rejected = rejected_counts(&readings, &data.chain.sus());
@@ -1052,7 +1076,7 @@ fn final_fit(
         dh,
         chain: data.chain.clone(),
         joint_orders: Vec::new(),
-        retries: Vec::new(),
+        retries: refits,
         gravity: state.gravity.into(),
         residual_ratio,
         noise_sd_estimate,
