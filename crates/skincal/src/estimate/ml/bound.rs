@@ -159,12 +159,15 @@ pub fn cramer_rao_bound(
 pub struct ObservableErrors {
     /// RMS position error over the held-out poses and SU pairs, m.
     pub position_rms: f64,
-    /// The Cramér–Rao bound on it at the truth, m.
+    /// The Cramér–Rao bound on it, at the truth moved along the free directions to the estimate, m.
     pub position_bound: f64,
     /// RMS rotation error over the held-out poses and SU pairs, rad.
     pub rotation_rms: f64,
-    /// The Cramér–Rao bound on it at the truth, rad.
+    /// The Cramér–Rao bound on it, at the truth moved as for the position, rad.
     pub rotation_bound: f64,
+    /// The bound on the position error at the truth as it is given, m: where the free directions
+    /// sit as the truth has them, which no reading tells an estimator.
+    pub position_bound_at_truth: f64,
     /// The RMS position error before the truth is moved along what no reading tells, m.
     pub raw_position_rms: f64,
     /// How many parameter directions no reading tells (at the truth).
@@ -182,9 +185,14 @@ const FREE_DIRECTION: f64 = 1e-10;
 /// The pose of every SU of a limb relative to the previous one, `estimate` against `truth`, over
 /// `poses` held-out poses (seeded; each DoF uniform in its true limits ∩ ±2.62 rad), after the truth
 /// has been moved along every direction that the training readings of `data` leave free, as close
-/// to the estimate as it goes; with the Cramér–Rao bound on the same errors at the truth (the
-/// Fisher information of `data`'s poses with `config`'s noise and intrinsics, propagated to the
-/// pairs; the free directions' images taken out of errors and bound alike).
+/// to the estimate as it goes; with the Cramér–Rao bound on the same errors there (the Fisher
+/// information of `data`'s poses with `config`'s noise and intrinsics, propagated to the pairs;
+/// the free directions' images taken out of errors and bound alike), and at the truth as given.
+///
+/// Every state the truth can be moved to reads exactly like it, so each is the truth as far as
+/// any estimator can know; the bound differs between them (a joint tilt error swings an SU that
+/// sits a metre along parallel axes ten times further than one a decimetre along them), and the one
+/// an estimate answers to is the bound where its own free directions put it.
 ///
 /// `estimate` is in the estimator's chart for `data`'s layout (e.g. [`super::MlChainEstimate`]'s
 /// `state`). `None` for a limb on a parent's path, one SU, or a truth that does not name the
@@ -237,28 +245,28 @@ pub fn observable_su_errors(
 
     let (basis, inverse) = problem.information(&state);
     let free_directions = basis.ncols();
-    let jac = problem.jacobian(&state);
-    let spread = problem.project(&problem.images(&jac, &basis), &jac);
-    let bound = &spread * &inverse;
+    let at_truth = problem.variances(&problem.jacobian(&state), &basis, &inverse);
     let raw = problem.errors(&state);
     let aligned = problem.align(problem.turn_first_segment(state));
-    let (basis, _) = problem.information(&aligned);
+    let (basis, inverse) = problem.information(&aligned);
+    let jac = problem.jacobian(&aligned);
+    let bound = problem.variances(&jac, &basis, &inverse);
     let left = problem.project(
-        &problem.images(&problem.jacobian(&aligned), &basis),
+        &problem.images(&jac, &basis),
         &DMatrix::from_column_slice(problem.rows, 1, problem.errors(&aligned).as_slice()),
     );
     let count = problem.target.len() as f64;
-    let (mut position, mut rotation, mut position_bound, mut rotation_bound, mut raw_position) =
-        (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut position, mut rotation, mut position_bound, mut rotation_bound) = (0.0, 0.0, 0.0, 0.0);
+    let (mut raw_position, mut truth_bound) = (0.0, 0.0);
     for i in 0..problem.rows {
-        let variance = bound.row(i).dot(&spread.row(i));
         if i % 6 < 3 {
             position += left[i] * left[i];
-            position_bound += variance;
+            position_bound += bound[i];
             raw_position += raw[i] * raw[i];
+            truth_bound += at_truth[i];
         } else {
             rotation += left[i] * left[i];
-            rotation_bound += variance;
+            rotation_bound += bound[i];
         }
     }
     let w2 = ROTATION_WEIGHT * ROTATION_WEIGHT;
@@ -267,6 +275,7 @@ pub fn observable_su_errors(
         position_bound: (position_bound.max(0.0) / count).sqrt(),
         rotation_rms: (rotation / w2 / count).sqrt(),
         rotation_bound: (rotation_bound.max(0.0) / w2 / count).sqrt(),
+        position_bound_at_truth: (truth_bound.max(0.0) / count).sqrt(),
         raw_position_rms: (raw_position / count).sqrt(),
         free_directions,
     })
@@ -435,6 +444,21 @@ impl<'a> PairProblem<'a> {
         }
     }
 
+    /// Per row of the errors, the variance that the bound allows with the free directions `basis`
+    /// taken out, from the pairs' Jacobian and the parameter covariance `inverse`.
+    fn variances(
+        &self,
+        jac: &DMatrix<f64>,
+        basis: &DMatrix<f64>,
+        inverse: &DMatrix<f64>,
+    ) -> Vec<f64> {
+        let spread = self.project(&self.images(jac, basis), jac);
+        let bound = &spread * inverse;
+        (0..self.rows)
+            .map(|i| bound.row(i).dot(&spread.row(i)))
+            .collect()
+    }
+
     /// `m` with the span of `images` taken out.
     fn project(&self, images: &DMatrix<f64>, m: &DMatrix<f64>) -> DMatrix<f64> {
         m - images * (images.transpose() * m)
@@ -491,8 +515,9 @@ impl<'a> PairProblem<'a> {
     /// Gauss–Newton on the free directions: the state that reads like `state` and whose pairs come
     /// closest to the estimate's.
     fn align(&self, mut state: ChainState) -> ChainState {
+        let (mut basis, _) = self.information(&state);
+        let free = basis.ncols();
         for _ in 0..20 {
-            let (basis, _) = self.information(&state);
             if basis.ncols() == 0 {
                 break;
             }
@@ -508,10 +533,14 @@ impl<'a> PairProblem<'a> {
                 &self.columns,
                 (&basis * &step).as_slice(),
             );
-            if self.errors(&moved).norm() >= e.norm() {
+            // A step that reads differently (the free directions are not those of the truth's
+            // state any more) is not a move along them.
+            let (next, _) = self.information(&moved);
+            if self.errors(&moved).norm() >= e.norm() || next.ncols() != free {
                 break;
             }
             state = moved;
+            basis = next;
             if step.norm() < 1e-9 {
                 break;
             }

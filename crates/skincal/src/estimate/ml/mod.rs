@@ -352,7 +352,7 @@ fn readings(data: &LimbData) -> Readings {
         alpha: data.pattern.peak_acceleration(),
         huber: Some(HUBER),
         rejected: Vec::new(),
-        gauge_prior: Some(problem::SEARCH_POSITION_PRIOR_SD),
+        gauge_prior: Some(problem::POSITION_PRIOR_SD),
     }
 }
 
@@ -590,7 +590,6 @@ pub fn estimate_limb(
             o
         })
         .collect();
-    retries.append(&mut best.retries);
     best.retries = retries;
     best.iterations = iterations;
     best.seconds = started.elapsed().as_secs_f64();
@@ -979,37 +978,8 @@ fn final_fit(
         }
         spec
     };
-    let (mut solved, spec, its) =
-        fit_with_intrinsics(state, &layout, &readings, final_spec, config);
+    let (solved, spec, its) = fit_with_intrinsics(state, &layout, &readings, final_spec, config);
     iterations += its;
-    // What no reading tells carried beyond REFIT_BEYOND from its frames: fitted again, held nearer
-    // them (FIT_POSITION_PRIOR_SD).
-    let far = |t: &Isometry3<f64>| t.translation.vector.norm() > problem::REFIT_BEYOND;
-    let mut refits = Vec::new();
-    let readings = if solved.state.sus.iter().chain(&solved.state.joints).any(far) {
-        let tight = Readings {
-            gauge_prior: Some(problem::FIT_POSITION_PRIOR_SD),
-            ..readings
-        };
-        let drift = solved
-            .state
-            .sus
-            .iter()
-            .chain(&solved.state.joints)
-            .map(|t| t.translation.vector.norm())
-            .fold(0.0, f64::max);
-        refits.push(format!(
-            "the final fit again with what no reading tells held within {} m of the frames (it had drifted {drift:.2} m)",
-            problem::FIT_POSITION_PRIOR_SD
-        ));
-        let (refit, _, its) =
-            fit_with_intrinsics(solved.state.clone(), &layout, &tight, final_spec, config);
-        iterations += its;
-        solved = refit;
-        tight
-    } else {
-        readings
-    };
     let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
     iterations += its;
     let rejected = rejected_counts(&readings, &data.chain.sus());
@@ -1076,7 +1046,7 @@ fn final_fit(
         dh,
         chain: data.chain.clone(),
         joint_orders: Vec::new(),
-        retries: refits,
+        retries: Vec::new(),
         gravity: state.gravity.into(),
         residual_ratio,
         noise_sd_estimate,
