@@ -11,6 +11,7 @@ use skincal::explore::{explore, ExploreConfig};
 use skincal::ingest::{ingest, IngestConfig};
 use skincal::log::csv::CsvSink;
 use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::ros::{decode, Imu, Time};
 use skincal::log::{LogSink, Topics};
 use skincal::measurements::MeasurementSet;
 use skincal::model::sensor::{peak_dynamic_accelerations, static_readings};
@@ -326,4 +327,50 @@ fn plans_respect_every_limit() {
     .unwrap_err()
     .to_string();
     assert!(err.contains(&robot.model.dofs()[0].name), "{err}");
+}
+
+#[test]
+fn recorded_imu_messages_carry_exact_millisecond_stamps_and_the_noise_covariance() {
+    // At an epoch-sized start an f64 of seconds resolves only about 240 ns: the stamps of a 1 kHz
+    // log must still be whole milliseconds apart, and every Imu must state its noise.
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("structure.mcap");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        start_stamp: 1_767_225_600.123,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &config, &path, true);
+    let bytes = std::fs::read(&path).unwrap();
+    let first: u64 = 1_767_225_600_123_000_000;
+    // The default ±0.01 g, g = 9.81 m/s² as everywhere in skincal (σ = 0.0566 m/s²).
+    let g0 = 9.81;
+    let variance = (0.01 * g0) * (0.01 * g0) / 3.0;
+    let mut imus = 0;
+    let mut first_seen = None;
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        if message.channel.topic != Topics::default().imu {
+            continue;
+        }
+        let imu: Imu = decode(&message.data).unwrap();
+        let stamp = imu.header.stamp.nanoseconds();
+        assert!(stamp >= first, "stamp {stamp}");
+        assert_eq!((stamp - first) % 1_000_000, 0, "stamp {stamp}");
+        assert_eq!(imu.header.stamp, Time::from_nanoseconds(stamp as i64));
+        assert_eq!(message.log_time, stamp);
+        let c = imu.linear_acceleration_covariance;
+        for (i, v) in c.iter().enumerate() {
+            let expected = if i % 4 == 0 { variance } else { 0.0 };
+            assert!((v - expected).abs() < 1e-15, "{c:?}");
+        }
+        assert_eq!(imu.orientation_covariance[0], -1.0);
+        first_seen = first_seen.or(Some(stamp));
+        imus += 1;
+    }
+    let sus = robot.model.su_names().len();
+    assert!(imus > 1000 * sus, "{imus} Imu messages");
+    assert_eq!(first_seen, Some(first));
 }

@@ -5,7 +5,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream};
+use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Time};
 
 /// File of the joint states in a CSV log directory.
 pub const JOINTS_FILE: &str = "joint_states.csv";
@@ -47,7 +47,12 @@ impl CsvSink {
 }
 
 impl LogSink for CsvSink {
-    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError> {
+    fn start(
+        &mut self,
+        dofs: &[String],
+        sus: &[String],
+        _acceleration_variance: f64,
+    ) -> Result<(), LogError> {
         let (js, jf) = Staged::create(&self.dir.join(JOINTS_FILE), self.force)?;
         let (is, imf) = Staged::create(&self.dir.join(IMU_FILE), self.force)?;
         self.files = Some([
@@ -63,14 +68,14 @@ impl LogSink for CsvSink {
 
     fn joint_state(
         &mut self,
-        stamp: f64,
-        _receive: f64,
+        stamp: Time,
+        _receive: Time,
         positions: &[f64],
         _velocities: &[f64],
     ) -> Result<(), LogError> {
         use std::fmt::Write as _;
         self.line.clear();
-        let _ = write!(self.line, "{stamp:.9}");
+        let _ = write!(self.line, "{}.{:09}", stamp.sec, stamp.nanosec);
         for q in positions {
             let _ = write!(self.line, ",{q:.9}");
         }
@@ -78,14 +83,14 @@ impl LogSink for CsvSink {
         self.write_line(0)
     }
 
-    fn imu(&mut self, stamp: f64, _receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError> {
+    fn imu(&mut self, stamp: Time, _receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError> {
         use std::fmt::Write as _;
         self.line.clear();
         let name = self.sus.get(su).map(String::as_str).unwrap_or_default();
         let _ = writeln!(
             self.line,
-            "{stamp:.9},{name},{:.6},{:.6},{:.6}",
-            a[0], a[1], a[2]
+            "{}.{:09},{name},{:.6},{:.6},{:.6}",
+            stamp.sec, stamp.nanosec, a[0], a[1], a[2]
         );
         self.write_line(1)
     }

@@ -35,6 +35,8 @@ pub struct McapSink {
     sequence: (u32, u32),
     dofs: Vec<String>,
     sus: Vec<String>,
+    /// Of each accelerometer component's noise, (m/s²)² (0: unknown).
+    acceleration_variance: f64,
 }
 
 impl McapSink {
@@ -52,6 +54,7 @@ impl McapSink {
             sequence: (0, 0),
             dofs: Vec::new(),
             sus: Vec::new(),
+            acceleration_variance: 0.0,
         }
     }
 
@@ -88,7 +91,13 @@ impl McapSink {
 }
 
 impl LogSink for McapSink {
-    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError> {
+    fn start(
+        &mut self,
+        dofs: &[String],
+        sus: &[String],
+        acceleration_variance: f64,
+    ) -> Result<(), LogError> {
+        self.acceleration_variance = acceleration_variance;
         let (staged, file) = Staged::create(&self.path, self.force)?;
         let compression = match self.compression {
             Compression::None => None,
@@ -138,14 +147,14 @@ impl LogSink for McapSink {
 
     fn joint_state(
         &mut self,
-        stamp: f64,
-        receive: f64,
+        stamp: Time,
+        receive: Time,
         positions: &[f64],
         velocities: &[f64],
     ) -> Result<(), LogError> {
         let message = JointState {
             header: ros::Header {
-                stamp: Time::from_seconds(stamp),
+                stamp,
                 frame_id: String::new(),
             },
             name: self.dofs.clone(),
@@ -158,19 +167,19 @@ impl LogSink for McapSink {
             reason: e.to_string(),
         })?;
         self.sequence.0 = self.sequence.0.wrapping_add(1);
-        let log_time = Time::from_seconds(receive).nanoseconds();
+        let log_time = receive.nanoseconds();
         self.write(self.channels.0, self.sequence.0, log_time, &data)
     }
 
-    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError> {
+    fn imu(&mut self, stamp: Time, receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError> {
         let name = self.sus.get(su).map(String::as_str).unwrap_or_default();
-        let message = Imu::accelerometer(Time::from_seconds(stamp), name, a);
+        let message = Imu::accelerometer(stamp, name, a, self.acceleration_variance);
         let data = ros::encode(&message).map_err(|e| LogError::Encode {
             schema: ros::IMU,
             reason: e.to_string(),
         })?;
         self.sequence.1 = self.sequence.1.wrapping_add(1);
-        let log_time = Time::from_seconds(receive).nanoseconds();
+        let log_time = receive.nanoseconds();
         self.write(self.channels.1, self.sequence.1, log_time, &data)
     }
 

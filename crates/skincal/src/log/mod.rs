@@ -17,6 +17,8 @@ pub mod ros;
 
 use std::path::{Path, PathBuf};
 
+pub use ros::Time;
+
 /// Default topic of the joint states.
 pub const JOINT_TOPIC: &str = "/joint_states";
 /// Default topic of the skin samples.
@@ -81,19 +83,25 @@ pub enum LogError {
 
 /// Receives a time-series log in time order.
 pub trait LogSink {
-    /// Declares the DoF and SU names before the first sample.
-    fn start(&mut self, dofs: &[String], sus: &[String]) -> Result<(), LogError>;
-    /// One joint state: `stamp` (s, the header stamp), `receive` (s, when it was logged), positions
+    /// Declares the DoF and SU names before the first sample, and the variance of each
+    /// accelerometer component's noise, (m/s²)² (0: unknown).
+    fn start(
+        &mut self,
+        dofs: &[String],
+        sus: &[String],
+        acceleration_variance: f64,
+    ) -> Result<(), LogError>;
+    /// One joint state: `stamp` (the header stamp), `receive` (when it was logged), positions
     /// (rad) and velocities (rad/s) of every DoF.
     fn joint_state(
         &mut self,
-        stamp: f64,
-        receive: f64,
+        stamp: Time,
+        receive: Time,
         positions: &[f64],
         velocities: &[f64],
     ) -> Result<(), LogError>;
     /// One accelerometer sample of SU `su` (index into the names given to `start`), m/s².
-    fn imu(&mut self, stamp: f64, receive: f64, su: usize, a: [f64; 3]) -> Result<(), LogError>;
+    fn imu(&mut self, stamp: Time, receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError>;
     /// Completes the files (renames them into place).
     fn finish(&mut self) -> Result<Vec<PathBuf>, LogError>;
 }

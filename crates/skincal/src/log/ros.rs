@@ -68,6 +68,14 @@ impl Time {
         }
     }
 
+    /// The time `nanoseconds` after the epoch, exactly.
+    pub fn from_nanoseconds(nanoseconds: i64) -> Time {
+        Time {
+            sec: nanoseconds.div_euclid(1_000_000_000) as i32,
+            nanosec: nanoseconds.rem_euclid(1_000_000_000) as u32,
+        }
+    }
+
     /// Seconds.
     pub fn seconds(&self) -> f64 {
         f64::from(self.sec) + f64::from(self.nanosec) * 1e-9
@@ -127,13 +135,18 @@ pub struct Imu {
     pub angular_velocity_covariance: [f64; 9],
     /// m/s².
     pub linear_acceleration: Vector3,
-    /// Row-major 3×3; all zero = unknown.
+    /// Row-major 3×3, (m/s²)²; all zero = unknown.
     pub linear_acceleration_covariance: [f64; 9],
 }
 
 impl Imu {
-    /// An accelerometer-only sample of SU `frame_id`.
-    pub fn accelerometer(stamp: Time, frame_id: &str, a: [f64; 3]) -> Imu {
+    /// An accelerometer-only sample of SU `frame_id`; `variance`: of each component's noise,
+    /// (m/s²)², independent between components (0: unknown).
+    pub fn accelerometer(stamp: Time, frame_id: &str, a: [f64; 3], variance: f64) -> Imu {
+        let mut covariance = [0.0; 9];
+        for i in 0..3 {
+            covariance[4 * i] = variance;
+        }
         let mut unknown = [0.0; 9];
         unknown[0] = -1.0;
         Imu {
@@ -150,7 +163,7 @@ impl Imu {
                 y: a[1],
                 z: a[2],
             },
-            linear_acceleration_covariance: [0.0; 9],
+            linear_acceleration_covariance: covariance,
         }
     }
 }
@@ -268,7 +281,7 @@ mod tests {
 
     #[test]
     fn damaged_length_fields_are_refused_before_decoding() {
-        let imu = Imu::accelerometer(Time::from_seconds(12.5), "su7", [0.1, -0.2, 9.81]);
+        let imu = Imu::accelerometer(Time::from_seconds(12.5), "su7", [0.1, -0.2, 9.81], 0.0032);
         let joints = JointState {
             header: Header {
                 stamp: Time::from_seconds(3.0),

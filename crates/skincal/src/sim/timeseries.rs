@@ -17,7 +17,7 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
 use super::{stream, BaseOrientation, Imperfections, Sensors, SimulationError};
-use crate::log::{LogError, LogSink};
+use crate::log::{LogError, LogSink, Time};
 use crate::model::sensor::specific_force;
 use crate::model::{forward_kinematics, Kinematics, Robot};
 use crate::plan::{Action, Part, Plan};
@@ -180,7 +180,16 @@ pub fn record(
         .or(config.imperfections.quantization_bits.map(|_| 2.0))
         .map(|g| g * crate::model::sensor::STANDARD_GRAVITY);
 
-    sink.start(&model.dof_names(), &model.su_names())?;
+    // The noise of every component, (m/s²)²: uniform ±u has variance u²/3.
+    let g0 = crate::model::sensor::STANDARD_GRAVITY;
+    let variance = (config.imperfections.uniform_noise * g0).powi(2) / 3.0
+        + (config.imperfections.gaussian_noise * g0).powi(2);
+    sink.start(&model.dof_names(), &model.su_names(), variance)?;
+    // Stamps in whole nanoseconds from the first one, exact at any epoch. The first is taken to
+    // the microsecond: an f64 of epoch seconds resolves only about 240 ns, so no finer start is
+    // meant (1767225600.123 is held as …600.12299990654).
+    let first = (config.start_stamp * 1e6).round() as i64 * 1000;
+    let period = 1e9 / config.rate;
     let mut summary = LogSummary {
         duration: end - begin,
         joint_messages: 0,
@@ -197,9 +206,11 @@ pub fn record(
     let mut positions = vec![0.0; model.dofs().len()];
     for k in 0..=n {
         let t = begin + k as f64 / config.rate;
-        let receive = config.start_stamp + k as f64 / config.rate;
+        let receive_ns = first + (k as f64 * period).round() as i64;
+        let receive = Time::from_nanoseconds(receive_ns);
         let stamp = |rng: &mut rand_chacha::ChaCha8Rng| {
-            receive + jitter.as_ref().map_or(0.0, |j| j.sample(rng))
+            let jitter = jitter.as_ref().map_or(0.0, |j| j.sample(rng));
+            Time::from_nanoseconds(receive_ns + (jitter * 1e9).round() as i64)
         };
         let state = plan.state(t);
         let phase = plan.phase_at(t);
