@@ -280,6 +280,7 @@ fn ingest_logs(
             format: match log::format_of(path)? {
                 LogFormat::Mcap => "mcap".into(),
                 LogFormat::Csv => "csv".into(),
+                LogFormat::Rosbag2(files) => format!("rosbag2 (mcap, {} files)", files.len()),
             },
             ..LogReport::default()
         };

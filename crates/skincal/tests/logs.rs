@@ -374,3 +374,126 @@ fn recorded_imu_messages_carry_exact_millisecond_stamps_and_the_noise_covariance
     assert!(imus > 1000 * sus, "{imus} Imu messages");
     assert_eq!(first_seen, Some(first));
 }
+
+/// A rosbag2 directory of `files` (copied in) stored as MCAP, as `ros2 bag record -s mcap` writes.
+fn rosbag2(dir: &Path, files: &[&Path]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut listed = String::new();
+    for (i, f) in files.iter().enumerate() {
+        let name = format!("bag_{i}.mcap");
+        std::fs::copy(f, dir.join(&name)).unwrap();
+        listed.push_str(&format!("    - {name}\n"));
+    }
+    let metadata = format!(
+        "rosbag2_bagfile_information:\n  version: 8\n  storage_identifier: mcap\n  duration:\n    nanoseconds: 1\n  relative_file_paths:\n{listed}  topics_with_message_count: []\n"
+    );
+    std::fs::write(dir.join("metadata.yaml"), metadata).unwrap();
+}
+
+#[test]
+fn rosbag2_directories_read_as_one_log_and_other_formats_say_what_they_are() {
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 3,
+            seed: 4,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    // The whole program in one file, and the same program as a bag split in two files: the
+    // structure part, then the training part stamped on from where the first ends.
+    let whole = dir.path().join("whole.mcap");
+    record_to(&robot, &plan, &LogConfig::default(), &whole, true);
+    let first = dir.path().join("first.mcap");
+    let second = dir.path().join("second.mcap");
+    let start = LogConfig::default().start_stamp;
+    record_to(
+        &robot,
+        &plan,
+        &LogConfig {
+            part: Some(Part::Structure),
+            ..LogConfig::default()
+        },
+        &first,
+        true,
+    );
+    record_to(
+        &robot,
+        &plan,
+        &LogConfig {
+            part: Some(Part::Training),
+            start_stamp: start + plan.structure_duration,
+            ..LogConfig::default()
+        },
+        &second,
+        true,
+    );
+    let config = IngestConfig::default();
+    let one = ingest(std::slice::from_ref(&whole), &config, &mut |_, _, _| {}).unwrap();
+    let bag = dir.path().join("bag");
+    rosbag2(&bag, &[&whole]);
+    let same = ingest(std::slice::from_ref(&bag), &config, &mut |_, _, _| {}).unwrap();
+    // The same readings; only the source each orientation names differs.
+    assert_eq!(same.measurements.training, one.measurements.training);
+    let orientations = |m: &MeasurementSet| {
+        m.structure
+            .as_ref()
+            .unwrap()
+            .orientations
+            .iter()
+            .map(|o| (o.rest_pose.clone(), o.rest.clone(), o.moves.clone()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        orientations(&same.measurements),
+        orientations(&one.measurements)
+    );
+    assert!(
+        same.report.logs[0].format.starts_with("rosbag2"),
+        "{:?}",
+        same.report.logs[0]
+    );
+    let split = dir.path().join("split");
+    rosbag2(&split, &[&first, &second]);
+    let two = ingest(&[split], &config, &mut |_, _, _| {}).unwrap();
+    assert_eq!(two.report.training_poses, 3, "{:#?}", two.report);
+    assert_eq!(two.report.dynamic, 3 * 7);
+    let (s_max, d_max) = training_errors(&robot, &two.measurements);
+    assert!(s_max < 0.01 && d_max < 0.06, "{s_max} {d_max}");
+
+    // What is not read says what it is and what to do.
+    let refused = |path: &Path| {
+        ingest(&[path.to_path_buf()], &config, &mut |_, _, _| {})
+            .unwrap_err()
+            .to_string()
+    };
+    let db3 = dir.path().join("bag_0.db3");
+    std::fs::write(&db3, b"SQLite format 3\0 and then pages").unwrap();
+    let message = refused(&db3);
+    assert!(message.contains("ros2 bag convert"), "{message}");
+    let ros1 = dir.path().join("old.bag");
+    std::fs::write(&ros1, b"#ROSBAG V2.0\nE\0\0\0").unwrap();
+    let message = refused(&ros1);
+    assert!(message.contains("ROS 1 bag"), "{message}");
+    let sqlite_bag = dir.path().join("sqlite_bag");
+    std::fs::create_dir_all(&sqlite_bag).unwrap();
+    std::fs::write(
+        sqlite_bag.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  storage_identifier: sqlite3\n  relative_file_paths:\n    - sqlite_bag_0.db3\n",
+    )
+    .unwrap();
+    let message = refused(&sqlite_bag);
+    assert!(
+        message.contains("SQLite") && message.contains("metadata.yaml"),
+        "{message}"
+    );
+    std::fs::remove_file(bag.join("bag_0.mcap")).unwrap();
+    let message = refused(&bag);
+    assert!(
+        message.contains("bag_0.mcap") && message.contains("not there"),
+        "{message}"
+    );
+}

@@ -180,38 +180,161 @@ impl ReadStats {
 }
 
 /// The kind of a log path.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum LogFormat {
     /// An `.mcap` file.
     Mcap,
     /// A directory with `joint_states.csv` and `imu.csv`.
     Csv,
+    /// A rosbag2 directory stored as MCAP: its files, in the order its `metadata.yaml` lists them.
+    Rosbag2(Vec<PathBuf>),
 }
 
-/// Tells the format of `path`: a directory is a CSV log, any file is tried as MCAP.
+/// The part of a rosbag2 `metadata.yaml` that says where the messages are.
+#[derive(Debug, serde::Deserialize)]
+struct Rosbag2Metadata {
+    rosbag2_bagfile_information: Rosbag2Information,
+}
+
+#[derive(Debug, serde::Deserialize)]
+struct Rosbag2Information {
+    storage_identifier: String,
+    relative_file_paths: Vec<String>,
+}
+
+/// How to make an MCAP of a rosbag2 bag stored in SQLite.
+const CONVERT_DB3: &str = "skincal reads rosbag2 bags stored as MCAP (the default since ROS 2 \
+                           Iron): convert it with `ros2 bag convert -i BAG -o out.yaml`, where \
+                           out.yaml holds `output_bags: [{uri: BAG_mcap, storage_id: mcap}]`, \
+                           and give BAG_mcap";
+
+/// Tells the format of `path`: a directory with a rosbag2 `metadata.yaml` is a bag, another
+/// directory a CSV log, a file an MCAP log unless its first bytes say it is a rosbag2 SQLite file
+/// or a ROS 1 bag (refused with what to do).
 pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
+    let unrecognised = |reason: String| LogError::Unrecognised {
+        path: path.to_path_buf(),
+        reason,
+    };
     if path.is_dir() {
-        Ok(LogFormat::Csv)
-    } else if path.is_file() {
-        Ok(LogFormat::Mcap)
-    } else {
-        Err(LogError::Unrecognised {
-            path: path.to_path_buf(),
-            reason: "no such file or directory (give an .mcap file or a directory with \
-                     joint_states.csv and imu.csv)"
-                .into(),
-        })
+        let metadata = path.join("metadata.yaml");
+        if metadata.is_file() {
+            return rosbag2_files(path, &metadata);
+        }
+        if !path.join(csv::JOINTS_FILE).is_file() && has_extension(path, "mcap") {
+            return Err(unrecognised(
+                "a directory of .mcap files without metadata.yaml: give the .mcap file itself, \
+                 or the rosbag2 directory with its metadata.yaml"
+                    .into(),
+            ));
+        }
+        if !path.join(csv::JOINTS_FILE).is_file() && has_extension(path, "db3") {
+            return Err(unrecognised(format!(
+                "a rosbag2 bag stored in SQLite (.db3): {CONVERT_DB3}"
+            )));
+        }
+        return Ok(LogFormat::Csv);
     }
+    if !path.is_file() {
+        return Err(unrecognised(
+            "no such file or directory (give an .mcap file, a rosbag2 directory, or a directory \
+             with joint_states.csv and imu.csv)"
+                .into(),
+        ));
+    }
+    let mut start = [0u8; 16];
+    let read = std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read(&mut f, &mut start))
+        .map_err(|source| LogError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let start = &start[..read];
+    if start.starts_with(b"SQLite format 3\0") {
+        Err(unrecognised(format!(
+            "an SQLite file, as rosbag2 stores bags in .db3 files: {CONVERT_DB3}"
+        )))
+    } else if start.starts_with(b"#ROSBAG V") {
+        Err(unrecognised(
+            "a ROS 1 bag: skincal reads ROS 2 logs; convert it to MCAP, e.g. with the rosbags \
+             package (`rosbags-convert --src FILE.bag --dst DIR`, giving a rosbag2 directory) and \
+             give that directory, or publish it into `ros2 bag record -s mcap`"
+                .into(),
+        ))
+    } else if path.file_name().is_some_and(|n| n == "metadata.yaml") {
+        Err(unrecognised(
+            "a rosbag2 metadata file: give the bag's directory".into(),
+        ))
+    } else {
+        Ok(LogFormat::Mcap)
+    }
+}
+
+/// Whether `dir` holds a file whose name ends in `.extension`.
+fn has_extension(dir: &Path, extension: &str) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|entries| {
+        entries
+            .flatten()
+            .any(|e| e.path().extension().is_some_and(|x| x == extension))
+    })
+}
+
+/// The message files of the rosbag2 directory `dir`, from its `metadata.yaml`.
+fn rosbag2_files(dir: &Path, metadata: &Path) -> Result<LogFormat, LogError> {
+    let unrecognised = |reason: String| LogError::Unrecognised {
+        path: metadata.to_path_buf(),
+        reason,
+    };
+    let text = std::fs::read_to_string(metadata).map_err(|source| LogError::Io {
+        path: metadata.to_path_buf(),
+        source,
+    })?;
+    let parsed: Rosbag2Metadata = serde_saphyr::from_str(&text).map_err(|e| {
+        unrecognised(format!(
+            "not a rosbag2 metadata file ({e}); it needs rosbag2_bagfile_information with \
+             storage_identifier and relative_file_paths"
+        ))
+    })?;
+    let info = parsed.rosbag2_bagfile_information;
+    match info.storage_identifier.as_str() {
+        "mcap" => {}
+        "sqlite3" => {
+            return Err(unrecognised(format!(
+                "a rosbag2 bag stored in SQLite (.db3): {CONVERT_DB3}"
+            )))
+        }
+        other => {
+            return Err(unrecognised(format!(
+                "rosbag2 storage `{other}`: skincal reads bags stored as mcap"
+            )))
+        }
+    }
+    if info.relative_file_paths.is_empty() {
+        return Err(unrecognised("relative_file_paths lists no file".into()));
+    }
+    let files: Vec<PathBuf> = info
+        .relative_file_paths
+        .iter()
+        .map(|f| dir.join(f))
+        .collect();
+    if let Some(missing) = files.iter().find(|f| !f.is_file()) {
+        return Err(unrecognised(format!(
+            "it lists {}, which is not there (a bag copied without all its files?)",
+            missing.display()
+        )));
+    }
+    Ok(LogFormat::Rosbag2(files))
 }
 
 /// Size in bytes of what a pass over `path` reads, for progress.
 pub fn size_of(path: &Path, stream: Stream) -> u64 {
-    let file = match (format_of(path), stream) {
-        (Ok(LogFormat::Csv), Stream::Joints) => path.join(csv::JOINTS_FILE),
-        (Ok(LogFormat::Csv), Stream::Imu) => path.join(csv::IMU_FILE),
-        _ => path.to_path_buf(),
-    };
-    std::fs::metadata(file).map(|m| m.len()).unwrap_or(0)
+    let size = |file: &Path| std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
+    match (format_of(path), stream) {
+        (Ok(LogFormat::Csv), Stream::Joints) => size(&path.join(csv::JOINTS_FILE)),
+        (Ok(LogFormat::Csv), Stream::Imu) => size(&path.join(csv::IMU_FILE)),
+        (Ok(LogFormat::Rosbag2(files)), _) => files.iter().map(|f| size(f)).sum(),
+        _ => size(path),
+    }
 }
 
 /// Streams the samples of `stream` from the log at `path` to `visit`, in file order; `progress`
@@ -226,6 +349,22 @@ pub fn read_log(
     match format_of(path)? {
         LogFormat::Mcap => mcap::read(path, stream, topics, visit, progress),
         LogFormat::Csv => csv::read(path, stream, visit, progress),
+        LogFormat::Rosbag2(files) => {
+            // One pass over the bag's files in order, as one log.
+            let mut stats = ReadStats::default();
+            let mut done = 0u64;
+            for file in &files {
+                let part = mcap::read(file, stream, topics, visit, &mut |n| progress(done + n))?;
+                done += std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
+                stats.samples += part.samples;
+                stats.undecodable += part.undecodable;
+                for (topic, n) in part.other_topics {
+                    *stats.other_topics.entry(topic).or_default() += n;
+                }
+                stats.first_problem = stats.first_problem.or(part.first_problem);
+            }
+            Ok(stats)
+        }
     }
 }
 
