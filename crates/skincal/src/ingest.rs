@@ -280,7 +280,8 @@ fn ingest_logs(
             format: match log::format_of(path)? {
                 LogFormat::Mcap => "mcap".into(),
                 LogFormat::Csv => "csv".into(),
-                LogFormat::Rosbag2(files) => format!("rosbag2 (mcap, {} files)", files.len()),
+                LogFormat::Db3 => "rosbag2 sqlite3".into(),
+                LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
             },
             ..LogReport::default()
         };

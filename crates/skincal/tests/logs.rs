@@ -391,7 +391,7 @@ fn rosbag2(dir: &Path, files: &[&Path]) {
 }
 
 #[test]
-fn rosbag2_directories_read_as_one_log_and_other_formats_say_what_they_are() {
+fn rosbag2_bags_in_mcap_and_sqlite_read_as_one_log_and_other_formats_say_what_they_are() {
     let robot = robot("paper-7dof");
     let plan = Plan::new(
         PlanDof::from_robot(&robot),
@@ -464,36 +464,95 @@ fn rosbag2_directories_read_as_one_log_and_other_formats_say_what_they_are() {
     let (s_max, d_max) = training_errors(&robot, &two.measurements);
     assert!(s_max < 0.01 && d_max < 0.06, "{s_max} {d_max}");
 
+    // The same program in rosbag2's SQLite storage (as Humble writes it), alone and as a bag.
+    let db3 = dir.path().join("whole.db3");
+    mcap_to_db3(&whole, &db3);
+    let from_db3 = ingest(std::slice::from_ref(&db3), &config, &mut |_, _, _| {}).unwrap();
+    assert_eq!(from_db3.measurements.training, one.measurements.training);
+    assert_eq!(
+        orientations(&from_db3.measurements),
+        orientations(&one.measurements)
+    );
+    let sqlite_bag = dir.path().join("sqlite_bag");
+    std::fs::create_dir_all(&sqlite_bag).unwrap();
+    std::fs::copy(&db3, sqlite_bag.join("sqlite_bag_0.db3")).unwrap();
+    std::fs::write(
+        sqlite_bag.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: sqlite3\n  relative_file_paths:\n    - sqlite_bag_0.db3\n",
+    )
+    .unwrap();
+    let from_bag = ingest(
+        std::slice::from_ref(&sqlite_bag),
+        &config,
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    assert_eq!(from_bag.measurements.training, one.measurements.training);
+
     // What is not read says what it is and what to do.
     let refused = |path: &Path| {
         ingest(&[path.to_path_buf()], &config, &mut |_, _, _| {})
             .unwrap_err()
             .to_string()
     };
-    let db3 = dir.path().join("bag_0.db3");
-    std::fs::write(&db3, b"SQLite format 3\0 and then pages").unwrap();
-    let message = refused(&db3);
-    assert!(message.contains("ros2 bag convert"), "{message}");
+    let damaged = dir.path().join("damaged.db3");
+    let mut bytes = std::fs::read(&db3).unwrap();
+    bytes.truncate(200);
+    bytes.extend(std::iter::repeat_n(0x5a, 4000));
+    std::fs::write(&damaged, bytes).unwrap();
+    let message = refused(&damaged);
+    assert!(
+        message.contains("damaged.db3") && message.contains("SQLite"),
+        "{message}"
+    );
     let ros1 = dir.path().join("old.bag");
     std::fs::write(&ros1, b"#ROSBAG V2.0\nE\0\0\0").unwrap();
     let message = refused(&ros1);
     assert!(message.contains("ROS 1 bag"), "{message}");
-    let sqlite_bag = dir.path().join("sqlite_bag");
-    std::fs::create_dir_all(&sqlite_bag).unwrap();
-    std::fs::write(
-        sqlite_bag.join("metadata.yaml"),
-        "rosbag2_bagfile_information:\n  storage_identifier: sqlite3\n  relative_file_paths:\n    - sqlite_bag_0.db3\n",
-    )
-    .unwrap();
-    let message = refused(&sqlite_bag);
-    assert!(
-        message.contains("SQLite") && message.contains("metadata.yaml"),
-        "{message}"
-    );
     std::fs::remove_file(bag.join("bag_0.mcap")).unwrap();
     let message = refused(&bag);
     assert!(
         message.contains("bag_0.mcap") && message.contains("not there"),
         "{message}"
     );
+}
+
+/// A rosbag2 SQLite file (`.db3`) with the messages of the MCAP file `mcap`, in the tables
+/// rosbag2 writes (`topics`, `messages`; receive time as the timestamp).
+fn mcap_to_db3(mcap: &Path, db3: &Path) {
+    let bytes = std::fs::read(mcap).unwrap();
+    let db = rusqlite::Connection::open(db3).unwrap();
+    db.execute_batch(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
+         serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL); \
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, \
+         timestamp INTEGER NOT NULL, data BLOB NOT NULL); \
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC); BEGIN;",
+    )
+    .unwrap();
+    let mut ids = std::collections::HashMap::new();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let channel = &message.channel;
+        let next = ids.len() as i64 + 1;
+        let id = *ids.entry(channel.topic.clone()).or_insert_with(|| {
+            let kind = channel
+                .schema
+                .as_ref()
+                .map(|s| s.name.clone())
+                .unwrap_or_default();
+            db.execute(
+                "INSERT INTO topics VALUES (?1, ?2, ?3, ?4, '')",
+                rusqlite::params![next, channel.topic, kind, channel.message_encoding],
+            )
+            .unwrap();
+            next
+        });
+        db.execute(
+            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![id, message.log_time as i64, &message.data[..]],
+        )
+        .unwrap();
+    }
+    db.execute_batch("COMMIT;").unwrap();
 }

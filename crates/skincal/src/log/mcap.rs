@@ -9,7 +9,7 @@ use mcap::records::{op, MessageHeader, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::ros::{self, Imu, JointState, Time};
-use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
+use super::{deliver, ChannelKind, LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
 
 /// Chunk compression of a written MCAP file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -198,15 +198,6 @@ impl LogSink for McapSink {
     }
 }
 
-#[derive(Debug, Clone)]
-enum ChannelKind {
-    Joints,
-    Imu,
-    Other(String),
-    /// The topic is one of ours but the schema or encoding is not.
-    Wrong(String),
-}
-
 /// How many times its file size a decompressed chunk may be.
 const MAX_INFLATION: u64 = 256;
 /// The longest record read, bytes, whatever the file size (ROS 2 writes chunks of a few MB).
@@ -264,53 +255,7 @@ pub fn read(
                         continue;
                     };
                     match channels.get(&channel) {
-                        Some(ChannelKind::Imu) if stream == Stream::Imu => {
-                            match ros::decode_imu(body) {
-                                Ok(m) => {
-                                    stats.samples += 1;
-                                    let a = m.linear_acceleration;
-                                    visit(Sample::Imu {
-                                        stamp: m.header.stamp.seconds(),
-                                        frame_id: &m.header.frame_id,
-                                        acceleration: [a.x, a.y, a.z],
-                                    })?;
-                                }
-                                Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
-                            }
-                        }
-                        Some(ChannelKind::Joints) if stream == Stream::Joints => {
-                            match ros::decode_joint_state(body) {
-                                Ok(joint) => {
-                                    if joint.position.len() != joint.name.len() {
-                                        stats.problem(format!(
-                                            "{}: {} names but {} positions",
-                                            topics.joints,
-                                            joint.name.len(),
-                                            joint.position.len()
-                                        ));
-                                        continue;
-                                    }
-                                    stats.samples += 1;
-                                    visit(Sample::Joints {
-                                        stamp: joint.header.stamp.seconds(),
-                                        names: &joint.name,
-                                        positions: &joint.position,
-                                    })?;
-                                }
-                                Err(e) => stats.problem(format!("{}: {e}", topics.joints)),
-                            }
-                        }
-                        Some(ChannelKind::Joints | ChannelKind::Imu) => {}
-                        Some(ChannelKind::Other(topic)) => {
-                            if stream == Stream::Joints {
-                                *stats.other_topics.entry(topic.clone()).or_default() += 1;
-                            }
-                        }
-                        Some(ChannelKind::Wrong(why)) => {
-                            if stream == Stream::Joints {
-                                stats.problem(why.clone());
-                            }
-                        }
+                        Some(kind) => deliver(kind, body, stream, topics, &mut stats, visit)?,
                         None => stats.problem(format!("a message on unknown channel {channel}")),
                     }
                 }
@@ -323,27 +268,7 @@ pub fn read(
                     }
                     Record::Channel(c) => {
                         let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                        let expected = if c.topic == topics.joints {
-                            Some((ros::JOINT_STATE, ChannelKind::Joints))
-                        } else if c.topic == topics.imu {
-                            Some((ros::IMU, ChannelKind::Imu))
-                        } else {
-                            None
-                        };
-                        let kind = match expected {
-                            None => ChannelKind::Other(c.topic.clone()),
-                            Some((name, kind)) => {
-                                if schema == name && c.message_encoding == ros::MESSAGE_ENCODING {
-                                    kind
-                                } else {
-                                    ChannelKind::Wrong(format!(
-                                        "topic {} carries `{schema}` in `{}`; expected `{name}` in \
-                                         `cdr` (choose the topics with --joint-topic/--imu-topic)",
-                                        c.topic, c.message_encoding
-                                    ))
-                                }
-                            }
-                        };
+                        let kind = ChannelKind::of(&c.topic, &schema, &c.message_encoding, topics);
                         channels.insert(c.id, kind);
                     }
                     _ => {}

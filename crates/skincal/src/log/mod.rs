@@ -12,6 +12,7 @@
 //! for, so a log never has to fit in memory.
 
 pub mod csv;
+pub mod db3;
 pub mod mcap;
 pub mod ros;
 
@@ -42,6 +43,14 @@ pub enum LogError {
         /// The file.
         path: PathBuf,
         /// What the MCAP reader said.
+        reason: String,
+    },
+    /// A rosbag2 SQLite file cannot be read.
+    #[error("{path}: not a readable rosbag2 SQLite file: {reason}")]
+    Db3 {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and what to do.
         reason: String,
     },
     /// A CSV file does not follow the format.
@@ -179,6 +188,100 @@ impl ReadStats {
     }
 }
 
+/// What the messages on one topic of a log are to the ingestion.
+#[derive(Debug, Clone)]
+pub(crate) enum ChannelKind {
+    Joints,
+    Imu,
+    Other(String),
+    /// The topic is one of ours but the type or encoding is not.
+    Wrong(String),
+}
+
+impl ChannelKind {
+    /// The kind of `topic`, carrying messages of type `schema` in `encoding`.
+    pub(crate) fn of(topic: &str, schema: &str, encoding: &str, topics: &Topics) -> ChannelKind {
+        let expected = if topic == topics.joints {
+            Some((ros::JOINT_STATE, ChannelKind::Joints))
+        } else if topic == topics.imu {
+            Some((ros::IMU, ChannelKind::Imu))
+        } else {
+            None
+        };
+        match expected {
+            None => ChannelKind::Other(topic.to_string()),
+            Some((name, kind)) => {
+                if schema == name && encoding == ros::MESSAGE_ENCODING {
+                    kind
+                } else {
+                    ChannelKind::Wrong(format!(
+                        "topic {topic} carries `{schema}` in `{encoding}`; expected `{name}` in \
+                         `cdr` (choose the topics with --joint-topic/--imu-topic)"
+                    ))
+                }
+            }
+        }
+    }
+}
+
+/// Decodes one CDR message of a topic of `kind` and gives it to `visit` when it belongs to
+/// `stream`; what cannot be decoded is counted in `stats`, other topics too (on the joint pass).
+pub(crate) fn deliver(
+    kind: &ChannelKind,
+    body: &[u8],
+    stream: Stream,
+    topics: &Topics,
+    stats: &mut ReadStats,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+) -> Result<(), LogError> {
+    match kind {
+        ChannelKind::Imu if stream == Stream::Imu => match ros::decode_imu(body) {
+            Ok(m) => {
+                stats.samples += 1;
+                let a = m.linear_acceleration;
+                visit(Sample::Imu {
+                    stamp: m.header.stamp.seconds(),
+                    frame_id: &m.header.frame_id,
+                    acceleration: [a.x, a.y, a.z],
+                })?;
+            }
+            Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
+        },
+        ChannelKind::Joints if stream == Stream::Joints => match ros::decode_joint_state(body) {
+            Ok(joint) => {
+                if joint.position.len() != joint.name.len() {
+                    stats.problem(format!(
+                        "{}: {} names but {} positions",
+                        topics.joints,
+                        joint.name.len(),
+                        joint.position.len()
+                    ));
+                    return Ok(());
+                }
+                stats.samples += 1;
+                visit(Sample::Joints {
+                    stamp: joint.header.stamp.seconds(),
+                    names: &joint.name,
+                    positions: &joint.position,
+                })?;
+            }
+            Err(e) => stats.problem(format!("{}: {e}", topics.joints)),
+        },
+        ChannelKind::Joints | ChannelKind::Imu => {}
+        ChannelKind::Other(topic) => {
+            if stream == Stream::Joints {
+                *stats.other_topics.entry(topic.clone()).or_default() += 1;
+            }
+        }
+        ChannelKind::Wrong(why) => {
+            if stream == Stream::Joints {
+                stats.problem(why.clone());
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The kind of a log path.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum LogFormat {
@@ -186,7 +289,10 @@ pub enum LogFormat {
     Mcap,
     /// A directory with `joint_states.csv` and `imu.csv`.
     Csv,
-    /// A rosbag2 directory stored as MCAP: its files, in the order its `metadata.yaml` lists them.
+    /// A rosbag2 SQLite file (`.db3`).
+    Db3,
+    /// A rosbag2 directory: its files (`.mcap` or `.db3`), in the order its `metadata.yaml` lists
+    /// them.
     Rosbag2(Vec<PathBuf>),
 }
 
@@ -202,15 +308,9 @@ struct Rosbag2Information {
     relative_file_paths: Vec<String>,
 }
 
-/// How to make an MCAP of a rosbag2 bag stored in SQLite.
-const CONVERT_DB3: &str = "skincal reads rosbag2 bags stored as MCAP (the default since ROS 2 \
-                           Iron): convert it with `ros2 bag convert -i BAG -o out.yaml`, where \
-                           out.yaml holds `output_bags: [{uri: BAG_mcap, storage_id: mcap}]`, \
-                           and give BAG_mcap";
-
 /// Tells the format of `path`: a directory with a rosbag2 `metadata.yaml` is a bag, another
 /// directory a CSV log, a file an MCAP log unless its first bytes say it is a rosbag2 SQLite file
-/// or a ROS 1 bag (refused with what to do).
+/// (or a ROS 1 bag, refused with what to do).
 pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
     let unrecognised = |reason: String| LogError::Unrecognised {
         path: path.to_path_buf(),
@@ -221,17 +321,13 @@ pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
         if metadata.is_file() {
             return rosbag2_files(path, &metadata);
         }
-        if !path.join(csv::JOINTS_FILE).is_file() && has_extension(path, "mcap") {
-            return Err(unrecognised(
-                "a directory of .mcap files without metadata.yaml: give the .mcap file itself, \
-                 or the rosbag2 directory with its metadata.yaml"
-                    .into(),
-            ));
-        }
-        if !path.join(csv::JOINTS_FILE).is_file() && has_extension(path, "db3") {
-            return Err(unrecognised(format!(
-                "a rosbag2 bag stored in SQLite (.db3): {CONVERT_DB3}"
-            )));
+        for extension in ["mcap", "db3"] {
+            if !path.join(csv::JOINTS_FILE).is_file() && has_extension(path, extension) {
+                return Err(unrecognised(format!(
+                    "a directory of .{extension} files without metadata.yaml: give the \
+                     .{extension} file itself, or the rosbag2 directory with its metadata.yaml"
+                )));
+            }
         }
         return Ok(LogFormat::Csv);
     }
@@ -251,9 +347,7 @@ pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
         })?;
     let start = &start[..read];
     if start.starts_with(b"SQLite format 3\0") {
-        Err(unrecognised(format!(
-            "an SQLite file, as rosbag2 stores bags in .db3 files: {CONVERT_DB3}"
-        )))
+        Ok(LogFormat::Db3)
     } else if start.starts_with(b"#ROSBAG V") {
         Err(unrecognised(
             "a ROS 1 bag: skincal reads ROS 2 logs; convert it to MCAP, e.g. with the rosbags \
@@ -297,15 +391,10 @@ fn rosbag2_files(dir: &Path, metadata: &Path) -> Result<LogFormat, LogError> {
     })?;
     let info = parsed.rosbag2_bagfile_information;
     match info.storage_identifier.as_str() {
-        "mcap" => {}
-        "sqlite3" => {
-            return Err(unrecognised(format!(
-                "a rosbag2 bag stored in SQLite (.db3): {CONVERT_DB3}"
-            )))
-        }
+        "mcap" | "sqlite3" => {}
         other => {
             return Err(unrecognised(format!(
-                "rosbag2 storage `{other}`: skincal reads bags stored as mcap"
+                "rosbag2 storage `{other}`: skincal reads bags stored as mcap or sqlite3"
             )))
         }
     }
@@ -349,12 +438,18 @@ pub fn read_log(
     match format_of(path)? {
         LogFormat::Mcap => mcap::read(path, stream, topics, visit, progress),
         LogFormat::Csv => csv::read(path, stream, visit, progress),
+        LogFormat::Db3 => db3::read(path, stream, topics, visit, progress),
         LogFormat::Rosbag2(files) => {
             // One pass over the bag's files in order, as one log.
             let mut stats = ReadStats::default();
             let mut done = 0u64;
             for file in &files {
-                let part = mcap::read(file, stream, topics, visit, &mut |n| progress(done + n))?;
+                let mut at = |n| progress(done + n);
+                let part = if file.extension().is_some_and(|x| x == "db3") {
+                    db3::read(file, stream, topics, visit, &mut at)?
+                } else {
+                    mcap::read(file, stream, topics, visit, &mut at)?
+                };
                 done += std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
                 stats.samples += part.samples;
                 stats.undecodable += part.undecodable;
