@@ -346,6 +346,10 @@ pub(crate) struct RecordArgs {
     /// MCAP chunk compression.
     #[arg(long, value_enum, default_value_t = CompressionArg::Zstd)]
     compression: CompressionArg,
+    /// Write every SU of a time step as one `skin_msgs/msg/ImuArray` message (MCAP), as skin
+    /// drivers that read all SUs at once publish them, instead of one `sensor_msgs/Imu` per SU.
+    #[arg(long)]
+    imu_batch: bool,
     /// Run only one part of the plan.
     #[arg(long, value_enum)]
     part: Option<PartArg>,
@@ -435,7 +439,21 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
             truth_path.display()
         );
     }
-    let mut sink = sink_for(args.format, &args.out, args.compression.into(), args.force);
+    let mut sink: Box<dyn LogSink> = match args.format {
+        LogFormatArg::Mcap if args.imu_batch => Box::new(
+            McapSink::new(
+                &args.out,
+                Topics::default(),
+                args.compression.into(),
+                args.force,
+            )
+            .batched(),
+        ),
+        LogFormatArg::Csv if args.imu_batch => {
+            anyhow::bail!("--imu-batch is an MCAP layout: leave it out with --format csv")
+        }
+        _ => sink_for(args.format, &args.out, args.compression.into(), args.force),
+    };
     let started = Instant::now();
     let bar = progress_bar(1000, "simulating");
     let summary = record(&robot, &plan, &config, sink.as_mut(), &mut |f| {

@@ -556,3 +556,49 @@ fn mcap_to_db3(mcap: &Path, db3: &Path) {
     }
     db.execute_batch("COMMIT;").unwrap();
 }
+
+#[test]
+fn imu_batches_read_like_one_message_per_su() {
+    // A skin driver that publishes every SU of a time step in one skin_msgs/ImuArray: the same
+    // recording ingests to the same readings as with one sensor_msgs/Imu per SU.
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 2,
+            seed: 8,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let single = dir.path().join("single.mcap");
+    record_to(&robot, &plan, &LogConfig::default(), &single, true);
+    let batched = dir.path().join("batched.mcap");
+    let mut sink = McapSink::new(&batched, Topics::default(), Compression::Zstd, false).batched();
+    record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {}).unwrap();
+    // One batch per time step, every SU in it, each with its own stamp and name.
+    let bytes = std::fs::read(&batched).unwrap();
+    let (mut batches, mut samples) = (0, 0);
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        if message.channel.topic != Topics::default().imu {
+            continue;
+        }
+        let schema = message.channel.schema.as_ref().unwrap();
+        assert_eq!(schema.name, "skin_msgs/msg/ImuArray");
+        let batch: skincal::log::ros::ImuArray = decode(&message.data).unwrap();
+        assert_eq!(batch.imus.len(), 7);
+        assert_eq!(batch.imus[3].header.frame_id, "su4");
+        assert_eq!(batch.header.stamp.nanoseconds(), message.log_time);
+        batches += 1;
+        samples += batch.imus.len();
+    }
+    assert!(batches > 1000, "{batches}");
+    let config = IngestConfig::default();
+    let one = ingest(std::slice::from_ref(&single), &config, &mut |_, _, _| {}).unwrap();
+    let other = ingest(std::slice::from_ref(&batched), &config, &mut |_, _, _| {}).unwrap();
+    assert_eq!(other.measurements.training, one.measurements.training);
+    assert_eq!(other.report.training_poses, 2);
+    assert_eq!(samples, 7 * batches);
+}

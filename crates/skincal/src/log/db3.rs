@@ -59,7 +59,7 @@ pub fn read(
             matches!(
                 (k, stream),
                 (ChannelKind::Joints | ChannelKind::Wrong(_), Stream::Joints)
-                    | (ChannelKind::Imu, Stream::Imu)
+                    | (ChannelKind::Imu | ChannelKind::ImuArray, Stream::Imu)
             )
         })
         .map(|(&id, _)| id)

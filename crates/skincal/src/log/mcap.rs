@@ -37,6 +37,11 @@ pub struct McapSink {
     sus: Vec<String>,
     /// Of each accelerometer component's noise, (m/s²)² (0: unknown).
     acceleration_variance: f64,
+    /// Every SU of a time step in one `skin_msgs/msg/ImuArray` ([`McapSink::batched`]).
+    batch: bool,
+    /// The samples of the time step being gathered, and its receive time.
+    pending: Vec<Imu>,
+    pending_receive: Time,
 }
 
 impl McapSink {
@@ -55,7 +60,38 @@ impl McapSink {
             dofs: Vec::new(),
             sus: Vec::new(),
             acceleration_variance: 0.0,
+            batch: false,
+            pending: Vec::new(),
+            pending_receive: Time::default(),
         }
+    }
+
+    /// The same sink writing every SU of a time step as one `skin_msgs/msg/ImuArray` on the Imu
+    /// topic, as skin drivers that read all SUs at once publish them.
+    pub fn batched(mut self) -> McapSink {
+        self.batch = true;
+        self
+    }
+
+    /// Writes the gathered time step as one batch.
+    fn flush_batch(&mut self) -> Result<(), LogError> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let message = ros::ImuArray {
+            header: ros::Header {
+                stamp: self.pending_receive,
+                frame_id: String::new(),
+            },
+            imus: std::mem::take(&mut self.pending),
+        };
+        let data = ros::encode(&message).map_err(|e| LogError::Encode {
+            schema: ros::IMU_ARRAY,
+            reason: e.to_string(),
+        })?;
+        self.sequence.1 = self.sequence.1.wrapping_add(1);
+        let log_time = self.pending_receive.nanoseconds();
+        self.write(self.channels.1, self.sequence.1, log_time, &data)
     }
 
     fn error(&self, e: mcap::McapError) -> LogError {
@@ -118,9 +154,16 @@ impl LogSink for McapSink {
                 ros::joint_state_schema().as_bytes(),
             )
             .map_err(|e| self.error(e))?;
-        let imu_schema = writer
-            .add_schema(ros::IMU, ros::SCHEMA_ENCODING, ros::imu_schema().as_bytes())
-            .map_err(|e| self.error(e))?;
+        let imu_schema = if self.batch {
+            writer.add_schema(
+                ros::IMU_ARRAY,
+                ros::SCHEMA_ENCODING,
+                ros::imu_array_schema().as_bytes(),
+            )
+        } else {
+            writer.add_schema(ros::IMU, ros::SCHEMA_ENCODING, ros::imu_schema().as_bytes())
+        }
+        .map_err(|e| self.error(e))?;
         let joints = writer
             .add_channel(
                 joints_schema,
@@ -174,6 +217,14 @@ impl LogSink for McapSink {
     fn imu(&mut self, stamp: Time, receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError> {
         let name = self.sus.get(su).map(String::as_str).unwrap_or_default();
         let message = Imu::accelerometer(stamp, name, a, self.acceleration_variance);
+        if self.batch {
+            if !self.pending.is_empty() && receive != self.pending_receive {
+                self.flush_batch()?;
+            }
+            self.pending_receive = receive;
+            self.pending.push(message);
+            return Ok(());
+        }
         let data = ros::encode(&message).map_err(|e| LogError::Encode {
             schema: ros::IMU,
             reason: e.to_string(),
@@ -184,6 +235,7 @@ impl LogSink for McapSink {
     }
 
     fn finish(&mut self) -> Result<Vec<PathBuf>, LogError> {
+        self.flush_batch()?;
         let (Some(mut writer), Some(mut staged)) = (self.writer.take(), self.staged.take()) else {
             return Ok(Vec::new());
         };

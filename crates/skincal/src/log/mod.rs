@@ -193,6 +193,8 @@ impl ReadStats {
 pub(crate) enum ChannelKind {
     Joints,
     Imu,
+    /// `skin_msgs/msg/ImuArray` on the Imu topic.
+    ImuArray,
     Other(String),
     /// The topic is one of ours but the type or encoding is not.
     Wrong(String),
@@ -211,12 +213,19 @@ impl ChannelKind {
         match expected {
             None => ChannelKind::Other(topic.to_string()),
             Some((name, kind)) => {
-                if schema == name && encoding == ros::MESSAGE_ENCODING {
+                if encoding == ros::MESSAGE_ENCODING
+                    && topic == topics.imu
+                    && schema == ros::IMU_ARRAY
+                {
+                    ChannelKind::ImuArray
+                } else if schema == name && encoding == ros::MESSAGE_ENCODING {
                     kind
                 } else {
                     ChannelKind::Wrong(format!(
                         "topic {topic} carries `{schema}` in `{encoding}`; expected `{name}` in \
-                         `cdr` (choose the topics with --joint-topic/--imu-topic)"
+                         `cdr` (or `{}` on the Imu topic; choose the topics with \
+                         --joint-topic/--imu-topic)",
+                        ros::IMU_ARRAY
                     ))
                 }
             }
@@ -267,7 +276,21 @@ pub(crate) fn deliver(
             }
             Err(e) => stats.problem(format!("{}: {e}", topics.joints)),
         },
-        ChannelKind::Joints | ChannelKind::Imu => {}
+        ChannelKind::ImuArray if stream == Stream::Imu => match ros::decode_imu_array(body) {
+            Ok(batch) => {
+                for m in &batch.imus {
+                    stats.samples += 1;
+                    let a = m.linear_acceleration;
+                    visit(Sample::Imu {
+                        stamp: m.header.stamp.seconds(),
+                        frame_id: &m.header.frame_id,
+                        acceleration: [a.x, a.y, a.z],
+                    })?;
+                }
+            }
+            Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
+        },
+        ChannelKind::Joints | ChannelKind::Imu | ChannelKind::ImuArray => {}
         ChannelKind::Other(topic) => {
             if stream == Stream::Joints {
                 *stats.other_topics.entry(topic.clone()).or_default() += 1;

@@ -16,6 +16,8 @@ use serde::{Deserialize, Serialize};
 pub const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
 /// Schema name of the accelerometer samples.
 pub const IMU: &str = "sensor_msgs/msg/Imu";
+/// Type name of skincal's batch of Imu samples (every SU of one time step in one message).
+pub const IMU_ARRAY: &str = "skin_msgs/msg/ImuArray";
 /// Schema encoding.
 pub const SCHEMA_ENCODING: &str = "ros2msg";
 /// Message encoding.
@@ -46,6 +48,17 @@ pub fn imu_schema() -> String {
          {SEPARATOR}MSG: builtin_interfaces/Time\n{TIME_MSG}{SEPARATOR}\
          MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n\
          {SEPARATOR}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    )
+}
+
+/// The `ros2msg` schema of `skin_msgs/msg/ImuArray`: a header (the time step) and one
+/// `sensor_msgs/Imu` per SU, each with its own stamp and `frame_id` = SU name.
+pub fn imu_array_schema() -> String {
+    let imu = imu_schema();
+    let (imu_fields, nested) = imu.split_once(SEPARATOR).unwrap_or((imu.as_str(), ""));
+    format!(
+        "std_msgs/Header header\nsensor_msgs/Imu[] imus\n{SEPARATOR}MSG: sensor_msgs/Imu\n\
+         {imu_fields}{SEPARATOR}{nested}"
     )
 }
 
@@ -168,6 +181,15 @@ impl Imu {
     }
 }
 
+/// `skin_msgs/msg/ImuArray`: the samples of every SU at one time step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ImuArray {
+    /// The time step (receive time) and an empty frame.
+    pub header: Header,
+    /// One sample per SU.
+    pub imus: Vec<Imu>,
+}
+
 /// The part of `sensor_msgs/msg/Imu` the ingestion needs: everything up to the linear acceleration
 /// (CDR is read in order; the last covariance is not decoded).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -217,6 +239,12 @@ pub fn decode<'de, T: Deserialize<'de>>(bytes: &[u8]) -> Result<T, cdr::Error> {
 pub fn decode_imu(bytes: &[u8]) -> Result<ImuAcceleration, cdr::Error> {
     strings_fit(bytes, false)?;
     cdr::deserialize(bytes)
+}
+
+/// A `skin_msgs/msg/ImuArray` from a log; no string or sequence may claim more bytes than the
+/// message has (a damaged log may claim gigabytes).
+pub fn decode_imu_array(bytes: &[u8]) -> Result<ImuArray, cdr::Error> {
+    cdr::deserialize_from(bytes, cdr::Bounded(bytes.len() as u64))
 }
 
 /// A `sensor_msgs/msg/JointState` from a log, its lengths checked against the message first.
