@@ -338,5 +338,23 @@ mod tests {
         bad[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(decode_joint_state(&bad).is_err());
         assert!(decode_imu(&imu_cdr[..10]).is_err());
+        // A batch whose Imu count claims 3 billion samples, and one whose second frame_id claims
+        // 3 GB: refused, nothing that size allocated.
+        let batch = ImuArray {
+            header: Header::default(),
+            imus: vec![imu.clone(), imu.clone()],
+        };
+        let batch_cdr = encode(&batch).unwrap();
+        assert_eq!(decode_imu_array(&batch_cdr).unwrap(), batch);
+        // The count follows the encapsulation (4), the stamp (8) and the empty frame_id (4 + 1,
+        // aligned to 4 → 20).
+        assert_eq!(&batch_cdr[20..24], &2u32.to_le_bytes());
+        let mut bad = batch_cdr.clone();
+        bad[20..24].copy_from_slice(&3_000_000_000u32.to_le_bytes());
+        assert!(decode_imu_array(&bad).is_err());
+        let second = 24 + (batch_cdr.len() - 24) / 2;
+        let mut bad = batch_cdr.clone();
+        bad[second + 8..second + 12].copy_from_slice(&3_000_000_000u32.to_le_bytes());
+        assert!(decode_imu_array(&bad).is_err());
     }
 }
