@@ -26,30 +26,20 @@ fn line_distance(p: &Vector3<f64>, a: &Vector3<f64>, q: &Vector3<f64>, b: &Vecto
 /// held-out check on 20 noise-free poses of the same skin within the limits. Asserts the
 /// limb's name starts with `geometry` and the structure is complete.
 fn calibrated_limb(seed: u64, geometry: &str) -> (BodyModel, Validation) {
-    let robot = robot_like_limb(&RobotLikeConfig::default(), seed).unwrap();
-    assert!(
-        robot.model.name().starts_with(geometry),
-        "{}",
-        robot.model.name()
-    );
-    let config = SimulationConfig {
-        seed,
-        ..SimulationConfig::default()
-    };
-    let set = simulate(&robot, &config).unwrap().measurements;
+    let (robot, set, structure, _) = limb_data(seed, geometry);
+    assert!(structure.complete);
     let held_out = simulate(
         &robot,
         &SimulationConfig {
+            seed,
             structure: false,
             pose_seed: Some(1000 + seed),
             imperfections: Imperfections::none(),
-            ..config
+            ..SimulationConfig::default()
         },
     )
     .unwrap()
     .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete);
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
     let check = validate(&model, &held_out, "held-out").unwrap();
     (model, check)
@@ -401,7 +391,11 @@ fn a_trunk_whose_own_readings_leave_a_mirror_open_is_fitted_again_from_its_limbs
 /// one limb's data. Asserts the limb's name starts with `geometry`.
 fn limb_data(seed: u64, geometry: &str) -> (Robot, MeasurementSet, Structure, LimbData) {
     let robot = robot_like_limb(&RobotLikeConfig::default(), seed).unwrap();
-    assert!(robot.model.name().starts_with(geometry));
+    assert!(
+        robot.model.name().starts_with(geometry),
+        "{}",
+        robot.model.name()
+    );
     let set = simulate(
         &robot,
         &SimulationConfig {

@@ -213,12 +213,10 @@ impl ChannelKind {
         match expected {
             None => ChannelKind::Other(topic.to_string()),
             Some((name, kind)) => {
-                if encoding == ros::MESSAGE_ENCODING
-                    && topic == topics.imu
-                    && schema == ros::IMU_ARRAY
-                {
+                let cdr = encoding == ros::MESSAGE_ENCODING;
+                if cdr && matches!(kind, ChannelKind::Imu) && schema == ros::IMU_ARRAY {
                     ChannelKind::ImuArray
-                } else if schema == name && encoding == ros::MESSAGE_ENCODING {
+                } else if cdr && schema == name {
                     kind
                 } else {
                     ChannelKind::Wrong(format!(
@@ -245,15 +243,7 @@ pub(crate) fn deliver(
 ) -> Result<(), LogError> {
     match kind {
         ChannelKind::Imu if stream == Stream::Imu => match ros::decode_imu(body) {
-            Ok(m) => {
-                stats.samples += 1;
-                let a = m.linear_acceleration;
-                visit(Sample::Imu {
-                    stamp: m.header.stamp.seconds(),
-                    frame_id: &m.header.frame_id,
-                    acceleration: [a.x, a.y, a.z],
-                })?;
-            }
+            Ok(m) => imu_sample(&m.header, &m.linear_acceleration, stats, visit)?,
             Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
         },
         ChannelKind::Joints if stream == Stream::Joints => match ros::decode_joint_state(body) {
@@ -279,13 +269,7 @@ pub(crate) fn deliver(
         ChannelKind::ImuArray if stream == Stream::Imu => match ros::decode_imu_array(body) {
             Ok(batch) => {
                 for m in &batch.imus {
-                    stats.samples += 1;
-                    let a = m.linear_acceleration;
-                    visit(Sample::Imu {
-                        stamp: m.header.stamp.seconds(),
-                        frame_id: &m.header.frame_id,
-                        acceleration: [a.x, a.y, a.z],
-                    })?;
+                    imu_sample(&m.header, &m.linear_acceleration, stats, visit)?;
                 }
             }
             Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
@@ -303,6 +287,21 @@ pub(crate) fn deliver(
         }
     }
     Ok(())
+}
+
+/// One accelerometer sample to `visit`, counted.
+fn imu_sample(
+    header: &ros::Header,
+    a: &ros::Vector3,
+    stats: &mut ReadStats,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+) -> Result<(), LogError> {
+    stats.samples += 1;
+    visit(Sample::Imu {
+        stamp: header.stamp.seconds(),
+        frame_id: &header.frame_id,
+        acceleration: [a.x, a.y, a.z],
+    })
 }
 
 /// The kind of a log path.

@@ -247,8 +247,7 @@ pub fn observable_su_errors(
     let free_directions = basis.ncols();
     let at_truth = problem.variances(&problem.jacobian(&state), &basis, &inverse);
     let raw = problem.errors(&state);
-    let aligned = problem.align(problem.turn_first_segment(state));
-    let (basis, inverse) = problem.information(&aligned);
+    let (aligned, (basis, inverse)) = problem.align(problem.turn_first_segment(state));
     let jac = problem.jacobian(&aligned);
     let bound = problem.variances(&jac, &basis, &inverse);
     let left = problem.project(
@@ -513,9 +512,9 @@ impl<'a> PairProblem<'a> {
     }
 
     /// Gauss–Newton on the free directions: the state that reads like `state` and whose pairs come
-    /// closest to the estimate's.
-    fn align(&self, mut state: ChainState) -> ChainState {
-        let (mut basis, _) = self.information(&state);
+    /// closest to the estimate's, with its [`Self::information`].
+    fn align(&self, mut state: ChainState) -> (ChainState, (DMatrix<f64>, DMatrix<f64>)) {
+        let (mut basis, mut inverse) = self.information(&state);
         let free = basis.ncols();
         for _ in 0..20 {
             if basis.ncols() == 0 {
@@ -535,17 +534,17 @@ impl<'a> PairProblem<'a> {
             );
             // A step that reads differently (the free directions are not those of the truth's
             // state any more) is not a move along them.
-            let (next, _) = self.information(&moved);
+            let (next, next_inverse) = self.information(&moved);
             if self.errors(&moved).norm() >= e.norm() || next.ncols() != free {
                 break;
             }
             state = moved;
-            basis = next;
+            (basis, inverse) = (next, next_inverse);
             if step.norm() < 1e-9 {
                 break;
             }
         }
-        state
+        (state, (basis, inverse))
     }
 }
 
