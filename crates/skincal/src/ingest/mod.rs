@@ -1,0 +1,351 @@
+//! From time-series logs to a measurement set.
+//!
+//! A log (MCAP or CSV, see [`crate::log`]) holds joint states and raw accelerometer samples of a
+//! robot that followed the exploration protocol: still periods, and between them motions of one
+//! DoF at a time (structure moves and windowed excitation patterns) or transfers of several DoFs.
+//! Ingestion reads each log twice, streaming:
+//!
+//! 1. **Joint states → windows.** The joint positions are put on a uniform grid at the log's rate
+//!    (linear interpolation; unsorted and duplicate stamps and gaps counted). A grid point is still
+//!    when every DoF's speed, measured over ±`filter`, is below `still_velocity`; still runs longer
+//!    than `min_still` are still windows (trimmed by `trim` at both ends). The motion between two
+//!    still windows is classified by the DoFs that left their position by more than
+//!    `motion_threshold`: none (ignored), one that comes back (an **excitation**), one that stays
+//!    (a structure **move**), several (a **transfer**, skipped).
+//! 2. **Samples → readings.** Every SU sample is routed to the window it falls in. A still window
+//!    keeps the mean (the static reading). An excitation window keeps the least-squares normal
+//!    equations of the exact single-DoF model
+//!
+//!    ```text
+//!    s(t) = c + G_c (cos Δθ − 1) + G_s sin Δθ + k_α α(t) + k_ω ω(t)²
+//!    ```
+//!
+//!    (gravity turned by the DoF's displacement Δθ, tangential and centripetal acceleration; the
+//!    coefficients are constant in the SU frame because the axis is fixed in the moving segment), fit
+//!    over the whole window. `α` is the DoF's *measured* angular acceleration, from the joint
+//!    positions: a second difference over ±`filter` equals the measured acceleration filtered by a
+//!    triangle, so the SU signal and the other regressors go through the same triangle and the fit
+//!    stays exact — no smoothing bias, whatever the servo did (lag, other shape, negative
+//!    direction). The **dynamic acceleration** stored is `k_α · 2πfA`: the SU's response to the
+//!    nominal peak acceleration of a positive pattern, the measurement set's definition.
+//!
+//! Then still windows at one pose joined by excitations form a *station*: with excitations it is a
+//! training pose (static reading pooled over its still windows, one dynamic acceleration per excited
+//! DoF); without, a structure station. Structure stations joined by moves form one structure group
+//! per base orientation: its rest pose is the pose it returns to most often, and every station that
+//! differs from it in one DoF is a move of that DoF.
+//!
+//! Nothing is dropped silently: every skipped motion, unknown name, saturated or missing sample is
+//! counted in the [`IngestReport`].
+
+mod assemble;
+mod fit;
+mod segment;
+mod skin;
+mod timeline;
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
+use crate::measurements::MeasurementSet;
+use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
+use assemble::assemble;
+use segment::{estimate_pattern, segment};
+use skin::{read_skin, SuRegistry};
+use timeline::read_joints;
+
+/// Errors of an ingestion.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IngestError {
+    /// A log could not be read.
+    #[error(transparent)]
+    Log(#[from] LogError),
+    /// A setting is out of range.
+    #[error("{setting}: {reason}")]
+    InvalidSetting {
+        /// The option.
+        setting: &'static str,
+        /// What is allowed.
+        reason: String,
+    },
+    /// A log cannot be used at all.
+    #[error("{path}: {reason}")]
+    Unusable {
+        /// The log.
+        path: PathBuf,
+        /// Why, and what to do.
+        reason: String,
+    },
+    /// Nothing usable was found in the logs.
+    #[error("no measurements found {0}")]
+    Empty(String),
+}
+
+/// Options of the ingestion.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IngestConfig {
+    /// MCAP topic names.
+    pub topics: Topics,
+    /// A DoF is still below this speed, rad/s.
+    pub still_velocity: f64,
+    /// A DoF has moved when it left its position by more than this, rad.
+    pub motion_threshold: f64,
+    /// Shortest still window, s.
+    pub min_still: f64,
+    /// Dropped at both ends of a still window, s.
+    pub trim: f64,
+    /// Half-width of the differentiation and of the triangle filter, s.
+    pub filter: f64,
+    /// Joint-state gaps longer than this make the motion they fall in unusable, s.
+    pub max_gap: f64,
+    /// An axis at or beyond this magnitude is saturated, m/s².
+    pub saturation: f64,
+    /// The nominal pattern (estimated from the joint motion when `None`).
+    pub pattern: Option<ExcitationPattern>,
+    /// The DoFs expected (in this order); others are reported as unknown. All seen when `None`.
+    pub dofs: Option<Vec<String>>,
+    /// The SUs expected (in this order); other frame ids are reported as unknown.
+    pub sus: Option<Vec<String>>,
+}
+
+impl Default for IngestConfig {
+    fn default() -> Self {
+        Self {
+            topics: Topics::default(),
+            still_velocity: 0.01,
+            motion_threshold: 0.002,
+            min_still: 0.25,
+            trim: 0.1,
+            filter: 0.02,
+            max_gap: 0.05,
+            saturation: 2.0 * STANDARD_GRAVITY,
+            pattern: None,
+            dofs: None,
+            sus: None,
+        }
+    }
+}
+
+impl IngestConfig {
+    fn validate(&self) -> Result<(), IngestError> {
+        for (setting, v) in [
+            ("still_velocity", self.still_velocity),
+            ("motion_threshold", self.motion_threshold),
+            ("min_still", self.min_still),
+            ("filter", self.filter),
+            ("max_gap", self.max_gap),
+            ("saturation", self.saturation),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(IngestError::InvalidSetting {
+                    setting,
+                    reason: format!("{v} must be a positive number"),
+                });
+            }
+        }
+        if !(self.trim.is_finite() && self.trim >= 0.0) {
+            return Err(IngestError::InvalidSetting {
+                setting: "trim",
+                reason: format!("{} s must be zero or positive", self.trim),
+            });
+        }
+        if let Some(p) = &self.pattern {
+            if !p.is_valid() {
+                return Err(IngestError::InvalidSetting {
+                    setting: "pattern",
+                    reason: "amplitude and frequency must be positive".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What happened to one log.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct LogReport {
+    /// The log.
+    pub path: PathBuf,
+    /// `mcap` or `csv`.
+    pub format: String,
+    /// From the first to the last joint state, s.
+    pub duration: f64,
+    /// Rate of the joint states, Hz.
+    pub rate: f64,
+    /// Joint-state messages (or rows) read.
+    pub joint_states: u64,
+    /// Accelerometer samples read.
+    pub imu_samples: u64,
+    /// Joint stamps earlier than the one before (sorted before use).
+    pub unsorted_joint_stamps: u64,
+    /// Joint samples with a stamp already seen (the later one dropped).
+    pub duplicate_joint_stamps: u64,
+    /// Gaps in the joint states longer than `max_gap`.
+    pub joint_gaps: u64,
+    /// Longest gap in the joint states, s.
+    pub longest_joint_gap: f64,
+    /// Joint names not expected, with their sample counts.
+    pub unknown_joints: BTreeMap<String, u64>,
+    /// Frame ids not expected, with their sample counts.
+    pub unknown_frames: BTreeMap<String, u64>,
+    /// SU samples earlier than the previous one of the same SU.
+    pub unsorted_imu_stamps: u64,
+    /// SU samples outside the time covered by the joint states.
+    pub imu_outside: u64,
+    /// Saturated SU samples inside still and excitation windows (not used), by SU.
+    pub saturated: BTreeMap<String, u64>,
+    /// Missing SU samples inside excitation windows, filled by linear interpolation.
+    pub filled: u64,
+    /// Still windows found.
+    pub still_windows: usize,
+    /// Single-DoF excitations found.
+    pub excitations: usize,
+    /// Single-DoF structure moves found.
+    pub moves: usize,
+    /// Motions of several DoFs (transfers), skipped.
+    pub transfers: usize,
+    /// Motions that could not be used, with the reason.
+    pub skipped: Vec<String>,
+    /// Joint-state decoding problems.
+    pub joint_read: ReadStats,
+    /// Skin decoding problems.
+    pub imu_read: ReadStats,
+}
+
+/// What the ingestion found and did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct IngestReport {
+    /// Per log.
+    pub logs: Vec<LogReport>,
+    /// The nominal pattern the dynamic accelerations are scaled to.
+    pub pattern: ExcitationPattern,
+    /// `given` or `estimated from N excitations`.
+    pub pattern_source: String,
+    /// Structure groups (base orientations) in the measurement set.
+    pub orientations: usize,
+    /// Training poses in the measurement set.
+    pub training_poses: usize,
+    /// Dynamic accelerations (pose × DoF) in the measurement set.
+    pub dynamic: usize,
+    /// RMS of the SU samples about their mean in still windows, m/s² (the sensor noise).
+    pub sample_noise: Option<f64>,
+    /// Problems that affect the result, in words.
+    pub warnings: Vec<String>,
+}
+
+/// The result: a measurement set and the report.
+#[derive(Debug, Clone)]
+pub struct Ingested {
+    /// The measurement set.
+    pub measurements: MeasurementSet,
+    /// What was found.
+    pub report: IngestReport,
+}
+
+/// Progress of an ingestion: `(what, done, total)` in bytes of the pass.
+pub type Progress<'a> = dyn FnMut(&str, u64, u64) + 'a;
+
+/// Reads `logs` and extracts the measurement set.
+pub fn ingest(
+    logs: &[PathBuf],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Ingested, IngestError> {
+    ingest_logs(logs, config, progress).map_err(|e| match e {
+        IngestError::Empty(reason) if !logs.is_empty() => IngestError::Empty(format!(
+            "in {}: {reason}",
+            logs.iter()
+                .map(|l| l.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )),
+        other => other,
+    })
+}
+
+fn ingest_logs(
+    logs: &[PathBuf],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Ingested, IngestError> {
+    config.validate()?;
+    if logs.is_empty() {
+        return Err(IngestError::Empty(": no log given".into()));
+    }
+    let mut timelines = Vec::new();
+    let mut reports = Vec::new();
+    let mut dof_names: Option<Vec<String>> = config.dofs.clone();
+    for path in logs {
+        let mut report = LogReport {
+            path: path.clone(),
+            format: match log::format_of(path)? {
+                LogFormat::Mcap => "mcap".into(),
+                LogFormat::Csv => "csv".into(),
+                LogFormat::Db3 => "rosbag2 sqlite3".into(),
+                LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
+            },
+            ..LogReport::default()
+        };
+        let timeline = read_joints(path, config, &mut dof_names, &mut report, progress)?;
+        timelines.push(timeline);
+        reports.push(report);
+    }
+    let dofs = dof_names.unwrap_or_default();
+
+    // Pass 1 results: windows of every log.
+    let mut plans = Vec::new();
+    for (timeline, report) in timelines.iter().zip(&mut reports) {
+        plans.push(segment(timeline, config, report));
+    }
+
+    let (pattern, pattern_source) = match config.pattern {
+        Some(p) => (p, "given".to_string()),
+        None => {
+            let excitations: usize = plans.iter().map(|p| p.excitations.len()).sum();
+            match estimate_pattern(&plans) {
+                Some(found) => found,
+                // A structure-only log: no training pose will need the pattern.
+                None if excitations == 0 => (
+                    ExcitationPattern::default(),
+                    "none needed: the logs hold no excitation".to_string(),
+                ),
+                None => {
+                    return Err(IngestError::Empty(format!(
+                        "the {excitations} excitations found give no usable pattern (peak speed \
+                         and acceleration out of range): give the nominal one with --plan or \
+                         --pattern A,f"
+                    )))
+                }
+            }
+        }
+    };
+
+    // Pass 2: the skin samples.
+    let mut sus = SuRegistry::new(config.sus.clone());
+    let mut accumulators = Vec::new();
+    for ((path, timeline), (plan, report)) in logs
+        .iter()
+        .zip(&timelines)
+        .zip(plans.iter().zip(&mut reports))
+    {
+        accumulators.push(read_skin(
+            path, timeline, plan, config, &mut sus, report, progress,
+        )?);
+    }
+
+    assemble(
+        config,
+        &dofs,
+        &sus,
+        &timelines,
+        &plans,
+        &accumulators,
+        pattern,
+        pattern_source,
+        reports,
+    )
+}
