@@ -535,22 +535,32 @@ pub(crate) struct IngestArgs {
     #[arg(long, default_value = skincal::log::IMU_TOPIC)]
     imu_topic: String,
     /// A DoF is still below this speed, rad/s.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = IngestConfig::default().still_velocity)]
     still_velocity: f64,
+    /// Between two motions every DoF is slower than this (servo ringing allowed), rad/s.
+    #[arg(long, default_value_t = IngestConfig::default().quiet_velocity)]
+    quiet_velocity: f64,
+    /// Shortest pause that separates two motions, s.
+    #[arg(long, default_value_t = IngestConfig::default().min_pause)]
+    min_pause: f64,
     /// A DoF has moved when it left its position by more than this, rad.
-    #[arg(long, default_value_t = 0.002)]
+    #[arg(long, default_value_t = IngestConfig::default().motion_threshold)]
     motion_threshold: f64,
+    /// A DoF that moved less than this fraction of the DoF that moved most only followed it
+    /// (servo compliance): fitted as coupled motion, not a second excited DoF.
+    #[arg(long, default_value_t = IngestConfig::default().coupled_fraction)]
+    coupled_fraction: f64,
     /// Shortest still window, s.
-    #[arg(long, default_value_t = 0.25)]
+    #[arg(long, default_value_t = IngestConfig::default().min_still)]
     min_still: f64,
     /// Dropped at both ends of a still window, s.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = IngestConfig::default().trim)]
     trim: f64,
     /// Half-width of the differentiation filter, s.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(long, default_value_t = IngestConfig::default().filter)]
     filter: f64,
     /// Joint-state gaps longer than this make a motion unusable, s.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = IngestConfig::default().max_gap)]
     max_gap: f64,
     /// Accelerometer range: samples at ±G or beyond are saturated, in g.
     #[arg(long, value_name = "G", default_value_t = 2.0)]
@@ -564,7 +574,10 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
             imu: args.imu_topic.clone(),
         },
         still_velocity: args.still_velocity,
+        quiet_velocity: args.quiet_velocity,
+        min_pause: args.min_pause,
         motion_threshold: args.motion_threshold,
+        coupled_fraction: args.coupled_fraction,
         min_still: args.min_still,
         trim: args.trim,
         filter: args.filter,
@@ -644,9 +657,30 @@ fn render_report(r: &IngestReport) -> String {
         );
         let _ = writeln!(
             s,
-            "  windows: {} still, {} excitations, {} structure moves; {} transfers skipped",
-            l.still_windows, l.excitations, l.moves, l.transfers
+            "  windows: {} still, {} short pauses, {} excitations, {} structure moves; {} \
+             transfers skipped",
+            l.still_windows, l.pauses, l.excitations, l.moves, l.transfers
         );
+        let mut shares: Vec<&skincal::ingest::ExcitationFit> = l
+            .fits
+            .iter()
+            .filter(|f| !f.coupled_dofs.is_empty())
+            .collect();
+        if !shares.is_empty() {
+            shares.sort_by(|a, b| a.coupled.total_cmp(&b.coupled));
+            let largest = shares[shares.len() - 1];
+            let _ = writeln!(
+                s,
+                "  coupled motion: in {} of {} excitation windows other DoFs moved too and were \
+                 fitted out: median {:.0} %, largest {:.0} % of the signal ({} at {:.2} s)",
+                shares.len(),
+                l.fits.len(),
+                shares[shares.len() / 2].coupled * 100.0,
+                largest.coupled * 100.0,
+                largest.dof,
+                largest.start
+            );
+        }
         let mut issues = Vec::new();
         for (n, what) in [
             (l.unsorted_joint_stamps, "unsorted joint stamps"),

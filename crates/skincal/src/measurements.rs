@@ -188,6 +188,13 @@ pub struct TrainingPose {
     pub static_readings: Vec<Reading>,
     /// Per excited DoF: the dynamic acceleration of every SU at the pattern peak.
     pub dynamic: BTreeMap<String, Vec<Reading>>,
+    /// The standard deviation of each component of every SU's static reading, m/s² (from the
+    /// samples it was averaged from; absent: the estimator's noise setting applies).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub static_sd: Option<Vec<f64>>,
+    /// The same for the dynamic readings, per excited DoF.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub dynamic_sd: BTreeMap<String, Vec<f64>>,
     /// Unknown fields, kept as written.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
@@ -237,11 +244,28 @@ impl MeasurementSet {
                 filter(&mut mv.readings);
             }
         }
+        let filter_sd = |sd: &mut Vec<f64>| {
+            let mut kept = keep.iter();
+            sd.retain(|_| kept.next().copied().unwrap_or(true));
+        };
         for pose in set.training.iter_mut().flat_map(|t| &mut t.poses) {
             filter(&mut pose.static_readings);
             for readings in pose.dynamic.values_mut() {
                 filter(readings);
             }
+            pose.static_sd.iter_mut().for_each(filter_sd);
+            pose.dynamic_sd.values_mut().for_each(filter_sd);
+        }
+        set
+    }
+
+    /// The same readings without their standard deviations: every one then has the estimator's
+    /// noise setting.
+    pub fn without_uncertainties(&self) -> Self {
+        let mut set = self.clone();
+        for pose in set.training.iter_mut().flat_map(|t| &mut t.poses) {
+            pose.static_sd = None;
+            pose.dynamic_sd.clear();
         }
         set
     }
@@ -347,6 +371,35 @@ impl MeasurementSet {
                         });
                     }
                     readings(field, r)?;
+                }
+                let sds = tp
+                    .static_sd
+                    .iter()
+                    .map(|sd| (format!("{base}.static_sd"), sd));
+                let dynamic = tp
+                    .dynamic_sd
+                    .iter()
+                    .map(|(dof, sd)| (format!("{base}.dynamic_sd[\"{dof}\"]"), sd));
+                for (field, sd) in sds.chain(dynamic) {
+                    shape(&field, sd.len(), nu, "one standard deviation per SU")?;
+                    if let Some(i) = sd.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
+                        return Err(MeasurementError::InvalidValue {
+                            field: format!("{field}[{i}] (SU {})", self.sus[i]),
+                            reason: format!(
+                                "{} must be a positive number of m/s²; leave the field out \
+                                 when the uncertainty is not known",
+                                sd[i]
+                            ),
+                        });
+                    }
+                }
+                for dof in tp.dynamic_sd.keys() {
+                    if !tp.dynamic.contains_key(dof) {
+                        return Err(MeasurementError::InvalidValue {
+                            field: format!("{base}.dynamic_sd[\"{dof}\"]"),
+                            reason: "has no dynamic readings of that DoF in the pose".into(),
+                        });
+                    }
                 }
             }
         }

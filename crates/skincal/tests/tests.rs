@@ -12,6 +12,7 @@ mod logs;
 mod measurements;
 mod ml_estimation;
 mod paper;
+mod physics;
 mod real_robots;
 mod robot_like;
 mod robustness;

@@ -2,13 +2,13 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::Vector5;
 use serde_json::Map;
 
+use super::fit::{Excitation, PooledFit};
 use super::segment::{Event, Segmentation};
 use super::skin::{Accumulated, SuRegistry};
 use super::timeline::Timeline;
-use super::{IngestConfig, IngestError, IngestReport, Ingested, LogReport};
+use super::{ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
 use crate::measurements::{
     MeasurementSet, Move, Orientation, Reading, StructureExperiment, TrainingExperiment,
     TrainingPose,
@@ -16,87 +16,54 @@ use crate::measurements::{
 use crate::model::sensor::ExcitationPattern;
 
 /// A station: still windows at one pose, joined by excitations.
-pub(super) struct Station {
-    pub(super) log: usize,
-    pub(super) stills: Vec<usize>,
-    pub(super) excitations: Vec<usize>,
-    pub(super) pose: Vec<f64>,
+struct Station {
+    log: usize,
+    stills: Vec<usize>,
+    excitations: Vec<usize>,
+    pose: Vec<f64>,
     /// Index of the structure group (only for stations without excitations).
-    pub(super) group: Option<usize>,
+    group: Option<usize>,
 }
 
-#[allow(clippy::too_many_arguments)]
-pub(super) fn assemble(
-    config: &IngestConfig,
-    dofs: &[String],
-    sus: &SuRegistry,
-    timelines: &[Timeline],
-    segs: &[Segmentation],
-    accumulated: &[Accumulated],
-    pattern: ExcitationPattern,
-    pattern_source: String,
-    reports: Vec<LogReport>,
-) -> Result<Ingested, IngestError> {
-    let nu = sus.names.len();
-    let tolerance = config.motion_threshold;
-    let mut warnings = Vec::new();
-    if nu == 0 {
-        return Err(IngestError::Empty(
-            "no skin samples (check the topic with --imu-topic and the frame ids)".into(),
-        ));
+/// Everything the two passes found, for assembling.
+pub(super) struct Passes<'a> {
+    pub(super) config: &'a IngestConfig,
+    pub(super) dofs: &'a [String],
+    pub(super) sus: &'a SuRegistry,
+    pub(super) timelines: &'a [Timeline],
+    pub(super) segs: &'a [Segmentation],
+    pub(super) accumulated: &'a [Accumulated],
+    pub(super) reports: Vec<LogReport>,
+    pub(super) warnings: Vec<String>,
+    /// Per SU, the variance of one sample (mean over the axes) in the still windows, m²/s⁴;
+    /// `None` when an SU has too few samples there to tell.
+    pub(super) variance: Option<Vec<f64>>,
+}
+
+impl Passes<'_> {
+    fn path(&self, log: usize) -> String {
+        self.reports[log].path.display().to_string()
     }
-    // Stations and structure groups.
-    let mut stations: Vec<Station> = Vec::new();
-    let mut group_count = 0usize;
-    for (li, seg) in segs.iter().enumerate() {
-        let mut current: Option<usize> = None;
-        let mut group: Option<usize> = None;
-        for event in &seg.events {
-            match event {
-                Event::Still(s) => {
-                    let pose = &seg.stills[*s].pose;
-                    let same = current.is_some_and(|c| {
-                        stations[c]
-                            .pose
-                            .iter()
-                            .zip(pose)
-                            .all(|(a, b)| (a - b).abs() < tolerance)
-                    });
-                    if same {
-                        stations[current.expect("checked")].stills.push(*s);
-                    } else {
-                        stations.push(Station {
-                            log: li,
-                            stills: vec![*s],
-                            excitations: Vec::new(),
-                            pose: pose.clone(),
-                            group: None,
-                        });
-                        current = Some(stations.len() - 1);
-                        if group.is_none() {
-                            group = Some(group_count);
-                            group_count += 1;
-                        }
-                        stations.last_mut().expect("pushed").group = group;
-                    }
-                }
-                Event::Excitation(x) => {
-                    if let Some(c) = current {
-                        stations[c].excitations.push(*x);
-                    }
-                }
-                Event::Move => current = None,
-                Event::Transfer | Event::Broken => {
-                    current = None;
-                    group = None;
-                }
-            }
+
+    /// Start of a station, s from its log's first joint state.
+    fn at(&self, st: &Station) -> f64 {
+        let w = &self.segs[st.log].stills[st.stills[0]];
+        self.timelines[st.log].time(w.start)
+    }
+
+    /// The static readings of a station, pooled over its still windows; why there are none as
+    /// the error.
+    fn still_reading(&self, st: &Station) -> Result<Vec<(Reading, u64)>, String> {
+        let windows = &self.segs[st.log].stills;
+        if st.stills.iter().all(|&w| !windows[w].reading) {
+            return Err(format!(
+                "it was never still for a static reading (every DoF below {} rad/s for {} s, \
+                 plus {} s trimmed at both ends)",
+                self.config.still_velocity, self.config.min_still, self.config.trim
+            ));
         }
-    }
-    // Readings of a station, pooled over its still windows; None if an SU has no sample.
-    let still_reading = |st: &Station| -> Result<Vec<Reading>, String> {
-        let acc = &accumulated[st.log];
-        (0..nu)
+        let acc = &self.accumulated[st.log];
+        (0..self.sus.names.len())
             .map(|su| {
                 let mut n = 0u64;
                 let mut sum = [0.0; 3];
@@ -109,218 +76,374 @@ pub(super) fn assemble(
                     }
                 }
                 if n == 0 {
-                    Err(sus.names[su].clone())
+                    Err(format!(
+                        "SU `{}` has no sample in its still windows",
+                        self.sus.names[su]
+                    ))
                 } else {
-                    Ok(sum.map(|v| v / n as f64))
+                    Ok((sum.map(|v| v / n as f64), n))
                 }
             })
             .collect()
-    };
-    let at = |st: &Station| -> f64 {
-        let w = &segs[st.log].stills[st.stills[0]];
-        timelines[st.log].time(w.start)
-    };
+    }
+}
 
-    // Training poses.
+/// Still windows at one pose joined by excitations are a station; stations joined by moves
+/// form a structure group, which a transfer or a broken motion ends. Returns the stations and
+/// the number of groups.
+fn stations(segs: &[Segmentation], config: &IngestConfig) -> (Vec<Station>, usize) {
+    let tolerance = config.motion_threshold;
+    let mut stations: Vec<Station> = Vec::new();
+    let mut group_count = 0usize;
+    for (li, seg) in segs.iter().enumerate() {
+        let mut current: Option<usize> = None;
+        let mut group: Option<usize> = None;
+        for event in &seg.events {
+            match *event {
+                Event::Still(s) => {
+                    let pose = &seg.stills[s].pose;
+                    let same = current.is_some_and(|c| {
+                        stations[c]
+                            .pose
+                            .iter()
+                            .zip(pose)
+                            .all(|(a, b)| (a - b).abs() < tolerance)
+                    });
+                    if let (true, Some(c)) = (same, current) {
+                        stations[c].stills.push(s);
+                        continue;
+                    }
+                    let g = *group.get_or_insert_with(|| {
+                        group_count += 1;
+                        group_count - 1
+                    });
+                    stations.push(Station {
+                        log: li,
+                        stills: vec![s],
+                        excitations: Vec::new(),
+                        pose: pose.clone(),
+                        group: Some(g),
+                    });
+                    current = Some(stations.len() - 1);
+                }
+                Event::Excitation(x) => {
+                    if let Some(c) = current {
+                        stations[c].excitations.push(x);
+                    }
+                }
+                Event::Move => current = None,
+                Event::Transfer | Event::Broken => {
+                    current = None;
+                    group = None;
+                }
+            }
+        }
+    }
+    (stations, group_count)
+}
+
+/// The training pose of a station with excitations: its static reading and, from one joint fit
+/// of all its excitation windows, the dynamic acceleration of every excited DoF. `None` (with a
+/// warning) when it cannot be used.
+fn training_pose(
+    passes: &mut Passes<'_>,
+    st: &Station,
+    pattern: &ExcitationPattern,
+) -> Option<TrainingPose> {
+    let nu = passes.sus.names.len();
+    let (static_readings, counts): (Vec<Reading>, Vec<u64>) = match passes.still_reading(st) {
+        Ok(r) => r.into_iter().unzip(),
+        Err(why) => {
+            let warning = format!(
+                "{}: training pose at {:.3} s skipped: {why}",
+                passes.path(st.log),
+                passes.at(st)
+            );
+            passes.warnings.push(warning);
+            return None;
+        }
+    };
+    let seg = &passes.segs[st.log];
+    let fits = &passes.accumulated[st.log].fits;
+    // Windows in which an SU has no sample cannot be fitted.
+    let mut windows: Vec<usize> = Vec::new();
+    for &xi in &st.excitations {
+        let x = &seg.excitations[xi];
+        match (0..nu).find(|&su| fits[xi].get(su).is_none_or(|f| f.samples == 0)) {
+            None => windows.push(xi),
+            Some(su) => {
+                let warning = format!(
+                    "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
+                    passes.path(st.log),
+                    passes.dofs[x.dof],
+                    passes.timelines[st.log].time(x.start),
+                    passes.sus.names[su]
+                );
+                passes.warnings.push(warning);
+            }
+        }
+    }
+    if windows.is_empty() {
+        return None;
+    }
+    let excitations: Vec<&Excitation> = windows.iter().map(|&xi| &seg.excitations[xi]).collect();
+    let fit = PooledFit::new(&excitations);
     let alpha = pattern.peak_acceleration();
-    let mut poses = Vec::new();
-    let mut dynamic_count = 0;
-    for st in stations.iter().filter(|s| !s.excitations.is_empty()) {
-        let static_readings = match still_reading(st) {
-            Ok(r) => r,
-            Err(su) => {
-                warnings.push(format!(
-                    "{}: training pose at {:.3} s skipped: SU `{su}` has no sample in its still \
-                     windows",
-                    reports[st.log].path.display(),
-                    at(st)
-                ));
+    let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
+    let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut powers = vec![(0.0, 0.0); windows.len()];
+    for su in 0..nu {
+        let rhs: Vec<&[[f64; 3]]> = windows
+            .iter()
+            .map(|&xi| fits[xi][su].rhs.as_slice())
+            .collect();
+        let coefficients = fit.solve(&rhs);
+        for (w, x) in excitations.iter().enumerate() {
+            let (other, own) = fit.powers(w, x, &coefficients);
+            powers[w].0 += other;
+            powers[w].1 += own;
+            let name = &passes.dofs[x.dof];
+            if dynamic.get(name).is_some_and(|r| r.len() > su) {
+                continue;
+            }
+            let column = fit.alpha(x.dof).expect("every window has its DoF's terms");
+            let reading = [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha);
+            dynamic.entry(name.clone()).or_default().push(reading);
+            if let Some(v) = &passes.variance {
+                let sd = alpha * fit.sd_factor(column) * v[su].sqrt();
+                dynamic_sd.entry(name.clone()).or_default().push(sd);
+            }
+        }
+    }
+    let timeline = &passes.timelines[st.log];
+    for (x, (other, own)) in excitations.iter().zip(powers) {
+        let coupled_dofs = x.terms[5..]
+            .iter()
+            .filter_map(|t| match t {
+                super::fit::Term::Alpha(e) => Some(passes.dofs[*e].clone()),
+                _ => None,
+            })
+            .collect();
+        passes.reports[st.log].fits.push(ExcitationFit {
+            dof: passes.dofs[x.dof].clone(),
+            start: timeline.time(x.start),
+            duration: x.len() as f64 * timeline.dt,
+            coupled_dofs,
+            coupled: if own > 0.0 { (other / own).sqrt() } else { 0.0 },
+        });
+    }
+    let missing: Vec<&String> = passes
+        .dofs
+        .iter()
+        .filter(|d| !dynamic.contains_key(*d))
+        .collect();
+    if !missing.is_empty() {
+        let warning = format!(
+            "{}: training pose at {:.3} s has no excitation of {missing:?}",
+            passes.path(st.log),
+            passes.at(st)
+        );
+        passes.warnings.push(warning);
+    }
+    let static_sd = passes.variance.as_ref().map(|v| {
+        v.iter()
+            .zip(&counts)
+            .map(|(var, &n)| (var / n as f64).sqrt())
+            .collect()
+    });
+    Some(TrainingPose {
+        q: st.pose.clone(),
+        static_readings,
+        dynamic,
+        static_sd,
+        dynamic_sd,
+        extra: Map::new(),
+    })
+}
+
+/// The DoFs in which pose `a` differs from `b`: beyond `motion_threshold`, and beyond
+/// `coupled_fraction` of the largest difference (a compliant servo sags differently when another
+/// DoF changes the load).
+fn differing(a: &[f64], b: &[f64], config: &IngestConfig) -> Vec<usize> {
+    let largest = a
+        .iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    let bound = config
+        .motion_threshold
+        .max(config.coupled_fraction * largest);
+    (0..a.len())
+        .filter(|&d| (a[d] - b[d]).abs() >= bound)
+        .collect()
+}
+
+/// One base orientation of the structure experiment from the stations of group `g`: the rest
+/// pose is the pose most of them share, and every station that differs from it in one DoF is a
+/// move of that DoF.
+fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientation> {
+    let config = passes.config;
+    let nu = passes.sus.names.len();
+    let path = passes.path(members[0].log);
+    let (rest_index, _) = members
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let same = members
+                .iter()
+                .filter(|o| differing(&o.pose, &s.pose, config).is_empty())
+                .count();
+            (i, same)
+        })
+        .fold(
+            (0, 0),
+            |best, (i, c)| if c > best.1 { (i, c) } else { best },
+        );
+    let rest_pose = members[rest_index].pose.clone();
+    let mut rest_sum = vec![[0.0; 3]; nu];
+    let mut rest_n = 0usize;
+    let mut moves = Vec::new();
+    for st in members {
+        let readings: Vec<Reading> = match passes.still_reading(st) {
+            Ok(r) => r.into_iter().map(|(r, _)| r).collect(),
+            Err(why) => {
+                let warning = format!(
+                    "{path}: structure pose at {:.3} s skipped: {why}",
+                    passes.at(st)
+                );
+                passes.warnings.push(warning);
                 continue;
             }
         };
-        let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
-        let mut counts: BTreeMap<usize, usize> = BTreeMap::new();
-        for &xi in &st.excitations {
-            let x = &segs[st.log].excitations[xi];
-            let fits = &accumulated[st.log].fits[xi];
-            let mut readings = Vec::with_capacity(nu);
-            let mut missing = None;
-            for su in 0..nu {
-                match fits.get(su).filter(|f| f.samples > 0) {
-                    Some(f) => {
-                        let mut k = [0.0; 3];
-                        for (axis, kv) in k.iter_mut().enumerate() {
-                            let rhs = Vector5::from_fn(|c, _| f.rhs[c][axis]);
-                            *kv = (x.inverse * rhs)[3] * alpha;
-                        }
-                        readings.push(k);
-                    }
-                    None => {
-                        missing = Some(su);
-                        break;
+        match differing(&st.pose, &rest_pose, config).as_slice() {
+            [] => {
+                rest_n += 1;
+                for (s, r) in rest_sum.iter_mut().zip(&readings) {
+                    for k in 0..3 {
+                        s[k] += r[k];
                     }
                 }
             }
-            if let Some(su) = missing {
-                warnings.push(format!(
-                    "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
-                    reports[st.log].path.display(),
-                    dofs[x.dof],
-                    timelines[st.log].time(x.start),
-                    sus.names[su]
-                ));
-                continue;
-            }
-            let name = dofs[x.dof].clone();
-            let count = counts.entry(x.dof).or_default();
-            *count += 1;
-            match dynamic.get_mut(&name) {
-                // Repeated excitations of a DoF at one pose: running mean.
-                Some(prev) => {
-                    let c = *count as f64;
-                    for (p, r) in prev.iter_mut().zip(&readings) {
-                        for k in 0..3 {
-                            p[k] += (r[k] - p[k]) / c;
-                        }
-                    }
-                }
-                None => {
-                    dynamic.insert(name, readings);
-                }
+            [d] => moves.push(Move {
+                dof: passes.dofs[*d].clone(),
+                pose: st.pose.clone(),
+                readings,
+                extra: Map::new(),
+            }),
+            several => {
+                let warning = format!(
+                    "{path}: structure pose at {:.3} s differs from the rest pose in {} DoFs; \
+                     skipped",
+                    passes.at(st),
+                    several.len()
+                );
+                passes.warnings.push(warning);
             }
         }
-        if dynamic.is_empty() {
-            continue;
-        }
-        let missing: Vec<&String> = dofs.iter().filter(|d| !dynamic.contains_key(*d)).collect();
-        if !missing.is_empty() {
-            warnings.push(format!(
-                "{}: training pose at {:.3} s has no excitation of {missing:?}",
-                reports[st.log].path.display(),
-                at(st)
-            ));
-        }
-        dynamic_count += dynamic.len();
-        poses.push(TrainingPose {
-            q: st.pose.clone(),
-            static_readings,
-            dynamic,
-            extra: Map::new(),
-        });
     }
+    if rest_n == 0 || moves.is_empty() {
+        return None;
+    }
+    let mut extra = Map::new();
+    extra.insert(
+        "source".into(),
+        serde_json::Value::String(format!("{path} from {:.3} s", passes.at(members[0]))),
+    );
+    Some(Orientation {
+        rest_pose,
+        rest: rest_sum
+            .iter()
+            .map(|s| s.map(|v| v / rest_n as f64))
+            .collect(),
+        moves,
+        extra,
+    })
+}
 
-    let found = stations
+/// Per SU, the sum of squared deviations of its samples from their window's mean in the still
+/// windows (over the three axes) and its degrees of freedom.
+fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
+    let mut out = vec![(0.0, 0.0); sus];
+    for acc in accumulated {
+        for w in &acc.stills {
+            for (s, o) in w.iter().zip(out.iter_mut()).filter(|(s, _)| s.n > 1) {
+                for k in 0..3 {
+                    let n = s.n as f64;
+                    o.0 += (s.squares[k] - s.sum[k] * s.sum[k] / n).max(0.0);
+                    o.1 += n - 1.0;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Fewest degrees of freedom of an SU's sample variance for the readings' uncertainties.
+const MIN_NOISE_DOF: f64 = 30.0;
+
+pub(super) fn assemble(
+    mut passes: Passes<'_>,
+    pattern: ExcitationPattern,
+    pattern_source: String,
+) -> Result<Ingested, IngestError> {
+    if passes.sus.names.is_empty() {
+        return Err(IngestError::Empty(
+            "no skin samples (check the topic with --imu-topic and the frame ids)".into(),
+        ));
+    }
+    let (stations, group_count) = stations(passes.segs, passes.config);
+    let scatter = scatter(passes.accumulated, passes.sus.names.len());
+    passes.variance = scatter
+        .iter()
+        .all(|&(_, dof)| dof >= MIN_NOISE_DOF)
+        .then(|| scatter.iter().map(|&(ss, dof)| ss / dof).collect());
+    let (ss, dof) = scatter
+        .iter()
+        .fold((0.0, 0.0), |a, &(s, d)| (a.0 + s, a.1 + d));
+    let sample_noise = (dof > 0.0).then(|| (ss / dof).sqrt());
+
+    let mut poses = Vec::new();
+    let training: Vec<&Station> = stations
         .iter()
         .filter(|s| !s.excitations.is_empty())
-        .count();
-    if found > 0 && poses.is_empty() {
+        .collect();
+    for st in &training {
+        poses.extend(training_pose(&mut passes, st, &pattern));
+    }
+    if !training.is_empty() && poses.is_empty() {
         return Err(IngestError::Empty(format!(
-            "all {found} training poses found in the joint states were skipped, so the result \
+            "all {} training poses found in the joint states were skipped, so the result \
              would have none; the first reason: {}",
-            warnings.first().map_or("unknown", String::as_str)
+            training.len(),
+            passes.warnings.first().map_or("unknown", String::as_str)
         )));
     }
 
-    // Structure groups.
     let mut orientations = Vec::new();
     for g in 0..group_count {
         let members: Vec<&Station> = stations
             .iter()
             .filter(|s| s.group == Some(g) && s.excitations.is_empty())
             .collect();
-        if members.len() < 2 {
-            continue;
+        if members.len() >= 2 {
+            orientations.extend(orientation(&mut passes, &members));
         }
-        let path = reports[members[0].log].path.display().to_string();
-        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < tolerance);
-        // The rest pose: the one most stations share (the first of the most frequent).
-        let (rest_index, _) = members
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                (
-                    i,
-                    members.iter().filter(|o| close(&o.pose, &s.pose)).count(),
-                )
-            })
-            .fold(
-                (0, 0),
-                |best, (i, c)| if c > best.1 { (i, c) } else { best },
-            );
-        let rest_pose = members[rest_index].pose.clone();
-        let mut rest_sum = vec![[0.0; 3]; nu];
-        let mut rest_n = 0usize;
-        let mut moves = Vec::new();
-        for st in &members {
-            let readings = match still_reading(st) {
-                Ok(r) => r,
-                Err(su) => {
-                    warnings.push(format!(
-                        "{path}: structure pose at {:.3} s skipped: SU `{su}` has no sample in it",
-                        at(st)
-                    ));
-                    continue;
-                }
-            };
-            let differs: Vec<usize> = (0..dofs.len())
-                .filter(|&d| (st.pose[d] - rest_pose[d]).abs() >= tolerance)
-                .collect();
-            match differs.as_slice() {
-                [] => {
-                    rest_n += 1;
-                    for (s, r) in rest_sum.iter_mut().zip(&readings) {
-                        for k in 0..3 {
-                            s[k] += r[k];
-                        }
-                    }
-                }
-                [d] => moves.push(Move {
-                    dof: dofs[*d].clone(),
-                    pose: st.pose.clone(),
-                    readings,
-                    extra: Map::new(),
-                }),
-                several => warnings.push(format!(
-                    "{path}: structure pose at {:.3} s differs from the rest pose in {} DoFs; \
-                     skipped",
-                    at(st),
-                    several.len()
-                )),
-            }
-        }
-        if rest_n == 0 || moves.is_empty() {
-            continue;
-        }
-        let mut extra = Map::new();
-        extra.insert(
-            "source".into(),
-            serde_json::Value::String(format!("{path} from {:.3} s", at(members[0]))),
-        );
-        orientations.push(Orientation {
-            rest_pose,
-            rest: rest_sum
-                .iter()
-                .map(|s| s.map(|v| v / rest_n as f64))
-                .collect(),
-            moves,
-            extra,
-        });
     }
-
     if group_count > 0 && orientations.is_empty() && poses.is_empty() {
         return Err(IngestError::Empty(format!(
             "every structure pose found in the joint states was skipped; the first reason: {}",
-            warnings.first().map_or("unknown", String::as_str)
+            passes.warnings.first().map_or("unknown", String::as_str)
         )));
     }
-    let mut set = MeasurementSet::new(dofs.to_vec(), sus.names.clone());
+
+    let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
+    let dynamic = poses.iter().map(|p| p.dynamic.len()).sum();
+    let (orientation_count, training_poses) = (orientations.len(), poses.len());
     if !orientations.is_empty() {
         set.structure = Some(StructureExperiment {
             orientations,
             extra: Map::new(),
         });
     }
-    let training_poses = poses.len();
     if !poses.is_empty() {
         set.training = Some(TrainingExperiment {
             pattern,
@@ -335,21 +458,8 @@ pub(super) fn assemble(
                 .into(),
         ));
     }
-    // Sensor noise from the still windows.
-    let (mut var, mut dof) = (0.0, 0.0);
-    for acc in accumulated {
-        for w in &acc.stills {
-            for s in w.iter().filter(|s| s.n > 1) {
-                for k in 0..3 {
-                    let n = s.n as f64;
-                    var += (s.squares[k] - s.sum[k] * s.sum[k] / n).max(0.0);
-                    dof += n - 1.0;
-                }
-            }
-        }
-    }
-    let sample_noise = (dof > 0.0).then(|| (var / dof).sqrt());
-    for r in &reports {
+    let mut warnings = std::mem::take(&mut passes.warnings);
+    for r in &passes.reports {
         if !r.unknown_frames.is_empty() {
             warnings.push(format!(
                 "{}: samples of unknown frame ids ignored: {:?}",
@@ -361,19 +471,19 @@ pub(super) fn assemble(
             warnings.push(format!(
                 "{}: saturated samples (±{:.2} m/s²) not used: {:?}",
                 r.path.display(),
-                config.saturation,
+                passes.config.saturation,
                 r.saturated
             ));
         }
     }
     let report = IngestReport {
-        orientations: set.structure.as_ref().map_or(0, |s| s.orientations.len()),
+        orientations: orientation_count,
         training_poses,
-        dynamic: dynamic_count,
-        logs: reports,
+        dynamic,
+        sample_noise,
+        logs: passes.reports,
         pattern,
         pattern_source,
-        sample_noise,
         warnings,
     };
     Ok(Ingested {

@@ -1,12 +1,94 @@
-//! The least-squares design of an excitation window.
+//! The least-squares fit of the excitation windows, against every DoF's measured motion.
+//!
+//! A real servo is compliant: exciting DoF `d` deflects the others by a few mrad (reaction
+//! torques), and every stop rings. Each SU's reading in the window of DoF `d` is therefore modelled
+//! with the motion of *every* DoF `e` that moved in it, measured by the encoders:
+//!
+//! ```text
+//! s(t) = c_w + Σ_e [ h_e (cos Δθ_e − 1) + g_e sin Δθ_e + k_e α_e(t) + m_e ω_e(t)² ]
+//! ```
+//!
+//! (gravity turned by each DoF, tangential and centripetal accelerations). With DoF `d` alone this
+//! is the exact single-DoF model. Left out are the terms of second order in the motion that mix
+//! two DoFs: the Coriolis products `ω_d ω_e`, and the turning of one DoF's coefficients by the
+//! other's angle. On the physics test's arm (deflections of 13 mrad, 30 % of the signal) they
+//! cost 0.04 m/s², while a product's coefficient, known only from the two windows in which it is
+//! nearly collinear with the excitation, would let the encoders' quantisation through tenfold. The coefficients are 3-vectors in the SU
+//! frame that depend on the pose only, so the windows of one station share them: `k_e` of the
+//! window where `e` is excited is also the coefficient of `e`'s coupled motion in every other
+//! window. One joint fit per station ([`PooledFit`]) therefore separates the response to the
+//! excited DoF from the coupled motion, which in one window alone it could not (a deflection
+//! that follows the excitation's acceleration is nearly collinear with it).
+//!
+//! The measured α is the long second difference over ±`l` grid points, which equals the discrete
+//! acceleration filtered by a triangle; every other regressor and the SU signal go through the
+//! same triangle, so the fit needs no smoothing model. The sample at grid point `m` enters the
+//! normal equations with weight `W(m) = Σ_n X(n) w(n − m)`: the right-hand sides are streamed
+//! sample by sample, and the variance they carry per unit sample variance is `Σ_m W(m) W(m)ᵀ`.
 
-use nalgebra::{Matrix5, Vector5};
+use std::collections::BTreeMap;
 
-use super::segment::Excitation;
+use nalgebra::{DMatrix, DVector};
+
 use super::timeline::Timeline;
 
+/// A term of the model of a reading in an excitation window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub(super) enum Term {
+    /// The reading at the window's start pose (one per window).
+    Offset,
+    /// `cos Δθ_e − 1`: gravity turned by DoF `e`, second order.
+    Cos(usize),
+    /// `sin Δθ_e`: gravity turned by DoF `e`, first order.
+    Sin(usize),
+    /// `α_e`: the tangential acceleration of DoF `e`.
+    Alpha(usize),
+    /// `ω_e²`: the centripetal acceleration of DoF `e`.
+    Omega2(usize),
+}
+
+impl Term {
+    /// Whether the term is the motion of `dof` alone.
+    fn of_only(self, dof: usize) -> bool {
+        matches!(self, Term::Cos(e) | Term::Sin(e) | Term::Alpha(e) | Term::Omega2(e) if e == dof)
+    }
+}
+
+/// A DoF whose position in a window spans less than this did not move in it, rad.
+const STILL_SPAN: f64 = 1e-9;
+
+/// An excitation window and its least-squares design.
+#[derive(Debug, Clone)]
+pub(super) struct Excitation {
+    /// The excited DoF.
+    pub(super) dof: usize,
+    /// Grid range `[start, end)`.
+    pub(super) start: usize,
+    pub(super) end: usize,
+    /// The model's terms, in column order (`Offset` first, then four per DoF that moved, the
+    /// excited DoF's first).
+    pub(super) terms: Vec<Term>,
+    /// `W(m)` row by row: the weight of the sample at grid point `start + m` in each normal
+    /// equation is `weights[m · terms.len() + c]`.
+    pub(super) weights: Vec<f64>,
+    /// `Σ_n X(n) X(n)ᵀ`, the normal matrix.
+    pub(super) gram: DMatrix<f64>,
+    /// `Σ_m W(m) W(m)ᵀ`: the covariance of the right-hand sides per unit sample variance.
+    pub(super) spread: DMatrix<f64>,
+    /// Peak measured |ω| and |α| of the excited DoF (for estimating the nominal pattern).
+    pub(super) peak_velocity: f64,
+    pub(super) peak_acceleration: f64,
+}
+
+impl Excitation {
+    /// Number of grid points.
+    pub(super) fn len(&self) -> usize {
+        self.end - self.start
+    }
+}
+
 /// The weights of the triangle of half-width `l` samples: `(l − |k|)/l²`, `|k| < l`.
-pub(super) fn triangle(l: usize) -> Vec<f64> {
+fn triangle(l: usize) -> Vec<f64> {
     let l2 = (l * l) as f64;
     (0..2 * l - 1)
         .map(|i| (l as f64 - (i as f64 - (l as f64 - 1.0)).abs()) / l2)
@@ -14,7 +96,7 @@ pub(super) fn triangle(l: usize) -> Vec<f64> {
 }
 
 /// `x` filtered by `kernel` (odd length, centred) at `n`, with `x` taken as zero outside.
-pub(super) fn filtered(x: &[f64], kernel: &[f64], n: usize) -> f64 {
+fn filtered(x: &[f64], kernel: &[f64], n: usize) -> f64 {
     let half = kernel.len() / 2;
     let mut s = 0.0;
     for (k, w) in kernel.iter().enumerate() {
@@ -26,7 +108,35 @@ pub(super) fn filtered(x: &[f64], kernel: &[f64], n: usize) -> f64 {
     s
 }
 
-/// The least-squares design of an excitation of DoF `d` over grid `[start, end)`.
+/// The measured motion of one DoF in a window, relative to the window's start pose.
+struct Motion {
+    cos: Vec<f64>,
+    sin: Vec<f64>,
+    /// One-step central difference, rad/s.
+    omega: Vec<f64>,
+}
+
+impl Motion {
+    fn of(th: &[f64], l: usize, dt: f64) -> Motion {
+        let len = th.len();
+        // The start pose: the mean over the still points before the motion.
+        let base = th[..l].iter().sum::<f64>() / l as f64;
+        let omega = (0..len)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
+                (th[b] - th[a]) / ((b - a) as f64 * dt)
+            })
+            .collect();
+        Motion {
+            cos: th.iter().map(|q| (q - base).cos() - 1.0).collect(),
+            sin: th.iter().map(|q| (q - base).sin()).collect(),
+            omega,
+        }
+    }
+}
+
+/// The least-squares design of an excitation of DoF `d` over grid `[start, end)`; `None` when the
+/// window is too short or the DoF's acceleration cannot be told from its other terms.
 pub(super) fn design(
     timeline: &Timeline,
     d: usize,
@@ -34,76 +144,252 @@ pub(super) fn design(
     end: usize,
     l: usize,
 ) -> Option<Excitation> {
-    let th = &timeline.theta[d][start..end];
-    let len = th.len();
+    let len = end - start;
     if len < 4 * l + 4 {
         return None;
     }
     let dt = timeline.dt;
     let kernel = triangle(l);
-    let base = th[0];
-    let cos: Vec<f64> = th.iter().map(|q| (q - base).cos() - 1.0).collect();
-    let sin: Vec<f64> = th.iter().map(|q| (q - base).sin()).collect();
-    let omega2: Vec<f64> = (0..len)
-        .map(|i| {
-            let (a, b) = (th[i.saturating_sub(1)], th[(i + 1).min(len - 1)]);
-            let w = (b - a) / (((i + 1).min(len - 1) - i.saturating_sub(1)) as f64 * dt);
-            w * w
-        })
-        .collect();
-    // Regressors at the valid points n ∈ [l, len − l): filtered by the triangle; the measured
-    // acceleration is the long second difference (= triangle-filtered discrete acceleration).
     let span = (l as f64 * dt).powi(2);
-    let mut rows: Vec<(usize, [f64; 5])> = Vec::with_capacity(len);
+    // The excited DoF first, then every other DoF that moved.
+    let mut dofs = vec![d];
+    dofs.extend((0..timeline.theta.len()).filter(|&e| {
+        let th = &timeline.theta[e][start..end];
+        let (lo, hi) = th
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), &q| (a.min(q), b.max(q)));
+        e != d && hi - lo > STILL_SPAN
+    }));
+    let motions: Vec<Motion> = dofs
+        .iter()
+        .map(|&e| Motion::of(&timeline.theta[e][start..end], l, dt))
+        .collect();
+    let mut terms = vec![Term::Offset];
+    for &e in &dofs {
+        terms.extend([Term::Cos(e), Term::Sin(e), Term::Alpha(e), Term::Omega2(e)]);
+    }
+    let nc = terms.len();
+    let squares: Vec<Vec<f64>> = motions
+        .iter()
+        .map(|m| m.omega.iter().map(|w| w * w).collect())
+        .collect();
+    // Regressors at the valid points n ∈ [l, len − l), triangle-filtered; the measured
+    // acceleration is the long second difference (= triangle-filtered discrete acceleration).
+    let rows = len - 2 * l;
+    let mut x = vec![0.0; rows * nc];
     let (mut peak_velocity, mut peak_acceleration) = (0.0f64, 0.0f64);
-    for i in l..len - l {
-        let alpha = (th[i + l] - 2.0 * th[i] + th[i - l]) / span;
-        let omega = (th[i + l] - th[i - l]) / (2.0 * l as f64 * dt);
-        peak_velocity = peak_velocity.max(omega.abs());
-        peak_acceleration = peak_acceleration.max(alpha.abs());
-        rows.push((
-            i,
-            [
-                1.0,
-                filtered(&cos, &kernel, i),
-                filtered(&sin, &kernel, i),
-                alpha,
-                filtered(&omega2, &kernel, i),
-            ],
-        ));
+    for (r, i) in (l..len - l).enumerate() {
+        let row = &mut x[r * nc..(r + 1) * nc];
+        row[0] = 1.0;
+        for (k, (&e, m)) in dofs.iter().zip(&motions).enumerate() {
+            let th = &timeline.theta[e][start..end];
+            let alpha = (th[i + l] - 2.0 * th[i] + th[i - l]) / span;
+            if k == 0 {
+                let omega = (th[i + l] - th[i - l]) / (2.0 * l as f64 * dt);
+                peak_velocity = peak_velocity.max(omega.abs());
+                peak_acceleration = peak_acceleration.max(alpha.abs());
+            }
+            let c = 1 + 4 * k;
+            row[c] = filtered(&m.cos, &kernel, i);
+            row[c + 1] = filtered(&m.sin, &kernel, i);
+            row[c + 2] = alpha;
+            row[c + 3] = filtered(&squares[k], &kernel, i);
+        }
     }
-    let mut g = Matrix5::zeros();
-    for (_, x) in &rows {
-        let v = Vector5::from(*x);
-        g += v * v.transpose();
-    }
-    // Scale the columns for a well-conditioned inverse.
-    let scale = Vector5::from_fn(|i, _| 1.0 / g[(i, i)].max(1e-300).sqrt());
-    let gs = Matrix5::from_fn(|i, j| g[(i, j)] * scale[i] * scale[j]);
-    let inverse_scaled = gs.cholesky()?.inverse();
-    let inverse = Matrix5::from_fn(|i, j| inverse_scaled[(i, j)] * scale[i] * scale[j]);
-    if inverse[(3, 3)] * g[(3, 3)] > 1e4 || peak_acceleration == 0.0 {
-        // α is (nearly) a combination of the other regressors: nothing to fit against.
+    let gram = DMatrix::from_fn(nc, nc, |a, b| {
+        (0..rows)
+            .map(|r| x[r * nc + a] * x[r * nc + b])
+            .sum::<f64>()
+    });
+    // The excited DoF's acceleration must be told apart from its own other terms in this window.
+    let own = gram.view((0, 0), (5, 5)).into_owned();
+    let scale = DVector::from_fn(5, |i, _| 1.0 / own[(i, i)].max(1e-300).sqrt());
+    let scaled = DMatrix::from_fn(5, 5, |i, j| own[(i, j)] * scale[i] * scale[j]);
+    let inverse = scaled.cholesky()?.inverse();
+    if inverse[(3, 3)] > 1e4 || peak_acceleration == 0.0 {
         return None;
     }
     // W(m) = Σ_n X(n) w(n − m): the adjoint of the triangle applied to the regressors.
     let half = kernel.len() / 2;
-    let mut weights = vec![[0.0; 5]; len];
-    for (i, x) in &rows {
+    let mut weights = vec![0.0; len * nc];
+    for (r, i) in (l..len - l).enumerate() {
+        let row = &x[r * nc..(r + 1) * nc];
         for (k, w) in kernel.iter().enumerate() {
             let m = i + k - half;
-            for (c, xc) in x.iter().enumerate() {
-                weights[m][c] += w * xc;
+            for (target, v) in weights[m * nc..(m + 1) * nc].iter_mut().zip(row) {
+                *target += w * v;
             }
         }
     }
+    let spread = DMatrix::from_fn(nc, nc, |a, b| {
+        (0..len)
+            .map(|m| weights[m * nc + a] * weights[m * nc + b])
+            .sum()
+    });
     Some(Excitation {
         dof: d,
         start,
         end,
+        terms,
         weights,
-        inverse,
+        gram,
+        spread,
         peak_velocity,
         peak_acceleration,
     })
+}
+
+/// Regularisation of the scaled normal matrix: directions it knows less than this are held at
+/// zero (a DoF that moved only by coupling at a station where it was never excited).
+const RIDGE: f64 = 1e-9;
+
+/// The joint fit of the excitation windows of one station: the pose-dependent coefficients are
+/// shared, the offsets are per window.
+pub(super) struct PooledFit {
+    /// Per window, the pooled column of each of its terms.
+    columns: Vec<Vec<usize>>,
+    /// The pooled column of each shared term.
+    shared: BTreeMap<Term, usize>,
+    /// The inverse of the regularised pooled normal matrix.
+    inverse: DMatrix<f64>,
+    /// `Σ_w P_wᵀ (Σ_m W W ᵀ) P_w`: the covariance of the pooled right-hand sides per unit variance.
+    spread: DMatrix<f64>,
+}
+
+impl PooledFit {
+    /// The fit of `windows` (at least one).
+    pub(super) fn new(windows: &[&Excitation]) -> PooledFit {
+        let mut shared = BTreeMap::new();
+        let mut count = windows.len();
+        for x in windows {
+            for t in &x.terms[1..] {
+                shared.entry(*t).or_insert_with(|| {
+                    count += 1;
+                    count - 1
+                });
+            }
+        }
+        let columns: Vec<Vec<usize>> = windows
+            .iter()
+            .enumerate()
+            .map(|(w, x)| {
+                x.terms
+                    .iter()
+                    .map(|t| if *t == Term::Offset { w } else { shared[t] })
+                    .collect()
+            })
+            .collect();
+        let mut gram = DMatrix::<f64>::zeros(count, count);
+        let mut spread = DMatrix::<f64>::zeros(count, count);
+        for (x, cols) in windows.iter().zip(&columns) {
+            for (a, &ca) in cols.iter().enumerate() {
+                for (b, &cb) in cols.iter().enumerate() {
+                    gram[(ca, cb)] += x.gram[(a, b)];
+                    spread[(ca, cb)] += x.spread[(a, b)];
+                }
+            }
+        }
+        let scale = DVector::from_fn(count, |i, _| 1.0 / gram[(i, i)].max(1e-300).sqrt());
+        let scaled = DMatrix::from_fn(count, count, |i, j| {
+            gram[(i, j)] * scale[i] * scale[j] + if i == j { RIDGE } else { 0.0 }
+        });
+        let inverse_scaled = scaled
+            .cholesky()
+            .map(|c| c.inverse())
+            .unwrap_or_else(|| DMatrix::zeros(count, count));
+        let inverse = DMatrix::from_fn(count, count, |i, j| {
+            inverse_scaled[(i, j)] * scale[i] * scale[j]
+        });
+        PooledFit {
+            columns,
+            shared,
+            inverse,
+            spread,
+        }
+    }
+
+    /// The pooled coefficients (one column per axis) from each window's right-hand sides.
+    pub(super) fn solve(&self, rhs: &[&[[f64; 3]]]) -> DMatrix<f64> {
+        let mut b = DMatrix::zeros(self.inverse.nrows(), 3);
+        for (cols, r) in self.columns.iter().zip(rhs) {
+            for (&c, v) in cols.iter().zip(r.iter()) {
+                for axis in 0..3 {
+                    b[(c, axis)] += v[axis];
+                }
+            }
+        }
+        &self.inverse * b
+    }
+
+    /// The pooled column of `Alpha(dof)`.
+    pub(super) fn alpha(&self, dof: usize) -> Option<usize> {
+        self.shared.get(&Term::Alpha(dof)).copied()
+    }
+
+    /// The standard deviation of the coefficient in `column` per unit sample standard deviation.
+    pub(super) fn sd_factor(&self, column: usize) -> f64 {
+        let u = self.inverse.row(column);
+        (u * &self.spread * u.transpose())[(0, 0)].max(0.0).sqrt()
+    }
+
+    /// In window `w` (`x`), the power of the coupled motion of the other DoFs and of the excited
+    /// DoF's own motion, summed over the axes of `coefficients`.
+    pub(super) fn powers(
+        &self,
+        w: usize,
+        x: &Excitation,
+        coefficients: &DMatrix<f64>,
+    ) -> (f64, f64) {
+        let cols = &self.columns[w];
+        let (mut other, mut own) = (0.0, 0.0);
+        for axis in 0..3 {
+            let part = |pick: &dyn Fn(Term) -> bool| {
+                let beta = DVector::from_fn(cols.len(), |c, _| {
+                    if pick(x.terms[c]) {
+                        coefficients[(cols[c], axis)]
+                    } else {
+                        0.0
+                    }
+                });
+                (beta.transpose() * &x.gram * &beta)[(0, 0)]
+            };
+            own += part(&|t| t.of_only(x.dof));
+            other += part(&|t| t != Term::Offset && !t.of_only(x.dof));
+        }
+        (other, own)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_long_second_difference_is_the_triangle_filtered_short_one() {
+        // Any sequence: (q[i+l] − 2q[i] + q[i−l]) / l² = Σ_k w(k) (q[i+k+1] − 2q[i+k] + q[i+k−1]).
+        let q: Vec<f64> = (0..200u32)
+            .map(|i| (f64::from(i) * 0.37).sin() * 0.3 + f64::from(i * i % 17) * 1e-3)
+            .collect();
+        for l in [2, 5, 20] {
+            let k = triangle(l);
+            assert_eq!(k.len(), 2 * l - 1);
+            assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            let short: Vec<f64> = (0..q.len())
+                .map(|i| {
+                    if i == 0 || i + 1 == q.len() {
+                        0.0
+                    } else {
+                        q[i + 1] - 2.0 * q[i] + q[i - 1]
+                    }
+                })
+                .collect();
+            for i in [l + 1, 60, 150] {
+                let long = (q[i + l] - 2.0 * q[i] + q[i - l]) / (l * l) as f64;
+                assert!(
+                    (long - filtered(&short, &k, i)).abs() < 1e-12,
+                    "l {l}, i {i}"
+                );
+            }
+        }
+    }
 }

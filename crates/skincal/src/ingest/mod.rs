@@ -52,7 +52,7 @@ use serde::Serialize;
 use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
 use crate::measurements::MeasurementSet;
 use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
-use assemble::assemble;
+use assemble::{assemble, Passes};
 use segment::{estimate_pattern, segment};
 use skin::{read_skin, SuRegistry};
 use timeline::read_joints;
@@ -90,10 +90,17 @@ pub enum IngestError {
 pub struct IngestConfig {
     /// MCAP topic names.
     pub topics: Topics,
-    /// A DoF is still below this speed, rad/s.
+    /// A DoF is still below this speed, rad/s (still windows give the static readings).
     pub still_velocity: f64,
+    /// Between two motions every DoF is slower than this, rad/s: a pause, which may ring.
+    pub quiet_velocity: f64,
+    /// Shortest pause that separates two motions, s.
+    pub min_pause: f64,
     /// A DoF has moved when it left its position by more than this, rad.
     pub motion_threshold: f64,
+    /// A DoF that moved less than this fraction of the DoF that moved most only followed it
+    /// (servo compliance): it is a regressor of the fit, not a second excited DoF.
+    pub coupled_fraction: f64,
     /// Shortest still window, s.
     pub min_still: f64,
     /// Dropped at both ends of a still window, s.
@@ -117,10 +124,13 @@ impl Default for IngestConfig {
         Self {
             topics: Topics::default(),
             still_velocity: 0.01,
+            quiet_velocity: 0.05,
+            min_pause: 0.1,
             motion_threshold: 0.002,
+            coupled_fraction: 0.3,
             min_still: 0.25,
             trim: 0.1,
-            filter: 0.02,
+            filter: 0.05,
             max_gap: 0.05,
             saturation: 2.0 * STANDARD_GRAVITY,
             pattern: None,
@@ -134,6 +144,8 @@ impl IngestConfig {
     fn validate(&self) -> Result<(), IngestError> {
         for (setting, v) in [
             ("still_velocity", self.still_velocity),
+            ("quiet_velocity", self.quiet_velocity),
+            ("min_pause", self.min_pause),
             ("motion_threshold", self.motion_threshold),
             ("min_still", self.min_still),
             ("filter", self.filter),
@@ -151,6 +163,21 @@ impl IngestConfig {
             return Err(IngestError::InvalidSetting {
                 setting: "trim",
                 reason: format!("{} s must be zero or positive", self.trim),
+            });
+        }
+        if self.quiet_velocity < self.still_velocity {
+            return Err(IngestError::InvalidSetting {
+                setting: "quiet_velocity",
+                reason: format!(
+                    "{} rad/s must be at least still_velocity ({} rad/s)",
+                    self.quiet_velocity, self.still_velocity
+                ),
+            });
+        }
+        if !(self.coupled_fraction > 0.0 && self.coupled_fraction < 1.0) {
+            return Err(IngestError::InvalidSetting {
+                setting: "coupled_fraction",
+                reason: format!("{} must lie between 0 and 1", self.coupled_fraction),
             });
         }
         if let Some(p) = &self.pattern {
@@ -200,8 +227,10 @@ pub struct LogReport {
     pub saturated: BTreeMap<String, u64>,
     /// Missing SU samples inside excitation windows, filled by linear interpolation.
     pub filled: u64,
-    /// Still windows found.
+    /// Still windows found (each gives a static reading).
     pub still_windows: usize,
+    /// Pauses between motions too short or too restless for a static reading.
+    pub pauses: usize,
     /// Single-DoF excitations found.
     pub excitations: usize,
     /// Single-DoF structure moves found.
@@ -210,10 +239,28 @@ pub struct LogReport {
     pub transfers: usize,
     /// Motions that could not be used, with the reason.
     pub skipped: Vec<String>,
+    /// The excitation windows of the training poses, as fitted.
+    pub fits: Vec<ExcitationFit>,
     /// Joint-state decoding problems.
     pub joint_read: ReadStats,
     /// Skin decoding problems.
     pub imu_read: ReadStats,
+}
+
+/// One fitted excitation window.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ExcitationFit {
+    /// The excited DoF.
+    pub dof: String,
+    /// Start of the window, s from the log's first joint state.
+    pub start: f64,
+    /// Length of the window, s.
+    pub duration: f64,
+    /// The other DoFs that moved in it (servo compliance).
+    pub coupled_dofs: Vec<String>,
+    /// How much of the SU signals came from the other DoFs' motion: the RMS of their fitted
+    /// contribution over the RMS of the excited DoF's own, over every SU and axis.
+    pub coupled: f64,
 }
 
 /// What the ingestion found and did.
@@ -337,15 +384,16 @@ fn ingest_logs(
         )?);
     }
 
-    assemble(
+    let passes = Passes {
         config,
-        &dofs,
-        &sus,
-        &timelines,
-        &plans,
-        &accumulators,
-        pattern,
-        pattern_source,
+        dofs: &dofs,
+        sus: &sus,
+        timelines: &timelines,
+        segs: &plans,
+        accumulated: &accumulators,
         reports,
-    )
+        warnings: Vec::new(),
+        variance: None,
+    };
+    assemble(passes, pattern, pattern_source)
 }

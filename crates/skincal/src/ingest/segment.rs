@@ -1,34 +1,42 @@
 //! Still windows and the motions between them.
 
-use nalgebra::Matrix5;
-
-use super::fit::design;
+use super::fit::{design, Excitation};
 use super::timeline::Timeline;
 use super::{IngestConfig, LogReport};
 use crate::model::sensor::ExcitationPattern;
 
-/// A still window: grid range `[start, end)` and the mean pose.
+/// A pause between motions: where every DoF is slower than `quiet_velocity` (servo ringing
+/// allowed). Its longest run slower than `still_velocity`, trimmed, is its still window, which
+/// gives a static reading when it is at least `min_still` long.
 #[derive(Debug, Clone)]
 pub(super) struct StillWindow {
+    /// Grid range `[start, end)` of the still window (of the whole pause without one).
     pub(super) start: usize,
     pub(super) end: usize,
+    /// The mean pose over that range.
     pub(super) pose: Vec<f64>,
+    /// Whether the range is a still window for a static reading.
+    pub(super) reading: bool,
 }
 
-/// An excitation window and its least-squares design.
-#[derive(Debug, Clone)]
-pub(super) struct Excitation {
-    pub(super) dof: usize,
-    pub(super) start: usize,
-    pub(super) end: usize,
-    /// `W(m)`: the weight of the sample at grid point `start + m` in each of the five normal
-    /// equations (the regressors filtered twice by the triangle).
-    pub(super) weights: Vec<[f64; 5]>,
-    /// `G⁻¹`, the inverse of the normal matrix.
-    pub(super) inverse: Matrix5<f64>,
-    /// Peak measured |ω| and |α| (for estimating the nominal pattern).
-    pub(super) peak_velocity: f64,
-    pub(super) peak_acceleration: f64,
+/// Runs of `true` in `mask` at least `min` long, as `[start, end)`.
+fn runs(mask: &[bool], min: usize) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < mask.len() {
+        if mask[i] {
+            let s = i;
+            while i < mask.len() && mask[i] {
+                i += 1;
+            }
+            if i - s >= min.max(1) {
+                out.push((s, i));
+            }
+        } else {
+            i += 1;
+        }
+    }
+    out
 }
 
 #[derive(Debug, Clone)]
@@ -60,38 +68,32 @@ pub(super) fn segment(
     let l = ((config.filter / dt).round() as usize).max(2);
     let trim = ((config.trim / dt).round() as usize).max(2 * l + 1);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
+    let min_pause = (config.min_pause / dt).round() as usize;
     let nd = timeline.theta.len();
-    // Still grid points.
-    let still: Vec<bool> = (0..n)
-        .map(|i| {
-            if i < l || i + l >= n || timeline.invalid[i] {
-                return false;
-            }
-            (0..nd).all(|d| {
-                let th = &timeline.theta[d];
-                ((th[i + l] - th[i - l]) / (2.0 * l as f64 * dt)).abs() < config.still_velocity
+    // Grid points where every DoF is slower than `limit`.
+    let below = |limit: f64| -> Vec<bool> {
+        (0..n)
+            .map(|i| {
+                if i < l || i + l >= n || timeline.invalid[i] {
+                    return false;
+                }
+                timeline
+                    .theta
+                    .iter()
+                    .all(|th| ((th[i + l] - th[i - l]) / (2.0 * l as f64 * dt)).abs() < limit)
             })
-        })
-        .collect();
-    // Still runs.
-    let mut runs = Vec::new();
-    let mut i = 0;
-    while i < n {
-        if still[i] {
-            let s = i;
-            while i < n && still[i] {
-                i += 1;
-            }
-            if i - s >= min_still + 2 * trim {
-                runs.push((s, i));
-            }
-        } else {
-            i += 1;
-        }
-    }
+            .collect()
+    };
+    let still = below(config.still_velocity);
+    let pauses = runs(&below(config.quiet_velocity), min_pause.max(4 * l + 1));
     let mut seg = Segmentation::default();
-    for (k, &(s, e)) in runs.iter().enumerate() {
-        let (a, b) = (s + trim, e - trim);
+    for (k, &(s, e)) in pauses.iter().enumerate() {
+        // The longest still run of the pause, trimmed, gives the static reading.
+        let reading = runs(&still[s..e], min_still + 2 * trim)
+            .into_iter()
+            .max_by_key(|(a, b)| b - a)
+            .map(|(a, b)| (s + a + trim, s + b - trim));
+        let (a, b) = reading.unwrap_or((s, e));
         let pose = (0..nd)
             .map(|d| timeline.theta[d][a..b].iter().sum::<f64>() / (b - a) as f64)
             .collect();
@@ -99,9 +101,10 @@ pub(super) fn segment(
             start: a,
             end: b,
             pose,
+            reading: reading.is_some(),
         });
         seg.events.push(Event::Still(k));
-        let Some(&(next_s, _)) = runs.get(k + 1) else {
+        let Some(&(next_s, _)) = pauses.get(k + 1) else {
             break;
         };
         // The motion between run k and run k + 1.
@@ -114,49 +117,39 @@ pub(super) fn segment(
             seg.events.push(Event::Broken);
             continue;
         }
-        let moved: Vec<usize> = (0..nd)
-            .filter(|&d| {
-                let th = &timeline.theta[d];
-                th[ms..me]
-                    .iter()
-                    .any(|q| (q - th[ms]).abs() > config.motion_threshold)
-            })
-            .collect();
-        match moved.as_slice() {
-            [] => {}
-            [d] => {
-                let d = *d;
-                let th = &timeline.theta[d];
-                if (th[me] - th[ms]).abs() > config.motion_threshold {
-                    report.moves += 1;
-                    seg.events.push(Event::Move);
-                } else {
-                    let start = e.saturating_sub(2 * l);
-                    let end = (next_s + 2 * l).min(n);
-                    match design(timeline, d, start, end, l) {
-                        Some(x) => {
-                            report.excitations += 1;
-                            seg.events.push(Event::Excitation(seg.excitations.len()));
-                            seg.excitations.push(x);
-                        }
-                        None => {
-                            report.skipped.push(format!(
-                                "excitation of DoF {d} at {at:.3} s: too short or no acceleration \
-                                 to fit against"
-                            ));
-                            seg.events.push(Event::Broken);
-                        }
-                    }
-                }
+        match classify(timeline, ms, me, config) {
+            Motion::None => {}
+            Motion::Move => {
+                report.moves += 1;
+                seg.events.push(Event::Move);
             }
-            _ => {
+            Motion::Transfer => {
                 report.transfers += 1;
                 seg.events.push(Event::Transfer);
             }
+            Motion::Excitation(d) => {
+                let start = e.saturating_sub(2 * l);
+                let end = (next_s + 2 * l).min(n);
+                match design(timeline, d, start, end, l) {
+                    Some(x) => {
+                        report.excitations += 1;
+                        seg.events.push(Event::Excitation(seg.excitations.len()));
+                        seg.excitations.push(x);
+                    }
+                    None => {
+                        report.skipped.push(format!(
+                            "excitation of DoF {d} at {at:.3} s: too short or no acceleration to \
+                             fit against"
+                        ));
+                        seg.events.push(Event::Broken);
+                    }
+                }
+            }
         }
     }
-    report.still_windows = seg.stills.len();
-    for (i, s) in seg.stills.iter().enumerate() {
+    report.still_windows = seg.stills.iter().filter(|s| s.reading).count();
+    report.pauses = seg.stills.len() - report.still_windows;
+    for (i, s) in seg.stills.iter().enumerate().filter(|(_, s)| s.reading) {
         seg.routes.push((s.start, s.end, true, i));
     }
     for (i, x) in seg.excitations.iter().enumerate() {
@@ -164,6 +157,67 @@ pub(super) fn segment(
     }
     seg.routes.sort_by_key(|r| r.0);
     seg
+}
+
+/// What a motion between two still windows was.
+enum Motion {
+    /// No DoF left its position.
+    None,
+    /// One DoF moved to a new position (a structure move).
+    Move,
+    /// Several DoFs moved.
+    Transfer,
+    /// One DoF moved and came back.
+    Excitation(usize),
+}
+
+/// The motion over grid `[ms, me]`, told by each DoF's largest excursion from its start: DoFs that
+/// moved less than `coupled_fraction` of the one that moved most only followed it (servo
+/// compliance, reaction torques, ringing), and so do their changes of position at the end
+/// (the sag of a compliant servo under a changed load).
+fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) -> Motion {
+    let excursion: Vec<f64> = timeline
+        .theta
+        .iter()
+        .map(|th| {
+            th[ms..=me]
+                .iter()
+                .fold(0.0f64, |m, q| m.max((q - th[ms]).abs()))
+        })
+        .collect();
+    let Some((main, &largest)) = excursion
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+    else {
+        return Motion::None;
+    };
+    if largest <= config.motion_threshold {
+        return Motion::None;
+    }
+    let followed = |x: f64, of: f64| x <= config.motion_threshold.max(config.coupled_fraction * of);
+    if excursion
+        .iter()
+        .enumerate()
+        .any(|(e, &x)| e != main && !followed(x, largest))
+    {
+        return Motion::Transfer;
+    }
+    let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
+    let moved = net(&timeline.theta[main]);
+    if moved <= config.motion_threshold {
+        return Motion::Excitation(main);
+    }
+    if timeline
+        .theta
+        .iter()
+        .enumerate()
+        .any(|(e, th)| e != main && !followed(net(th), moved))
+    {
+        Motion::Transfer
+    } else {
+        Motion::Move
+    }
 }
 
 /// The nominal pattern from the measured motion of every excitation: the median peak speed is `A`,

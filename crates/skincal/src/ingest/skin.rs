@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use super::fit::Excitation;
 use super::segment::Segmentation;
 use super::timeline::Timeline;
 use super::{IngestConfig, IngestError, LogReport, Progress};
@@ -57,19 +58,23 @@ pub(super) struct StillSum {
 }
 
 /// Per SU, the right-hand sides of an excitation's normal equations and the last sample seen.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct FitSum {
-    pub(super) rhs: [[f64; 3]; 5],
+    /// One per term of the window's model.
+    pub(super) rhs: Vec<[f64; 3]>,
     pub(super) last: Option<(usize, [f64; 3])>,
     pub(super) samples: u64,
 }
 
 impl FitSum {
-    pub(super) fn add(&mut self, weights: &[[f64; 5]], m: usize, a: [f64; 3]) {
-        let w = &weights[m];
-        for (c, wc) in w.iter().enumerate() {
+    fn add(&mut self, x: &Excitation, m: usize, a: [f64; 3]) {
+        let nc = x.terms.len();
+        if self.rhs.len() < nc {
+            self.rhs.resize(nc, [0.0; 3]);
+        }
+        for (r, w) in self.rhs.iter_mut().zip(&x.weights[m * nc..(m + 1) * nc]) {
             for (axis, v) in a.iter().enumerate() {
-                self.rhs[c][axis] += wc * v;
+                r[axis] += w * v;
             }
         }
     }
@@ -181,19 +186,19 @@ pub(super) fn read_skin(
                         for j in prev + 1..local {
                             let u = (j - prev) as f64 / (local - prev) as f64;
                             let v = [0, 1, 2].map(|k| value[k] + (acceleration[k] - value[k]) * u);
-                            f.add(&x.weights, j, v);
+                            f.add(x, j, v);
                             filled += 1;
                         }
                     }
                     None if local > 0 => {
                         for j in 0..local {
-                            f.add(&x.weights, j, acceleration);
+                            f.add(x, j, acceleration);
                             filled += 1;
                         }
                     }
                     _ => {}
                 }
-                f.add(&x.weights, local, acceleration);
+                f.add(x, local, acceleration);
                 f.samples += 1;
                 if f.last.is_none_or(|(prev, _)| local > prev) {
                     f.last = Some((local, acceleration));
@@ -205,11 +210,11 @@ pub(super) fn read_skin(
     )?;
     // Missing samples at the end of excitation windows.
     for (w, fits) in acc.fits.iter_mut().enumerate() {
-        let len = seg.excitations[w].weights.len();
+        let x = &seg.excitations[w];
         for f in fits.iter_mut() {
             if let Some((last, value)) = f.last {
-                for j in last + 1..len {
-                    f.add(&seg.excitations[w].weights, j, value);
+                for j in last + 1..x.len() {
+                    f.add(x, j, value);
                     filled += 1;
                 }
             }

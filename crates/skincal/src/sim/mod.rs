@@ -667,6 +667,8 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
                 q,
                 static_readings,
                 dynamic,
+                static_sd: None,
+                dynamic_sd: std::collections::BTreeMap::new(),
                 extra: Map::new(),
             });
         }

@@ -1,0 +1,204 @@
+//! Ingestion of a log that skincal did not simulate: an independent rigid-body simulation
+//! (MuJoCo, `tests/python/physics_log.py`) of the 7-DoF arm with compliant position servos
+//! (6 Hz bandwidth, damping 0.8), so that every excitation deflects the other DoFs and every stop
+//! rings; the paper's pattern without a window (the acceleration steps at both ends) and 0.5 s
+//! pauses; accelerometer noise and 10-bit quantisation; 17-bit encoders. With default options the
+//! ingested readings must match the noise-free kinematic truth at the measured poses, and
+//! calibrate as well as the condensed simulator's data.
+
+use std::path::Path;
+use std::process::Command;
+
+use nalgebra::Vector3;
+use skincal::estimate::body::calibrate_body;
+use skincal::estimate::ml::MlConfig;
+use skincal::explore::{explore, ExploreConfig};
+use skincal::ingest::{ingest, IngestConfig};
+use skincal::measurements::MeasurementSet;
+use skincal::model::description::RobotFile;
+use skincal::model::sensor::{peak_dynamic_accelerations, static_readings};
+use skincal::model::{presets, Robot};
+use skincal::plan::{Plan, PlanConfig, PlanDof};
+use skincal::predict::validate;
+use skincal::sim::{simulate, BaseOrientation, Imperfections, SimulationConfig};
+
+/// Runs the physics simulation into `out` (a CSV log directory).
+fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/physics_log.py");
+    let interpreter = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let output = Command::new(&interpreter)
+        .arg(&script)
+        .arg(robot)
+        .arg(plan)
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap_or_else(|e| {
+            panic!("cannot run {interpreter:?} ({e}): run the tests with `cargo xtask test`")
+        });
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !stderr.contains("ModuleNotFoundError"),
+        "the physics test needs MuJoCo's Python package (tests/python/requirements.txt): run the \
+         tests with `cargo xtask test`, which installs it into target/test-env\n{stderr}"
+    );
+    assert!(output.status.success(), "{stderr}");
+}
+
+/// Against the truth, static and dynamic: the RMS over the training poses of the norm of
+/// (ingested − truth), m/s², and the RMS of each component's error in its reported standard
+/// deviations.
+fn errors(robot: &Robot, set: &MeasurementSet) -> ([f64; 2], [f64; 2]) {
+    let t = set.training.as_ref().unwrap();
+    let g = Vector3::new(0.0, 0.0, -9.81);
+    let mut sums = [[0.0; 3]; 2];
+    let mut add = |which: usize, r: &[f64; 3], e: &Vector3<f64>, sd: f64| {
+        let error = Vector3::from(*r) - e;
+        sums[which][0] += error.norm_squared();
+        sums[which][1] += (error / sd).norm_squared() / 3.0;
+        sums[which][2] += 1.0;
+    };
+    for pose in &t.poses {
+        let truth = static_readings(&robot.model, &robot.parameters, &pose.q, &g);
+        let sd = pose
+            .static_sd
+            .as_ref()
+            .expect("ingest reports the uncertainty");
+        for ((r, e), sd) in pose.static_readings.iter().zip(&truth).zip(sd) {
+            add(0, r, e, *sd);
+        }
+        for (dof, readings) in &pose.dynamic {
+            let k = set.dof_index(dof).unwrap();
+            let truth =
+                peak_dynamic_accelerations(&robot.model, &robot.parameters, &pose.q, k, &t.pattern);
+            for ((r, e), sd) in readings.iter().zip(&truth).zip(&pose.dynamic_sd[dof]) {
+                add(1, r, e, *sd);
+            }
+        }
+    }
+    let rms = |k: usize, i: usize| (sums[k][i] / sums[k][2]).sqrt();
+    ([rms(0, 0), rms(1, 0)], [rms(0, 1), rms(1, 1)])
+}
+
+#[test]
+fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_options() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let poses = 8;
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses,
+            seed: 3,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let robot_file = d.join("robot.json");
+    let plan_file = d.join("plan.json");
+    std::fs::write(
+        &robot_file,
+        serde_json::to_string(&RobotFile::from_robot(&robot, None)).unwrap(),
+    )
+    .unwrap();
+    std::fs::write(&plan_file, serde_json::to_string(&plan).unwrap()).unwrap();
+    let (upright, tilted) = (d.join("upright"), d.join("tilted"));
+    physics_log(&robot_file, &plan_file, &upright, &["--seed", "1"]);
+    let g = BaseOrientation::tilted().gravity;
+    physics_log(
+        &robot_file,
+        &plan_file,
+        &tilted,
+        &[
+            "--part",
+            "structure",
+            "--seed",
+            "2",
+            "--gravity",
+            &format!("{},{},{}", g[0], g[1], g[2]),
+        ],
+    );
+
+    let ingested = ingest(
+        &[upright, tilted],
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let report = &ingested.report;
+    let set = &ingested.measurements;
+    set.validate().unwrap();
+    assert!(report.warnings.is_empty(), "{:#?}", report.warnings);
+    assert_eq!(
+        report.logs[0].excitations,
+        poses * 7,
+        "{:#?}",
+        report.logs[0]
+    );
+    assert!(
+        report.logs[0].skipped.is_empty(),
+        "{:?}",
+        report.logs[0].skipped
+    );
+    assert_eq!(report.training_poses, poses);
+    assert_eq!(report.dynamic, poses * 7);
+    assert_eq!(report.orientations, 2);
+    for o in &set.structure.as_ref().unwrap().orientations {
+        let mut moved: Vec<&str> = o.moves.iter().map(|m| m.dof.as_str()).collect();
+        moved.dedup();
+        assert_eq!(moved, set.dofs, "one move of every DoF, in order");
+    }
+    let ([s, dynamic], [zs, zd]) = errors(&robot, set);
+    eprintln!(
+        "against the noise-free truth: static {s:.4}, dynamic {dynamic:.4} m/s² RMS; \
+         {zs:.2} and {zd:.2} standard deviations"
+    );
+    // The servos really coupled the DoFs: the proximal excitations moved the others.
+    let fits = &report.logs[0].fits;
+    let coupled = fits.iter().map(|f| f.coupled).fold(0.0, f64::max);
+    eprintln!(
+        "largest share of coupled motion in a window: {:.0} %",
+        coupled * 100.0
+    );
+    assert!(coupled > 0.2, "{fits:#?}");
+
+    assert!(s <= 0.01, "static {s}");
+    assert!(dynamic <= 0.05, "dynamic {dynamic}");
+    // The reported uncertainties are the errors' size: the static ones from the samples' scatter,
+    // the dynamic ones from the same through the fit (the encoders' quantisation, not in them,
+    // adds a little).
+    assert!(
+        (0.7..1.3).contains(&zs),
+        "static errors are {zs} reported deviations"
+    );
+    assert!(
+        (0.7..1.6).contains(&zd),
+        "dynamic errors are {zd} reported deviations"
+    );
+
+    // Explore and calibrate.
+    let structure = explore(set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let model = calibrate_body(set, Some(&structure), &MlConfig::default(), None).unwrap();
+    for limb in &model.limbs {
+        assert!(limb.estimate.converged, "{:?}", limb.estimate);
+    }
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            seed: 77,
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let v = validate(&model, &held_out, "held-out").unwrap();
+    eprintln!(
+        "held-out RMS static {:.4}, dynamic {:.4} m/s²",
+        v.static_rms, v.dynamic_rms
+    );
+    assert!(v.static_rms < 0.03 && v.dynamic_rms < 0.03, "{v:?}");
+}

@@ -1,0 +1,302 @@
+"""A robot log from an independent rigid-body physics simulation (MuJoCo), for skincal to ingest.
+
+    python3 physics_log.py ROBOT.json PLAN.json OUT_DIR [options]
+
+ROBOT.json is a skincal robot description (the `robot` of a truth file: DH or axis placements of
+the DoFs, DH+2 placements of the SUs); PLAN.json a plan written by `skincal plan`. The robot is
+built as a MuJoCo model with mass (capsule links of aluminium tube), motor armature and one
+position servo per DoF (MuJoCo's position actuator, a PD loop without feed-forward; 6 Hz bandwidth
+and damping 0.8 at the first pose by default), so moving one DoF deflects the others and every stop rings. The servos follow the
+plan's poses with a protocol of their own, not the plan's timing:
+
+- moves and transfers: quintic profiles over the plan's durations;
+- holds: the plan's, except the pause after each pattern (`--pause`, 0.5 s);
+- excitations: the paper's pattern (eq. 10) *without a window*, one period from rest, so the
+  commanded acceleration steps at both ends.
+
+Every SU is a site whose specific force (the second difference of its position over the integrator's
+substeps, minus gravity, in the site frame) is recorded with Gaussian noise and the quantisation of a
+10-bit ±2 g part (MuJoCo's own accelerometer reads the forward dynamics' qacc, which RK4's trajectory
+does not follow exactly); joint positions are read through 17-bit encoders.
+Writes OUT_DIR/joint_states.csv and OUT_DIR/imu.csv (skincal's CSV log) at 1 kHz.
+
+Needs the packages of tests/python/requirements.txt (`cargo xtask test` installs them).
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+
+import mujoco
+import numpy as np
+
+
+def rot_z(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rot_y(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_x(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def transform(rotation=None, translation=(0.0, 0.0, 0.0)):
+    t = np.eye(4)
+    if rotation is not None:
+        t[:3, :3] = rotation
+    t[:3, 3] = translation
+    return t
+
+
+def dh(row):
+    """Standard DH: Rz(theta0) Tz(d) Tx(a) Rx(alpha), then Rz(theta_acc) Tz(d_acc) for an SU."""
+    t = (
+        transform(rot_z(row["theta0"]))
+        @ transform(translation=(0.0, 0.0, row["d"]))
+        @ transform(translation=(row["a"], 0.0, 0.0))
+        @ transform(rot_x(row["alpha"]))
+    )
+    if "theta_acc" in row:
+        t = t @ transform(rot_z(row["theta_acc"])) @ transform(translation=(0.0, 0.0, row["d_acc"]))
+    return t
+
+
+def placement(entry):
+    """The joint frame of a DoF on its parent segment, and the joint axis in it."""
+    if "dh" in entry:
+        return dh(entry["dh"]), np.array([0.0, 0.0, 1.0])
+    origin = entry.get("origin", {})
+    xyz = origin.get("xyz", [0.0, 0.0, 0.0])
+    roll, pitch, yaw = origin.get("rpy", [0.0, 0.0, 0.0])
+    frame = transform(rot_z(yaw) @ rot_y(pitch) @ rot_x(roll), xyz)
+    return frame, np.array(entry.get("axis", [0.0, 0.0, 1.0]), dtype=float)
+
+
+def pose_attributes(t):
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, t[:3, :3].flatten())
+    p = t[:3, 3]
+    return f'pos="{p[0]:.12g} {p[1]:.12g} {p[2]:.12g}" quat="{q[0]:.12g} {q[1]:.12g} {q[2]:.12g} {q[3]:.12g}"'
+
+
+def mjcf(robot, gravity):
+    """MJCF of the robot: one body per segment (its frame is the segment frame of skincal's model,
+    which the DoF turns), a capsule to every child joint and SU, a site per SU."""
+    reference = robot["reference"]
+    dofs = robot["dofs"]
+    sus = robot["sus"]
+    children = {}
+    for d in dofs:
+        children.setdefault(d["parent"], []).append(d)
+    on = {}
+    for s in sus:
+        if "dh" not in s:
+            sys.exit(f"SU {s['name']}: only DH+2 placements are supported")
+        on.setdefault(s["segment"], []).append(s)
+
+    def geoms(segment, indent):
+        ends = [placement(c)[0][:3, 3] for c in children.get(segment, [])]
+        ends += [dh(s["dh"])[:3, 3] for s in on.get(segment, [])]
+        out = []
+        for i, e in enumerate(ends):
+            if np.linalg.norm(e) < 1e-3:
+                continue
+            out.append(
+                f'{indent}<geom type="capsule" size="0.035" fromto="0 0 0 {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}"/>'
+            )
+        out.append(f'{indent}<geom type="sphere" size="0.045"/>')
+        return out
+
+    def body(segment, indent):
+        lines = geoms(segment, indent)
+        for s in on.get(segment, []):
+            lines.append(f'{indent}<site name="{s["name"]}" {pose_attributes(dh(s["dh"]))}/>')
+        for d in children.get(segment, []):
+            frame, axis = placement(d)
+            lines.append(f'{indent}<body name="{d["child"]}" {pose_attributes(frame)}>')
+            lines.append(
+                f'{indent}  <joint name="{d["name"]}" type="hinge" axis="{axis[0]} {axis[1]} {axis[2]}" armature="0.02"/>'
+            )
+            lines += body(d["child"], indent + "  ")
+            lines.append(f"{indent}</body>")
+        return lines
+
+    world = body(reference, "    ")
+    # Position servos; their gains are set once the model's inertia is known.
+    servos = [f'    <position name="{d["name"]}" joint="{d["name"]}" kp="1" kv="1"/>' for d in dofs]
+    # Aluminium tube: 2.7 t/m³ over the full capsule is too heavy; a quarter of it.
+    return "\n".join(
+        [
+            '<mujoco model="skin">',
+            f'  <option timestep="0.00025" gravity="{gravity[0]} {gravity[1]} {gravity[2]}" integrator="RK4"/>',
+            '  <default><geom density="700" contype="0" conaffinity="0"/></default>',
+            "  <worldbody>",
+            *world,
+            "  </worldbody>",
+            "  <actuator>",
+            *servos,
+            "  </actuator>",
+            "</mujoco>",
+        ]
+    )
+
+
+def quintic(a, b, u):
+    s = u * u * u * (10.0 - 15.0 * u + 6.0 * u * u)
+    return a + (b - a) * s
+
+
+def reference(plan, part, pause, dof_index):
+    """The commanded trajectory as a list of (duration, function of time → q) segments."""
+    pattern = plan["pattern"]
+    amplitude, frequency = pattern["amplitude"], pattern["frequency"]
+    w = 2.0 * math.pi * frequency
+    segments = []
+    previous_excitation = False
+    for phase in plan["phases"]:
+        if part is not None and phase["part"] != part:
+            continue
+        a, b = np.array(phase["from"]), np.array(phase["to"])
+        action = phase["action"]
+        if action == "still":
+            duration = pause if previous_excitation else phase["duration"]
+            segments.append((duration, lambda t, b=b: b))
+        elif action in ("move", "transfer"):
+            duration = phase["duration"]
+            segments.append((duration, lambda t, a=a, b=b, T=duration: quintic(a, b, min(t / T, 1.0))))
+        elif action == "excitation":
+            d = dof_index[phase["dof"]]
+
+            def excite(t, a=a, d=d):
+                q = a.copy()
+                q[d] += amplitude / w * (1.0 - math.cos(w * t))
+                return q
+
+            segments.append((1.0 / frequency, excite))
+        previous_excitation = action == "excitation"
+    return segments
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("robot")
+    parser.add_argument("plan")
+    parser.add_argument("out")
+    parser.add_argument("--part", choices=["structure", "training"], help="run only this part")
+    parser.add_argument("--gravity", default="0,0,-9.81", help="gravity in the base frame, m/s²")
+    parser.add_argument("--bandwidth", type=float, default=6.0, help="servo bandwidth, Hz")
+    parser.add_argument("--damping", type=float, default=0.8, help="servo damping ratio")
+    parser.add_argument("--pause", type=float, default=0.5, help="hold after each pattern, s")
+    parser.add_argument("--noise", type=float, default=0.05, help="accelerometer noise σ, m/s²")
+    parser.add_argument("--encoder-bits", type=int, default=17, help="encoder resolution (0: exact)")
+    parser.add_argument("--adc-bits", type=int, default=10, help="accelerometer resolution over ±2 g (0: exact)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--start", type=float, default=1_700_000_000.0, help="first stamp, s")
+    args = parser.parse_args()
+
+    with open(args.robot) as f:
+        robot = json.load(f)
+    with open(args.plan) as f:
+        plan = json.load(f)
+    gravity = [float(x) for x in args.gravity.split(",")]
+    model = mujoco.MjModel.from_xml_string(mjcf(robot, gravity))
+    data = mujoco.MjData(model)
+    names = [d["name"] for d in plan["dofs"]]
+    dof_index = {n: i for i, n in enumerate(names)}
+    qadr = [model.jnt_qposadr[model.joint(n).id] for n in names]
+    vadr = [model.jnt_dofadr[model.joint(n).id] for n in names]
+    su_names = [s["name"] for s in robot["sus"]]
+
+    segments = reference(plan, args.part, args.pause, dof_index)
+    if not segments:
+        sys.exit("the plan has no phase of that part")
+    q0 = segments[0][1](0.0)
+
+    # Servo gains from the joint-space inertia at the first pose: kp = I ω², kv = 2ζ I ω.
+    data.qpos[qadr] = q0
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    omega = 2.0 * math.pi * args.bandwidth
+    inertia = np.array([full[v, v] for v in vadr])
+    kp = inertia * omega**2
+    kv = 2.0 * args.damping * inertia * omega
+    # MuJoCo's position actuator: force = kp·ctrl − kp·q − kv·q̇. The integrator is RK4: an
+    # implicit one follows a trajectory whose acceleration is not the qacc the sensors read.
+    for i, n in enumerate(names):
+        a = model.actuator(n).id
+        model.actuator_gainprm[a, 0] = kp[i]
+        model.actuator_biasprm[a, 1] = -kp[i]
+        model.actuator_biasprm[a, 2] = -kv[i]
+    aadr = [model.actuator(n).id for n in names]
+
+    substeps = 4
+    dt = model.opt.timestep * substeps
+    rng = np.random.default_rng(args.seed)
+    encoder = 2.0 * math.pi / 2**args.encoder_bits if args.encoder_bits else 0.0
+    lsb = 4.0 * 9.81 / 2**args.adc_bits if args.adc_bits else 0.0
+    qs, accs = [], []
+
+    h = model.opt.timestep
+    gravity_vector = np.array(gravity)
+    site_ids = [model.site(n).id for n in su_names]
+
+    def step(trajectory, t):
+        """Runs one sample period ending at `t`, the servos' command interpolated at every
+        substep (a command held for a whole period would jerk at 1 kHz); returns the joint
+        positions and every SU's specific force at its second-to-last substep. The acceleration
+        is the second difference of the site's positions over the substeps (what an
+        accelerometer senses, from the trajectory itself)."""
+        positions = []
+        for j in range(substeps):
+            data.ctrl[aadr] = trajectory(t - dt + (j + 1) * h)
+            mujoco.mj_step(model, data)
+            mujoco.mj_kinematics(model, data)
+            positions.append(data.site_xpos[site_ids].copy())
+            if j == substeps - 2:
+                q = data.qpos[qadr].copy()
+                rotations = data.site_xmat[site_ids].reshape(-1, 3, 3).copy()
+        a = (positions[-1] - 2.0 * positions[-2] + positions[-3]) / h**2
+        return q, np.einsum("sji,sj->si", rotations, a - gravity_vector)
+
+    # Settle at the first pose (gravity sag) before recording.
+    for _ in range(int(2.0 / dt)):
+        step(lambda t: q0, 0.0)
+    for duration, trajectory in segments:
+        n = int(round(duration / dt))
+        for i in range(n):
+            q, a = step(trajectory, (i + 1) * dt)
+            qs.append(q)
+            accs.append(a)
+    qs = np.array(qs)
+    if encoder:
+        qs = np.round(qs / encoder) * encoder
+    accs = np.array(accs)
+    accs = accs + rng.normal(0.0, args.noise, accs.shape)
+    if lsb:
+        accs = np.clip(np.round(accs / lsb) * lsb, -2.0 * 9.81, 2.0 * 9.81 - lsb)
+
+    os.makedirs(args.out, exist_ok=True)
+    stamps = args.start + np.arange(len(qs)) * dt
+    with open(os.path.join(args.out, "joint_states.csv"), "w") as f:
+        f.write("stamp," + ",".join(names) + "\n")
+        for t, q in zip(stamps, qs):
+            f.write(f"{t:.6f}," + ",".join(f"{x:.9f}" for x in q) + "\n")
+    with open(os.path.join(args.out, "imu.csv"), "w") as f:
+        f.write("stamp,frame_id,ax,ay,az\n")
+        for t, a in zip(stamps, accs):
+            for name, v in zip(su_names, a):
+                f.write(f"{t:.6f},{name},{v[0]:.6f},{v[1]:.6f},{v[2]:.6f}\n")
+    print(f"{len(qs)} samples, {len(qs) * dt:.1f} s, kp {np.round(kp, 1).tolist()}")
+
+
+if __name__ == "__main__":
+    main()
