@@ -129,9 +129,11 @@ struct CalibrateArgs {
     /// Estimation method.
     #[arg(long, value_enum, default_value_t = Method::Ml)]
     method: Method,
-    /// Noise of the readings (uniform ±G, in g) for weighting and the convergence test of `ml`.
-    #[arg(long, value_name = "G", default_value_t = 0.01)]
-    noise: f64,
+    /// Noise of every reading (uniform ±G, in g) for weighting and the convergence test of `ml`.
+    /// Default: each reading's own standard deviation where the measurement set gives them
+    /// (sets from `skincal ingest`), else 0.01 g.
+    #[arg(long, value_name = "G")]
+    noise: Option<f64>,
     /// Only the limb that ends at this segment (e.g. S7; see `skincal explore`).
     #[arg(long, value_name = "ID")]
     limb: Option<String>,
@@ -653,14 +655,32 @@ fn calibrate_ml(
     dir: &Path,
 ) -> Result<()> {
     use skincal::estimate::ml::MlConfig;
+    let uniform = args.noise.unwrap_or(DEFAULT_NOISE);
     let config = MlConfig {
-        noise_sd: args.noise * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
+        noise_sd: uniform * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
         intrinsics: args.intrinsics.into(),
+        reading_sd: args.noise.is_none(),
         ..MlConfig::default()
     };
+    let own = config.reading_sd
+        && set
+            .training
+            .as_ref()
+            .is_some_and(|t| t.poses.iter().all(|p| p.static_sd.is_some()));
+    let noise = if own {
+        format!(
+            "each reading weighted by its own standard deviation, residuals in units of σ = {:.4} m/s²",
+            config.noise_sd
+        )
+    } else {
+        format!(
+            "noise σ = {:.4} m/s² = uniform ±{uniform} g",
+            config.noise_sd
+        )
+    };
     outln!(
-        "kinematic estimation, maximum likelihood (noise σ = {:.4} m/s² = uniform ±{} g; intrinsics per SU: {}); {source}\n",
-        config.noise_sd, args.noise, config.intrinsics.name()
+        "kinematic estimation, maximum likelihood ({noise}; intrinsics per SU: {}); {source}\n",
+        config.intrinsics.name()
     );
     let model = skincal::estimate::body::calibrate_body_keeping(
         set,
@@ -690,6 +710,9 @@ fn calibrate_ml(
     }
     Ok(())
 }
+
+/// The readings' noise when neither the set nor `--noise` gives it: uniform ±0.01 g, the paper's.
+const DEFAULT_NOISE: f64 = 0.01;
 
 /// `model.json`, or `model-S4.json` for a run on one limb: a part never replaces the whole.
 fn model_file(stem: &str, limb: Option<&str>) -> String {

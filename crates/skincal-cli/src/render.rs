@@ -328,17 +328,24 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
         g[2],
         (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()
     );
-    let _ = writeln!(
-        out,
-        "residual RMS {:.3}× the noise σ (estimated σ {:.4} m/s²): {}",
-        e.residual_ratio,
-        e.noise_sd_estimate,
-        if e.converged {
-            "converged"
-        } else {
-            "NOT CONVERGED"
-        }
-    );
+    let verdict = if e.converged {
+        "converged"
+    } else {
+        "NOT CONVERGED"
+    };
+    if e.reading_sd {
+        let _ = writeln!(
+            out,
+            "residual RMS {:.3}× the readings' own standard deviations: {verdict}",
+            e.residual_ratio
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "residual RMS {:.3}× the noise σ (estimated σ {:.4} m/s²): {verdict}",
+            e.residual_ratio, e.noise_sd_estimate
+        );
+    }
     let _ = writeln!(
         out,
         "{} LM iterations in {:.1} ms; gauge: {}",

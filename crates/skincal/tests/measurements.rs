@@ -96,6 +96,33 @@ fn every_broken_invariant_is_named() {
             && e.to_string().contains("one reading per SU"),
         "{e}"
     );
+    // The readings' standard deviations: one positive number per SU, of dynamic readings there are.
+    let e = broken(|v| v["training"]["poses"][0]["static_sd"] = serde_json::json!(vec![0.01; 6]));
+    assert_eq!(
+        e.to_string(),
+        "training.poses[0].static_sd: has 6 entries, expected 7 (one standard deviation per SU)"
+    );
+    let e = broken(|v| {
+        v["training"]["poses"][1]["dynamic_sd"] =
+            serde_json::json!({"dof2": [0.01, 0.01, -0.01, 0.01, 0.01, 0.01, 0.01]})
+    });
+    assert!(
+        e.to_string().starts_with(
+            "training.poses[1].dynamic_sd[\"dof2\"][2] (SU su3): -0.01 must be a positive"
+        ),
+        "{e}"
+    );
+    let e = broken(|v| {
+        v["training"]["poses"][1]["dynamic"]
+            .as_object_mut()
+            .unwrap()
+            .remove("dof2");
+        v["training"]["poses"][1]["dynamic_sd"] = serde_json::json!({"dof2": vec![0.01; 7]})
+    });
+    assert!(
+        e.to_string().contains("no dynamic readings of that DoF"),
+        "{e}"
+    );
 }
 
 #[test]

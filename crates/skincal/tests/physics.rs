@@ -180,10 +180,29 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     // Explore and calibrate.
     let structure = explore(set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
+    // Weighted by the readings' own deviations, the fit's residual is near 1 of them; with the
+    // default noise setting of ±0.01 g instead, it would be far below it and every reported
+    // standard deviation far too large.
     let model = calibrate_body(set, Some(&structure), &MlConfig::default(), None).unwrap();
     for limb in &model.limbs {
+        let ratio = limb.estimate.residual_ratio;
+        eprintln!("limb {}: residual {ratio:.2} σ", limb.estimate.chain.name);
         assert!(limb.estimate.converged, "{:?}", limb.estimate);
+        assert!((0.7..1.4).contains(&ratio), "residual {ratio} σ");
     }
+    let unweighted = calibrate_body(
+        set,
+        Some(&structure),
+        &MlConfig {
+            reading_sd: false,
+            ..MlConfig::default()
+        },
+        None,
+    )
+    .unwrap();
+    let ratio = unweighted.limbs[0].estimate.residual_ratio;
+    eprintln!("with the default noise setting instead: residual {ratio:.2} σ");
+    assert!(ratio < 0.5, "{ratio}");
     let held_out = simulate(
         &robot,
         &SimulationConfig {

@@ -186,6 +186,13 @@ pub fn calibrate_body_keeping(
     only: Option<&str>,
     keep: &[String],
 ) -> Result<BodyModel, EstimateError> {
+    let plain;
+    let set = if config.reading_sd {
+        set
+    } else {
+        plain = set.without_uncertainties();
+        &plain
+    };
     let mut broken: Vec<BrokenSu> = Vec::new();
     let mut chains = match structure {
         Some(s) => limb_chains(s)?,

@@ -199,6 +199,10 @@ pub struct LimbData {
     pub dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
     /// The excitation pattern.
     pub pattern: ExcitationPattern,
+    /// `sd[p][u][0]`: standard deviation of each component of the static reading of SU `u` in
+    /// pose `p`, m/s², `[1 + k]` of its dynamic reading of chain DoF `k`; `None` unless the set
+    /// gives every one of them.
+    pub sd: Option<Vec<Vec<Vec<f64>>>>,
 }
 
 impl LimbData {
@@ -237,7 +241,26 @@ impl LimbData {
         let mut q = Vec::new();
         let mut statics = Vec::new();
         let mut dynamics = Vec::new();
+        let mut sd = Some(Vec::new());
         for (p, pose) in training.poses.iter().enumerate() {
+            if let (Some(all), Some(statics)) = (sd.as_mut(), &pose.static_sd) {
+                let per_su: Option<Vec<Vec<f64>>> = su_index
+                    .iter()
+                    .zip(&su_depth)
+                    .map(|(&u, &depth)| {
+                        let dynamic = dofs[..depth]
+                            .iter()
+                            .map(|dof| pose.dynamic_sd.get(dof).map(|v| v[u]));
+                        std::iter::once(Some(statics[u])).chain(dynamic).collect()
+                    })
+                    .collect();
+                match per_su {
+                    Some(v) => all.push(v),
+                    None => sd = None,
+                }
+            } else {
+                sd = None;
+            }
             q.push(dof_index.iter().map(|&d| pose.q[d]).collect());
             statics.push(
                 su_index
@@ -275,6 +298,7 @@ impl LimbData {
             statics,
             dynamics,
             pattern: training.pattern,
+            sd,
         })
     }
 
@@ -314,10 +338,25 @@ impl LimbData {
                     .collect()
             })
             .collect();
+        let sd = self.sd.as_ref().map(|sd| {
+            sd.iter()
+                .map(|per_su| {
+                    per_su
+                        .iter()
+                        .map(|r| {
+                            (0..r.len())
+                                .map(|j| if j == 0 { r[0] } else { r[1 + permute(j - 1)] })
+                                .collect()
+                        })
+                        .collect()
+                })
+                .collect()
+        });
         Self {
             chain,
             q,
             dynamics,
+            sd,
             ..self.clone()
         }
     }
@@ -342,6 +381,7 @@ impl From<&super::ChainData> for LimbData {
                 })
                 .collect(),
             pattern: data.pattern,
+            sd: None,
         }
     }
 }

@@ -87,6 +87,14 @@ pub struct MlConfig {
     /// Which accelerometer intrinsics are estimated with the kinematics.
     #[serde(default)]
     pub intrinsics: IntrinsicsModel,
+    /// Weight each reading by its own standard deviation where the measurement set gives them all
+    /// (ingested logs); `noise_sd` is then only the unit the residuals are reported in.
+    #[serde(default = "weigh_by_reading_sd")]
+    pub reading_sd: bool,
+}
+
+fn weigh_by_reading_sd() -> bool {
+    true
 }
 
 /// Which accelerometer intrinsics ([`Intrinsics`]) the estimator fits per SU.
@@ -137,6 +145,7 @@ impl Default for MlConfig {
             vertical_test: 9.21,
             observable_limit: 1.0,
             intrinsics: IntrinsicsModel::default(),
+            reading_sd: true,
         }
     }
 }
@@ -298,8 +307,13 @@ pub struct MlChainEstimate {
     pub gravity: [f64; 3],
     /// Residual RMS relative to the noise standard deviation (≈ 1 at the noise limit).
     pub residual_ratio: f64,
-    /// Estimated noise standard deviation, m/s².
+    /// Estimated noise standard deviation, m/s² (with `reading_sd`: the residual in units of the
+    /// configured `noise_sd`).
     pub noise_sd_estimate: f64,
+    /// Whether every reading was weighted by its own standard deviation (from the measurement
+    /// set) rather than by the configured noise.
+    #[serde(default)]
+    pub reading_sd: bool,
     /// Whether the residual is at the noise level.
     pub converged: bool,
     /// The gauge: parameters held, or directions the data leave free.
@@ -353,6 +367,7 @@ fn readings(data: &LimbData) -> Readings {
         huber: Some(HUBER),
         rejected: Vec::new(),
         gauge_prior: Some(problem::POSITION_PRIOR_SD),
+        sd: data.sd.clone().map(std::sync::Arc::new),
     }
 }
 
@@ -1050,6 +1065,7 @@ fn final_fit(
         gravity: state.gravity.into(),
         residual_ratio,
         noise_sd_estimate,
+        reading_sd: readings.sd.is_some(),
         converged: residual_ratio <= config.converged_ratio,
         fixed,
         unobservable,

@@ -68,6 +68,9 @@ pub(super) struct Readings {
     /// directions no reading tells near their frames, m ([`POSITION_PRIOR_SD`] for the search and
     /// the fit); `None` for what is reported about the fit (residual, covariance, bounds).
     pub gauge_prior: Option<f64>,
+    /// Each reading's own standard deviation (`[p][u][row]` as `rejected`), m/s²; `None`: every
+    /// reading has the estimator's `sigma`.
+    pub sd: Option<Arc<Vec<Vec<Vec<f64>>>>>,
 }
 
 impl Readings {
@@ -475,12 +478,17 @@ fn su_block(
                 r.fixed_rows_mut::<3>(at).fill(0.0);
                 continue;
             }
+            // Whitened by the reading's own deviation where it has one.
+            if let Some(sd) = &data.sd {
+                *scale = sigma / sd[p][u][j];
+                r.fixed_rows_mut::<3>(at).scale_mut(*scale);
+            }
             let (w, c) = data.robust(r.fixed_rows::<3>(at).norm());
             cost += c;
             count += 3;
             if w < 1.0 {
-                *scale = w.sqrt();
-                r.fixed_rows_mut::<3>(at).scale_mut(*scale);
+                *scale *= w.sqrt();
+                r.fixed_rows_mut::<3>(at).scale_mut(w.sqrt());
             }
         }
         if !jacobian {
@@ -536,7 +544,7 @@ fn su_block(
             }
         }
         for (j, &scale) in scales.iter().enumerate() {
-            if scale < 1.0 {
+            if scale != 1.0 {
                 own.rows_mut(row + 3 * j, 3).scale_mut(scale);
                 shared.rows_mut(row + 3 * j, 3).scale_mut(scale);
             }
