@@ -818,17 +818,21 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         (_, s) => s.as_ref().map(|s| s.0.clone()).unwrap_or_default(),
     };
     outln!(
-        "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), one core",
+        "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), {} cores;\n\
+         bare pass: read (and decompress) the log and walk every message or row, decoding nothing",
         plan.duration,
         sus,
-        sus * 1000
+        sus * 1000,
+        std::thread::available_parallelism().map_or(1, usize::from)
     );
     outln!(
-        "{:<12} {:>10} {:>12} {:>10} {:>12} {:>14} {:>10}",
+        "{:<12} {:>10} {:>12} {:>10} {:>10} {:>12} {:>12} {:>14} {:>10}",
         "format",
         "size MB",
         "samples",
-        "read s",
+        "bare s",
+        "ingest s",
+        "ingest/bare",
         "× real time",
         "samples/s",
         "peak MB"
@@ -875,15 +879,20 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             ..IngestConfig::default()
         };
         let started = Instant::now();
+        skincal::log::bare_pass(&path)?;
+        let bare = started.elapsed().as_secs_f64();
+        let started = Instant::now();
         let ingested = ingest(std::slice::from_ref(&path), &config, &mut |_, _, _| {})?;
         let seconds = started.elapsed().as_secs_f64();
         let samples = ingested.report.logs[0].imu_samples;
         outln!(
-            "{:<12} {:>10.1} {:>12} {:>10.2} {:>12.1} {:>14.0} {:>10.0}",
+            "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12.1} {:>14.0} {:>10.0}",
             name,
             size as f64 / 1e6,
             samples,
+            bare,
             seconds,
+            seconds / bare,
             plan.duration / seconds,
             samples as f64 / seconds,
             peak_memory_mb()

@@ -505,10 +505,17 @@ fn rosbag2_bags_in_mcap_and_sqlite_read_as_one_log_and_other_formats_say_what_th
         message.contains("damaged.db3") && message.contains("SQLite"),
         "{message}"
     );
-    let ros1 = dir.path().join("old.bag");
+    let ros1 = dir.path().join("cut.bag");
     std::fs::write(&ros1, b"#ROSBAG V2.0\nE\0\0\0").unwrap();
     let message = refused(&ros1);
-    assert!(message.contains("ROS 1 bag"), "{message}");
+    assert!(
+        message.contains("cut.bag") && message.contains("ROS 1 bag"),
+        "{message}"
+    );
+    let ros1 = dir.path().join("old.bag");
+    std::fs::write(&ros1, b"#ROSBAG V1.2\nE\0\0\0").unwrap();
+    let message = refused(&ros1);
+    assert!(message.contains("rosbag fix"), "{message}");
     std::fs::remove_file(bag.join("bag_0.mcap")).unwrap();
     let message = refused(&bag);
     assert!(
@@ -601,4 +608,72 @@ fn imu_batches_read_like_one_message_per_su() {
     assert_eq!(other.measurements.training, one.measurements.training);
     assert_eq!(other.report.training_poses, 2);
     assert_eq!(samples, 7 * batches);
+}
+
+#[test]
+fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 1,
+            seed: 4,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("log");
+    let config = LogConfig {
+        seed: 8,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &config, &csv, false);
+    let read = |path: &Path| {
+        ingest(
+            std::slice::from_ref(&path.to_path_buf()),
+            &IngestConfig::default(),
+            &mut |_, _, _| {},
+        )
+    };
+    let from_csv = read(&csv).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros1_bag.py");
+    let python = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    for compression in ["none", "bz2", "lz4"] {
+        let bag = dir.path().join(format!("{compression}.bag"));
+        let out = std::process::Command::new(&python)
+            .arg(&script)
+            .arg(&csv)
+            .arg(&bag)
+            .args(["--compression", compression])
+            .output()
+            .expect("run the tests with `cargo xtask test`, which makes the Python environment");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let from_bag = read(&bag).unwrap();
+        let (a, b) = (&from_csv.measurements, &from_bag.measurements);
+        assert_eq!(from_bag.report.logs[0].format, "ros1 bag");
+        assert_eq!(a.training, b.training, "{compression}");
+        let readings = |m: &skincal::measurements::MeasurementSet| {
+            let s = m.structure.as_ref().unwrap();
+            s.orientations
+                .iter()
+                .map(|o| (o.rest.clone(), o.moves.clone()))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(readings(a), readings(b), "{compression}");
+        assert_eq!(
+            from_csv.report.logs[0].imu_samples,
+            from_bag.report.logs[0].imu_samples
+        );
+    }
+    // A bag cut short is an error naming it, not a panic or a partial result.
+    let bytes = std::fs::read(dir.path().join("lz4.bag")).unwrap();
+    let cut = dir.path().join("cut.bag");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let message = read(&cut).unwrap_err().to_string();
+    assert!(message.contains("cut.bag"), "{message}");
 }

@@ -333,6 +333,7 @@ fn ingest_logs(
                 LogFormat::Mcap => "mcap".into(),
                 LogFormat::Csv => "csv".into(),
                 LogFormat::Db3 => "rosbag2 sqlite3".into(),
+                LogFormat::Bag => "ros1 bag".into(),
                 LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
             },
             ..LogReport::default()

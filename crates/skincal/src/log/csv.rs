@@ -2,7 +2,7 @@
 //! (`stamp,frame_id,ax,ay,az`, s and m/s²), one row per sample, `#` lines are comments.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Time};
@@ -193,6 +193,16 @@ pub fn read(
                 ));
             }
             names = Some(rest);
+            if stream == Stream::Imu {
+                // The rows, parsed in parallel.
+                let rows = ImuRows {
+                    path: &path,
+                    line: number,
+                    bytes,
+                };
+                rows.read(reader, &mut stats, visit, progress)?;
+                return Ok(stats);
+            }
             continue;
         }
         let Ok(stamp) = first.parse::<f64>() else {
@@ -266,4 +276,199 @@ pub fn read(
     }
     progress(bytes);
     Ok(stats)
+}
+
+/// Bytes of `imu.csv` parsed as one block.
+const BLOCK: usize = 1 << 22;
+/// Blocks parsed together.
+const BLOCKS: usize = 4;
+
+/// The rows of `imu.csv` after its header: a producer thread reads blocks of whole lines and
+/// parses a batch of them in parallel; the caller's thread hands the rows to the visitor in order.
+struct ImuRows<'a> {
+    path: &'a Path,
+    /// Lines before the first block.
+    line: usize,
+    /// Bytes before the first block.
+    bytes: u64,
+}
+
+/// One parsed block: its text, its rows and its bad lines.
+#[derive(Default)]
+struct Parsed {
+    text: String,
+    /// `(stamp, frame id's byte range in text, acceleration)`.
+    rows: Vec<(f64, std::ops::Range<usize>, [f64; 3])>,
+    /// Lines that are not a sample, by their number within the block (1-based).
+    bad: Vec<usize>,
+    lines: usize,
+}
+
+impl ImuRows<'_> {
+    fn read(
+        self,
+        reader: BufReader<File>,
+        stats: &mut ReadStats,
+        visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+        progress: &mut dyn FnMut(u64),
+    ) -> Result<(), LogError> {
+        let path = self.path;
+        let io_error = |source| LogError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let carry = reader.buffer().to_vec();
+        let file = reader.into_inner();
+        std::thread::scope(|scope| {
+            let (blocks, received) = std::sync::mpsc::sync_channel::<(Parsed, u64)>(2 * BLOCKS);
+            let producer = scope.spawn(move || produce(file, carry, &blocks));
+            let (mut line, mut bytes) = (self.line, self.bytes);
+            for (block, read) in &received {
+                for &bad in &block.bad {
+                    stats.problem(format!(
+                        "{}, line {}: expected `stamp,frame_id,ax,ay,az` with finite numbers",
+                        path.display(),
+                        line + bad
+                    ));
+                }
+                for (stamp, frame, a) in &block.rows {
+                    stats.samples += 1;
+                    visit(Sample::Imu {
+                        stamp: *stamp,
+                        frame_id: &block.text[frame.clone()],
+                        acceleration: *a,
+                    })?;
+                }
+                line += block.lines;
+                bytes = self.bytes + read;
+                progress(bytes);
+            }
+            drop(received);
+            producer.join().unwrap_or(Ok(())).map_err(|e| match e {
+                Produced::Io(source) => io_error(source),
+                Produced::Utf8(at) => LogError::Csv {
+                    path: path.to_path_buf(),
+                    line: line + 1,
+                    reason: format!("not UTF-8 text (byte {at} of the rows): is it a CSV log?"),
+                },
+            })?;
+            progress(bytes);
+            Ok(())
+        })
+    }
+}
+
+/// Why the producer stopped.
+enum Produced {
+    Io(std::io::Error),
+    /// Bytes read before the text that is not UTF-8.
+    Utf8(u64),
+}
+
+/// Reads `file` (after `carry`) in blocks of whole lines, parses them a batch at a time in
+/// parallel, and sends them in order with the bytes read so far.
+fn produce(
+    mut file: File,
+    mut carry: Vec<u8>,
+    blocks: &std::sync::mpsc::SyncSender<(Parsed, u64)>,
+) -> Result<(), Produced> {
+    use rayon::prelude::*;
+    let mut read = 0u64;
+    let mut done = false;
+    while !done {
+        let mut batch: Vec<(Vec<u8>, u64)> = Vec::with_capacity(BLOCKS);
+        while batch.len() < BLOCKS && !done {
+            let mut block = std::mem::take(&mut carry);
+            let start = block.len();
+            block.resize(start + BLOCK, 0);
+            let n = read_full(&mut file, &mut block[start..]).map_err(Produced::Io)?;
+            block.truncate(start + n);
+            done = n == 0;
+            // Whole lines only: the rest goes to the next block.
+            let cut = if done {
+                block.len()
+            } else {
+                block.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1)
+            };
+            carry = block.split_off(cut);
+            let at = read;
+            read += block.len() as u64;
+            if !block.is_empty() {
+                batch.push((block, at));
+            }
+        }
+        let parsed: Vec<Result<Parsed, u64>> = batch
+            .into_par_iter()
+            .map(|(block, at)| {
+                String::from_utf8(block)
+                    .map(parse)
+                    .map_err(|e| at + e.utf8_error().valid_up_to() as u64)
+            })
+            .collect();
+        for p in parsed {
+            if blocks.send((p.map_err(Produced::Utf8)?, read)).is_err() {
+                return Ok(());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Fills `buffer` as far as the file goes.
+fn read_full(file: &mut File, buffer: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buffer.len() {
+        match file.read(&mut buffer[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+/// The rows `stamp,frame_id,ax,ay,az` of a block of whole lines.
+fn parse(text: String) -> Parsed {
+    let mut parsed = Parsed::default();
+    let mut offset = 0;
+    for raw in text.split_inclusive('\n') {
+        parsed.lines += 1;
+        let start = offset;
+        offset += raw.len();
+        let row = raw.trim_end_matches(['\n', '\r']);
+        if row.is_empty() || row.starts_with('#') {
+            continue;
+        }
+        let mut fields = row.split(',');
+        let stamp = fields.next().unwrap_or_default().trim().parse::<f64>();
+        let frame = fields.next().unwrap_or_default();
+        let trimmed = frame.trim();
+        let frame_start = start
+            + (frame.as_ptr() as usize - row.as_ptr() as usize)
+            + (frame.len() - frame.trim_start().len());
+        let mut a = [0.0; 3];
+        let mut count = 0;
+        for f in fields {
+            if count < 3 {
+                a[count] = f.trim().parse::<f64>().unwrap_or(f64::NAN);
+            }
+            count += 1;
+        }
+        match stamp {
+            Ok(stamp)
+                if count == 3
+                    && !trimmed.is_empty()
+                    && stamp.is_finite()
+                    && a.iter().all(|v| v.is_finite()) =>
+            {
+                parsed
+                    .rows
+                    .push((stamp, frame_start..frame_start + trimmed.len(), a));
+            }
+            _ => parsed.bad.push(parsed.lines),
+        }
+    }
+    parsed.text = text;
+    parsed
 }

@@ -1,16 +1,20 @@
 //! Time-series logs of a skin-covered robot: joint states and raw accelerometer samples.
 //!
-//! Two formats, both written by the time-series simulator and read by the ingestion:
+//! Two formats written by the time-series simulator and read by the ingestion:
 //!
 //! * **MCAP** ([`mcap`](self::mcap)): ROS 2 messages, CDR-encoded ([`ros`]); joint states on
 //!   `/joint_states`, skin samples on `/skin/imu` (topic names are options when reading).
 //! * **CSV** ([`csv`](self::csv)): a directory with `joint_states.csv` (`stamp,<DoF names…>`, rad)
 //!   and `imu.csv` (`stamp,frame_id,ax,ay,az`, m/s²); stamps in seconds.
 //!
+//! Read as well: rosbag2 directories (their `metadata.yaml` lists MCAP or SQLite files,
+//! [`db3`]), and ROS 1 bags ([`bag`]).
+//!
 //! Writers implement [`LogSink`] and write whole files or nothing (a temporary file renamed at
 //! [`LogSink::finish`]). Readers stream: [`read_log`] calls back once per sample of the topics asked
 //! for, so a log never has to fit in memory.
 
+pub mod bag;
 pub mod csv;
 pub mod db3;
 pub mod mcap;
@@ -43,6 +47,14 @@ pub enum LogError {
         /// The file.
         path: PathBuf,
         /// What the MCAP reader said.
+        reason: String,
+    },
+    /// A ROS 1 bag cannot be read.
+    #[error("{path}: not a readable ROS 1 bag: {reason}")]
+    Bag {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and what to do.
         reason: String,
     },
     /// A rosbag2 SQLite file cannot be read.
@@ -242,8 +254,15 @@ pub(crate) fn deliver(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
     match kind {
-        ChannelKind::Imu if stream == Stream::Imu => match ros::decode_imu(body) {
-            Ok(m) => imu_sample(&m.header, &m.linear_acceleration, stats, visit)?,
+        ChannelKind::Imu if stream == Stream::Imu => match ros::imu_view(body) {
+            Ok(m) => {
+                stats.samples += 1;
+                visit(Sample::Imu {
+                    stamp: m.stamp.seconds(),
+                    frame_id: m.frame_id,
+                    acceleration: m.linear_acceleration,
+                })?;
+            }
             Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
         },
         ChannelKind::Joints if stream == Stream::Joints => match ros::decode_joint_state(body) {
@@ -313,6 +332,8 @@ pub enum LogFormat {
     Csv,
     /// A rosbag2 SQLite file (`.db3`).
     Db3,
+    /// A ROS 1 bag (`.bag`, format 2.0).
+    Bag,
     /// A rosbag2 directory: its files (`.mcap` or `.db3`), in the order its `metadata.yaml` lists
     /// them.
     Rosbag2(Vec<PathBuf>),
@@ -332,7 +353,7 @@ struct Rosbag2Information {
 
 /// Tells the format of `path`: a directory with a rosbag2 `metadata.yaml` is a bag, another
 /// directory a CSV log, a file an MCAP log unless its first bytes say it is a rosbag2 SQLite file
-/// (or a ROS 1 bag, refused with what to do).
+/// or a ROS 1 bag.
 pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
     let unrecognised = |reason: String| LogError::Unrecognised {
         path: path.to_path_buf(),
@@ -370,11 +391,12 @@ pub fn format_of(path: &Path) -> Result<LogFormat, LogError> {
     let start = &start[..read];
     if start.starts_with(b"SQLite format 3\0") {
         Ok(LogFormat::Db3)
+    } else if start.starts_with(b"#ROSBAG V2.0\n") {
+        Ok(LogFormat::Bag)
     } else if start.starts_with(b"#ROSBAG V") {
         Err(unrecognised(
-            "a ROS 1 bag: skincal reads ROS 2 logs; convert it to MCAP, e.g. with the rosbags \
-             package (`rosbags-convert --src FILE.bag --dst DIR`, giving a rosbag2 directory) and \
-             give that directory, or publish it into `ros2 bag record -s mcap`"
+            "a ROS 1 bag of a format before 2.0: convert it with `rosbag fix FILE.bag NEW.bag` \
+             (ROS 1) and give the new bag"
                 .into(),
         ))
     } else if path.file_name().is_some_and(|n| n == "metadata.yaml") {
@@ -461,6 +483,7 @@ pub fn read_log(
         LogFormat::Mcap => mcap::read(path, stream, topics, visit, progress),
         LogFormat::Csv => csv::read(path, stream, visit, progress),
         LogFormat::Db3 => db3::read(path, stream, topics, visit, progress),
+        LogFormat::Bag => bag::read(path, stream, topics, visit, progress),
         LogFormat::Rosbag2(files) => {
             // One pass over the bag's files in order, as one log.
             let mut stats = ReadStats::default();
@@ -482,6 +505,36 @@ pub fn read_log(
             }
             Ok(stats)
         }
+    }
+}
+
+/// The least any reader must do with the log at `path`: read (and decompress) everything and walk
+/// every message (MCAP) or row (CSV), decoding nothing; returns their number. A yardstick for
+/// the readers' speed; rosbag2 directories, SQLite files and ROS 1 bags are not measured (`None`).
+pub fn bare_pass(path: &Path) -> Result<Option<u64>, LogError> {
+    match format_of(path)? {
+        LogFormat::Mcap => mcap::bare_pass(path).map(Some),
+        LogFormat::Csv => {
+            let mut rows = 0u64;
+            for name in [csv::JOINTS_FILE, csv::IMU_FILE] {
+                let file = path.join(name);
+                let io_error = |source| LogError::Io {
+                    path: file.clone(),
+                    source,
+                };
+                let mut f = std::fs::File::open(&file).map_err(io_error)?;
+                let mut buffer = vec![0u8; 1 << 20];
+                loop {
+                    let n = std::io::Read::read(&mut f, &mut buffer).map_err(io_error)?;
+                    if n == 0 {
+                        break;
+                    }
+                    rows += buffer[..n].iter().filter(|&&b| b == b'\n').count() as u64;
+                }
+            }
+            Ok(Some(rows))
+        }
+        LogFormat::Db3 | LogFormat::Bag | LogFormat::Rosbag2(_) => Ok(None),
     }
 }
 

@@ -1,15 +1,18 @@
-//! ROS 2 MCAP logs: writing ([`McapSink`]) and streaming reading ([`read`]).
+//! ROS 2 MCAP logs: writing ([`McapSink`]) and streaming reading ([`read`], in `read.rs`).
 
-use std::collections::{BTreeMap, HashMap};
+mod read;
+
+pub use read::{bare_pass, read};
+
+use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use mcap::records::{op, MessageHeader, Record};
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use mcap::records::MessageHeader;
 
 use super::ros::{self, Imu, JointState, Time};
-use super::{deliver, ChannelKind, LogError, LogSink, ReadStats, Sample, Staged, Stream, Topics};
+use super::{LogError, LogSink, Staged, Topics};
 
 /// Chunk compression of a written MCAP file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -248,168 +251,4 @@ impl LogSink for McapSink {
         drop(inner);
         Ok(vec![staged.commit()?])
     }
-}
-
-/// How many times its file size a decompressed chunk may be.
-const MAX_INFLATION: u64 = 256;
-/// The longest record read, bytes, whatever the file size (ROS 2 writes chunks of a few MB).
-const MAX_RECORD: usize = 1 << 30;
-
-/// Streams the samples of `stream` from the MCAP file at `path`.
-pub fn read(
-    path: &Path,
-    stream: Stream,
-    topics: &Topics,
-    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
-    progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
-    let io_error = |source| LogError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = File::open(path).map_err(io_error)?;
-    let size = file.metadata().map_err(io_error)?.len();
-    let mcap_error = |e: mcap::McapError| LogError::Mcap {
-        path: path.to_path_buf(),
-        reason: damage(&e, size),
-    };
-    // Lengths come from the file: a damaged one may claim exabytes. No record can be longer than
-    // the file, nor a chunk decompress to more than MAX_INFLATION times its size (zstd's best
-    // ratio on skin logs is far below).
-    let limit = usize::try_from(size.saturating_mul(MAX_INFLATION))
-        .unwrap_or(usize::MAX)
-        .clamp(1 << 20, MAX_RECORD);
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default().with_record_length_limit(limit),
-    );
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, ChannelKind> = HashMap::new();
-    let mut stats = ReadStats::default();
-    let mut read_bytes = 0u64;
-    let mut since_progress = 0u64;
-    while let Some(event) = reader.next_event() {
-        match event.map_err(mcap_error)? {
-            LinearReadEvent::ReadRequest(need) => {
-                let want = need.max(1 << 20);
-                let n = file.read(reader.insert(want)).map_err(io_error)?;
-                reader.notify_read(n);
-                read_bytes += n as u64;
-                since_progress += n as u64;
-                if since_progress >= 1 << 22 || n == 0 {
-                    progress(read_bytes);
-                    since_progress = 0;
-                }
-            }
-            LinearReadEvent::Record { opcode, data } => match opcode {
-                op::MESSAGE => {
-                    let Some((channel, body)) = message_body(data) else {
-                        stats.problem("a message record shorter than its header".into());
-                        continue;
-                    };
-                    match channels.get(&channel) {
-                        Some(kind) => deliver(kind, body, stream, topics, &mut stats, visit)?,
-                        None => stats.problem(format!("a message on unknown channel {channel}")),
-                    }
-                }
-                op::SCHEMA | op::CHANNEL => match lengths_fit(opcode, data)
-                    .and_then(|()| mcap::parse_record(opcode, data))
-                    .map_err(mcap_error)?
-                {
-                    Record::Schema { header, .. } => {
-                        schemas.insert(header.id, header.name);
-                    }
-                    Record::Channel(c) => {
-                        let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                        let kind = ChannelKind::of(&c.topic, &schema, &c.message_encoding, topics);
-                        channels.insert(c.id, kind);
-                    }
-                    _ => {}
-                },
-                _ => {}
-            },
-        }
-    }
-    progress(read_bytes);
-    Ok(stats)
-}
-
-/// What a reader error means for the user's file, and what to do.
-fn damage(e: &mcap::McapError, size: u64) -> String {
-    use mcap::McapError as E;
-    let salvage = "copy it again, or salvage its complete part with `mcap recover`";
-    match e {
-        _ if size == 0 => "the file is empty: was the recording started?".into(),
-        _ if size < 8 => format!("{size} bytes are too few for an MCAP file"),
-        E::BadMagic => "it does not start with MCAP's magic bytes: give a ROS 2 bag recorded with \
-                        `--storage mcap` (or its .mcap file)"
-            .into(),
-        E::UnexpectedEof => format!(
-            "it ends in the middle of a record after {size} bytes: it was cut short (recording \
-             interrupted, or an incomplete copy); {salvage}"
-        ),
-        E::RecordTooLarge { opcode, len } => format!(
-            "a record (opcode {opcode:#04x}) claims {len} bytes, more than a {size}-byte file \
-             can hold: the file is damaged; {salvage}"
-        ),
-        E::ChunkTooLarge(len) => format!(
-            "a chunk claims {len} bytes, more than a {size}-byte file can hold: the file is \
-             damaged; {salvage}"
-        ),
-        E::BadChunkCrc { .. } | E::BadDataCrc { .. } | E::BadSummaryCrc { .. } => {
-            format!("{e}: the file is damaged; {salvage}")
-        }
-        other => format!("{other}; if the file is damaged, {salvage}"),
-    }
-}
-
-/// Checks that every length inside a schema or channel record fits in the record before the mcap
-/// crate parses it (it allocates a string's claimed length first).
-fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), mcap::McapError> {
-    let mut at;
-    let bytes = |at: &mut usize, limit: usize| -> Option<()> {
-        let field: [u8; 4] = data.get(*at..*at + 4)?.try_into().ok()?;
-        let n = u32::from_le_bytes(field) as usize;
-        *at += 4;
-        (n <= limit.saturating_sub(*at)).then(|| *at += n)
-    };
-    let fits = match opcode {
-        // id u16, name, encoding, data
-        op::SCHEMA => {
-            at = 2;
-            (0..3).try_for_each(|_| bytes(&mut at, data.len()))
-        }
-        // id u16, schema_id u16, topic, message_encoding, metadata map<string, string>
-        op::CHANNEL => {
-            at = 4;
-            (0..2)
-                .try_for_each(|_| bytes(&mut at, data.len()))
-                .and_then(|()| {
-                    let start = at + 4;
-                    bytes(&mut at, data.len())?;
-                    let end = at;
-                    let mut entry = start;
-                    while entry < end {
-                        bytes(&mut entry, end)?;
-                        bytes(&mut entry, end)?;
-                    }
-                    Some(())
-                })
-        }
-        _ => Some(()),
-    };
-    fits.ok_or(mcap::McapError::RecordTooLarge {
-        opcode,
-        len: data.len() as u64,
-    })
-}
-
-/// Channel id and CDR payload of a message record (opcode 0x05): `channel_id u16, sequence u32,
-/// log_time u64, publish_time u64, data`.
-fn message_body(record: &[u8]) -> Option<(u16, &[u8])> {
-    const HEADER: usize = 2 + 4 + 8 + 8;
-    if record.len() < HEADER {
-        return None;
-    }
-    let channel = u16::from_le_bytes([record[0], record[1]]);
-    Some((channel, &record[HEADER..]))
 }
