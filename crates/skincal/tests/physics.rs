@@ -166,8 +166,8 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     assert!(s <= 0.01, "static {s}");
     assert!(dynamic <= 0.05, "dynamic {dynamic}");
     // The reported uncertainties are the errors' size: the static ones from the samples' scatter,
-    // the dynamic ones from the same through the fit (the encoders' quantisation, not in them,
-    // adds a little).
+    // the dynamic ones from the same and the encoders' rounding through the fit (the terms the
+    // model leaves out add a little).
     assert!(
         (0.7..1.3).contains(&zs),
         "static errors are {zs} reported deviations"

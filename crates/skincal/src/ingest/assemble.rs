@@ -210,8 +210,22 @@ fn training_pose(
             let reading = [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha);
             dynamic.entry(name.clone()).or_default().push(reading);
             if let Some(v) = &passes.variance {
-                let sd = alpha * fit.sd_factor(column) * v[su].sqrt();
-                dynamic_sd.entry(name.clone()).or_default().push(sd);
+                // The samples' noise through the fit, and the encoders' rounding through the
+                // measured accelerations of every DoF, weighted by that DoF's coefficient.
+                let resolution = &passes.timelines[st.log].resolution;
+                let rounding: f64 = fit
+                    .accelerations()
+                    .map(|(e, c)| {
+                        let k2 = (0..3).map(|a| coefficients[(c, a)].powi(2)).sum::<f64>() / 3.0;
+                        resolution[e].powi(2) * k2
+                    })
+                    .sum();
+                let variance = fit.sd_factor(column).powi(2) * v[su]
+                    + fit.rounding_factor(column).powi(2) * rounding;
+                dynamic_sd
+                    .entry(name.clone())
+                    .or_default()
+                    .push(alpha * variance.sqrt());
             }
         }
     }

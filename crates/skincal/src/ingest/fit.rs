@@ -75,6 +75,10 @@ pub(super) struct Excitation {
     pub(super) gram: DMatrix<f64>,
     /// `Σ_m W(m) W(m)ᵀ`: the covariance of the right-hand sides per unit sample variance.
     pub(super) spread: DMatrix<f64>,
+    /// `Σ_m V(m) V(m)ᵀ` with `V(m) = (X(m − l) − 2X(m) + X(m + l))/(l·dt)²`: how a rounding error
+    /// of one DoF's position at grid point `m`, through the measured accelerations, reaches the
+    /// normal equations (per unit variance and unit coefficient of that DoF's acceleration).
+    pub(super) rounding: DMatrix<f64>,
     /// Peak measured |ω| and |α| of the excited DoF (for estimating the nominal pattern).
     pub(super) peak_velocity: f64,
     pub(super) peak_acceleration: f64,
@@ -226,6 +230,25 @@ pub(super) fn design(
             .map(|m| weights[m * nc + a] * weights[m * nc + b])
             .sum()
     });
+    // An error ε at grid point m enters α at rows m − l, m, m + l with weights 1, −2, 1 over span.
+    let row = |n: usize| (n >= l && n < len - l).then(|| &x[(n - l) * nc..(n - l + 1) * nc]);
+    let mut rounding = DMatrix::<f64>::zeros(nc, nc);
+    let mut v = vec![0.0; nc];
+    for m in 0..len {
+        v.fill(0.0);
+        for (n, c) in [(m.checked_sub(l), 1.0), (Some(m), -2.0), (Some(m + l), 1.0)] {
+            if let Some(r) = n.and_then(row) {
+                for (vi, xi) in v.iter_mut().zip(r) {
+                    *vi += c * xi / span;
+                }
+            }
+        }
+        for a in 0..nc {
+            for b in 0..nc {
+                rounding[(a, b)] += v[a] * v[b];
+            }
+        }
+    }
     Some(Excitation {
         dof: d,
         start,
@@ -234,6 +257,7 @@ pub(super) fn design(
         weights,
         gram,
         spread,
+        rounding,
         peak_velocity,
         peak_acceleration,
     })
@@ -254,6 +278,8 @@ pub(super) struct PooledFit {
     inverse: DMatrix<f64>,
     /// `Σ_w P_wᵀ (Σ_m W W ᵀ) P_w`: the covariance of the pooled right-hand sides per unit variance.
     spread: DMatrix<f64>,
+    /// The same for the encoders' rounding (see [`Excitation::rounding`]).
+    rounding: DMatrix<f64>,
 }
 
 impl PooledFit {
@@ -281,11 +307,13 @@ impl PooledFit {
             .collect();
         let mut gram = DMatrix::<f64>::zeros(count, count);
         let mut spread = DMatrix::<f64>::zeros(count, count);
+        let mut rounding = DMatrix::<f64>::zeros(count, count);
         for (x, cols) in windows.iter().zip(&columns) {
             for (a, &ca) in cols.iter().enumerate() {
                 for (b, &cb) in cols.iter().enumerate() {
                     gram[(ca, cb)] += x.gram[(a, b)];
                     spread[(ca, cb)] += x.spread[(a, b)];
+                    rounding[(ca, cb)] += x.rounding[(a, b)];
                 }
             }
         }
@@ -305,6 +333,7 @@ impl PooledFit {
             shared,
             inverse,
             spread,
+            rounding,
         }
     }
 
@@ -330,6 +359,21 @@ impl PooledFit {
     pub(super) fn sd_factor(&self, column: usize) -> f64 {
         let u = self.inverse.row(column);
         (u * &self.spread * u.transpose())[(0, 0)].max(0.0).sqrt()
+    }
+
+    /// The standard deviation of the coefficient in `column` per unit rounding deviation of one
+    /// DoF's encoder and unit coefficient of that DoF's acceleration.
+    pub(super) fn rounding_factor(&self, column: usize) -> f64 {
+        let u = self.inverse.row(column);
+        (u * &self.rounding * u.transpose())[(0, 0)].max(0.0).sqrt()
+    }
+
+    /// The pooled columns of every DoF's acceleration.
+    pub(super) fn accelerations(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.shared.iter().filter_map(|(t, &c)| match t {
+            Term::Alpha(e) => Some((*e, c)),
+            _ => None,
+        })
     }
 
     /// In window `w` (`x`), the power of the coupled motion of the other DoFs and of the excited

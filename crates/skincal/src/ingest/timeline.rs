@@ -20,6 +20,9 @@ pub(super) struct Timeline {
     pub(super) theta: Vec<Vec<f64>>,
     /// Grid points inside a joint-state gap.
     pub(super) invalid: Vec<bool>,
+    /// Per DoF, the standard deviation of its encoder's rounding, rad: the smallest step between
+    /// two of its readings over √12 (0 for readings that are not rounded).
+    pub(super) resolution: Vec<f64>,
 }
 
 impl Timeline {
@@ -211,6 +214,7 @@ pub(super) fn read_joints(
     report.rate = 1.0 / dt;
     let mut invalid = vec![false; n];
     let mut theta = Vec::with_capacity(dofs.len());
+    let resolution = cleaned.iter().map(|s| encoder_rounding(s)).collect();
     for s in &cleaned {
         let mut column = Vec::with_capacity(n);
         let mut j = 0;
@@ -241,5 +245,61 @@ pub(super) fn read_joints(
         dt,
         theta,
         invalid,
+        resolution,
     })
+}
+
+/// Steps between readings below this are floating-point noise, not an encoder's, rad.
+const FINEST_STEP: f64 = 1e-9;
+
+/// The standard deviation of an encoder's rounding from its readings `(stamp, position)`: a
+/// rounded reading changes by whole steps, the smallest of them (over √12, a uniform rounding
+/// error's deviation); 0 when the readings change by less than a step's worth anywhere (they are
+/// not rounded, or the DoF never moved).
+fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
+    let step = series
+        .windows(2)
+        .map(|w| (w[1].1 - w[0].1).abs())
+        .filter(|&d| d > FINEST_STEP)
+        .fold(f64::INFINITY, f64::min);
+    if !step.is_finite() {
+        return 0.0;
+    }
+    // A rounded encoder: every change is a whole number of steps.
+    let whole = series
+        .windows(2)
+        .map(|w| (w[1].1 - w[0].1).abs() / step)
+        .all(|k| (k - k.round()).abs() < 1e-3);
+    if whole {
+        step / 12f64.sqrt()
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_encoders_rounding_is_told_by_its_smallest_step() {
+        let step = 2.0 * std::f64::consts::PI / f64::from(1u32 << 17);
+        let motion = |t: f64| 0.3 * (2.0 * t).sin();
+        let series = |round: bool| -> Vec<(f64, f64)> {
+            (0..2000)
+                .map(|i| {
+                    let t = f64::from(i) * 1e-3;
+                    let q = motion(t);
+                    (t, if round { (q / step).round() * step } else { q })
+                })
+                .collect()
+        };
+        let rounded = encoder_rounding(&series(true));
+        assert!(
+            (rounded / (step / 12f64.sqrt()) - 1.0).abs() < 1e-9,
+            "{rounded}"
+        );
+        assert_eq!(encoder_rounding(&series(false)), 0.0);
+        assert_eq!(encoder_rounding(&[(0.0, 0.25), (0.001, 0.25)]), 0.0);
+    }
 }
