@@ -778,12 +778,19 @@ pub(crate) struct BenchIngestArgs {
     /// MCAP chunk compression.
     #[arg(long, value_enum, default_values_t = [CompressionArg::Zstd, CompressionArg::None])]
     compression: Vec<CompressionArg>,
+    /// Print the table as JSON instead of text.
+    #[arg(long)]
+    json: bool,
     /// Keep the logs in this directory (a temporary one otherwise).
     #[arg(long)]
     dir: Option<PathBuf>,
 }
 
 pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
+    if args.json {
+        crate::out::json_mode();
+    }
+    let mut rows = Vec::new();
     if args.sus == 0 || !args.seconds.is_finite() || args.seconds <= 0.0 {
         bail!("--sus and --seconds must be positive");
     }
@@ -897,10 +904,29 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             samples as f64 / seconds,
             peak_memory_mb()
         );
+        rows.push(serde_json::json!({
+            "format": name,
+            "size_mb": size as f64 / 1e6,
+            "samples": samples,
+            "bare_s": bare,
+            "ingest_s": seconds,
+            "ingest_over_bare": seconds / bare,
+            "times_real_time": plan.duration / seconds,
+            "samples_per_s": samples as f64 / seconds,
+            "peak_mb": peak_memory_mb(),
+        }));
         if args.dir.is_none() {
             let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
         }
     }
+    crate::out::json(&serde_json::json!({
+        "command": "bench ingest",
+        "log_seconds": plan.duration,
+        "sus": sus,
+        "rate_hz": 1000,
+        "cores": std::thread::available_parallelism().map_or(1, usize::from),
+        "rows": rows,
+    }));
     drop(scratch);
     Ok(())
 }

@@ -155,6 +155,10 @@ struct CalibrateArgs {
     /// Overwrite an existing model file.
     #[arg(long)]
     force: bool,
+    /// Print a JSON summary instead of the text: per limb whether it converged, its residual,
+    /// iterations and time; what was left out (the model file is written as always).
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -216,6 +220,9 @@ struct ValidateArgs {
     /// Directory with the second measurements.json (or the file itself); its training poses are
     /// compared.
     dir: PathBuf,
+    /// Print the result as JSON (per SU and overall) instead of the table.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -554,6 +561,9 @@ fn chains_of(
 }
 
 fn calibrate(args: CalibrateArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let (file, dir) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
     let (structure, source) = structure_of(&set, &dir)?;
@@ -640,6 +650,19 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         args.force,
     )?;
     outln!("wrote {}", out.display());
+    out::json(&serde_json::json!({
+        "command": "calibrate",
+        "method": "paper",
+        "model": out.display().to_string(),
+        "limbs": estimates.iter().map(|e| serde_json::json!({
+            "name": e.chain.name,
+            "dofs": e.chain.dofs,
+            "sus": e.chain.sus,
+            "converged": e.converged(),
+            "evaluations": e.steps.iter().map(|s| s.evaluations).sum::<usize>(),
+            "seconds": e.steps.iter().map(|s| s.seconds).sum::<f64>(),
+        })).collect::<Vec<_>>(),
+    }));
     if estimates.iter().any(|e| !e.converged()) {
         eprintln!("warning: some steps did not reach e_T ≤ e_stop (marked !)");
     }
@@ -705,6 +728,27 @@ fn calibrate_ml(
         args.force,
     )?;
     outln!("wrote {}", out.display());
+    out::json(&serde_json::json!({
+        "command": "calibrate",
+        "method": "ml",
+        "model": out.display().to_string(),
+        "weights": if own { "each reading's own standard deviation" } else { "one noise for every reading" },
+        "noise_sd": config.noise_sd,
+        "limbs": model.limbs.iter().map(|l| serde_json::json!({
+            "name": l.name,
+            "parent": l.parent,
+            "dofs": l.dofs,
+            "sus": l.sus,
+            "converged": l.estimate.converged,
+            "residual_ratio": l.estimate.residual_ratio,
+            "iterations": l.estimate.iterations,
+            "seconds": l.estimate.seconds,
+            "retries": l.estimate.retries,
+            "rejected_readings": l.estimate.rejected,
+        })).collect::<Vec<_>>(),
+        "broken": model.broken,
+        "not_calibrated": model.not_calibrated,
+    }));
     if model.limbs.iter().any(|l| !l.estimate.converged) {
         eprintln!("warning: some limbs did not converge to the noise level (see above)");
     }
@@ -902,6 +946,9 @@ fn predict(args: PredictArgs) -> Result<()> {
 }
 
 fn validate(args: ValidateArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let model = io::read_model(&args.model)?;
     let (file, _) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
@@ -915,6 +962,12 @@ fn validate(args: ValidateArgs) -> Result<()> {
         set.training.as_ref().map_or(0.0, |t| t.pattern.frequency)
     );
     out!("{}", render::validation_table(&check));
+    out::json(&serde_json::json!({
+        "command": "validate",
+        "model": args.model.display().to_string(),
+        "measurements": file.display().to_string(),
+        "validation": check,
+    }));
     Ok(())
 }
 

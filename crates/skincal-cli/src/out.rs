@@ -11,8 +11,32 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// Set once standard output can no longer be written.
 static CLOSED: AtomicBool = AtomicBool::new(false);
 
-/// Writes to standard output unless it has been closed; what `out!` and `outln!` call.
+/// Set by `--json`: standard output carries one JSON document and no text.
+static JSON: AtomicBool = AtomicBool::new(false);
+
+/// Makes standard output machine-readable: the text of `out!` and `outln!` is left out, and
+/// [`json`] writes the command's one JSON document.
+pub fn json_mode() {
+    JSON.store(true, Ordering::Relaxed);
+}
+
+/// Writes `value` as the command's JSON document (pretty, one trailing newline), in JSON mode only.
+pub fn json(value: &serde_json::Value) {
+    if JSON.load(Ordering::Relaxed) {
+        let text = serde_json::to_string_pretty(value).unwrap_or_default();
+        emit(format_args!("{text}\n"));
+    }
+}
+
+/// Writes to standard output unless it has been closed or carries JSON; what `out!` and `outln!`
+/// call.
 pub fn write(args: fmt::Arguments<'_>) {
+    if !JSON.load(Ordering::Relaxed) {
+        emit(args);
+    }
+}
+
+fn emit(args: fmt::Arguments<'_>) {
     if CLOSED.load(Ordering::Relaxed) {
         return;
     }

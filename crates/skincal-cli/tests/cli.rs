@@ -920,3 +920,54 @@ fn an_interrupted_recording_leaves_no_partial_files() {
         assert!(left.is_empty(), "{signal}: left behind {left:?}");
     }
 }
+
+#[test]
+fn json_summaries_are_the_whole_standard_output_and_say_what_the_text_says() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |o: Output| {
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    ok(skincal(
+        &["simulate", "--robot", "paper-7dof", "--out", "train"],
+        d,
+    ));
+    ok(skincal(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "held",
+            "--pose-seed",
+            "5",
+        ],
+        d,
+    ));
+    ok(skincal(&["explore", "train"], d));
+    let text = ok(skincal(&["calibrate", "train", "--json"], d));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    assert_eq!(v["command"], "calibrate");
+    assert_eq!(v["method"], "ml");
+    assert!(d.join("train/model.json").is_file());
+    let limbs = v["limbs"].as_array().unwrap();
+    assert_eq!(limbs.len(), 1);
+    assert_eq!(limbs[0]["converged"], true);
+    assert_eq!(limbs[0]["dofs"].as_array().unwrap().len(), 7);
+    // Uniform ±0.01 g noise, weighted by its σ: the residual is near 1.
+    let ratio = limbs[0]["residual_ratio"].as_f64().unwrap();
+    assert!((0.8..1.2).contains(&ratio), "{ratio}");
+    assert!(limbs[0]["seconds"].as_f64().unwrap() > 0.0);
+    let text = ok(skincal(
+        &["validate", "train/model.json", "held", "--json"],
+        d,
+    ));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    let check = &v["validation"];
+    assert_eq!(check["sus"].as_array().unwrap().len(), 7);
+    assert_eq!(check["poses"], 20);
+    // The held-out set has the same noise (σ 0.057 m/s² per component): its error is about that.
+    let rms = check["static_rms"].as_f64().unwrap();
+    assert!(rms > 0.03 && rms < 0.12, "{rms}");
+}

@@ -443,10 +443,16 @@ pub(super) fn assemble(
         }
     }
     if group_count > 0 && orientations.is_empty() && poses.is_empty() {
-        return Err(IngestError::Empty(format!(
-            "every structure pose found in the joint states was skipped; the first reason: {}",
-            passes.warnings.first().map_or("unknown", String::as_str)
-        )));
+        return Err(IngestError::Empty(match passes.warnings.first() {
+            Some(first) => format!(
+                "every structure pose found in the joint states was skipped; the first reason: \
+                 {first}"
+            ),
+            None => "the joint states hold still poses but no single-DoF move between two of \
+                     them and no excitation: is the log long enough, and does it follow the \
+                     protocol (see `skincal plan`)?"
+                .into(),
+        }));
     }
 
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
