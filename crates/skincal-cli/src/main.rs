@@ -836,7 +836,7 @@ fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
         .unwrap_or_else(|| args.model.with_extension("urdf"));
     io::write_all(&[(out.clone(), text)], args.force)?;
     outln!(
-        "wrote {} ({} links, {} revolute joints, {} SU links)",
+        "wrote {} ({} links, {} continuous joints, {} SU links; kinematics only)",
         out.display(),
         robot.model.segments().len() + robot.model.sus().len(),
         robot.model.dofs().len(),

@@ -104,11 +104,11 @@ fn a_calibrated_model_exports_predicts_and_validates() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     assert!(skincal(&["demo", "--out", "demo"], d).status.success());
-    // export-urdf: one revolute joint per DoF, one link per SU.
+    // export-urdf: one continuous joint per DoF, one link per SU.
     let out = skincal(&["export-urdf", "demo/model.json", "--out", "arm.urdf"], d);
     assert!(out.status.success(), "{}", stderr(&out));
     let urdf = std::fs::read_to_string(d.join("arm.urdf")).unwrap();
-    assert_eq!(urdf.matches("type=\"revolute\"").count(), 26);
+    assert_eq!(urdf.matches("type=\"continuous\"").count(), 26);
     assert!(urdf.contains("<joint name=\"l_elbow\"") && urdf.contains("<link name=\"torso_back\""));
     // Refuses to overwrite without --force, and nothing changes.
     fails_with(

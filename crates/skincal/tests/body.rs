@@ -150,6 +150,19 @@ fn urdf_export_keeps_the_forward_kinematics() {
     let robot = model.check().unwrap();
     let text = skincal::model::urdf::to_urdf(&robot).unwrap();
     let urdf = urdf_rs::read_from_string(&text).unwrap();
+    // Kinematics only: nothing it does not know — no masses, no limits, nothing on fixed joints
+    // but their origin.
+    assert!(
+        !text.contains("<inertial") && !text.contains("<limit"),
+        "{text}"
+    );
+    for j in &urdf.joints {
+        if j.joint_type == urdf_rs::JointType::Fixed {
+            let element = &text[text.find(&format!("name=\"{}\"", j.name)).unwrap()..];
+            let element = &element[..element.find("</joint>").unwrap()];
+            assert!(!element.contains("<axis"), "{element}");
+        }
+    }
     // Independent forward kinematics of the URDF: compose origin · Rot(axis, q) from the root.
     let rpy = |p: &urdf_rs::Pose| {
         Isometry3::from_parts(
@@ -178,7 +191,7 @@ fn urdf_export_keeps_the_forward_kinematics() {
                     continue;
                 };
                 let motion = match &j.joint_type {
-                    urdf_rs::JointType::Revolute => {
+                    urdf_rs::JointType::Continuous => {
                         assert_eq!(urdf.joints.iter().filter(|k| k.name == j.name).count(), 1);
                         let d = m.dof_index(&j.name).expect("joints named after the DoFs");
                         let axis = nalgebra::Unit::new_normalize(Vector3::from(*j.axis.xyz));
@@ -245,4 +258,64 @@ fn names_that_differ_between_model_and_data_are_named_in_the_error() {
         err.contains("r_ankle_roll") && err.contains("poses.csv"),
         "{err}"
     );
+}
+
+#[test]
+fn urdf_export_loads_in_mujoco_with_the_same_kinematics() {
+    let (_, model) = noisy_humanoid();
+    let robot = model.check().unwrap();
+    let m = &robot.model;
+    let dir = tempfile::tempdir().unwrap();
+    let urdf = dir.path().join("body.urdf");
+    std::fs::write(&urdf, skincal::model::urdf::to_urdf(&robot).unwrap()).unwrap();
+    let mut cases = Vec::new();
+    let mut x = 0.61f64;
+    for _ in 0..5 {
+        let q: Vec<f64> = (0..m.dofs().len())
+            .map(|_| {
+                x = (x * 9.17 + 0.23).fract();
+                (x - 0.5) * 5.0
+            })
+            .collect();
+        let k = forward_kinematics(m, &robot.parameters, &q);
+        let links: serde_json::Map<String, serde_json::Value> = m
+            .segments()
+            .iter()
+            .zip(&k.segments)
+            .map(|(s, t)| {
+                let (p, r) = (t.translation.vector, t.rotation);
+                (
+                    s.name.clone(),
+                    serde_json::json!([p.x, p.y, p.z, r.w, r.i, r.j, r.k]),
+                )
+            })
+            .collect();
+        cases.push(serde_json::json!({"q": q, "links": links}));
+    }
+    let poses = dir.path().join("poses.json");
+    std::fs::write(
+        &poses,
+        serde_json::json!({"dofs": m.dof_names(), "cases": cases}).to_string(),
+    )
+    .unwrap();
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/urdf_fk.py");
+    let python = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(&urdf)
+        .arg(&poses)
+        .output()
+        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
+    assert!(
+        out.status.success(),
+        "MuJoCo refused the URDF: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let result: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    eprintln!("{result}");
+    // Every moving segment is a body of its own in MuJoCo.
+    assert!(result["compared"].as_u64().unwrap() >= 5 * (m.segments().len() as u64 - 1));
+    assert!(result["position"].as_f64().unwrap() < 1e-9, "{result}");
+    assert!(result["rotation"].as_f64().unwrap() < 1e-9, "{result}");
 }

@@ -184,89 +184,96 @@ fn positive(v: f64) -> Option<f64> {
     (v.is_finite() && v > 0.0).then_some(v)
 }
 
-/// A robot as URDF text: one link per segment (the reference segment is the root link), one
-/// revolute joint per DoF named after it (origin and axis as in the model, limits from the model's;
-/// effort and velocity 0 when unknown), and one link per SU named after it, attached to its segment
-/// by a fixed joint `<su>_mount`. Loading the text back and composing the joints gives the model's
-/// forward kinematics.
+/// A robot as URDF text, kinematics only: one link per segment (the reference segment is the root
+/// link), one `continuous` joint per DoF named after it (origin and axis as in the model; the
+/// range the model's limits give is noted in a comment, not written as a `<limit>`: the robot's
+/// real limits, effort and velocity are not known), and one link per SU named after it, attached
+/// to its segment by a fixed joint `<su>_mount` (origin only). No link has inertial values.
+/// Loading the text back and composing the joints gives the model's forward kinematics.
 pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
     let m = &robot.model;
     let k = super::forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
-    let pose = |t: &Isometry3<f64>| {
-        let (r, p, y) = t.rotation.euler_angles();
-        urdf_rs::Pose {
-            xyz: urdf_rs::Vec3(t.translation.vector.into()),
-            rpy: urdf_rs::Vec3([r, p, y]),
-        }
-    };
-    let link = |name: &str| urdf_rs::Link {
-        name: name.to_string(),
-        inertial: Default::default(),
-        visual: Vec::new(),
-        collision: Vec::new(),
-    };
-    let mut links: Vec<urdf_rs::Link> = m.segments().iter().map(|s| link(&s.name)).collect();
-    let mut joints = Vec::new();
-    for (d, dof) in m.dofs().iter().enumerate() {
-        let origin = k.segments[dof.parent].inverse() * k.joints[d];
-        joints.push(urdf_rs::Joint {
-            name: dof.name.clone(),
-            joint_type: urdf_rs::JointType::Revolute,
-            origin: pose(&origin),
-            parent: urdf_rs::LinkName {
-                link: m.segments()[dof.parent].name.clone(),
-            },
-            child: urdf_rs::LinkName {
-                link: m.segments()[dof.child].name.clone(),
-            },
-            axis: urdf_rs::Axis {
-                xyz: urdf_rs::Vec3(dof.axis.into_inner().into()),
-            },
-            limit: urdf_rs::JointLimit {
-                lower: dof.limits.lower,
-                upper: dof.limits.upper,
-                effort: 0.0,
-                velocity: dof.limits.velocity.unwrap_or(0.0),
-                ..Default::default()
-            },
-            calibration: None,
-            dynamics: None,
-            mimic: None,
-            safety_controller: None,
-        });
-    }
-    for (u, su) in m.sus().iter().enumerate() {
+    for su in m.sus() {
         if m.segments().iter().any(|s| s.name == su.name) {
             return Err(DescriptionError::Invalid {
                 field: format!("sus.{}", su.name),
                 reason: "an SU has the name of a segment: URDF link names must be unique".into(),
             });
         }
-        links.push(link(&su.name));
-        joints.push(urdf_rs::Joint {
-            name: format!("{}_mount", su.name),
-            joint_type: urdf_rs::JointType::Fixed,
-            origin: pose(&(k.segments[su.segment].inverse() * k.sus[u])),
-            parent: urdf_rs::LinkName {
-                link: m.segments()[su.segment].name.clone(),
-            },
-            child: urdf_rs::LinkName {
-                link: su.name.clone(),
-            },
-            axis: Default::default(),
-            limit: Default::default(),
-            calibration: None,
-            dynamics: None,
-            mimic: None,
-            safety_controller: None,
-        });
     }
-    let urdf = urdf_rs::Robot {
-        name: m.name().to_string(),
-        version: None,
-        links,
-        joints,
-        materials: Vec::new(),
+    let origin = |t: &Isometry3<f64>| {
+        let (r, p, y) = t.rotation.euler_angles();
+        let v = t.translation.vector;
+        format!(
+            "<origin xyz=\"{} {} {}\" rpy=\"{r} {p} {y}\"/>",
+            v.x, v.y, v.z
+        )
     };
-    urdf_rs::write_to_string(&urdf).map_err(|e| DescriptionError::Urdf(e.to_string()))
+    let mut out = String::new();
+    out.push_str("<?xml version=\"1.0\"?>\n");
+    out.push_str(
+        "<!-- Kinematics only, from skincal's calibration: link frames, joint axes and SU frames. \
+         No inertial values, and no joint limits (the robot's are not known: the DoFs are \
+         continuous joints; each notes the range the calibration data covered). -->\n",
+    );
+    out.push_str(&format!("<robot name=\"{}\">\n", xml_escape(m.name())));
+    // MuJoCo refuses moving bodies without mass: it may bound them instead (other readers skip
+    // the element).
+    out.push_str("  <mujoco><compiler boundmass=\"1e-6\" boundinertia=\"1e-12\"/></mujoco>\n");
+    for s in m.segments() {
+        out.push_str(&format!("  <link name=\"{}\"/>\n", xml_escape(&s.name)));
+    }
+    for su in m.sus() {
+        out.push_str(&format!("  <link name=\"{}\"/>\n", xml_escape(&su.name)));
+    }
+    for (d, dof) in m.dofs().iter().enumerate() {
+        let placement = k.segments[dof.parent].inverse() * k.joints[d];
+        let axis = dof.axis.into_inner();
+        out.push_str(&format!(
+            "  <joint name=\"{}\" type=\"continuous\">\n",
+            xml_escape(&dof.name)
+        ));
+        if dof.limits != super::Limits::CONTINUOUS {
+            out.push_str(&format!(
+                "    <!-- calibrated over {} … {} rad -->\n",
+                dof.limits.lower, dof.limits.upper
+            ));
+        }
+        out.push_str(&format!(
+            "    {}\n    <parent link=\"{}\"/>\n    <child link=\"{}\"/>\n    <axis xyz=\"{} {} {}\"/>\n  </joint>\n",
+            origin(&placement),
+            xml_escape(&m.segments()[dof.parent].name),
+            xml_escape(&m.segments()[dof.child].name),
+            axis.x,
+            axis.y,
+            axis.z
+        ));
+    }
+    for (u, su) in m.sus().iter().enumerate() {
+        out.push_str(&format!(
+            "  <joint name=\"{}_mount\" type=\"fixed\">\n    {}\n    <parent link=\"{}\"/>\n    <child link=\"{}\"/>\n  </joint>\n",
+            xml_escape(&su.name),
+            origin(&(k.segments[su.segment].inverse() * k.sus[u])),
+            xml_escape(&m.segments()[su.segment].name),
+            xml_escape(&su.name)
+        ));
+    }
+    out.push_str("</robot>\n");
+    Ok(out)
+}
+
+/// `text` as an XML attribute value.
+fn xml_escape(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            c => out.push(c),
+        }
+    }
+    out
 }
