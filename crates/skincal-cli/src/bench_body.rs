@@ -20,6 +20,9 @@ use crate::peak_memory_mb;
 
 #[derive(Debug, Args)]
 pub struct BenchBodyArgs {
+    /// Print the results as JSON (every data set, per robot) instead of the tables.
+    #[arg(long)]
+    json: bool,
     /// Robots to run: built-in names, TOML descriptions or URDF files (repeat for several; the
     /// humanoid when none is given). Each gets --sus-per-segment random SUs per link, per seed.
     #[arg(long, value_name = "ROBOT", conflicts_with = "random_dofs")]
@@ -45,6 +48,7 @@ pub struct BenchBodyArgs {
 }
 
 /// One data set.
+#[derive(serde::Serialize)]
 struct Run {
     seed: u64,
     dofs: usize,
@@ -67,6 +71,9 @@ enum Subject<'a> {
 }
 
 pub fn bench_body(args: BenchBodyArgs) -> Result<()> {
+    if args.json {
+        crate::out::json_mode();
+    }
     let robots: Vec<String> = if args.robot.is_empty() {
         vec!["humanoid".to_string()]
     } else {
@@ -125,6 +132,21 @@ pub fn bench_body(args: BenchBodyArgs) -> Result<()> {
         "peak resident memory of the whole run: {:.0} MB",
         peak_memory_mb()
     );
+    crate::out::json(&serde_json::json!({
+        "command": "bench body",
+        "poses": args.poses,
+        "uniform_noise_g": args.noise,
+        "seeds": args.seeds,
+        "subjects": summary.iter().map(|(name, seeds, runs)| serde_json::json!({
+            "name": name,
+            "seeds": seeds,
+            "converged_limbs": runs.iter().map(|r| r.converged).sum::<usize>(),
+            "limbs": runs.iter().map(|r| r.limbs).sum::<usize>(),
+            "exact_structures": runs.iter().filter(|r| r.exact).count(),
+            "runs": runs,
+        })).collect::<Vec<_>>(),
+        "peak_mb": peak_memory_mb(),
+    }));
     Ok(())
 }
 

@@ -17,6 +17,9 @@ use crate::out::{out, outln};
 
 #[derive(Debug, Args)]
 pub struct BenchLimbsArgs {
+    /// Print the results as JSON (every limb and the summary) instead of the tables.
+    #[arg(long)]
+    json: bool,
     /// Number of limbs (one per seed).
     #[arg(long, default_value_t = 100)]
     limbs: u64,
@@ -38,6 +41,7 @@ pub struct BenchLimbsArgs {
 }
 
 /// One limb's outcome.
+#[derive(serde::Serialize)]
 struct Outcome {
     name: String,
     dofs: usize,
@@ -155,6 +159,9 @@ fn percentile(values: &[f64], q: f64) -> f64 {
 }
 
 pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
+    if args.json {
+        crate::out::json_mode();
+    }
     anyhow::ensure!(
         args.dofs.len() == 2 && args.dofs[0] >= 1 && args.dofs[0] <= args.dofs[1],
         "--dofs MIN MAX: give at least 1, fewest first"
@@ -196,6 +203,7 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
     let converged = outcomes.iter().filter(|o| o.converged).count();
     let col = |f: fn(&Outcome) -> f64| outcomes.iter().map(f).collect::<Vec<f64>>();
     let mut table = String::new();
+    let mut summary = serde_json::Map::new();
     let _ = writeln!(
         table,
         "{:<24} {:>10} {:>10} {:>10}",
@@ -211,6 +219,14 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         ("calibrate, s", col(|o| o.seconds), 1.0),
     ];
     for (name, values, scale) in rows {
+        summary.insert(
+            name.trim().to_string(),
+            serde_json::json!({
+                "median": percentile(&values, 0.5) * scale,
+                "p95": percentile(&values, 0.95) * scale,
+                "max": percentile(&values, 1.0) * scale,
+            }),
+        );
         let _ = writeln!(
             table,
             "{:<24} {:>10.4} {:>10.4} {:>10.4}",
@@ -244,6 +260,17 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         "  (the bound at the truth moved along what no reading tells to the estimate; at the truth as given: {count} of {of}, {:.1} %)",
         100.0 * count as f64 / of.max(1) as f64
     );
+    let (within_bound, within_truth_bound) = (within(|o| o.bound), within(|o| o.truth_bound));
+    crate::out::json(&serde_json::json!({
+        "command": "bench limbs",
+        "first_seed": args.first_seed,
+        "limbs": n,
+        "converged": converged,
+        "observable_within_1_5_bound": within_bound.0,
+        "observable_within_1_5_bound_at_truth": within_truth_bound.0,
+        "summary": summary,
+        "each": outcomes,
+    }));
     let failed: Vec<&Outcome> = outcomes.iter().filter(|o| !o.converged).collect();
     if !failed.is_empty() {
         outln!("\nnot converged (geometry: first axis Vertical/Horizontal, then per joint its relation to the previous one — Parallel, Intersecting, Offset, Along the link — and its DoF count):");

@@ -16,6 +16,9 @@ use crate::out::{out, outln};
 
 #[derive(Debug, Args)]
 pub struct BenchSensorsArgs {
+    /// Print the results as JSON (per scenario) instead of the table.
+    #[arg(long)]
+    json: bool,
     /// A built-in robot, a .toml description or a .urdf file.
     #[arg(long, default_value = "humanoid")]
     robot: String,
@@ -118,6 +121,9 @@ fn same_tree(clean: &skincal::measurements::MeasurementSet, s: &Structure) -> Re
 }
 
 pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
+    if args.json {
+        crate::out::json_mode();
+    }
     let robot = io::load_robot(&args.robot, SuPlacement::default())?;
     let names = robot.model.su_names();
     // Four broken SUs, on different limbs where the robot has them (the humanoid's).
@@ -208,7 +214,38 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         );
     }
     outln!("(tree exact: the tree the clean readings give without the SUs set aside, which explore names with the reason; ratios: median over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
+    crate::out::json(&serde_json::json!({
+        "command": "bench sensors",
+        "robot": args.robot,
+        "seeds": args.seeds,
+        "scenarios": scenarios.iter().zip(&tallies).map(|((name, _), t)| {
+            let ratio = |k: usize| serde_json::json!({
+                "median": median(&t.ratios[k]),
+                "worst": t.worst[k],
+            });
+            serde_json::json!({
+                "scenario": name,
+                "runs": t.runs,
+                "tree_exact": t.exact,
+                "set_aside": t.set_aside,
+                "limbs": t.limbs,
+                "converged_limbs": t.converged,
+                "pose_rms_ratio": ratio(0),
+                "static_ratio": ratio(1),
+                "dynamic_ratio": ratio(2),
+            })
+        }).collect::<Vec<_>>(),
+        "broken_named": named,
+        "broken": broken_names.len() * args.seeds as usize,
+    }));
     Ok(())
+}
+
+/// The median of `values` (NaN when empty).
+fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 impl Tally {
@@ -273,12 +310,7 @@ fn table(scenarios: &[Scenario], tallies: &[Tally]) -> String {
         "dynamic ratio"
     );
     for ((name, _), t) in scenarios.iter().zip(tallies) {
-        let ratio = |k: usize| {
-            let mut v = t.ratios[k].clone();
-            v.sort_by(f64::total_cmp);
-            let median = v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
-            format!("{median:.2} (≤ {:.2})", t.worst[k])
-        };
+        let ratio = |k: usize| format!("{:.2} (≤ {:.2})", median(&t.ratios[k]), t.worst[k]);
         let _ = writeln!(
             table,
             "{:<28} {:>6} {:>10} {:>10} {:>12} {:>16} {:>16} {:>16}",

@@ -237,6 +237,9 @@ enum BenchMethod {
 
 #[derive(Debug, Args)]
 struct BenchCalibrateArgs {
+    /// Print the results as JSON (every seed and the pooled accuracy) instead of the table.
+    #[arg(long)]
+    json: bool,
     /// Estimators to run.
     #[arg(long, value_enum, default_value_t = BenchMethod::Both)]
     method: BenchMethod,
@@ -271,6 +274,9 @@ struct BenchCalibrateArgs {
 
 #[derive(Debug, Args)]
 struct BenchExploreArgs {
+    /// Print the timings as JSON instead of the table.
+    #[arg(long)]
+    json: bool,
     /// Number of SUs of the random robot.
     #[arg(long, default_value_t = 2000)]
     sus: usize,
@@ -972,6 +978,9 @@ fn validate(args: ValidateArgs) -> Result<()> {
 }
 
 fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     use skincal::estimate::ml::{self, MlConfig};
     let paper = io::load_robot("paper-7dof", SuPlacement::default())?;
     let chain = SerialChain {
@@ -1094,11 +1103,38 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         "{}",
         render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), &bounds)
     );
+    out::json(&serde_json::json!({
+        "command": "bench calibrate",
+        "chains": if args.random_chains { "random 7-DoF DH chains" } else { "paper-7dof" },
+        "poses": args.poses,
+        "uniform_noise_g": args.noise,
+        "first_seed": args.first_seed,
+        "seeds": args.seeds,
+        "methods": rows.iter().map(|(method, list)| serde_json::json!({
+            "method": match method { Method::Ml => "ml", Method::Paper => "paper" },
+            "converged": list.iter().filter(|r| r.converged).count(),
+            "each": list.iter().map(|r| serde_json::json!({
+                "seed": r.seed,
+                "converged": r.converged,
+                "seconds": r.seconds,
+                "evaluations": r.evaluations,
+                "accuracy": r.accuracy,
+                "bound": r.bound.map(|(p, q)| serde_json::json!({"position": p, "rotation": q})),
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "bounds": bounds.iter().map(|(name, (p, q))| serde_json::json!({
+            "intrinsics": name, "position": p, "rotation": q,
+        })).collect::<Vec<_>>(),
+        "paper_table_accuracy": fig6_accuracy,
+    }));
     Ok(())
 }
 
 fn bench_explore(args: BenchExploreArgs) -> Result<()> {
     use std::time::Instant;
+    if args.json {
+        out::json_mode();
+    }
     let robot = sim::random_tree(
         &RandomTreeConfig {
             dofs: args.dofs,
@@ -1140,14 +1176,24 @@ fn bench_explore(args: BenchExploreArgs) -> Result<()> {
         s.limbs.len(),
         s.complete
     );
-    out!(
-        "{}",
-        render::timing_table(&[
-            ("activity matrix", activity_ms),
-            ("merge, sort, tree", tree_ms),
-            ("readings → tree", total_ms)
-        ])
-    );
+    let stages = [
+        ("activity matrix", activity_ms),
+        ("merge, sort, tree", tree_ms),
+        ("readings → tree", total_ms),
+    ];
+    out!("{}", render::timing_table(&stages));
+    out::json(&serde_json::json!({
+        "command": "bench explore",
+        "sus": args.sus,
+        "dofs": args.dofs,
+        "seed": args.seed,
+        "segments": s.segments.len(),
+        "joints": s.joints.len(),
+        "limbs": s.limbs.len(),
+        "complete": s.complete,
+        "milliseconds": stages.iter().map(|(stage, ms)| (stage.to_string(), serde_json::json!(ms)))
+            .collect::<serde_json::Map<_, _>>(),
+    }));
     Ok(())
 }
 

@@ -970,4 +970,25 @@ fn json_summaries_are_the_whole_standard_output_and_say_what_the_text_says() {
     // The held-out set has the same noise (σ 0.057 m/s² per component): its error is about that.
     let rms = check["static_rms"].as_f64().unwrap();
     assert!(rms > 0.03 && rms < 0.12, "{rms}");
+    // Every bench's table as JSON.
+    let text = ok(skincal(
+        &[
+            "bench", "explore", "--sus", "60", "--dofs", "8", "--repeat", "2", "--json",
+        ],
+        d,
+    ));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    assert_eq!(v["complete"], true);
+    assert_eq!(
+        v["milliseconds"]["readings → tree"]
+            .as_array()
+            .unwrap()
+            .len(),
+        2
+    );
+    let text = ok(skincal(&["bench", "limbs", "--limbs", "2", "--json"], d));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    assert_eq!(v["each"].as_array().unwrap().len(), 2);
+    assert_eq!(v["converged"], 2);
+    assert!(v["summary"]["residual / σ"]["median"].as_f64().unwrap() < 1.5);
 }
