@@ -9,8 +9,10 @@
 //!   hash checked), downloaded once with the environment's pip and its URDF files unpacked into
 //!   `target/robot-descriptions`; the tests find them through `SKINCAL_ROBOT_DESCRIPTIONS`;
 //! - system packages (Debian's `python3` and `python3-venv` when the environment cannot be made
-//!   without them), installed with apt-get only when running as root and only when missing; as
-//!   another user the task stops and prints the command that installs them.
+//!   without them; `chromium`, in which the HTML report is rendered headless), installed with
+//!   apt-get only when running as root and only when missing; as another user the task stops and
+//!   prints the command that installs them. The tests find the browser through
+//!   `SKINCAL_TEST_CHROMIUM`.
 //!
 //! Nothing is skipped silently: what cannot be installed ends the task with the command that fixes it.
 //! `cargo xtask test-env` does the installation alone and prints the environment's Python.
@@ -35,7 +37,8 @@ fn main() -> ExitCode {
     let result = match task.as_ref().and_then(|t| t.to_str()) {
         Some("test") => test_env().and_then(|python| {
             let robots = robot_descriptions(&python)?;
-            run_tests(&python, &robots, &rest)
+            let browser = chromium()?;
+            run_tests(&python, &robots, &browser, &rest)
         }),
         Some("test-env") => test_env().map(|python| {
             println!("{}", python.display());
@@ -79,7 +82,12 @@ fn target_dir(root: &Path) -> PathBuf {
 }
 
 /// Runs every test with the test environment's Python and the robot descriptions.
-fn run_tests(python: &Path, robots: &Path, args: &[OsString]) -> Result<ExitCode, String> {
+fn run_tests(
+    python: &Path,
+    robots: &Path,
+    browser: &Path,
+    args: &[OsString],
+) -> Result<ExitCode, String> {
     let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let status = Command::new(cargo)
         .args(["test", "--workspace"])
@@ -87,6 +95,7 @@ fn run_tests(python: &Path, robots: &Path, args: &[OsString]) -> Result<ExitCode
         .current_dir(workspace_root())
         .env("SKINCAL_TEST_PYTHON", python)
         .env("SKINCAL_ROBOT_DESCRIPTIONS", robots)
+        .env("SKINCAL_TEST_CHROMIUM", browser)
         .status()
         .map_err(|e| format!("could not run cargo test: {e}"))?;
     Ok(match status.code() {
@@ -94,6 +103,15 @@ fn run_tests(python: &Path, robots: &Path, args: &[OsString]) -> Result<ExitCode
         Some(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
         None => ExitCode::FAILURE,
     })
+}
+
+/// Debian's Chromium, installed when missing; returns the browser.
+fn chromium() -> Result<PathBuf, String> {
+    let browser = PathBuf::from("/usr/bin/chromium");
+    if !browser.exists() {
+        install_system_packages(&["chromium"], "the HTML report is rendered in it headless")?;
+    }
+    Ok(browser)
 }
 
 /// Makes (or reuses) the Python environment of the tests and returns its interpreter.

@@ -67,8 +67,12 @@ enum Command {
     /// DIR/model.json (method ml) or the paper's chains to DIR/model-paper.json (method paper).
     #[command(after_help = EXIT_CODES)]
     Calibrate(CalibrateArgs),
-    /// Write a calibrated model as URDF: one link per segment, revolute joints named after the
-    /// DoFs, one link per SU on a fixed joint.
+    /// Write DIR/report.html: one self-contained page (activity matrix, kinematic tree, limbs with
+    /// residual and uncertainty charts, held-out errors) from what DIR holds.
+    #[command(after_help = EXIT_CODES)]
+    Report(ReportArgs),
+    /// Write a calibrated model as URDF, kinematics only: one link per segment, continuous joints
+    /// named after the DoFs, one link per SU on a fixed joint.
     #[command(name = "export-urdf", after_help = EXIT_CODES)]
     ExportUrdf(ExportUrdfArgs),
     /// Predict every SU's static and dynamic readings in given poses (JSON, measurement-set units).
@@ -211,6 +215,21 @@ struct PredictArgs {
     /// the acceleration), not what the SU reads with its calibrated bias and scale.
     #[arg(long)]
     ideal: bool,
+}
+
+#[derive(Debug, Args)]
+struct ReportArgs {
+    /// A result directory (measurements.json, structure.json, model.json: what it has).
+    dir: PathBuf,
+    /// Also check the model against this measurement set (directory or file).
+    #[arg(long, value_name = "DIR2")]
+    validate: Option<PathBuf>,
+    /// Where to write the page (default DIR/report.html).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Overwrite an existing page.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Debug, Args)]
@@ -443,6 +462,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Explore(args) => explore(args),
         Command::Calibrate(args) => calibrate(args),
         Command::ExportUrdf(args) => export_urdf(args),
+        Command::Report(args) => report_page(args),
         Command::Predict(args) => predict(args),
         Command::Validate(args) => validate(args),
         Command::Bench(BenchCommand::Body(args)) => bench_body::bench_body(args),
@@ -814,6 +834,20 @@ fn limb_report(
     }
     out.push('\n');
     Ok(out)
+}
+
+fn report_page(args: ReportArgs) -> Result<()> {
+    let inputs = io::read_report_inputs(&args.dir, args.validate.as_deref())?;
+    if inputs.measurements.is_none() && inputs.structure.is_none() && inputs.model.is_none() {
+        anyhow::bail!(
+            "{} holds no measurements.json, structure.json or model.json to report on",
+            args.dir.display()
+        );
+    }
+    let out = args.out.unwrap_or_else(|| args.dir.join("report.html"));
+    io::write_all(&[(out.clone(), skincal::html::render(&inputs))], args.force)?;
+    outln!("wrote {}", out.display());
+    Ok(())
 }
 
 fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
@@ -1297,7 +1331,7 @@ fn demo(args: DemoArgs) -> Result<()> {
     // The demo replaces its own directory on every run, and nothing else: a directory it marked,
     // or one that holds only the files a demo writes.
     let marker = out.join(".skincal-demo");
-    const DEMO_FILES: [&str; 8] = [
+    const DEMO_FILES: [&str; 9] = [
         ".skincal-demo",
         "measurements.json",
         "truth.json",
@@ -1306,6 +1340,7 @@ fn demo(args: DemoArgs) -> Result<()> {
         "model.json",
         "model.urdf",
         "held-out",
+        "report.html",
     ];
     let holds_other_files = std::fs::read_dir(&out).is_ok_and(|entries| {
         entries
@@ -1440,6 +1475,14 @@ fn demo(args: DemoArgs) -> Result<()> {
     )?;
     files.extend([json_path, dot_path, model_path, urdf_path]);
     files.extend(held_files);
+    // The report, with the held-out check.
+    let report_path = out.join("report.html");
+    let inputs = io::read_report_inputs(&out, Some(&held_out_dir))?;
+    io::write_all(
+        &[(report_path.clone(), skincal::html::render(&inputs))],
+        true,
+    )?;
+    files.push(report_path);
     outln!();
     for f in files {
         outln!("wrote {}", f.display());

@@ -992,3 +992,56 @@ fn json_summaries_are_the_whole_standard_output_and_say_what_the_text_says() {
     assert_eq!(v["converged"], 2);
     assert!(v["summary"]["residual / σ"]["median"].as_f64().unwrap() < 1.5);
 }
+
+#[test]
+fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = skincal(&["demo", "--out", "demo"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let page = d.join("demo/report.html");
+    let html = std::fs::read_to_string(&page).unwrap();
+    // Self-contained: nothing is fetched.
+    assert!(
+        !html.contains("src=\"http") && !html.contains("href=\"http"),
+        "the page fetches something"
+    );
+    let browser = std::env::var_os("SKINCAL_TEST_CHROMIUM").unwrap_or_else(|| "chromium".into());
+    let url = format!("file://{}", page.display());
+    let run = |extra: &[&str]| {
+        Command::new(&browser)
+            .args(["--headless", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr"])
+            .args(extra)
+            .arg(&url)
+            .output()
+            .unwrap_or_else(|e| {
+                panic!("cannot run {browser:?} ({e}): run the tests with `cargo xtask test`, which installs Debian's chromium")
+            })
+    };
+    let dom = run(&["--dump-dom"]);
+    assert!(dom.status.success(), "{}", stderr(&dom));
+    let dom_text = String::from_utf8_lossy(&dom.stdout);
+    for section in ["summary", "activity", "tree", "limbs", "validation"] {
+        assert!(
+            dom_text.contains(&format!("<section id=\"{section}\"")),
+            "no section {section}"
+        );
+    }
+    assert!(
+        dom_text.contains("<pre id=\"script-errors\"></pre>"),
+        "the page's script reported errors"
+    );
+    assert!(
+        !stderr(&dom).contains("Uncaught"),
+        "console errors: {}",
+        stderr(&dom)
+    );
+    // A screenshot, kept as an artifact of the test run.
+    let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/test-artifacts");
+    std::fs::create_dir_all(&artifacts).unwrap();
+    let shot = artifacts.join("demo-report.png");
+    let screenshot = format!("--screenshot={}", shot.display());
+    let out = run(&["--window-size=1200,3000", &screenshot]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(std::fs::metadata(&shot).unwrap().len() > 10_000);
+}

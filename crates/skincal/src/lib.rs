@@ -27,6 +27,7 @@
 
 pub mod estimate;
 pub mod explore;
+pub mod html;
 pub mod ingest;
 pub mod io;
 mod json;

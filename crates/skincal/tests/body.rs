@@ -319,3 +319,64 @@ fn urdf_export_loads_in_mujoco_with_the_same_kinematics() {
     assert!(result["position"].as_f64().unwrap() < 1e-9, "{result}");
     assert!(result["rotation"].as_f64().unwrap() < 1e-9, "{result}");
 }
+
+#[test]
+fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let set = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let check = validate(&model, &held_out(&robot, 3), "held-out").unwrap();
+    let only_set = skincal::html::render(&skincal::html::ReportInputs {
+        title: "set".into(),
+        measurements: Some(set.clone()),
+        ..Default::default()
+    });
+    assert!(only_set.contains("<section id=\"summary\""));
+    for absent in ["activity", "tree", "limbs", "validation"] {
+        assert!(
+            !only_set.contains(&format!("<section id=\"{absent}\"")),
+            "{absent}"
+        );
+    }
+    let page = skincal::html::render(&skincal::html::ReportInputs {
+        title: "humanoid".into(),
+        measurements: Some(set),
+        structure: Some(structure.clone()),
+        model: Some(model.clone()),
+        validation: Some((check, "held-out".into())),
+    });
+    for section in ["summary", "activity", "tree", "limbs", "validation"] {
+        assert!(
+            page.contains(&format!("<section id=\"{section}\"")),
+            "{section}"
+        );
+    }
+    // Fig. 2: one cell per segment and joint, filled where the joint moves the segment.
+    let m = &structure.matrix;
+    let filled = m.entries.iter().flatten().filter(|&&e| e).count();
+    assert_eq!(page.matches("<td class=\"on").count(), filled);
+    // The tree: one edge per joint, one node per segment.
+    assert_eq!(
+        page.matches("<line class=\"joint\"").count(),
+        structure.joints.len()
+    );
+    assert_eq!(
+        page.matches("<g class=\"segment\"").count(),
+        structure.segments.len()
+    );
+    // End effectors ringed, branching segments square.
+    assert_eq!(
+        page.matches("stroke-width=\"2\"").count(),
+        structure.end_effectors.len()
+    );
+    // Every limb and every SU of the model.
+    for limb in &model.limbs {
+        assert!(page.contains(&format!("Limb {}", limb.name)));
+        for su in &limb.sus {
+            assert!(page.contains(su.as_str()), "{su}");
+        }
+    }
+}

@@ -249,6 +249,51 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
     Ok(model)
 }
 
+/// What a result directory holds for a report: `measurements.json`, `structure.json`,
+/// `model.json` (each when present), and, with `validate`, the model checked against the
+/// measurement set in that directory (or file). Present files that cannot be read are errors.
+pub fn read_report_inputs(
+    dir: &Path,
+    validate: Option<&Path>,
+) -> Result<crate::html::ReportInputs, IoError> {
+    let present = |name: &str| Some(dir.join(name)).filter(|p| p.is_file());
+    let measurements = present("measurements.json")
+        .map(|p| read_measurements(&p))
+        .transpose()?;
+    let structure = present("structure.json")
+        .map(|p| read_structure(&p))
+        .transpose()?;
+    let model = present("model.json").map(|p| read_model(&p)).transpose()?;
+    let validation = match (validate, &model) {
+        (Some(other), Some(model)) => {
+            let file = if other.is_dir() {
+                other.join("measurements.json")
+            } else {
+                other.to_path_buf()
+            };
+            let set = read_measurements(&file)?;
+            let name = file.display().to_string();
+            let check =
+                crate::predict::validate(model, &set, &name).map_err(|e| IoError::Json {
+                    path: file.clone(),
+                    message: format!("cannot check the model against it: {e}"),
+                })?;
+            Some((check, name))
+        }
+        _ => None,
+    };
+    Ok(crate::html::ReportInputs {
+        title: dir.file_name().map_or_else(
+            || dir.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        ),
+        measurements,
+        structure,
+        model,
+        validation,
+    })
+}
+
 /// Reads and checks an exploration plan (`plan.json`).
 pub fn read_plan(path: &Path) -> Result<crate::plan::Plan, IoError> {
     crate::plan::Plan::from_json(&read(path)?).map_err(|e| IoError::Json {

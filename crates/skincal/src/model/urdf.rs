@@ -191,6 +191,7 @@ fn positive(v: f64) -> Option<f64> {
 /// to its segment by a fixed joint `<su>_mount` (origin only). No link has inertial values.
 /// Loading the text back and composing the joints gives the model's forward kinematics.
 pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
+    use crate::show::xml_escape;
     let m = &robot.model;
     let k = super::forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
     for su in m.sus() {
@@ -260,20 +261,4 @@ pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
     }
     out.push_str("</robot>\n");
     Ok(out)
-}
-
-/// `text` as an XML attribute value.
-fn xml_escape(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    for c in text.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&apos;"),
-            c => out.push(c),
-        }
-    }
-    out
 }

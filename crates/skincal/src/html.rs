@@ -1,0 +1,448 @@
+//! The HTML report: one self-contained page (inline CSS, SVG and script; nothing fetched) made
+//! from whatever a result directory holds. Every section appears only when its inputs do:
+//!
+//! - `summary`: what the directory holds;
+//! - `activity`: the sorted activity matrix (the paper's Fig. 2), uncertain entries marked, the
+//!   change in g on hover;
+//! - `tree`: the kinematic tree drawn (laid out here: depth down, leaves across), limbs coloured,
+//!   end effectors and branching segments marked, left-out DoFs and SUs listed;
+//! - `limbs`: per limb the fit (converged, residual, iterations), its SUs' residuals and pose
+//!   uncertainties as charts, broken SUs flagged, the paper's DH+2 table where the limb has one;
+//! - `validation`: held-out errors per SU.
+//!
+//! A script catches JavaScript errors into `#script-errors`, so that a headless browser's DOM says
+//! whether the page ran cleanly.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use maud::{html, Markup, PreEscaped, DOCTYPE};
+
+use crate::estimate::body::BodyModel;
+use crate::explore::Structure;
+use crate::measurements::MeasurementSet;
+use crate::predict::Validation;
+use crate::show::xml_escape as escape;
+
+/// What a report is made from; every part optional.
+#[derive(Debug, Default)]
+pub struct ReportInputs {
+    /// A title (the directory's name).
+    pub title: String,
+    /// The measurement set.
+    pub measurements: Option<MeasurementSet>,
+    /// The explored structure.
+    pub structure: Option<Structure>,
+    /// The calibrated model.
+    pub model: Option<BodyModel>,
+    /// The model checked against a held-out set, and that set's name.
+    pub validation: Option<(Validation, String)>,
+}
+
+/// Colours of the limbs, in order.
+const PALETTE: [&str; 8] = [
+    "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2",
+];
+
+const STYLE: &str = "
+body { font: 14px/1.45 system-ui, sans-serif; margin: 0 auto; max-width: 72rem; padding: 1rem 2rem; color: #222; }
+h1 { font-size: 1.6rem; } h2 { border-bottom: 1px solid #ccc; margin-top: 2rem; }
+table { border-collapse: collapse; margin: 0.5rem 0; }
+td, th { border: 1px solid #ddd; padding: 2px 6px; text-align: right; }
+th { background: #f4f4f4; } td.name, th.name { text-align: left; }
+table.matrix td { width: 1.1rem; height: 1.1rem; padding: 0; text-align: center; }
+td.on { background: #333; } td.uncertain { outline: 2px dashed #e69f00; outline-offset: -3px; }
+.bad { color: #b00; font-weight: bold; } .note { color: #666; }
+svg text { font: 11px system-ui, sans-serif; }
+#script-errors:empty { display: none; } #script-errors { color: #b00; }
+";
+
+const ERROR_HOOK: &str = "window.addEventListener('error', function (e) {
+  var box = document.getElementById('script-errors');
+  if (box) { box.textContent += (e.message || 'error') + '\\n'; }
+});";
+
+/// The report page.
+pub fn render(inputs: &ReportInputs) -> String {
+    let page = html! {
+        (DOCTYPE)
+        html lang="en" {
+            head {
+                meta charset="utf-8";
+                title { "skincal report — " (inputs.title) }
+                style { (PreEscaped(STYLE)) }
+                script { (PreEscaped(ERROR_HOOK)) }
+            }
+            body {
+                h1 { "skincal report — " (inputs.title) }
+                pre id="script-errors" {}
+                (summary(inputs))
+                @if let Some(s) = &inputs.structure {
+                    (activity(s))
+                    (tree(s))
+                }
+                @if let Some(m) = &inputs.model {
+                    (limbs(m))
+                }
+                @if let Some((v, name)) = &inputs.validation {
+                    (validation(v, name))
+                }
+            }
+        }
+    };
+    page.into_string()
+}
+
+fn summary(inputs: &ReportInputs) -> Markup {
+    html! {
+        section id="summary" {
+            h2 { "What this directory holds" }
+            ul {
+                @if let Some(m) = &inputs.measurements {
+                    li { "Measurement set: " (m.dofs.len()) " DoFs, " (m.sus.len()) " SUs, "
+                        (m.structure.as_ref().map_or(0, |s| s.orientations.len())) " base orientation(s) of structure moves, "
+                        (m.training.as_ref().map_or(0, |t| t.poses.len())) " training poses." }
+                }
+                @if let Some(s) = &inputs.structure {
+                    li { "Structure: " (s.segments.len()) " segments, " (s.joints.len()) " joints, "
+                        (s.limbs.len()) " limbs; " (if s.complete { "complete" } else { "INCOMPLETE" }) "." }
+                }
+                @if let Some(m) = &inputs.model {
+                    li { "Calibrated model: " (m.limbs.len()) " limbs, "
+                        (m.limbs.iter().filter(|l| l.estimate.converged).count()) " converged; "
+                        (m.broken.len()) " broken SUs set aside; "
+                        (m.not_calibrated.len()) " parts not calibrated." }
+                }
+                @if let Some((v, name)) = &inputs.validation {
+                    li { "Checked against " (name) ": static " (format!("{:.4}", v.static_rms))
+                        ", dynamic " (format!("{:.4}", v.dynamic_rms)) " m/s² RMS." }
+                }
+            }
+        }
+    }
+}
+
+fn activity(s: &Structure) -> Markup {
+    let m = &s.matrix;
+    // The change in g of the uncertain entries, by segment and joint.
+    let su_segment: BTreeMap<&str, &str> = s
+        .segments
+        .iter()
+        .flat_map(|seg| seg.sus.iter().map(move |su| (su.as_str(), seg.id.as_str())))
+        .collect();
+    let dof_joint: BTreeMap<&str, &str> = s
+        .joints
+        .iter()
+        .flat_map(|j| j.dofs.iter().map(move |d| (d.as_str(), j.id.as_str())))
+        .collect();
+    let mut uncertain: BTreeMap<(&str, &str), Vec<String>> = BTreeMap::new();
+    for u in &s.uncertain {
+        if let (Some(seg), Some(joint)) =
+            (su_segment.get(u.su.as_str()), dof_joint.get(u.dof.as_str()))
+        {
+            uncertain.entry((seg, joint)).or_default().push(format!(
+                "{} × {}: {:.3} g ({})",
+                u.su,
+                u.dof,
+                u.change_g,
+                if u.active {
+                    "counted active"
+                } else {
+                    "counted still"
+                }
+            ));
+        }
+    }
+    let sus_of = |id: &str| {
+        s.segments
+            .iter()
+            .find(|seg| seg.id == id)
+            .map(|seg| seg.sus.join(", "))
+            .unwrap_or_default()
+    };
+    let dofs_of = |id: &str| {
+        s.joints
+            .iter()
+            .find(|j| j.id == id)
+            .map(|j| j.dofs.join(", "))
+            .unwrap_or_default()
+    };
+    html! {
+        section id="activity" {
+            h2 { "Activity matrix (Fig. 2)" }
+            p class="note" { "Segments × joints, sorted into lower-triangular form: a filled cell means the joint moves the segment's SUs (gravity turned by more than "
+                (format!("{:.3}", s.threshold_g)) " g over " (s.orientations) " base orientation(s)). Dashed: within the uncertainty band; hover for the change in g." }
+            table class="matrix" {
+                tr { th {} @for j in &m.joints { th title=(dofs_of(j)) { (j) } } }
+                @for (r, seg) in m.segments.iter().enumerate() {
+                    tr {
+                        th class="name" title=(sus_of(seg)) { (seg) }
+                        @for (c, j) in m.joints.iter().enumerate() {
+                            @let notes = uncertain.get(&(seg.as_str(), j.as_str()));
+                            @let class = match (m.entries[r][c], notes.is_some()) {
+                                (true, true) => "on uncertain", (true, false) => "on",
+                                (false, true) => "uncertain", (false, false) => "",
+                            };
+                            td class=(class) title=(notes.map(|n| n.join("; ")).unwrap_or_else(|| format!("{seg} × {j}"))) {}
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The tree as SVG: each segment a node at (leaf order, depth), each joint an edge labelled with
+/// its DoFs, coloured by the limb it belongs to.
+fn tree(s: &Structure) -> Markup {
+    let children = |id: &str| -> Vec<&crate::explore::JointNode> {
+        s.joints.iter().filter(|j| j.parent == id).collect()
+    };
+    // Depth-first: leaves get consecutive x, inner nodes the mean of their children.
+    let mut x: BTreeMap<String, f64> = BTreeMap::new();
+    let mut depth: BTreeMap<String, usize> = BTreeMap::new();
+    let mut next_leaf = 0.0;
+    fn place<'a>(
+        id: &str,
+        level: usize,
+        children: &dyn Fn(&str) -> Vec<&'a crate::explore::JointNode>,
+        x: &mut BTreeMap<String, f64>,
+        depth: &mut BTreeMap<String, usize>,
+        next_leaf: &mut f64,
+    ) -> f64 {
+        depth.insert(id.to_string(), level);
+        let kids = children(id);
+        let at = if kids.is_empty() {
+            *next_leaf += 1.0;
+            *next_leaf - 1.0
+        } else {
+            let xs: Vec<f64> = kids
+                .iter()
+                .map(|j| place(&j.child, level + 1, children, x, depth, next_leaf))
+                .collect();
+            xs.iter().sum::<f64>() / xs.len() as f64
+        };
+        x.insert(id.to_string(), at);
+        at
+    }
+    place(&s.root, 0, &children, &mut x, &mut depth, &mut next_leaf);
+    let limb_of: BTreeMap<&str, usize> = s
+        .limbs
+        .iter()
+        .enumerate()
+        .flat_map(|(i, l)| l.segments.iter().map(move |seg| (seg.as_str(), i)))
+        .collect();
+    let (dx, dy, margin) = (110.0, 70.0, 30.0);
+    let width = next_leaf.max(1.0) * dx + 2.0 * margin;
+    let height = (depth.values().max().copied().unwrap_or(0) as f64 + 1.0) * dy + 2.0 * margin;
+    let at = |id: &str| {
+        (
+            margin + dx / 2.0 + x.get(id).copied().unwrap_or(0.0) * dx,
+            margin + depth.get(id).copied().unwrap_or(0) as f64 * dy,
+        )
+    };
+    let mut svg = String::new();
+    let _ = write!(
+        svg,
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{width:.0}\" height=\"{height:.0}\" viewBox=\"0 0 {width:.0} {height:.0}\">"
+    );
+    for j in &s.joints {
+        let ((x1, y1), (x2, y2)) = (at(&j.parent), at(&j.child));
+        let colour = limb_of
+            .get(j.child.as_str())
+            .map_or("#999", |&i| PALETTE[i % PALETTE.len()]);
+        let _ = write!(
+            svg,
+            "<line class=\"joint\" x1=\"{x1:.1}\" y1=\"{y1:.1}\" x2=\"{x2:.1}\" y2=\"{y2:.1}\" stroke=\"{colour}\" stroke-width=\"3\"><title>{} ({})</title></line>",
+            escape(&j.id),
+            escape(&j.dofs.join(", "))
+        );
+        // The joint's id on the edge (its DoFs on hover): DoF names would overlap.
+        let label = match j.dofs.as_slice() {
+            [one] => one.clone(),
+            many => format!("{} ({} DoFs)", j.id, many.len()),
+        };
+        let _ = write!(
+            svg,
+            "<text x=\"{:.1}\" y=\"{:.1}\" fill=\"#555\">{}</text>",
+            x1 + (x2 - x1) * 0.6 + 4.0,
+            y1 + (y2 - y1) * 0.6,
+            escape(&label)
+        );
+    }
+    for seg in &s.segments {
+        let (cx, cy) = at(&seg.id);
+        let end = s.end_effectors.contains(&seg.id);
+        let branching = s.branching.contains(&seg.id);
+        let fill = if seg.id == s.root {
+            "#000"
+        } else {
+            limb_of
+                .get(seg.id.as_str())
+                .map_or("#999", |&i| PALETTE[i % PALETTE.len()])
+        };
+        let shape = if branching {
+            format!(
+                "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"16\" height=\"16\" fill=\"{fill}\"/>",
+                cx - 8.0,
+                cy - 8.0
+            )
+        } else {
+            format!(
+                "<circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"{}\" fill=\"{fill}\"{}/>",
+                if end { 9 } else { 7 },
+                if end {
+                    " stroke=\"#000\" stroke-width=\"2\""
+                } else {
+                    ""
+                }
+            )
+        };
+        let _ = write!(
+            svg,
+            "<g class=\"segment\"><title>{}: {}</title>{shape}<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text></g>",
+            escape(&seg.id),
+            escape(&if seg.sus.is_empty() {
+                "no SU".to_string()
+            } else {
+                seg.sus.join(", ")
+            }),
+            cx,
+            cy + 22.0,
+            escape(&seg.id)
+        );
+    }
+    svg.push_str("</svg>");
+    html! {
+        section id="tree" {
+            h2 { "Kinematic tree" }
+            p class="note" { "Root (black) at the top; a colour per limb; end effectors ringed, branching segments square. Hover for the SUs of a segment and the DoFs of a joint." }
+            (PreEscaped(svg))
+            @if !s.unplaced_dofs.is_empty() || !s.unplaced_sus.is_empty() {
+                p class="bad" { "Left out: DoFs " (s.unplaced_dofs.join(", ")) "; SUs " (s.unplaced_sus.join(", ")) "." }
+            }
+        }
+    }
+}
+
+/// A horizontal bar chart as SVG: one bar per label, a reference line at `reference`.
+fn bars(values: &[(String, f64, bool)], unit: &str, reference: Option<f64>) -> String {
+    let (row, label_width, chart) = (16.0, 140.0, 360.0);
+    let top = values
+        .iter()
+        .map(|v| v.1)
+        .chain(reference)
+        .fold(0.0f64, f64::max)
+        .max(1e-12);
+    let height = values.len() as f64 * row + 24.0;
+    let mut svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{:.0}\" height=\"{height:.0}\">",
+        label_width + chart + 80.0
+    );
+    for (i, (name, v, bad)) in values.iter().enumerate() {
+        let y = i as f64 * row + 4.0;
+        let w = (v / top * chart).max(0.0);
+        let _ = write!(
+            svg,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text><rect x=\"{label_width:.1}\" y=\"{y:.1}\" width=\"{w:.1}\" height=\"{:.1}\" fill=\"{}\"><title>{}: {v:.4} {unit}</title></rect><text x=\"{:.1}\" y=\"{:.1}\">{v:.3}</text>",
+            label_width - 6.0,
+            y + 11.0,
+            escape(name),
+            row - 4.0,
+            if *bad { "#c0392b" } else { "#4a78a8" },
+            escape(name),
+            label_width + w + 4.0,
+            y + 11.0
+        );
+    }
+    if let Some(r) = reference {
+        let x = label_width + r / top * chart;
+        let _ = write!(
+            svg,
+            "<line x1=\"{x:.1}\" y1=\"0\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#000\" stroke-dasharray=\"4 3\"/>",
+            height - 20.0
+        );
+    }
+    svg.push_str("</svg>");
+    svg
+}
+
+fn limbs(m: &BodyModel) -> Markup {
+    let broken: Vec<&str> = m.broken.iter().map(|b| b.su.as_str()).collect();
+    html! {
+        section id="limbs" {
+            h2 { "Calibrated limbs" }
+            @if !m.broken.is_empty() {
+                p class="bad" { "Broken SUs set aside: "
+                    (m.broken.iter().map(|b| format!("{} ({})", b.su, b.kind)).collect::<Vec<_>>().join(", ")) }
+            }
+            @if !m.not_calibrated.is_empty() {
+                p class="note" { "Not calibrated: "
+                    (m.not_calibrated.iter().map(|n| format!("{} {} ({})", n.kind, n.name, n.reason)).collect::<Vec<_>>().join("; ")) }
+            }
+            @for limb in &m.limbs {
+                @let e = &limb.estimate;
+                div class="limb" {
+                    h3 { "Limb " (limb.name) @if let Some(p) = &limb.parent { " (on " (p) ")" } }
+                    p {
+                        (limb.dofs.len()) " DoFs (" (limb.dofs.join(", ")) "), " (limb.sus.len()) " SUs; residual "
+                        span class=(if e.converged { "" } else { "bad" }) { (format!("{:.3}", e.residual_ratio)) " σ, "
+                            (if e.converged { "converged" } else { "NOT CONVERGED" }) }
+                        "; " (e.iterations) " iterations in " (format!("{:.1}", e.seconds * 1e3)) " ms."
+                    }
+                    h4 { "Residual per SU, in σ (dashed: 1)" }
+                    (PreEscaped(bars(
+                        &limb.sus.iter().zip(&e.su_residual_ratio)
+                            .map(|(su, r)| (su.clone(), *r, *r > 1.5 || broken.contains(&su.as_str()))).collect::<Vec<_>>(),
+                        "σ", Some(1.0))))
+                    h4 { "SU position uncertainty, mm" }
+                    (PreEscaped(bars(
+                        &e.uncertainty.iter().map(|u| (u.su.clone(), u.position_sd * 1e3, false)).collect::<Vec<_>>(),
+                        "mm", None)))
+                    table {
+                        tr { th class="name" { "SU" } th { "position sd, mm" } th { "orientation sd, °" } th { "residual, σ" } }
+                        @for (u, r) in e.uncertainty.iter().zip(&e.su_residual_ratio) {
+                            tr {
+                                td class="name" { (u.su) }
+                                td { (format!("{:.2}", u.position_sd * 1e3)) }
+                                td { (format!("{:.3}", u.orientation_sd.to_degrees())) }
+                                td class=(if *r > 1.5 { "bad" } else { "" }) { (format!("{r:.2}")) }
+                            }
+                        }
+                    }
+                    @if let Some(dh) = &e.dh {
+                        h4 { "In the paper's DH+2 form (Fig. 6)" }
+                        table {
+                            tr { th class="name" { "DoF → DoF" } th { "θ0" } th { "d" } th { "a" } th { "α" } }
+                            @for (k, r) in dh.dof_dof.iter().enumerate() {
+                                tr { td class="name" { (limb.dofs.get(k).cloned().unwrap_or_default()) " → " (limb.dofs.get(k + 1).cloned().unwrap_or_default()) }
+                                    @for v in r.values() { td { (format!("{v:.4}")) } } }
+                            }
+                        }
+                        table {
+                            tr { th class="name" { "DoF → SU" } th { "θ0" } th { "d" } th { "a" } th { "α" } th { "θacc" } th { "dacc" } }
+                            @for (k, r) in dh.dof_su.iter().enumerate() {
+                                tr { td class="name" { (limb.dofs.get(k).cloned().unwrap_or_default()) " → " (limb.sus.get(k).cloned().unwrap_or_default()) }
+                                    @for v in r.values() { td { (format!("{v:.4}")) } } }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn validation(v: &Validation, name: &str) -> Markup {
+    html! {
+        section id="validation" {
+            h2 { "Held-out check against " (name) }
+            p { (v.poses) " poses: static " (format!("{:.4}", v.static_rms)) " m/s² RMS (max " (format!("{:.4}", v.static_max))
+                "), dynamic " (format!("{:.4}", v.dynamic_rms)) " m/s² RMS (max " (format!("{:.4}", v.dynamic_max)) ")." }
+            h4 { "Static error per SU, m/s² RMS" }
+            (PreEscaped(bars(&v.sus.iter().map(|s| (s.su.clone(), s.static_rms, false)).collect::<Vec<_>>(), "m/s²", None)))
+            h4 { "Dynamic error per SU, m/s² RMS" }
+            (PreEscaped(bars(&v.sus.iter().map(|s| (s.su.clone(), s.dynamic_rms, false)).collect::<Vec<_>>(), "m/s²", None)))
+        }
+    }
+}
