@@ -154,6 +154,27 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
         "against the noise-free truth: static {s:.4}, dynamic {dynamic:.4} m/s² RMS; \
          {zs:.2} and {zd:.2} standard deviations"
     );
+    // The timeline: every excitation and move where it was, and the report draws it.
+    let timeline = &report.logs[0].timeline;
+    let count = |kind: &str| timeline.iter().filter(|s| s.kind == kind).count();
+    assert_eq!(count("excitation"), poses * 7);
+    assert_eq!(count("move"), 14);
+    assert!(timeline.windows(2).all(|w| w[0].end <= w[1].start + 1e-9));
+    let page = skincal::html::render(&skincal::html::ReportInputs {
+        title: "physics".into(),
+        ingest: Some(report.clone()),
+        ..Default::default()
+    });
+    assert!(page.contains("<section id=\"timeline\""));
+    assert_eq!(
+        page.matches("<title>excitation of ").count(),
+        count("excitation")
+            + report.logs[1]
+                .timeline
+                .iter()
+                .filter(|s| s.kind == "excitation")
+                .count()
+    );
     // The servos really coupled the DoFs: the proximal excitations moved the others.
     let fits = &report.logs[0].fits;
     let coupled = fits.iter().map(|f| f.coupled).fold(0.0, f64::max);

@@ -47,7 +47,7 @@ mod timeline;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
 use crate::measurements::MeasurementSet;
@@ -193,7 +193,8 @@ impl IngestConfig {
 }
 
 /// What happened to one log.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct LogReport {
     /// The log.
     pub path: PathBuf,
@@ -241,14 +242,31 @@ pub struct LogReport {
     pub skipped: Vec<String>,
     /// The excitation windows of the training poses, as fitted.
     pub fits: Vec<ExcitationFit>,
+    /// Every pause and motion found, in time order.
+    pub timeline: Vec<Span>,
     /// Joint-state decoding problems.
     pub joint_read: ReadStats,
     /// Skin decoding problems.
     pub imu_read: ReadStats,
 }
 
+/// One window of a log's timeline.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Span {
+    /// `still` (a still window: static readings), `pause` (too short or restless for them),
+    /// `excitation`, `move`, `transfer` (skipped) or `broken` (unusable: gap, too short).
+    pub kind: String,
+    /// The DoF of an excitation or a move.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dof: Option<String>,
+    /// Start and end, s from the log's first joint state.
+    pub start: f64,
+    /// End, s.
+    pub end: f64,
+}
+
 /// One fitted excitation window.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ExcitationFit {
     /// The excited DoF.
     pub dof: String,
@@ -263,8 +281,8 @@ pub struct ExcitationFit {
     pub coupled: f64,
 }
 
-/// What the ingestion found and did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// What the ingestion found and did (`ingest-report.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IngestReport {
     /// Per log.
     pub logs: Vec<LogReport>,
@@ -347,7 +365,7 @@ fn ingest_logs(
     // Pass 1 results: windows of every log.
     let mut plans = Vec::new();
     for (timeline, report) in timelines.iter().zip(&mut reports) {
-        plans.push(segment(timeline, config, report));
+        plans.push(segment(timeline, &dofs, config, report));
     }
 
     let (pattern, pattern_source) = match config.pattern {

@@ -2,7 +2,7 @@
 
 use super::fit::{design, Excitation};
 use super::timeline::Timeline;
-use super::{IngestConfig, LogReport};
+use super::{IngestConfig, LogReport, Span};
 use crate::model::sensor::ExcitationPattern;
 
 /// A pause between motions: where every DoF is slower than `quiet_velocity` (servo ringing
@@ -60,6 +60,7 @@ pub(super) struct Segmentation {
 
 pub(super) fn segment(
     timeline: &Timeline,
+    dofs: &[String],
     config: &IngestConfig,
     report: &mut LogReport,
 ) -> Segmentation {
@@ -104,6 +105,20 @@ pub(super) fn segment(
             reading: reading.is_some(),
         });
         seg.events.push(Event::Still(k));
+        let mut span = |kind: &str, dof: Option<usize>, from: usize, to: usize| {
+            report.timeline.push(Span {
+                kind: kind.into(),
+                dof: dof.map(|d| dofs[d].clone()),
+                start: timeline.time(from),
+                end: timeline.time(to),
+            })
+        };
+        span(
+            if reading.is_some() { "still" } else { "pause" },
+            None,
+            s,
+            e,
+        );
         let Some(&(next_s, _)) = pauses.get(k + 1) else {
             break;
         };
@@ -111,6 +126,7 @@ pub(super) fn segment(
         let (ms, me) = (e, next_s);
         let at = timeline.time(ms);
         if timeline.invalid[ms..me].iter().any(|&x| x) {
+            span("broken", None, ms, me);
             report
                 .skipped
                 .push(format!("motion at {at:.3} s: joint states missing (gap)"));
@@ -119,11 +135,13 @@ pub(super) fn segment(
         }
         match classify(timeline, ms, me, config) {
             Motion::None => {}
-            Motion::Move => {
+            Motion::Move(d) => {
+                span("move", Some(d), ms, me);
                 report.moves += 1;
                 seg.events.push(Event::Move);
             }
             Motion::Transfer => {
+                span("transfer", None, ms, me);
                 report.transfers += 1;
                 seg.events.push(Event::Transfer);
             }
@@ -132,14 +150,17 @@ pub(super) fn segment(
                 let end = (next_s + 2 * l).min(n);
                 match design(timeline, d, start, end, l) {
                     Some(x) => {
+                        span("excitation", Some(d), ms, me);
                         report.excitations += 1;
                         seg.events.push(Event::Excitation(seg.excitations.len()));
                         seg.excitations.push(x);
                     }
                     None => {
+                        span("broken", Some(d), ms, me);
                         report.skipped.push(format!(
-                            "excitation of DoF {d} at {at:.3} s: too short or no acceleration to \
-                             fit against"
+                            "excitation of `{}` at {at:.3} s: too short or no acceleration to \
+                             fit against",
+                            dofs[d]
                         ));
                         seg.events.push(Event::Broken);
                     }
@@ -159,12 +180,15 @@ pub(super) fn segment(
     seg
 }
 
+/// The largest change of position that a DoF's servo sag explains, in motion thresholds.
+const SAG_STEPS: f64 = 10.0;
+
 /// What a motion between two still windows was.
 enum Motion {
     /// No DoF left its position.
     None,
     /// One DoF moved to a new position (a structure move).
-    Move,
+    Move(usize),
     /// Several DoFs moved.
     Transfer,
     /// One DoF moved and came back.
@@ -208,15 +232,18 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
     if moved <= config.motion_threshold {
         return Motion::Excitation(main);
     }
+    // A compliant servo's sag under a changed load is small in itself, not only beside the move:
+    // a DoF that ends a tenth of a radian away was moved too.
+    let sag = SAG_STEPS * config.motion_threshold;
     if timeline
         .theta
         .iter()
         .enumerate()
-        .any(|(e, th)| e != main && !followed(net(th), moved))
+        .any(|(e, th)| e != main && !followed(net(th), moved.min(sag / config.coupled_fraction)))
     {
         Motion::Transfer
     } else {
-        Motion::Move
+        Motion::Move(main)
     }
 }
 

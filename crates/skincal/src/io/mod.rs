@@ -250,7 +250,7 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
 }
 
 /// What a result directory holds for a report: `measurements.json`, `structure.json`,
-/// `model.json` (each when present), and, with `validate`, the model checked against the
+/// `model.json`, `ingest-report.json` (each when present), and, with `validate`, the model checked against the
 /// measurement set in that directory (or file). Present files that cannot be read are errors.
 pub fn read_report_inputs(
     dir: &Path,
@@ -264,6 +264,14 @@ pub fn read_report_inputs(
         .map(|p| read_structure(&p))
         .transpose()?;
     let model = present("model.json").map(|p| read_model(&p)).transpose()?;
+    let ingest = present("ingest-report.json")
+        .map(|p| {
+            crate::json::parse(&read(&p)?, "an ingest report").map_err(|message| IoError::Json {
+                path: p.clone(),
+                message,
+            })
+        })
+        .transpose()?;
     let validation = match (validate, &model) {
         (Some(other), Some(model)) => {
             let file = if other.is_dir() {
@@ -290,6 +298,7 @@ pub fn read_report_inputs(
         measurements,
         structure,
         model,
+        ingest,
         validation,
     })
 }

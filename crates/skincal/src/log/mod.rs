@@ -178,7 +178,8 @@ impl Default for Topics {
 }
 
 /// What a pass over a log met besides the samples it delivered.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct ReadStats {
     /// Samples delivered.
     pub samples: u64,
