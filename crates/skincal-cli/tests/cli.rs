@@ -1021,11 +1021,45 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
     let dom = run(&["--dump-dom"]);
     assert!(dom.status.success(), "{}", stderr(&dom));
     let dom_text = String::from_utf8_lossy(&dom.stdout);
-    for section in ["summary", "activity", "tree", "limbs", "validation"] {
+    for section in [
+        "summary",
+        "activity",
+        "tree",
+        "view3d-section",
+        "limbs",
+        "validation",
+    ] {
         assert!(
             dom_text.contains(&format!("<section id=\"{section}\"")),
             "no section {section}"
         );
+    }
+    // The 3D view's script ran: one slider per DoF of the humanoid; with every DoF at 0.3 rad it
+    // put each SU where the model's own forward kinematics does.
+    assert_eq!(dom_text.matches("type=\"range\"").count(), 26);
+    let posed = Command::new(&browser)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--dump-dom"])
+        .arg(format!("{url}#pose=0.3"))
+        .output()
+        .unwrap();
+    let posed = String::from_utf8_lossy(&posed.stdout);
+    let drawn = posed
+        .split("<pre id=\"view3d-sus\" hidden=\"\">")
+        .nth(1)
+        .and_then(|rest| rest.split("</pre>").next())
+        .expect("the drawing's SU positions");
+    let drawn: Vec<(String, [f64; 3])> = serde_json::from_str(drawn).unwrap();
+    let model: skincal::estimate::body::BodyModel =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
+    let robot = model.check().unwrap();
+    let m = &robot.model;
+    let k = skincal::model::forward_kinematics(m, &robot.parameters, &vec![0.3; m.dofs().len()]);
+    assert_eq!(drawn.len(), m.sus().len());
+    for (name, p) in &drawn {
+        let u = m.su_index(name).unwrap();
+        let truth = k.sus[u].translation.vector;
+        let error = (nalgebra::Vector3::from(*p) - truth).norm();
+        assert!(error < 1e-9, "{name}: drawn {error} m away");
     }
     assert!(
         dom_text.contains("<pre id=\"script-errors\"></pre>"),
