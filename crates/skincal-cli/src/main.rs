@@ -1228,6 +1228,7 @@ fn bench_report(args: BenchReportArgs) -> Result<()> {
         model: Some(model),
         validation: Some((check, "held-out".into())),
         ingest: None,
+        truth: Some(robot),
     };
     let mut ms = Vec::new();
     let mut size = 0;

@@ -42,6 +42,8 @@ pub struct ReportInputs {
     pub model: Option<BodyModel>,
     /// What the ingestion of logs found.
     pub ingest: Option<IngestReport>,
+    /// The true robot (a simulation's `truth.json`): its DH+2 table beside the calibrated one.
+    pub truth: Option<crate::model::Robot>,
     /// The model checked against a held-out set, and that set's name.
     pub validation: Option<(Validation, String)>,
 }
@@ -90,7 +92,7 @@ pub fn render(inputs: &ReportInputs) -> String {
                 }
                 @if let Some(m) = &inputs.model {
                     (view3d(m))
-                    (limbs(m))
+                    (limbs(m, inputs.truth.as_ref()))
                 }
                 @if let Some((v, name)) = &inputs.validation {
                     (validation(v, name))
@@ -378,7 +380,17 @@ fn bars(values: &[(String, f64, bool)], unit: &str, reference: Option<f64>) -> S
     svg
 }
 
-fn limbs(m: &BodyModel) -> Markup {
+/// A DH+2 value, and the true one beside it when known.
+fn dh_cell(value: f64, truth: Option<f64>) -> Markup {
+    html! {
+        td {
+            (format!("{value:.4}"))
+            @if let Some(t) = truth { br; span class="note" { "(" (format!("{t:.4}")) ")" } }
+        }
+    }
+}
+
+fn limbs(m: &BodyModel, truth: Option<&crate::model::Robot>) -> Markup {
     let broken: Vec<&str> = m.broken.iter().map(|b| b.su.as_str()).collect();
     html! {
         section id="limbs" {
@@ -421,20 +433,24 @@ fn limbs(m: &BodyModel) -> Markup {
                             }
                         }
                     }
-                    @if let Some(dh) = &e.dh {
-                        h4 { "In the paper's DH+2 form (Fig. 6)" }
+                    @if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
+                        @let true_rows = truth.and_then(|t| crate::estimate::dh_form(t, &serial));
+                        h4 { "In the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)"
+                            @if true_rows.is_some() { "; the truth in brackets" } }
                         table {
                             tr { th class="name" { "DoF → DoF" } th { "θ0" } th { "d" } th { "a" } th { "α" } }
                             @for (k, r) in dh.dof_dof.iter().enumerate() {
-                                tr { td class="name" { (limb.dofs.get(k).cloned().unwrap_or_default()) " → " (limb.dofs.get(k + 1).cloned().unwrap_or_default()) }
-                                    @for v in r.values() { td { (format!("{v:.4}")) } } }
+                                @let t = true_rows.as_ref().and_then(|(rows, _)| rows.get(k)).map(|r| r.values());
+                                tr { td class="name" { (serial.dofs[k]) " → " (serial.dofs.get(k + 1).cloned().unwrap_or_default()) }
+                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
                             }
                         }
                         table {
                             tr { th class="name" { "DoF → SU" } th { "θ0" } th { "d" } th { "a" } th { "α" } th { "θacc" } th { "dacc" } }
                             @for (k, r) in dh.dof_su.iter().enumerate() {
-                                tr { td class="name" { (limb.dofs.get(k).cloned().unwrap_or_default()) " → " (limb.sus.get(k).cloned().unwrap_or_default()) }
-                                    @for v in r.values() { td { (format!("{v:.4}")) } } }
+                                @let t = true_rows.as_ref().and_then(|(_, rows)| rows.get(k)).map(|r| r.values());
+                                tr { td class="name" { (serial.dofs[k]) " → " (serial.sus.get(k).cloned().unwrap_or_default()) }
+                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
                             }
                         }
                     }

@@ -348,6 +348,7 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
         model: Some(model.clone()),
         validation: Some((check, "held-out".into())),
         ingest: None,
+        truth: None,
     });
     for section in ["summary", "activity", "tree", "limbs", "validation"] {
         assert!(
@@ -380,4 +381,28 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
             assert!(page.contains(su.as_str()), "{su}");
         }
     }
+}
+
+#[test]
+fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let set = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let page = skincal::html::render(&skincal::html::ReportInputs {
+        title: "arm".into(),
+        model: Some(model),
+        truth: Some(robot),
+        ..Default::default()
+    });
+    assert!(page.contains("the truth in brackets"));
+    // 6 DoF → DoF rows of 4 values and 7 DoF → SU rows of 6, each with its true value.
+    assert_eq!(
+        page.matches("<br><span class=\"note\">(").count(),
+        6 * 4 + 7 * 6
+    );
+    // The truth's a of dof2 → dof3 (0.3 m) is there.
+    assert!(page.contains("(0.3000)"));
 }

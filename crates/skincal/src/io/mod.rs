@@ -250,7 +250,7 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
 }
 
 /// What a result directory holds for a report: `measurements.json`, `structure.json`,
-/// `model.json`, `ingest-report.json` (each when present), and, with `validate`, the model checked against the
+/// `model.json`, `ingest-report.json`, `truth.json` (each when present), and, with `validate`, the model checked against the
 /// measurement set in that directory (or file). Present files that cannot be read are errors.
 pub fn read_report_inputs(
     dir: &Path,
@@ -269,6 +269,16 @@ pub fn read_report_inputs(
             crate::json::parse(&read(&p)?, "an ingest report").map_err(|message| IoError::Json {
                 path: p.clone(),
                 message,
+            })
+        })
+        .transpose()?;
+    let truth = present("truth.json")
+        .map(|p| {
+            read_truth(&p).and_then(|t| {
+                t.robot.build().map_err(|source| IoError::Description {
+                    path: p.clone(),
+                    source,
+                })
             })
         })
         .transpose()?;
@@ -299,6 +309,7 @@ pub fn read_report_inputs(
         structure,
         model,
         ingest,
+        truth,
         validation,
     })
 }
