@@ -1229,6 +1229,7 @@ fn bench_report(args: BenchReportArgs) -> Result<()> {
         validation: Some((check, "held-out".into())),
         ingest: None,
         truth: Some(robot),
+        paper: Vec::new(),
     };
     let mut ms = Vec::new();
     let mut size = 0;

@@ -44,6 +44,8 @@ pub struct ReportInputs {
     pub ingest: Option<IngestReport>,
     /// The true robot (a simulation's `truth.json`): its DH+2 table beside the calibrated one.
     pub truth: Option<crate::model::Robot>,
+    /// The paper's method's chains (`model-paper.json`), shown beside the ML limbs.
+    pub paper: Vec<crate::estimate::paper::PaperChainEstimate>,
     /// The model checked against a held-out set, and that set's name.
     pub validation: Option<(Validation, String)>,
 }
@@ -92,7 +94,7 @@ pub fn render(inputs: &ReportInputs) -> String {
                 }
                 @if let Some(m) = &inputs.model {
                     (view3d(m))
-                    (limbs(m, inputs.truth.as_ref()))
+                    (limbs(m, inputs.truth.as_ref(), &inputs.paper))
                 }
                 @if let Some((v, name)) = &inputs.validation {
                     (validation(v, name))
@@ -390,7 +392,11 @@ fn dh_cell(value: f64, truth: Option<f64>) -> Markup {
     }
 }
 
-fn limbs(m: &BodyModel, truth: Option<&crate::model::Robot>) -> Markup {
+fn limbs(
+    m: &BodyModel,
+    truth: Option<&crate::model::Robot>,
+    paper: &[crate::estimate::paper::PaperChainEstimate],
+) -> Markup {
     let broken: Vec<&str> = m.broken.iter().map(|b| b.su.as_str()).collect();
     html! {
         section id="limbs" {
@@ -435,14 +441,20 @@ fn limbs(m: &BodyModel, truth: Option<&crate::model::Robot>) -> Markup {
                     }
                     @if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
                         @let true_rows = truth.and_then(|t| crate::estimate::dh_form(t, &serial));
+                        @let by_paper = paper.iter().find(|p| p.chain.dofs == serial.dofs && p.chain.sus == serial.sus);
                         h4 { "In the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)"
-                            @if true_rows.is_some() { "; the truth in brackets" } }
+                            @if true_rows.is_some() { "; the truth in brackets" }
+                            @if by_paper.is_some() { "; the paper's method's estimate below, in italics" } }
                         table {
                             tr { th class="name" { "DoF → DoF" } th { "θ0" } th { "d" } th { "a" } th { "α" } }
                             @for (k, r) in dh.dof_dof.iter().enumerate() {
                                 @let t = true_rows.as_ref().and_then(|(rows, _)| rows.get(k)).map(|r| r.values());
                                 tr { td class="name" { (serial.dofs[k]) " → " (serial.dofs.get(k + 1).cloned().unwrap_or_default()) }
                                     @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
+                                @if let Some(row) = by_paper.and_then(|p| p.dof_dof.get(k)) {
+                                    tr class="paper" { td class="name" { i { "paper's method" } }
+                                        @for v in row.values() { td { i { (format!("{v:.4}")) } } } }
+                                }
                             }
                         }
                         table {
@@ -451,6 +463,10 @@ fn limbs(m: &BodyModel, truth: Option<&crate::model::Robot>) -> Markup {
                                 @let t = true_rows.as_ref().and_then(|(_, rows)| rows.get(k)).map(|r| r.values());
                                 tr { td class="name" { (serial.dofs[k]) " → " (serial.sus.get(k).cloned().unwrap_or_default()) }
                                     @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
+                                @if let Some(row) = by_paper.and_then(|p| p.dof_su.get(k)) {
+                                    tr class="paper" { td class="name" { i { "paper's method" } }
+                                        @for v in row.values() { td { i { (format!("{v:.4}")) } } } }
+                                }
                             }
                         }
                     }

@@ -349,6 +349,7 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
         validation: Some((check, "held-out".into())),
         ingest: None,
         truth: None,
+        paper: Vec::new(),
     });
     for section in ["summary", "activity", "tree", "limbs", "validation"] {
         assert!(
@@ -391,13 +392,27 @@ fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
         .measurements;
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let chain = skincal::estimate::SerialChain {
+        name: "S7".into(),
+        dofs: robot.model.dof_names(),
+        sus: robot.model.su_names(),
+    };
+    let data = skincal::estimate::ChainData::new(&set, &chain).unwrap();
+    let paper = skincal::estimate::paper::estimate_chain(
+        &data,
+        &skincal::estimate::paper::PaperConfig::default(),
+    )
+    .unwrap();
     let page = skincal::html::render(&skincal::html::ReportInputs {
         title: "arm".into(),
         model: Some(model),
         truth: Some(robot),
+        paper: vec![paper],
         ..Default::default()
     });
     assert!(page.contains("the truth in brackets"));
+    // The paper's method's rows beside the ML ones.
+    assert_eq!(page.matches("<tr class=\"paper\">").count(), 6 + 7);
     // 6 DoF → DoF rows of 4 values and 7 DoF → SU rows of 6, each with its true value.
     assert_eq!(
         page.matches("<br><span class=\"note\">(").count(),

@@ -250,7 +250,7 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
 }
 
 /// What a result directory holds for a report: `measurements.json`, `structure.json`,
-/// `model.json`, `ingest-report.json`, `truth.json` (each when present), and, with `validate`, the model checked against the
+/// `model.json`, `model-paper.json`, `ingest-report.json`, `truth.json` (each when present), and, with `validate`, the model checked against the
 /// measurement set in that directory (or file). Present files that cannot be read are errors.
 pub fn read_report_inputs(
     dir: &Path,
@@ -282,6 +282,21 @@ pub fn read_report_inputs(
             })
         })
         .transpose()?;
+    let paper = match present("model-paper.json") {
+        Some(p) => {
+            #[derive(serde::Deserialize)]
+            struct PaperModel {
+                limbs: Vec<crate::estimate::paper::PaperChainEstimate>,
+            }
+            let parsed: PaperModel = crate::json::parse(&read(&p)?, "the paper's method's model")
+                .map_err(|message| IoError::Json {
+                path: p.clone(),
+                message,
+            })?;
+            parsed.limbs
+        }
+        None => Vec::new(),
+    };
     let validation = match (validate, &model) {
         (Some(other), Some(model)) => {
             let file = if other.is_dir() {
@@ -310,6 +325,7 @@ pub fn read_report_inputs(
         model,
         ingest,
         truth,
+        paper,
         validation,
     })
 }
