@@ -280,8 +280,8 @@ fn tree(s: &Structure) -> Markup {
         let _ = write!(
             svg,
             "<text x=\"{:.1}\" y=\"{:.1}\" fill=\"#555\">{}</text>",
-            x1 + (x2 - x1) * 0.6 + 4.0,
-            y1 + (y2 - y1) * 0.6,
+            x1 + (x2 - x1) * 0.75 + 4.0,
+            y1 + (y2 - y1) * 0.75,
             escape(&label)
         );
     }
