@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::Args;
 use skincal::explore::ExploreConfig;
-use skincal::sim::{self, RandomTreeConfig, SimulationConfig};
+use skincal::sim::{self, SimulationConfig};
 
 use crate::out::{self, out, outln};
 use crate::render;
@@ -32,14 +32,7 @@ pub fn bench_report(args: BenchReportArgs) -> Result<()> {
     if args.json {
         out::json_mode();
     }
-    let robot = sim::random_tree(
-        &RandomTreeConfig {
-            dofs: args.dofs,
-            sus: args.sus,
-            ..RandomTreeConfig::default()
-        },
-        args.seed,
-    )?;
+    let robot = crate::random_robot(args.dofs, args.sus, args.seed)?;
     let config = SimulationConfig {
         seed: args.seed,
         ..SimulationConfig::default()

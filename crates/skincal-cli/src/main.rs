@@ -1168,19 +1168,24 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     Ok(())
 }
 
+/// A random tree of `dofs` DoFs and `sus` SUs (the benches' robot).
+pub(crate) fn random_robot(dofs: usize, sus: usize, seed: u64) -> Result<skincal::model::Robot> {
+    Ok(sim::random_tree(
+        &RandomTreeConfig {
+            dofs,
+            sus,
+            ..RandomTreeConfig::default()
+        },
+        seed,
+    )?)
+}
+
 fn bench_explore(args: BenchExploreArgs) -> Result<()> {
     use std::time::Instant;
     if args.json {
         out::json_mode();
     }
-    let robot = sim::random_tree(
-        &RandomTreeConfig {
-            dofs: args.dofs,
-            sus: args.sus,
-            ..RandomTreeConfig::default()
-        },
-        args.seed,
-    )?;
+    let robot = random_robot(args.dofs, args.sus, args.seed)?;
     let config = SimulationConfig {
         training: false,
         seed: args.seed,

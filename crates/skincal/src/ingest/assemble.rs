@@ -192,6 +192,16 @@ fn training_pose(
     let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
     let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut powers = vec![(0.0, 0.0); windows.len()];
+    // Per window: the column of its DoF's acceleration and how the samples' noise and the
+    // encoders' rounding reach it (the same for every SU).
+    let columns: Vec<(usize, f64, f64)> = excitations
+        .iter()
+        .map(|x| {
+            let column = fit.alpha(x.dof).expect("every window has its DoF's terms");
+            (column, fit.sd_factor(column), fit.rounding_factor(column))
+        })
+        .collect();
+    let resolution = &passes.timelines[st.log].resolution;
     for su in 0..nu {
         let rhs: Vec<&[[f64; 3]]> = windows
             .iter()
@@ -206,13 +216,12 @@ fn training_pose(
             if dynamic.get(name).is_some_and(|r| r.len() > su) {
                 continue;
             }
-            let column = fit.alpha(x.dof).expect("every window has its DoF's terms");
+            let (column, noise_factor, rounding_factor) = columns[w];
             let reading = [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha);
             dynamic.entry(name.clone()).or_default().push(reading);
             if let Some(v) = &passes.variance {
                 // The samples' noise through the fit, and the encoders' rounding through the
                 // measured accelerations of every DoF, weighted by that DoF's coefficient.
-                let resolution = &passes.timelines[st.log].resolution;
                 let rounding: f64 = fit
                     .accelerations()
                     .map(|(e, c)| {
@@ -220,8 +229,7 @@ fn training_pose(
                         resolution[e].powi(2) * k2
                     })
                     .sum();
-                let variance = fit.sd_factor(column).powi(2) * v[su]
-                    + fit.rounding_factor(column).powi(2) * rounding;
+                let variance = noise_factor.powi(2) * v[su] + rounding_factor.powi(2) * rounding;
                 dynamic_sd
                     .entry(name.clone())
                     .or_default()

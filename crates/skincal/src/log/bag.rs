@@ -32,10 +32,7 @@ pub fn read(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<ReadStats, LogError> {
-    let error = |reason: String| LogError::Bag {
-        path: path.to_path_buf(),
-        reason,
-    };
+    let error = |reason: String| bag_error(path, reason);
     check_index(path).map_err(error)?;
     // The rosbag crate slices some record headers without checking their lengths: a damaged bag
     // must be an error, not a crash.
@@ -47,6 +44,13 @@ pub fn read(
             "a damaged record: copy the bag again, or repair it with `rosbag reindex`".into(),
         ))
     })
+}
+
+fn bag_error(path: &Path, reason: String) -> LogError {
+    LogError::Bag {
+        path: path.to_path_buf(),
+        reason,
+    }
 }
 
 /// Checks the bag header's pointer to the index, which the rosbag crate trusts: a bag cut short
@@ -103,10 +107,7 @@ fn read_checked(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<ReadStats, LogError> {
-    let error = |reason: String| LogError::Bag {
-        path: path.to_path_buf(),
-        reason,
-    };
+    let error = |reason: String| bag_error(path, reason);
     let bag = RosBag::new(path).map_err(|e| error(format!("{e}")))?;
     let size = std::fs::metadata(path).map_or(0, |m| m.len());
     let chunks = u64::from(bag.get_chunk_count().max(1));

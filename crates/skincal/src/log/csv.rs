@@ -344,14 +344,23 @@ impl ImuRows<'_> {
                 progress(bytes);
             }
             drop(received);
-            producer.join().unwrap_or(Ok(())).map_err(|e| match e {
-                Produced::Io(source) => io_error(source),
-                Produced::Utf8(at) => LogError::Csv {
-                    path: path.to_path_buf(),
-                    line: line + 1,
-                    reason: format!("not UTF-8 text (byte {at} of the rows): is it a CSV log?"),
-                },
-            })?;
+            // A producer that panicked read only part of the file: never a silent short read.
+            let stopped = || {
+                Err(Produced::Io(std::io::Error::other(
+                    "the reading thread stopped unexpectedly",
+                )))
+            };
+            producer
+                .join()
+                .unwrap_or_else(|_| stopped())
+                .map_err(|e| match e {
+                    Produced::Io(source) => io_error(source),
+                    Produced::Utf8(at) => LogError::Csv {
+                        path: path.to_path_buf(),
+                        line: line + 1,
+                        reason: format!("not UTF-8 text (byte {at} of the rows): is it a CSV log?"),
+                    },
+                })?;
             progress(bytes);
             Ok(())
         })

@@ -155,7 +155,12 @@ fn blocks(
         }
         // Stops the producer if the loop ended early.
         drop(received);
-        let produced = producer.join().unwrap_or(Ok(()));
+        // A producer that panicked read only part of the file: never a silent short read.
+        let produced = producer.join().unwrap_or_else(|_| {
+            Err(mcap::McapError::DecompressionError(
+                "the reading thread stopped unexpectedly".into(),
+            ))
+        });
         match (outcome, produced) {
             (Err(RecordError::Visit(e)), _) => Err(e),
             (Err(RecordError::Mcap(e)), _) | (Ok(()), Err(e)) => Err(mcap_error(e)),
