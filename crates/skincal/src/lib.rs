@@ -25,6 +25,7 @@
 
 #![warn(missing_docs)]
 
+pub mod align;
 pub mod estimate;
 pub mod explore;
 pub mod html;

@@ -18,4 +18,5 @@ mod robot_like;
 mod robustness;
 mod sensors;
 mod simulator;
+mod urdf_check;
 mod urdf_import;

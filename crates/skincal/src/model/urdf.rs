@@ -30,15 +30,159 @@ pub enum UrdfSus<'a> {
     },
 }
 
+/// A URDF's joint, as the tree needs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UrdfJoint {
+    /// Its name.
+    pub name: String,
+    /// Its type.
+    pub kind: urdf_rs::JointType,
+    /// Parent link.
+    pub parent: String,
+    /// Child link.
+    pub child: String,
+    /// `T_parent←joint` (the child link's frame at the zero position).
+    pub origin: Isometry3<f64>,
+    /// The axis in the joint frame (unit; `x` for a fixed joint with none).
+    pub axis: Vector3<f64>,
+    /// The joint's limits as the file gives them.
+    pub limit: urdf_rs::JointLimit,
+}
+
+/// A URDF's kinematic tree: its links and joints checked to form one tree, joints in breadth-first
+/// order from the root, and every link's frame at the zero position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UrdfTree {
+    /// The robot's name.
+    pub name: String,
+    /// The root link.
+    pub root: String,
+    /// The links, in file order.
+    pub links: Vec<String>,
+    /// The joints, parents before children.
+    pub joints: Vec<UrdfJoint>,
+    /// Each link's frame in the root link's frame at the zero position.
+    pub frames: HashMap<String, Isometry3<f64>>,
+}
+
+impl UrdfTree {
+    /// Parses URDF text and checks that it is one tree.
+    pub fn parse(text: &str) -> Result<Self, DescriptionError> {
+        let urdf =
+            urdf_rs::read_from_string(text).map_err(|e| DescriptionError::Urdf(e.to_string()))?;
+        let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
+        let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
+        for j in &urdf.joints {
+            for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
+                if !links.contains(link.as_str()) {
+                    return Err(invalid(
+                        format!("joint `{}`", j.name),
+                        format!("{role} link `{link}` is not defined"),
+                    ));
+                }
+            }
+        }
+        let children: HashSet<&str> = urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
+        let roots: Vec<&str> = urdf
+            .links
+            .iter()
+            .map(|l| l.name.as_str())
+            .filter(|l| !children.contains(l))
+            .collect();
+        let root = match roots.as_slice() {
+            [root] => *root,
+            [] => {
+                return Err(invalid(
+                    "links".into(),
+                    "no root link (every link is some joint's child: a closed loop)".into(),
+                ))
+            }
+            many => {
+                return Err(invalid(
+                    "links".into(),
+                    format!("several root links {many:?}: the URDF must be one tree"),
+                ))
+            }
+        };
+        let mut by_parent: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
+        for j in &urdf.joints {
+            by_parent.entry(j.parent.link.as_str()).or_default().push(j);
+        }
+        let mut frames = HashMap::from([(root.to_string(), Isometry3::identity())]);
+        let mut joints = Vec::with_capacity(urdf.joints.len());
+        let mut queue = VecDeque::from([root]);
+        while let Some(link) = queue.pop_front() {
+            let frame = frames[link];
+            for j in by_parent.get(link).into_iter().flatten() {
+                let child = j.child.link.as_str();
+                if frames.contains_key(child) {
+                    return Err(invalid(
+                        format!("joint `{}`", j.name),
+                        format!("link `{child}` is reached twice (closed loop)"),
+                    ));
+                }
+                let origin = xyz_rpy(j.origin.xyz.0, j.origin.rpy.0);
+                let axis = Vector3::from(j.axis.xyz.0);
+                let axis = match axis.try_normalize(1e-12) {
+                    Some(a) if a.iter().all(|x| x.is_finite()) => a,
+                    _ if matches!(j.joint_type, urdf_rs::JointType::Fixed) => Vector3::x(),
+                    _ => {
+                        return Err(invalid(
+                            format!("joint `{}`.axis", j.name),
+                            format!(
+                                "{:?} is not a direction: give a non-zero axis",
+                                axis.as_slice()
+                            ),
+                        ))
+                    }
+                };
+                frames.insert(child.to_string(), frame * origin);
+                joints.push(UrdfJoint {
+                    name: j.name.clone(),
+                    kind: j.joint_type.clone(),
+                    parent: link.to_string(),
+                    child: child.to_string(),
+                    origin,
+                    axis,
+                    limit: j.limit.clone(),
+                });
+                queue.push_back(child);
+            }
+        }
+        Ok(Self {
+            name: urdf.name.clone(),
+            root: root.to_string(),
+            links: urdf.links.iter().map(|l| l.name.clone()).collect(),
+            joints,
+            frames,
+        })
+    }
+
+    /// The joint whose child is `link` (none for the root).
+    pub fn joint_to(&self, link: &str) -> Option<&UrdfJoint> {
+        self.joints.iter().find(|j| j.child == link)
+    }
+
+    /// The nearest joint above `link` that moves (not fixed), if any.
+    pub fn moving_joint_above(&self, link: &str) -> Option<&UrdfJoint> {
+        let mut link = link;
+        while let Some(j) = self.joint_to(link) {
+            if !matches!(j.kind, urdf_rs::JointType::Fixed) {
+                return Some(j);
+            }
+            link = &j.parent;
+        }
+        None
+    }
+}
+
 /// Converts URDF text into a robot.
 pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError> {
-    let urdf =
-        urdf_rs::read_from_string(text).map_err(|e| DescriptionError::Urdf(e.to_string()))?;
+    let tree = UrdfTree::parse(text)?;
     let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
-
-    for j in &urdf.joints {
+    for j in &tree.joints {
         use urdf_rs::JointType as J;
-        let kind = match j.joint_type {
+        let kind = match j.kind {
             J::Revolute | J::Continuous | J::Fixed => continue,
             J::Prismatic => "prismatic",
             J::Floating => "floating",
@@ -51,78 +195,30 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
         });
     }
 
-    let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
-    for j in &urdf.joints {
-        for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
-            if !links.contains(link.as_str()) {
-                return Err(invalid(
-                    format!("joint `{}`", j.name),
-                    format!("{role} link `{link}` is not defined"),
-                ));
-            }
-        }
-    }
-    let children: HashSet<&str> = urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
-    let roots: Vec<&str> = urdf
-        .links
-        .iter()
-        .map(|l| l.name.as_str())
-        .filter(|l| !children.contains(l))
-        .collect();
-    let root = match roots.as_slice() {
-        [root] => *root,
-        [] => {
-            return Err(invalid(
-                "links".into(),
-                "no root link (every link is some joint's child: a closed loop)".into(),
-            ))
-        }
-        many => {
-            return Err(invalid(
-                "links".into(),
-                format!("several root links {many:?}: the URDF must be one tree"),
-            ))
-        }
-    };
-
-    // Walk from the root: each link's segment and its offset in that segment.
-    let mut by_parent: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
-    for j in &urdf.joints {
-        by_parent.entry(j.parent.link.as_str()).or_default().push(j);
-    }
+    // Each link's segment (links joined by fixed joints are one) and its offset in that segment.
+    let root = tree.root.as_str();
     let mut placement: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
     placement.insert(root, (root.to_string(), Isometry3::identity()));
-    let mut queue = VecDeque::from([root]);
     let mut joint_origin: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
-    while let Some(link) = queue.pop_front() {
-        let (segment, offset) = placement[link].clone();
-        for j in by_parent.get(link).into_iter().flatten() {
-            let origin = offset * xyz_rpy(j.origin.xyz.0, j.origin.rpy.0);
-            let child = j.child.link.as_str();
-            if placement.contains_key(child) {
-                return Err(invalid(
-                    format!("joint `{}`", j.name),
-                    format!("link `{child}` is reached twice (closed loop)"),
-                ));
-            }
-            if matches!(j.joint_type, urdf_rs::JointType::Fixed) {
-                placement.insert(child, (segment.clone(), origin));
-            } else {
-                joint_origin.insert(j.name.as_str(), (segment.clone(), origin));
-                placement.insert(child, (child.to_string(), Isometry3::identity()));
-            }
-            queue.push_back(child);
+    for j in &tree.joints {
+        let (segment, offset) = placement[j.parent.as_str()].clone();
+        let origin = offset * j.origin;
+        if matches!(j.kind, urdf_rs::JointType::Fixed) {
+            placement.insert(j.child.as_str(), (segment, origin));
+        } else {
+            joint_origin.insert(j.name.as_str(), (segment, origin));
+            placement.insert(j.child.as_str(), (j.child.clone(), Isometry3::identity()));
         }
     }
 
-    let mut builder = RobotBuilder::new(urdf.name.clone(), root);
-    for j in urdf
+    let mut builder = RobotBuilder::new(tree.name.clone(), root);
+    for j in tree
         .joints
         .iter()
-        .filter(|j| !matches!(j.joint_type, urdf_rs::JointType::Fixed))
+        .filter(|j| !matches!(j.kind, urdf_rs::JointType::Fixed))
     {
         let (parent, origin) = joint_origin[j.name.as_str()].clone();
-        let limits = if matches!(j.joint_type, urdf_rs::JointType::Continuous) {
+        let limits = if matches!(j.kind, urdf_rs::JointType::Continuous) {
             Limits {
                 velocity: positive(j.limit.velocity),
                 ..Limits::CONTINUOUS
@@ -138,9 +234,9 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
         builder.dofs.push(DofSpec {
             name: j.name.clone(),
             parent,
-            child: j.child.link.clone(),
+            child: j.child.clone(),
             origin: PlacementSpec::from_isometry(&origin),
-            axis: Vector3::from(j.axis.xyz.0),
+            axis: j.axis,
             limits,
         });
     }
@@ -165,11 +261,11 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
         }
         UrdfSus::RandomPerLink { per_link, seed } => {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            for link in &urdf.links {
-                let (segment, offset) = &placement[link.name.as_str()];
+            for link in &tree.links {
+                let (segment, offset) = &placement[link.as_str()];
                 for k in 0..per_link {
                     builder.sus.push(SuSpec {
-                        name: format!("{}_su{}", link.name, k + 1),
+                        name: format!("{}_su{}", link, k + 1),
                         segment: segment.clone(),
                         placement: random_su_placement(&mut rng, offset),
                     });

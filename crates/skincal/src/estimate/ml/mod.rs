@@ -196,6 +196,26 @@ pub struct SuUncertainty {
     pub orientation_sd: f64,
 }
 
+/// The covariance of a limb's free joint lines, for checks of the joints' geometry (`check-urdf`).
+///
+/// Each DoF has 4 components in its own joint frame (z along its axis, as the model's robot
+/// description places it): the turns about the frame's x and y axes (rad) and the shifts along them
+/// (m) that move the axis line; what follows the joint moves with it. Rows and columns run DoF by
+/// DoF in [`JointCovariance::dofs`] order. DoFs held by the gauge (a limb's first) or taken from the
+/// parent limb (a base path) are not listed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointCovariance {
+    /// The DoFs whose lines were fitted.
+    pub dofs: Vec<String>,
+    /// The `4·n × 4·n` covariance, row by row.
+    pub matrix: Vec<Vec<f64>>,
+}
+
+impl JointCovariance {
+    /// Component names, in order.
+    pub const COMPONENTS: [&'static str; 4] = ["tilt_x", "tilt_y", "shift_x", "shift_y"];
+}
+
 /// Readings of one SU left out of the fit as wild: their residual was more than
 /// 6 noise standard deviations (in norm) from the fit of everything else.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -322,6 +342,9 @@ pub struct MlChainEstimate {
     pub unobservable: Vec<Unobservable>,
     /// Per SU: standard deviations.
     pub uncertainty: Vec<SuUncertainty>,
+    /// The covariance of the fitted joint lines.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_covariance: Option<JointCovariance>,
     /// Per SU, in [`LimbChain::sus`] order: the RMS of its residuals relative to the noise (≈ 1
     /// for an SU the model explains; far above the others: a broken or loose SU).
     #[serde(default)]
@@ -1022,6 +1045,7 @@ fn final_fit(
         config.observable_limit,
     );
     let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
+    let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
     let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, config.intrinsics);
     let mut fixed = Vec::new();
     match (base, gauge_su) {
@@ -1070,6 +1094,7 @@ fn final_fit(
         fixed,
         unobservable,
         uncertainty,
+        joint_covariance,
         intrinsics,
         rejected,
         su_residual_ratio,
@@ -1397,6 +1422,43 @@ fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
             ),
         })
         .collect()
+}
+
+/// The joint-line block of the parameter covariance.
+fn joint_covariance(
+    spec: &Spec,
+    dofs: &[String],
+    covariance: &DMatrix<f64>,
+) -> Option<JointCovariance> {
+    let columns = spec.columns();
+    let mut joints: Vec<usize> = Vec::new();
+    let mut index: Vec<(usize, usize, usize)> = Vec::new(); // (column, joint slot, component)
+    for (col, &(b, c)) in columns.iter().enumerate() {
+        if let Block::Joint(k) = spec.blocks[b] {
+            let slot = match joints.iter().position(|&j| j == k) {
+                Some(slot) => slot,
+                None => {
+                    joints.push(k);
+                    joints.len() - 1
+                }
+            };
+            index.push((col, slot, c));
+        }
+    }
+    if joints.is_empty() {
+        return None;
+    }
+    let n = 4 * joints.len();
+    let mut matrix = vec![vec![0.0; n]; n];
+    for &(ca, ja, a) in &index {
+        for &(cb, jb, b) in &index {
+            matrix[4 * ja + a][4 * jb + b] = covariance[(ca, cb)];
+        }
+    }
+    Some(JointCovariance {
+        dofs: joints.iter().map(|&k| dofs[k].clone()).collect(),
+        matrix,
+    })
 }
 
 /// Pose of SU `u` relative to the previous SU (reference for the first) at q = 0.
