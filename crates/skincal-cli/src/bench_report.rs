@@ -61,6 +61,7 @@ pub fn bench_report(args: BenchReportArgs) -> Result<()> {
         structure: Some(structure),
         model: Some(model),
         validation: Some((check, "held-out".into())),
+        urdf_check: None,
         ingest: None,
         truth: Some(robot),
         paper: Vec::new(),

@@ -9,6 +9,7 @@ mod bench_sensors;
 mod logs;
 mod out;
 mod render;
+mod urdf;
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -32,7 +33,8 @@ Exit codes:
      read or written; the message names the file or field and what to do
   2  usage error: unknown command or option
   3  incomplete: the results were written, but part of them is missing or unreliable (explore:
-     the tree has error-level diagnostics); the message says which
+     the tree has error-level diagnostics), or a check failed (check-urdf: a joint of the URDF
+     disagrees with the calibration); the message says which
   130 interrupted (Ctrl-C, SIGTERM, SIGHUP): half-written outputs were removed
 
 No command overwrites an existing result unless --force is given (demo replaces only the
@@ -73,9 +75,14 @@ enum Command {
     #[command(after_help = EXIT_CODES)]
     Report(ReportArgs),
     /// Write a calibrated model as URDF, kinematics only: one link per segment, continuous joints
-    /// named after the DoFs, one link per SU on a fixed joint.
+    /// named after the DoFs, one link per SU on a fixed joint; or, with --into, the SU frames
+    /// added to the robot's own URDF.
     #[command(name = "export-urdf", after_help = EXIT_CODES)]
-    ExportUrdf(ExportUrdfArgs),
+    ExportUrdf(urdf::ExportUrdfArgs),
+    /// Check the robot's own URDF against a calibrated model: per joint, the angle and distance
+    /// between its axis and the calibrated one, with their uncertainty and a verdict.
+    #[command(name = "check-urdf", after_help = EXIT_CODES)]
+    CheckUrdf(urdf::CheckUrdfArgs),
     /// Predict every SU's static and dynamic readings in given poses (JSON, measurement-set units).
     #[command(after_help = EXIT_CODES)]
     Predict(PredictArgs),
@@ -187,18 +194,6 @@ enum BenchCommand {
 }
 
 #[derive(Debug, Args)]
-struct ExportUrdfArgs {
-    /// A calibrated model (model.json).
-    model: PathBuf,
-    /// Output file [default: the model's name with .urdf].
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Overwrite an existing output.
-    #[arg(long)]
-    force: bool,
-}
-
-#[derive(Debug, Args)]
 struct PredictArgs {
     /// A calibrated model (model.json).
     model: PathBuf,
@@ -227,6 +222,9 @@ struct ReportArgs {
     /// Also check the model against this measurement set (directory or file).
     #[arg(long, value_name = "DIR2")]
     validate: Option<PathBuf>,
+    /// Also check the robot's own URDF against the model (see `check-urdf`).
+    #[arg(long, value_name = "URDF")]
+    urdf: Option<PathBuf>,
     /// Where to write the page (default DIR/report.html).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -431,7 +429,7 @@ fn main() -> ExitCode {
 
 /// The results were written, but part of them is missing or unreliable: exit code 3.
 #[derive(Debug)]
-struct Incomplete(String);
+pub(crate) struct Incomplete(pub(crate) String);
 
 impl std::fmt::Display for Incomplete {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -464,7 +462,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Robots => robots(),
         Command::Explore(args) => explore(args),
         Command::Calibrate(args) => calibrate(args),
-        Command::ExportUrdf(args) => export_urdf(args),
+        Command::ExportUrdf(args) => urdf::export_urdf(args),
+        Command::CheckUrdf(args) => urdf::check_urdf(args),
         Command::Report(args) => report_page(args),
         Command::Predict(args) => predict(args),
         Command::Validate(args) => validate(args),
@@ -841,7 +840,7 @@ fn limb_report(
 }
 
 fn report_page(args: ReportArgs) -> Result<()> {
-    let inputs = io::read_report_inputs(&args.dir, args.validate.as_deref())?;
+    let inputs = io::read_report_inputs(&args.dir, args.validate.as_deref(), args.urdf.as_deref())?;
     if inputs.measurements.is_none() && inputs.structure.is_none() && inputs.model.is_none() {
         anyhow::bail!(
             "{} holds no measurements.json, structure.json or model.json to report on",
@@ -851,41 +850,6 @@ fn report_page(args: ReportArgs) -> Result<()> {
     let out = args.out.unwrap_or_else(|| args.dir.join("report.html"));
     io::write_all(&[(out.clone(), skincal::html::render(&inputs))], args.force)?;
     outln!("wrote {}", out.display());
-    Ok(())
-}
-
-fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
-    let model = io::read_model(&args.model)?;
-    let robot = model
-        .check()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
-    let mut text =
-        skincal::model::urdf::to_urdf(&robot).with_context(|| args.model.display().to_string())?;
-    if !model.not_calibrated.is_empty() {
-        // Said in the file itself, after the XML declaration.
-        let list: Vec<String> = model
-            .not_calibrated
-            .iter()
-            .map(|n| format!("{} {} ({})", n.kind, n.name, n.reason.replace("--", "-")))
-            .collect();
-        let comment = format!(
-            "<!-- Not calibrated by skincal (absent from this description):\n     {}\n-->\n",
-            list.join("\n     ")
-        );
-        let at = text.find("?>\n").map_or(0, |i| i + 3);
-        text.insert_str(at, &comment);
-    }
-    let out = args
-        .out
-        .unwrap_or_else(|| args.model.with_extension("urdf"));
-    io::write_all(&[(out.clone(), text)], args.force)?;
-    outln!(
-        "wrote {} ({} links, {} continuous joints, {} SU links; kinematics only)",
-        out.display(),
-        robot.model.segments().len() + robot.model.sus().len(),
-        robot.model.dofs().len(),
-        robot.model.sus().len()
-    );
     Ok(())
 }
 
@@ -1484,9 +1448,12 @@ fn demo(args: DemoArgs) -> Result<()> {
     )?;
     files.extend([json_path, dot_path, model_path, urdf_path]);
     files.extend(held_files);
-    // The report, with the held-out check.
+    outln!("\n5. The robot's own URDF: SU frames on its links, its joints checked\n");
+    let urdf_files = urdf::demo_step(&robot, &model, &out)?;
+    // The report, with the held-out check and the URDF's.
     let report_path = out.join("report.html");
-    let inputs = io::read_report_inputs(&out, Some(&held_out_dir))?;
+    let inputs = io::read_report_inputs(&out, Some(&held_out_dir), Some(&urdf_files[0]))?;
+    files.extend(urdf_files);
     io::write_all(
         &[(report_path.clone(), skincal::html::render(&inputs))],
         true,

@@ -100,6 +100,125 @@ fn demo_runs_and_says_what_it_wrote() {
 }
 
 #[test]
+fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(skincal(&["demo", "--out", "demo"], d).status.success());
+    // The demo wrote the robot's own URDF (no skin) and the same with the SU frames.
+    let own = std::fs::read_to_string(d.join("demo/humanoid.urdf")).unwrap();
+    assert!(!own.contains("_mount"));
+    let out = skincal(
+        &[
+            "export-urdf",
+            "demo/model.json",
+            "--into",
+            "demo/humanoid.urdf",
+            "--out",
+            "skin.urdf",
+        ],
+        d,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let skin = std::fs::read_to_string(d.join("skin.urdf")).unwrap();
+    // The user's text is kept; 28 SUs on moving links, the torso's 3 only tilted (not placed).
+    let end = own.rfind("</robot>").unwrap();
+    assert!(skin.starts_with(&own[..end]) && skin.ends_with(&own[end..]));
+    assert_eq!(skin.matches("_mount\" type=\"fixed\"").count(), 28);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("not placed: torso_back"));
+    // The snippet for a xacro: only the added elements.
+    let out = skincal(
+        &[
+            "export-urdf",
+            "demo/model.json",
+            "--into",
+            "demo/humanoid.urdf",
+            "--snippet",
+        ],
+        d,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let snippet = std::fs::read_to_string(d.join("demo/humanoid-skin.xacro")).unwrap();
+    assert!(snippet.contains("xmlns:xacro") && !snippet.contains("<joint name=\"l_elbow\""));
+    // Names that are taken: say so and how to avoid it, write nothing.
+    fails_with(
+        &[
+            "export-urdf",
+            "demo/model.json",
+            "--into",
+            "demo/model.urdf",
+            "--out",
+            "x.urdf",
+        ],
+        d,
+        &["already a link or joint", "--prefix"],
+    );
+    assert!(!d.join("x.urdf").exists());
+
+    // check-urdf: the exact URDF agrees (exit 0) ...
+    let out = skincal(
+        &[
+            "check-urdf",
+            "demo/model.json",
+            "demo/humanoid.urdf",
+            "--json",
+        ],
+        d,
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["check"]["disagree"].as_array().unwrap().len(), 0);
+    assert_eq!(v["check"]["joints"].as_array().unwrap().len(), 26);
+    // ... and the elbow's axis tilted by 3° about its joint frame's x axis (perpendicular to
+    // the axis) is found, the angle recovered, exit code 3.
+    let at = own.find("<joint name=\"l_elbow\"").unwrap();
+    let rpy = at + own[at..].find("rpy=\"").unwrap() + 5;
+    let close = rpy + own[rpy..].find('"').unwrap();
+    let mut angles: Vec<f64> = own[rpy..close]
+        .split_whitespace()
+        .map(|x| x.parse().unwrap())
+        .collect();
+    assert_eq!(angles.len(), 3);
+    angles[0] += 3f64.to_radians();
+    let tilted = format!(
+        "{}{} {} {}{}",
+        &own[..rpy],
+        angles[0],
+        angles[1],
+        angles[2],
+        &own[close..]
+    );
+    std::fs::write(d.join("tilted.urdf"), tilted).unwrap();
+    let out = skincal(
+        &["check-urdf", "demo/model.json", "tilted.urdf", "--json"],
+        d,
+    );
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["check"]["disagree"], serde_json::json!(["l_elbow"]));
+    let elbow = v["check"]["joints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["dof"] == "l_elbow")
+        .unwrap();
+    let (angle, sd) = (
+        elbow["angle"].as_f64().unwrap(),
+        elbow["angle_sd"].as_f64().unwrap(),
+    );
+    assert!(
+        (angle - 3f64.to_radians()).abs() < 3.0 * sd,
+        "{angle} ± {sd}"
+    );
+    // The table says it too.
+    let out = skincal(&["check-urdf", "demo/model.json", "tilted.urdf"], d);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("DISAGREES") && stderr(&out).contains("l_elbow"),
+        "{text}"
+    );
+}
+
+#[test]
 fn a_calibrated_model_exports_predicts_and_validates() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -1028,6 +1147,7 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
         "view3d-section",
         "limbs",
         "validation",
+        "urdf-check",
     ] {
         assert!(
             dom_text.contains(&format!("<section id=\"{section}\"")),

@@ -65,7 +65,9 @@ pub enum AlignError {
         urdf: Vec<String>,
     },
     /// An SU's link or joint name is taken in the URDF.
-    #[error("`{0}` is already a link or joint of the URDF: give the SU frames a prefix")]
+    #[error(
+        "`{0}` is already a link or joint of the URDF: give the SU frames a prefix (`--prefix`)"
+    )]
     NameTaken(String),
     /// The text has no `</robot>` to insert before.
     #[error("the URDF text has no closing `</robot>` tag to add the SU frames before")]
@@ -390,7 +392,7 @@ fn check_joint(
         (Err(why), _, _) => return blank(JointVerdict::NotCompared, why.clone()),
         (Ok(_), None, _) => return blank(
             JointVerdict::LimbBase,
-            "a limb's first DoF: where the limb sits on the reference segment no reading tells; the limb is aligned on its axis".into(),
+            "where a limb sits on the reference segment no reading tells: the URDF is aligned on this axis".into(),
         ),
         (Ok(_), Some(p), None) => return blank(
             JointVerdict::NotCompared,

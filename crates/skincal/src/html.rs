@@ -48,6 +48,8 @@ pub struct ReportInputs {
     pub paper: Vec<crate::estimate::paper::PaperChainEstimate>,
     /// The model checked against a held-out set, and that set's name.
     pub validation: Option<(Validation, String)>,
+    /// The robot's own URDF checked against the model, and the URDF's name.
+    pub urdf_check: Option<(crate::align::UrdfCheck, String)>,
 }
 
 /// Colours of the limbs, in order.
@@ -98,6 +100,9 @@ pub fn render(inputs: &ReportInputs) -> String {
                 }
                 @if let Some((v, name)) = &inputs.validation {
                     (validation(v, name))
+                }
+                @if let Some((c, name)) = &inputs.urdf_check {
+                    (urdf_check(c, name))
                 }
                 @if let Some(r) = &inputs.ingest {
                     (recording(r))
@@ -486,6 +491,41 @@ fn validation(v: &Validation, name: &str) -> Markup {
             (PreEscaped(bars(&v.sus.iter().map(|s| (s.su.clone(), s.static_rms, false)).collect::<Vec<_>>(), "m/s²", None)))
             h4 { "Dynamic error per SU, m/s² RMS" }
             (PreEscaped(bars(&v.sus.iter().map(|s| (s.su.clone(), s.dynamic_rms, false)).collect::<Vec<_>>(), "m/s²", None)))
+        }
+    }
+}
+
+/// The robot's own URDF against the calibration, joint by joint.
+fn urdf_check(c: &crate::align::UrdfCheck, name: &str) -> Markup {
+    use crate::align::JointVerdict as V;
+    html! {
+        section id="urdf-check" {
+            h2 { "The URDF's joints against the calibration" }
+            p { (name) " (`" (c.robot) "`), aligned limb by limb on the calibrated axis lines. Per joint: the angle between its axis and the calibrated one and their distance at the URDF joint's origin, ± 1σ of the calibration; a joint disagrees outside the 3σ region of all its components (χ²). "
+                @if c.disagree.is_empty() { "Every compared joint agrees." }
+                @else { span.bad { (c.disagree.len()) " disagree: " (c.disagree.join(", ")) "." } } }
+            p.note { "A turn of a link frame about its own joint's axis or a shift along it (a zero offset, a length along the axis) shows at the next joint; where a limb sits on the reference segment no reading tells." }
+            table {
+                tr { th.name { "joint" } th { "angle (°)" } th { "distance (mm)" } th { "χ² (components)" } th.name { "verdict" } }
+                @for j in &c.joints {
+                    tr {
+                        td.name { (j.dof) }
+                        @if matches!(j.verdict, V::Agrees | V::Disagrees) {
+                            td { (format!("{:.3} ± {:.3}", j.angle.to_degrees(), j.angle_sd.to_degrees())) }
+                            td { (format!("{:.2} ± {:.2}", j.distance * 1e3, j.distance_sd * 1e3)) }
+                            td { (format!("{:.1} ({})", j.chi2, j.components)) }
+                        } @else { td {} td {} td {} }
+                        td.name {
+                            @match j.verdict {
+                                V::Agrees => { "agrees" }
+                                V::Disagrees => { span.bad { "disagrees" } }
+                                V::LimbBase => { span.note { "limb base" } }
+                                V::NotCompared => { span.note { "not compared: " (j.note) } }
+                            }
+                        }
+                    }
+                }
+            }
         }
     }
 }

@@ -361,3 +361,49 @@ pub fn chain_accuracy(a: &crate::estimate::ChainAccuracy) -> String {
     );
     out
 }
+
+/// The check of a URDF's joints against a calibration (`skincal check-urdf`): one row per DoF.
+pub fn urdf_check(check: &crate::align::UrdfCheck) -> String {
+    use crate::align::JointVerdict as V;
+    let width = check
+        .joints
+        .iter()
+        .map(|j| j.dof.chars().count())
+        .max()
+        .unwrap_or(3)
+        .max(3);
+    let mut out = format!(
+        "{:width$}  {:>17}  {:>17}  {:>6}  verdict\n",
+        "DoF", "angle (°)", "distance (mm)", "χ²"
+    );
+    for j in &check.joints {
+        let verdict = match j.verdict {
+            V::Agrees => "agrees".to_string(),
+            V::Disagrees => "DISAGREES".to_string(),
+            V::LimbBase => format!("limb base ({})", j.note),
+            V::NotCompared => format!("not compared ({})", j.note),
+        };
+        if matches!(j.verdict, V::Agrees | V::Disagrees) {
+            let partial = if j.components < 4 {
+                format!(", {} of 4 components", j.components)
+            } else {
+                String::new()
+            };
+            out.push_str(&format!(
+                "{:width$}  {:>8.3} ± {:<6.3}  {:>8.2} ± {:<6.2}  {:>6.1}  {verdict}{partial}\n",
+                j.dof,
+                j.angle.to_degrees(),
+                j.angle_sd.to_degrees(),
+                j.distance * 1e3,
+                j.distance_sd * 1e3,
+                j.chi2,
+            ));
+        } else {
+            out.push_str(&format!(
+                "{:width$}  {:>17}  {:>17}  {:>6}  {verdict}\n",
+                j.dof, "", "", ""
+            ));
+        }
+    }
+    out
+}

@@ -347,6 +347,7 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
         structure: Some(structure.clone()),
         model: Some(model.clone()),
         validation: Some((check, "held-out".into())),
+        urdf_check: None,
         ingest: None,
         truth: None,
         paper: Vec::new(),

@@ -69,6 +69,14 @@ pub enum IoError {
         /// What the parser said.
         message: String,
     },
+    /// A URDF cannot be aligned with the model.
+    #[error("{path}: {source}")]
+    Align {
+        /// The URDF.
+        path: PathBuf,
+        /// What is wrong.
+        source: crate::align::AlignError,
+    },
     /// Neither a built-in robot nor a robot file.
     #[error("unknown robot `{name}`: give a built-in robot ({known}) or a .toml or .urdf file")]
     UnknownRobot {
@@ -178,6 +186,20 @@ pub fn read_measurements(path: &Path) -> Result<MeasurementSet, IoError> {
     })
 }
 
+/// Reads the robot's own URDF and aligns `model` with it (see [`crate::align`]); returns the text
+/// too, for merging.
+pub fn read_urdf_alignment(
+    model: &crate::estimate::body::BodyModel,
+    path: &Path,
+) -> Result<(String, crate::align::Alignment), IoError> {
+    let text = read(path)?;
+    let alignment = crate::align::align(model, &text).map_err(|source| IoError::Align {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok((text, alignment))
+}
+
 /// Reads a ground-truth file.
 pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     crate::json::parse(&read(path)?, "a ground truth").map_err(|message| IoError::Json {
@@ -250,11 +272,14 @@ pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoErr
 }
 
 /// What a result directory holds for a report: `measurements.json`, `structure.json`,
-/// `model.json`, `model-paper.json`, `ingest-report.json`, `truth.json` (each when present), and, with `validate`, the model checked against the
-/// measurement set in that directory (or file). Present files that cannot be read are errors.
+/// `model.json`, `model-paper.json`, `ingest-report.json`, `truth.json` (each when present); with
+/// `validate`, the model checked against the measurement set in that directory (or file); with
+/// `urdf`, the robot's own URDF checked against the model. Present files that cannot be read are
+/// errors.
 pub fn read_report_inputs(
     dir: &Path,
     validate: Option<&Path>,
+    urdf: Option<&Path>,
 ) -> Result<crate::html::ReportInputs, IoError> {
     let present = |name: &str| Some(dir.join(name)).filter(|p| p.is_file());
     let measurements = present("measurements.json")
@@ -315,7 +340,15 @@ pub fn read_report_inputs(
         }
         _ => None,
     };
+    let urdf_check = match (urdf, &model) {
+        (Some(path), Some(model)) => {
+            let (_, alignment) = read_urdf_alignment(model, path)?;
+            Some((alignment.check, path.display().to_string()))
+        }
+        _ => None,
+    };
     Ok(crate::html::ReportInputs {
+        urdf_check,
         title: dir.file_name().map_or_else(
             || dir.display().to_string(),
             |n| n.to_string_lossy().into_owned(),
