@@ -388,10 +388,11 @@ fn bars(values: &[(String, f64, bool)], unit: &str, reference: Option<f64>) -> S
 }
 
 /// A DH+2 value, and the true one beside it when known.
-fn dh_cell(value: f64, truth: Option<f64>) -> Markup {
+fn dh_cell(value: f64, sd: Option<f64>, truth: Option<f64>) -> Markup {
     html! {
         td {
             (format!("{value:.4}"))
+            @if let Some(sd) = sd { span class="note" { " ± " (format!("{sd:.4}")) } }
             @if let Some(t) = truth { br; span class="note" { "(" (format!("{t:.4}")) ")" } }
         }
     }
@@ -447,15 +448,16 @@ fn limbs(
                     @if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
                         @let true_rows = truth.and_then(|t| crate::estimate::dh_form(t, &serial));
                         @let by_paper = paper.iter().find(|p| p.chain.dofs == serial.dofs && p.chain.sus == serial.sus);
-                        h4 { "In the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)"
+                        h4 { "In the paper's DH+2 form (Fig. 6; m and rad, ± 1σ; the first rows' θ0 and d are a gauge choice)"
                             @if true_rows.is_some() { "; the truth in brackets" }
                             @if by_paper.is_some() { "; the paper's method's estimate below, in italics" } }
                         table {
                             tr { th class="name" { "DoF → DoF" } th { "θ0" } th { "d" } th { "a" } th { "α" } }
                             @for (k, r) in dh.dof_dof.iter().enumerate() {
                                 @let t = true_rows.as_ref().and_then(|(rows, _)| rows.get(k)).map(|r| r.values());
+                                @let sd = dh.dof_dof_sd.get(k).map(|r| r.values());
                                 tr { td class="name" { (serial.dofs[k]) " → " (serial.dofs.get(k + 1).cloned().unwrap_or_default()) }
-                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
+                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]))) } }
                                 @if let Some(row) = by_paper.and_then(|p| p.dof_dof.get(k)) {
                                     tr class="paper" { td class="name" { i { "paper's method" } }
                                         @for v in row.values() { td { i { (format!("{v:.4}")) } } } }
@@ -466,8 +468,9 @@ fn limbs(
                             tr { th class="name" { "DoF → SU" } th { "θ0" } th { "d" } th { "a" } th { "α" } th { "θacc" } th { "dacc" } }
                             @for (k, r) in dh.dof_su.iter().enumerate() {
                                 @let t = true_rows.as_ref().and_then(|(_, rows)| rows.get(k)).map(|r| r.values());
+                                @let sd = dh.dof_su_sd.get(k).map(|r| r.values());
                                 tr { td class="name" { (serial.dofs[k]) " → " (serial.sus.get(k).cloned().unwrap_or_default()) }
-                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, t.map(|t| t[i]))) } }
+                                    @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]))) } }
                                 @if let Some(row) = by_paper.and_then(|p| p.dof_su.get(k)) {
                                     tr class="paper" { td class="name" { i { "paper's method" } }
                                         @for v in row.values() { td { i { (format!("{v:.4}")) } } } }

@@ -296,3 +296,41 @@ fn the_dh_form_of_the_truth_is_the_papers_table_and_the_estimate_gives_it_back()
         );
     }
 }
+
+#[test]
+fn the_dh_tables_standard_deviations_describe_the_spread_over_data_sets() {
+    // The distance a and twist α between consecutive axes (no gauge in either): over 24 data
+    // sets their errors against the truth, in units of the reported standard deviation, have an
+    // RMS near 1.
+    use skincal::estimate::dh_form;
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let (true_rows, _) = dh_form(&truth, &chain(7)).unwrap();
+    let mut normalised = Vec::new();
+    for seed in 1..=24 {
+        let sim = simulate(
+            &truth,
+            &SimulationConfig {
+                seed,
+                ..SimulationConfig::default()
+            },
+        )
+        .unwrap();
+        let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+        let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+        let dh = e.dh.unwrap();
+        assert_eq!(dh.dof_dof_sd.len(), dh.dof_dof.len());
+        assert_eq!(dh.dof_su_sd.len(), dh.dof_su.len());
+        for ((r, sd), t) in dh.dof_dof.iter().zip(&dh.dof_dof_sd).zip(&true_rows) {
+            assert!(sd.a > 0.0 && sd.alpha > 0.0, "{sd:?}");
+            normalised.push((r.a - t.a) / sd.a);
+            let twist = r.alpha - t.alpha;
+            normalised.push(twist.sin().atan2(twist.cos()) / sd.alpha);
+        }
+    }
+    let rms = (normalised.iter().map(|x| x * x).sum::<f64>() / normalised.len() as f64).sqrt();
+    eprintln!(
+        "RMS of the normalised errors over {} values: {rms:.2}",
+        normalised.len()
+    );
+    assert!((0.7..1.4).contains(&rms), "{rms}");
+}

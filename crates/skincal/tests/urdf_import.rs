@@ -155,3 +155,33 @@ fn an_su_on_an_unknown_link_is_named() {
         .to_string();
     assert!(err.contains("elbow") && err.contains("s1"), "{err}");
 }
+
+#[test]
+fn a_closed_loop_beside_the_tree_is_refused_by_name() {
+    // Links b and c are each other's children: the root a is unique, but the walk from it never
+    // reaches their joints (this once panicked).
+    let text = r#"<robot name="r"><link name="a"/><link name="b"/><link name="c"/>
+<joint name="j1" type="revolute"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+<joint name="j2" type="revolute"><parent link="c"/><child link="b"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+</robot>"#;
+    let err = skincal::model::urdf::from_urdf(
+        text,
+        skincal::model::urdf::UrdfSus::RandomPerLink {
+            per_link: 1,
+            seed: 1,
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("`j1`") && err.contains("closed loop"), "{err}");
+    // A joint without a direction is refused too.
+    let zero = r#"<robot name="r"><link name="a"/><link name="b"/>
+<joint name="j" type="continuous"><parent link="a"/><child link="b"/><axis xyz="0 0 0"/></joint></robot>"#;
+    let err = skincal::model::urdf::UrdfTree::parse(zero)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("`j`.axis") && err.contains("non-zero"),
+        "{err}"
+    );
+}

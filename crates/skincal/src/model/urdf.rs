@@ -59,8 +59,10 @@ pub struct UrdfTree {
     pub root: String,
     /// The links, in file order.
     pub links: Vec<String>,
-    /// The joints, parents before children.
+    /// The joints, in file order.
     pub joints: Vec<UrdfJoint>,
+    /// Indices into `joints`, parents before children (breadth-first from the root).
+    pub order: Vec<usize>,
     /// Each link's frame in the root link's frame at the zero position.
     pub frames: HashMap<String, Isometry3<f64>>,
 }
@@ -104,16 +106,18 @@ impl UrdfTree {
                 ))
             }
         };
-        let mut by_parent: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
-        for j in &urdf.joints {
-            by_parent.entry(j.parent.link.as_str()).or_default().push(j);
+        let mut by_parent: HashMap<&str, Vec<usize>> = HashMap::new();
+        for (i, j) in urdf.joints.iter().enumerate() {
+            by_parent.entry(j.parent.link.as_str()).or_default().push(i);
         }
         let mut frames = HashMap::from([(root.to_string(), Isometry3::identity())]);
-        let mut joints = Vec::with_capacity(urdf.joints.len());
+        let mut joints: Vec<Option<UrdfJoint>> = vec![None; urdf.joints.len()];
+        let mut order = Vec::with_capacity(urdf.joints.len());
         let mut queue = VecDeque::from([root]);
         while let Some(link) = queue.pop_front() {
             let frame = frames[link];
-            for j in by_parent.get(link).into_iter().flatten() {
+            for &i in by_parent.get(link).into_iter().flatten() {
+                let j = &urdf.joints[i];
                 let child = j.child.link.as_str();
                 if frames.contains_key(child) {
                     return Err(invalid(
@@ -137,7 +141,8 @@ impl UrdfTree {
                     }
                 };
                 frames.insert(child.to_string(), frame * origin);
-                joints.push(UrdfJoint {
+                order.push(i);
+                joints[i] = Some(UrdfJoint {
                     name: j.name.clone(),
                     kind: j.joint_type.clone(),
                     parent: link.to_string(),
@@ -149,11 +154,20 @@ impl UrdfTree {
                 queue.push_back(child);
             }
         }
+        if let Some(i) = joints.iter().position(Option::is_none) {
+            return Err(invalid(
+                format!("joint `{}`", urdf.joints[i].name),
+                format!(
+                    "not reached from the root link `{root}`: its links form a closed loop apart from the tree"
+                ),
+            ));
+        }
         Ok(Self {
             name: urdf.name.clone(),
             root: root.to_string(),
             links: urdf.links.iter().map(|l| l.name.clone()).collect(),
-            joints,
+            joints: joints.into_iter().flatten().collect(),
+            order,
             frames,
         })
     }
@@ -200,7 +214,7 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
     let mut placement: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
     placement.insert(root, (root.to_string(), Isometry3::identity()));
     let mut joint_origin: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
-    for j in &tree.joints {
+    for j in tree.order.iter().map(|&i| &tree.joints[i]) {
         let (segment, offset) = placement[j.parent.as_str()].clone();
         let origin = offset * j.origin;
         if matches!(j.kind, urdf_rs::JointType::Fixed) {

@@ -289,6 +289,12 @@ pub struct DhTable {
     pub dof_dof: Vec<super::DhRow>,
     /// DoF-to-SU rows.
     pub dof_su: Vec<super::SuRow>,
+    /// The standard deviation of every value of `dof_dof` (from the parameter covariance).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dof_dof_sd: Vec<super::DhRow>,
+    /// The standard deviation of every value of `dof_su`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dof_su_sd: Vec<super::SuRow>,
 }
 
 /// How well one order of a multi-DoF joint's DoFs explains the accelerations.
@@ -1078,7 +1084,15 @@ fn final_fit(
     }
     let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
     let dh = data.chain.as_serial().and_then(|serial| {
-        super::dh_form(&limb, &serial).map(|(dof_dof, dof_su)| DhTable { dof_dof, dof_su })
+        let (dof_dof, dof_su) = super::dh_form(&limb, &serial)?;
+        let (dof_dof_sd, dof_su_sd) =
+            dh_sd(&state, &spec, &cov, data, &serial, (&dof_dof, &dof_su));
+        Some(DhTable {
+            dof_dof,
+            dof_su,
+            dof_dof_sd,
+            dof_su_sd,
+        })
     });
     Ok(MlChainEstimate {
         robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
@@ -1422,6 +1436,85 @@ fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
             ),
         })
         .collect()
+}
+
+/// The standard deviations of a DH+2 table's values: its Jacobian with respect to the joint lines
+/// and SU frames (central differences through the table's construction) and the parameter
+/// covariance. Empty when a perturbed chain has no DH+2 form.
+fn dh_sd(
+    state: &ChainState,
+    spec: &Spec,
+    covariance: &DMatrix<f64>,
+    data: &LimbData,
+    serial: &super::SerialChain,
+    table: (&[super::DhRow], &[super::SuRow]),
+) -> (Vec<super::DhRow>, Vec<super::SuRow>) {
+    // Angles sit at these places of each row's values; their differences are wrapped.
+    const DOF_ANGLES: [bool; 4] = [true, false, false, true];
+    const SU_ANGLES: [bool; 6] = [true, false, false, true, true, false];
+    let flatten = |rows: (&[super::DhRow], &[super::SuRow])| -> Vec<(f64, bool)> {
+        let dof = rows
+            .0
+            .iter()
+            .flat_map(|r| r.values().into_iter().zip(DOF_ANGLES));
+        dof.chain(
+            rows.1
+                .iter()
+                .flat_map(|r| r.values().into_iter().zip(SU_ANGLES)),
+        )
+        .collect()
+    };
+    let nominal = flatten(table);
+    let columns: Vec<usize> = spec
+        .columns()
+        .iter()
+        .enumerate()
+        .filter(|(_, &(b, _))| {
+            matches!(
+                spec.blocks[b],
+                Block::Joint(_) | Block::JointFull(_) | Block::Su(_)
+            )
+        })
+        .map(|(i, _)| i)
+        .collect();
+    let total = spec.columns().len();
+    let h = 1e-6;
+    let mut jacobian = DMatrix::zeros(nominal.len(), columns.len());
+    for (j, &c) in columns.iter().enumerate() {
+        let mut values = [0.0; 2].map(|_| Vec::new());
+        for (side, sign) in [1.0, -1.0].into_iter().enumerate() {
+            let mut delta = vec![0.0; total];
+            delta[c] = sign * h;
+            let moved = retract(state, spec, &delta);
+            let Ok(robot) = limb_robot(&data.chain, &moved, &data.su_depth) else {
+                return (Vec::new(), Vec::new());
+            };
+            let Some((a, b)) = super::dh_form(&robot, serial) else {
+                return (Vec::new(), Vec::new());
+            };
+            values[side] = flatten((&a, &b));
+        }
+        if values[0].len() != nominal.len() || values[1].len() != nominal.len() {
+            return (Vec::new(), Vec::new());
+        }
+        for (i, &(_, angle)) in nominal.iter().enumerate() {
+            let mut d = values[0][i].0 - values[1][i].0;
+            if angle {
+                d = d.sin().atan2(d.cos());
+            }
+            jacobian[(i, j)] = d / (2.0 * h);
+        }
+    }
+    let sigma = DMatrix::from_fn(columns.len(), columns.len(), |a, b| {
+        covariance[(columns[a], columns[b])]
+    });
+    let variance = (&jacobian * sigma * jacobian.transpose()).diagonal();
+    let sd: Vec<f64> = variance.iter().map(|v| v.max(0.0).sqrt()).collect();
+    let (dof, su) = sd.split_at(4 * table.0.len());
+    (
+        dof.chunks(4).map(super::DhRow::from_values).collect(),
+        su.chunks(6).map(super::SuRow::from_values).collect(),
+    )
 }
 
 /// The joint-line block of the parameter covariance.
