@@ -328,6 +328,12 @@ impl MeasurementSet {
             })
         };
         if let Some(s) = &self.structure {
+            if s.orientations.is_empty() {
+                return Err(MeasurementError::InvalidValue {
+                    field: "structure.orientations".into(),
+                    reason: "empty: a structure experiment has at least one base orientation (leave `structure` out when there is none)".into(),
+                });
+            }
             for (o, orientation) in s.orientations.iter().enumerate() {
                 let base = format!("structure.orientations[{o}]");
                 pose(format!("{base}.rest_pose"), &orientation.rest_pose)?;

@@ -538,6 +538,19 @@ fn formats(work: &Path) -> Vec<Format> {
         "/tests/fixtures/arm.urdf"
     ))
     .unwrap();
+    // The fixture arm calibrated, for aligning mutated URDFs with it (`check-urdf`, `--into`).
+    let urdf_model = {
+        let robot = io::load_robot(
+            concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/arm.urdf"),
+            SuPlacement::default(),
+        )
+        .unwrap();
+        let set = simulate(&robot, &SimulationConfig::default())
+            .unwrap()
+            .measurements;
+        let s = explore(&set, &ExploreConfig::default()).unwrap();
+        calibrate_body(&set, Some(&s), &MlConfig::default(), None).unwrap()
+    };
 
     let set_for_structure = set.clone();
     let set_for_model = set.clone();
@@ -642,7 +655,10 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "robot.urdf",
             kind: Kind::Text,
             valid: urdf,
-            run: Box::new(|path, _| {
+            run: Box::new(move |path, _| {
+                if let Ok((text, alignment)) = io::read_urdf_alignment(&urdf_model, path) {
+                    let _ = skincal::align::merge_sus(&alignment, &text, "skin_", false);
+                }
                 let robot =
                     io::load_robot(path.to_str().unwrap(), SuPlacement::default()).map_err(err)?;
                 let config = SimulationConfig {

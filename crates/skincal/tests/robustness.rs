@@ -563,3 +563,13 @@ fn a_training_experiment_without_poses_is_refused() {
         "{e}"
     );
 }
+
+#[test]
+fn a_structure_experiment_without_orientations_is_refused_by_field() {
+    // Exploration once indexed the first orientation of an empty list.
+    let e = refused(|v| v["structure"]["orientations"] = json!([]));
+    assert!(
+        e.contains("structure.orientations") && e.contains("empty"),
+        "{e}"
+    );
+}
