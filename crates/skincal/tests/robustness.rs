@@ -541,7 +541,17 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
     std::fs::write(&damaged, &bytes).unwrap();
     let empty = dir.path().join("empty.mcap");
     std::fs::write(&empty, b"").unwrap();
-    for (path, words) in [(damaged, "damaged"), (empty, "empty")] {
+    // A chunk whose compression name claims 2.5 GB (the mcap crate allocates a string's claimed
+    // length before reading it).
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mut at = 8;
+    while bytes[at] != 0x06 {
+        at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+    }
+    bytes[at + 9 + 28..at + 9 + 32].copy_from_slice(&0x9A00_0000u32.to_le_bytes());
+    let chunk = dir.path().join("chunk.mcap");
+    std::fs::write(&chunk, &bytes).unwrap();
+    for (path, words) in [(damaged, "damaged"), (empty, "empty"), (chunk, "damaged")] {
         let e = ingest(
             std::slice::from_ref(&path),
             &IngestConfig::default(),

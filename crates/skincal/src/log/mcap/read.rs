@@ -218,6 +218,7 @@ fn produce(
             }
             LinearReadEvent::Record { opcode, data } => match opcode {
                 op::CHUNK => {
+                    lengths_fit(opcode, data)?;
                     let Record::Chunk { header, data } = mcap::parse_record(opcode, data)? else {
                         continue;
                     };
@@ -351,7 +352,7 @@ fn damage(e: &mcap::McapError, size: u64) -> String {
     }
 }
 
-/// Checks that every length inside a schema or channel record fits in the record before the mcap
+/// Checks that every length inside a schema, channel or chunk record fits in the record before the mcap
 /// crate parses it (it allocates a string's claimed length first).
 fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), mcap::McapError> {
     let mut at;
@@ -383,6 +384,12 @@ fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), mcap::McapError> {
                     }
                     Some(())
                 })
+        }
+        // message_start_time u64, message_end_time u64, uncompressed_size u64,
+        // uncompressed_crc u32, compression, records
+        op::CHUNK => {
+            at = 28;
+            bytes(&mut at, data.len())
         }
         _ => Some(()),
     };
