@@ -67,6 +67,7 @@ table.matrix td { width: 1.1rem; height: 1.1rem; padding: 0; text-align: center;
 td.on { background: #333; } td.uncertain { outline: 2px dashed #e69f00; outline-offset: -3px; }
 .bad { color: #b00; font-weight: bold; } .note { color: #666; }
 svg text { font: 11px system-ui, sans-serif; }
+#view3d-sliders label { display: flex; justify-content: space-between; align-items: center; padding-right: 1.5rem; break-inside: avoid; }
 #script-errors:empty { display: none; } #script-errors { color: #b00; }
 ";
 
@@ -839,7 +840,7 @@ fn view3d(m: &BodyModel) -> Markup {
     html! {
         section id="view3d-section" {
             h2 { "The calibrated body" }
-            p class="note" { "At the zero pose, in the body frame (z up): segments grey, joint axes black, each SU's frame as a triad (x red, y green, z blue) and its position uncertainty as an orange circle (to scale). Drag to turn, wheel to zoom; a slider per DoF." }
+            p class="note" { "At the zero pose, in the body frame (z up): segments grey, joint axes black, each SU's frame as a triad (x red, y green, z blue) and its position uncertainty as an orange circle (to scale). Every limb on the static reference segment starts at its origin: where a limb sits on it, and how it is turned about the vertical, no accelerometer reading tells. Drag to turn, wheel to zoom; a slider per DoF." }
             canvas id="view3d" width="900" height="600" style="border: 1px solid #ddd; cursor: grab" {}
             div id="view3d-sliders" style="columns: 3; font-size: 12px" {}
             // Where the drawing put every SU, for checking it against the model.
