@@ -36,6 +36,15 @@ fn progress_bar(total: u64, what: &str) -> ProgressBar {
     bar
 }
 
+/// An exploration program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Protocol {
+    /// The paper's: 20 poses, 1 s still periods, 2 s excitations.
+    Paper,
+    /// 6 poses visited nearest first, 0.5 s still periods, one-period excitations.
+    Short,
+}
+
 #[derive(Debug, Args)]
 pub(crate) struct PlanArgs {
     /// A built-in robot, a .toml description or a .urdf file: DoF names and limits.
@@ -47,9 +56,14 @@ pub(crate) struct PlanArgs {
     /// Overwrite existing output files.
     #[arg(long)]
     force: bool,
-    /// Number of training poses P.
-    #[arg(long, default_value_t = 20)]
-    poses: usize,
+    /// The program: `paper` (20 poses, 1 s still periods, 2 s excitations, as the paper does) or
+    /// `short` (6 poses, 0.5 s still periods, one-period excitations); the options below change
+    /// single values.
+    #[arg(long, value_enum, default_value_t = Protocol::Paper)]
+    protocol: Protocol,
+    /// Number of training poses P [default: the protocol's].
+    #[arg(long)]
+    poses: Option<usize>,
     /// Use this pattern A,f (rad/s, Hz) instead of choosing one; it is checked against the limits.
     #[arg(long, value_name = "A,f")]
     pattern: Option<String>,
@@ -71,12 +85,19 @@ pub(crate) struct PlanArgs {
     /// How far each DoF moves in the structure experiment, rad.
     #[arg(long, default_value_t = 0.3)]
     structure_angle: f64,
-    /// Still period for static readings, s.
-    #[arg(long, default_value_t = 1.0)]
-    still: f64,
-    /// Still period after each excitation, s.
-    #[arg(long, default_value_t = 0.5)]
-    settle: f64,
+    /// Still period for static readings, s [default: the protocol's].
+    #[arg(long)]
+    still: Option<f64>,
+    /// Still period after each excitation, s [default: the protocol's].
+    #[arg(long)]
+    settle: Option<f64>,
+    /// Periods of the excitation window's rise and of its fall (eq. 13) [default: the
+    /// protocol's].
+    #[arg(long)]
+    ramp_cycles: Option<f64>,
+    /// Periods of the excitation window at full amplitude [default: the protocol's].
+    #[arg(long)]
+    hold_cycles: Option<f64>,
     /// Leave out the structure experiment.
     #[arg(long)]
     no_structure: bool,
@@ -159,18 +180,24 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         d.lower = lo;
         d.upper = hi;
     }
+    let protocol = match args.protocol {
+        Protocol::Paper => PlanConfig::default(),
+        Protocol::Short => PlanConfig::short(),
+    };
     let config = PlanConfig {
         structure: !args.no_structure,
         training: !args.no_training,
-        poses: args.poses,
+        poses: args.poses.unwrap_or(protocol.poses),
         pose_range: args.pose_range,
         structure_angle: args.structure_angle,
-        still: args.still,
-        settle: args.settle,
+        still: args.still.unwrap_or(protocol.still),
+        settle: args.settle.unwrap_or(protocol.settle),
+        ramp_cycles: args.ramp_cycles.unwrap_or(protocol.ramp_cycles),
+        hold_cycles: args.hold_cycles.unwrap_or(protocol.hold_cycles),
         max_excursion: args.max_excursion,
         pattern: args.pattern.as_deref().map(parse_pattern).transpose()?,
         seed: args.seed,
-        ..PlanConfig::default()
+        ..protocol
     };
     if !(args.rate.is_finite() && args.rate >= 1.0) {
         bail!("--rate {}: use at least 1 Hz", args.rate);
@@ -550,12 +577,13 @@ pub(crate) struct IngestArgs {
     /// (servo compliance): fitted as coupled motion, not a second excited DoF.
     #[arg(long, default_value_t = IngestConfig::default().coupled_fraction)]
     coupled_fraction: f64,
-    /// Shortest still window, s.
-    #[arg(long, default_value_t = IngestConfig::default().min_still)]
-    min_still: f64,
-    /// Dropped at both ends of a still window, s.
-    #[arg(long, default_value_t = IngestConfig::default().trim)]
-    trim: f64,
+    /// Shortest still window, s [default: 0.25; with --plan, at most 0.3 of its still periods].
+    #[arg(long)]
+    min_still: Option<f64>,
+    /// Dropped at both ends of a still window, s [default: 0.1; with --plan, at most a tenth of
+    /// its still periods].
+    #[arg(long)]
+    trim: Option<f64>,
     /// Half-width of the differentiation filter, s.
     #[arg(long, default_value_t = IngestConfig::default().filter)]
     filter: f64,
@@ -578,8 +606,6 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         min_pause: args.min_pause,
         motion_threshold: args.motion_threshold,
         coupled_fraction: args.coupled_fraction,
-        min_still: args.min_still,
-        trim: args.trim,
         filter: args.filter,
         max_gap: args.max_gap,
         saturation: args.saturation * STANDARD_GRAVITY,
@@ -596,7 +622,10 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         if config.dofs.is_none() {
             config.dofs = Some(plan.dof_names());
         }
+        config = config.for_still_periods(plan.config.still);
     }
+    config.min_still = args.min_still.unwrap_or(config.min_still);
+    config.trim = args.trim.unwrap_or(config.trim);
     if let Some(p) = &args.pattern {
         config.pattern = Some(parse_pattern(p)?);
     }

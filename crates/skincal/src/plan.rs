@@ -133,6 +133,23 @@ impl Default for PlanConfig {
 }
 
 impl PlanConfig {
+    /// The short program: 6 training poses visited nearest first, 0.5 s still periods, 0.2 s
+    /// after each excitation, and one period of the pattern per excitation (half a period of rise,
+    /// half of fall). On the paper's arm it runs 58.5 s against the paper's 421 s and predicts a
+    /// noise-free held-out set within 0.008 m/s² RMS (static and dynamic) through the whole path
+    /// `plan → record → ingest → explore → calibrate`; a robot with 3-DoF shoulders and hips needs
+    /// more poses for the same static accuracy (the humanoid: 9 poses, 220 s, 0.0066 m/s²).
+    pub fn short() -> Self {
+        Self {
+            poses: 6,
+            still: 0.5,
+            settle: 0.2,
+            ramp_cycles: 0.5,
+            hold_cycles: 0.0,
+            ..Self::default()
+        }
+    }
+
     fn validate(&self) -> Result<(), PlanError> {
         let positive = |field: &'static str, v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -598,24 +615,27 @@ impl Plan {
         if config.training {
             let mut rng = crate::sim::pose_stream(config.seed);
             let excursion = pattern.excursion() * 1.01;
-            for p in 0..config.poses {
-                let q: Vec<f64> = dofs
-                    .iter()
-                    .map(|d| {
-                        let lo = d.lower.max(-config.pose_range);
-                        let hi = (d.upper - excursion).min(config.pose_range);
-                        let (lo, hi) = if lo <= hi {
-                            (lo, hi)
-                        } else {
-                            (d.lower, (d.upper - excursion).max(d.lower))
-                        };
-                        if hi > lo {
-                            rng.random_range(lo..=hi)
-                        } else {
-                            lo
-                        }
-                    })
-                    .collect();
+            let drawn: Vec<Vec<f64>> = (0..config.poses)
+                .map(|_| {
+                    dofs.iter()
+                        .map(|d| {
+                            let lo = d.lower.max(-config.pose_range);
+                            let hi = (d.upper - excursion).min(config.pose_range);
+                            let (lo, hi) = if lo <= hi {
+                                (lo, hi)
+                            } else {
+                                (d.lower, (d.upper - excursion).max(d.lower))
+                            };
+                            if hi > lo {
+                                rng.random_range(lo..=hi)
+                            } else {
+                                lo
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            for (p, q) in builder.nearest_first(drawn).into_iter().enumerate() {
                 builder.go(Part::Training, &q, Some(p));
                 builder.still(Part::Training, config.still, Some(p));
                 for d in 0..nd {
@@ -856,13 +876,12 @@ impl Builder<'_> {
     }
 
     /// A smoothstep move to `target` as fast as every moving DoF's limits allow.
-    fn go(&mut self, part: Part, target: &[f64], pose: Option<usize>) {
+    /// The time a smooth transfer from `from` to `to` takes within the limits, s.
+    fn transfer_time(&self, from: &[f64], to: &[f64]) -> f64 {
         let mut duration: f64 = 0.0;
-        let mut moving = Vec::new();
         for (d, lim) in self.dofs.iter().enumerate() {
-            let delta = (target[d] - self.pose[d]).abs();
+            let delta = (to[d] - from[d]).abs();
             if delta > 0.0 {
-                moving.push(d);
                 duration = duration
                     .max(SMOOTHSTEP_VELOCITY * delta / (self.fraction * lim.velocity))
                     .max(
@@ -871,9 +890,35 @@ impl Builder<'_> {
                     );
             }
         }
+        duration
+    }
+
+    /// `poses` in the order that visits the nearest (in transfer time) next, from the current
+    /// pose: the order does not matter to the calibration, the robot's time does.
+    fn nearest_first(&self, mut poses: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
+        let mut at = self.pose.clone();
+        let mut out = Vec::with_capacity(poses.len());
+        while !poses.is_empty() {
+            let next = (0..poses.len())
+                .min_by(|&a, &b| {
+                    self.transfer_time(&at, &poses[a])
+                        .total_cmp(&self.transfer_time(&at, &poses[b]))
+                })
+                .unwrap_or(0);
+            at = poses.swap_remove(next);
+            out.push(at.clone());
+        }
+        out
+    }
+
+    fn go(&mut self, part: Part, target: &[f64], pose: Option<usize>) {
+        let moving: Vec<usize> = (0..self.dofs.len())
+            .filter(|&d| target[d] != self.pose[d])
+            .collect();
         if moving.is_empty() {
             return;
         }
+        let duration = self.transfer_time(&self.pose, target);
         // Round up to whole milliseconds so that phase boundaries fall on common sample grids.
         let duration = (duration * 1000.0).ceil() / 1000.0;
         let action = match (part, moving.as_slice()) {

@@ -171,6 +171,78 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
 }
 
 #[test]
+fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0_01() {
+    // The whole path on the paper's arm: plan (short protocol) → 1 kHz logs, upright and the
+    // structure part tilted → ingest with windows fitted to the plan's still periods → explore →
+    // calibrate → a noise-free held-out set.
+    let robot = robot("paper-7dof");
+    let dofs = PlanDof::from_robot(&robot);
+    let paper = Plan::new(dofs.clone(), &PlanConfig::default()).unwrap();
+    let plan = Plan::new(dofs, &PlanConfig::short()).unwrap();
+    eprintln!(
+        "program: short {:.1} s, paper {:.1} s",
+        plan.duration, paper.duration
+    );
+    assert!(plan.duration <= 60.0 && plan.duration * 7.0 < paper.duration);
+    let dir = tempfile::tempdir().unwrap();
+    let upright = dir.path().join("upright.mcap");
+    let tilted = dir.path().join("tilted.mcap");
+    record_to(&robot, &plan, &LogConfig::default(), &upright, true);
+    let tilt = LogConfig {
+        part: Some(Part::Structure),
+        orientation: BaseOrientation::tilted(),
+        seed: 2,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &tilt, &tilted, true);
+    let config = IngestConfig {
+        pattern: Some(plan.pattern),
+        ..IngestConfig::default()
+    }
+    .for_still_periods(plan.config.still);
+    let ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
+    let report = &ingested.report;
+    assert!(report.warnings.is_empty(), "{:?}", report.warnings);
+    assert_eq!(report.training_poses, 6);
+    assert_eq!(
+        report.dynamic,
+        6 * 7,
+        "every excitation, the last one's too"
+    );
+    let set = ingested.measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let condensed = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    assert_eq!(
+        structure.matrix,
+        explore(&condensed, &ExploreConfig::default())
+            .unwrap()
+            .matrix
+    );
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    assert!(model.limbs.iter().all(|l| l.estimate.converged));
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            seed: 99,
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    eprintln!(
+        "held-out RMS static {:.4}, dynamic {:.4} m/s²",
+        check.static_rms, check.dynamic_rms
+    );
+    assert!(check.static_rms < 0.01 && check.dynamic_rms < 0.01);
+}
+
+#[test]
 fn noise_free_log_gives_the_exact_readings_whatever_the_servo_did() {
     // The robot runs the pattern backwards, at 2.5 Hz instead of 2, with another window; the
     // ingestion, told the nominal pattern, must still give the response to the nominal positive

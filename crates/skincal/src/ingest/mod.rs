@@ -119,6 +119,19 @@ pub struct IngestConfig {
     pub sus: Option<Vec<String>>,
 }
 
+impl IngestConfig {
+    /// The still-window lengths made to fit still periods of `still` seconds (a plan's): the
+    /// trim shrinks to a tenth of the period and the shortest window to 0.3 of it, where the
+    /// defaults would not fit. Longer periods keep the defaults.
+    pub fn for_still_periods(mut self, still: f64) -> Self {
+        if still.is_finite() && still > 0.0 {
+            self.trim = self.trim.min(0.1 * still);
+            self.min_still = self.min_still.min(0.3 * still);
+        }
+        self
+    }
+}
+
 impl Default for IngestConfig {
     fn default() -> Self {
         Self {

@@ -86,7 +86,21 @@ pub(super) fn segment(
             .collect()
     };
     let still = below(config.still_velocity);
-    let pauses = runs(&below(config.quiet_velocity), min_pause.max(4 * l + 1));
+    let quiet = below(config.quiet_velocity);
+    let mut pauses = runs(&quiet, min_pause.max(4 * l + 1));
+    // The recording's ends close a motion too: a quiet run that reaches the first or the last grid
+    // point the filter can judge is a pause even when shorter (the log started or stopped in it).
+    let short = runs(&quiet, 2 * l + 1);
+    if let Some(&last) = short.last() {
+        if last.1 + l >= n && pauses.last() != Some(&last) {
+            pauses.push(last);
+        }
+    }
+    if let Some(&first) = short.first() {
+        if first.0 <= l && pauses.first() != Some(&first) {
+            pauses.insert(0, first);
+        }
+    }
     let mut seg = Segmentation::default();
     for (k, &(s, e)) in pauses.iter().enumerate() {
         // The longest still run of the pause, trimmed, gives the static reading.
