@@ -1296,15 +1296,53 @@ fn write_simulation(
     Ok((vec![measurements, truth], summary))
 }
 
-fn demo(args: DemoArgs) -> Result<()> {
-    let started = std::time::Instant::now();
-    let out = args
-        .out
-        .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
-    // The demo replaces its own directory on every run, and nothing else: a directory it marked,
-    // or one that holds only the files a demo writes.
+/// The demo's table against the truth: per limb, SU pose errors and held-out errors.
+fn demo_rows(
+    robot: &skincal::model::Robot,
+    model: &skincal::estimate::body::BodyModel,
+    check: &skincal::predict::Validation,
+) -> Result<Vec<render::LimbRow>> {
+    model
+        .limbs
+        .iter()
+        .map(|limb| {
+            let e = &limb.estimate;
+            let accuracy = estimate::consecutive_su_errors(
+                robot,
+                &e.to_robot(),
+                &e.chain.su_sequence(),
+                30,
+                1,
+            )?;
+            Ok(render::LimbRow::new(
+                &limb.name,
+                limb.dofs.len(),
+                &limb.sus,
+                e.converged,
+                Some(&accuracy),
+                check,
+            ))
+        })
+        .chain(std::iter::once(Ok(render::LimbRow::new(
+            &format!("{} (static)", model.reference),
+            0,
+            &model
+                .static_sus
+                .iter()
+                .map(|s| s.su.clone())
+                .collect::<Vec<_>>(),
+            true,
+            None,
+            check,
+        ))))
+        .collect::<Result<Vec<_>>>()
+}
+
+/// Makes the demo's directory: it replaces its own directory on every run, and nothing else.
+fn prepare_demo_dir(out: &Path, force: bool) -> Result<()> {
+    // A directory it marked, or one that holds only the files a demo writes.
     let marker = out.join(".skincal-demo");
-    const DEMO_FILES: [&str; 9] = [
+    const DEMO_FILES: [&str; 11] = [
         ".skincal-demo",
         "measurements.json",
         "truth.json",
@@ -1313,25 +1351,36 @@ fn demo(args: DemoArgs) -> Result<()> {
         "model.json",
         "model.urdf",
         "held-out",
+        "humanoid.urdf",
+        "humanoid-skin.urdf",
         "report.html",
     ];
-    let holds_other_files = std::fs::read_dir(&out).is_ok_and(|entries| {
+    let holds_other_files = std::fs::read_dir(out).is_ok_and(|entries| {
         entries
             .filter_map(Result::ok)
             .any(|e| !DEMO_FILES.contains(&e.file_name().to_string_lossy().as_ref()))
     });
-    if holds_other_files && !marker.exists() && !args.force {
+    if holds_other_files && !marker.exists() && !force {
         anyhow::bail!(
             "{} holds files that skincal demo did not make: choose another --out, or pass --force to overwrite them",
             out.display()
         );
     }
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     std::fs::write(
         &marker,
         "made by skincal demo, which replaces this directory's files on every run\n",
     )
     .with_context(|| format!("cannot write {}", marker.display()))?;
+    Ok(())
+}
+
+fn demo(args: DemoArgs) -> Result<()> {
+    let started = std::time::Instant::now();
+    let out = args
+        .out
+        .unwrap_or_else(|| std::env::temp_dir().join("skincal-demo"));
+    prepare_demo_dir(&out, args.force)?;
     let robot = io::load_robot("humanoid", SuPlacement::default())?;
     let config = SimulationConfig {
         seed: args.seed,
@@ -1391,40 +1440,7 @@ fn demo(args: DemoArgs) -> Result<()> {
     let held_out = io::read_measurements(&held_files[0])?;
     let check =
         skincal::predict::validate(&model, &held_out, &held_files[0].display().to_string())?;
-    let rows = model
-        .limbs
-        .iter()
-        .map(|limb| {
-            let e = &limb.estimate;
-            let accuracy = estimate::consecutive_su_errors(
-                &robot,
-                &e.to_robot(),
-                &e.chain.su_sequence(),
-                30,
-                1,
-            )?;
-            Ok(render::LimbRow::new(
-                &limb.name,
-                limb.dofs.len(),
-                &limb.sus,
-                e.converged,
-                Some(&accuracy),
-                &check,
-            ))
-        })
-        .chain(std::iter::once(Ok(render::LimbRow::new(
-            &format!("{} (static)", model.reference),
-            0,
-            &model
-                .static_sus
-                .iter()
-                .map(|s| s.su.clone())
-                .collect::<Vec<_>>(),
-            true,
-            None,
-            &check,
-        ))))
-        .collect::<Result<Vec<_>>>()?;
+    let rows = demo_rows(&robot, &model, &check)?;
     out!("{}", render::body_table(&rows, &check));
 
     let (json_path, dot_path, model_path, urdf_path) = (
