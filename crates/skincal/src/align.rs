@@ -667,42 +667,46 @@ pub fn merge_sus(
             j = xml_escape(&joint),
         ));
     }
-    let text = if snippet {
-        format!(
+    if snippet {
+        return Ok(format!(
             "<?xml version=\"1.0\"?>{newline}<!-- Include inside your robot's xacro: <xacro:include filename=\"this file\"/> -->{newline}<robot xmlns:xacro=\"http://www.ros.org/wiki/xacro\">{newline}{block}</robot>{newline}"
-        )
-    } else {
-        let end = urdf_text.rfind("</robot>").ok_or(AlignError::NoRobotEnd)?;
-        // Keep the indentation of the closing tag's line.
-        let line_start = urdf_text[..end].rfind('\n').map_or(0, |i| i + 1);
-        let at = if urdf_text[line_start..end].trim().is_empty() {
-            line_start
-        } else {
-            end
-        };
-        let mut text = String::with_capacity(urdf_text.len() + block.len());
-        text.push_str(&urdf_text[..at]);
-        if at == end {
-            text.push_str(newline);
+        ));
+    }
+    let text = insert_before_end(urdf_text, &block, newline)?;
+    // The result must read back as the URDF with the SU frames on their links.
+    let merged = UrdfTree::parse(&text).map_err(|e| AlignError::Merged(e.to_string()))?;
+    for s in &alignment.sus {
+        let joint = format!("{prefix}{}_mount", s.su);
+        if !merged
+            .joints
+            .iter()
+            .any(|j| j.name == joint && j.parent == s.link)
+        {
+            return Err(AlignError::Merged(format!(
+                "`{joint}` is not on `{}` (is `</robot>` inside a comment?)",
+                s.link
+            )));
         }
-        text.push_str(&block);
-        text.push_str(&urdf_text[at..]);
-        // The result must read back as the URDF with the SU frames on their links.
-        let merged = UrdfTree::parse(&text).map_err(|e| AlignError::Merged(e.to_string()))?;
-        for s in &alignment.sus {
-            let joint = format!("{prefix}{}_mount", s.su);
-            if !merged
-                .joints
-                .iter()
-                .any(|j| j.name == joint && j.parent == s.link)
-            {
-                return Err(AlignError::Merged(format!(
-                    "`{joint}` is not on `{}` (is `</robot>` inside a comment?)",
-                    s.link
-                )));
-            }
-        }
-        text
-    };
+    }
     Ok(text)
+}
+
+/// `text` with `block` inserted before its last `</robot>`, on a line of its own.
+fn insert_before_end(text: &str, block: &str, newline: &str) -> Result<String, AlignError> {
+    let end = text.rfind("</robot>").ok_or(AlignError::NoRobotEnd)?;
+    // Keep the indentation of the closing tag's line.
+    let line_start = text[..end].rfind('\n').map_or(0, |i| i + 1);
+    let at = if text[line_start..end].trim().is_empty() {
+        line_start
+    } else {
+        end
+    };
+    let mut out = String::with_capacity(text.len() + block.len() + newline.len());
+    out.push_str(&text[..at]);
+    if at == end {
+        out.push_str(newline);
+    }
+    out.push_str(block);
+    out.push_str(&text[at..]);
+    Ok(out)
 }

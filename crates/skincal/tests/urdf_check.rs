@@ -277,3 +277,27 @@ fn su_frames_merged_into_the_users_urdf_read_what_the_model_predicts() {
     }
     eprintln!("largest difference: {worst:.2} of 3σ");
 }
+
+#[test]
+fn the_merge_keeps_the_files_line_endings_and_a_closing_tag_on_a_line_of_its_own() {
+    let (robot, model) = calibrated_humanoid();
+    let plain = users_urdf(&robot, &[]);
+    for urdf in [
+        plain.replace('\n', "\r\n"),
+        plain.replace("  </joint>\n</robot>\n", "  </joint></robot>"),
+    ] {
+        let alignment = align(&model, &urdf).unwrap();
+        let merged = merge_sus(&alignment, &urdf, "skin_", false).unwrap();
+        let end = urdf.rfind("</robot>").unwrap();
+        assert!(merged.starts_with(&urdf[..end]) && merged.ends_with(&urdf[end..]));
+        let crlf = urdf.contains("\r\n");
+        assert_eq!(merged.matches("\r\n").count() > 0, crlf);
+        if crlf {
+            assert_eq!(merged.matches('\n').count(), merged.matches("\r\n").count());
+        }
+        assert_eq!(merged.matches("_mount\" type=\"fixed\"").count(), 28);
+        // It reads back with every SU on its link (checked inside `merge_sus`), and `</robot>`
+        // now stands on a line of its own.
+        assert!(merged.contains("</joint>") && merged.trim_end().ends_with("</robot>"));
+    }
+}
