@@ -10,12 +10,14 @@
 //! hangs on them: a link frame's turn about its joint's axis and its shift along it are the URDF's
 //! choice. So the URDF is carried onto the calibration from the root of each limb outwards: `A_d`
 //! takes the URDF's coordinates to the calibration's as seen from the link that DoF `d` moves.
-//! - A limb's first DoF (on the static reference segment): where the limb sits on the reference,
-//!   and how it is turned, no reading tells. `A` takes the URDF's axis line onto the calibrated
-//!   one, and its turn about and shift along that line are chosen so that the next axis lines
-//!   agree (the common normal's direction and foot, as in a DH table; a parallel next axis fixes
-//!   only the turn, and a later one the shift). This joint is not checked; the next one only in
-//!   the components that the choice leaves (the distance and angle between the two axes).
+//! - A limb's first DoF: where a limb on the static reference segment sits, and how it is turned,
+//!   no reading tells; a limb on another limb's segment was fitted with that limb's path and
+//!   gravity held, so where it sits carries that limb's gravity uncertainty, which the model does
+//!   not keep. `A` takes the URDF's axis line onto the calibrated one, and its turn about and shift
+//!   along that line are chosen so that the nearest later axis that tells them robustly agrees
+//!   (the common normal's direction and foot, as in a DH table; a parallel axis tells only the
+//!   turn, by its offset). This joint is not checked; the next one only in the components that the
+//!   choice leaves (the distance and angle between the two axes).
 //! - Every other DoF `d` on parent `p`: the URDF's axis line, carried by `A_p`, is moved onto the
 //!   calibrated one by the smallest motion — a turn about a line through the URDF joint's origin
 //!   perpendicular to the axis (`tilt`), then a shift perpendicular to the axis (`shift`), both
@@ -85,6 +87,10 @@ const CHI2_3SIGMA: [f64; 4] = [9.0, 11.829, 14.156, 16.251];
 const PARALLEL: f64 = 0.05;
 /// A parallel axis nearer than this to the previous one (m) tells nothing about the turn either.
 const COINCIDENT: f64 = 1e-3;
+/// An axis this far from parallel (sine of the angle) tells a limb base's turn and shift robustly.
+const ROBUST: f64 = 0.3;
+/// A parallel axis this far away (m) tells a limb base's turn robustly.
+const LEVER: f64 = 0.05;
 /// Step of the central differences for the Jacobian (rad and m).
 const STEP: f64 = 1e-6;
 
@@ -173,8 +179,17 @@ struct Plan {
     urdf: Vec<Result<Isometry3<f64>, String>>,
     /// Per DoF: its parent DoF in the calibration.
     parent: Vec<Option<DofIndex>>,
-    /// Per DoF: the DoFs after it, first child first (for a limb base's turn and shift).
-    chain: Vec<Vec<DofIndex>>,
+    /// Per DoF: the first DoF of a limb that hangs on another limb's segment.
+    hangs: Vec<bool>,
+    /// Per DoF: the DoFs after it, nearest first (for a limb base's turn and shift).
+    descendants: Vec<Vec<DofIndex>>,
+}
+
+impl Plan {
+    /// Whether the alignment starts afresh at `d`: a limb's first DoF.
+    fn is_base(&self, d: DofIndex) -> bool {
+        self.parent[d].is_none() || self.hangs[d]
+    }
 }
 
 /// The result of one run of the alignment.
@@ -217,7 +232,7 @@ fn run(plan: &Plan, cal: &[Isometry3<f64>]) -> Run {
     let mut r: Vec<Option<Vector4<f64>>> = vec![None; n];
     for d in 0..n {
         let Ok(u) = &plan.urdf[d] else { continue };
-        match plan.parent[d] {
+        match plan.parent[d].filter(|_| !plan.is_base(d)) {
             None => a[d] = Some(limb_base(plan, cal, d, u)),
             Some(p) => {
                 let Some(ap) = a[p] else { continue };
@@ -237,27 +252,43 @@ fn limb_base(
     d: DofIndex,
     u: &Isometry3<f64>,
 ) -> Isometry3<f64> {
-    let (mut turn, mut foot) = (None, None);
-    for &c in &plan.chain[d] {
-        let Ok(uc) = &plan.urdf[c] else { break };
+    // The nearest later axis that tells each robustly (the URDF's geometry decides the case, the
+    // calibration follows it): the turn from a common normal's direction (an axis at least
+    // ROBUST from parallel) or a parallel axis's offset (at least LEVER away); the shift from a
+    // common normal's foot. Failing that, the best there is.
+    // (how robustly, value)
+    let mut turn: Option<(f64, f64)> = None;
+    let mut foot: Option<(f64, f64)> = None;
+    for &c in &plan.descendants[d] {
+        let Ok(uc) = &plan.urdf[c] else { continue };
         let on_u = u.inverse() * uc;
         let on_c = cal[d].inverse() * cal[c];
         let (du, dc) = (on_u * Vector3::z(), on_c * Vector3::z());
         let (pu, pc) = (on_u.translation.vector, on_c.translation.vector);
-        // The URDF's geometry decides the case, the calibration follows it.
-        let parallel = Vector3::z().cross(&du).norm() <= PARALLEL;
+        let sine = Vector3::z().cross(&du).norm();
+        let parallel = sine <= PARALLEL;
         let (azimuth_u, foot_u) = normal_of(&pu, &du, parallel);
         let (azimuth_c, foot_c) = normal_of(&pc, &dc, parallel);
-        if let (None, Some(u), Some(c)) = (turn, azimuth_u, azimuth_c) {
-            turn = Some(c - u);
+        let lever = if parallel {
+            (pu - du * pu.dot(&du)).norm() / LEVER
+        } else {
+            sine / ROBUST
+        };
+        if let (Some(u), Some(c)) = (azimuth_u, azimuth_c) {
+            if turn.is_none_or(|(best, _)| best < 1.0 && lever > best) {
+                turn = Some((lever, c - u));
+            }
         }
-        if let (None, Some(u), Some(c)) = (foot, foot_u, foot_c) {
-            foot = Some(c - u);
+        if let (Some(u), Some(c)) = (foot_u, foot_c) {
+            if foot.is_none_or(|(best, _)| best < 1.0 && lever > best) {
+                foot = Some((lever, c - u));
+            }
         }
-        if turn.is_some() && foot.is_some() {
+        if turn.is_some_and(|(l, _)| l >= 1.0) && foot.is_some_and(|(l, _)| l >= 1.0) {
             break;
         }
     }
+    let (turn, foot) = (turn.map(|(_, t)| t), foot.map(|(_, f)| f));
     let z = Isometry3::from_parts(
         Translation3::new(0.0, 0.0, foot.unwrap_or(0.0)),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn.unwrap_or(0.0)),
@@ -305,7 +336,7 @@ pub fn align(body: &BodyModel, urdf_text: &str) -> Result<Alignment, AlignError>
     let cal: Vec<Isometry3<f64>> = (0..n)
         .map(|d| z_on(&k.joints[d], &model.dofs()[d].axis))
         .collect();
-    let plan = plan(&robot, &tree)?;
+    let plan = plan(body, &robot, &tree)?;
     let nominal = run(&plan, &cal);
     let covariance = check_covariance(body, &robot, &k.joints, &cal, &plan);
     let joints: Vec<JointCheck> = (0..n)
@@ -394,6 +425,10 @@ fn check_joint(
             JointVerdict::LimbBase,
             "where a limb sits on the reference segment no reading tells: the URDF is aligned on this axis".into(),
         ),
+        (Ok(_), Some(p), _) if plan.hangs[d] => return blank(
+            JointVerdict::LimbBase,
+            format!("a limb on `{}`'s segment, fitted with that limb's path and gravity held: where it sits on it carries that limb's gravity uncertainty, which the model does not keep; the URDF is aligned on this axis", model.dofs()[p].name),
+        ),
         (Ok(_), Some(p), None) => return blank(
             JointVerdict::NotCompared,
             format!("`{}` before it was not compared", model.dofs()[p].name),
@@ -428,7 +463,7 @@ fn check_joint(
     } else {
         JointVerdict::Agrees
     };
-    check.note = if plan.parent[p].is_none() {
+    check.note = if plan.is_base(p) {
         format!("against `{parent}`, the limb's first DoF: only the distance and angle between the two axes tell")
     } else {
         format!("against `{parent}`")
@@ -551,7 +586,7 @@ fn limb_jacobian(
 }
 
 /// Matches the calibrated DoFs with the URDF's joints and checks that the trees agree.
-fn plan(robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignError> {
+fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignError> {
     use urdf_rs::JointType as J;
     let model = &robot.model;
     let moving: HashMap<&str, &crate::model::urdf::UrdfJoint> = tree
@@ -602,21 +637,34 @@ fn plan(robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignError> {
                 .collect(),
         });
     }
-    let chain = (0..n)
+    let descendants = (0..n)
         .map(|d| {
             let mut out = Vec::new();
-            let mut at = d;
-            while let Some(c) = (0..n).find(|&c| parent[c] == Some(at)) {
-                out.push(c);
-                at = c;
+            let mut frontier = vec![d];
+            while !frontier.is_empty() {
+                let next: Vec<DofIndex> = (0..n)
+                    .filter(|&c| parent[c].is_some_and(|p| frontier.contains(&p)))
+                    .collect();
+                out.extend(&next);
+                frontier = next;
             }
             out
+        })
+        .collect();
+    let hangs = model
+        .dofs()
+        .iter()
+        .map(|dof| {
+            body.limbs
+                .iter()
+                .any(|l| l.parent.is_some() && l.dofs.first() == Some(&dof.name))
         })
         .collect();
     Ok(Plan {
         urdf,
         parent,
-        chain,
+        hangs,
+        descendants,
     })
 }
 

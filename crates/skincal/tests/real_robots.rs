@@ -107,6 +107,37 @@ fn calibrates(path: &str, seeds: &[u64]) {
             check.static_rms,
             check.dynamic_rms
         );
+        // The robot's own URDF checked against the calibration: its joints are where the
+        // calibration puts them, within the uncertainty it reports (χ² per degree of freedom near
+        // 1; at 3σ about one joint in 370 is flagged by chance).
+        let urdf = std::fs::read_to_string(&file).unwrap();
+        let urdf_check = skincal::align::align(&model, &urdf).unwrap().check;
+        let compared: Vec<_> = urdf_check
+            .joints
+            .iter()
+            .filter(|j| j.components > 0)
+            .collect();
+        let per_dof = compared.iter().map(|j| j.chi2).sum::<f64>()
+            / compared.iter().map(|j| j.components).sum::<usize>().max(1) as f64;
+        eprintln!(
+            "{path}, seed {seed}: {} joints compared, χ²/dof {per_dof:.2}, disagree {:?}",
+            compared.len(),
+            urdf_check.disagree
+        );
+        // Every calibrated DoF is compared or starts a limb.
+        for j in &urdf_check.joints {
+            assert!(
+                j.verdict != skincal::align::JointVerdict::NotCompared,
+                "{path}: {} {}",
+                j.dof,
+                j.note
+            );
+        }
+        assert!(
+            (0.5..1.6).contains(&per_dof),
+            "{path}, seed {seed}: {per_dof}"
+        );
+        assert!(urdf_check.disagree.len() <= 1, "{:?}", urdf_check.disagree);
     }
 }
 
