@@ -598,12 +598,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     let (structure, source) = structure_of(&set, &dir)?;
     let truth_path = dir.join("truth.json");
     let truth = if truth_path.exists() {
-        let t = io::read_truth(&truth_path)?;
-        Some(
-            t.robot
-                .build()
-                .map_err(|e| anyhow::anyhow!("{}: {e}", truth_path.display()))?,
-        )
+        Some(io::read_true_robot(&truth_path)?)
     } else {
         None
     };

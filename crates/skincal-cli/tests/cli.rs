@@ -1199,3 +1199,63 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(std::fs::metadata(&shot).unwrap().len() > 10_000);
 }
+
+#[test]
+fn the_short_program_runs_the_whole_path_and_compares_with_the_recorded_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |args: &[&str]| {
+        let out = skincal(args, d);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let plan = ok(&[
+        "plan",
+        "--robot",
+        "paper-7dof",
+        "--protocol",
+        "short",
+        "--out",
+        "p",
+    ]);
+    assert!(plan.contains("6 poses × 7 DoFs"), "{plan}");
+    let upright = [
+        "record",
+        "--robot",
+        "paper-7dof",
+        "--plan",
+        "p/plan.json",
+        "--out",
+        "up.mcap",
+    ];
+    ok(&upright);
+    ok(&[
+        "record",
+        "--robot",
+        "paper-7dof",
+        "--plan",
+        "p/plan.json",
+        "--out",
+        "tilt.mcap",
+        "--part",
+        "structure",
+        "--tilted",
+    ]);
+    ok(&[
+        "ingest",
+        "up.mcap",
+        "tilt.mcap",
+        "--plan",
+        "p/plan.json",
+        "--out",
+        "real",
+    ]);
+    ok(&["explore", "real"]);
+    // The truth `record` wrote beside the log serves as the directory's truth.
+    std::fs::copy(d.join("up.truth.json"), d.join("real/truth.json")).unwrap();
+    let calibrated = ok(&["calibrate", "real"]);
+    assert!(
+        calibrated.contains("against the truth") && calibrated.contains("converged"),
+        "{calibrated}"
+    );
+}

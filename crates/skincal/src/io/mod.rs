@@ -208,6 +208,37 @@ pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     })
 }
 
+/// Reads the true robot from a ground-truth file: `truth.json` from `simulate`, or the truth that
+/// `record` writes beside a log (`*.truth.json`).
+pub fn read_true_robot(path: &Path) -> Result<Robot, IoError> {
+    let text = read(path)?;
+    let file = if text.contains("\"skincal-log-truth\"") {
+        #[derive(serde::Deserialize)]
+        struct LogTruth {
+            format: String,
+            robot: RobotFile,
+        }
+        let t: LogTruth =
+            crate::json::parse(&text, "a log's ground truth").map_err(|message| IoError::Json {
+                path: path.to_path_buf(),
+                message,
+            })?;
+        if t.format != "skincal-log-truth" {
+            return Err(IoError::Json {
+                path: path.to_path_buf(),
+                message: format!("`format` is `{}`, not a ground truth", t.format),
+            });
+        }
+        t.robot
+    } else {
+        read_truth(path)?.robot
+    };
+    file.build().map_err(|source| IoError::Description {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Writes every `(path, contents)` pair whole or not at all. Without `force`, fails before writing
 /// anything if one of the paths exists. Creates missing directories.
 pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError> {
@@ -298,14 +329,7 @@ pub fn read_report_inputs(
         })
         .transpose()?;
     let truth = present("truth.json")
-        .map(|p| {
-            read_truth(&p).and_then(|t| {
-                t.robot.build().map_err(|source| IoError::Description {
-                    path: p.clone(),
-                    source,
-                })
-            })
-        })
+        .map(|p| read_true_robot(&p))
         .transpose()?;
     let paper = match present("model-paper.json") {
         Some(p) => {
