@@ -107,7 +107,7 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
     // The demo wrote the robot's own URDF (no skin) and the same with the SU frames.
     let own = std::fs::read_to_string(d.join("demo/humanoid.urdf")).unwrap();
     assert!(!own.contains("_mount"));
-    let out = skincal(
+    let said = succeeds(
         &[
             "export-urdf",
             "demo/model.json",
@@ -118,15 +118,14 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
         ],
         d,
     );
-    assert!(out.status.success(), "{}", stderr(&out));
     let skin = std::fs::read_to_string(d.join("skin.urdf")).unwrap();
     // The user's text is kept; 28 SUs on moving links, the torso's 3 only tilted (not placed).
     let end = own.rfind("</robot>").unwrap();
     assert!(skin.starts_with(&own[..end]) && skin.ends_with(&own[end..]));
     assert_eq!(skin.matches("_mount\" type=\"fixed\"").count(), 28);
-    assert!(String::from_utf8_lossy(&out.stdout).contains("not placed: torso_back"));
+    assert!(said.contains("not placed: torso_back"), "{said}");
     // The snippet for a xacro: only the added elements.
-    let out = skincal(
+    succeeds(
         &[
             "export-urdf",
             "demo/model.json",
@@ -136,7 +135,6 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
         ],
         d,
     );
-    assert!(out.status.success(), "{}", stderr(&out));
     let snippet = std::fs::read_to_string(d.join("demo/humanoid-skin.xacro")).unwrap();
     assert!(snippet.contains("xmlns:xacro") && !snippet.contains("<joint name=\"l_elbow\""));
     // Names that are taken: say so and how to avoid it, write nothing.
@@ -155,7 +153,7 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
     assert!(!d.join("x.urdf").exists());
 
     // check-urdf: the exact URDF agrees (exit 0) ...
-    let out = skincal(
+    let said = succeeds(
         &[
             "check-urdf",
             "demo/model.json",
@@ -164,8 +162,7 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
         ],
         d,
     );
-    assert!(out.status.success(), "{}", stderr(&out));
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&said).unwrap();
     assert_eq!(v["check"]["disagree"].as_array().unwrap().len(), 0);
     assert_eq!(v["check"]["joints"].as_array().unwrap().len(), 26);
     // ... and the elbow's axis tilted by 3° about its joint frame's x axis (perpendicular to
@@ -311,6 +308,13 @@ fn a_calibrated_model_exports_predicts_and_validates() {
 }
 
 /// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
+/// Runs `skincal args` in `dir`, requires success and returns the standard output.
+fn succeeds(args: &[&str], dir: &Path) -> String {
+    let out = skincal(args, dir);
+    assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    String::from_utf8(out.stdout).unwrap()
+}
+
 fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
     let out = skincal(args, dir);
     assert_eq!(out.status.code(), Some(1), "{args:?}: {}", stderr(&out));
@@ -924,10 +928,7 @@ fn a_closed_output_pipe_neither_panics_nor_loses_results() {
 fn no_result_is_overwritten_unasked_and_an_incomplete_tree_exits_with_3() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let ok = |args: &[&str]| {
-        let out = skincal(args, d);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
-    };
+    let ok = |args: &[&str]| succeeds(args, d);
     ok(&[
         "simulate",
         "--robot",
@@ -1204,11 +1205,7 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
 fn the_short_program_runs_the_whole_path_and_compares_with_the_recorded_truth() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let ok = |args: &[&str]| {
-        let out = skincal(args, d);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
-        String::from_utf8(out.stdout).unwrap()
-    };
+    let ok = |args: &[&str]| succeeds(args, d);
     let plan = ok(&[
         "plan",
         "--robot",

@@ -176,7 +176,7 @@ pub struct Alignment {
 struct Plan {
     /// Per DoF: the URDF joint's frame with z on its axis, in the URDF root's frame (none: not
     /// compared, with the reason).
-    urdf: Vec<Result<Isometry3<f64>, String>>,
+    urdf: Vec<Result<Matched, String>>,
     /// Per DoF: its parent DoF in the calibration.
     parent: Vec<Option<DofIndex>>,
     /// Per DoF: the first DoF of a limb that hangs on another limb's segment.
@@ -190,6 +190,14 @@ impl Plan {
     fn is_base(&self, d: DofIndex) -> bool {
         self.parent[d].is_none() || self.hangs[d]
     }
+}
+
+/// A calibrated DoF's URDF joint.
+struct Matched {
+    /// Its index in the tree's joints.
+    joint: usize,
+    /// Its frame with z on its axis, in the URDF root's frame.
+    frame: Isometry3<f64>,
 }
 
 /// The result of one run of the alignment.
@@ -231,7 +239,9 @@ fn run(plan: &Plan, cal: &[Isometry3<f64>]) -> Run {
     let mut a: Vec<Option<Isometry3<f64>>> = vec![None; n];
     let mut r: Vec<Option<Vector4<f64>>> = vec![None; n];
     for d in 0..n {
-        let Ok(u) = &plan.urdf[d] else { continue };
+        let Ok(Matched { frame: u, .. }) = &plan.urdf[d] else {
+            continue;
+        };
         match plan.parent[d].filter(|_| !plan.is_base(d)) {
             None => a[d] = Some(limb_base(plan, cal, d, u)),
             Some(p) => {
@@ -260,7 +270,9 @@ fn limb_base(
     let mut turn: Option<(f64, f64)> = None;
     let mut foot: Option<(f64, f64)> = None;
     for &c in &plan.descendants[d] {
-        let Ok(uc) = &plan.urdf[c] else { continue };
+        let Ok(Matched { frame: uc, .. }) = &plan.urdf[c] else {
+            continue;
+        };
         let on_u = u.inverse() * uc;
         let on_c = cal[d].inverse() * cal[c];
         let (du, dc) = (on_u * Vector3::z(), on_c * Vector3::z());
@@ -419,7 +431,7 @@ fn check_joint(
         components: 0,
         chi2: 0.0,
     };
-    let (p, r) = match (&plan.urdf[d], plan.parent[d], r) {
+    let (matched, p, r) = match (&plan.urdf[d], plan.parent[d], r) {
         (Err(why), _, _) => return blank(JointVerdict::NotCompared, why.clone()),
         (Ok(_), None, _) => return blank(
             JointVerdict::LimbBase,
@@ -433,9 +445,11 @@ fn check_joint(
             JointVerdict::NotCompared,
             format!("`{}` before it was not compared", model.dofs()[p].name),
         ),
-        (Ok(_), Some(p), Some(r)) => (p, r),
+        (Ok(matched), Some(p), Some(r)) => (matched, p, r),
     };
-    let turn = model_frame_turn(tree, &model.dofs()[d].name);
+    // The check's components are in the joint's z-axis frame; tilt and shift are reported in the
+    // URDF joint's own frame.
+    let turn = z_on(&Isometry3::identity(), &tree.joints[matched.joint].axis).rotation;
     let mut check = JointCheck {
         angle: nalgebra::Vector2::new(r[0], r[1]).norm(),
         distance: nalgebra::Vector2::new(r[2], r[3]).norm(),
@@ -491,7 +505,7 @@ fn place_sus(
             continue;
         };
         let dof = &model.dofs()[d].name;
-        let (Some(a), Some(joint)) = (a[d], tree.joints.iter().find(|j| &j.name == dof)) else {
+        let (Some(a), Ok(matched)) = (a[d], &plan.urdf[d]) else {
             let why = match &plan.urdf[d] {
                 Err(why) => format!("its DoF `{dof}`: {why}"),
                 Ok(_) => format!("its DoF `{dof}` could not be aligned"),
@@ -499,6 +513,7 @@ fn place_sus(
             unplaced.push((su.name.clone(), why));
             continue;
         };
+        let joint = &tree.joints[matched.joint];
         sus.push(SuOnLink {
             su: su.name.clone(),
             link: joint.child.clone(),
@@ -506,16 +521,6 @@ fn place_sus(
         });
     }
     (sus, unplaced)
-}
-
-/// The turn from the URDF joint frame to its z-axis frame (see [`z_on`]).
-fn model_frame_turn(tree: &UrdfTree, joint: &str) -> UnitQuaternion<f64> {
-    let axis = tree
-        .joints
-        .iter()
-        .find(|j| j.name == joint)
-        .map_or(Vector3::z(), |j| j.axis);
-    z_on(&Isometry3::identity(), &axis).rotation
 }
 
 /// χ² of `r` against covariance `c` over the directions `c` determines, and their number.
@@ -589,11 +594,12 @@ fn limb_jacobian(
 fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignError> {
     use urdf_rs::JointType as J;
     let model = &robot.model;
-    let moving: HashMap<&str, &crate::model::urdf::UrdfJoint> = tree
+    let moving: HashMap<&str, (usize, &crate::model::urdf::UrdfJoint)> = tree
         .joints
         .iter()
-        .filter(|j| matches!(j.kind, J::Revolute | J::Continuous))
-        .map(|j| (j.name.as_str(), j))
+        .enumerate()
+        .filter(|(_, j)| matches!(j.kind, J::Revolute | J::Continuous))
+        .map(|(i, j)| (j.name.as_str(), (i, j)))
         .collect();
     let n = model.dofs().len();
     let parent: Vec<Option<DofIndex>> = model
@@ -612,7 +618,7 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
                 .to_lowercase(),
                 None => "the URDF has no joint of this name".to_string(),
             }),
-            Some(j) => {
+            Some(&(index, j)) => {
                 let above = tree.moving_joint_above(&j.parent).map(|a| a.name.as_str());
                 match parent[d] {
                     Some(p) if above != Some(model.dofs()[p].name.as_str()) => Err(format!(
@@ -620,7 +626,10 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
                         above.map_or("nothing".to_string(), |a| format!("`{a}`")),
                         model.dofs()[p].name
                     )),
-                    _ => Ok(z_on(&(tree.frames[&j.parent] * j.origin), &j.axis)),
+                    _ => Ok(Matched {
+                        joint: index,
+                        frame: z_on(&(tree.frames[&j.parent] * j.origin), &j.axis),
+                    }),
                 }
             }
         };

@@ -10,24 +10,14 @@ use skincal::model::{forward_kinematics, presets, Robot};
 use skincal::predict::{validate, PredictError};
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
+use crate::common::{calibrated, held_out, test_python};
+
 fn noise_free(seed: u64) -> SimulationConfig {
     SimulationConfig {
         seed,
         imperfections: Imperfections::none(),
         ..SimulationConfig::default()
     }
-}
-
-fn held_out(robot: &Robot, seed: u64) -> skincal::measurements::MeasurementSet {
-    simulate(
-        robot,
-        &SimulationConfig {
-            structure: false,
-            ..noise_free(seed)
-        },
-    )
-    .unwrap()
-    .measurements
 }
 
 #[test]
@@ -71,18 +61,13 @@ fn noise_free_humanoid_predicts_held_out_readings_exactly() {
 fn noisy_humanoid() -> (Robot, skincal::estimate::body::BodyModel) {
     let robot = presets::find("humanoid").unwrap().robot().unwrap();
     let robot = with_random_sus(&robot, 2, 7).unwrap();
-    let set = simulate(
+    let model = calibrated(
         &robot,
         &SimulationConfig {
             seed: 3,
             ..SimulationConfig::default()
         },
-    )
-    .unwrap()
-    .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete);
-    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    );
     (robot, model)
 }
 
@@ -300,7 +285,7 @@ fn urdf_export_loads_in_mujoco_with_the_same_kinematics() {
     .unwrap();
     let script =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/urdf_fk.py");
-    let python = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let python = test_python();
     let out = std::process::Command::new(&python)
         .arg(&script)
         .arg(&urdf)

@@ -43,3 +43,45 @@ pub fn fixture(name: &str) -> std::path::PathBuf {
         .join("tests/fixtures")
         .join(name)
 }
+
+/// A held-out set of `robot`: training poses drawn from `seed`, no structure experiment, no noise
+/// or other imperfection (what a calibration should predict exactly).
+pub fn held_out(robot: &skincal::model::Robot, seed: u64) -> skincal::measurements::MeasurementSet {
+    use skincal::sim::{simulate, Imperfections, SimulationConfig};
+    simulate(
+        robot,
+        &SimulationConfig {
+            seed,
+            structure: false,
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap()
+    .measurements
+}
+
+/// `robot` simulated with `config`, explored (the tree must be complete) and calibrated by
+/// maximum likelihood with the default settings.
+pub fn calibrated(
+    robot: &skincal::model::Robot,
+    config: &skincal::sim::SimulationConfig,
+) -> skincal::estimate::body::BodyModel {
+    use skincal::explore::{explore, ExploreConfig};
+    let set = skincal::sim::simulate(robot, config).unwrap().measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    skincal::estimate::body::calibrate_body(
+        &set,
+        Some(&structure),
+        &skincal::estimate::ml::MlConfig::default(),
+        None,
+    )
+    .unwrap()
+}
+
+/// The Python that runs the scripts of `tests/python` (`cargo xtask test` makes it and sets
+/// `SKINCAL_TEST_PYTHON`).
+pub fn test_python() -> std::ffi::OsString {
+    std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into())
+}

@@ -135,17 +135,7 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
         "the same sorted activity matrix"
     );
     assert!(structure.uncertain.is_empty(), "{:?}", structure.uncertain);
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            seed: 77,
-            imperfections: Imperfections::none(),
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
+    let held_out = crate::common::held_out(&robot, 77);
     let config = MlConfig::default();
     let from_log = calibrate_body(&set, Some(&structure), &config, None).unwrap();
     let from_condensed =
@@ -223,18 +213,7 @@ fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0
     );
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
     assert!(model.limbs.iter().all(|l| l.estimate.converged));
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            seed: 99,
-            imperfections: Imperfections::none(),
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
-    let check = validate(&model, &held_out, "held-out").unwrap();
+    let check = validate(&model, &crate::common::held_out(&robot, 99), "held-out").unwrap();
     eprintln!(
         "held-out RMS static {:.4}, dynamic {:.4} m/s²",
         check.static_rms, check.dynamic_rms
@@ -710,7 +689,7 @@ fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
     };
     let from_csv = read(&csv).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros1_bag.py");
-    let python = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let python = crate::common::test_python();
     for compression in ["none", "bz2", "lz4"] {
         let bag = dir.path().join(format!("{compression}.bag"));
         let out = std::process::Command::new(&python)

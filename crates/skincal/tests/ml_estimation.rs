@@ -17,6 +17,19 @@ fn chain(n: usize) -> SerialChain {
     }
 }
 
+/// The data of `truth` simulated with the paper's noise from `seed`, as one 7-DoF chain.
+fn paper_noise_data(truth: &skincal::model::Robot, seed: u64) -> ChainData {
+    let sim = simulate(
+        truth,
+        &SimulationConfig {
+            seed,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap();
+    ChainData::new(&sim.measurements, &chain(7)).unwrap()
+}
+
 fn noise_free() -> SimulationConfig {
     SimulationConfig {
         imperfections: Imperfections::none(),
@@ -163,15 +176,7 @@ fn parallel_axes_leave_directions_the_data_cannot_see_and_they_are_named() {
 #[test]
 fn the_same_data_gives_the_same_estimate() {
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let sim = simulate(
-        &truth,
-        &SimulationConfig {
-            seed: 4,
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap();
-    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+    let data = paper_noise_data(&truth, 4);
     let a = estimate_chain(&data, &MlConfig::default()).unwrap();
     let b = estimate_chain(&data, &MlConfig::default()).unwrap();
     assert_eq!(a.robot, b.robot);
@@ -191,15 +196,7 @@ fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
     let sd = 0.01 * 9.81 / 3f64.sqrt();
     let (mut err, mut bound) = (0.0, 0.0);
     for seed in 1..=5 {
-        let sim = simulate(
-            &truth,
-            &SimulationConfig {
-                seed,
-                ..SimulationConfig::default()
-            },
-        )
-        .unwrap();
-        let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+        let data = paper_noise_data(&truth, seed);
         let e = estimate_chain(&data, &MlConfig::default()).unwrap();
         assert!(e.converged, "seed {seed}");
         let a = consecutive_su_errors(&truth, &e.to_robot(), &chain(7), 30, seed).unwrap();
@@ -307,15 +304,7 @@ fn the_dh_tables_standard_deviations_describe_the_spread_over_data_sets() {
     let (true_rows, _) = dh_form(&truth, &chain(7)).unwrap();
     let mut normalised = Vec::new();
     for seed in 1..=24 {
-        let sim = simulate(
-            &truth,
-            &SimulationConfig {
-                seed,
-                ..SimulationConfig::default()
-            },
-        )
-        .unwrap();
-        let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
+        let data = paper_noise_data(&truth, seed);
         let e = estimate_chain(&data, &MlConfig::default()).unwrap();
         let dh = e.dh.unwrap();
         assert_eq!(dh.dof_dof_sd.len(), dh.dof_dof.len());

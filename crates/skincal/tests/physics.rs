@@ -20,12 +20,12 @@ use skincal::model::sensor::{peak_dynamic_accelerations, static_readings};
 use skincal::model::{presets, Robot};
 use skincal::plan::{Plan, PlanConfig, PlanDof};
 use skincal::predict::validate;
-use skincal::sim::{simulate, BaseOrientation, Imperfections, SimulationConfig};
+use skincal::sim::BaseOrientation;
 
 /// Runs the physics simulation into `out` (a CSV log directory).
 fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/physics_log.py");
-    let interpreter = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let interpreter = crate::common::test_python();
     let output = Command::new(&interpreter)
         .arg(&script)
         .arg(robot)
@@ -224,18 +224,7 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     let ratio = unweighted.limbs[0].estimate.residual_ratio;
     eprintln!("with the default noise setting instead: residual {ratio:.2} σ");
     assert!(ratio < 0.5, "{ratio}");
-    let held_out = simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            seed: 77,
-            imperfections: Imperfections::none(),
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
-    let v = validate(&model, &held_out, "held-out").unwrap();
+    let v = validate(&model, &crate::common::held_out(&robot, 77), "held-out").unwrap();
     eprintln!(
         "held-out RMS static {:.4}, dynamic {:.4} m/s²",
         v.static_rms, v.dynamic_rms

@@ -4,11 +4,10 @@
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use skincal::align::{align, merge_sus};
-use skincal::estimate::body::{calibrate_body, BodyModel};
-use skincal::estimate::ml::MlConfig;
-use skincal::explore::{explore, ExploreConfig};
+use skincal::estimate::body::BodyModel;
 use skincal::model::{forward_kinematics, presets, Robot};
-use skincal::sim::{simulate, SimulationConfig};
+use skincal::report::urdf_check;
+use skincal::sim::SimulationConfig;
 
 /// A joint origin error: the axis turned by `tilt` (a rotation vector perpendicular to the axis,
 /// in the joint frame, rad) about a line through the joint's origin, and shifted along that line
@@ -71,18 +70,13 @@ fn users_urdf(robot: &Robot, errors: &[Error]) -> String {
 
 fn calibrated_humanoid() -> (Robot, BodyModel) {
     let robot = presets::find("humanoid").unwrap().robot().unwrap();
-    let set = simulate(
+    let model = crate::common::calibrated(
         &robot,
         &SimulationConfig {
             seed: 5,
             ..SimulationConfig::default()
         },
-    )
-    .unwrap()
-    .measurements;
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete);
-    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    );
     (robot, model)
 }
 
@@ -90,20 +84,7 @@ fn calibrated_humanoid() -> (Robot, BodyModel) {
 fn check_urdf_flags_exactly_the_perturbed_joints() {
     let (robot, model) = calibrated_humanoid();
     let exact = align(&model, &users_urdf(&robot, &[])).unwrap();
-    for j in &exact.check.joints {
-        eprintln!(
-            "{:18} {:?} angle {:.4}±{:.4}° distance {:.2}±{:.2} mm, χ² {:.1} ({}) {}",
-            j.dof,
-            j.verdict,
-            j.angle.to_degrees(),
-            j.angle_sd.to_degrees(),
-            j.distance * 1e3,
-            j.distance_sd * 1e3,
-            j.chi2,
-            j.components,
-            j.note
-        );
-    }
+    eprintln!("{}", urdf_check(&exact.check));
     assert!(
         exact.check.disagree.is_empty(),
         "{:?}",
@@ -127,19 +108,7 @@ fn check_urdf_flags_exactly_the_perturbed_joints() {
         },
     ];
     let off = align(&model, &users_urdf(&robot, &errors)).unwrap();
-    for j in &off.check.joints {
-        eprintln!(
-            "{:18} {:?} angle {:.4}±{:.4}° distance {:.2}±{:.2} mm, χ² {:.1} ({})",
-            j.dof,
-            j.verdict,
-            j.angle.to_degrees(),
-            j.angle_sd.to_degrees(),
-            j.distance * 1e3,
-            j.distance_sd * 1e3,
-            j.chi2,
-            j.components,
-        );
-    }
+    eprintln!("{}", urdf_check(&off.check));
     let mut flagged = off.check.disagree.clone();
     flagged.sort();
     let mut expected: Vec<String> = errors.iter().map(|e| e.dof.to_string()).collect();
@@ -216,7 +185,7 @@ fn su_frames_merged_into_the_users_urdf_read_what_the_model_predicts() {
     .unwrap();
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../tests/python/urdf_link_rotations.py");
-    let python = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
+    let python = crate::common::test_python();
     let out = std::process::Command::new(&python)
         .arg(&script)
         .arg(&urdf_path)

@@ -209,31 +209,25 @@ pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
 }
 
 /// Reads the true robot from a ground-truth file: `truth.json` from `simulate`, or the truth that
-/// `record` writes beside a log (`*.truth.json`).
+/// `record` writes beside a log (`*.truth.json`). Both hold the robot under `robot`.
 pub fn read_true_robot(path: &Path) -> Result<Robot, IoError> {
-    let text = read(path)?;
-    let file = if text.contains("\"skincal-log-truth\"") {
-        #[derive(serde::Deserialize)]
-        struct LogTruth {
-            format: String,
-            robot: RobotFile,
-        }
-        let t: LogTruth =
-            crate::json::parse(&text, "a log's ground truth").map_err(|message| IoError::Json {
-                path: path.to_path_buf(),
-                message,
-            })?;
-        if t.format != "skincal-log-truth" {
-            return Err(IoError::Json {
-                path: path.to_path_buf(),
-                message: format!("`format` is `{}`, not a ground truth", t.format),
-            });
-        }
-        t.robot
-    } else {
-        read_truth(path)?.robot
+    #[derive(serde::Deserialize)]
+    struct AnyTruth {
+        format: String,
+        robot: RobotFile,
+    }
+    let json = |message| IoError::Json {
+        path: path.to_path_buf(),
+        message,
     };
-    file.build().map_err(|source| IoError::Description {
+    let truth: AnyTruth = crate::json::parse(&read(path)?, "a ground truth").map_err(json)?;
+    if !matches!(truth.format.as_str(), "skincal-truth" | "skincal-log-truth") {
+        return Err(json(format!(
+            "`format` is `{}`: expected a ground truth (truth.json from skincal simulate, or a log's from skincal record)",
+            truth.format
+        )));
+    }
+    truth.robot.build().map_err(|source| IoError::Description {
         path: path.to_path_buf(),
         source,
     })

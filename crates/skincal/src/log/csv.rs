@@ -212,64 +212,33 @@ pub fn read(
             ));
             continue;
         };
-        match stream {
-            Stream::Joints => {
-                let names = names.as_deref().unwrap_or_default();
-                positions.clear();
-                let mut ok = true;
-                for f in fields {
-                    match f.trim().parse::<f64>() {
-                        Ok(v) if v.is_finite() => positions.push(v),
-                        _ => {
-                            ok = false;
-                            break;
-                        }
-                    }
+        // Only joint rows come here: an Imu file's rows go to the parallel parser after its header.
+        let names = names.as_deref().unwrap_or_default();
+        positions.clear();
+        let mut ok = true;
+        for f in fields {
+            match f.trim().parse::<f64>() {
+                Ok(v) if v.is_finite() => positions.push(v),
+                _ => {
+                    ok = false;
+                    break;
                 }
-                if !ok || positions.len() != names.len() || !stamp.is_finite() {
-                    stats.problem(format!(
-                        "{}, line {number}: expected a stamp and {} finite positions",
-                        path.display(),
-                        names.len()
-                    ));
-                    continue;
-                }
-                stats.samples += 1;
-                visit(Sample::Joints {
-                    stamp,
-                    names,
-                    positions: &positions,
-                })?;
-            }
-            Stream::Imu => {
-                let frame = fields.next().unwrap_or_default().trim();
-                let mut a = [0.0; 3];
-                let mut count = 0;
-                for f in fields {
-                    if count < 3 {
-                        a[count] = f.trim().parse::<f64>().unwrap_or(f64::NAN);
-                    }
-                    count += 1;
-                }
-                if count != 3
-                    || frame.is_empty()
-                    || !stamp.is_finite()
-                    || a.iter().any(|v| !v.is_finite())
-                {
-                    stats.problem(format!(
-                        "{}, line {number}: expected `stamp,frame_id,ax,ay,az` with finite numbers",
-                        path.display()
-                    ));
-                    continue;
-                }
-                stats.samples += 1;
-                visit(Sample::Imu {
-                    stamp,
-                    frame_id: frame,
-                    acceleration: a,
-                })?;
             }
         }
+        if !ok || positions.len() != names.len() || !stamp.is_finite() {
+            stats.problem(format!(
+                "{}, line {number}: expected a stamp and {} finite positions",
+                path.display(),
+                names.len()
+            ));
+            continue;
+        }
+        stats.samples += 1;
+        visit(Sample::Joints {
+            stamp,
+            names,
+            positions: &positions,
+        })?;
     }
     if names.is_none() {
         return Err(csv_error(number, "the file is empty (no header)".into()));

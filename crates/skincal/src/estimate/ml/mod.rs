@@ -1465,8 +1465,8 @@ fn dh_sd(
         .collect()
     };
     let nominal = flatten(table);
-    let columns: Vec<usize> = spec
-        .columns()
+    let all = spec.columns();
+    let columns: Vec<usize> = all
         .iter()
         .enumerate()
         .filter(|(_, &(b, _))| {
@@ -1477,15 +1477,14 @@ fn dh_sd(
         })
         .map(|(i, _)| i)
         .collect();
-    let total = spec.columns().len();
     let h = 1e-6;
     let mut jacobian = DMatrix::zeros(nominal.len(), columns.len());
     for (j, &c) in columns.iter().enumerate() {
         let mut values = [0.0; 2].map(|_| Vec::new());
         for (side, sign) in [1.0, -1.0].into_iter().enumerate() {
-            let mut delta = vec![0.0; total];
+            let mut delta = vec![0.0; all.len()];
             delta[c] = sign * h;
-            let moved = retract(state, spec, &delta);
+            let moved = retract_columns(state, spec, &all, &delta);
             let Ok(robot) = limb_robot(&data.chain, &moved, &data.su_depth) else {
                 return (Vec::new(), Vec::new());
             };
