@@ -41,7 +41,8 @@ fn progress_bar(total: u64, what: &str) -> ProgressBar {
 pub(crate) enum Protocol {
     /// The paper's: 20 poses, 1 s still periods, 2 s excitations.
     Paper,
-    /// 6 poses visited nearest first, 0.5 s still periods, one-period excitations.
+    /// 6 poses visited nearest first, 0.5 s still periods, one-period excitations, the limbs
+    /// excited in parallel.
     Short,
 }
 
@@ -57,8 +58,8 @@ pub(crate) struct PlanArgs {
     #[arg(long)]
     force: bool,
     /// The program: `paper` (20 poses, 1 s still periods, 2 s excitations, as the paper does) or
-    /// `short` (6 poses, 0.5 s still periods, one-period excitations); the options below change
-    /// single values.
+    /// `short` (6 poses, 0.5 s still periods, one-period excitations, the limbs of a tree excited
+    /// at the same time); the options below change single values.
     #[arg(long, value_enum, default_value_t = Protocol::Paper)]
     protocol: Protocol,
     /// Number of training poses P [default: the protocol's].
@@ -104,6 +105,9 @@ pub(crate) struct PlanArgs {
     /// Leave out the training experiment.
     #[arg(long)]
     no_training: bool,
+    /// Excite one DoF at a time even where the protocol runs the limbs in parallel.
+    #[arg(long)]
+    one_at_a_time: bool,
     /// Sample rate of the trajectory files, Hz.
     #[arg(long, default_value_t = 1000.0)]
     rate: f64,
@@ -197,6 +201,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         max_excursion: args.max_excursion,
         pattern: args.pattern.as_deref().map(parse_pattern).transpose()?,
         seed: args.seed,
+        parallel: protocol.parallel && !args.one_at_a_time,
         ..protocol
     };
     if !(args.rate.is_finite() && args.rate >= 1.0) {
@@ -304,14 +309,24 @@ fn render_plan(plan: &Plan) -> String {
         );
     }
     if plan.config.training {
+        let windows = count(&|a| matches!(a, Action::Excitation { .. }));
         let _ = writeln!(
             s,
-            "  training experiment: {:.1} – {:.1} s, {} poses × {} DoFs = {} excitations",
+            "  training experiment: {:.1} – {:.1} s, {} poses × {} DoFs{}",
             plan.structure_duration,
             plan.duration,
             plan.config.poses,
             plan.dofs.len(),
-            count(&|a| matches!(a, Action::Excitation { .. }))
+            if windows < plan.config.poses * plan.dofs.len() {
+                format!(
+                    " in {} excitation windows ({} per pose: the limbs in parallel, the DoFs at \
+                     one depth of the tree at a time)",
+                    windows,
+                    windows / plan.config.poses.max(1)
+                )
+            } else {
+                format!(" = {windows} excitations, one DoF at a time")
+            }
         );
     }
     s

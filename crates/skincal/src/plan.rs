@@ -6,7 +6,9 @@
 //!   still period, the move back and another still period. The operator runs this part once per
 //!   base orientation (upright, then tilted by about 90°), recording one log each;
 //! * **training**: for each of P random poses a transfer (all DoFs, smooth), a still period for the
-//!   static readings, then one excitation per DoF followed by a short still period.
+//!   static readings, then one excitation per DoF followed by a short still period. With
+//!   [`PlanConfig::parallel`] the DoFs that no other excited DoF moves are excited together: the
+//!   limbs of a tree run their patterns at the same time (see [`slots`]).
 //!
 //! An excitation is the paper's pattern `θ(t) = A/(2πf)·(1 − cos 2πft)` (eq. 10) inside a smooth
 //! window `F(t)` (eq. 13): `F` rises from 0 to 1 over `ramp_cycles` periods with the quintic
@@ -109,6 +111,9 @@ pub struct PlanConfig {
     pub limit_fraction: f64,
     /// Seed of the training poses.
     pub seed: u64,
+    /// Excite the DoFs of different limbs together (one excitation slot per depth of the tree,
+    /// see [`slots`]) instead of one DoF at a time.
+    pub parallel: bool,
 }
 
 impl Default for PlanConfig {
@@ -128,6 +133,7 @@ impl Default for PlanConfig {
             pattern: None,
             limit_fraction: 0.95,
             seed: 0,
+            parallel: false,
         }
     }
 }
@@ -146,6 +152,7 @@ impl PlanConfig {
             settle: 0.2,
             ramp_cycles: 0.5,
             hold_cycles: 0.0,
+            parallel: true,
             ..Self::default()
         }
     }
@@ -236,16 +243,23 @@ pub struct PlanDof {
     /// The acceleration limit was not given and [`DEFAULT_ACCELERATION`] was assumed.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub acceleration_assumed: bool,
+    /// The nearest DoF between this one and the base (whose motion moves this DoF's axis); none
+    /// for a DoF on the base.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parent: Option<String>,
 }
 
 impl PlanDof {
     /// The limits of every DoF of `robot`, with the defaults where a limit is not given.
     pub fn from_robot(robot: &Robot) -> Vec<PlanDof> {
-        robot
-            .model
+        let model = &robot.model;
+        model
             .dofs()
             .iter()
             .map(|d| PlanDof {
+                parent: model.segments()[d.parent]
+                    .parent_dof
+                    .map(|p| model.dofs()[p].name.clone()),
                 name: d.name.clone(),
                 lower: d.limits.lower,
                 upper: d.limits.upper,
@@ -303,10 +317,14 @@ pub enum Action {
     },
     /// Move several DoFs to the next training pose.
     Transfer,
-    /// The windowed excitation pattern on one DoF, returning to the pose.
+    /// The windowed excitation pattern on one DoF (and on the DoFs `together` with it, at the
+    /// same time), returning to the pose.
     Excitation {
         /// The DoF.
         dof: String,
+        /// Other DoFs excited at the same time: none of them moves another's axis.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        together: Vec<String>,
     },
 }
 
@@ -635,11 +653,16 @@ impl Plan {
                         .collect()
                 })
                 .collect();
+            let slots = if config.parallel {
+                slots(&dofs)
+            } else {
+                (0..nd).map(|d| vec![d]).collect()
+            };
             for (p, q) in builder.nearest_first(drawn).into_iter().enumerate() {
                 builder.go(Part::Training, &q, Some(p));
                 builder.still(Part::Training, config.still, Some(p));
-                for d in 0..nd {
-                    builder.excite(d, &pattern, &window, p);
+                for slot in &slots {
+                    builder.excite(slot, &pattern, &window, p);
                     if config.settle > 0.0 {
                         builder.still(Part::Training, config.settle, Some(p));
                     }
@@ -712,7 +735,14 @@ impl Plan {
                     p.start
                 )));
             }
-            if let Action::Move { dof } | Action::Excitation { dof } = &p.action {
+            let named: Vec<&String> = match &p.action {
+                Action::Move { dof } => vec![dof],
+                Action::Excitation { dof, together } => {
+                    std::iter::once(dof).chain(together).collect()
+                }
+                Action::Still | Action::Transfer => Vec::new(),
+            };
+            for dof in named {
                 if !self.dofs.iter().any(|d| &d.name == dof) {
                     return Err(PlanError::Inconsistent(format!(
                         "phases[{i}]: unknown DoF `{dof}`"
@@ -803,12 +833,14 @@ impl Plan {
                     s.qdd[d] = delta * ddu / (phase.duration * phase.duration);
                 }
             }
-            Action::Excitation { dof } => {
-                if let Some(d) = self.dofs.iter().position(|x| &x.name == dof) {
-                    let [x, v, a] = self.window.pattern_at(&self.pattern, tau);
-                    s.q[d] += x;
-                    s.qd[d] = v;
-                    s.qdd[d] = a;
+            Action::Excitation { dof, together } => {
+                let [x, v, a] = self.window.pattern_at(&self.pattern, tau);
+                for name in std::iter::once(dof).chain(together) {
+                    if let Some(d) = self.dofs.iter().position(|x| &x.name == name) {
+                        s.q[d] += x;
+                        s.qd[d] = v;
+                        s.qdd[d] = a;
+                    }
                 }
             }
         }
@@ -838,6 +870,35 @@ impl Plan {
         }
         out
     }
+}
+
+/// The DoFs grouped into excitation slots, each DoF in one: a DoF's slot is its depth in the tree
+/// (the number of DoFs between it and the base), so no DoF of a slot moves another's axis and no
+/// SU is moved by two DoFs of one slot — each SU's response to a slot is its response to at most
+/// one DoF. The number of slots is the length of the longest chain, the fewest possible. A DoF
+/// whose parent is not among `dofs` (or a loop) counts as on the base.
+pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
+    let index = |name: &str| dofs.iter().position(|d| d.name == name);
+    let depth = |mut d: usize| {
+        let mut n = 0;
+        while let Some(p) = dofs[d].parent.as_deref().and_then(index) {
+            n += 1;
+            if n > dofs.len() {
+                return 0;
+            }
+            d = p;
+        }
+        n
+    };
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    for d in 0..dofs.len() {
+        let k = depth(d);
+        if out.len() <= k {
+            out.resize(k + 1, Vec::new());
+        }
+        out[k].push(d);
+    }
+    out
 }
 
 struct Builder<'a> {
@@ -930,12 +991,24 @@ impl Builder<'_> {
         self.push(part, action, duration, target.to_vec(), pose);
     }
 
-    fn excite(&mut self, d: usize, pattern: &ExcitationPattern, window: &Window, pose: usize) {
+    /// The pattern on the DoFs `slot` (the first named as the excited one, the others as
+    /// together with it).
+    fn excite(
+        &mut self,
+        slot: &[usize],
+        pattern: &ExcitationPattern,
+        window: &Window,
+        pose: usize,
+    ) {
         let here = self.pose.clone();
         self.push(
             Part::Training,
             Action::Excitation {
-                dof: self.dofs[d].name.clone(),
+                dof: self.dofs[slot[0]].name.clone(),
+                together: slot[1..]
+                    .iter()
+                    .map(|&d| self.dofs[d].name.clone())
+                    .collect(),
             },
             window.duration(pattern.frequency),
             here,

@@ -295,6 +295,135 @@ fn noise_free_log_gives_the_exact_readings_whatever_the_servo_did() {
     }
 }
 
+/// Records `plan` noise-free: the whole plan upright and its structure part tilted.
+fn noise_free_logs(robot: &Robot, plan: &Plan, dir: &Path) -> [std::path::PathBuf; 2] {
+    let exact = LogConfig {
+        imperfections: Imperfections::none(),
+        ..LogConfig::default()
+    };
+    let paths = [dir.join("upright.mcap"), dir.join("tilted.mcap")];
+    record_to(robot, plan, &exact, &paths[0], true);
+    let tilt = LogConfig {
+        part: Some(Part::Structure),
+        orientation: BaseOrientation::tilted(),
+        ..exact
+    };
+    record_to(robot, plan, &tilt, &paths[1], true);
+    paths
+}
+
+#[test]
+fn limbs_excited_in_parallel_give_each_dof_its_exact_response() {
+    // The humanoid's five limbs run their patterns at the same time, one depth of the tree after
+    // the other. Each SU answers to at most one DoF of a window; which one the structure part
+    // tells. Noise-free, every reading must be the true one for its DoF alone — zero where the
+    // DoF does not move the SU — as if the DoFs had been excited one at a time.
+    let robot = robot("humanoid");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 2,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap();
+    let windows: Vec<(&String, &Vec<String>)> = plan
+        .phases
+        .iter()
+        .filter_map(|p| match &p.action {
+            Action::Excitation { dof, together } => Some((dof, together)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(windows.len(), 2 * 6, "6 depths: the legs' 6 DoFs");
+    let dir = tempfile::tempdir().unwrap();
+    let logs = noise_free_logs(&robot, &plan, dir.path());
+    let config = IngestConfig {
+        pattern: Some(plan.pattern),
+        ..IngestConfig::default()
+    }
+    .for_still_periods(plan.config.still);
+    let ingested = ingest(&logs, &config, &mut |_, _, _| {}).unwrap();
+    let report = &ingested.report;
+    assert!(report.warnings.is_empty(), "{:?}", report.warnings);
+    assert_eq!(report.training_poses, 2);
+    assert_eq!(report.dynamic, 2 * 26, "every DoF of every limb");
+    let fits = &report.logs[0].fits;
+    assert_eq!(fits.len(), windows.len());
+    for (fit, (dof, together)) in fits.iter().zip(&windows) {
+        let mut found: Vec<&String> = std::iter::once(&fit.dof).chain(&fit.together).collect();
+        let mut planned: Vec<&String> = std::iter::once(*dof).chain(*together).collect();
+        found.sort();
+        planned.sort();
+        assert_eq!(found, planned);
+    }
+    let (s_max, d_max) = training_errors(&robot, &ingested.measurements);
+    // The one-period windows of the short protocol leave 1.4e-3 m/s² of the stamps' resolution
+    // whether the DoFs run one at a time or together.
+    assert!(
+        s_max < 1e-9 && d_max < 2e-3,
+        "static {s_max:e}, dynamic {d_max:e}"
+    );
+    // The zeros are exact where the model says the DoF does not move the SU.
+    let set = &ingested.measurements;
+    let pose = &set.training.as_ref().unwrap().poses[0];
+    let mut zeros = 0;
+    for (dof, readings) in &pose.dynamic {
+        let d = robot.model.dof_index(dof).unwrap();
+        for (name, r) in set.sus.iter().zip(readings) {
+            let su = robot.model.su_index(name).unwrap();
+            if !robot.model.moves_su(d, su) {
+                assert_eq!(*r, [0.0; 3], "{dof} on {name}");
+                zeros += 1;
+            }
+        }
+    }
+    assert!(zeros > 26 * 31 / 2, "{zeros}");
+}
+
+#[test]
+fn limbs_excited_in_parallel_need_the_structure_part_and_a_true_tree() {
+    let robot = robot("humanoid");
+    let dofs = PlanDof::from_robot(&robot);
+    let short = PlanConfig {
+        poses: 1,
+        ..PlanConfig::short()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let config = IngestConfig::default().for_still_periods(short.still);
+    // Without the structure part, which DoF of a window moves an SU is unknown.
+    let plan = Plan::new(dofs.clone(), &short).unwrap();
+    let training = dir.path().join("training.mcap");
+    let only = LogConfig {
+        part: Some(Part::Training),
+        imperfections: Imperfections::none(),
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &only, &training, true);
+    let err = ingest(&[training], &config, &mut |_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("excited together") && err.contains("structure part"),
+        "{err}"
+    );
+    // A description whose tree is wrong (every DoF on the base) puts DoFs of one chain in one
+    // window: the SUs that both move are named.
+    let flat: Vec<PlanDof> = dofs
+        .into_iter()
+        .map(|d| PlanDof { parent: None, ..d })
+        .collect();
+    let plan = Plan::new(flat, &short).unwrap();
+    let logs = noise_free_logs(&robot, &plan, dir.path());
+    let err = ingest(&logs, &config, &mut |_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("both move SU") && err.contains("tree"),
+        "{err}"
+    );
+}
+
 /// Largest |finite difference| of the sampled trajectory against each DoF's limits.
 #[test]
 fn plans_respect_every_limit() {
@@ -312,10 +441,17 @@ fn plans_respect_every_limit() {
         }
     }
     let _ = &mut robot;
+    for protocol in [PlanConfig::default(), PlanConfig::short()] {
+        respects_every_limit(&robot, &dofs, protocol);
+    }
+}
+
+fn respects_every_limit(robot: &Robot, dofs: &[PlanDof], protocol: PlanConfig) {
+    let dofs = dofs.to_vec();
     let config = PlanConfig {
         poses: 3,
         seed: 1,
-        ..PlanConfig::default()
+        ..protocol
     };
     let plan = Plan::new(dofs.clone(), &config).unwrap();
     // A and f were chosen from the slowest DoF.
@@ -355,14 +491,46 @@ fn plans_respect_every_limit() {
             lim.acceleration
         );
     }
-    // One DoF at a time except transfers; every excitation ends where it started.
+    // One DoF at a time except transfers and parallel excitations; every excitation ends where
+    // it started, and DoFs excited together are on different branches of the tree (neither
+    // moves the other's segment).
+    let model = &robot.model;
+    let mut excited = vec![0; dofs.len()];
     for p in &plan.phases {
         let moved = p.from.iter().zip(&p.to).filter(|(a, b)| a != b).count();
-        match p.action {
-            Action::Still | Action::Excitation { .. } => assert_eq!(moved, 0),
+        match &p.action {
+            Action::Still => assert_eq!(moved, 0),
+            Action::Excitation { dof, together } => {
+                assert_eq!(moved, 0);
+                assert!(config.parallel || together.is_empty());
+                let all: Vec<usize> = std::iter::once(dof)
+                    .chain(together)
+                    .map(|n| model.dof_index(n).unwrap())
+                    .collect();
+                for &a in &all {
+                    excited[a] += 1;
+                    for &b in &all {
+                        assert!(a == b || !model.moves_segment(a, model.dofs()[b].child));
+                    }
+                }
+            }
             Action::Move { .. } => assert_eq!(moved, 1),
             Action::Transfer => {}
         }
+    }
+    assert!(excited.iter().all(|&n| n == config.poses), "{excited:?}");
+    if config.parallel {
+        // As few windows per pose as the longest chain of DoFs.
+        let longest = (0..model.segments().len())
+            .map(|s| model.chain_to(s).len())
+            .max()
+            .unwrap();
+        let windows = plan
+            .phases
+            .iter()
+            .filter(|p| matches!(p.action, Action::Excitation { .. }))
+            .count();
+        assert_eq!(windows, longest * config.poses);
     }
     // A given pattern that is too fast for a DoF is refused, naming it.
     let err = Plan::new(

@@ -38,6 +38,10 @@ pub(super) struct Passes<'a> {
     /// Per SU, the variance of one sample (mean over the axes) in the still windows, m²/s⁴;
     /// `None` when an SU has too few samples there to tell.
     pub(super) variance: Option<Vec<f64>>,
+    /// Per SU, which DoFs move it (by the structure part's tree), `None` for an SU the tree does
+    /// not place; `None` altogether without a structure part. Needed only to attribute windows in
+    /// which several DoFs were excited together.
+    pub(super) moved_by: Option<Vec<Option<Vec<bool>>>>,
 }
 
 impl Passes<'_> {
@@ -142,24 +146,97 @@ fn stations(segs: &[Segmentation], config: &IngestConfig) -> (Vec<Station>, usiz
     (stations, group_count)
 }
 
+/// The fit of a station's windows for the SUs that the DoFs `dropped` do not move: their terms
+/// are left out of every window (their coefficients are zero).
+struct ClassFit {
+    /// Per window, the kept columns of its full design.
+    kept: Vec<Vec<usize>>,
+    /// Per window, its design restricted to them.
+    windows: Vec<Excitation>,
+    fit: PooledFit,
+}
+
+impl ClassFit {
+    fn new(excitations: &[&Excitation], dropped: &[usize]) -> ClassFit {
+        let kept: Vec<Vec<usize>> = excitations.iter().map(|x| x.kept(dropped)).collect();
+        let windows: Vec<Excitation> = excitations
+            .iter()
+            .zip(&kept)
+            .map(|(x, k)| x.restricted(k))
+            .collect();
+        let fit = PooledFit::new(&windows.iter().collect::<Vec<_>>());
+        ClassFit { kept, windows, fit }
+    }
+}
+
+/// Which DoFs excited together at a station do not move `su`: their terms are left out of its
+/// fit. An error says why the SU's response cannot be attributed.
+fn dropped_for(
+    passes: &Passes<'_>,
+    excitations: &[&Excitation],
+    together: &[usize],
+    su: usize,
+) -> Result<Vec<usize>, String> {
+    if together.is_empty() {
+        return Ok(Vec::new());
+    }
+    let name = |d: usize| format!("`{}`", passes.dofs[d]);
+    let Some(moved) = passes.moved_by.as_ref().and_then(|m| m[su].as_ref()) else {
+        return Err(format!(
+            "DoFs were excited together ({} and others), and which of them moves SU `{}` is told \
+             by the structure part: ingest its logs together with these{}",
+            name(together[0]),
+            passes.sus.names[su],
+            if passes.moved_by.is_some() {
+                " (the structure found does not place this SU)"
+            } else {
+                ""
+            }
+        ));
+    };
+    for x in excitations.iter().filter(|x| x.dofs.len() > 1) {
+        let moving: Vec<usize> = x.dofs.iter().copied().filter(|&d| moved[d]).collect();
+        if moving.len() > 1 {
+            return Err(format!(
+                "{} were excited together and both move SU `{}` (by the structure part), so their \
+                 responses cannot be told apart: plan with a description whose tree is the robot's",
+                moving
+                    .iter()
+                    .map(|&d| name(d))
+                    .collect::<Vec<_>>()
+                    .join(" and "),
+                passes.sus.names[su]
+            ));
+        }
+    }
+    Ok(together.iter().copied().filter(|&d| !moved[d]).collect())
+}
+
 /// The training pose of a station with excitations: its static reading and, from one joint fit
 /// of all its excitation windows, the dynamic acceleration of every excited DoF. `None` (with a
 /// warning) when it cannot be used.
+///
+/// Where several DoFs were excited together (no SU is moved by two of them), each SU is fitted
+/// without the terms of those that do not move it, and its reading for them is zero with the
+/// uncertainty a reading of that DoF alone would have.
 fn training_pose(
     passes: &mut Passes<'_>,
     st: &Station,
     pattern: &ExcitationPattern,
 ) -> Option<TrainingPose> {
     let nu = passes.sus.names.len();
+    let skip = |passes: &mut Passes<'_>, why: String| {
+        let warning = format!(
+            "{}: training pose at {:.3} s skipped: {why}",
+            passes.path(st.log),
+            passes.at(st)
+        );
+        passes.warnings.push(warning);
+    };
     let (static_readings, counts): (Vec<Reading>, Vec<u64>) = match passes.still_reading(st) {
         Ok(r) => r.into_iter().unzip(),
         Err(why) => {
-            let warning = format!(
-                "{}: training pose at {:.3} s skipped: {why}",
-                passes.path(st.log),
-                passes.at(st)
-            );
-            passes.warnings.push(warning);
+            skip(passes, why);
             return None;
         }
     };
@@ -175,7 +252,7 @@ fn training_pose(
                 let warning = format!(
                     "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
                     passes.path(st.log),
-                    passes.dofs[x.dof],
+                    passes.dofs[x.dofs[0]],
                     passes.timelines[st.log].time(x.start),
                     passes.sus.names[su]
                 );
@@ -187,59 +264,99 @@ fn training_pose(
         return None;
     }
     let excitations: Vec<&Excitation> = windows.iter().map(|&xi| &seg.excitations[xi]).collect();
-    let fit = PooledFit::new(&excitations);
+    let mut together: Vec<usize> = excitations
+        .iter()
+        .filter(|x| x.dofs.len() > 1)
+        .flat_map(|x| x.dofs.iter().copied())
+        .collect();
+    together.sort_unstable();
+    together.dedup();
+    let dropped: Vec<Vec<usize>> = match (0..nu)
+        .map(|su| dropped_for(passes, &excitations, &together, su))
+        .collect::<Result<_, _>>()
+    {
+        Ok(d) => d,
+        Err(why) => {
+            skip(passes, why);
+            return None;
+        }
+    };
+    // One fit per set of dropped DoFs; a DoF's reading alone is that of the SUs it alone moves.
+    let mut classes: BTreeMap<Vec<usize>, ClassFit> = BTreeMap::new();
+    for d in dropped.iter().cloned().chain(
+        together
+            .iter()
+            .map(|&d| together.iter().copied().filter(|&e| e != d).collect()),
+    ) {
+        classes
+            .entry(d)
+            .or_insert_with_key(|d| ClassFit::new(&excitations, d));
+    }
+    let alone = |d: usize| -> f64 {
+        let solo: Vec<usize> = together.iter().copied().filter(|&e| e != d).collect();
+        let class = &classes[&solo];
+        class.fit.alpha(d).map_or(0.0, |c| class.fit.sd_factor(c))
+    };
     let alpha = pattern.peak_acceleration();
     let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
     let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut powers = vec![(0.0, 0.0); windows.len()];
-    // Per window: the column of its DoF's acceleration and how the samples' noise and the
-    // encoders' rounding reach it (the same for every SU).
-    let columns: Vec<(usize, f64, f64)> = excitations
-        .iter()
-        .map(|x| {
-            let column = fit.alpha(x.dof).expect("every window has its DoF's terms");
-            (column, fit.sd_factor(column), fit.rounding_factor(column))
-        })
-        .collect();
     let resolution = &passes.timelines[st.log].resolution;
     for su in 0..nu {
-        let rhs: Vec<&[[f64; 3]]> = windows
+        let class = &classes[&dropped[su]];
+        let rhs: Vec<Vec<[f64; 3]>> = windows
             .iter()
-            .map(|&xi| fits[xi][su].rhs.as_slice())
+            .zip(&class.kept)
+            .map(|(&xi, kept)| kept.iter().map(|&c| fits[xi][su].rhs[c]).collect())
             .collect();
-        let coefficients = fit.solve(&rhs);
-        for (w, x) in excitations.iter().enumerate() {
-            let (other, own) = fit.powers(w, x, &coefficients);
+        let coefficients = class
+            .fit
+            .solve(&rhs.iter().map(Vec::as_slice).collect::<Vec<_>>());
+        // The samples' noise through the fit, and the encoders' rounding through the measured
+        // accelerations of every DoF, weighted by that DoF's coefficient.
+        let rounding: f64 = class
+            .fit
+            .accelerations()
+            .map(|(e, c)| {
+                let k2 = (0..3).map(|a| coefficients[(c, a)].powi(2)).sum::<f64>() / 3.0;
+                resolution[e].powi(2) * k2
+            })
+            .sum();
+        for (w, x) in class.windows.iter().enumerate() {
+            let (other, own) = class.fit.powers(w, x, &coefficients);
             powers[w].0 += other;
             powers[w].1 += own;
-            let name = &passes.dofs[x.dof];
-            if dynamic.get(name).is_some_and(|r| r.len() > su) {
-                continue;
-            }
-            let (column, noise_factor, rounding_factor) = columns[w];
-            let reading = [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha);
-            dynamic.entry(name.clone()).or_default().push(reading);
-            if let Some(v) = &passes.variance {
-                // The samples' noise through the fit, and the encoders' rounding through the
-                // measured accelerations of every DoF, weighted by that DoF's coefficient.
-                let rounding: f64 = fit
-                    .accelerations()
-                    .map(|(e, c)| {
-                        let k2 = (0..3).map(|a| coefficients[(c, a)].powi(2)).sum::<f64>() / 3.0;
-                        resolution[e].powi(2) * k2
-                    })
-                    .sum();
-                let variance = noise_factor.powi(2) * v[su] + rounding_factor.powi(2) * rounding;
-                dynamic_sd
-                    .entry(name.clone())
-                    .or_default()
-                    .push(alpha * variance.sqrt());
+            for &d in &x.dofs {
+                let name = &passes.dofs[d];
+                if dynamic.get(name).is_some_and(|r| r.len() > su) {
+                    continue;
+                }
+                let (reading, variance) = match class.fit.alpha(d) {
+                    Some(column) => (
+                        [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha),
+                        passes.variance.as_ref().map(|v| {
+                            class.fit.sd_factor(column).powi(2) * v[su]
+                                + class.fit.rounding_factor(column).powi(2) * rounding
+                        }),
+                    ),
+                    None => (
+                        [0.0; 3],
+                        passes.variance.as_ref().map(|v| alone(d).powi(2) * v[su]),
+                    ),
+                };
+                dynamic.entry(name.clone()).or_default().push(reading);
+                if let Some(variance) = variance {
+                    dynamic_sd
+                        .entry(name.clone())
+                        .or_default()
+                        .push(alpha * variance.sqrt());
+                }
             }
         }
     }
     let timeline = &passes.timelines[st.log];
     for (x, (other, own)) in excitations.iter().zip(powers) {
-        let coupled_dofs = x.terms[5..]
+        let coupled_dofs = x.terms[1 + 4 * x.dofs.len()..]
             .iter()
             .filter_map(|t| match t {
                 super::fit::Term::Alpha(e) => Some(passes.dofs[*e].clone()),
@@ -247,7 +364,11 @@ fn training_pose(
             })
             .collect();
         passes.reports[st.log].fits.push(ExcitationFit {
-            dof: passes.dofs[x.dof].clone(),
+            dof: passes.dofs[x.dofs[0]].clone(),
+            together: x.dofs[1..]
+                .iter()
+                .map(|&d| passes.dofs[d].clone())
+                .collect(),
             start: timeline.time(x.start),
             duration: x.len() as f64 * timeline.dt,
             coupled_dofs,
@@ -399,6 +520,43 @@ fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
     out
 }
 
+/// Per SU, which DoFs move it, by the tree that exploration finds in the structure part (default
+/// settings); `None` for an SU it does not place.
+fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec<bool>>> {
+    let nu = passes.sus.names.len();
+    let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
+    set.structure = Some(StructureExperiment {
+        orientations: orientations.to_vec(),
+        extra: Map::new(),
+    });
+    let Ok(structure) = crate::explore::explore(&set, &crate::explore::ExploreConfig::default())
+    else {
+        return vec![None; nu];
+    };
+    let dof = |name: &String| passes.dofs.iter().position(|d| d == name);
+    let su = |name: &String| passes.sus.names.iter().position(|u| u == name);
+    let matrix = &structure.matrix;
+    let mut out = vec![None; nu];
+    for (row, id) in matrix.segments.iter().enumerate() {
+        let mut moved = vec![false; passes.dofs.len()];
+        for (column, joint) in matrix.joints.iter().enumerate() {
+            if matrix.entries[row][column] {
+                for d in structure.joint(joint).into_iter().flat_map(|j| &j.dofs) {
+                    if let Some(d) = dof(d) {
+                        moved[d] = true;
+                    }
+                }
+            }
+        }
+        for u in structure.segment(id).into_iter().flat_map(|s| &s.sus) {
+            if let Some(u) = su(u) {
+                out[u] = Some(moved.clone());
+            }
+        }
+    }
+    out
+}
+
 /// Fewest degrees of freedom of an SU's sample variance for the readings' uncertainties.
 const MIN_NOISE_DOF: f64 = 30.0;
 
@@ -423,6 +581,24 @@ pub(super) fn assemble(
         .fold((0.0, 0.0), |a, &(s, d)| (a.0 + s, a.1 + d));
     let sample_noise = (dof > 0.0).then(|| (ss / dof).sqrt());
 
+    let mut orientations = Vec::new();
+    for g in 0..group_count {
+        let members: Vec<&Station> = stations
+            .iter()
+            .filter(|s| s.group == Some(g) && s.excitations.is_empty())
+            .collect();
+        if members.len() >= 2 {
+            orientations.extend(orientation(&mut passes, &members));
+        }
+    }
+    let together = stations.iter().any(|st| {
+        st.excitations
+            .iter()
+            .any(|&x| passes.segs[st.log].excitations[x].dofs.len() > 1)
+    });
+    if together && !orientations.is_empty() {
+        passes.moved_by = Some(moved_by(&passes, &orientations));
+    }
     let mut poses = Vec::new();
     let training: Vec<&Station> = stations
         .iter()
@@ -440,16 +616,6 @@ pub(super) fn assemble(
         )));
     }
 
-    let mut orientations = Vec::new();
-    for g in 0..group_count {
-        let members: Vec<&Station> = stations
-            .iter()
-            .filter(|s| s.group == Some(g) && s.excitations.is_empty())
-            .collect();
-        if members.len() >= 2 {
-            orientations.extend(orientation(&mut passes, &members));
-        }
-    }
     if group_count > 0 && orientations.is_empty() && poses.is_empty() {
         return Err(IngestError::Empty(match passes.warnings.first() {
             Some(first) => format!(

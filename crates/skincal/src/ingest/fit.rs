@@ -48,9 +48,12 @@ pub(super) enum Term {
 }
 
 impl Term {
-    /// Whether the term is the motion of `dof` alone.
-    fn of_only(self, dof: usize) -> bool {
-        matches!(self, Term::Cos(e) | Term::Sin(e) | Term::Alpha(e) | Term::Omega2(e) if e == dof)
+    /// The DoF whose motion the term is, if any.
+    fn dof(self) -> Option<usize> {
+        match self {
+            Term::Offset => None,
+            Term::Cos(e) | Term::Sin(e) | Term::Alpha(e) | Term::Omega2(e) => Some(e),
+        }
     }
 }
 
@@ -60,13 +63,13 @@ const STILL_SPAN: f64 = 1e-9;
 /// An excitation window and its least-squares design.
 #[derive(Debug, Clone)]
 pub(super) struct Excitation {
-    /// The excited DoF.
-    pub(super) dof: usize,
+    /// The excited DoFs (one, or several excited together), the one that moved most first.
+    pub(super) dofs: Vec<usize>,
     /// Grid range `[start, end)`.
     pub(super) start: usize,
     pub(super) end: usize,
     /// The model's terms, in column order (`Offset` first, then four per DoF that moved, the
-    /// excited DoF's first).
+    /// excited DoFs' first).
     pub(super) terms: Vec<Term>,
     /// `W(m)` row by row: the weight of the sample at grid point `start + m` in each normal
     /// equation is `weights[m · terms.len() + c]`.
@@ -79,7 +82,7 @@ pub(super) struct Excitation {
     /// of one DoF's position at grid point `m`, through the measured accelerations, reaches the
     /// normal equations (per unit variance and unit coefficient of that DoF's acceleration).
     pub(super) rounding: DMatrix<f64>,
-    /// Peak measured |ω| and |α| of the excited DoF (for estimating the nominal pattern).
+    /// Peak measured |ω| and |α| of the first excited DoF (for estimating the nominal pattern).
     pub(super) peak_velocity: f64,
     pub(super) peak_acceleration: f64,
 }
@@ -88,6 +91,39 @@ impl Excitation {
     /// Number of grid points.
     pub(super) fn len(&self) -> usize {
         self.end - self.start
+    }
+
+    /// The columns of the terms that are not the motion of a DoF in `dropped`.
+    pub(super) fn kept(&self, dropped: &[usize]) -> Vec<usize> {
+        (0..self.terms.len())
+            .filter(|&c| self.terms[c].dof().is_none_or(|e| !dropped.contains(&e)))
+            .collect()
+    }
+
+    /// The design with only the columns `kept` (see [`Excitation::kept`]): the fit of an SU that
+    /// the DoFs left out do not move. Its right-hand sides are the same columns of the full
+    /// ones, since each column's is `Σ_m W_c(m) s(m)` alone.
+    pub(super) fn restricted(&self, kept: &[usize]) -> Excitation {
+        let nc = self.terms.len();
+        let sub = |m: &DMatrix<f64>| {
+            DMatrix::from_fn(kept.len(), kept.len(), |a, b| m[(kept[a], kept[b])])
+        };
+        Excitation {
+            dofs: self.dofs.clone(),
+            start: self.start,
+            end: self.end,
+            terms: kept.iter().map(|&c| self.terms[c]).collect(),
+            weights: self
+                .weights
+                .chunks(nc)
+                .flat_map(|row| kept.iter().map(move |&c| row[c]))
+                .collect(),
+            gram: sub(&self.gram),
+            spread: sub(&self.spread),
+            rounding: sub(&self.rounding),
+            peak_velocity: self.peak_velocity,
+            peak_acceleration: self.peak_acceleration,
+        }
     }
 }
 
@@ -139,11 +175,12 @@ impl Motion {
     }
 }
 
-/// The least-squares design of an excitation of DoF `d` over grid `[start, end)`; `None` when the
-/// window is too short or the DoF's acceleration cannot be told from its other terms.
+/// The least-squares design of an excitation of the DoFs `excited` over grid `[start, end)`;
+/// `None` when the window is too short or an excited DoF's acceleration cannot be told from its
+/// other terms.
 pub(super) fn design(
     timeline: &Timeline,
-    d: usize,
+    excited: &[usize],
     start: usize,
     end: usize,
     l: usize,
@@ -155,14 +192,14 @@ pub(super) fn design(
     let dt = timeline.dt;
     let kernel = triangle(l);
     let span = (l as f64 * dt).powi(2);
-    // The excited DoF first, then every other DoF that moved.
-    let mut dofs = vec![d];
+    // The excited DoFs first, then every other DoF that moved.
+    let mut dofs = excited.to_vec();
     dofs.extend((0..timeline.theta.len()).filter(|&e| {
         let th = &timeline.theta[e][start..end];
         let (lo, hi) = th
             .iter()
             .fold((f64::MAX, f64::MIN), |(a, b), &q| (a.min(q), b.max(q)));
-        e != d && hi - lo > STILL_SPAN
+        !excited.contains(&e) && hi - lo > STILL_SPAN
     }));
     let motions: Vec<Motion> = dofs
         .iter()
@@ -205,12 +242,20 @@ pub(super) fn design(
             .map(|r| x[r * nc + a] * x[r * nc + b])
             .sum::<f64>()
     });
-    // The excited DoF's acceleration must be told apart from its own other terms in this window.
-    let own = gram.view((0, 0), (5, 5)).into_owned();
-    let scale = DVector::from_fn(5, |i, _| 1.0 / own[(i, i)].max(1e-300).sqrt());
-    let scaled = DMatrix::from_fn(5, 5, |i, j| own[(i, j)] * scale[i] * scale[j]);
-    let inverse = scaled.cholesky()?.inverse();
-    if inverse[(3, 3)] > 1e4 || peak_acceleration == 0.0 {
+    // Each excited DoF's acceleration must be told apart from its own other terms in this window.
+    for k in 0..excited.len() {
+        let own = [0, 1 + 4 * k, 2 + 4 * k, 3 + 4 * k, 4 + 4 * k];
+        let scale: Vec<f64> = own
+            .iter()
+            .map(|&c| 1.0 / gram[(c, c)].max(1e-300).sqrt())
+            .collect();
+        let scaled = DMatrix::from_fn(5, 5, |i, j| gram[(own[i], own[j])] * scale[i] * scale[j]);
+        let inverse = scaled.cholesky()?.inverse();
+        if inverse[(3, 3)] > 1e4 {
+            return None;
+        }
+    }
+    if peak_acceleration == 0.0 {
         return None;
     }
     // W(m) = Σ_n X(n) w(n − m): the adjoint of the triangle applied to the regressors.
@@ -250,7 +295,7 @@ pub(super) fn design(
         }
     }
     Some(Excitation {
-        dof: d,
+        dofs: excited.to_vec(),
         start,
         end,
         terms,
@@ -377,7 +422,7 @@ impl PooledFit {
     }
 
     /// In window `w` (`x`), the power of the coupled motion of the other DoFs and of the excited
-    /// DoF's own motion, summed over the axes of `coefficients`.
+    /// DoFs' own motion, summed over the axes of `coefficients`.
     pub(super) fn powers(
         &self,
         w: usize,
@@ -397,8 +442,9 @@ impl PooledFit {
                 });
                 (beta.transpose() * &x.gram * &beta)[(0, 0)]
             };
-            own += part(&|t| t.of_only(x.dof));
-            other += part(&|t| t != Term::Offset && !t.of_only(x.dof));
+            let excited = |t: Term| t.dof().is_some_and(|e| x.dofs.contains(&e));
+            own += part(&excited);
+            other += part(&|t| t != Term::Offset && !excited(t));
         }
         (other, own)
     }

@@ -283,6 +283,9 @@ pub struct Span {
 pub struct ExcitationFit {
     /// The excited DoF.
     pub dof: String,
+    /// Other DoFs excited at the same time (a plan's parallel limbs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub together: Vec<String>,
     /// Start of the window, s from the log's first joint state.
     pub start: f64,
     /// Length of the window, s.
@@ -426,6 +429,7 @@ fn ingest_logs(
         reports,
         warnings: Vec::new(),
         variance: None,
+        moved_by: None,
     };
     assemble(passes, pattern, pattern_source)
 }

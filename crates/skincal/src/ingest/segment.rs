@@ -159,22 +159,28 @@ pub(super) fn segment(
                 report.transfers += 1;
                 seg.events.push(Event::Transfer);
             }
-            Motion::Excitation(d) => {
+            Motion::Excitation(excited) => {
                 let start = e.saturating_sub(2 * l);
                 let end = (next_s + 2 * l).min(n);
-                match design(timeline, d, start, end, l) {
+                let names = excited
+                    .iter()
+                    .map(|&d| format!("`{}`", dofs[d]))
+                    .collect::<Vec<_>>()
+                    .join(" and ");
+                match design(timeline, &excited, start, end, l) {
                     Some(x) => {
-                        span("excitation", Some(d), ms, me);
+                        for &d in &excited {
+                            span("excitation", Some(d), ms, me);
+                        }
                         report.excitations += 1;
                         seg.events.push(Event::Excitation(seg.excitations.len()));
                         seg.excitations.push(x);
                     }
                     None => {
-                        span("broken", Some(d), ms, me);
+                        span("broken", Some(excited[0]), ms, me);
                         report.skipped.push(format!(
-                            "excitation of `{}` at {at:.3} s: too short or no acceleration to \
-                             fit against",
-                            dofs[d]
+                            "excitation of {names} at {at:.3} s: too short or no acceleration to \
+                             fit against"
                         ));
                         seg.events.push(Event::Broken);
                     }
@@ -205,14 +211,15 @@ enum Motion {
     Move(usize),
     /// Several DoFs moved.
     Transfer,
-    /// One DoF moved and came back.
-    Excitation(usize),
+    /// One DoF (or several together, the one that moved most first) moved and came back.
+    Excitation(Vec<usize>),
 }
 
 /// The motion over grid `[ms, me]`, told by each DoF's largest excursion from its start: DoFs that
 /// moved less than `coupled_fraction` of the one that moved most only followed it (servo
 /// compliance, reaction torques, ringing), and so do their changes of position at the end
-/// (the sag of a compliant servo under a changed load).
+/// (the sag of a compliant servo under a changed load). DoFs that moved more and all came back
+/// were excited together (a plan's parallel limbs).
 fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) -> Motion {
     let excursion: Vec<f64> = timeline
         .theta
@@ -234,18 +241,19 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
         return Motion::None;
     }
     let followed = |x: f64, of: f64| x <= config.motion_threshold.max(config.coupled_fraction * of);
-    if excursion
+    let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
+    let mut leading = vec![main];
+    leading.extend((0..excursion.len()).filter(|&e| e != main && !followed(excursion[e], largest)));
+    if leading
         .iter()
-        .enumerate()
-        .any(|(e, &x)| e != main && !followed(x, largest))
+        .all(|&e| net(&timeline.theta[e]) <= config.motion_threshold)
     {
+        return Motion::Excitation(leading);
+    }
+    if leading.len() > 1 {
         return Motion::Transfer;
     }
-    let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
     let moved = net(&timeline.theta[main]);
-    if moved <= config.motion_threshold {
-        return Motion::Excitation(main);
-    }
     // A compliant servo's sag under a changed load is small in itself, not only beside the move:
     // a DoF that ends a tenth of a radian away was moved too.
     let sag = SAG_STEPS * config.motion_threshold;
