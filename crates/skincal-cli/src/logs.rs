@@ -39,10 +39,10 @@ fn progress_bar(total: u64, what: &str) -> ProgressBar {
 /// An exploration program.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Protocol {
-    /// The paper's: 20 poses, 1 s still periods, 2 s excitations.
+    /// The paper's: 20 poses, 1 s still periods, 2 s excitations, one DoF at a time.
     Paper,
-    /// 6 poses visited nearest first, 0.5 s still periods, one-period excitations, the limbs
-    /// excited in parallel.
+    /// 0.5 s still periods, one-period excitations, the limbs excited in parallel, and as many
+    /// poses (at least 6) as the forecast needs for 0.009 m/s² held-out RMS.
     Short,
 }
 
@@ -57,10 +57,11 @@ pub(crate) struct PlanArgs {
     /// Overwrite existing output files.
     #[arg(long)]
     force: bool,
-    /// The program: `paper` (20 poses, 1 s still periods, 2 s excitations, as the paper does) or
-    /// `short` (6 poses, 0.5 s still periods, one-period excitations, the limbs of a tree excited
-    /// at the same time); the options below change single values.
-    #[arg(long, value_enum, default_value_t = Protocol::Paper)]
+    /// The program: `short` (0.5 s still periods, one-period excitations, the limbs of a tree
+    /// excited at the same time, at least 6 poses and as many as the forecast needs for 0.009 m/s²
+    /// held-out RMS) or `paper` (20 poses, 1 s still periods, 2 s excitations, one DoF at a time,
+    /// as the paper does); the options below change single values.
+    #[arg(long, value_enum, default_value_t = Protocol::Short)]
     protocol: Protocol,
     /// Number of training poses P [default: the protocol's].
     #[arg(long)]
@@ -108,6 +109,18 @@ pub(crate) struct PlanArgs {
     /// Excite one DoF at a time even where the protocol runs the limbs in parallel.
     #[arg(long)]
     one_at_a_time: bool,
+    /// Add training poses until the forecast held-out RMS error (static and dynamic) is at most
+    /// this, m/s², starting from --poses or the protocol's [default: 0.009 for `short` without
+    /// --poses].
+    #[arg(long, value_name = "M/S²")]
+    accuracy: Option<f64>,
+    /// The accelerometers' noise per axis and sample, m/s² (standard deviation) for the forecast
+    /// [default: the simulator's uniform ±0.01 g, 0.057 m/s²].
+    #[arg(long, value_name = "M/S²")]
+    sample_noise: Option<f64>,
+    /// Do not forecast the accuracy (it simulates the plan on the description: a second or two).
+    #[arg(long, conflicts_with = "accuracy")]
+    no_forecast: bool,
     /// Sample rate of the trajectory files, Hz.
     #[arg(long, default_value_t = 1000.0)]
     rate: f64,
@@ -207,7 +220,19 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     if !(args.rate.is_finite() && args.rate >= 1.0) {
         bail!("--rate {}: use at least 1 Hz", args.rate);
     }
-    let plan = Plan::new(dofs, &config).context("cannot plan the exploration")?;
+    for (flag, v) in [
+        ("accuracy", args.accuracy),
+        ("sample-noise", args.sample_noise),
+    ] {
+        if v.is_some_and(|v| !(v.is_finite() && v > 0.0)) {
+            bail!("--{flag}: must be a positive number of m/s²");
+        }
+    }
+    let accuracy = args.accuracy.or((args.protocol == Protocol::Short
+        && args.poses.is_none()
+        && !args.no_forecast)
+        .then_some(SHORT_ACCURACY));
+    let (plan, forecast_note) = planned(&robot, dofs, &config, &args, accuracy)?;
     let samples = plan.sample(args.rate);
     let names = plan.dof_names();
     let mut csv = format!("time,{}\n", names.join(","));
@@ -239,10 +264,60 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     ];
     io::write_all(&files, args.force)?;
     out!("{}", render_plan(&plan));
+    outln!("{forecast_note}");
     for (f, _) in &files {
         outln!("wrote {}", f.display());
     }
     Ok(())
+}
+
+/// The held-out RMS the short protocol plans for, m/s².
+const SHORT_ACCURACY: f64 = 0.009;
+
+/// The plan, with its forecast when the description allows one (and as many poses as
+/// `--accuracy` needs), and a line about the forecast.
+fn planned(
+    robot: &skincal::model::Robot,
+    dofs: Vec<PlanDof>,
+    config: &PlanConfig,
+    args: &PlanArgs,
+    accuracy: Option<f64>,
+) -> Result<(Plan, String)> {
+    use skincal::design;
+    let context = "cannot plan the exploration";
+    if let (Some(target), true) = (accuracy, config.training) {
+        let (mut plan, forecast) =
+            design::poses_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
+        let note = if forecast.worst() <= target {
+            format!(
+                "{} training poses (the best of {} draws) meet {target} m/s² held-out RMS by the forecast \
+                 (--accuracy)",
+                forecast.poses,
+                design::CANDIDATES
+            )
+        } else {
+            format!(
+                "warning: even {} training poses miss --accuracy {target} m/s² by the forecast",
+                forecast.poses
+            )
+        };
+        plan.forecast = Some(forecast);
+        return Ok((plan, note));
+    }
+    let mut plan = Plan::new(dofs, config).context(context)?;
+    if args.no_forecast || !config.training {
+        return Ok((plan, String::new()));
+    }
+    let forecast = design::reading_noise(robot, &plan, args.sample_noise)
+        .and_then(|noise| design::forecast(robot, &plan, &noise, design::TRIALS));
+    let note = match forecast {
+        Ok(f) => {
+            plan.forecast = Some(f);
+            String::new()
+        }
+        Err(e) => format!("note: no forecast: {e}"),
+    };
+    Ok((plan, note))
 }
 
 fn render_plan(plan: &Plan) -> String {
@@ -327,6 +402,22 @@ fn render_plan(plan: &Plan) -> String {
             } else {
                 format!(" = {windows} excitations, one DoF at a time")
             }
+        );
+    }
+    if let Some(f) = &plan.forecast {
+        let _ = writeln!(
+            s,
+            "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the {} training \
+             poses\n  (readings' noise static {:.4}, dynamic {:.4} m/s² from one recorded pose with \
+             sample noise {:.3} m/s²;\n  calibrated on the description's skin at the plan's poses, \
+             mean over {} noise draws, against 30 held-out poses)",
+            f.static_rms,
+            f.dynamic_rms,
+            f.poses,
+            f.noise.static_sd,
+            f.noise.dynamic_sd,
+            f.noise.sample_sd,
+            f.trials
         );
     }
     s

@@ -707,6 +707,8 @@ fn mcap_logs_interoperate_with_the_python_ros2_reader_and_writer() {
             "plan",
             "--robot",
             "paper-7dof",
+            "--protocol",
+            "paper",
             "--out",
             "p",
             "--poses",
@@ -997,7 +999,19 @@ fn an_interrupted_recording_leaves_no_partial_files() {
     // Regression: Ctrl-C during `record` left hidden .PID.tmp files of tens of MB.
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let plan = skincal(&["plan", "--robot", "paper-7dof", "--out", "plan"], d);
+    // The paper's program: a recording long enough to interrupt.
+    let plan = skincal(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--protocol",
+            "paper",
+            "--out",
+            "plan",
+        ],
+        d,
+    );
     assert!(plan.status.success(), "{}", stderr(&plan));
     for (signal, format, out) in [("-INT", "mcap", "log.mcap"), ("-TERM", "csv", "csvlog")] {
         let child = Command::new(env!("CARGO_BIN_EXE_skincal"))
@@ -1206,16 +1220,27 @@ fn the_short_program_runs_the_whole_path_and_compares_with_the_recorded_truth() 
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ok = |args: &[&str]| succeeds(args, d);
-    let plan = ok(&[
-        "plan",
-        "--robot",
-        "paper-7dof",
-        "--protocol",
-        "short",
-        "--out",
-        "p",
-    ]);
+    // The short program is the default, with its forecast.
+    let plan = ok(&["plan", "--robot", "paper-7dof", "--out", "p"]);
     assert!(plan.contains("6 poses × 7 DoFs"), "{plan}");
+    assert!(
+        plan.contains("Forecast: held-out RMS") && plan.contains("meet 0.009 m/s²"),
+        "{plan}"
+    );
+    let written = std::fs::read_to_string(d.join("p/plan.json")).unwrap();
+    assert!(written.contains("\"forecast\""));
+    fails_with(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--accuracy=-1",
+            "--out",
+            "q",
+        ],
+        d,
+        &["--accuracy", "positive"],
+    );
     let upright = [
         "record",
         "--robot",

@@ -140,11 +140,12 @@ impl Default for PlanConfig {
 
 impl PlanConfig {
     /// The short program: 6 training poses visited nearest first, 0.5 s still periods, 0.2 s
-    /// after each excitation, and one period of the pattern per excitation (half a period of rise,
-    /// half of fall). On the paper's arm it runs 58.5 s against the paper's 421 s and predicts a
-    /// noise-free held-out set within 0.008 m/s² RMS (static and dynamic) through the whole path
-    /// `plan → record → ingest → explore → calibrate`; a robot with 3-DoF shoulders and hips needs
-    /// more poses for the same static accuracy (the humanoid: 9 poses, 220 s, 0.0066 m/s²).
+    /// after each excitation, one period of the pattern per excitation (half a period of rise,
+    /// half of fall), and the limbs excited in parallel ([`slots`]). On the paper's arm it runs
+    /// 58.5 s against the paper's 421 s and predicts a noise-free held-out set within 0.008 m/s²
+    /// RMS (static and dynamic) through the whole path `plan → record → ingest → explore →
+    /// calibrate`. A robot with 3-DoF shoulders and hips needs more poses for the same accuracy;
+    /// [`crate::design::poses_for`] finds how many (the humanoid: 9 poses, 94 s, 0.006 m/s²).
     pub fn short() -> Self {
         Self {
             poses: 6,
@@ -551,6 +552,39 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
     })
 }
 
+/// The noise of one reading under a plan's protocol.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReadingNoise {
+    /// Standard deviation of each component of a static reading, m/s² (RMS over the SUs).
+    pub static_sd: f64,
+    /// The same for a dynamic reading (RMS over the SUs and DoFs).
+    pub dynamic_sd: f64,
+    /// The sample noise it comes from: standard deviation per axis of one sample, m/s².
+    pub sample_sd: f64,
+}
+
+/// What a plan is expected to reach (see [`crate::design`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Forecast {
+    /// Training poses of the plan.
+    pub poses: usize,
+    /// Expected RMS error of the calibrated model's static predictions on held-out poses, m/s².
+    pub static_rms: f64,
+    /// The same for the dynamic accelerations, m/s².
+    pub dynamic_rms: f64,
+    /// The per-reading noise it assumes.
+    pub noise: ReadingNoise,
+    /// Noise draws averaged.
+    pub trials: usize,
+}
+
+impl Forecast {
+    /// The larger of the two RMS errors, m/s².
+    pub fn worst(&self) -> f64 {
+        self.static_rms.max(self.dynamic_rms)
+    }
+}
+
 /// An exploration program.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -576,6 +610,9 @@ pub struct Plan {
     pub duration: f64,
     /// The phases in time order.
     pub phases: Vec<Phase>,
+    /// What the plan is expected to reach, when forecast ([`crate::design`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forecast: Option<Forecast>,
 }
 
 /// Position, velocity and acceleration of every DoF at one instant.
@@ -683,6 +720,7 @@ impl Plan {
             structure_duration,
             duration,
             phases,
+            forecast: None,
         })
     }
 
@@ -856,6 +894,19 @@ impl Plan {
                 (t, self.state(t).q)
             })
             .collect()
+    }
+
+    /// The training poses in the order the plan visits them.
+    pub fn training_poses(&self) -> Vec<Vec<f64>> {
+        let mut out: Vec<Vec<f64>> = Vec::new();
+        for p in &self.phases {
+            if let (Part::Training, Some(i)) = (p.part, p.pose) {
+                if i == out.len() {
+                    out.push(p.to.clone());
+                }
+            }
+        }
+        out
     }
 
     /// Total time spent in each kind of phase: `(still, moves and transfers, excitations)`, s.

@@ -160,20 +160,16 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
     );
 }
 
-#[test]
-fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0_01() {
-    // The whole path on the paper's arm: plan (short protocol) → 1 kHz logs, upright and the
-    // structure part tilted → ingest with windows fitted to the plan's still periods → explore →
-    // calibrate → a noise-free held-out set.
-    let robot = robot("paper-7dof");
+/// The whole path of the short program on a preset: plan (as many poses as the forecast needs
+/// for 0.009 m/s²) → 1 kHz logs, upright and the structure part tilted → ingest with windows
+/// fitted to the plan's still periods → explore → calibrate → a noise-free held-out set.
+/// Returns the plan and the held-out RMS (static, dynamic).
+fn short_program_whole_path(name: &str) -> (Plan, f64, f64) {
+    let robot = robot(name);
     let dofs = PlanDof::from_robot(&robot);
-    let paper = Plan::new(dofs.clone(), &PlanConfig::default()).unwrap();
-    let plan = Plan::new(dofs, &PlanConfig::short()).unwrap();
-    eprintln!(
-        "program: short {:.1} s, paper {:.1} s",
-        plan.duration, paper.duration
-    );
-    assert!(plan.duration <= 60.0 && plan.duration * 7.0 < paper.duration);
+    let (plan, forecast) =
+        skincal::design::poses_for(&robot, &dofs, &PlanConfig::short(), 0.009, None).unwrap();
+    assert!(forecast.worst() <= 0.009, "{forecast:?}");
     let dir = tempfile::tempdir().unwrap();
     let upright = dir.path().join("upright.mcap");
     let tilted = dir.path().join("tilted.mcap");
@@ -193,10 +189,10 @@ fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0
     let ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
     let report = &ingested.report;
     assert!(report.warnings.is_empty(), "{:?}", report.warnings);
-    assert_eq!(report.training_poses, 6);
+    assert_eq!(report.training_poses, plan.config.poses);
     assert_eq!(
         report.dynamic,
-        6 * 7,
+        plan.config.poses * dofs.len(),
         "every excitation, the last one's too"
     );
     let set = ingested.measurements;
@@ -215,10 +211,45 @@ fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0
     assert!(model.limbs.iter().all(|l| l.estimate.converged));
     let check = validate(&model, &crate::common::held_out(&robot, 99), "held-out").unwrap();
     eprintln!(
-        "held-out RMS static {:.4}, dynamic {:.4} m/s²",
-        check.static_rms, check.dynamic_rms
+        "{name}: {:.1} s, {} poses; forecast static {:.4}, dynamic {:.4}; held-out RMS static \
+         {:.4}, dynamic {:.4} m/s²",
+        plan.duration,
+        plan.config.poses,
+        forecast.static_rms,
+        forecast.dynamic_rms,
+        check.static_rms,
+        check.dynamic_rms
     );
-    assert!(check.static_rms < 0.01 && check.dynamic_rms < 0.01);
+    // The forecast (condensed readings at the plan's poses with the noise one recorded pose
+    // showed) against the whole path from the logs: one recording scatters about it.
+    for (measured, forecast) in [
+        (check.static_rms, forecast.static_rms),
+        (check.dynamic_rms, forecast.dynamic_rms),
+    ] {
+        assert!(
+            (0.6..1.6).contains(&(measured / forecast)),
+            "{measured} against {forecast}"
+        );
+    }
+    (plan, check.static_rms, check.dynamic_rms)
+}
+
+#[test]
+fn the_short_program_runs_under_a_minute_and_predicts_held_out_readings_within_0_01() {
+    let (plan, s, d) = short_program_whole_path("paper-7dof");
+    let paper = Plan::new(plan.dofs.clone(), &PlanConfig::default()).unwrap();
+    assert!(plan.duration <= 60.0 && plan.duration * 7.0 < paper.duration);
+    assert!(s < 0.01 && d < 0.01);
+}
+
+#[test]
+fn the_humanoids_short_program_runs_under_four_minutes_and_predicts_within_0_01() {
+    // Five limbs in parallel: 6 windows per pose instead of 26.
+    let (plan, s, d) = short_program_whole_path("humanoid");
+    let paper = Plan::new(plan.dofs.clone(), &PlanConfig::default()).unwrap();
+    eprintln!("paper's program {:.1} s", paper.duration);
+    assert!(plan.duration <= 240.0 && plan.duration * 10.0 < paper.duration);
+    assert!(s < 0.01 && d < 0.01);
 }
 
 #[test]
@@ -895,4 +926,53 @@ fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     let message = read(&cut).unwrap_err().to_string();
     assert!(message.contains("cut.bag"), "{message}");
+}
+
+#[test]
+fn the_forecast_follows_the_laws_of_noise_and_poses() {
+    // The readings' noise is linear in the samples' noise, and the calibration's error falls as
+    // 1/√P with the number of poses (within the scatter of the draws).
+    use skincal::design::{forecast, reading_noise};
+    let robot = robot("paper-7dof");
+    let dofs = PlanDof::from_robot(&robot);
+    let plan = |poses| {
+        Plan::new(
+            dofs.clone(),
+            &PlanConfig {
+                poses,
+                ..PlanConfig::short()
+            },
+        )
+        .unwrap()
+    };
+    let six = plan(6);
+    let low = reading_noise(&robot, &six, Some(0.05)).unwrap();
+    let high = reading_noise(&robot, &six, Some(0.1)).unwrap();
+    for (a, b) in [
+        (low.static_sd, high.static_sd),
+        (low.dynamic_sd, high.dynamic_sd),
+    ] {
+        assert!((b / a - 2.0).abs() < 0.2, "{a} → {b}");
+    }
+    // Past the first few poses (with six, each more pose also fixes the kinematics' conditioning).
+    let small = forecast(&robot, &plan(12), &low, 8).unwrap();
+    let large = forecast(&robot, &plan(48), &low, 8).unwrap();
+    for (a, b) in [
+        (small.static_rms, large.static_rms),
+        (small.dynamic_rms, large.dynamic_rms),
+    ] {
+        assert!((0.35..0.7).contains(&(b / a)), "{a} → {b} (1/√4 = 0.5)");
+    }
+    // Without SUs there is nothing to forecast, and it says so.
+    let bare = skincal::io::load_robot(
+        &crate::common::fixture("arm.urdf").display().to_string(),
+        skincal::io::SuPlacement {
+            per_link: Some(0),
+            seed: 0,
+        },
+    )
+    .unwrap();
+    let p = Plan::new(PlanDof::from_robot(&bare), &PlanConfig::short()).unwrap();
+    let err = reading_noise(&bare, &p, None).unwrap_err().to_string();
+    assert!(err.contains("places no SU"), "{err}");
 }
