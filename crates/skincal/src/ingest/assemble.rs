@@ -612,7 +612,12 @@ pub(super) fn assemble(
             "all {} training poses found in the joint states were skipped, so the result \
              would have none; the first reason: {}",
             training.len(),
-            passes.warnings.first().map_or("unknown", String::as_str)
+            passes
+                .warnings
+                .iter()
+                .find(|w| w.contains("training pose"))
+                .or(passes.warnings.first())
+                .map_or("unknown", String::as_str)
         )));
     }
 
