@@ -3,16 +3,17 @@
     python3 physics_log.py ROBOT.json PLAN.json OUT_DIR [options]
 
 ROBOT.json is a skincal robot description (the `robot` of a truth file: DH or axis placements of
-the DoFs, DH+2 placements of the SUs); PLAN.json a plan written by `skincal plan`. The robot is
+the DoFs, DH+2 or origin placements of the SUs); PLAN.json a plan written by `skincal plan`. The robot is
 built as a MuJoCo model with mass (capsule links of aluminium tube), motor armature and one
 position servo per DoF (MuJoCo's position actuator, a PD loop without feed-forward; 6 Hz bandwidth
-and damping 0.8 at the first pose by default), so moving one DoF deflects the others and every stop rings. The servos follow the
+and damping 0.8 at the first pose by default, or at the largest inertia over the plan's poses), so moving one DoF deflects the others and every stop rings. The servos follow the
 plan's poses with a protocol of their own, not the plan's timing:
 
 - moves and transfers: quintic profiles over the plan's durations;
 - holds: the plan's, except the pause after each pattern (`--pause`, 0.5 s);
 - excitations: the paper's pattern (eq. 10) *without a window*, one period from rest, so the
-  commanded acceleration steps at both ends.
+  commanded acceleration steps at both ends (on every DoF excited together, when the plan runs
+  limbs in parallel).
 
 Every SU is a site whose specific force (the second difference of its position over the integrator's
 substeps, minus gravity, in the site frame) is recorded with Gaussian noise and the quantisation of a
@@ -80,6 +81,14 @@ def placement(entry):
     return frame, np.array(entry.get("axis", [0.0, 0.0, 1.0]), dtype=float)
 
 
+def sensor_frame(su):
+    """The frame of an SU on its segment: DH+2 or xyz and rpy (URDF's order, Rz·Ry·Rx)."""
+    if "dh" in su:
+        return dh(su["dh"])
+    roll, pitch, yaw = su.get("rpy", [0.0, 0.0, 0.0])
+    return transform(rot_z(yaw) @ rot_y(pitch) @ rot_x(roll), su.get("xyz", [0.0, 0.0, 0.0]))
+
+
 def pose_attributes(t):
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, t[:3, :3].flatten())
@@ -98,13 +107,11 @@ def mjcf(robot, gravity):
         children.setdefault(d["parent"], []).append(d)
     on = {}
     for s in sus:
-        if "dh" not in s:
-            sys.exit(f"SU {s['name']}: only DH+2 placements are supported")
         on.setdefault(s["segment"], []).append(s)
 
     def geoms(segment, indent):
         ends = [placement(c)[0][:3, 3] for c in children.get(segment, [])]
-        ends += [dh(s["dh"])[:3, 3] for s in on.get(segment, [])]
+        ends += [sensor_frame(s)[:3, 3] for s in on.get(segment, [])]
         out = []
         for i, e in enumerate(ends):
             if np.linalg.norm(e) < 1e-3:
@@ -118,7 +125,7 @@ def mjcf(robot, gravity):
     def body(segment, indent):
         lines = geoms(segment, indent)
         for s in on.get(segment, []):
-            lines.append(f'{indent}<site name="{s["name"]}" {pose_attributes(dh(s["dh"]))}/>')
+            lines.append(f'{indent}<site name="{s["name"]}" {pose_attributes(sensor_frame(s))}/>')
         for d in children.get(segment, []):
             frame, axis = placement(d)
             lines.append(f'{indent}<body name="{d["child"]}" {pose_attributes(frame)}>')
@@ -173,11 +180,12 @@ def reference(plan, part, pause, dof_index):
             duration = phase["duration"]
             segments.append((duration, lambda t, a=a, b=b, T=duration: quintic(a, b, min(t / T, 1.0))))
         elif action == "excitation":
-            d = dof_index[phase["dof"]]
+            # One DoF, or several together (a plan's parallel limbs).
+            excited = [dof_index[n] for n in [phase["dof"], *phase.get("together", [])]]
 
-            def excite(t, a=a, d=d):
+            def excite(t, a=a, excited=excited):
                 q = a.copy()
-                q[d] += amplitude / w * (1.0 - math.cos(w * t))
+                q[excited] += amplitude / w * (1.0 - math.cos(w * t))
                 return q
 
             segments.append((1.0 / frequency, excite))
@@ -194,6 +202,12 @@ def main():
     parser.add_argument("--gravity", default="0,0,-9.81", help="gravity in the base frame, m/s²")
     parser.add_argument("--bandwidth", type=float, default=6.0, help="servo bandwidth, Hz")
     parser.add_argument("--damping", type=float, default=0.8, help="servo damping ratio")
+    parser.add_argument(
+        "--tune",
+        choices=["first", "largest"],
+        default="first",
+        help="servo gains from the inertia at the first pose, or the largest over the plan's poses",
+    )
     parser.add_argument("--pause", type=float, default=0.5, help="hold after each pattern, s")
     parser.add_argument("--noise", type=float, default=0.05, help="accelerometer noise σ, m/s²")
     parser.add_argument("--encoder-bits", type=int, default=17, help="encoder resolution (0: exact)")
@@ -220,13 +234,21 @@ def main():
         sys.exit("the plan has no phase of that part")
     q0 = segments[0][1](0.0)
 
-    # Servo gains from the joint-space inertia at the first pose: kp = I ω², kv = 2ζ I ω.
-    data.qpos[qadr] = q0
-    mujoco.mj_forward(model, data)
-    full = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, full)
+    # Servo gains from the joint-space inertia at the first pose (or the largest over the plan's
+    # poses, `--tune largest`, so that no pose leaves a servo below its bandwidth and damping):
+    # kp = I ω², kv = 2ζ I ω.
+    def diagonal_inertia(q):
+        data.qpos[qadr] = q
+        mujoco.mj_forward(model, data)
+        full = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, full)
+        return np.array([full[v, v] for v in vadr])
+
+    poses = [q0]
+    if args.tune == "largest":
+        poses += [np.array(p["to"]) for p in plan["phases"] if args.part in (None, p["part"])]
+    inertia = np.max([diagonal_inertia(q) for q in poses], axis=0)
     omega = 2.0 * math.pi * args.bandwidth
-    inertia = np.array([full[v, v] for v in vadr])
     kp = inertia * omega**2
     kv = 2.0 * args.damping * inertia * omega
     # MuJoCo's position actuator: force = kp·ctrl − kp·q − kv·q̇. The integrator is RK4: an
