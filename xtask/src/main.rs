@@ -14,6 +14,11 @@
 //!   prints the command that installs them. The tests find the browser through
 //!   `SKINCAL_TEST_CHROMIUM`.
 //!
+//! After the Rust tests, a full run (no ARGS) tests the Python package: the release `skincal`
+//! command is built, the package is installed into the same environment
+//! (`pip install ./crates/skincal-py`, built by maturin from the same target directory), and
+//! `pytest crates/skincal-py/tests` and `examples/paper_arm.py` run.
+//!
 //! Nothing is skipped silently: what cannot be installed ends the task with the command that fixes it.
 //! `cargo xtask test-env` does the installation alone and prints the environment's Python.
 
@@ -27,7 +32,8 @@ const USAGE: &str = "\
 usage: cargo xtask <task>
 
 tasks:
-  test [ARGS...]   install what the tests need (once), then cargo test --workspace [ARGS...]
+  test [ARGS...]   install what the tests need (once), then cargo test --workspace [ARGS...];
+                   without ARGS also the Python package's tests and example
   test-env         only install what the tests need; prints the test environment's Python";
 
 fn main() -> ExitCode {
@@ -38,7 +44,11 @@ fn main() -> ExitCode {
         Some("test") => test_env().and_then(|python| {
             let robots = robot_descriptions(&python)?;
             let browser = chromium()?;
-            run_tests(&python, &robots, &browser, &rest)
+            let code = run_tests(&python, &robots, &browser, &rest)?;
+            if code != ExitCode::SUCCESS || !rest.is_empty() {
+                return Ok(code);
+            }
+            python_package(&python)
         }),
         Some("test-env") => test_env().map(|python| {
             println!("{}", python.display());
@@ -103,6 +113,63 @@ fn run_tests(
         Some(code) => ExitCode::from(u8::try_from(code).unwrap_or(1)),
         None => ExitCode::FAILURE,
     })
+}
+
+/// Runs `program` with `args` in the workspace root; an error names the command and its fix.
+fn step(program: &Path, args: &[&str], envs: &[(&str, &Path)], fix: &str) -> Result<(), String> {
+    let shown = format!("{} {}", program.display(), args.join(" "));
+    say(&shown);
+    let status = Command::new(program)
+        .args(args)
+        .envs(envs.iter().copied())
+        .current_dir(workspace_root())
+        .status()
+        .map_err(|e| format!("could not run {shown}: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{shown} failed; {fix}"))
+    }
+}
+
+/// The Python package: the release command the tests compare with, the package installed into the
+/// test environment, then its tests and example.
+fn python_package(python: &Path) -> Result<ExitCode, String> {
+    let cargo = PathBuf::from(env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
+    step(
+        &cargo,
+        &["build", "--release", "--quiet", "-p", "skincal-cli"],
+        &[],
+        "see the build errors above",
+    )?;
+    step(
+        python,
+        &[
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "./crates/skincal-py",
+        ],
+        &[],
+        "pip builds the package with maturin from PyPI (is PyPI reachable?)",
+    )?;
+    let binary = target_dir(&workspace_root()).join("release/skincal");
+    let envs = [("SKINCAL_BIN", binary.as_path())];
+    step(
+        python,
+        &["-m", "pytest", "-q", "crates/skincal-py/tests"],
+        &envs,
+        "a Python package test failed (above)",
+    )?;
+    step(
+        python,
+        &["examples/paper_arm.py"],
+        &envs,
+        "the example failed (above)",
+    )?;
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Debian's Chromium, installed when missing; returns the browser.

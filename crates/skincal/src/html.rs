@@ -424,7 +424,9 @@ fn limbs(
                         (limb.dofs.len()) " DoFs (" (limb.dofs.join(", ")) "), " (limb.sus.len()) " SUs; residual "
                         span class=(if e.converged { "" } else { "bad" }) { (format!("{:.3}", e.residual_ratio)) " σ, "
                             (if e.converged { "converged" } else { "NOT CONVERGED" }) }
-                        "; " (e.iterations) " iterations in " (format!("{:.1}", e.seconds * 1e3)) " ms."
+                        "; " (e.iterations) " iterations"
+                        @if e.seconds > 0.0 { " in " (format!("{:.1}", e.seconds * 1e3)) " ms" }
+                        "."
                     }
                     h4 { "Residual per SU, in σ (dashed: 1)" }
                     (PreEscaped(bars(

@@ -370,7 +370,9 @@ pub struct MlChainEstimate {
     pub dh: Option<DhTable>,
     /// LM iterations, all solves.
     pub iterations: usize,
-    /// Wall time, s.
+    /// Wall time, s. Not written to files: a model file is the same for the same data, whichever
+    /// run or machine made it.
+    #[serde(default, skip_serializing)]
     pub seconds: f64,
     /// The estimate in the estimator's own chart (not written to files).
     #[serde(skip)]

@@ -1,0 +1,474 @@
+"""skincal: a robot's skin calibrates itself from its own accelerometers.
+
+The skin is many small sensor units (SUs), each a 3-axis accelerometer. From their static gravity
+readings and the accelerations that short excitation patterns cause, skincal finds the robot's
+kinematic tree (:func:`explore`) and fits every limb's kinematics and every SU's pose
+(:func:`calibrate`), with uncertainties; the result predicts readings, checks itself against new
+data and exports URDF. Units are SI throughout (m, rad, m/s²); arrays are numpy arrays of float64.
+
+    >>> import skincal
+    >>> data = skincal.simulate("paper-7dof", seed=1)
+    >>> structure = skincal.explore(data)
+    >>> model = skincal.calibrate(data, structure)
+    >>> [limb.converged for limb in model.limbs]
+    [True]
+
+Errors are :class:`SkincalError` with the library's message (it names the file, field or sensor
+and what to do). Long work releases the interpreter, so other threads run meanwhile.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from os import PathLike
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _skincal
+from ._skincal import SkincalError, __version__
+
+__all__ = [
+    "SkincalError",
+    "MeasurementSet",
+    "Training",
+    "Structure",
+    "Model",
+    "Limb",
+    "Validation",
+    "simulate",
+    "explore",
+    "calibrate",
+    "ingest",
+    "plan",
+    "robots",
+    "__version__",
+]
+
+Path = Union[str, "PathLike[str]"]
+
+#: The paper's excitation pattern (A rad/s, f Hz): what `predict` uses unless told otherwise.
+PAPER_PATTERN = (0.5, 2.0)
+
+
+@dataclass(frozen=True)
+class Training:
+    """The training experiment of a measurement set, as arrays.
+
+    ``poses`` (P×D, rad), ``static`` readings (P×U×3, m/s²), ``dynamic`` accelerations
+    (P×D×U×3, m/s²: every SU's response to the pattern on each DoF; zero where a DoF was not
+    excited at a pose), the ``pattern`` (A rad/s, f Hz), and each reading's standard deviation
+    (``static_sd`` P×U, ``dynamic_sd`` P×D×U, m/s²) when the set has them (ingested logs do).
+    """
+
+    poses: np.ndarray
+    static: np.ndarray
+    dynamic: np.ndarray
+    pattern: Tuple[float, float]
+    static_sd: Optional[np.ndarray] = None
+    dynamic_sd: Optional[np.ndarray] = None
+
+
+class MeasurementSet:
+    """Readings of one robot's skin: the structure experiment and the training experiment."""
+
+    def __init__(self, native: "_skincal.Measurements", truth: Optional[dict] = None):
+        self._native = native
+        #: The simulator's truth (robot, orientations, intrinsics) for a simulated set, else None.
+        self.truth = truth
+
+    @classmethod
+    def load(cls, path: Path) -> "MeasurementSet":
+        """Reads and checks a ``measurements.json`` file."""
+        return cls(_skincal.Measurements.load(str(path)))
+
+    @classmethod
+    def from_json(cls, text: str) -> "MeasurementSet":
+        """Parses and checks a measurement set's JSON text."""
+        return cls(_skincal.Measurements.from_json(text))
+
+    @classmethod
+    def from_arrays(
+        cls,
+        dofs: Sequence[str],
+        sus: Sequence[str],
+        poses: np.ndarray,
+        static: np.ndarray,
+        dynamic: np.ndarray,
+        pattern: Tuple[float, float] = PAPER_PATTERN,
+        static_sd: Optional[np.ndarray] = None,
+        dynamic_sd: Optional[np.ndarray] = None,
+        structure: Optional[dict] = None,
+    ) -> "MeasurementSet":
+        """A measurement set from arrays (shapes as in :class:`Training`); ``structure`` is a
+        structure experiment as :attr:`structure_experiment` gives it. Checked as a file is."""
+        as_array = lambda a: None if a is None else np.ascontiguousarray(a, dtype=np.float64)
+        return cls(
+            _skincal.Measurements.from_arrays(
+                list(dofs),
+                list(sus),
+                as_array(poses),
+                as_array(static),
+                as_array(dynamic),
+                (float(pattern[0]), float(pattern[1])),
+                as_array(static_sd),
+                as_array(dynamic_sd),
+                None if structure is None else json.dumps(structure),
+            )
+        )
+
+    def save(self, path: Path, force: bool = False) -> None:
+        """Writes the set as ``skincal`` writes it, whole or not at all; an existing file is
+        refused unless ``force``."""
+        self._native.save(str(path), force)
+
+    def to_json(self) -> str:
+        """The set's JSON text, exactly as the CLI writes it."""
+        return self._native.to_json()
+
+    @property
+    def dofs(self) -> List[str]:
+        """DoF names: the order of every pose vector."""
+        return self._native.dofs
+
+    @property
+    def sus(self) -> List[str]:
+        """SU names: the order of every list of readings."""
+        return self._native.sus
+
+    @property
+    def training(self) -> Optional[Training]:
+        """The training experiment as arrays, or None."""
+        t = self._native.training()
+        return None if t is None else Training(*t)
+
+    @property
+    def structure_experiment(self) -> Optional[dict]:
+        """The structure experiment (base orientations, rest readings, one move per DoF) as a
+        dict, or None."""
+        return json.loads(self._native.structure_json())
+
+    def __repr__(self) -> str:
+        return repr(self._native)
+
+
+class Structure:
+    """The kinematic structure exploration found: segments, joints, limbs, diagnostics."""
+
+    def __init__(self, native: "_skincal.NativeStructure"):
+        self._native = native
+
+    @cached_property
+    def _data(self) -> dict:
+        return json.loads(self._native.to_json())
+
+    @classmethod
+    def load(cls, path: Path) -> "Structure":
+        """Reads and checks a ``structure.json`` file."""
+        return cls(_skincal.NativeStructure.load(str(path)))
+
+    def save(self, path: Path, force: bool = False) -> None:
+        """Writes ``structure.json`` as ``skincal explore`` does, whole or not at all."""
+        self._native.save(str(path), force)
+
+    def to_json(self) -> str:
+        return self._native.to_json()
+
+    @property
+    def complete(self) -> bool:
+        """Whether the tree is complete (no error-level diagnostic)."""
+        return self._data["complete"]
+
+    @property
+    def root(self) -> str:
+        """The static reference segment."""
+        return self._data["root"]
+
+    @property
+    def segments(self) -> List[dict]:
+        """Segments in depth-first order (``id``, ``sus``, …); the first is the reference."""
+        return self._data["segments"]
+
+    @property
+    def joints(self) -> List[dict]:
+        """Joints (``id``, ``dofs``, ``parent``, ``child``)."""
+        return self._data["joints"]
+
+    @property
+    def limbs(self) -> List[dict]:
+        """Limbs (``from``, ``to``, ``joints``, ``segments``, ``dofs``, ``sus``)."""
+        return self._data["limbs"]
+
+    @property
+    def diagnostics(self) -> List[dict]:
+        """Findings, each with its ``severity`` and ``message``."""
+        return self._data["diagnostics"]
+
+    @property
+    def unplaced_sus(self) -> List[str]:
+        """SUs left out of the tree."""
+        return self._data["unplaced_sus"]
+
+    @property
+    def activity(self) -> np.ndarray:
+        """The merged and sorted activity matrix (paper Fig. 2): segments × joints, True where
+        the joint moves the segment; labels in :attr:`activity_labels`."""
+        return np.array(self._data["matrix"]["entries"], dtype=bool)
+
+    @property
+    def activity_labels(self) -> Tuple[List[str], List[str]]:
+        """(segment ids, joint ids) of :attr:`activity`'s rows and columns."""
+        m = self._data["matrix"]
+        return m["segments"], m["joints"]
+
+    def __repr__(self) -> str:
+        return (
+            f"<Structure: {len(self.segments)} segments, {len(self.joints)} joints, "
+            f"{len(self.limbs)} limbs, {'complete' if self.complete else 'INCOMPLETE'}>"
+        )
+
+
+@dataclass(frozen=True)
+class Limb:
+    """One calibrated limb.
+
+    ``su_poses``: each SU's pose (4×4, m) in the body frame at the zero pose;
+    ``su_sd``: each SU's position (m) and orientation (rad) standard deviation relative to the
+    previous SU; ``joint_covariance``: the covariance of the fitted joint lines (4 per DoF of
+    ``joint_covariance_dofs``: turns about x, y in rad, shifts along x, y in m); ``dh``: for a
+    paper-style chain, the DH+2 table as arrays (``dof_dof``: theta0, d, a, alpha per DoF;
+    ``dof_su``: also theta_acc, d_acc per SU; and their ``_sd``), else None.
+    """
+
+    name: str
+    parent: Optional[str]
+    dofs: List[str]
+    sus: List[str]
+    converged: bool
+    residual: float
+    su_poses: Dict[str, np.ndarray]
+    su_sd: Dict[str, Tuple[float, float]]
+    joint_covariance: np.ndarray
+    joint_covariance_dofs: List[str]
+    gravity: np.ndarray
+    dh: Optional[Dict[str, Dict[str, np.ndarray]]] = None
+    details: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass(frozen=True)
+class Validation:
+    """Predictions against a second measurement set: RMS and largest errors (norm of the
+    3-vector difference, m/s²), and the per-SU table."""
+
+    poses: int
+    static_rms: float
+    static_max: float
+    dynamic_rms: float
+    dynamic_max: float
+    sus: List[dict]
+
+
+def _dh_arrays(dh: Optional[dict]) -> Optional[Dict[str, Dict[str, np.ndarray]]]:
+    if not dh:
+        return None
+    out = {}
+    for table, rows in dh.items():
+        if isinstance(rows, list) and rows:
+            out[table] = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+    return out
+
+
+class Model:
+    """A calibrated body: per limb the fitted kinematics and SU poses with their uncertainties."""
+
+    def __init__(self, native: "_skincal.NativeModel"):
+        self._native = native
+
+    @cached_property
+    def _data(self) -> dict:
+        return json.loads(self._native.to_json())
+
+    @cached_property
+    def _names(self) -> Tuple[List[str], List[str]]:
+        return self._native.names()
+
+    @classmethod
+    def load(cls, path: Path) -> "Model":
+        """Reads and checks a ``model.json`` file."""
+        return cls(_skincal.NativeModel.load(str(path)))
+
+    def save(self, path: Path, force: bool = False) -> None:
+        """Writes ``model.json`` byte for byte as ``skincal calibrate`` does, whole or not at
+        all."""
+        self._native.save(str(path), force)
+
+    def to_json(self) -> str:
+        return self._native.to_json()
+
+    @property
+    def dofs(self) -> List[str]:
+        """The model's DoFs: the columns of :meth:`predict`'s poses."""
+        return list(self._names[0])
+
+    @property
+    def sus(self) -> List[str]:
+        """The model's SUs: the order of :meth:`predict`'s readings."""
+        return list(self._names[1])
+
+    @property
+    def pattern(self) -> Tuple[float, float]:
+        """The excitation pattern (A, f) of the training data."""
+        p = self._data.get("pattern") or {"amplitude": PAPER_PATTERN[0], "frequency": PAPER_PATTERN[1]}
+        return (p["amplitude"], p["frequency"])
+
+    @property
+    def limbs(self) -> List[Limb]:
+        """The calibrated limbs."""
+        frames = self.su_frames()
+        out = []
+        for limb in self._data["limbs"]:
+            e = limb["estimate"]
+            cov = e.get("joint_covariance") or {"dofs": [], "matrix": []}
+            out.append(
+                Limb(
+                    name=limb["name"],
+                    parent=limb.get("parent"),
+                    dofs=limb["dofs"],
+                    sus=limb["sus"],
+                    converged=e["converged"],
+                    residual=e["residual_ratio"],
+                    su_poses={s: frames[s] for s in limb["sus"] if s in frames},
+                    su_sd={u["su"]: (u["position_sd"], u["orientation_sd"]) for u in e["uncertainty"]},
+                    joint_covariance=np.array(cov["matrix"], dtype=float).reshape(
+                        4 * len(cov["dofs"]), 4 * len(cov["dofs"])
+                    ),
+                    joint_covariance_dofs=cov["dofs"],
+                    gravity=np.array(limb["gravity"]),
+                    dh=_dh_arrays(e.get("dh")),
+                    details=e,
+                )
+            )
+        return out
+
+    def su_frames(self, pose: Optional[np.ndarray] = None) -> Dict[str, np.ndarray]:
+        """Every SU's pose (4×4, m) in the body frame at ``pose`` (rad per model DoF; zero pose
+        by default)."""
+        q = np.zeros(len(self._names[0])) if pose is None else np.asarray(pose, dtype=np.float64)
+        return dict(zip(self._names[1], self._native.su_frames([float(x) for x in q])))
+
+    def predict(
+        self, poses: np.ndarray, pattern: Optional[Tuple[float, float]] = None
+    ) -> Tuple[np.ndarray, np.ndarray]:
+        """The readings the model predicts at ``poses`` (N×D rad, or one pose of D): static
+        (N×U×3) and the dynamic acceleration of ``pattern`` (default: the training data's) on each
+        DoF (N×D×U×3), m/s², in the order of :attr:`dofs` and :attr:`sus`."""
+        q = np.asarray(poses, dtype=np.float64)
+        single = q.ndim == 1
+        q = np.ascontiguousarray(q.reshape(1, -1) if single else q)
+        p = self.pattern if pattern is None else (float(pattern[0]), float(pattern[1]))
+        static, dynamic = self._native.predict(q, p)
+        return (static[0], dynamic[0]) if single else (static, dynamic)
+
+    def validate(self, other: MeasurementSet) -> Validation:
+        """Predicts ``other``'s training experiment (its poses and pattern) and compares."""
+        v = json.loads(self._native.validate(other._native))
+        return Validation(
+            poses=v["poses"],
+            static_rms=v["static_rms"],
+            static_max=v["static_max"],
+            dynamic_rms=v["dynamic_rms"],
+            dynamic_max=v["dynamic_max"],
+            sus=v["sus"],
+        )
+
+    def to_urdf(self) -> str:
+        """The calibrated kinematics as URDF text, as ``skincal export-urdf`` writes it."""
+        return self._native.to_urdf()
+
+    def __repr__(self) -> str:
+        converged = sum(l["estimate"]["converged"] for l in self._data["limbs"])
+        return f"<Model: {len(self._data['limbs'])} limbs ({converged} converged), {len(self._names[1])} SUs>"
+
+
+def simulate(
+    robot: str,
+    *,
+    poses: int = 20,
+    noise: float = 0.01,
+    seed: int = 1,
+    structure: bool = True,
+    training: bool = True,
+    tilted: bool = True,
+    pose_seed: Optional[int] = None,
+) -> MeasurementSet:
+    """Simulates a robot's skin as ``skincal simulate`` does: ``robot`` is a built-in name
+    (:func:`robots`), a ``.toml`` description or a URDF (one random SU per link); ``noise`` is
+    uniform ±noise g on every reading component. The truth is in the result's ``truth``."""
+    native, truth = _skincal.simulate(
+        robot, poses, noise, seed, structure, training, tilted, pose_seed
+    )
+    return MeasurementSet(native, json.loads(truth))
+
+
+def explore(measurements: MeasurementSet) -> Structure:
+    """Structural exploration (default settings): the kinematic tree from the structure
+    experiment."""
+    return Structure(_skincal.explore(measurements._native))
+
+
+def calibrate(
+    measurements: MeasurementSet,
+    structure: Optional[Structure] = None,
+    method: str = "ml",
+    noise: Optional[float] = None,
+) -> Model:
+    """Kinematic estimation of every limb by maximum likelihood (``method="ml"``; the paper's
+    method is ``skincal calibrate --method paper``). ``structure`` defaults to exploring the set's
+    structure experiment; ``noise`` (g, uniform) weights every reading alike instead of by its own
+    standard deviation, as ``skincal calibrate --noise``."""
+    if method != "ml":
+        raise ValueError(f"method {method!r}: the Python package calibrates with 'ml'")
+    native = _skincal.calibrate(
+        measurements._native, None if structure is None else structure._native, noise
+    )
+    return Model(native)
+
+
+def ingest(
+    logs: Sequence[Path],
+    plan: Optional[Path] = None,
+    pattern: Optional[Tuple[float, float]] = None,
+    progress: Optional[Callable[[str, int, int], None]] = None,
+) -> Tuple[MeasurementSet, dict]:
+    """Reads robot logs (MCAP, rosbag2 directories with .mcap or .db3, ROS 1 bags, skincal's CSV
+    directories) into a measurement set, as ``skincal ingest``: ``plan`` is the ``plan.json`` they
+    follow (its pattern and still periods), ``pattern`` the nominal (A, f) instead;
+    ``progress(stage, done, total)`` is called while the logs are read. Returns the set and the
+    report (windows found, excitations, coupled motion, warnings)."""
+    native, report = _skincal.ingest(
+        [str(p) for p in logs],
+        None if plan is None else str(plan),
+        None if pattern is None else (float(pattern[0]), float(pattern[1])),
+        progress,
+    )
+    return MeasurementSet(native), json.loads(report)
+
+
+def plan(
+    robot: str,
+    protocol: str = "short",
+    poses: Optional[int] = None,
+    accuracy: Optional[float] = None,
+    seed: int = 1,
+) -> dict:
+    """The exploration program for a robot, as ``skincal plan`` writes ``plan.json``: ``short``
+    (limbs in parallel, as many poses as the forecast needs for ``accuracy`` m/s², 0.009 unless
+    ``poses`` is given) or ``paper``. Its ``forecast`` is the held-out RMS it expects."""
+    return json.loads(_skincal.plan(robot, protocol, poses, accuracy, seed))
+
+
+def robots() -> Dict[str, str]:
+    """The built-in robots: name → description (TOML)."""
+    return _skincal.robots()
