@@ -350,6 +350,16 @@ pub fn chain_accuracy(a: &crate::estimate::ChainAccuracy) -> String {
             p.rotation_max.to_degrees()
         );
     }
+    if a.pairs.len() < 2 {
+        // The summary is over the pairs after the first (compared only up to a screw about the
+        // first axis): a limb of two SUs has none.
+        let _ = writeln!(
+            out,
+            "{:>18} {:>12} {:>12} {:>12} {:>12}   (no pair after the first)",
+            "all", "—", "—", "—", "—"
+        );
+        return out;
+    }
     let _ = writeln!(
         out,
         "{:>18} {:>12.2} {:>12.2} {:>12.3} {:>12.3}",
@@ -406,4 +416,54 @@ pub fn urdf_check(check: &crate::align::UrdfCheck) -> String {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::estimate::{ChainAccuracy, PairError};
+
+    fn pair(from: &str, to: &str, mm: f64) -> PairError {
+        PairError {
+            from: from.into(),
+            to: to.into(),
+            position_rms: mm * 1e-3,
+            position_max: mm * 1e-3,
+            rotation_rms: 0.001,
+            rotation_max: 0.002,
+        }
+    }
+
+    #[test]
+    fn a_limb_of_two_sus_has_no_summary_row_of_numbers() {
+        // The summary covers the pairs after the first; with one pair there is none to show
+        // (it printed −0.00).
+        let one = ChainAccuracy {
+            pairs: vec![pair("a", "b", 2.64)],
+            position_rms: -0.0,
+            position_max: 0.0,
+            rotation_rms: -0.0,
+            rotation_max: 0.0,
+            poses: 30,
+        };
+        let text = super::chain_accuracy(&one);
+        assert!(text.contains("a→b") && text.contains("2.64"), "{text}");
+        assert!(
+            text.contains("no pair after the first") && !text.contains("-0.00"),
+            "{text}"
+        );
+        let two = ChainAccuracy {
+            pairs: vec![pair("a", "b", 2.64), pair("b", "c", 1.5)],
+            position_rms: 1.5e-3,
+            position_max: 1.5e-3,
+            rotation_rms: 0.001,
+            rotation_max: 0.002,
+            poses: 30,
+        };
+        let last = super::chain_accuracy(&two)
+            .lines()
+            .last()
+            .unwrap()
+            .to_string();
+        assert!(last.contains("all") && last.contains("1.50"), "{last}");
+    }
 }
