@@ -37,6 +37,18 @@ fn error(e: impl std::fmt::Display) -> PyErr {
     SkincalError::new_err(e.to_string())
 }
 
+/// Calls a Python progress callback, if any, from released work. An exception in it is printed
+/// (as Python prints unraisable ones) and does not abort the work.
+fn call(callback: &Option<Py<PyAny>>, stage: &str, done: u64, total: u64) {
+    if let Some(f) = callback {
+        Python::attach(|py| {
+            if let Err(e) = f.call1(py, (stage, done, total)) {
+                e.print(py);
+            }
+        });
+    }
+}
+
 fn json<T: serde::Serialize>(value: &T) -> PyResult<String> {
     serde_json::to_string_pretty(value).map_err(error)
 }
@@ -467,14 +479,16 @@ fn explore(py: Python<'_>, measurements: &Measurements) -> PyResult<NativeStruct
 
 /// Kinematic estimation (maximum likelihood) of every limb; `noise` is the uniform noise in g
 /// that weights every reading (default: each reading's own standard deviation where the set has
-/// them, else 0.01 g), as `skincal calibrate --noise`.
+/// them, else 0.01 g), as `skincal calibrate --noise`. `progress(limb, done, total)` is called as
+/// each limb is calibrated.
 #[pyfunction]
-#[pyo3(signature = (measurements, structure = None, noise = None))]
+#[pyo3(signature = (measurements, structure = None, noise = None, progress = None))]
 fn calibrate(
     py: Python<'_>,
     measurements: &Measurements,
     structure: Option<&NativeStructure>,
     noise: Option<f64>,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<NativeModel> {
     let config = MlConfig {
         noise_sd: noise.unwrap_or(0.01) * STANDARD_GRAVITY / 3f64.sqrt(),
@@ -495,7 +509,16 @@ fn calibrate(
         None => None,
     };
     let inner = py
-        .detach(|| calibrate_body(&measurements.inner, structure, &config, None))
+        .detach(|| {
+            skincal::estimate::body::calibrate_body_reporting(
+                &measurements.inner,
+                structure,
+                &config,
+                None,
+                &[],
+                &mut |limb, done, total| call(&progress, limb, done as u64, total as u64),
+            )
+        })
         .map_err(error)?;
     Ok(NativeModel { inner })
 }
@@ -533,14 +556,8 @@ fn ingest(
     }
     let ingested = py
         .detach(|| {
-            let mut report = |stage: &str, done: u64, total: u64| {
-                if let Some(f) = &progress {
-                    Python::attach(|py| {
-                        // A failing callback must not abort the ingestion.
-                        let _ = f.call1(py, (stage, done, total));
-                    });
-                }
-            };
+            let mut report =
+                |stage: &str, done: u64, total: u64| call(&progress, stage, done, total);
             skincal::ingest::ingest(&logs, &config, &mut report)
         })
         .map_err(error)?;

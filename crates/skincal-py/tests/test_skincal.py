@@ -147,10 +147,13 @@ def test_bad_input_raises_skincal_errors_that_say_what_is_wrong(tmp_path):
     model.save(tmp_path / "model.json", force=True)
 
 
-def test_calibration_releases_the_interpreter():
+def test_calibration_releases_the_interpreter_and_reports_each_limb():
     data = skincal.simulate("humanoid")
     structure = skincal.explore(data)
-    worker = threading.Thread(target=lambda: skincal.calibrate(data, structure))
+    calls = []
+    worker = threading.Thread(
+        target=lambda: skincal.calibrate(data, structure, progress=lambda *a: calls.append(a))
+    )
     count = 0
     worker.start()
     while worker.is_alive():
@@ -158,3 +161,6 @@ def test_calibration_releases_the_interpreter():
     worker.join()
     # Holding the interpreter, the native call would leave this loop a handful of turns.
     assert count > 10_000, count
+    limbs = [limb["to"] for limb in structure.limbs]
+    assert sorted(name for name, _, _ in calls) == sorted(limbs)
+    assert [(done, total) for _, done, total in calls] == [(k + 1, 5) for k in range(5)]

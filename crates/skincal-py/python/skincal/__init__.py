@@ -423,15 +423,17 @@ def calibrate(
     structure: Optional[Structure] = None,
     method: str = "ml",
     noise: Optional[float] = None,
+    progress: Optional[Callable[[str, int, int], None]] = None,
 ) -> Model:
     """Kinematic estimation of every limb by maximum likelihood (``method="ml"``; the paper's
     method is ``skincal calibrate --method paper``). ``structure`` defaults to exploring the set's
     structure experiment; ``noise`` (g, uniform) weights every reading alike instead of by its own
-    standard deviation, as ``skincal calibrate --noise``."""
+    standard deviation, as ``skincal calibrate --noise``; ``progress(limb, done, total)`` is called
+    as each limb is calibrated."""
     if method != "ml":
         raise ValueError(f"method {method!r}: the Python package calibrates with 'ml'")
     native = _skincal.calibrate(
-        measurements._native, None if structure is None else structure._native, noise
+        measurements._native, None if structure is None else structure._native, noise, progress
     )
     return Model(native)
 

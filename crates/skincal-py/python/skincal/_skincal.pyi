@@ -81,6 +81,7 @@ def calibrate(
     measurements: Measurements,
     structure: Optional[NativeStructure] = None,
     noise: Optional[float] = None,
+    progress: Optional[Callable[[str, int, int], None]] = None,
 ) -> NativeModel: ...
 def ingest(
     logs: List[str],

@@ -186,6 +186,18 @@ pub fn calibrate_body_keeping(
     only: Option<&str>,
     keep: &[String],
 ) -> Result<BodyModel, EstimateError> {
+    calibrate_body_reporting(set, structure, config, only, keep, &mut |_, _, _| {})
+}
+
+/// [`calibrate_body_keeping`], calling `progress(limb, done, total)` as each limb is calibrated.
+pub fn calibrate_body_reporting(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+    keep: &[String],
+    progress: &mut dyn FnMut(&str, usize, usize),
+) -> Result<BodyModel, EstimateError> {
     let plain;
     let set = if config.reading_sd {
         set
@@ -297,6 +309,7 @@ pub fn calibrate_body_keeping(
                 estimate = better_of(estimate, again, note);
             }
         }
+        progress(&estimate.chain.name, estimates.len() + 1, chains.len());
         estimates.push(estimate);
         parent_of.push(parent);
     }
