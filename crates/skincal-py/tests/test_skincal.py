@@ -33,6 +33,11 @@ def test_the_paper_arm_end_to_end_against_the_truth():
     structure = skincal.explore(data)
     assert structure.complete
     assert len(structure.joints) == 7 and len(structure.limbs) == 1
+    (path,) = structure.limbs
+    assert path.start == structure.root == structure.segments[0].id
+    assert path.dofs == data.dofs and path.sus == data.sus
+    assert [j.child for j in structure.joints] == path.segments
+    assert all(d.severity != "error" for d in structure.diagnostics)
     # A serial chain: the sorted activity matrix is lower triangular with a full diagonal.
     activity = structure.activity
     assert activity.shape == (8, 7)
@@ -161,6 +166,6 @@ def test_calibration_releases_the_interpreter_and_reports_each_limb():
     worker.join()
     # Holding the interpreter, the native call would leave this loop a handful of turns.
     assert count > 10_000, count
-    limbs = [limb["to"] for limb in structure.limbs]
+    limbs = [limb.end for limb in structure.limbs]
     assert sorted(name for name, _, _ in calls) == sorted(limbs)
     assert [(done, total) for _, done, total in calls] == [(k + 1, 5) for k in range(5)]

@@ -35,6 +35,10 @@ __all__ = [
     "MeasurementSet",
     "Training",
     "Structure",
+    "Segment",
+    "Joint",
+    "LimbPath",
+    "Diagnostic",
     "Model",
     "Limb",
     "Validation",
@@ -154,6 +158,51 @@ class MeasurementSet:
         return repr(self._native)
 
 
+@dataclass(frozen=True)
+class Segment:
+    """A segment of the discovered tree: the SUs on it and the joint that moves it (none for the
+    reference); ``without_su`` when it was assumed to connect the tree although no SU is on it."""
+
+    id: str
+    sus: List[str]
+    parent_joint: Optional[str] = None
+    without_su: bool = False
+
+
+@dataclass(frozen=True)
+class Joint:
+    """A joint: its DoFs (input order), the segment it is mounted on and the one it moves."""
+
+    id: str
+    dofs: List[str]
+    parent: str
+    child: str
+
+
+@dataclass(frozen=True)
+class LimbPath:
+    """A limb of the tree: from a reference (the root or a branching segment) outwards."""
+
+    start: str
+    end: str
+    joints: List[str]
+    segments: List[str]
+    dofs: List[str]
+    sus: List[str]
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """A finding of exploration: ``severity`` (info, warning or error), what it is (``kind``),
+    the plain-language ``message`` and the SUs and DoFs it concerns."""
+
+    kind: str
+    severity: str
+    message: str
+    sus: List[str]
+    dofs: List[str]
+
+
 class Structure:
     """The kinematic structure exploration found: segments, joints, limbs, diagnostics."""
 
@@ -187,24 +236,33 @@ class Structure:
         return self._data["root"]
 
     @property
-    def segments(self) -> List[dict]:
-        """Segments in depth-first order (``id``, ``sus``, …); the first is the reference."""
-        return self._data["segments"]
+    def segments(self) -> List[Segment]:
+        """Segments in depth-first order; the first is the reference."""
+        return [
+            Segment(s["id"], s["sus"], s.get("parent_joint"), s.get("without_su", False))
+            for s in self._data["segments"]
+        ]
 
     @property
-    def joints(self) -> List[dict]:
-        """Joints (``id``, ``dofs``, ``parent``, ``child``)."""
-        return self._data["joints"]
+    def joints(self) -> List[Joint]:
+        """Joints; ``Jn`` moves ``Sn``."""
+        return [Joint(j["id"], j["dofs"], j["parent"], j["child"]) for j in self._data["joints"]]
 
     @property
-    def limbs(self) -> List[dict]:
-        """Limbs (``from``, ``to``, ``joints``, ``segments``, ``dofs``, ``sus``)."""
-        return self._data["limbs"]
+    def limbs(self) -> List[LimbPath]:
+        """Limbs, each from its reference segment to an end effector or a branching segment."""
+        return [
+            LimbPath(l["from"], l["to"], l["joints"], l["segments"], l["dofs"], l["sus"])
+            for l in self._data["limbs"]
+        ]
 
     @property
-    def diagnostics(self) -> List[dict]:
-        """Findings, each with its ``severity`` and ``message``."""
-        return self._data["diagnostics"]
+    def diagnostics(self) -> List[Diagnostic]:
+        """Findings, in the order exploration lists them."""
+        return [
+            Diagnostic(d["kind"], d["severity"], d["message"], d["sus"], d["dofs"])
+            for d in self._data["diagnostics"]
+        ]
 
     @property
     def unplaced_sus(self) -> List[str]:
