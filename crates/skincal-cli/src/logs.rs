@@ -231,7 +231,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     let accuracy = args.accuracy.or((args.protocol == Protocol::Short
         && args.poses.is_none()
         && !args.no_forecast)
-        .then_some(SHORT_ACCURACY));
+        .then_some(skincal::design::SHORT_ACCURACY));
     let (plan, forecast_note) = planned(&robot, dofs, &config, &args, accuracy)?;
     let samples = plan.sample(args.rate);
     let names = plan.dof_names();
@@ -271,9 +271,6 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     Ok(())
 }
 
-/// The held-out RMS the short protocol plans for, m/s².
-const SHORT_ACCURACY: f64 = 0.009;
-
 /// The plan, with its forecast when the description allows one (and as many poses as
 /// `--accuracy` needs), and a line about the forecast.
 fn planned(
@@ -286,7 +283,7 @@ fn planned(
     use skincal::design;
     let context = "cannot plan the exploration";
     if let (Some(target), true) = (accuracy, config.training) {
-        let (mut plan, forecast) =
+        let (plan, forecast) =
             design::poses_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
         let note = if forecast.worst() <= target {
             format!(
@@ -301,20 +298,14 @@ fn planned(
                 forecast.poses
             )
         };
-        plan.forecast = Some(forecast);
         return Ok((plan, note));
     }
     let mut plan = Plan::new(dofs, config).context(context)?;
     if args.no_forecast || !config.training {
         return Ok((plan, String::new()));
     }
-    let forecast = design::reading_noise(robot, &plan, args.sample_noise)
-        .and_then(|noise| design::forecast(robot, &plan, &noise, design::TRIALS));
-    let note = match forecast {
-        Ok(f) => {
-            plan.forecast = Some(f);
-            String::new()
-        }
+    let note = match design::forecast_plan(robot, &mut plan, args.sample_noise) {
+        Ok(()) => String::new(),
         Err(e) => format!("note: no forecast: {e}"),
     };
     Ok((plan, note))
@@ -410,14 +401,15 @@ fn render_plan(plan: &Plan) -> String {
             "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the {} training \
              poses\n  (readings' noise static {:.4}, dynamic {:.4} m/s² from one recorded pose with \
              sample noise {:.3} m/s²;\n  calibrated on the description's skin at the plan's poses, \
-             mean over {} noise draws, against 30 held-out poses)",
+             mean over {} noise draws, against {} held-out poses)",
             f.static_rms,
             f.dynamic_rms,
             f.poses,
             f.noise.static_sd,
             f.noise.dynamic_sd,
             f.noise.sample_sd,
-            f.trials
+            f.trials,
+            f.held_out
         );
     }
     s

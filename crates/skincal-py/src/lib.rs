@@ -594,24 +594,19 @@ fn plan(
         seed,
         ..base
     };
-    let target = accuracy.or((protocol == "short" && poses.is_none()).then_some(0.009));
+    let target = accuracy
+        .or((protocol == "short" && poses.is_none()).then_some(skincal::design::SHORT_ACCURACY));
     let dofs = PlanDof::from_robot(&robot);
     let plan = py
         .detach(|| -> Result<Plan, String> {
             match target {
-                Some(t) => {
-                    let (mut plan, f) = skincal::design::poses_for(&robot, &dofs, &config, t, None)
-                        .map_err(|e| e.to_string())?;
-                    plan.forecast = Some(f);
-                    Ok(plan)
-                }
+                Some(t) => skincal::design::poses_for(&robot, &dofs, &config, t, None)
+                    .map(|(plan, _)| plan)
+                    .map_err(|e| e.to_string()),
                 None => {
                     let mut plan = Plan::new(dofs.clone(), &config).map_err(|e| e.to_string())?;
-                    plan.forecast = skincal::design::reading_noise(&robot, &plan, None)
-                        .and_then(|n| {
-                            skincal::design::forecast(&robot, &plan, &n, skincal::design::TRIALS)
-                        })
-                        .ok();
+                    // A description without SUs has no forecast; the plan stands without one.
+                    let _ = skincal::design::forecast_plan(&robot, &mut plan, None);
                     Ok(plan)
                 }
             }

@@ -59,8 +59,10 @@ def test_the_paper_arm_end_to_end_against_the_truth():
     assert check.static_rms < 0.06 and check.dynamic_rms < 0.03, check
     static, dynamic = model.predict(held.training.poses, held.training.pattern)
     t = held.training
+    # The arrays against the true robot's readings, SU by SU in the set's order.
+    assert model.sus == held.sus
     errors = np.linalg.norm(static - t.static, axis=2)
-    assert np.isclose(np.sqrt(np.mean(errors**2)), check.static_rms, rtol=1e-9)
+    assert np.sqrt(np.mean(errors**2)) < 0.06 and errors.max() < 0.2
     assert dynamic.shape == t.dynamic.shape
     # One pose alone gives the same numbers.
     one_static, _ = model.predict(t.poses[0], t.pattern)

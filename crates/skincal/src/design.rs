@@ -8,7 +8,7 @@
 //!    it uses on real logs) are the noise of one reading.
 //! 2. **Calibration at the plan's poses.** The exact readings at the plan's training poses, with
 //!    that noise drawn `trials` times, are calibrated with the description's tree and compared with
-//!    a noise-free held-out set of 30 random poses; the forecast is the RMS over the trials.
+//!    a noise-free held-out set of 20 random poses; the forecast is the RMS over the trials.
 //!
 //! [`poses_for`] adds training poses until the forecast meets a target (`plan --accuracy`).
 
@@ -158,25 +158,56 @@ pub fn reading_noise(
     })
 }
 
-/// The description's tree and its structure experiment, from a noise-free simulation.
-fn true_structure(robot: &Robot) -> Result<(Structure, MeasurementSet), DesignError> {
-    let sim = simulate(
-        robot,
-        &SimulationConfig {
-            training: false,
-            imperfections: Imperfections::none(),
-            ..SimulationConfig::default()
-        },
-    )
-    .map_err(|e| DesignError::Step(format!("simulating the structure part: {e}")))?;
-    let structure = explore(&sim.measurements, &ExploreConfig::default())
-        .map_err(|e| DesignError::Step(format!("exploring the description: {e}")))?;
-    if !structure.complete {
-        return Err(DesignError::Step(
-            "exploring the description does not give its whole tree".into(),
-        ));
+/// What every forecast of one robot compares with: the description's tree and its structure
+/// experiment (from a noise-free simulation) and a noise-free held-out set of 20 random poses.
+/// Built once per search, whatever the number of plans forecast.
+pub struct Reference {
+    structure: Structure,
+    explored: MeasurementSet,
+    held_out: MeasurementSet,
+}
+
+impl Reference {
+    /// The reference of `robot` (which must place SUs).
+    pub fn of(robot: &Robot) -> Result<Reference, DesignError> {
+        if robot.model.sus().is_empty() {
+            return Err(DesignError::NoSus);
+        }
+        let simulated = |config: SimulationConfig, what: &str| {
+            simulate(robot, &config)
+                .map(|s| s.measurements)
+                .map_err(|e| DesignError::Step(format!("simulating {what}: {e}")))
+        };
+        let explored = simulated(
+            SimulationConfig {
+                training: false,
+                imperfections: Imperfections::none(),
+                ..SimulationConfig::default()
+            },
+            "the structure part",
+        )?;
+        let structure = explore(&explored, &ExploreConfig::default())
+            .map_err(|e| DesignError::Step(format!("exploring the description: {e}")))?;
+        if !structure.complete {
+            return Err(DesignError::Step(
+                "exploring the description does not give its whole tree".into(),
+            ));
+        }
+        let held_out = simulated(
+            SimulationConfig {
+                structure: false,
+                imperfections: Imperfections::none(),
+                seed: HELD_OUT_SEED,
+                ..SimulationConfig::default()
+            },
+            "the held-out poses",
+        )?;
+        Ok(Reference {
+            structure,
+            explored,
+            held_out,
+        })
     }
-    Ok((structure, sim.measurements))
 }
 
 /// The exact readings at one pose: static per SU, dynamic per DoF and SU.
@@ -240,35 +271,21 @@ impl Exact {
 const HELD_OUT_SEED: u64 = 99;
 
 /// The expected held-out RMS of a calibration from `plan`'s training poses with readings of
-/// `noise`, over `trials` noise draws.
+/// `noise`, over `trials` noise draws, against `reference` ([`Reference::of`] the same robot).
 pub fn forecast(
     robot: &Robot,
+    reference: &Reference,
     plan: &Plan,
     noise: &ReadingNoise,
     trials: usize,
 ) -> Result<Forecast, DesignError> {
-    if robot.model.sus().is_empty() {
-        return Err(DesignError::NoSus);
-    }
-    let (structure, explored) = true_structure(robot)?;
-    let held_out = simulate(
-        robot,
-        &SimulationConfig {
-            structure: false,
-            imperfections: Imperfections::none(),
-            seed: HELD_OUT_SEED,
-            ..SimulationConfig::default()
-        },
-    )
-    .map_err(|e| DesignError::Step(format!("simulating the held-out poses: {e}")))?
-    .measurements;
     let poses = plan.training_poses();
     let exact: Vec<Exact> = poses.iter().map(|q| Exact::at(robot, plan, q)).collect();
     let (mut static_ss, mut dynamic_ss) = (0.0, 0.0);
     for trial in 0..trials.max(1) {
         let mut rng = ChaCha8Rng::seed_from_u64(trial as u64);
         let mut set = MeasurementSet::new(robot.model.dof_names(), robot.model.su_names());
-        set.structure.clone_from(&explored.structure);
+        set.structure.clone_from(&reference.explored.structure);
         set.training = Some(TrainingExperiment {
             pattern: plan.pattern,
             poses: poses
@@ -278,9 +295,10 @@ pub fn forecast(
                 .collect(),
             extra: Default::default(),
         });
-        let calibrated = calibrate_body(&set, Some(&structure), &MlConfig::default(), None)
-            .map_err(|e| DesignError::Step(format!("calibrating the plan's poses: {e}")))?;
-        let check = validate(&calibrated, &held_out, "held-out")
+        let calibrated =
+            calibrate_body(&set, Some(&reference.structure), &MlConfig::default(), None)
+                .map_err(|e| DesignError::Step(format!("calibrating the plan's poses: {e}")))?;
+        let check = validate(&calibrated, &reference.held_out, "held-out")
             .map_err(|e| DesignError::Step(format!("predicting the held-out poses: {e}")))?;
         static_ss += check.static_rms.powi(2);
         dynamic_ss += check.dynamic_rms.powi(2);
@@ -292,8 +310,25 @@ pub fn forecast(
         dynamic_rms: (dynamic_ss / n).sqrt(),
         noise: noise.clone(),
         trials: trials.max(1),
+        held_out: reference.held_out.summary().training_poses,
     })
 }
+
+/// The forecast of `plan` as it is (its poses), stored in its `forecast`.
+pub fn forecast_plan(
+    robot: &Robot,
+    plan: &mut Plan,
+    sample_sd: Option<f64>,
+) -> Result<(), DesignError> {
+    let noise = reading_noise(robot, plan, sample_sd)?;
+    let f = forecast(robot, &Reference::of(robot)?, plan, &noise, TRIALS)?;
+    plan.forecast = Some(f);
+    Ok(())
+}
+
+/// The held-out RMS, m/s², that the short protocol plans for when no number of poses is given
+/// (`plan --accuracy`).
+pub const SHORT_ACCURACY: f64 = 0.009;
 
 /// Noise draws per forecast.
 pub const TRIALS: usize = 8;
@@ -310,6 +345,7 @@ pub const CANDIDATES: usize = 4;
 /// 0.34 (a pose set that leaves a limb's kinematics open).
 pub fn best_draw(
     robot: &Robot,
+    reference: &Reference,
     dofs: &[PlanDof],
     config: &PlanConfig,
     noise: &ReadingNoise,
@@ -325,7 +361,7 @@ pub fn best_draw(
                     ..config.clone()
                 },
             )?;
-            let f = forecast(robot, &plan, noise, TRIALS)?;
+            let f = forecast(robot, reference, &plan, noise, TRIALS)?;
             Ok((plan, f))
         })
         .collect::<Result<_, DesignError>>()?;
@@ -337,7 +373,7 @@ pub fn best_draw(
 
 /// The plan with the fewest training poses (from `config.poses` up, at most [`MAX_POSES`]) whose
 /// forecast meets `target` m/s² RMS, static and dynamic, each the best of [`CANDIDATES`] pose
-/// draws, and its forecast; the largest tried when none does.
+/// draws, with its forecast (also in the plan's `forecast`); the largest tried when none does.
 pub fn poses_for(
     robot: &Robot,
     dofs: &[PlanDof],
@@ -347,17 +383,15 @@ pub fn poses_for(
 ) -> Result<(Plan, Forecast), DesignError> {
     let mut poses = config.poses.max(1);
     let noise = reading_noise(robot, &Plan::new(dofs.to_vec(), config)?, sample_sd)?;
+    let reference = Reference::of(robot)?;
     loop {
-        let (plan, f) = best_draw(
-            robot,
-            dofs,
-            &PlanConfig {
-                poses,
-                ..config.clone()
-            },
-            &noise,
-        )?;
+        let config = PlanConfig {
+            poses,
+            ..config.clone()
+        };
+        let (mut plan, f) = best_draw(robot, &reference, dofs, &config, &noise)?;
         if f.worst() <= target || poses >= MAX_POSES {
+            plan.forecast = Some(f.clone());
             return Ok((plan, f));
         }
         // The error falls as 1/√P. One recording scatters around the forecast (the humanoid's

@@ -576,6 +576,9 @@ pub struct Forecast {
     pub noise: ReadingNoise,
     /// Noise draws averaged.
     pub trials: usize,
+    /// Held-out poses compared.
+    #[serde(default)]
+    pub held_out: usize,
 }
 
 impl Forecast {

@@ -932,7 +932,7 @@ fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
 fn the_forecast_follows_the_laws_of_noise_and_poses() {
     // The readings' noise is linear in the samples' noise, and the calibration's error falls as
     // 1/√P with the number of poses (within the scatter of the draws).
-    use skincal::design::{forecast, reading_noise};
+    use skincal::design::{forecast, reading_noise, Reference};
     let robot = robot("paper-7dof");
     let dofs = PlanDof::from_robot(&robot);
     let plan = |poses| {
@@ -955,8 +955,9 @@ fn the_forecast_follows_the_laws_of_noise_and_poses() {
         assert!((b / a - 2.0).abs() < 0.2, "{a} → {b}");
     }
     // Past the first few poses (with six, each more pose also fixes the kinematics' conditioning).
-    let small = forecast(&robot, &plan(12), &low, 8).unwrap();
-    let large = forecast(&robot, &plan(48), &low, 8).unwrap();
+    let reference = Reference::of(&robot).unwrap();
+    let small = forecast(&robot, &reference, &plan(12), &low, 8).unwrap();
+    let large = forecast(&robot, &reference, &plan(48), &low, 8).unwrap();
     for (a, b) in [
         (small.static_rms, large.static_rms),
         (small.dynamic_rms, large.dynamic_rms),

@@ -6,7 +6,7 @@
 //! ingested readings must match the noise-free kinematic truth at the measured poses, and
 //! calibrate as well as the condensed simulator's data.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use nalgebra::Vector3;
@@ -43,6 +43,36 @@ fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
          tests with `cargo xtask test`, which installs it into target/test-env\n{stderr}"
     );
     assert!(output.status.success(), "{stderr}");
+}
+
+/// The physics simulation of `plan` on `robot` into `dir`: the whole plan upright (seed 1) and
+/// its structure part tilted (seed 2), each with `extra` options; returns the two log directories.
+fn physics_logs(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> (PathBuf, PathBuf) {
+    let robot_file = dir.join("robot.json");
+    let plan_file = dir.join("plan.json");
+    std::fs::write(
+        &robot_file,
+        serde_json::to_string(&RobotFile::from_robot(robot, None)).unwrap(),
+    )
+    .unwrap();
+    std::fs::write(&plan_file, serde_json::to_string(plan).unwrap()).unwrap();
+    let (upright, tilted) = (dir.join("upright"), dir.join("tilted"));
+    physics_log(
+        &robot_file,
+        &plan_file,
+        &upright,
+        &[&["--seed", "1"][..], extra].concat(),
+    );
+    let g = BaseOrientation::tilted().gravity;
+    let gravity = format!("{},{},{}", g[0], g[1], g[2]);
+    let tilt = ["--part", "structure", "--seed", "2", "--gravity", &gravity];
+    physics_log(
+        &robot_file,
+        &plan_file,
+        &tilted,
+        &[&tilt[..], extra].concat(),
+    );
+    (upright, tilted)
 }
 
 /// Against the truth, static and dynamic: the RMS over the training poses of the norm of
@@ -98,31 +128,7 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let robot_file = d.join("robot.json");
-    let plan_file = d.join("plan.json");
-    std::fs::write(
-        &robot_file,
-        serde_json::to_string(&RobotFile::from_robot(&robot, None)).unwrap(),
-    )
-    .unwrap();
-    std::fs::write(&plan_file, serde_json::to_string(&plan).unwrap()).unwrap();
-    let (upright, tilted) = (d.join("upright"), d.join("tilted"));
-    physics_log(&robot_file, &plan_file, &upright, &["--seed", "1"]);
-    let g = BaseOrientation::tilted().gravity;
-    physics_log(
-        &robot_file,
-        &plan_file,
-        &tilted,
-        &[
-            "--part",
-            "structure",
-            "--seed",
-            "2",
-            "--gravity",
-            &format!("{},{},{}", g[0], g[1], g[2]),
-        ],
-    );
+    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &[]);
 
     let ingested = ingest(
         &[upright, tilted],
@@ -258,35 +264,7 @@ fn limbs_excited_in_parallel_on_compliant_servos_are_told_apart() {
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let robot_file = d.join("robot.json");
-    let plan_file = d.join("plan.json");
-    std::fs::write(
-        &robot_file,
-        serde_json::to_string(&RobotFile::from_robot(&robot, None)).unwrap(),
-    )
-    .unwrap();
-    std::fs::write(&plan_file, serde_json::to_string(&plan).unwrap()).unwrap();
-    let (upright, tilted) = (d.join("upright"), d.join("tilted"));
-    let tune = ["--tune", "largest"];
-    physics_log(
-        &robot_file,
-        &plan_file,
-        &upright,
-        &[&["--seed", "1"][..], &tune].concat(),
-    );
-    let g = BaseOrientation::tilted().gravity;
-    let gravity = format!("{},{},{}", g[0], g[1], g[2]);
-    physics_log(
-        &robot_file,
-        &plan_file,
-        &tilted,
-        &[
-            &["--part", "structure", "--seed", "2", "--gravity", &gravity][..],
-            &tune,
-        ]
-        .concat(),
-    );
+    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &["--tune", "largest"]);
     // The still windows fitted to the plan's still periods, as `ingest --plan` does.
     let config = IngestConfig::default().for_still_periods(plan.config.still);
     let ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();

@@ -281,22 +281,25 @@ fn training_pose(
             return None;
         }
     };
-    // One fit per set of dropped DoFs; a DoF's reading alone is that of the SUs it alone moves.
+    // One fit per set of dropped DoFs, and the noise factor of each DoF excited together with
+    // others as a reading of it alone (that of the SUs it alone moves).
     let mut classes: BTreeMap<Vec<usize>, ClassFit> = BTreeMap::new();
-    for d in dropped.iter().cloned().chain(
-        together
-            .iter()
-            .map(|&d| together.iter().copied().filter(|&e| e != d).collect()),
-    ) {
+    let mut alone: BTreeMap<usize, f64> = BTreeMap::new();
+    for &d in &together {
+        let solo: Vec<usize> = together.iter().copied().filter(|&e| e != d).collect();
+        let class = classes
+            .entry(solo)
+            .or_insert_with_key(|solo| ClassFit::new(&excitations, solo));
+        alone.insert(
+            d,
+            class.fit.alpha(d).map_or(0.0, |c| class.fit.sd_factor(c)),
+        );
+    }
+    for d in &dropped {
         classes
-            .entry(d)
+            .entry(d.clone())
             .or_insert_with_key(|d| ClassFit::new(&excitations, d));
     }
-    let alone = |d: usize| -> f64 {
-        let solo: Vec<usize> = together.iter().copied().filter(|&e| e != d).collect();
-        let class = &classes[&solo];
-        class.fit.alpha(d).map_or(0.0, |c| class.fit.sd_factor(c))
-    };
     let alpha = pattern.peak_acceleration();
     let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
     let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -341,7 +344,7 @@ fn training_pose(
                     ),
                     None => (
                         [0.0; 3],
-                        passes.variance.as_ref().map(|v| alone(d).powi(2) * v[su]),
+                        passes.variance.as_ref().map(|v| alone[&d].powi(2) * v[su]),
                     ),
                 };
                 dynamic.entry(name.clone()).or_default().push(reading);

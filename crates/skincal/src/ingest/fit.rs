@@ -72,7 +72,8 @@ pub(super) struct Excitation {
     /// excited DoFs' first).
     pub(super) terms: Vec<Term>,
     /// `W(m)` row by row: the weight of the sample at grid point `start + m` in each normal
-    /// equation is `weights[m · terms.len() + c]`.
+    /// equation is `weights[m · terms.len() + c]` (empty in a [`Excitation::restricted`] design,
+    /// which is only solved).
     pub(super) weights: Vec<f64>,
     /// `Σ_n X(n) X(n)ᵀ`, the normal matrix.
     pub(super) gram: DMatrix<f64>,
@@ -102,9 +103,9 @@ impl Excitation {
 
     /// The design with only the columns `kept` (see [`Excitation::kept`]): the fit of an SU that
     /// the DoFs left out do not move. Its right-hand sides are the same columns of the full
-    /// ones, since each column's is `Σ_m W_c(m) s(m)` alone.
+    /// ones, since each column's is `Σ_m W_c(m) s(m)` alone; so it is only solved, never
+    /// streamed, and carries no per-sample weights.
     pub(super) fn restricted(&self, kept: &[usize]) -> Excitation {
-        let nc = self.terms.len();
         let sub = |m: &DMatrix<f64>| {
             DMatrix::from_fn(kept.len(), kept.len(), |a, b| m[(kept[a], kept[b])])
         };
@@ -113,11 +114,7 @@ impl Excitation {
             start: self.start,
             end: self.end,
             terms: kept.iter().map(|&c| self.terms[c]).collect(),
-            weights: self
-                .weights
-                .chunks(nc)
-                .flat_map(|row| kept.iter().map(move |&c| row[c]))
-                .collect(),
+            weights: Vec::new(),
             gram: sub(&self.gram),
             spread: sub(&self.spread),
             rounding: sub(&self.rounding),
