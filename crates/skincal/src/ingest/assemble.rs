@@ -7,7 +7,7 @@ use serde_json::Map;
 use super::fit::{Excitation, PooledFit};
 use super::segment::{Event, Segmentation};
 use super::skin::{Accumulated, SuRegistry};
-use super::timeline::Timeline;
+use super::timeline::Grid;
 use super::{ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
 use crate::measurements::{
     MeasurementSet, Move, Orientation, Reading, StructureExperiment, TrainingExperiment,
@@ -25,12 +25,12 @@ struct Station {
     group: Option<usize>,
 }
 
-/// Everything the two passes found, for assembling.
+/// Everything the passes over the logs found, for assembling.
 pub(super) struct Passes<'a> {
     pub(super) config: &'a IngestConfig,
     pub(super) dofs: &'a [String],
     pub(super) sus: &'a SuRegistry,
-    pub(super) timelines: &'a [Timeline],
+    pub(super) grids: &'a [Grid],
     pub(super) segs: &'a [Segmentation],
     pub(super) accumulated: &'a [Accumulated],
     pub(super) reports: Vec<LogReport>,
@@ -52,7 +52,7 @@ impl Passes<'_> {
     /// Start of a station, s from its log's first joint state.
     fn at(&self, st: &Station) -> f64 {
         let w = &self.segs[st.log].stills[st.stills[0]];
-        self.timelines[st.log].time(w.start)
+        self.grids[st.log].time(w.start)
     }
 
     /// The static readings of a station, pooled over its still windows; why there are none as
@@ -253,7 +253,7 @@ fn training_pose(
                     "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
                     passes.path(st.log),
                     passes.dofs[x.dofs[0]],
-                    passes.timelines[st.log].time(x.start),
+                    passes.grids[st.log].time(x.start),
                     passes.sus.names[su]
                 );
                 passes.warnings.push(warning);
@@ -304,7 +304,7 @@ fn training_pose(
     let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
     let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut powers = vec![(0.0, 0.0); windows.len()];
-    let resolution = &passes.timelines[st.log].resolution;
+    let resolution = &passes.grids[st.log].resolution;
     for su in 0..nu {
         let class = &classes[&dropped[su]];
         let rhs: Vec<Vec<[f64; 3]>> = windows
@@ -357,7 +357,7 @@ fn training_pose(
             }
         }
     }
-    let timeline = &passes.timelines[st.log];
+    let grid = &passes.grids[st.log];
     for (x, (other, own)) in excitations.iter().zip(powers) {
         let coupled_dofs = x.terms[1 + 4 * x.dofs.len()..]
             .iter()
@@ -372,8 +372,8 @@ fn training_pose(
                 .iter()
                 .map(|&d| passes.dofs[d].clone())
                 .collect(),
-            start: timeline.time(x.start),
-            duration: x.len() as f64 * timeline.dt,
+            start: grid.time(x.start),
+            duration: x.len() as f64 * grid.dt,
             coupled_dofs,
             coupled: if own > 0.0 { (other / own).sqrt() } else { 0.0 },
         });

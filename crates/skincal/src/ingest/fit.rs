@@ -186,7 +186,7 @@ pub(super) fn design(
     if len < 4 * l + 4 {
         return None;
     }
-    let dt = timeline.dt;
+    let dt = timeline.grid.dt;
     let kernel = triangle(l);
     let span = (l as f64 * dt).powi(2);
     // The excited DoFs first, then every other DoF that moved.

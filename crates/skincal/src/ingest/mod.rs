@@ -3,10 +3,12 @@
 //! A log (MCAP or CSV, see [`crate::log`]) holds joint states and raw accelerometer samples of a
 //! robot that followed the exploration protocol: still periods, and between them motions of one
 //! DoF at a time (structure moves and windowed excitation patterns) or transfers of several DoFs.
-//! Ingestion reads each log twice, streaming:
+//! Ingestion reads each log once, streaming ([`pass`]: the skin samples wait until the window they
+//! fall in is known; a log that breaks what this relies on is read twice, the joint states first):
 //!
 //! 1. **Joint states → windows.** The joint positions are put on a uniform grid at the log's rate
-//!    (linear interpolation; unsorted and duplicate stamps and gaps counted). A grid point is still
+//!    (its period fitted to the first second's stamps; linear interpolation; unsorted and duplicate
+//!    stamps and gaps counted). A grid point is still
 //!    when every DoF's speed, measured over ±`filter`, is below `still_velocity`; still runs longer
 //!    than `min_still` are still windows (trimmed by `trim` at both ends). The motion between two
 //!    still windows is classified by the DoFs that left their position by more than
@@ -40,6 +42,7 @@
 
 mod assemble;
 mod fit;
+mod pass;
 mod segment;
 mod skin;
 mod timeline;
@@ -53,6 +56,7 @@ use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
 use crate::measurements::MeasurementSet;
 use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use assemble::{assemble, Passes};
+use pass::{one_pass, LogPass};
 use segment::{estimate_pattern, segment};
 use skin::{read_skin, SuRegistry};
 use timeline::read_joints;
@@ -213,6 +217,9 @@ pub struct LogReport {
     pub path: PathBuf,
     /// `mcap` or `csv`.
     pub format: String,
+    /// Passes over the log: 1, or 2 where it breaks what a single pass relies on (joint stamps
+    /// out of order, a DoF first seen late, a motion too long to hold its skin samples).
+    pub passes: u8,
     /// From the first to the last joint state, s.
     pub duration: f64,
     /// Rate of the joint states, Hz.
@@ -336,7 +343,7 @@ pub fn ingest(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Ingested, IngestError> {
-    ingest_logs(logs, config, progress).map_err(|e| match e {
+    ingest_logs(logs, config, progress, Some(pass::HELD)).map_err(|e| match e {
         IngestError::Empty(reason) if !logs.is_empty() => IngestError::Empty(format!(
             "in {}: {reason}",
             logs.iter()
@@ -348,41 +355,86 @@ pub fn ingest(
     })
 }
 
+/// The ingestion, each log read in one pass (segmented every `step` skin samples) where it can
+/// be, else (and with `step` `None`) in two.
 fn ingest_logs(
     logs: &[PathBuf],
     config: &IngestConfig,
     progress: &mut Progress<'_>,
+    step: Option<usize>,
 ) -> Result<Ingested, IngestError> {
     config.validate()?;
     if logs.is_empty() {
         return Err(IngestError::Empty(": no log given".into()));
     }
-    let mut timelines = Vec::new();
+    let mut grids = Vec::new();
+    let mut plans = Vec::new();
+    let mut accumulators = Vec::new();
     let mut reports = Vec::new();
     let mut dof_names: Option<Vec<String>> = config.dofs.clone();
+    let mut sus = SuRegistry::new(config.sus.clone());
     for path in logs {
-        let mut report = LogReport {
-            path: path.clone(),
-            format: match log::format_of(path)? {
-                LogFormat::Mcap => "mcap".into(),
-                LogFormat::Csv => "csv".into(),
-                LogFormat::Db3 => "rosbag2 sqlite3".into(),
-                LogFormat::Bag => "ros1 bag".into(),
-                LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
-            },
-            ..LogReport::default()
+        let fresh = || -> Result<LogReport, IngestError> {
+            Ok(LogReport {
+                path: path.clone(),
+                format: match log::format_of(path)? {
+                    LogFormat::Mcap => "mcap".into(),
+                    LogFormat::Csv => "csv".into(),
+                    LogFormat::Db3 => "rosbag2 sqlite3".into(),
+                    LogFormat::Bag => "ros1 bag".into(),
+                    LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
+                },
+                ..LogReport::default()
+            })
         };
-        let timeline = read_joints(path, config, &mut dof_names, &mut report, progress)?;
-        timelines.push(timeline);
+        let mut report = fresh()?;
+        let (names_before, sus_before) = (dof_names.clone(), sus.clone());
+        let once = match step {
+            Some(step) => one_pass(
+                path,
+                step,
+                config,
+                &mut dof_names,
+                &mut sus,
+                &mut report,
+                progress,
+            )?,
+            None => None,
+        };
+        let log = match once {
+            Some(log) => {
+                report.passes = 1;
+                log
+            }
+            None => {
+                // The log breaks what one pass relies on: read it twice.
+                (dof_names, sus, report) = (names_before, sus_before, fresh()?);
+                let timeline = read_joints(path, config, &mut dof_names, &mut report, progress)?;
+                let dofs = dof_names.clone().unwrap_or_default();
+                let seg = segment(&timeline, &dofs, config, &mut report);
+                let acc = read_skin(
+                    path,
+                    &timeline,
+                    &seg,
+                    config,
+                    &mut sus,
+                    &mut report,
+                    progress,
+                )?;
+                report.passes = 2;
+                LogPass {
+                    grid: timeline.grid,
+                    seg,
+                    acc,
+                }
+            }
+        };
+        grids.push(log.grid);
+        plans.push(log.seg);
+        accumulators.push(log.acc);
         reports.push(report);
     }
     let dofs = dof_names.unwrap_or_default();
-
-    // Pass 1 results: windows of every log.
-    let mut plans = Vec::new();
-    for (timeline, report) in timelines.iter().zip(&mut reports) {
-        plans.push(segment(timeline, &dofs, config, report));
-    }
 
     let (pattern, pattern_source) = match config.pattern {
         Some(p) => (p, "given".to_string()),
@@ -406,24 +458,11 @@ fn ingest_logs(
         }
     };
 
-    // Pass 2: the skin samples.
-    let mut sus = SuRegistry::new(config.sus.clone());
-    let mut accumulators = Vec::new();
-    for ((path, timeline), (plan, report)) in logs
-        .iter()
-        .zip(&timelines)
-        .zip(plans.iter().zip(&mut reports))
-    {
-        accumulators.push(read_skin(
-            path, timeline, plan, config, &mut sus, report, progress,
-        )?);
-    }
-
     let passes = Passes {
         config,
         dofs: &dofs,
         sus: &sus,
-        timelines: &timelines,
+        grids: &grids,
         segs: &plans,
         accumulated: &accumulators,
         reports,
@@ -432,4 +471,96 @@ fn ingest_logs(
         moved_by: None,
     };
     assemble(passes, pattern, pattern_source)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::csv::CsvSink;
+    use crate::log::mcap::{Compression, McapSink};
+    use crate::model::presets;
+    use crate::plan::{Part, Plan, PlanConfig, PlanDof};
+    use crate::sim::timeseries::{record, LogConfig};
+    use crate::sim::BaseOrientation;
+
+    /// The ingestion of `logs` read once (segmented every `step` samples) and read twice.
+    fn once_and_twice(logs: &[PathBuf], step: usize) -> (Ingested, Ingested) {
+        let config = IngestConfig::default();
+        let once = ingest_logs(logs, &config, &mut |_, _, _| {}, Some(step)).unwrap();
+        let twice = ingest_logs(logs, &config, &mut |_, _, _| {}, None).unwrap();
+        (once, twice)
+    }
+
+    /// Everything but the number of passes.
+    fn same(a: &Ingested, b: &Ingested) {
+        let mut a_report = a.report.clone();
+        for (log, other) in a_report.logs.iter_mut().zip(&b.report.logs) {
+            log.passes = other.passes;
+        }
+        assert_eq!(a_report, b.report);
+        assert_eq!(
+            serde_json::to_string(&a.measurements).unwrap(),
+            serde_json::to_string(&b.measurements).unwrap()
+        );
+    }
+
+    #[test]
+    fn one_pass_gives_what_two_passes_give() {
+        // A real recording's flaws (noise, jitter, lost messages, a rounding encoder) in an MCAP
+        // log of the structure part and training poses, and a CSV log of the structure part with
+        // the base tilted; segmented every few hundred samples, so that every pause and motion is
+        // settled across many stretches.
+        let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+        let plan = Plan::new(
+            PlanDof::from_robot(&robot),
+            &PlanConfig {
+                poses: 2,
+                seed: 5,
+                ..PlanConfig::short()
+            },
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let flawed = LogConfig {
+            jitter: 2e-5,
+            drop_probability: 0.01,
+            encoder_resolution: 2.0 * std::f64::consts::PI / f64::from(1u32 << 17),
+            seed: 3,
+            ..LogConfig::default()
+        };
+        let upright = dir.path().join("upright.mcap");
+        let mut sink = McapSink::new(&upright, Topics::default(), Compression::Zstd, false);
+        record(&robot, &plan, &flawed, &mut sink, &mut |_| {}).unwrap();
+        let tilted = dir.path().join("tilted");
+        let mut sink = CsvSink::new(&tilted, false);
+        let config = LogConfig {
+            orientation: BaseOrientation::tilted(),
+            part: Some(Part::Structure),
+            ..flawed.clone()
+        };
+        record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+        let logs = [upright, tilted];
+        for step in [300, 5000] {
+            let (once, twice) = once_and_twice(&logs, step);
+            assert!(once.report.logs.iter().all(|l| l.passes == 1), "{step}");
+            assert!(twice.report.logs.iter().all(|l| l.passes == 2));
+            assert!(once.report.logs[0].excitations >= 14, "{:?}", once.report);
+            assert!(once.report.logs[1].moves >= 7, "{:?}", once.report);
+            same(&once, &twice);
+        }
+
+        // Joint stamps out of order: read twice, and the same.
+        let shaken = dir.path().join("shaken.mcap");
+        let mut sink = McapSink::new(&shaken, Topics::default(), Compression::None, false);
+        let config = LogConfig {
+            jitter: 2.4e-4,
+            part: Some(Part::Structure),
+            ..flawed
+        };
+        record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+        let (once, twice) = once_and_twice(std::slice::from_ref(&shaken), 300);
+        assert!(once.report.logs[0].unsorted_joint_stamps > 0);
+        assert_eq!(once.report.logs[0].passes, 2);
+        same(&once, &twice);
+    }
 }

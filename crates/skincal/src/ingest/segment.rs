@@ -58,19 +58,119 @@ pub(super) struct Segmentation {
     pub(super) routes: Vec<(usize, usize, bool, usize)>,
 }
 
+/// A pause and the motion after it, as found on a stretch of a log's timeline (grid points of
+/// the whole log).
+pub(super) struct Piece {
+    /// The pause's grid range.
+    pub(super) pause: (usize, usize),
+    /// Whether the pause is over (its still window final) within the stretch.
+    pub(super) closed: bool,
+    still: StillWindow,
+    /// The pause's span and the motion's in the report's timeline.
+    spans: Vec<Span>,
+    after: After,
+}
+
+/// What follows a pause.
+enum After {
+    /// Nothing: no motion, or the stretch ends.
+    Nothing,
+    /// A motion that cannot be used, and why.
+    Broken(String),
+    Move,
+    Transfer,
+    Excitation(Excitation),
+}
+
+impl Segmentation {
+    /// Adds the next piece of the log (its windows and their report); without its pause's still
+    /// window when that was added before (see [`Segmentation::add_pause`]).
+    pub(super) fn add(&mut self, mut piece: Piece, with_pause: bool, report: &mut LogReport) {
+        if with_pause {
+            self.add_pause(&piece, report);
+        }
+        report.timeline.extend(piece.spans.drain(1..));
+        match piece.after {
+            After::Nothing => {}
+            After::Broken(why) => {
+                report.skipped.push(why);
+                self.events.push(Event::Broken);
+            }
+            After::Move => {
+                report.moves += 1;
+                self.events.push(Event::Move);
+            }
+            After::Transfer => {
+                report.transfers += 1;
+                self.events.push(Event::Transfer);
+            }
+            After::Excitation(x) => {
+                report.excitations += 1;
+                let w = self.excitations.len();
+                self.routes.push((x.start, x.end, false, w));
+                self.events.push(Event::Excitation(w));
+                self.excitations.push(x);
+            }
+        }
+    }
+
+    /// Adds a piece's pause alone: its still window and its span.
+    pub(super) fn add_pause(&mut self, piece: &Piece, report: &mut LogReport) {
+        let k = self.stills.len();
+        if piece.still.reading {
+            self.routes
+                .push((piece.still.start, piece.still.end, true, k));
+        }
+        self.stills.push(piece.still.clone());
+        self.events.push(Event::Still(k));
+        report.timeline.push(piece.spans[0].clone());
+    }
+
+    /// Counts the still windows and pauses once the log is complete.
+    pub(super) fn finish(&self, report: &mut LogReport) {
+        report.still_windows = self.stills.iter().filter(|s| s.reading).count();
+        report.pauses = self.stills.len() - report.still_windows;
+    }
+}
+
+/// The windows of a whole log's timeline.
 pub(super) fn segment(
     timeline: &Timeline,
     dofs: &[String],
     config: &IngestConfig,
     report: &mut LogReport,
 ) -> Segmentation {
+    let mut seg = Segmentation::default();
+    for piece in pieces(timeline, dofs, config, true) {
+        seg.add(piece, true, report);
+    }
+    seg.finish(report);
+    seg
+}
+
+/// The half-width of the differentiation filter on a grid of period `dt`, grid points.
+pub(super) fn filter_points(config: &IngestConfig, dt: f64) -> usize {
+    ((config.filter / dt).round() as usize).max(2)
+}
+
+/// The pauses of a stretch of a log's timeline and the motions between them; the stretch is the
+/// log's start when `timeline.first` is 0, and its end when `at_end`. Elsewhere the stretch's
+/// edges are not pauses: a quiet run cut by them is one only when long enough, and the last
+/// piece's pause may go on beyond the stretch.
+pub(super) fn pieces(
+    timeline: &Timeline,
+    dofs: &[String],
+    config: &IngestConfig,
+    at_end: bool,
+) -> Vec<Piece> {
     let n = timeline.len();
-    let dt = timeline.dt;
-    let l = ((config.filter / dt).round() as usize).max(2);
+    let dt = timeline.grid.dt;
+    let l = filter_points(config, dt);
     let trim = ((config.trim / dt).round() as usize).max(2 * l + 1);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
     let min_pause = (config.min_pause / dt).round() as usize;
     let nd = timeline.theta.len();
+    let first = timeline.first;
     // Grid points where every DoF is slower than `limit`.
     let below = |limit: f64| -> Vec<bool> {
         (0..n)
@@ -92,16 +192,16 @@ pub(super) fn segment(
     // point the filter can judge is a pause even when shorter (the log started or stopped in it).
     let short = runs(&quiet, 2 * l + 1);
     if let Some(&last) = short.last() {
-        if last.1 + l >= n && pauses.last() != Some(&last) {
+        if at_end && last.1 + l >= n && pauses.last() != Some(&last) {
             pauses.push(last);
         }
     }
-    if let Some(&first) = short.first() {
-        if first.0 <= l && pauses.first() != Some(&first) {
-            pauses.insert(0, first);
+    if let Some(&start) = short.first() {
+        if first == 0 && start.0 <= l && pauses.first() != Some(&start) {
+            pauses.insert(0, start);
         }
     }
-    let mut seg = Segmentation::default();
+    let mut out = Vec::with_capacity(pauses.len());
     for (k, &(s, e)) in pauses.iter().enumerate() {
         // The longest still run of the pause, trimmed, gives the static reading.
         let reading = runs(&still[s..e], min_still + 2 * trim)
@@ -112,15 +212,9 @@ pub(super) fn segment(
         let pose = (0..nd)
             .map(|d| timeline.theta[d][a..b].iter().sum::<f64>() / (b - a) as f64)
             .collect();
-        seg.stills.push(StillWindow {
-            start: a,
-            end: b,
-            pose,
-            reading: reading.is_some(),
-        });
-        seg.events.push(Event::Still(k));
+        let mut spans = Vec::new();
         let mut span = |kind: &str, dof: Option<usize>, from: usize, to: usize| {
-            report.timeline.push(Span {
+            spans.push(Span {
                 kind: kind.into(),
                 dof: dof.map(|d| dofs[d].clone()),
                 start: timeline.time(from),
@@ -133,71 +227,70 @@ pub(super) fn segment(
             s,
             e,
         );
-        let Some(&(next_s, _)) = pauses.get(k + 1) else {
-            break;
-        };
-        // The motion between run k and run k + 1.
-        let (ms, me) = (e, next_s);
-        let at = timeline.time(ms);
-        if timeline.invalid[ms..me].iter().any(|&x| x) {
-            span("broken", None, ms, me);
-            report
-                .skipped
-                .push(format!("motion at {at:.3} s: joint states missing (gap)"));
-            seg.events.push(Event::Broken);
-            continue;
-        }
-        match classify(timeline, ms, me, config) {
-            Motion::None => {}
-            Motion::Move(d) => {
-                span("move", Some(d), ms, me);
-                report.moves += 1;
-                seg.events.push(Event::Move);
-            }
-            Motion::Transfer => {
-                span("transfer", None, ms, me);
-                report.transfers += 1;
-                seg.events.push(Event::Transfer);
-            }
-            Motion::Excitation(excited) => {
-                let start = e.saturating_sub(2 * l);
-                let end = (next_s + 2 * l).min(n);
-                let names = excited
-                    .iter()
-                    .map(|&d| format!("`{}`", dofs[d]))
-                    .collect::<Vec<_>>()
-                    .join(" and ");
-                match design(timeline, &excited, start, end, l) {
-                    Some(x) => {
-                        for &d in &excited {
-                            span("excitation", Some(d), ms, me);
+        let after = match pauses.get(k + 1) {
+            None => After::Nothing,
+            // The motion between pause k and pause k + 1.
+            Some(&(next_s, _)) => {
+                let (ms, me) = (e, next_s);
+                let at = timeline.time(ms);
+                if timeline.invalid[ms..me].iter().any(|&x| x) {
+                    span("broken", None, ms, me);
+                    After::Broken(format!("motion at {at:.3} s: joint states missing (gap)"))
+                } else {
+                    match classify(timeline, ms, me, config) {
+                        Motion::None => After::Nothing,
+                        Motion::Move(d) => {
+                            span("move", Some(d), ms, me);
+                            After::Move
                         }
-                        report.excitations += 1;
-                        seg.events.push(Event::Excitation(seg.excitations.len()));
-                        seg.excitations.push(x);
-                    }
-                    None => {
-                        span("broken", Some(excited[0]), ms, me);
-                        report.skipped.push(format!(
-                            "excitation of {names} at {at:.3} s: too short or no acceleration to \
-                             fit against"
-                        ));
-                        seg.events.push(Event::Broken);
+                        Motion::Transfer => {
+                            span("transfer", None, ms, me);
+                            After::Transfer
+                        }
+                        Motion::Excitation(excited) => {
+                            let start = e.saturating_sub(2 * l);
+                            let end = (next_s + 2 * l).min(n);
+                            match design(timeline, &excited, start, end, l) {
+                                Some(mut x) => {
+                                    for &d in &excited {
+                                        span("excitation", Some(d), ms, me);
+                                    }
+                                    x.start += first;
+                                    x.end += first;
+                                    After::Excitation(x)
+                                }
+                                None => {
+                                    span("broken", Some(excited[0]), ms, me);
+                                    let names = excited
+                                        .iter()
+                                        .map(|&d| format!("`{}`", dofs[d]))
+                                        .collect::<Vec<_>>()
+                                        .join(" and ");
+                                    After::Broken(format!(
+                                        "excitation of {names} at {at:.3} s: too short or no \
+                                         acceleration to fit against"
+                                    ))
+                                }
+                            }
+                        }
                     }
                 }
             }
-        }
+        };
+        out.push(Piece {
+            pause: (first + s, first + e),
+            closed: at_end || e + l < n,
+            still: StillWindow {
+                start: first + a,
+                end: first + b,
+                pose,
+                reading: reading.is_some(),
+            },
+            spans,
+            after,
+        });
     }
-    report.still_windows = seg.stills.iter().filter(|s| s.reading).count();
-    report.pauses = seg.stills.len() - report.still_windows;
-    for (i, s) in seg.stills.iter().enumerate().filter(|(_, s)| s.reading) {
-        seg.routes.push((s.start, s.end, true, i));
-    }
-    for (i, x) in seg.excitations.iter().enumerate() {
-        seg.routes.push((x.start, x.end, false, i));
-    }
-    seg.routes.sort_by_key(|r| r.0);
-    seg
+    out
 }
 
 /// The largest change of position that a DoF's servo sag explains, in motion thresholds.

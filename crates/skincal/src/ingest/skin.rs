@@ -10,6 +10,7 @@ use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{self, Sample, Stream};
 
 /// Names of the SUs and their indices.
+#[derive(Debug, Clone)]
 pub(super) struct SuRegistry {
     pub(super) names: Vec<String>,
     pub(super) index: HashMap<String, usize>,
@@ -93,6 +94,145 @@ pub(super) fn grow<T: Default + Clone>(v: &mut Vec<T>, len: usize) {
     }
 }
 
+/// The skin samples of one log on their way into the windows' sums: what arrives is checked
+/// (the SU known, its stamps in order), what is routed goes to the window it falls in.
+#[derive(Debug, Default)]
+pub(super) struct Router {
+    pub(super) acc: Accumulated,
+    last_stamp: Vec<f64>,
+    hint: usize,
+    route: usize,
+    saturated: HashMap<usize, u64>,
+    filled: u64,
+}
+
+impl Router {
+    /// The SU of a sample of `frame_id` at `stamp`; `None` (counted) for a frame not expected.
+    pub(super) fn arrive(
+        &mut self,
+        sus: &mut SuRegistry,
+        frame_id: &str,
+        stamp: f64,
+        report: &mut LogReport,
+    ) -> Option<usize> {
+        report.imu_samples += 1;
+        let Some(su) = sus.find(frame_id, self.hint) else {
+            *report
+                .unknown_frames
+                .entry(frame_id.to_string())
+                .or_default() += 1;
+            return None;
+        };
+        self.hint = su + 1;
+        grow(&mut self.last_stamp, su + 1);
+        if stamp < self.last_stamp[su] {
+            report.unsorted_imu_stamps += 1;
+        }
+        self.last_stamp[su] = stamp;
+        Some(su)
+    }
+
+    /// Adds the sample of SU `su` at grid point `m` to the window of `seg` it falls in, if any.
+    pub(super) fn route(
+        &mut self,
+        seg: &Segmentation,
+        config: &IngestConfig,
+        su: usize,
+        m: usize,
+        acceleration: [f64; 3],
+    ) {
+        // The window holding m: usually the current one or the next.
+        let routes = &seg.routes;
+        let route = self.route;
+        if !(route < routes.len() && routes[route].0 <= m && m < routes[route].1) {
+            self.route = routes.partition_point(|r| r.0 <= m).saturating_sub(1);
+        }
+        let Some(&(start, end, is_still, w)) = routes.get(self.route) else {
+            return;
+        };
+        if m < start || m >= end {
+            return;
+        }
+        if acceleration.iter().any(|v| v.abs() >= config.saturation) {
+            // Only samples the readings would use are counted: a saturated sample during a
+            // transfer does not matter.
+            *self.saturated.entry(su).or_default() += 1;
+            return;
+        }
+        if is_still {
+            grow(&mut self.acc.stills, w + 1);
+            let sums = &mut self.acc.stills[w];
+            grow(sums, su + 1);
+            let s = &mut sums[su];
+            s.n += 1;
+            for (k, a) in acceleration.iter().enumerate() {
+                s.sum[k] += a;
+                s.squares[k] += a * a;
+            }
+        } else {
+            let x = &seg.excitations[w];
+            grow(&mut self.acc.fits, w + 1);
+            let fits = &mut self.acc.fits[w];
+            grow(fits, su + 1);
+            let f = &mut fits[su];
+            let local = m - start;
+            match f.last {
+                Some((prev, _)) if prev == local => return,
+                Some((prev, value)) if prev + 1 < local => {
+                    // Missing samples: linear interpolation.
+                    for j in prev + 1..local {
+                        let u = (j - prev) as f64 / (local - prev) as f64;
+                        let v = [0, 1, 2].map(|k| value[k] + (acceleration[k] - value[k]) * u);
+                        f.add(x, j, v);
+                        self.filled += 1;
+                    }
+                }
+                None if local > 0 => {
+                    for j in 0..local {
+                        f.add(x, j, acceleration);
+                        self.filled += 1;
+                    }
+                }
+                _ => {}
+            }
+            f.add(x, local, acceleration);
+            f.samples += 1;
+            if f.last.is_none_or(|(prev, _)| local > prev) {
+                f.last = Some((local, acceleration));
+            }
+        }
+    }
+
+    /// The sums of every window of `seg`, once every sample is routed: the missing samples at the
+    /// ends of excitation windows filled, the saturated and filled ones counted in `report`.
+    pub(super) fn finish(
+        mut self,
+        seg: &Segmentation,
+        sus: &SuRegistry,
+        report: &mut LogReport,
+    ) -> Accumulated {
+        grow(&mut self.acc.stills, seg.stills.len());
+        grow(&mut self.acc.fits, seg.excitations.len());
+        for (w, fits) in self.acc.fits.iter_mut().enumerate() {
+            let x = &seg.excitations[w];
+            for f in fits.iter_mut() {
+                if let Some((last, value)) = f.last {
+                    for j in last + 1..x.len() {
+                        f.add(x, j, value);
+                        self.filled += 1;
+                    }
+                }
+            }
+        }
+        report.filled = self.filled;
+        for (su, count) in self.saturated {
+            report.saturated.insert(sus.names[su].clone(), count);
+        }
+        self.acc
+    }
+}
+
+/// The skin samples of the log at `path` into the windows of its timeline: a pass over them alone.
 pub(super) fn read_skin(
     path: &Path,
     timeline: &Timeline,
@@ -104,16 +244,8 @@ pub(super) fn read_skin(
 ) -> Result<Accumulated, IngestError> {
     let total = log::size_of(path, Stream::Imu);
     let label = format!("skin samples of {}", path.display());
-    let mut acc = Accumulated {
-        stills: vec![Vec::new(); seg.stills.len()],
-        fits: vec![Vec::new(); seg.excitations.len()],
-    };
-    let mut last_stamp: Vec<f64> = Vec::new();
-    let mut hint = 0usize;
-    let mut route = 0usize;
+    let mut router = Router::default();
     let n = timeline.len() as i64;
-    let mut saturated: HashMap<usize, u64> = HashMap::new();
-    let mut filled = 0u64;
     let stats = log::read_log(
         path,
         Stream::Imu,
@@ -127,103 +259,19 @@ pub(super) fn read_skin(
             else {
                 return Ok(());
             };
-            report.imu_samples += 1;
-            let Some(su) = sus.find(frame_id, hint) else {
-                *report
-                    .unknown_frames
-                    .entry(frame_id.to_string())
-                    .or_default() += 1;
+            let Some(su) = router.arrive(sus, frame_id, stamp, report) else {
                 return Ok(());
             };
-            hint = su + 1;
-            grow(&mut last_stamp, su + 1);
-            if stamp < last_stamp[su] {
-                report.unsorted_imu_stamps += 1;
-            }
-            last_stamp[su] = stamp;
-            let m = timeline.index(stamp);
+            let m = timeline.grid.index(stamp);
             if m < 0 || m >= n {
                 report.imu_outside += 1;
-                return Ok(());
-            }
-            let m = m as usize;
-            // The window holding m: usually the current one or the next.
-            let routes = &seg.routes;
-            if !(route < routes.len() && routes[route].0 <= m && m < routes[route].1) {
-                route = routes.partition_point(|r| r.0 <= m).saturating_sub(1);
-            }
-            let Some(&(start, end, is_still, w)) = routes.get(route) else {
-                return Ok(());
-            };
-            if m < start || m >= end {
-                return Ok(());
-            }
-            if acceleration.iter().any(|v| v.abs() >= config.saturation) {
-                // Only samples the readings would use are counted: a saturated sample during a
-                // transfer does not matter.
-                *saturated.entry(su).or_default() += 1;
-                return Ok(());
-            }
-            if is_still {
-                let sums = &mut acc.stills[w];
-                grow(sums, su + 1);
-                let s = &mut sums[su];
-                s.n += 1;
-                for (k, a) in acceleration.iter().enumerate() {
-                    s.sum[k] += a;
-                    s.squares[k] += a * a;
-                }
             } else {
-                let x = &seg.excitations[w];
-                let fits = &mut acc.fits[w];
-                grow(fits, su + 1);
-                let f = &mut fits[su];
-                let local = m - start;
-                match f.last {
-                    Some((prev, _)) if prev == local => return Ok(()),
-                    Some((prev, value)) if prev + 1 < local => {
-                        // Missing samples: linear interpolation.
-                        for j in prev + 1..local {
-                            let u = (j - prev) as f64 / (local - prev) as f64;
-                            let v = [0, 1, 2].map(|k| value[k] + (acceleration[k] - value[k]) * u);
-                            f.add(x, j, v);
-                            filled += 1;
-                        }
-                    }
-                    None if local > 0 => {
-                        for j in 0..local {
-                            f.add(x, j, acceleration);
-                            filled += 1;
-                        }
-                    }
-                    _ => {}
-                }
-                f.add(x, local, acceleration);
-                f.samples += 1;
-                if f.last.is_none_or(|(prev, _)| local > prev) {
-                    f.last = Some((local, acceleration));
-                }
+                router.route(seg, config, su, m as usize, acceleration);
             }
             Ok(())
         },
         &mut |done| progress(&label, done, total),
     )?;
-    // Missing samples at the end of excitation windows.
-    for (w, fits) in acc.fits.iter_mut().enumerate() {
-        let x = &seg.excitations[w];
-        for f in fits.iter_mut() {
-            if let Some((last, value)) = f.last {
-                for j in last + 1..x.len() {
-                    f.add(x, j, value);
-                    filled += 1;
-                }
-            }
-        }
-    }
-    report.filled = filled;
-    for (su, count) in saturated {
-        report.saturated.insert(sus.names[su].clone(), count);
-    }
-    report.imu_read = stats;
-    Ok(acc)
+    report.imu_read = stats.imu;
+    Ok(router.finish(seg, sus, report))
 }

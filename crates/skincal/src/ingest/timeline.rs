@@ -11,18 +11,172 @@ const MIN_JOINT_RATE: f64 = 20.0;
 /// Longest pause without joint states inside one log, s.
 const MAX_PAUSE: f64 = 600.0;
 
-/// Joint positions of one log on a uniform grid.
+/// The period of a log's grid is fitted to the joint stamps of its first this many seconds, so
+/// that a single pass can place samples on the grid long before the log ends.
+pub(super) const GRID_SPAN: f64 = 1.0;
+
+/// A log's grid: where grid point 0 lies, its period, and each DoF's encoder rounding.
+#[derive(Debug, Clone)]
+pub(super) struct Grid {
+    pub(super) t0: f64,
+    pub(super) dt: f64,
+    /// Per DoF (in the order of the common DoF list), the standard deviation of its encoder's
+    /// rounding, rad: the smallest step between two of its readings over √12 (0 for readings
+    /// that are not rounded).
+    pub(super) resolution: Vec<f64>,
+}
+
+impl Grid {
+    /// The grid point nearest to `stamp` (negative before the first).
+    pub(super) fn index(&self, stamp: f64) -> i64 {
+        ((stamp - self.t0) / self.dt).round() as i64
+    }
+
+    /// Time of grid point `n`, s from the first.
+    pub(super) fn time(&self, n: usize) -> f64 {
+        n as f64 * self.dt
+    }
+
+    /// The grid of the joint series `cleaned` (sorted, without repeated stamps, every DoF with two
+    /// samples or more): it starts when every DoF has a sample, and its period is fitted to the
+    /// stamps of the DoF with most samples in its first [`GRID_SPAN`] seconds.
+    pub(super) fn fit(path: &Path, cleaned: &[Vec<(f64, f64)>]) -> Result<Grid, IngestError> {
+        let unusable = |reason: String| IngestError::Unusable {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let prefix = |s: &[(f64, f64)]| s.partition_point(|p| p.0 < s[0].0 + GRID_SPAN).max(2);
+        let densest = cleaned
+            .iter()
+            .max_by_key(|s| prefix(s))
+            .ok_or_else(|| unusable("no DoF has joint states".into()))?;
+        let densest = &densest[..prefix(densest).min(densest.len())];
+        let mut steps: Vec<f64> = densest.windows(2).map(|w| w[1].0 - w[0].0).collect();
+        steps.sort_by(f64::total_cmp);
+        let rough = steps[steps.len() / 2];
+        if !(rough > 0.0 && rough.is_finite()) {
+            return Err(unusable("the joint states have no usable time step".into()));
+        }
+        // The period to far better than the stamps' resolution: a straight line through (sample
+        // number, stamp), numbering the samples by the rough period between neighbours so that
+        // lost ones keep their place. A grid whose period is off by 1e-4 would slip by a sample
+        // every ten seconds.
+        let dt = {
+            let first = densest[0].0;
+            let (mut sk, mut st, mut skk, mut skt, mut count) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            let mut k = 0.0;
+            let mut previous = first;
+            for &(t, _) in densest {
+                // Numbered step by step: a lost sample shows as a double step.
+                k += ((t - previous) / rough).round();
+                previous = t;
+                let t = t - first;
+                sk += k;
+                st += t;
+                skk += k * k;
+                skt += k * t;
+                count += 1.0;
+            }
+            let denominator = count * skk - sk * sk;
+            let slope = (count * skt - sk * st) / denominator;
+            if denominator > 0.0 && slope.is_finite() && (slope / rough - 1.0).abs() < 0.1 {
+                slope
+            } else {
+                rough
+            }
+        };
+        let rate = 1.0 / dt;
+        if rate < MIN_JOINT_RATE {
+            return Err(unusable(format!(
+                "the joint states come every {} (stamp units) — {rate:.3} Hz if the stamps are \
+                 seconds, too slow to see an excitation pattern (at least {MIN_JOINT_RATE} Hz): \
+                 stamps must be in seconds; if they are in ms, µs or ns, divide them by 1e3, 1e6 \
+                 or 1e9",
+                crate::show::number(dt)
+            )));
+        }
+        Ok(Grid {
+            t0: cleaned.iter().map(|s| s[0].0).fold(f64::MIN, f64::max),
+            dt,
+            resolution: Vec::new(),
+        })
+    }
+
+    /// Number of grid points of the whole log; checks that the DoFs overlap in time and that no
+    /// stamp is far off.
+    pub(super) fn points(
+        &self,
+        path: &Path,
+        cleaned: &[Vec<(f64, f64)>],
+    ) -> Result<usize, IngestError> {
+        let t1 = cleaned
+            .iter()
+            .map(|s| s[s.len() - 1].0)
+            .fold(f64::MAX, f64::min);
+        let unusable = |reason: String| IngestError::Unusable {
+            path: path.to_path_buf(),
+            reason,
+        };
+        if t1 <= self.t0 {
+            return Err(unusable(
+                "the DoFs' joint states do not overlap in time".into(),
+            ));
+        }
+        let rate = 1.0 / self.dt;
+        // Lengths come from the stamps: one far-off stamp must not make a grid of years.
+        let span_points = (t1 - self.t0) / self.dt;
+        let samples = cleaned.iter().map(Vec::len).max().unwrap_or(0) as f64;
+        if span_points > 4.0 * samples + MAX_PAUSE * rate {
+            return Err(unusable(format!(
+                "the joint states span {} s, but their {} samples at {rate:.1} Hz cover {:.1} s: \
+                 a stamp is far off (corrupt), or the log holds recordings with long pauses \
+                 between them (split it); the stamps run from {} to {}",
+                crate::show::number(t1 - self.t0),
+                samples,
+                samples / rate,
+                crate::show::number(self.t0),
+                crate::show::number(t1)
+            )));
+        }
+        Ok(span_points.round() as usize + 1)
+    }
+
+    /// The whole log's figures in its report: duration, rate, gaps; and the encoders' rounding.
+    pub(super) fn finish(
+        &mut self,
+        cleaned: &[Vec<(f64, f64)>],
+        config: &IngestConfig,
+        report: &mut LogReport,
+    ) {
+        report.duration = cleaned
+            .iter()
+            .map(|s| s[s.len() - 1].0)
+            .fold(f64::MAX, f64::min)
+            - self.t0;
+        report.rate = 1.0 / self.dt;
+        for s in cleaned {
+            for w in s.windows(2) {
+                let gap = w[1].0 - w[0].0;
+                if gap > config.max_gap {
+                    report.joint_gaps += 1;
+                }
+                report.longest_joint_gap = report.longest_joint_gap.max(gap);
+            }
+        }
+        self.resolution = cleaned.iter().map(|s| encoder_rounding(s)).collect();
+    }
+}
+
+/// Joint positions of grid points `[first, first + len)` of one log.
 #[derive(Debug, Clone)]
 pub(super) struct Timeline {
-    t0: f64,
-    pub(super) dt: f64,
+    pub(super) grid: Grid,
+    /// The grid point of `theta[·][0]`.
+    pub(super) first: usize,
     /// Positions per DoF (in the order of the common DoF list), one per grid point.
     pub(super) theta: Vec<Vec<f64>>,
     /// Grid points inside a joint-state gap.
     pub(super) invalid: Vec<bool>,
-    /// Per DoF, the standard deviation of its encoder's rounding, rad: the smallest step between
-    /// two of its readings over √12 (0 for readings that are not rounded).
-    pub(super) resolution: Vec<f64>,
 }
 
 impl Timeline {
@@ -30,15 +184,160 @@ impl Timeline {
         self.invalid.len()
     }
 
-    pub(super) fn index(&self, stamp: f64) -> i64 {
-        ((stamp - self.t0) / self.dt).round() as i64
+    /// Time of local point `n`, s from the log's first grid point.
+    pub(super) fn time(&self, n: usize) -> f64 {
+        self.grid.time(self.first + n)
     }
 
-    pub(super) fn time(&self, n: usize) -> f64 {
-        n as f64 * self.dt
+    /// Grid points `[from, to)` of `grid`, the DoFs' positions linearly interpolated between their
+    /// samples `cleaned` (sorted, without repeated stamps); points inside a gap longer than
+    /// `max_gap` are invalid.
+    pub(super) fn build(
+        grid: &Grid,
+        cleaned: &[Vec<(f64, f64)>],
+        from: usize,
+        to: usize,
+        max_gap: f64,
+    ) -> Timeline {
+        let n = to.saturating_sub(from);
+        let mut invalid = vec![false; n];
+        let mut theta = Vec::with_capacity(cleaned.len());
+        for s in cleaned {
+            let mut column = Vec::with_capacity(n);
+            let time = |i: usize| grid.t0 + (from + i) as f64 * grid.dt;
+            // The last sample at or before the point, but never the last of all.
+            let mut j = s
+                .partition_point(|p| p.0 <= time(0))
+                .saturating_sub(1)
+                .min(s.len() - 2);
+            for (i, flag) in invalid.iter_mut().enumerate() {
+                let t = time(i);
+                while j + 2 < s.len() && s[j + 1].0 <= t {
+                    j += 1;
+                }
+                let (a, b) = (s[j], s[j + 1]);
+                let span = b.0 - a.0;
+                if span > max_gap && t > a.0 && t < b.0 {
+                    *flag = true;
+                }
+                let u = ((t - a.0) / span).clamp(0.0, 1.0);
+                column.push(a.1 + (b.1 - a.1) * u);
+            }
+            theta.push(column);
+        }
+        Timeline {
+            grid: grid.clone(),
+            first: from,
+            theta,
+            invalid,
+        }
     }
 }
 
+/// The joint states of one log as read, per DoF name in order of first appearance: `(stamp,
+/// position)` in arrival order.
+#[derive(Debug, Default)]
+pub(super) struct Series {
+    pub(super) by_name: HashMap<String, Vec<(f64, f64)>>,
+    pub(super) order: Vec<String>,
+}
+
+impl Series {
+    pub(super) fn push(&mut self, stamp: f64, names: &[String], positions: &[f64]) {
+        for (name, &q) in names.iter().zip(positions) {
+            let entry = self.by_name.entry(name.clone()).or_insert_with(|| {
+                self.order.push(name.clone());
+                Vec::new()
+            });
+            entry.push((stamp, q));
+        }
+    }
+
+    /// The series of the DoFs (the expected ones, else all seen, which become the expected ones),
+    /// sorted and without repeated stamps; unknown names, unsorted and repeated stamps counted.
+    pub(super) fn clean(
+        mut self,
+        path: &Path,
+        config: &IngestConfig,
+        dof_names: &mut Option<Vec<String>>,
+        report: &mut LogReport,
+    ) -> Result<Vec<Vec<(f64, f64)>>, IngestError> {
+        let dofs = expected_dofs(path, config, &self.order, dof_names, report, |name| {
+            self.by_name.get(name).map_or(0, Vec::len) as u64
+        })?;
+        let mut cleaned: Vec<Vec<(f64, f64)>> = Vec::with_capacity(dofs.len());
+        for d in &dofs {
+            let mut s = self.by_name.remove(d).unwrap_or_default();
+            report.unsorted_joint_stamps += s.windows(2).filter(|w| w[1].0 < w[0].0).count() as u64;
+            s.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let before = s.len();
+            s.dedup_by(|b, a| b.0 == a.0);
+            report.duplicate_joint_stamps += (before - s.len()) as u64;
+            too_few(path, d, &s)?;
+            cleaned.push(s);
+        }
+        Ok(cleaned)
+    }
+}
+
+/// An error unless DoF `d` has two joint states or more.
+pub(super) fn too_few(path: &Path, d: &str, s: &[(f64, f64)]) -> Result<(), IngestError> {
+    if s.len() < 2 {
+        return Err(IngestError::Unusable {
+            path: path.to_path_buf(),
+            reason: format!("DoF `{d}` has fewer than two joint states"),
+        });
+    }
+    Ok(())
+}
+
+/// The DoFs of a log whose joint states named `seen` (in order of first appearance; `count` gives
+/// a name's samples): the expected ones, which must all be seen (other names are reported as
+/// unknown), else those seen, which become the expected ones of the next logs.
+pub(super) fn expected_dofs(
+    path: &Path,
+    config: &IngestConfig,
+    seen: &[String],
+    dof_names: &mut Option<Vec<String>>,
+    report: &mut LogReport,
+    count: impl Fn(&str) -> u64,
+) -> Result<Vec<String>, IngestError> {
+    match dof_names {
+        Some(known) => {
+            for name in seen {
+                if !known.contains(name) {
+                    report.unknown_joints.insert(name.clone(), count(name));
+                }
+            }
+            let missing: Vec<&String> = known.iter().filter(|d| !seen.contains(*d)).collect();
+            if !missing.is_empty() {
+                return Err(IngestError::Unusable {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "no joint states for DoF(s) {missing:?} (names seen: {seen:?}); check the \
+                         joint topic (--joint-topic) and that the log is of this robot"
+                    ),
+                });
+            }
+            Ok(known.clone())
+        }
+        None => {
+            if seen.is_empty() {
+                return Err(IngestError::Unusable {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "no joint states found (topic `{}`); choose it with --joint-topic",
+                        config.topics.joints
+                    ),
+                });
+            }
+            *dof_names = Some(seen.to_vec());
+            Ok(seen.to_vec())
+        }
+    }
+}
+
+/// The joint states of the log at `path` on its grid: a pass over them alone.
 pub(super) fn read_joints(
     path: &Path,
     config: &IngestConfig,
@@ -48,8 +347,7 @@ pub(super) fn read_joints(
 ) -> Result<Timeline, IngestError> {
     let total = log::size_of(path, Stream::Joints);
     let label = format!("joint states of {}", path.display());
-    let mut series: HashMap<String, Vec<(f64, f64)>> = HashMap::new();
-    let mut order: Vec<String> = Vec::new();
+    let mut series = Series::default();
     let stats = log::read_log(
         path,
         Stream::Joints,
@@ -61,192 +359,19 @@ pub(super) fn read_joints(
                 positions,
             } = s
             {
-                for (name, &q) in names.iter().zip(positions) {
-                    let entry = series.entry(name.clone()).or_insert_with(|| {
-                        order.push(name.clone());
-                        Vec::new()
-                    });
-                    entry.push((stamp, q));
-                }
+                series.push(stamp, names, positions);
             }
             Ok(())
         },
         &mut |done| progress(&label, done, total),
     )?;
-    report.joint_states = stats.samples;
-    report.joint_read = stats;
-    let dofs: Vec<String> = match dof_names {
-        Some(known) => {
-            for name in &order {
-                if !known.contains(name) {
-                    report
-                        .unknown_joints
-                        .insert(name.clone(), series[name].len() as u64);
-                }
-            }
-            let missing: Vec<&String> = known.iter().filter(|d| !series.contains_key(*d)).collect();
-            if !missing.is_empty() {
-                return Err(IngestError::Unusable {
-                    path: path.to_path_buf(),
-                    reason: format!(
-                        "no joint states for DoF(s) {missing:?} (names seen: {order:?}); check the \
-                         joint topic (--joint-topic) and that the log is of this robot"
-                    ),
-                });
-            }
-            known.clone()
-        }
-        None => {
-            if order.is_empty() {
-                return Err(IngestError::Unusable {
-                    path: path.to_path_buf(),
-                    reason: format!(
-                        "no joint states found (topic `{}`); choose it with --joint-topic",
-                        config.topics.joints
-                    ),
-                });
-            }
-            *dof_names = Some(order.clone());
-            order.clone()
-        }
-    };
-    let mut cleaned: Vec<Vec<(f64, f64)>> = Vec::with_capacity(dofs.len());
-    for d in &dofs {
-        let mut s = series.remove(d).unwrap_or_default();
-        report.unsorted_joint_stamps += s.windows(2).filter(|w| w[1].0 < w[0].0).count() as u64;
-        s.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let before = s.len();
-        s.dedup_by(|b, a| b.0 == a.0);
-        report.duplicate_joint_stamps += (before - s.len()) as u64;
-        if s.len() < 2 {
-            return Err(IngestError::Unusable {
-                path: path.to_path_buf(),
-                reason: format!("DoF `{d}` has fewer than two joint states"),
-            });
-        }
-        cleaned.push(s);
-    }
-    // The rate from the DoF with most samples.
-    let densest = cleaned
-        .iter()
-        .max_by_key(|s| s.len())
-        .expect("at least one DoF");
-    let mut steps: Vec<f64> = densest.windows(2).map(|w| w[1].0 - w[0].0).collect();
-    steps.sort_by(f64::total_cmp);
-    let rough = steps[steps.len() / 2];
-    if !(rough > 0.0 && rough.is_finite()) {
-        return Err(IngestError::Unusable {
-            path: path.to_path_buf(),
-            reason: "the joint states have no usable time step".into(),
-        });
-    }
-    // The period to far better than the stamps' resolution: a straight line through (sample
-    // number, stamp), numbering the samples by the rough period between neighbours so that lost
-    // ones keep their place. A grid whose period is off by 1e-4 would slip by a sample every ten seconds.
-    let dt = {
-        let first = densest[0].0;
-        let (mut sk, mut st, mut skk, mut skt, mut count) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        let mut k = 0.0;
-        let mut previous = first;
-        for &(t, _) in densest {
-            // Numbered step by step: a lost sample shows as a double step.
-            k += ((t - previous) / rough).round();
-            previous = t;
-            let t = t - first;
-            sk += k;
-            st += t;
-            skk += k * k;
-            skt += k * t;
-            count += 1.0;
-        }
-        let denominator = count * skk - sk * sk;
-        let slope = (count * skt - sk * st) / denominator;
-        if denominator > 0.0 && slope.is_finite() && (slope / rough - 1.0).abs() < 0.1 {
-            slope
-        } else {
-            rough
-        }
-    };
-    let t0 = cleaned.iter().map(|s| s[0].0).fold(f64::MIN, f64::max);
-    let t1 = cleaned
-        .iter()
-        .map(|s| s[s.len() - 1].0)
-        .fold(f64::MAX, f64::min);
-    if t1 <= t0 {
-        return Err(IngestError::Unusable {
-            path: path.to_path_buf(),
-            reason: "the DoFs' joint states do not overlap in time".into(),
-        });
-    }
-    let rate = 1.0 / dt;
-    if rate < MIN_JOINT_RATE {
-        return Err(IngestError::Unusable {
-            path: path.to_path_buf(),
-            reason: format!(
-                "the joint states come every {} (stamp units) — {rate:.3} Hz if the stamps are \
-                 seconds, too slow to see an excitation pattern (at least {MIN_JOINT_RATE} Hz): \
-                 stamps must be in seconds; if they are in ms, µs or ns, divide them by 1e3, 1e6 \
-                 or 1e9",
-                crate::show::number(dt)
-            ),
-        });
-    }
-    // Lengths come from the stamps: one far-off stamp must not make a grid of years.
-    let span_points = (t1 - t0) / dt;
-    let samples = densest.len() as f64;
-    if span_points > 4.0 * samples + MAX_PAUSE * rate {
-        return Err(IngestError::Unusable {
-            path: path.to_path_buf(),
-            reason: format!(
-                "the joint states span {} s, but their {} samples at {rate:.1} Hz cover {:.1} s: \
-                 a stamp is far off (corrupt), or the log holds recordings with long pauses \
-                 between them (split it); the stamps run from {} to {}",
-                crate::show::number(t1 - t0),
-                densest.len(),
-                samples / rate,
-                crate::show::number(t0),
-                crate::show::number(t1)
-            ),
-        });
-    }
-    let n = span_points.round() as usize + 1;
-    report.duration = t1 - t0;
-    report.rate = 1.0 / dt;
-    let mut invalid = vec![false; n];
-    let mut theta = Vec::with_capacity(dofs.len());
-    let resolution = cleaned.iter().map(|s| encoder_rounding(s)).collect();
-    for s in &cleaned {
-        let mut column = Vec::with_capacity(n);
-        let mut j = 0;
-        for (i, flag) in invalid.iter_mut().enumerate() {
-            let t = t0 + i as f64 * dt;
-            while j + 2 < s.len() && s[j + 1].0 <= t {
-                j += 1;
-            }
-            let (a, b) = (s[j], s[j + 1]);
-            let span = b.0 - a.0;
-            if span > config.max_gap && t > a.0 && t < b.0 {
-                *flag = true;
-            }
-            let u = ((t - a.0) / span).clamp(0.0, 1.0);
-            column.push(a.1 + (b.1 - a.1) * u);
-        }
-        for w in s.windows(2) {
-            let gap = w[1].0 - w[0].0;
-            if gap > config.max_gap {
-                report.joint_gaps += 1;
-            }
-            report.longest_joint_gap = report.longest_joint_gap.max(gap);
-        }
-        theta.push(column);
-    }
-    Ok(Timeline {
-        t0,
-        dt,
-        theta,
-        invalid,
-        resolution,
-    })
+    report.joint_states = stats.joints.samples;
+    report.joint_read = stats.joints;
+    let cleaned = series.clean(path, config, dof_names, report)?;
+    let mut grid = Grid::fit(path, &cleaned)?;
+    let n = grid.points(path, &cleaned)?;
+    grid.finish(&cleaned, config, report);
+    Ok(Timeline::build(&grid, &cleaned, 0, n, config.max_gap))
 }
 
 /// Steps between readings below this are floating-point noise, not an encoder's, rad.

@@ -9,7 +9,7 @@ use std::path::Path;
 
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
-use super::{LogError, ReadStats, Sample, Stream, Topics};
+use super::{LogError, PassStats, Sample, Stream, Topics};
 
 /// ROS 1's name of the Imu type.
 const IMU: &str = "sensor_msgs/Imu";
@@ -31,7 +31,7 @@ pub fn read(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
+) -> Result<PassStats, LogError> {
     let error = |reason: String| bag_error(path, reason);
     check_index(path).map_err(error)?;
     // The rosbag crate slices some record headers without checking their lengths: a damaged bag
@@ -106,13 +106,13 @@ fn read_checked(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
+) -> Result<PassStats, LogError> {
     let error = |reason: String| bag_error(path, reason);
     let bag = RosBag::new(path).map_err(|e| error(format!("{e}")))?;
     let size = std::fs::metadata(path).map_or(0, |m| m.len());
     let chunks = u64::from(bag.get_chunk_count().max(1));
     let mut kinds: HashMap<u32, Kind> = HashMap::new();
-    let mut stats = ReadStats::default();
+    let mut stats = PassStats::default();
     let mut names: Vec<String> = Vec::new();
     let mut positions: Vec<f64> = Vec::new();
     let damaged = |e: rosbag::Error| {
@@ -137,40 +137,42 @@ fn read_checked(
                     };
                     kinds.insert(c.id, kind);
                 }
-                MessageRecord::MessageData(m) => match (kinds.get(&m.conn_id), stream) {
-                    (Some(Kind::Imu), Stream::Imu) => match imu(m.data) {
+                MessageRecord::MessageData(m) => match kinds.get(&m.conn_id) {
+                    Some(Kind::Imu) if stream.imu() => match imu(m.data) {
                         Some((stamp, frame_id, acceleration)) => {
-                            stats.samples += 1;
+                            stats.imu.samples += 1;
                             visit(Sample::Imu {
                                 stamp,
                                 frame_id,
                                 acceleration,
                             })?;
                         }
-                        None => stats.problem(format!("{}: a damaged Imu message", topics.imu)),
+                        None => stats
+                            .imu
+                            .problem(format!("{}: a damaged Imu message", topics.imu)),
                     },
-                    (Some(Kind::Joints), Stream::Joints) => {
+                    Some(Kind::Joints) if stream.joints() => {
                         match joint_state(m.data, &mut names, &mut positions) {
                             Some(stamp) => {
-                                stats.samples += 1;
+                                stats.joints.samples += 1;
                                 visit(Sample::Joints {
                                     stamp,
                                     names: &names,
                                     positions: &positions,
                                 })?;
                             }
-                            None => stats.problem(format!(
+                            None => stats.joints.problem(format!(
                                 "{}: a damaged JointState message, or one with fewer positions \
                                  than names",
                                 topics.joints
                             )),
                         }
                     }
-                    (Some(Kind::Other(topic)), Stream::Joints) => {
-                        *stats.other_topics.entry(topic.clone()).or_default() += 1;
+                    Some(Kind::Other(topic)) if stream.joints() => {
+                        *stats.joints.other_topics.entry(topic.clone()).or_default() += 1;
                     }
-                    (Some(Kind::Wrong(why)), Stream::Joints) => stats.problem(why.clone()),
-                    (None, Stream::Joints) => stats.problem(format!(
+                    Some(Kind::Wrong(why)) if stream.joints() => stats.joints.problem(why.clone()),
+                    None if stream.joints() => stats.joints.problem(format!(
                         "a message on connection {} that no connection record describes",
                         m.conn_id
                     )),

@@ -5,7 +5,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
-use super::{LogError, LogSink, ReadStats, Sample, Staged, Stream, Time};
+use super::{LogError, LogSink, PassStats, ReadStats, Sample, Staged, Stream, Time};
 
 /// File of the joint states in a CSV log directory.
 pub const JOINTS_FILE: &str = "joint_states.csv";
@@ -111,23 +111,41 @@ impl LogSink for CsvSink {
     }
 }
 
-/// Streams the samples of `stream` from the CSV log directory `dir`.
+/// Streams the samples of `stream` from the CSV log directory `dir` (both: the joint file first).
 pub fn read(
     dir: &Path,
     stream: Stream,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
-    let path = dir.join(match stream {
-        Stream::Joints => JOINTS_FILE,
-        Stream::Imu => IMU_FILE,
-    });
+) -> Result<PassStats, LogError> {
+    let mut stats = PassStats::default();
+    let mut done = 0u64;
+    if stream.joints() {
+        read_file(dir, true, &mut stats.joints, visit, progress)?;
+        done = std::fs::metadata(dir.join(JOINTS_FILE)).map_or(0, |m| m.len());
+    }
+    if stream.imu() {
+        read_file(dir, false, &mut stats.imu, visit, &mut |n| {
+            progress(done + n)
+        })?;
+    }
+    Ok(stats)
+}
+
+/// Streams the rows of the joint file (`joints`) or of the Imu file of `dir`.
+fn read_file(
+    dir: &Path,
+    joints: bool,
+    stats: &mut ReadStats,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<(), LogError> {
+    let path = dir.join(if joints { JOINTS_FILE } else { IMU_FILE });
     let file = File::open(&path).map_err(|source| LogError::Io {
         path: path.clone(),
         source,
     })?;
     let mut reader = BufReader::with_capacity(1 << 20, file);
-    let mut stats = ReadStats::default();
     let mut line = String::new();
     let mut number = 0usize;
     let mut bytes = 0u64;
@@ -172,36 +190,36 @@ pub fn read(
                     number,
                     format!(
                         "the header must start with `stamp` (found `{first}`); expected {}",
-                        match stream {
-                            Stream::Joints => "`stamp,<DoF names…>`",
-                            Stream::Imu => "`stamp,frame_id,ax,ay,az`",
+                        if joints {
+                            "`stamp,<DoF names…>`"
+                        } else {
+                            "`stamp,frame_id,ax,ay,az`"
                         }
                     ),
                 ));
             }
             let rest: Vec<String> = fields.map(|f| f.trim().to_string()).collect();
-            if stream == Stream::Imu && rest != ["frame_id", "ax", "ay", "az"] {
+            if !joints && rest != ["frame_id", "ax", "ay", "az"] {
                 return Err(csv_error(
                     number,
                     format!("expected the header `stamp,frame_id,ax,ay,az`, found `{row}`"),
                 ));
             }
-            if stream == Stream::Joints && (rest.is_empty() || rest.iter().any(String::is_empty)) {
+            if joints && (rest.is_empty() || rest.iter().any(String::is_empty)) {
                 return Err(csv_error(
                     number,
                     "the header needs one non-empty DoF name per column after `stamp`".into(),
                 ));
             }
             names = Some(rest);
-            if stream == Stream::Imu {
+            if !joints {
                 // The rows, parsed in parallel.
                 let rows = ImuRows {
                     path: &path,
                     line: number,
                     bytes,
                 };
-                rows.read(reader, &mut stats, visit, progress)?;
-                return Ok(stats);
+                return rows.read(reader, stats, visit, progress);
             }
             continue;
         }
@@ -244,7 +262,7 @@ pub fn read(
         return Err(csv_error(number, "the file is empty (no header)".into()));
     }
     progress(bytes);
-    Ok(stats)
+    Ok(())
 }
 
 /// Bytes of `imu.csv` parsed as one block.

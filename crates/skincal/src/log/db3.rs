@@ -7,7 +7,7 @@ use std::path::Path;
 
 use rusqlite::{Connection, OpenFlags};
 
-use super::{deliver, ChannelKind, LogError, ReadStats, Sample, Stream, Topics};
+use super::{deliver, ChannelKind, LogError, PassStats, Sample, Stream, Topics};
 
 /// Streams the samples of `stream` from the rosbag2 SQLite file at `path`.
 pub fn read(
@@ -16,7 +16,7 @@ pub fn read(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
+) -> Result<PassStats, LogError> {
     let error = |e: rusqlite::Error| LogError::Db3 {
         path: path.to_path_buf(),
         reason: match &e {
@@ -51,20 +51,18 @@ pub fn read(
             kinds.insert(id, ChannelKind::of(&name, &kind, &format, topics));
         }
     }
-    let mut stats = ReadStats::default();
-    // Topics not read on this pass are counted (once, on the joint pass), not decoded.
+    let mut stats = PassStats::default();
+    // Topics not read on this pass are counted (once, on a pass of the joint states), not decoded.
     let wanted: Vec<i64> = kinds
         .iter()
-        .filter(|(_, k)| {
-            matches!(
-                (k, stream),
-                (ChannelKind::Joints | ChannelKind::Wrong(_), Stream::Joints)
-                    | (ChannelKind::Imu | ChannelKind::ImuArray, Stream::Imu)
-            )
+        .filter(|(_, k)| match k {
+            ChannelKind::Joints | ChannelKind::Wrong(_) => stream.joints(),
+            ChannelKind::Imu | ChannelKind::ImuArray => stream.imu(),
+            ChannelKind::Other(_) => false,
         })
         .map(|(&id, _)| id)
         .collect();
-    if stream == Stream::Joints {
+    if stream.joints() {
         let mut query = db
             .prepare("SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id")
             .map_err(error)?;
@@ -73,9 +71,11 @@ pub fn read(
             let (id, count): (i64, i64) = (row.get(0).map_err(error)?, row.get(1).map_err(error)?);
             match kinds.get(&id) {
                 Some(ChannelKind::Other(topic)) => {
-                    *stats.other_topics.entry(topic.clone()).or_default() += count as u64;
+                    *stats.joints.other_topics.entry(topic.clone()).or_default() += count as u64;
                 }
-                None => stats.problem(format!("{count} messages on unknown topic id {id}")),
+                None => stats
+                    .joints
+                    .problem(format!("{count} messages on unknown topic id {id}")),
                 Some(_) => {}
             }
         }
@@ -96,7 +96,7 @@ pub fn read(
         let id: i64 = row.get(0).map_err(error)?;
         let data = row.get_ref(1).map_err(error)?;
         let Ok(body) = data.as_blob() else {
-            stats.problem(format!(
+            stats.general(stream).problem(format!(
                 "a message on topic id {id} whose data is not a blob"
             ));
             continue;

@@ -157,6 +157,20 @@ pub enum Stream {
     Joints,
     /// The accelerometer samples only.
     Imu,
+    /// Both, in one pass (a CSV log's joint file first).
+    Both,
+}
+
+impl Stream {
+    /// Whether the pass delivers joint states.
+    pub fn joints(self) -> bool {
+        self != Stream::Imu
+    }
+
+    /// Whether the pass delivers accelerometer samples.
+    pub fn imu(self) -> bool {
+        self != Stream::Joints
+    }
 }
 
 /// Topic names of an MCAP log.
@@ -190,6 +204,39 @@ pub struct ReadStats {
     /// The first decoding problem, for the report.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub first_problem: Option<String>,
+}
+
+/// What a pass over a log met, per stream (a pass of one stream leaves the other's empty).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PassStats {
+    /// Joint states; messages on other topics are counted here.
+    pub joints: ReadStats,
+    /// Accelerometer samples.
+    pub imu: ReadStats,
+}
+
+impl PassStats {
+    /// Where a problem of no one stream is counted: with the joint states when the pass reads
+    /// them.
+    pub(crate) fn general(&mut self, stream: Stream) -> &mut ReadStats {
+        if stream.joints() {
+            &mut self.joints
+        } else {
+            &mut self.imu
+        }
+    }
+
+    /// Adds a later file's counts (of the same log).
+    fn add(&mut self, other: PassStats) {
+        for (mine, theirs) in [(&mut self.joints, other.joints), (&mut self.imu, other.imu)] {
+            mine.samples += theirs.samples;
+            mine.undecodable += theirs.undecodable;
+            for (topic, n) in theirs.other_topics {
+                *mine.other_topics.entry(topic).or_default() += n;
+            }
+            mine.first_problem = mine.first_problem.take().or(theirs.first_problem);
+        }
+    }
 }
 
 impl ReadStats {
@@ -245,31 +292,32 @@ impl ChannelKind {
 }
 
 /// Decodes one CDR message of a topic of `kind` and gives it to `visit` when it belongs to
-/// `stream`; what cannot be decoded is counted in `stats`, other topics too (on the joint pass).
+/// `stream`; what cannot be decoded is counted in `stats`, other topics too (on a pass that reads
+/// the joint states).
 pub(crate) fn deliver(
     kind: &ChannelKind,
     body: &[u8],
     stream: Stream,
     topics: &Topics,
-    stats: &mut ReadStats,
+    stats: &mut PassStats,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
     match kind {
-        ChannelKind::Imu if stream == Stream::Imu => match ros::imu_view(body) {
+        ChannelKind::Imu if stream.imu() => match ros::imu_view(body) {
             Ok(m) => {
-                stats.samples += 1;
+                stats.imu.samples += 1;
                 visit(Sample::Imu {
                     stamp: m.stamp.seconds(),
                     frame_id: m.frame_id,
                     acceleration: m.linear_acceleration,
                 })?;
             }
-            Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
+            Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
         },
-        ChannelKind::Joints if stream == Stream::Joints => match ros::decode_joint_state(body) {
+        ChannelKind::Joints if stream.joints() => match ros::decode_joint_state(body) {
             Ok(joint) => {
                 if joint.position.len() != joint.name.len() {
-                    stats.problem(format!(
+                    stats.joints.problem(format!(
                         "{}: {} names but {} positions",
                         topics.joints,
                         joint.name.len(),
@@ -277,32 +325,32 @@ pub(crate) fn deliver(
                     ));
                     return Ok(());
                 }
-                stats.samples += 1;
+                stats.joints.samples += 1;
                 visit(Sample::Joints {
                     stamp: joint.header.stamp.seconds(),
                     names: &joint.name,
                     positions: &joint.position,
                 })?;
             }
-            Err(e) => stats.problem(format!("{}: {e}", topics.joints)),
+            Err(e) => stats.joints.problem(format!("{}: {e}", topics.joints)),
         },
-        ChannelKind::ImuArray if stream == Stream::Imu => match ros::decode_imu_array(body) {
+        ChannelKind::ImuArray if stream.imu() => match ros::decode_imu_array(body) {
             Ok(batch) => {
                 for m in &batch.imus {
-                    imu_sample(&m.header, &m.linear_acceleration, stats, visit)?;
+                    imu_sample(&m.header, &m.linear_acceleration, &mut stats.imu, visit)?;
                 }
             }
-            Err(e) => stats.problem(format!("{}: {e}", topics.imu)),
+            Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
         },
         ChannelKind::Joints | ChannelKind::Imu | ChannelKind::ImuArray => {}
         ChannelKind::Other(topic) => {
-            if stream == Stream::Joints {
-                *stats.other_topics.entry(topic.clone()).or_default() += 1;
+            if stream.joints() {
+                *stats.joints.other_topics.entry(topic.clone()).or_default() += 1;
             }
         }
         ChannelKind::Wrong(why) => {
-            if stream == Stream::Joints {
-                stats.problem(why.clone());
+            if stream.joints() {
+                stats.joints.problem(why.clone());
             }
         }
     }
@@ -466,6 +514,9 @@ pub fn size_of(path: &Path, stream: Stream) -> u64 {
     match (format_of(path), stream) {
         (Ok(LogFormat::Csv), Stream::Joints) => size(&path.join(csv::JOINTS_FILE)),
         (Ok(LogFormat::Csv), Stream::Imu) => size(&path.join(csv::IMU_FILE)),
+        (Ok(LogFormat::Csv), Stream::Both) => {
+            size(&path.join(csv::JOINTS_FILE)) + size(&path.join(csv::IMU_FILE))
+        }
         (Ok(LogFormat::Rosbag2(files)), _) => files.iter().map(|f| size(f)).sum(),
         _ => size(path),
     }
@@ -479,7 +530,7 @@ pub fn read_log(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
+) -> Result<PassStats, LogError> {
     match format_of(path)? {
         LogFormat::Mcap => mcap::read(path, stream, topics, visit, progress),
         LogFormat::Csv => csv::read(path, stream, visit, progress),
@@ -487,7 +538,7 @@ pub fn read_log(
         LogFormat::Bag => bag::read(path, stream, topics, visit, progress),
         LogFormat::Rosbag2(files) => {
             // One pass over the bag's files in order, as one log.
-            let mut stats = ReadStats::default();
+            let mut stats = PassStats::default();
             let mut done = 0u64;
             for file in &files {
                 let mut at = |n| progress(done + n);
@@ -497,12 +548,7 @@ pub fn read_log(
                     mcap::read(file, stream, topics, visit, &mut at)?
                 };
                 done += std::fs::metadata(file).map(|m| m.len()).unwrap_or(0);
-                stats.samples += part.samples;
-                stats.undecodable += part.undecodable;
-                for (topic, n) in part.other_topics {
-                    *stats.other_topics.entry(topic).or_default() += n;
-                }
-                stats.first_problem = stats.first_problem.or(part.first_problem);
+                stats.add(part);
             }
             Ok(stats)
         }

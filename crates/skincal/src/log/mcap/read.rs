@@ -17,7 +17,7 @@ use mcap::records::{op, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use rayon::prelude::*;
 
-use crate::log::{deliver, ChannelKind, LogError, ReadStats, Sample, Stream, Topics};
+use crate::log::{deliver, ChannelKind, LogError, PassStats, Sample, Stream, Topics};
 
 /// How many times its file size a decompressed chunk may be.
 const MAX_INFLATION: u64 = 256;
@@ -51,20 +51,29 @@ pub fn read(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
-) -> Result<ReadStats, LogError> {
+) -> Result<PassStats, LogError> {
     let mut schemas: HashMap<u16, String> = HashMap::new();
     let mut channels: HashMap<u16, ChannelKind> = HashMap::new();
-    let mut stats = ReadStats::default();
+    let mut stats = PassStats::default();
+    // Messages come in runs on one channel: the last lookup is kept.
+    let mut last: Option<(u16, ChannelKind)> = None;
     let size = blocks(path, progress, &mut |opcode, data| match opcode {
         op::MESSAGE => {
             let Some((channel, body)) = message_body(data) else {
-                stats.problem("a message record shorter than its header".into());
+                stats
+                    .general(stream)
+                    .problem("a message record shorter than its header".into());
                 return Ok(());
             };
-            match channels.get(&channel) {
-                Some(kind) => Ok(deliver(kind, body, stream, topics, &mut stats, visit)?),
+            if last.as_ref().is_none_or(|(id, _)| *id != channel) {
+                last = channels.get(&channel).map(|kind| (channel, kind.clone()));
+            }
+            match &last {
+                Some((_, kind)) => Ok(deliver(kind, body, stream, topics, &mut stats, visit)?),
                 None => {
-                    stats.problem(format!("a message on unknown channel {channel}"));
+                    stats
+                        .general(stream)
+                        .problem(format!("a message on unknown channel {channel}"));
                     Ok(())
                 }
             }
@@ -78,6 +87,7 @@ pub fn read(
                     let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
                     let kind = ChannelKind::of(&c.topic, &schema, &c.message_encoding, topics);
                     channels.insert(c.id, kind);
+                    last = None;
                 }
                 Ok(_) => {}
                 Err(e) => return Err(RecordError::Mcap(e)),

@@ -1,0 +1,328 @@
+//! One pass over a log: the joint states put on the grid as they come, the skin samples held only
+//! until the windows they fall in are known.
+//!
+//! The grid's period is fitted to the first [`GRID_SPAN`] seconds of joint states, so samples can
+//! be placed on it from then on. Every so often the stretch of the timeline from the last pause
+//! not yet settled to the newest joint state is built and segmented: every pause and motion
+//! before the stretch's last pause is final (the decisions of [`pieces`] look at a motion and the
+//! pauses around it only), so they are added to the log's windows, and the held samples up to
+//! that pause go to their windows. The held samples are thus those of the current motion and
+//! pause: memory does not grow with the log.
+//!
+//! The result is the one the two passes of [`super::timeline::read_joints`] and
+//! [`super::skin::read_skin`] give. Where a log breaks what the single pass relies on (joint stamps
+//! out of order, a DoF first seen after the grid is fixed, a motion longer than the samples it
+//! may hold), it gives up and the caller reads the log twice.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use super::segment::{filter_points, pieces, Segmentation};
+use super::skin::{Accumulated, Router, SuRegistry};
+use super::timeline::{too_few, Grid, Timeline, GRID_SPAN};
+use super::{IngestConfig, IngestError, LogReport, Progress};
+use crate::log::{self, LogError, Sample, Stream};
+
+/// Skin samples that arrive between two segmentations of the timeline.
+pub(super) const HELD: usize = 1 << 18;
+/// Most skin samples held (300 MB; 8 s of motion of 1000 SUs at 1 kHz): beyond, the log is read
+/// twice instead.
+const MOST_HELD: usize = 1 << 23;
+
+/// What one pass over a log found: its grid, its windows and their sums.
+pub(super) struct LogPass {
+    pub(super) grid: Grid,
+    pub(super) seg: Segmentation,
+    pub(super) acc: Accumulated,
+}
+
+/// A skin sample held until its window is known: SU, stamp, specific force.
+type Held = (u32, f64, [f64; 3]);
+
+/// The state of the pass.
+struct Pass<'a> {
+    path: &'a Path,
+    config: &'a IngestConfig,
+    /// The DoFs: the expected ones, or those seen so far.
+    dofs: Vec<String>,
+    expected: bool,
+    index: HashMap<String, usize>,
+    /// The last joint message's names and their DoFs.
+    names: Vec<String>,
+    columns: Vec<Option<usize>>,
+    /// Per DoF, `(stamp, position)`, sorted, without repeated stamps.
+    series: Vec<Vec<(f64, f64)>>,
+    grid: Option<Grid>,
+    seg: Segmentation,
+    router: Router,
+    held: Vec<Held>,
+    /// Held samples at which the timeline is segmented again.
+    threshold: usize,
+    /// Samples that arrive between two segmentations.
+    step: usize,
+    /// Whether the first pause of the stretch not yet settled has its still window added.
+    pause_added: bool,
+    /// The grid point where the stretch not yet settled starts.
+    from: usize,
+    /// Samples before this grid point go to their windows.
+    cut: usize,
+    /// Why the single pass gave up.
+    abandoned: Option<&'static str>,
+}
+
+/// The single pass over the log at `path`, segmenting the timeline again every `step` skin
+/// samples; `Ok(None)` when the log needs two passes.
+pub(super) fn one_pass(
+    path: &Path,
+    step: usize,
+    config: &IngestConfig,
+    dof_names: &mut Option<Vec<String>>,
+    sus: &mut SuRegistry,
+    report: &mut LogReport,
+    progress: &mut Progress<'_>,
+) -> Result<Option<LogPass>, IngestError> {
+    let total = log::size_of(path, Stream::Both);
+    let label = format!("samples of {}", path.display());
+    let dofs = dof_names.clone().unwrap_or_default();
+    let mut pass = Pass {
+        path,
+        config,
+        index: dofs
+            .iter()
+            .enumerate()
+            .map(|(i, d)| (d.clone(), i))
+            .collect(),
+        series: vec![Vec::new(); dofs.len()],
+        expected: dof_names.is_some(),
+        dofs,
+        names: Vec::new(),
+        columns: Vec::new(),
+        grid: None,
+        seg: Segmentation::default(),
+        router: Router::default(),
+        held: Vec::new(),
+        threshold: step,
+        step,
+        pause_added: false,
+        from: 0,
+        cut: 0,
+        abandoned: None,
+    };
+    let read = log::read_log(
+        path,
+        Stream::Both,
+        &config.topics,
+        &mut |s| {
+            match s {
+                Sample::Joints {
+                    stamp,
+                    names,
+                    positions,
+                } => pass.joints(stamp, names, positions, report),
+                Sample::Imu {
+                    stamp,
+                    frame_id,
+                    acceleration,
+                } => {
+                    if let Some(su) = pass.router.arrive(sus, frame_id, stamp, report) {
+                        pass.held.push((su as u32, stamp, acceleration));
+                        if pass.held.len() >= pass.threshold {
+                            pass.settle(report);
+                        }
+                    }
+                }
+            }
+            match pass.abandoned {
+                Some(why) => Err(LogError::Stopped(why.into())),
+                None => Ok(()),
+            }
+        },
+        &mut |done| progress(&label, done, total),
+    );
+    let stats = match read {
+        Err(LogError::Stopped(_)) if pass.abandoned.is_some() => return Ok(None),
+        other => other?,
+    };
+    // What the two passes would refuse, they refuse with their own words.
+    if pass.series.is_empty()
+        || pass
+            .series
+            .iter()
+            .zip(&pass.dofs)
+            .any(|(s, d)| too_few(path, d, s).is_err())
+    {
+        return Ok(None);
+    }
+    if pass.grid.is_none() {
+        pass.fix_grid();
+    }
+    let Some(grid) = pass.grid.clone() else {
+        return Ok(None);
+    };
+    let Ok(n) = grid.points(path, &pass.series) else {
+        return Ok(None);
+    };
+    pass.settle_to(n, true, report);
+    if pass.abandoned.is_some() {
+        return Ok(None);
+    }
+    if !pass.expected {
+        *dof_names = Some(pass.dofs.clone());
+    }
+    let mut grid = grid;
+    grid.finish(&pass.series, config, report);
+    pass.seg.finish(report);
+    report.joint_states = stats.joints.samples;
+    report.joint_read = stats.joints;
+    report.imu_read = stats.imu;
+    let acc = pass.router.finish(&pass.seg, sus, report);
+    Ok(Some(LogPass {
+        grid,
+        seg: pass.seg,
+        acc,
+    }))
+}
+
+impl Pass<'_> {
+    /// One joint state.
+    fn joints(&mut self, stamp: f64, names: &[String], positions: &[f64], report: &mut LogReport) {
+        if self.names != names {
+            self.names = names.to_vec();
+            self.columns = Vec::with_capacity(names.len());
+            for name in names {
+                let column = match self.index.get(name) {
+                    Some(&d) => Some(d),
+                    None if self.expected => None,
+                    None if self.grid.is_some() => {
+                        self.abandoned = Some("a DoF first seen after the grid was fixed");
+                        return;
+                    }
+                    None => {
+                        self.index.insert(name.clone(), self.dofs.len());
+                        self.dofs.push(name.clone());
+                        self.series.push(Vec::new());
+                        Some(self.dofs.len() - 1)
+                    }
+                };
+                self.columns.push(column);
+            }
+        }
+        for ((&column, name), &q) in self.columns.iter().zip(names).zip(positions) {
+            let Some(d) = column else {
+                *report.unknown_joints.entry(name.clone()).or_default() += 1;
+                continue;
+            };
+            let s = &mut self.series[d];
+            match s.last() {
+                Some(&(last, _)) if stamp < last => {
+                    self.abandoned = Some("joint stamps out of order");
+                    return;
+                }
+                Some(&(last, _)) if stamp == last => report.duplicate_joint_stamps += 1,
+                _ => s.push((stamp, q)),
+            }
+        }
+        if self.grid.is_none() {
+            let spanned =
+                |s: &Vec<(f64, f64)>| s.len() >= 2 && s[s.len() - 1].0 >= s[0].0 + GRID_SPAN;
+            if !self.series.is_empty() && self.series.iter().all(spanned) {
+                self.fix_grid();
+            }
+        }
+    }
+
+    /// The grid from the joint states so far (all of the first [`GRID_SPAN`] seconds).
+    fn fix_grid(&mut self) {
+        if self.series.iter().any(|s| s.len() < 2) {
+            return;
+        }
+        match Grid::fit(self.path, &self.series) {
+            Ok(grid) => self.grid = Some(grid),
+            Err(_) => self.abandoned = Some("no grid from the first joint states"),
+        }
+    }
+
+    /// Segments the stretch not yet settled up to the newest joint state common to every DoF.
+    fn settle(&mut self, report: &mut LogReport) {
+        let Some(grid) = self.grid.clone() else {
+            if self.held.len() > MOST_HELD {
+                self.abandoned = Some("too many samples before the grid was fixed");
+            }
+            return;
+        };
+        let newest = self
+            .series
+            .iter()
+            .map(|s| s.last().map_or(f64::MIN, |p| p.0))
+            .fold(f64::MAX, f64::min);
+        let to = ((newest - grid.t0) / grid.dt).floor();
+        // A far-off stamp must not make a stretch of years: the two passes will say what is wrong.
+        let samples = self.series.iter().map(Vec::len).max().unwrap_or(0) as f64;
+        if to > 4.0 * samples + 600.0 / grid.dt {
+            self.abandoned = Some("a joint stamp far off");
+            return;
+        }
+        if to >= 0.0 {
+            self.settle_to(to as usize + 1, false, report);
+        }
+        if self.held.len() > MOST_HELD {
+            self.abandoned = Some("a motion longer than the samples that may be held");
+        }
+        self.threshold = self.held.len() + self.step;
+    }
+
+    /// Segments grid points `[from, to)`, the log's last when `at_end`, adds what is final to the
+    /// windows and routes the held samples that precede what is not.
+    fn settle_to(&mut self, to: usize, at_end: bool, report: &mut LogReport) {
+        let Some(grid) = self.grid.clone() else {
+            return;
+        };
+        if to > self.from {
+            let timeline = Timeline::build(&grid, &self.series, self.from, to, self.config.max_gap);
+            let mut found = pieces(&timeline, &self.dofs, self.config, at_end);
+            let settled = if at_end {
+                found.len()
+            } else {
+                found.len().saturating_sub(1)
+            };
+            // The pieces before the last are complete (all of them at the end).
+            for (i, piece) in found.drain(..settled).enumerate() {
+                self.seg.add(piece, i > 0 || !self.pause_added, report);
+            }
+            if let Some(open) = found.first() {
+                if settled > 0 {
+                    self.pause_added = false;
+                }
+                // Once its pause is over, its still window is final and the next window, the
+                // motion's, starts 2l before the pause's end; until then the next windows start
+                // 2l + 1 points into the pause or later. The next stretch starts at the pause,
+                // with the filter's reach before it.
+                let l = filter_points(self.config, grid.dt);
+                if open.closed && !self.pause_added {
+                    self.seg.add_pause(open, report);
+                    self.pause_added = true;
+                }
+                self.cut = if open.closed {
+                    open.pause.1 - 2 * l
+                } else {
+                    open.pause.0 + 2 * l + 1
+                };
+                self.from = open.pause.0.saturating_sub(l + 1);
+            }
+        }
+        let cut = if at_end { to } else { self.cut };
+        let (seg, config, router) = (&self.seg, self.config, &mut self.router);
+        self.held.retain(|&(su, stamp, acceleration)| {
+            let m = grid.index(stamp);
+            if m < 0 || (at_end && m >= to as i64) {
+                report.imu_outside += 1;
+                false
+            } else if (m as usize) < cut {
+                router.route(seg, config, su as usize, m as usize, acceleration);
+                false
+            } else {
+                true
+            }
+        });
+    }
+}
