@@ -1483,6 +1483,12 @@ fn demo(args: DemoArgs) -> Result<()> {
 }
 
 /// Peak resident memory of this process, MB (Linux; 0 elsewhere).
+/// Starts the peak of [`peak_memory_mb`] again from the memory in use now (Linux; elsewhere the
+/// peak stays the process's).
+pub(crate) fn reset_peak_memory() {
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+}
+
 pub(crate) fn peak_memory_mb() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()

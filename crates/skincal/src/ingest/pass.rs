@@ -14,7 +14,7 @@
 //! out of order, a DoF first seen after the grid is fixed, a motion longer than the samples it
 //! may hold), it gives up and the caller reads the log twice.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::path::Path;
 
 use super::segment::{filter_points, pieces, Segmentation};
@@ -36,8 +36,8 @@ pub(super) struct LogPass {
     pub(super) acc: Accumulated,
 }
 
-/// A skin sample held until its window is known: SU, stamp, specific force.
-type Held = (u32, f64, [f64; 3]);
+/// A skin sample held until its window is known: SU, grid point, specific force.
+type Held = (u32, i64, [f64; 3]);
 
 /// The state of the pass.
 struct Pass<'a> {
@@ -55,7 +55,10 @@ struct Pass<'a> {
     grid: Option<Grid>,
     seg: Segmentation,
     router: Router,
-    held: Vec<Held>,
+    /// The skin samples that came before the grid was fixed: SU, stamp, specific force.
+    early: Vec<(u32, f64, [f64; 3])>,
+    /// The skin samples not yet routed, in the order they came.
+    held: VecDeque<Held>,
     /// Held samples at which the timeline is segmented again.
     threshold: usize,
     /// Samples that arrive between two segmentations.
@@ -100,7 +103,8 @@ pub(super) fn one_pass(
         grid: None,
         seg: Segmentation::default(),
         router: Router::default(),
-        held: Vec::new(),
+        early: Vec::new(),
+        held: VecDeque::new(),
         threshold: step,
         step,
         pause_added: false,
@@ -125,9 +129,17 @@ pub(super) fn one_pass(
                     acceleration,
                 } => {
                     if let Some(su) = pass.router.arrive(sus, frame_id, stamp, report) {
-                        pass.held.push((su as u32, stamp, acceleration));
-                        if pass.held.len() >= pass.threshold {
+                        let su = su as u32;
+                        match &pass.grid {
+                            Some(grid) => {
+                                pass.held.push_back((su, grid.index(stamp), acceleration))
+                            }
+                            None => pass.early.push((su, stamp, acceleration)),
+                        }
+                        let held = pass.held.len() + pass.early.len();
+                        if held >= pass.threshold {
                             pass.settle(report);
+                            pass.threshold = pass.held.len() + pass.early.len() + pass.step;
                         }
                     }
                 }
@@ -237,7 +249,15 @@ impl Pass<'_> {
             return;
         }
         match Grid::fit(self.path, &self.series) {
-            Ok(grid) => self.grid = Some(grid),
+            Ok(grid) => {
+                self.held.extend(
+                    self.early
+                        .drain(..)
+                        .map(|(su, stamp, a)| (su, grid.index(stamp), a)),
+                );
+                self.early = Vec::new();
+                self.grid = Some(grid);
+            }
             Err(_) => self.abandoned = Some("no grid from the first joint states"),
         }
     }
@@ -245,7 +265,7 @@ impl Pass<'_> {
     /// Segments the stretch not yet settled up to the newest joint state common to every DoF.
     fn settle(&mut self, report: &mut LogReport) {
         let Some(grid) = self.grid.clone() else {
-            if self.held.len() > MOST_HELD {
+            if self.early.len() > MOST_HELD {
                 self.abandoned = Some("too many samples before the grid was fixed");
             }
             return;
@@ -268,7 +288,6 @@ impl Pass<'_> {
         if self.held.len() > MOST_HELD {
             self.abandoned = Some("a motion longer than the samples that may be held");
         }
-        self.threshold = self.held.len() + self.step;
     }
 
     /// Segments grid points `[from, to)`, the log's last when `at_end`, adds what is final to the
@@ -310,19 +329,24 @@ impl Pass<'_> {
                 self.from = open.pause.0.saturating_sub(l + 1);
             }
         }
+        // The held samples in the order they came, up to the first that may fall in a window
+        // not yet known.
         let cut = if at_end { to } else { self.cut };
-        let (seg, config, router) = (&self.seg, self.config, &mut self.router);
-        self.held.retain(|&(su, stamp, acceleration)| {
-            let m = grid.index(stamp);
+        while let Some(&(su, m, acceleration)) = self.held.front() {
             if m < 0 || (at_end && m >= to as i64) {
                 report.imu_outside += 1;
-                false
             } else if (m as usize) < cut {
-                router.route(seg, config, su as usize, m as usize, acceleration);
-                false
+                self.router.route(
+                    &self.seg,
+                    self.config,
+                    su as usize,
+                    m as usize,
+                    acceleration,
+                );
             } else {
-                true
+                break;
             }
-        });
+            self.held.pop_front();
+        }
     }
 }

@@ -27,9 +27,13 @@ pub(super) struct Grid {
 }
 
 impl Grid {
-    /// The grid point nearest to `stamp` (negative before the first).
+    /// The grid point nearest to `stamp` (negative before the first; halves round up).
     pub(super) fn index(&self, stamp: f64) -> i64 {
-        ((stamp - self.t0) / self.dt).round() as i64
+        // floor(x + ½) by truncation: f64::round is a library call on baseline x86-64, and this
+        // runs once per skin sample.
+        let x = (stamp - self.t0) / self.dt + 0.5;
+        let t = x as i64;
+        t - i64::from((t as f64) > x)
     }
 
     /// Time of grid point `n`, s from the first.
