@@ -28,6 +28,8 @@ pub(super) const HELD: usize = 1 << 18;
 /// Most skin samples held (300 MB; 8 s of motion of 1000 SUs at 1 kHz): beyond, the log is read
 /// twice instead.
 const MOST_HELD: usize = 1 << 23;
+/// A skin sample this far ahead of the newest joint state waits aside until the log ends, s.
+const STRAY: f64 = 10.0;
 
 /// What one pass over a log found: its grid, its windows and their sums.
 pub(super) struct LogPass {
@@ -37,7 +39,20 @@ pub(super) struct LogPass {
 }
 
 /// A skin sample held until its window is known: SU, grid point, specific force.
-type Held = (u32, i64, [f64; 3]);
+type Held = (u32, u32, [f64; 3]);
+
+/// The grid point of `stamp` as held: a sample before the grid's start is outside (counted).
+fn held_at(grid: &Grid, stamp: f64, report: &mut LogReport) -> Option<u32> {
+    match u32::try_from(grid.index(stamp)) {
+        Ok(m) => Some(m),
+        // Past the end of any grid it is outside too, when the log ends.
+        Err(_) if stamp > grid.t0 => Some(u32::MAX),
+        Err(_) => {
+            report.imu_outside += 1;
+            None
+        }
+    }
+}
 
 /// The state of the pass.
 struct Pass<'a> {
@@ -59,6 +74,8 @@ struct Pass<'a> {
     early: Vec<(u32, f64, [f64; 3])>,
     /// The skin samples not yet routed, in the order they came.
     held: VecDeque<Held>,
+    /// Skin samples far ahead of the joint states, routed at the end.
+    strays: Vec<Held>,
     /// Held samples at which the timeline is segmented again.
     threshold: usize,
     /// Samples that arrive between two segmentations.
@@ -105,6 +122,7 @@ pub(super) fn one_pass(
         router: Router::default(),
         early: Vec::new(),
         held: VecDeque::new(),
+        strays: Vec::new(),
         threshold: step,
         step,
         pause_added: false,
@@ -132,7 +150,9 @@ pub(super) fn one_pass(
                         let su = su as u32;
                         match &pass.grid {
                             Some(grid) => {
-                                pass.held.push_back((su, grid.index(stamp), acceleration))
+                                if let Some(m) = held_at(grid, stamp, report) {
+                                    pass.held.push_back((su, m, acceleration));
+                                }
                             }
                             None => pass.early.push((su, stamp, acceleration)),
                         }
@@ -166,7 +186,7 @@ pub(super) fn one_pass(
         return Ok(None);
     }
     if pass.grid.is_none() {
-        pass.fix_grid();
+        pass.fix_grid(report);
     }
     let Some(grid) = pass.grid.clone() else {
         return Ok(None);
@@ -238,24 +258,23 @@ impl Pass<'_> {
             let spanned =
                 |s: &Vec<(f64, f64)>| s.len() >= 2 && s[s.len() - 1].0 >= s[0].0 + GRID_SPAN;
             if !self.series.is_empty() && self.series.iter().all(spanned) {
-                self.fix_grid();
+                self.fix_grid(report);
             }
         }
     }
 
     /// The grid from the joint states so far (all of the first [`GRID_SPAN`] seconds).
-    fn fix_grid(&mut self) {
+    fn fix_grid(&mut self, report: &mut LogReport) {
         if self.series.iter().any(|s| s.len() < 2) {
             return;
         }
         match Grid::fit(self.path, &self.series) {
             Ok(grid) => {
-                self.held.extend(
-                    self.early
-                        .drain(..)
-                        .map(|(su, stamp, a)| (su, grid.index(stamp), a)),
-                );
-                self.early = Vec::new();
+                for (su, stamp, a) in std::mem::take(&mut self.early) {
+                    if let Some(m) = held_at(&grid, stamp, report) {
+                        self.held.push_back((su, m, a));
+                    }
+                }
                 self.grid = Some(grid);
             }
             Err(_) => self.abandoned = Some("no grid from the first joint states"),
@@ -285,7 +304,7 @@ impl Pass<'_> {
         if to >= 0.0 {
             self.settle_to(to as usize + 1, false, report);
         }
-        if self.held.len() > MOST_HELD {
+        if self.held.len() + self.strays.len() > MOST_HELD {
             self.abandoned = Some("a motion longer than the samples that may be held");
         }
     }
@@ -330,11 +349,18 @@ impl Pass<'_> {
             }
         }
         // The held samples in the order they came, up to the first that may fall in a window
-        // not yet known.
+        // not yet known; one far ahead of the joint states (a skin clock's jump, a damaged stamp)
+        // waits aside until the log ends, so as not to hold up the others.
         let cut = if at_end { to } else { self.cut };
+        let ahead = to.saturating_add((STRAY / grid.dt) as usize);
+        if at_end {
+            self.held.extend(self.strays.drain(..));
+        }
         while let Some(&(su, m, acceleration)) = self.held.front() {
-            if m < 0 || (at_end && m >= to as i64) {
+            if at_end && m as usize >= to {
                 report.imu_outside += 1;
+            } else if !at_end && m as usize >= ahead {
+                self.strays.push(self.held[0]);
             } else if (m as usize) < cut {
                 self.router.route(
                     &self.seg,
