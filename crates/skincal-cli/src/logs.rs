@@ -782,6 +782,14 @@ fn render_report(r: &IngestReport) -> String {
             l.joint_states,
             l.imu_samples
         );
+        if l.passes > 1 {
+            let _ = writeln!(
+                s,
+                "  read twice (joint states, then skin samples): its joint stamps go back in time, \
+                 a joint appears late, or a motion is longer than the skin samples one pass may \
+                 hold"
+            );
+        }
         let _ = writeln!(
             s,
             "  windows: {} still, {} short pauses, {} excitations, {} structure moves; {} \

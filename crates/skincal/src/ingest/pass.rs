@@ -6,8 +6,8 @@
 //! not yet settled to the newest joint state is built and segmented: every pause and motion
 //! before the stretch's last pause is final (the decisions of [`pieces`] look at a motion and the
 //! pauses around it only), so they are added to the log's windows, and the held samples up to
-//! that pause go to their windows. The held samples are thus those of the current motion and
-//! pause: memory does not grow with the log.
+//! that pause go to their windows (once a pause is over, its still window is final too). The held
+//! samples are thus those of the current motion: memory does not grow with the log.
 //!
 //! The result is the one the two passes of [`super::timeline::read_joints`] and
 //! [`super::skin::read_skin`] give. Where a log breaks what the single pass relies on (joint stamps
@@ -25,8 +25,8 @@ use crate::log::{self, LogError, Sample, Stream};
 
 /// Skin samples that arrive between two segmentations of the timeline.
 pub(super) const HELD: usize = 1 << 18;
-/// Most skin samples held (300 MB; 8 s of motion of 1000 SUs at 1 kHz): beyond, the log is read
-/// twice instead.
+/// Most skin samples held (270 MB at 32 bytes each; 8 s of motion of 1000 SUs at 1 kHz): beyond,
+/// the log is read twice instead.
 const MOST_HELD: usize = 1 << 23;
 /// A skin sample this far ahead of the newest joint state waits aside until the log ends, s.
 const STRAY: f64 = 10.0;

@@ -33,7 +33,7 @@ impl Grid {
         // runs once per skin sample.
         let x = (stamp - self.t0) / self.dt + 0.5;
         let t = x as i64;
-        t - i64::from((t as f64) > x)
+        t.saturating_sub(i64::from((t as f64) > x))
     }
 
     /// Time of grid point `n`, s from the first.
