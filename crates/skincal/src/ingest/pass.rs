@@ -19,7 +19,7 @@ use std::path::Path;
 
 use super::segment::{filter_points, pieces, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
-use super::timeline::{too_few, Grid, Timeline, GRID_SPAN};
+use super::timeline::{too_few, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{self, LogError, Sample, Stream};
 
@@ -297,7 +297,7 @@ impl Pass<'_> {
         let to = ((newest - grid.t0) / grid.dt).floor();
         // A far-off stamp must not make a stretch of years: the two passes will say what is wrong.
         let samples = self.series.iter().map(Vec::len).max().unwrap_or(0) as f64;
-        if to > 4.0 * samples + 600.0 / grid.dt {
+        if to > 4.0 * samples + MAX_PAUSE / grid.dt {
             self.abandoned = Some("a joint stamp far off");
             return;
         }

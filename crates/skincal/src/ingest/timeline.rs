@@ -9,7 +9,7 @@ use crate::log::{self, Sample, Stream};
 /// Slowest joint-state rate that can resolve an excitation pattern, Hz.
 const MIN_JOINT_RATE: f64 = 20.0;
 /// Longest pause without joint states inside one log, s.
-const MAX_PAUSE: f64 = 600.0;
+pub(super) const MAX_PAUSE: f64 = 600.0;
 
 /// The period of a log's grid is fitted to the joint stamps of its first this many seconds, so
 /// that a single pass can place samples on the grid long before the log ends.
