@@ -168,9 +168,58 @@ pub(super) fn pieces(
     let l = filter_points(config, dt);
     let trim = ((config.trim / dt).round() as usize).max(2 * l + 1);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
-    let min_pause = (config.min_pause / dt).round() as usize;
-    let nd = timeline.theta.len();
     let first = timeline.first;
+    let (pauses, still) = pauses(timeline, config, l, at_end);
+    let mut out = Vec::with_capacity(pauses.len());
+    for (k, &(s, e)) in pauses.iter().enumerate() {
+        // The longest still run of the pause, trimmed, gives the static reading.
+        let reading = runs(&still[s..e], min_still + 2 * trim)
+            .into_iter()
+            .max_by_key(|(a, b)| b - a)
+            .map(|(a, b)| (s + a + trim, s + b - trim));
+        let (a, b) = reading.unwrap_or((s, e));
+        let pose = timeline
+            .theta
+            .iter()
+            .map(|th| th[a..b].iter().sum::<f64>() / (b - a) as f64)
+            .collect();
+        let mut spans = vec![span(
+            timeline,
+            dofs,
+            if reading.is_some() { "still" } else { "pause" },
+            None,
+            s,
+            e,
+        )];
+        let after = match pauses.get(k + 1) {
+            None => After::Nothing,
+            Some(&(next_s, _)) => motion(timeline, dofs, config, l, (e, next_s), &mut spans),
+        };
+        out.push(Piece {
+            pause: (first + s, first + e),
+            closed: at_end || e + l < n,
+            still: StillWindow {
+                start: first + a,
+                end: first + b,
+                pose,
+                reading: reading.is_some(),
+            },
+            spans,
+            after,
+        });
+    }
+    out
+}
+
+/// The pauses of a stretch (see [`pieces`]) and where every DoF is still.
+fn pauses(
+    timeline: &Timeline,
+    config: &IngestConfig,
+    l: usize,
+    at_end: bool,
+) -> (Vec<(usize, usize)>, Vec<bool>) {
+    let n = timeline.len();
+    let dt = timeline.grid.dt;
     // Grid points where every DoF is slower than `limit`.
     let below = |limit: f64| -> Vec<bool> {
         (0..n)
@@ -187,6 +236,7 @@ pub(super) fn pieces(
     };
     let still = below(config.still_velocity);
     let quiet = below(config.quiet_velocity);
+    let min_pause = (config.min_pause / dt).round() as usize;
     let mut pauses = runs(&quiet, min_pause.max(4 * l + 1));
     // The recording's ends close a motion too: a quiet run that reaches the first or the last grid
     // point the filter can judge is a pause even when shorter (the log started or stopped in it).
@@ -197,100 +247,85 @@ pub(super) fn pieces(
         }
     }
     if let Some(&start) = short.first() {
-        if first == 0 && start.0 <= l && pauses.first() != Some(&start) {
+        if timeline.first == 0 && start.0 <= l && pauses.first() != Some(&start) {
             pauses.insert(0, start);
         }
     }
-    let mut out = Vec::with_capacity(pauses.len());
-    for (k, &(s, e)) in pauses.iter().enumerate() {
-        // The longest still run of the pause, trimmed, gives the static reading.
-        let reading = runs(&still[s..e], min_still + 2 * trim)
-            .into_iter()
-            .max_by_key(|(a, b)| b - a)
-            .map(|(a, b)| (s + a + trim, s + b - trim));
-        let (a, b) = reading.unwrap_or((s, e));
-        let pose = (0..nd)
-            .map(|d| timeline.theta[d][a..b].iter().sum::<f64>() / (b - a) as f64)
-            .collect();
-        let mut spans = Vec::new();
-        let mut span = |kind: &str, dof: Option<usize>, from: usize, to: usize| {
-            spans.push(Span {
-                kind: kind.into(),
-                dof: dof.map(|d| dofs[d].clone()),
-                start: timeline.time(from),
-                end: timeline.time(to),
-            })
-        };
-        span(
-            if reading.is_some() { "still" } else { "pause" },
-            None,
-            s,
-            e,
-        );
-        let after = match pauses.get(k + 1) {
-            None => After::Nothing,
-            // The motion between pause k and pause k + 1.
-            Some(&(next_s, _)) => {
-                let (ms, me) = (e, next_s);
-                let at = timeline.time(ms);
-                if timeline.invalid[ms..me].iter().any(|&x| x) {
-                    span("broken", None, ms, me);
-                    After::Broken(format!("motion at {at:.3} s: joint states missing (gap)"))
-                } else {
-                    match classify(timeline, ms, me, config) {
-                        Motion::None => After::Nothing,
-                        Motion::Move(d) => {
-                            span("move", Some(d), ms, me);
-                            After::Move
-                        }
-                        Motion::Transfer => {
-                            span("transfer", None, ms, me);
-                            After::Transfer
-                        }
-                        Motion::Excitation(excited) => {
-                            let start = e.saturating_sub(2 * l);
-                            let end = (next_s + 2 * l).min(n);
-                            match design(timeline, &excited, start, end, l) {
-                                Some(mut x) => {
-                                    for &d in &excited {
-                                        span("excitation", Some(d), ms, me);
-                                    }
-                                    x.start += first;
-                                    x.end += first;
-                                    After::Excitation(x)
-                                }
-                                None => {
-                                    span("broken", Some(excited[0]), ms, me);
-                                    let names = excited
-                                        .iter()
-                                        .map(|&d| format!("`{}`", dofs[d]))
-                                        .collect::<Vec<_>>()
-                                        .join(" and ");
-                                    After::Broken(format!(
-                                        "excitation of {names} at {at:.3} s: too short or no \
-                                         acceleration to fit against"
-                                    ))
-                                }
-                            }
-                        }
+    (pauses, still)
+}
+
+/// A span of the report's timeline over local grid points `[from, to)`.
+fn span(
+    timeline: &Timeline,
+    dofs: &[String],
+    kind: &str,
+    dof: Option<usize>,
+    from: usize,
+    to: usize,
+) -> Span {
+    Span {
+        kind: kind.into(),
+        dof: dof.map(|d| dofs[d].clone()),
+        start: timeline.time(from),
+        end: timeline.time(to),
+    }
+}
+
+/// What the motion over local grid points `[ms, me)`, between two pauses, was; its spans are
+/// added to `spans`.
+fn motion(
+    timeline: &Timeline,
+    dofs: &[String],
+    config: &IngestConfig,
+    l: usize,
+    (ms, me): (usize, usize),
+    spans: &mut Vec<Span>,
+) -> After {
+    let at = timeline.time(ms);
+    let mut span =
+        |kind: &str, dof: Option<usize>| spans.push(span(timeline, dofs, kind, dof, ms, me));
+    if timeline.invalid[ms..me].iter().any(|&x| x) {
+        span("broken", None);
+        return After::Broken(format!("motion at {at:.3} s: joint states missing (gap)"));
+    }
+    match classify(timeline, ms, me, config) {
+        Motion::None => After::Nothing,
+        Motion::Move(d) => {
+            span("move", Some(d));
+            After::Move
+        }
+        Motion::Transfer => {
+            span("transfer", None);
+            After::Transfer
+        }
+        Motion::Excitation(excited) => {
+            // The window reaches 2l into both pauses.
+            let start = ms.saturating_sub(2 * l);
+            let end = (me + 2 * l).min(timeline.len());
+            match design(timeline, &excited, start, end, l) {
+                Some(mut x) => {
+                    for &d in &excited {
+                        span("excitation", Some(d));
                     }
+                    x.start += timeline.first;
+                    x.end += timeline.first;
+                    After::Excitation(x)
+                }
+                None => {
+                    span("broken", Some(excited[0]));
+                    let names = excited
+                        .iter()
+                        .map(|&d| format!("`{}`", dofs[d]))
+                        .collect::<Vec<_>>()
+                        .join(" and ");
+                    After::Broken(format!(
+                        "excitation of {names} at {at:.3} s: too short or no acceleration to fit \
+                         against"
+                    ))
                 }
             }
-        };
-        out.push(Piece {
-            pause: (first + s, first + e),
-            closed: at_end || e + l < n,
-            still: StillWindow {
-                start: first + a,
-                end: first + b,
-                pose,
-                reading: reading.is_some(),
-            },
-            spans,
-            after,
-        });
+        }
     }
-    out
 }
 
 /// The largest change of position that a DoF's servo sag explains, in motion thresholds.
