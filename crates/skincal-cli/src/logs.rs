@@ -1025,21 +1025,12 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             sus: Some(robot.model.su_names()),
             ..IngestConfig::default()
         };
-        let (mut bare, mut seconds, mut peak) = (f64::INFINITY, f64::INFINITY, 0.0f64);
-        let mut ingested = None;
-        for _ in 0..args.repeats {
-            let started = Instant::now();
-            skincal::log::bare_pass(&path)?;
-            bare = bare.min(started.elapsed().as_secs_f64());
-            crate::reset_peak_memory();
-            let started = Instant::now();
-            let run = ingest(std::slice::from_ref(&path), &config, &mut |_, _, _| {})?;
-            seconds = seconds.min(started.elapsed().as_secs_f64());
-            peak = peak.max(peak_memory_mb());
-            ingested = Some(run);
-        }
-        let ingested = ingested.context("no run")?;
-        let samples = ingested.report.logs[0].imu_samples;
+        let Timing {
+            bare,
+            seconds,
+            peak,
+            samples,
+        } = time_ingest(&path, &config, args.repeats)?;
         outln!(
             "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12.1} {:>14.0} {:>10.0}",
             name,
@@ -1077,6 +1068,36 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
     }));
     drop(scratch);
     Ok(())
+}
+
+/// The fastest bare pass and ingestion of a log over some runs, the ingestions' peak memory (MB)
+/// and the skin samples read.
+struct Timing {
+    bare: f64,
+    seconds: f64,
+    peak: f64,
+    samples: u64,
+}
+
+fn time_ingest(path: &Path, config: &IngestConfig, repeats: usize) -> Result<Timing> {
+    let mut t = Timing {
+        bare: f64::INFINITY,
+        seconds: f64::INFINITY,
+        peak: 0.0,
+        samples: 0,
+    };
+    for _ in 0..repeats {
+        let started = Instant::now();
+        skincal::log::bare_pass(path)?;
+        t.bare = t.bare.min(started.elapsed().as_secs_f64());
+        crate::reset_peak_memory();
+        let started = Instant::now();
+        let run = ingest(&[path.to_path_buf()], config, &mut |_, _, _| {})?;
+        t.seconds = t.seconds.min(started.elapsed().as_secs_f64());
+        t.peak = t.peak.max(peak_memory_mb());
+        t.samples = run.report.logs[0].imu_samples;
+    }
+    Ok(t)
 }
 
 /// A scratch directory, removed when dropped, on an error, or by a signal.

@@ -48,7 +48,7 @@ mod skin;
 mod timeline;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -374,20 +374,19 @@ fn ingest_logs(
     let mut dof_names: Option<Vec<String>> = config.dofs.clone();
     let mut sus = SuRegistry::new(config.sus.clone());
     for path in logs {
-        let fresh = || -> Result<LogReport, IngestError> {
-            Ok(LogReport {
-                path: path.clone(),
-                format: match log::format_of(path)? {
-                    LogFormat::Mcap => "mcap".into(),
-                    LogFormat::Csv => "csv".into(),
-                    LogFormat::Db3 => "rosbag2 sqlite3".into(),
-                    LogFormat::Bag => "ros1 bag".into(),
-                    LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
-                },
-                ..LogReport::default()
-            })
+        let format = match log::format_of(path)? {
+            LogFormat::Mcap => "mcap".into(),
+            LogFormat::Csv => "csv".into(),
+            LogFormat::Db3 => "rosbag2 sqlite3".into(),
+            LogFormat::Bag => "ros1 bag".into(),
+            LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
         };
-        let mut report = fresh()?;
+        let fresh = || LogReport {
+            path: path.clone(),
+            format: format.clone(),
+            ..LogReport::default()
+        };
+        let mut report = fresh();
         let (names_before, sus_before) = (dof_names.clone(), sus.clone());
         let once = match step {
             Some(step) => one_pass(
@@ -408,25 +407,16 @@ fn ingest_logs(
             }
             None => {
                 // The log breaks what one pass relies on: read it twice.
-                (dof_names, sus, report) = (names_before, sus_before, fresh()?);
-                let timeline = read_joints(path, config, &mut dof_names, &mut report, progress)?;
-                let dofs = dof_names.clone().unwrap_or_default();
-                let seg = segment(&timeline, &dofs, config, &mut report);
-                let acc = read_skin(
+                (dof_names, sus, report) = (names_before, sus_before, fresh());
+                report.passes = 2;
+                two_passes(
                     path,
-                    &timeline,
-                    &seg,
                     config,
+                    &mut dof_names,
                     &mut sus,
                     &mut report,
                     progress,
-                )?;
-                report.passes = 2;
-                LogPass {
-                    grid: timeline.grid,
-                    seg,
-                    acc,
-                }
+                )?
             }
         };
         grids.push(log.grid);
@@ -471,6 +461,27 @@ fn ingest_logs(
         moved_by: None,
     };
     assemble(passes, pattern, pattern_source)
+}
+
+/// The log at `path` read twice: its joint states (put on the grid and segmented), then its skin
+/// samples.
+fn two_passes(
+    path: &Path,
+    config: &IngestConfig,
+    dof_names: &mut Option<Vec<String>>,
+    sus: &mut SuRegistry,
+    report: &mut LogReport,
+    progress: &mut Progress<'_>,
+) -> Result<LogPass, IngestError> {
+    let timeline = read_joints(path, config, dof_names, report, progress)?;
+    let dofs = dof_names.clone().unwrap_or_default();
+    let seg = segment(&timeline, &dofs, config, report);
+    let acc = read_skin(path, &timeline, &seg, config, sus, report, progress)?;
+    Ok(LogPass {
+        grid: timeline.grid,
+        seg,
+        acc,
+    })
 }
 
 #[cfg(test)]

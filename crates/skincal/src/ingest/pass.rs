@@ -19,9 +19,9 @@ use std::path::Path;
 
 use super::segment::{filter_points, pieces, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
-use super::timeline::{too_few, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
+use super::timeline::{Grid, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
-use crate::log::{self, LogError, Sample, Stream};
+use crate::log::{self, LogError, PassStats, Sample, Stream};
 
 /// Skin samples that arrive between two segmentations of the timeline.
 pub(super) const HELD: usize = 1 << 18;
@@ -147,20 +147,7 @@ pub(super) fn one_pass(
                     acceleration,
                 } => {
                     if let Some(su) = pass.router.arrive(sus, frame_id, stamp, report) {
-                        let su = su as u32;
-                        match &pass.grid {
-                            Some(grid) => {
-                                if let Some(m) = held_at(grid, stamp, report) {
-                                    pass.held.push_back((su, m, acceleration));
-                                }
-                            }
-                            None => pass.early.push((su, stamp, acceleration)),
-                        }
-                        let held = pass.held.len() + pass.early.len();
-                        if held >= pass.threshold {
-                            pass.settle(report);
-                            pass.threshold = pass.held.len() + pass.early.len() + pass.step;
-                        }
+                        pass.imu(su as u32, stamp, acceleration, report);
                     }
                 }
             }
@@ -175,47 +162,64 @@ pub(super) fn one_pass(
         Err(LogError::Stopped(_)) if pass.abandoned.is_some() => return Ok(None),
         other => other?,
     };
-    // What the two passes would refuse, they refuse with their own words.
-    if pass.series.is_empty()
-        || pass
-            .series
-            .iter()
-            .zip(&pass.dofs)
-            .any(|(s, d)| too_few(path, d, s).is_err())
-    {
-        return Ok(None);
-    }
-    if pass.grid.is_none() {
-        pass.fix_grid(report);
-    }
-    let Some(grid) = pass.grid.clone() else {
-        return Ok(None);
-    };
-    let Ok(n) = grid.points(path, &pass.series) else {
-        return Ok(None);
-    };
-    pass.settle_to(n, true, report);
-    if pass.abandoned.is_some() {
-        return Ok(None);
-    }
-    if !pass.expected {
-        *dof_names = Some(pass.dofs.clone());
-    }
-    let mut grid = grid;
-    grid.finish(&pass.series, config, report);
-    pass.seg.finish(report);
-    report.joint_states = stats.joints.samples;
-    report.joint_read = stats.joints;
-    report.imu_read = stats.imu;
-    let acc = pass.router.finish(&pass.seg, sus, report);
-    Ok(Some(LogPass {
-        grid,
-        seg: pass.seg,
-        acc,
-    }))
+    Ok(pass.finish(stats, dof_names, sus, report))
 }
 
 impl Pass<'_> {
+    /// The log's end: the last stretch segmented and every held sample routed; `None` where the
+    /// two passes must read the log (they refuse what is wrong with it in their own words).
+    fn finish(
+        mut self,
+        stats: PassStats,
+        dof_names: &mut Option<Vec<String>>,
+        sus: &SuRegistry,
+        report: &mut LogReport,
+    ) -> Option<LogPass> {
+        if self.series.is_empty() || self.series.iter().any(|s| s.len() < 2) {
+            return None;
+        }
+        if self.grid.is_none() {
+            self.fix_grid(report);
+        }
+        let mut grid = self.grid.clone()?;
+        let n = grid.points(self.path, &self.series).ok()?;
+        self.settle_to(n, true, report);
+        if self.abandoned.is_some() {
+            return None;
+        }
+        if !self.expected {
+            *dof_names = Some(self.dofs.clone());
+        }
+        grid.finish(&self.series, self.config, report);
+        self.seg.finish(report);
+        report.joint_states = stats.joints.samples;
+        report.joint_read = stats.joints;
+        report.imu_read = stats.imu;
+        let acc = self.router.finish(&self.seg, sus, report);
+        Some(LogPass {
+            grid,
+            seg: self.seg,
+            acc,
+        })
+    }
+
+    /// One skin sample of SU `su`: held (on the grid once it is fixed), and the timeline segmented
+    /// again once `step` more have come.
+    fn imu(&mut self, su: u32, stamp: f64, acceleration: [f64; 3], report: &mut LogReport) {
+        match &self.grid {
+            Some(grid) => {
+                if let Some(m) = held_at(grid, stamp, report) {
+                    self.held.push_back((su, m, acceleration));
+                }
+            }
+            None => self.early.push((su, stamp, acceleration)),
+        }
+        if self.held.len() + self.early.len() >= self.threshold {
+            self.settle(report);
+            self.threshold = self.held.len() + self.early.len() + self.step;
+        }
+    }
+
     /// One joint state.
     fn joints(&mut self, stamp: f64, names: &[String], positions: &[f64], report: &mut LogReport) {
         if self.names != names {

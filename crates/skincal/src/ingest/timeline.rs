@@ -285,7 +285,7 @@ impl Series {
 }
 
 /// An error unless DoF `d` has two joint states or more.
-pub(super) fn too_few(path: &Path, d: &str, s: &[(f64, f64)]) -> Result<(), IngestError> {
+fn too_few(path: &Path, d: &str, s: &[(f64, f64)]) -> Result<(), IngestError> {
     if s.len() < 2 {
         return Err(IngestError::Unusable {
             path: path.to_path_buf(),

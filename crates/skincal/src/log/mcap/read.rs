@@ -53,10 +53,9 @@ pub fn read(
     progress: &mut dyn FnMut(u64),
 ) -> Result<PassStats, LogError> {
     let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, ChannelKind> = HashMap::new();
+    // By channel id: a lookup per message without hashing.
+    let mut channels: Vec<Option<ChannelKind>> = Vec::new();
     let mut stats = PassStats::default();
-    // Messages come in runs on one channel: the last lookup is kept.
-    let mut last: Option<(u16, ChannelKind)> = None;
     let size = blocks(path, progress, &mut |opcode, data| match opcode {
         op::MESSAGE => {
             let Some((channel, body)) = message_body(data) else {
@@ -65,11 +64,8 @@ pub fn read(
                     .problem("a message record shorter than its header".into());
                 return Ok(());
             };
-            if last.as_ref().is_none_or(|(id, _)| *id != channel) {
-                last = channels.get(&channel).map(|kind| (channel, kind.clone()));
-            }
-            match &last {
-                Some((_, kind)) => Ok(deliver(kind, body, stream, topics, &mut stats, visit)?),
+            match channels.get(usize::from(channel)).and_then(Option::as_ref) {
+                Some(kind) => Ok(deliver(kind, body, stream, topics, &mut stats, visit)?),
                 None => {
                     stats
                         .general(stream)
@@ -86,8 +82,11 @@ pub fn read(
                 Ok(Record::Channel(c)) => {
                     let schema = schemas.get(&c.schema_id).cloned().unwrap_or_default();
                     let kind = ChannelKind::of(&c.topic, &schema, &c.message_encoding, topics);
-                    channels.insert(c.id, kind);
-                    last = None;
+                    let id = usize::from(c.id);
+                    if channels.len() <= id {
+                        channels.resize(id + 1, None);
+                    }
+                    channels[id] = Some(kind);
                 }
                 Ok(_) => {}
                 Err(e) => return Err(RecordError::Mcap(e)),
