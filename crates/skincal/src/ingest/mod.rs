@@ -43,6 +43,7 @@
 mod assemble;
 mod fit;
 mod pass;
+mod queue;
 mod segment;
 mod skin;
 mod timeline;

@@ -14,9 +14,10 @@
 //! out of order, a DoF first seen after the grid is fixed, a motion longer than the samples it
 //! may hold), it gives up and the caller reads the log twice.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::path::Path;
 
+use super::queue::Queue;
 use super::segment::{filter_points, pieces, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
 use super::timeline::{Grid, Timeline, GRID_SPAN, MAX_PAUSE};
@@ -71,9 +72,9 @@ struct Pass<'a> {
     seg: Segmentation,
     router: Router,
     /// The skin samples that came before the grid was fixed: SU, stamp, specific force.
-    early: Vec<(u32, f64, [f64; 3])>,
+    early: Queue<(u32, f64, [f64; 3])>,
     /// The skin samples not yet routed, in the order they came.
-    held: VecDeque<Held>,
+    held: Queue<Held>,
     /// Skin samples far ahead of the joint states, routed at the end.
     strays: Vec<Held>,
     /// Held samples at which the timeline is segmented again.
@@ -120,8 +121,8 @@ pub(super) fn one_pass(
         grid: None,
         seg: Segmentation::default(),
         router: Router::default(),
-        early: Vec::new(),
-        held: VecDeque::new(),
+        early: Queue::default(),
+        held: Queue::default(),
         strays: Vec::new(),
         threshold: step,
         step,
@@ -212,7 +213,7 @@ impl Pass<'_> {
                     self.held.push_back((su, m, acceleration));
                 }
             }
-            None => self.early.push((su, stamp, acceleration)),
+            None => self.early.push_back((su, stamp, acceleration)),
         }
         if self.held.len() + self.early.len() >= self.threshold {
             self.settle(report);
@@ -274,7 +275,8 @@ impl Pass<'_> {
         }
         match Grid::fit(self.path, &self.series) {
             Ok(grid) => {
-                for (su, stamp, a) in std::mem::take(&mut self.early) {
+                let mut early = std::mem::take(&mut self.early);
+                while let Some((su, stamp, a)) = early.pop_front() {
                     if let Some(m) = held_at(&grid, stamp, report) {
                         self.held.push_back((su, m, a));
                     }
@@ -358,13 +360,15 @@ impl Pass<'_> {
         let cut = if at_end { to } else { self.cut };
         let ahead = to.saturating_add((STRAY / grid.dt) as usize);
         if at_end {
-            self.held.extend(self.strays.drain(..));
+            for s in self.strays.drain(..) {
+                self.held.push_back(s);
+            }
         }
-        while let Some(&(su, m, acceleration)) = self.held.front() {
+        while let Some((su, m, acceleration)) = self.held.front() {
             if at_end && m as usize >= to {
                 report.imu_outside += 1;
             } else if !at_end && m as usize >= ahead {
-                self.strays.push(self.held[0]);
+                self.strays.push((su, m, acceleration));
             } else if (m as usize) < cut {
                 self.router.route(
                     &self.seg,
