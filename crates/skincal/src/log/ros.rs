@@ -256,55 +256,51 @@ pub struct ImuView<'a> {
 /// [`ImuView`] of a `sensor_msgs/msg/Imu` in CDR (either byte order); what does not fit in the
 /// bytes is an error, as with [`decode_imu`].
 pub fn imu_view(bytes: &[u8]) -> Result<ImuView<'_>, cdr::Error> {
-    let (Some(encapsulation), Some(body)) = (bytes.get(..4), bytes.get(4..)) else {
+    let (Some(&[_, kind, _, _]), Some(body)) = (bytes.first_chunk::<4>(), bytes.get(4..)) else {
         return Err(cdr::Error::InvalidEncapsulation);
     };
-    let little = encapsulation[1] & 1 == 1;
-    let word = |at: usize| -> Result<[u8; 4], cdr::Error> {
-        body.get(at..at + 4)
-            .and_then(|b| b.try_into().ok())
-            .ok_or_else(too_long)
+    let little = kind & 1 == 1;
+    let word = |w: &[u8; 4]| {
+        if little {
+            u32::from_le_bytes(*w)
+        } else {
+            u32::from_be_bytes(*w)
+        }
     };
-    let float = |at: usize| -> Result<f64, cdr::Error> {
-        let b: [u8; 8] = body
-            .get(at..at + 8)
-            .and_then(|b| b.try_into().ok())
-            .ok_or_else(too_long)?;
-        Ok(if little {
+    // The stamp (sec, nanosec) and the frame id's length, then its text (the length counts the
+    // terminating NUL); then orientation (4), its covariance (9), angular velocity (3) and its
+    // covariance (9), all f64 and the first 8-aligned; then the linear acceleration (3 f64).
+    let Some((head, _)) = body.split_first_chunk::<12>() else {
+        return Err(too_long());
+    };
+    let [sec, nanosec, n] = [0, 4, 8].map(|at| word(head[at..at + 4].try_into().expect("4")));
+    let text_end = 12usize.saturating_add(n as usize);
+    let acceleration = text_end.next_multiple_of(8).saturating_add(8 * (4 + 9 + 3 + 9));
+    let Some(a) = body
+        .get(acceleration..)
+        .and_then(<[u8]>::first_chunk::<24>)
+    else {
+        return Err(too_long());
+    };
+    // Within the body: it ends before the acceleration.
+    let text = &body[12..text_end];
+    let text = text.strip_suffix(&[0]).unwrap_or(text);
+    let frame_id = std::str::from_utf8(text).map_err(|e| cdr::Error::Message(e.to_string()))?;
+    let float = |at: usize| {
+        let b: [u8; 8] = a[at..at + 8].try_into().expect("8 bytes");
+        if little {
             f64::from_le_bytes(b)
         } else {
             f64::from_be_bytes(b)
-        })
-    };
-    let (sec, nanosec) = (word(0)?, word(4)?);
-    let stamp = if little {
-        Time {
-            sec: i32::from_le_bytes(sec),
-            nanosec: u32::from_le_bytes(nanosec),
-        }
-    } else {
-        Time {
-            sec: i32::from_be_bytes(sec),
-            nanosec: u32::from_be_bytes(nanosec),
         }
     };
-    let mut at = 8;
-    let n = length(body, little, &mut at)?;
-    let text = body.get(at..at + n).ok_or_else(too_long)?;
-    // The length counts the terminating NUL.
-    let text = text.strip_suffix(&[0]).unwrap_or(text);
-    let frame_id = std::str::from_utf8(text).map_err(|e| cdr::Error::Message(e.to_string()))?;
-    // Then orientation (4), its covariance (9), angular velocity (3) and its covariance (9), all
-    // f64 and the first 8-aligned.
-    let acceleration = (at + n).next_multiple_of(8) + 8 * (4 + 9 + 3 + 9);
     Ok(ImuView {
-        stamp,
+        stamp: Time {
+            sec: sec as i32,
+            nanosec,
+        },
         frame_id,
-        linear_acceleration: [
-            float(acceleration)?,
-            float(acceleration + 8)?,
-            float(acceleration + 16)?,
-        ],
+        linear_acceleration: [float(0), float(8), float(16)],
     })
 }
 
