@@ -928,32 +928,11 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
     if args.json {
         crate::out::json_mode();
     }
-    let mut rows = Vec::new();
     if args.sus == 0 || args.repeats == 0 || !args.seconds.is_finite() || args.seconds <= 0.0 {
         bail!("--sus, --seconds and --repeats must be positive");
     }
-    let base = io::load_robot("paper-7dof", SuPlacement::default())?;
-    let segments = base
-        .model
-        .sus()
-        .iter()
-        .map(|su| su.segment)
-        .collect::<std::collections::BTreeSet<_>>()
-        .len();
-    let robot = skincal::model::description::with_random_sus(&base, args.sus.div_ceil(segments), 1)
-        .context("cannot place the SUs")?;
+    let (robot, plan) = bench_program(args.sus, args.seconds)?;
     let sus = robot.model.sus().len();
-    let mut plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            structure: false,
-            poses: 50,
-            ..PlanConfig::default()
-        },
-    )?;
-    // Cut the program to the requested length.
-    plan.phases.retain(|p| p.start < args.seconds);
-    plan.duration = args.seconds.min(plan.duration);
     let scratch = match &args.dir {
         Some(_) => None,
         None => Some(Scratch::create()?),
@@ -962,6 +941,7 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         (Some(d), _) => d.clone(),
         (_, s) => s.as_ref().map(|s| s.0.clone()).unwrap_or_default(),
     };
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
     outln!(
         "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), {} cores;\n\
          bare pass: read (and decompress) the log and walk every message or row, decoding nothing;\n\
@@ -969,7 +949,7 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         plan.duration,
         sus,
         sus * 1000,
-        std::thread::available_parallelism().map_or(1, usize::from),
+        cores,
         args.repeats
     );
     outln!(
@@ -984,33 +964,18 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         "samples/s",
         "peak MB"
     );
-    let mut variants: Vec<(LogFormatArg, Option<CompressionArg>)> = Vec::new();
-    for f in &args.format {
-        match f {
-            LogFormatArg::Mcap => {
-                for c in &args.compression {
-                    variants.push((*f, Some(*c)));
-                }
-            }
-            LogFormatArg::Csv => variants.push((*f, None)),
-        }
-    }
-    for (format, compression) in variants {
-        let name = match (format, compression) {
-            (LogFormatArg::Mcap, Some(c)) => format!("mcap-{c:?}").to_lowercase(),
-            _ => "csv".into(),
+    let mut rows = Vec::new();
+    for (format, compression) in bench_variants(&args.format, &args.compression) {
+        let name = match compression {
+            Some(c) => format!("mcap-{c:?}").to_lowercase(),
+            None => "csv".into(),
         };
-        let path = dir.join(if format == LogFormatArg::Mcap {
-            format!("{name}.mcap")
-        } else {
-            name.clone()
+        let path = dir.join(match format {
+            LogFormatArg::Mcap => format!("{name}.mcap"),
+            LogFormatArg::Csv => name.clone(),
         });
-        let mut sink = sink_for(
-            format,
-            &path,
-            compression.unwrap_or(CompressionArg::None).into(),
-            true,
-        );
+        let compression = compression.unwrap_or(CompressionArg::None).into();
+        let mut sink = sink_for(format, &path, compression, true);
         record(
             &robot,
             &plan,
@@ -1018,41 +983,36 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             sink.as_mut(),
             &mut |_| {},
         )?;
-        let size = dir_size(&path);
+        let size = dir_size(&path) as f64 / 1e6;
         let config = IngestConfig {
             pattern: Some(plan.pattern),
             dofs: Some(robot.model.dof_names()),
             sus: Some(robot.model.su_names()),
             ..IngestConfig::default()
         };
-        let Timing {
-            bare,
-            seconds,
-            peak,
-            samples,
-        } = time_ingest(&path, &config, args.repeats)?;
+        let t = time_ingest(&path, &config, args.repeats)?;
         outln!(
             "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12.1} {:>14.0} {:>10.0}",
             name,
-            size as f64 / 1e6,
-            samples,
-            bare,
-            seconds,
-            seconds / bare,
-            plan.duration / seconds,
-            samples as f64 / seconds,
-            peak
+            size,
+            t.samples,
+            t.bare,
+            t.seconds,
+            t.seconds / t.bare,
+            plan.duration / t.seconds,
+            t.samples as f64 / t.seconds,
+            t.peak
         );
         rows.push(serde_json::json!({
             "format": name,
-            "size_mb": size as f64 / 1e6,
-            "samples": samples,
-            "bare_s": bare,
-            "ingest_s": seconds,
-            "ingest_over_bare": seconds / bare,
-            "times_real_time": plan.duration / seconds,
-            "samples_per_s": samples as f64 / seconds,
-            "peak_mb": peak,
+            "size_mb": size,
+            "samples": t.samples,
+            "bare_s": t.bare,
+            "ingest_s": t.seconds,
+            "ingest_over_bare": t.seconds / t.bare,
+            "times_real_time": plan.duration / t.seconds,
+            "samples_per_s": t.samples as f64 / t.seconds,
+            "peak_mb": t.peak,
         }));
         if args.dir.is_none() {
             let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
@@ -1063,11 +1023,51 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         "log_seconds": plan.duration,
         "sus": sus,
         "rate_hz": 1000,
-        "cores": std::thread::available_parallelism().map_or(1, usize::from),
+        "cores": cores,
         "rows": rows,
     }));
     drop(scratch);
     Ok(())
+}
+
+/// The paper's 7-DoF arm with about `sus` random SUs, and a training program cut to `seconds`.
+fn bench_program(sus: usize, seconds: f64) -> Result<(skincal::model::Robot, Plan)> {
+    let base = io::load_robot("paper-7dof", SuPlacement::default())?;
+    let segments = base
+        .model
+        .sus()
+        .iter()
+        .map(|su| su.segment)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let robot = skincal::model::description::with_random_sus(&base, sus.div_ceil(segments), 1)
+        .context("cannot place the SUs")?;
+    let mut plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            structure: false,
+            poses: 50,
+            ..PlanConfig::default()
+        },
+    )?;
+    plan.phases.retain(|p| p.start < seconds);
+    plan.duration = seconds.min(plan.duration);
+    Ok((robot, plan))
+}
+
+/// The logs to measure: each MCAP compression, and CSV.
+fn bench_variants(
+    formats: &[LogFormatArg],
+    compressions: &[CompressionArg],
+) -> Vec<(LogFormatArg, Option<CompressionArg>)> {
+    let mut variants = Vec::new();
+    for &f in formats {
+        match f {
+            LogFormatArg::Mcap => variants.extend(compressions.iter().map(|&c| (f, Some(c)))),
+            LogFormatArg::Csv => variants.push((f, None)),
+        }
+    }
+    variants
 }
 
 /// The fastest bare pass and ingestion of a log over some runs, the ingestions' peak memory (MB)

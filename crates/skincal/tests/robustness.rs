@@ -565,6 +565,44 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
 }
 
 #[test]
+fn csv_logs_that_are_not_text_or_have_no_line_ends_are_refused_by_file_and_line() {
+    use skincal::ingest::{ingest, IngestConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let header = "stamp,frame_id,ax,ay,az\n0.0,su1,0,0,9.81\n";
+    let cases: [(&str, Vec<u8>, &str); 2] = [
+        // A binary file renamed: its rows are not UTF-8.
+        (
+            "binary",
+            [header.as_bytes(), &[0xff, 0xfe, 0x00, b'\n']].concat(),
+            "not UTF-8",
+        ),
+        // 70 MB without a line end must not be read into memory whole.
+        (
+            "one-line",
+            [header.as_bytes(), &vec![b'1'; 70 << 20]].concat(),
+            "longer than 64 MB",
+        ),
+    ];
+    for (name, imu, words) in cases {
+        let log = dir.path().join(name);
+        std::fs::create_dir(&log).unwrap();
+        std::fs::write(log.join("joint_states.csv"), "stamp,j1\n0.0,0\n0.001,0\n").unwrap();
+        std::fs::write(log.join("imu.csv"), imu).unwrap();
+        let e = ingest(
+            std::slice::from_ref(&log),
+            &IngestConfig::default(),
+            &mut |_, _, _| {},
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("imu.csv") && e.contains("line 3") && e.contains(words),
+            "{name}: {e}"
+        );
+    }
+}
+
+#[test]
 fn a_training_experiment_without_poses_is_refused() {
     // Regression: `validate` against it printed all zeros.
     let e = refused(|v| v["training"]["poses"] = json!([]));

@@ -275,11 +275,10 @@ pub fn imu_view(bytes: &[u8]) -> Result<ImuView<'_>, cdr::Error> {
     };
     let [sec, nanosec, n] = [0, 4, 8].map(|at| word(head[at..at + 4].try_into().expect("4")));
     let text_end = 12usize.saturating_add(n as usize);
-    let acceleration = text_end.next_multiple_of(8).saturating_add(8 * (4 + 9 + 3 + 9));
-    let Some(a) = body
-        .get(acceleration..)
-        .and_then(<[u8]>::first_chunk::<24>)
-    else {
+    let acceleration = text_end
+        .next_multiple_of(8)
+        .saturating_add(8 * (4 + 9 + 3 + 9));
+    let Some(a) = body.get(acceleration..).and_then(<[u8]>::first_chunk::<24>) else {
         return Err(too_long());
     };
     // Within the body: it ends before the acceleration.

@@ -7,7 +7,8 @@ use std::path::Path;
 
 use crate::log::{LogError, ReadStats, Sample};
 
-/// Bytes of `imu.csv` parsed as one block.
+/// Bytes of `imu.csv` parsed as one block (with the end of a line from the block before: far
+/// less than 4 GB in all, so byte ranges in a block fit in `u32`).
 const BLOCK: usize = 1 << 22;
 /// Blocks parsed together.
 const BLOCKS: usize = 4;
@@ -26,8 +27,8 @@ pub(super) struct ImuRows<'a> {
 #[derive(Default)]
 struct Parsed {
     text: String,
-    /// `(stamp, frame id's byte range in text, acceleration)`.
-    rows: Vec<(f64, std::ops::Range<usize>, [f64; 3])>,
+    /// `(stamp, frame id's byte range in text, acceleration)`; a block is far shorter than 4 GB.
+    rows: Vec<(f64, (u32, u32), [f64; 3])>,
     /// Lines that are not a sample, by their number within the block (1-based).
     bad: Vec<usize>,
     lines: usize,
@@ -49,7 +50,7 @@ impl ImuRows<'_> {
         let carry = reader.buffer().to_vec();
         let file = reader.into_inner();
         std::thread::scope(|scope| {
-            let (blocks, received) = std::sync::mpsc::sync_channel::<(Parsed, u64)>(2 * BLOCKS);
+            let (blocks, received) = std::sync::mpsc::sync_channel::<(Parsed, u64)>(BLOCKS);
             let producer = scope.spawn(move || produce(file, carry, &blocks));
             let (mut line, mut bytes) = (self.line, self.bytes);
             for (block, read) in &received {
@@ -60,12 +61,12 @@ impl ImuRows<'_> {
                         line + bad
                     ));
                 }
-                for (stamp, frame, a) in &block.rows {
+                for &(stamp, (from, to), a) in &block.rows {
                     stats.samples += 1;
                     visit(Sample::Imu {
-                        stamp: *stamp,
-                        frame_id: &block.text[frame.clone()],
-                        acceleration: *a,
+                        stamp,
+                        frame_id: &block.text[from as usize..to as usize],
+                        acceleration: a,
                     })?;
                 }
                 line += block.lines;
@@ -84,10 +85,19 @@ impl ImuRows<'_> {
                 .unwrap_or_else(|_| stopped())
                 .map_err(|e| match e {
                     Produced::Io(source) => io_error(source),
-                    Produced::Utf8(at) => LogError::Csv {
+                    Produced::Utf8 { at, lines } => LogError::Csv {
+                        path: path.to_path_buf(),
+                        line: line + lines + 1,
+                        reason: format!("not UTF-8 text (byte {at} of the rows): is it a CSV log?"),
+                    },
+                    Produced::LongLine(at) => LogError::Csv {
                         path: path.to_path_buf(),
                         line: line + 1,
-                        reason: format!("not UTF-8 text (byte {at} of the rows): is it a CSV log?"),
+                        reason: format!(
+                            "a line longer than {} MB (from byte {at} of the rows): is it a CSV \
+                             log?",
+                            LONGEST_LINE >> 20
+                        ),
                     },
                 })?;
             progress(bytes);
@@ -99,9 +109,19 @@ impl ImuRows<'_> {
 /// Why the producer stopped.
 enum Produced {
     Io(std::io::Error),
-    /// Bytes read before the text that is not UTF-8.
-    Utf8(u64),
+    /// Text that is not UTF-8: the bytes read before it, and the whole lines before it in its
+    /// block.
+    Utf8 {
+        at: u64,
+        lines: usize,
+    },
+    /// Bytes read before a line longer than [`LONGEST_LINE`].
+    LongLine(u64),
 }
+
+/// The longest line read, bytes: a block holds whole lines, and a file without line ends must not
+/// be read into memory whole.
+const LONGEST_LINE: usize = 1 << 26;
 
 /// Reads `file` (after `carry`) in blocks of whole lines, parses them a batch at a time in
 /// parallel, and sends them in order with the bytes read so far.
@@ -113,6 +133,7 @@ fn produce(
     use rayon::prelude::*;
     let mut read = 0u64;
     let mut done = false;
+    let mut long_line = None;
     while !done {
         let mut batch: Vec<(Vec<u8>, u64)> = Vec::with_capacity(BLOCKS);
         while batch.len() < BLOCKS && !done {
@@ -126,7 +147,7 @@ fn produce(
             let cut = if done {
                 block.len()
             } else {
-                block.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1)
+                memchr::memrchr(b'\n', &block).map_or(0, |i| i + 1)
             };
             carry = block.split_off(cut);
             let at = read;
@@ -134,22 +155,32 @@ fn produce(
             if !block.is_empty() {
                 batch.push((block, at));
             }
+            if carry.len() > LONGEST_LINE {
+                // Once the whole lines before it are handed over.
+                long_line = Some(read);
+                done = true;
+            }
         }
-        let parsed: Vec<Result<Parsed, u64>> = batch
+        let parsed: Vec<Result<Parsed, Produced>> = batch
             .into_par_iter()
             .map(|(block, at)| {
-                String::from_utf8(block)
-                    .map(parse)
-                    .map_err(|e| at + e.utf8_error().valid_up_to() as u64)
+                String::from_utf8(block).map(parse).map_err(|e| {
+                    let valid = e.utf8_error().valid_up_to();
+                    let lines = memchr::memchr_iter(b'\n', &e.as_bytes()[..valid]).count();
+                    Produced::Utf8 {
+                        at: at + valid as u64,
+                        lines,
+                    }
+                })
             })
             .collect();
         for p in parsed {
-            if blocks.send((p.map_err(Produced::Utf8)?, read)).is_err() {
+            if blocks.send((p?, read)).is_err() {
                 return Ok(());
             }
         }
     }
-    Ok(())
+    long_line.map_or(Ok(()), |at| Err(Produced::LongLine(at)))
 }
 
 /// Fills `buffer` as far as the file goes.
@@ -181,11 +212,11 @@ fn parse(text: String) -> Parsed {
         let row = line.strip_suffix('\r').unwrap_or(line);
         if !row.is_empty() && !row.starts_with('#') {
             match imu_row(row) {
-                Some((stamp, frame, a)) => {
-                    parsed
-                        .rows
-                        .push((stamp, start + frame.start..start + frame.end, a))
-                }
+                Some((stamp, frame, a)) => parsed.rows.push((
+                    stamp,
+                    ((start + frame.start) as u32, (start + frame.end) as u32),
+                    a,
+                )),
                 None => parsed.bad.push(parsed.lines),
             }
         }
@@ -450,7 +481,7 @@ mod tests {
         let rows: Vec<_> = parsed
             .rows
             .iter()
-            .map(|(t, f, a)| (*t, &parsed.text[f.clone()], *a))
+            .map(|&(t, (from, to), a)| (t, &parsed.text[from as usize..to as usize], a))
             .collect();
         assert_eq!(
             rows,
