@@ -224,7 +224,6 @@ fn training_pose(
     st: &Station,
     pattern: &ExcitationPattern,
 ) -> Option<TrainingPose> {
-    let nu = passes.sus.names.len();
     let skip = |passes: &mut Passes<'_>, why: String| {
         let warning = format!(
             "{}: training pose at {:.3} s skipped: {why}",
@@ -240,30 +239,15 @@ fn training_pose(
             return None;
         }
     };
-    let seg = &passes.segs[st.log];
-    let fits = &passes.accumulated[st.log].fits;
-    // Windows in which an SU has no sample cannot be fitted.
-    let mut windows: Vec<usize> = Vec::new();
-    for &xi in &st.excitations {
-        let x = &seg.excitations[xi];
-        match (0..nu).find(|&su| fits[xi].get(su).is_none_or(|f| f.samples == 0)) {
-            None => windows.push(xi),
-            Some(su) => {
-                let warning = format!(
-                    "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
-                    passes.path(st.log),
-                    passes.dofs[x.dofs[0]],
-                    passes.grids[st.log].time(x.start),
-                    passes.sus.names[su]
-                );
-                passes.warnings.push(warning);
-            }
-        }
-    }
+    let segs = passes.segs;
+    let windows = fittable_windows(passes, st);
     if windows.is_empty() {
         return None;
     }
-    let excitations: Vec<&Excitation> = windows.iter().map(|&xi| &seg.excitations[xi]).collect();
+    let excitations: Vec<&Excitation> = windows
+        .iter()
+        .map(|&xi| &segs[st.log].excitations[xi])
+        .collect();
     let mut together: Vec<usize> = excitations
         .iter()
         .filter(|x| x.dofs.len() > 1)
@@ -271,7 +255,7 @@ fn training_pose(
         .collect();
     together.sort_unstable();
     together.dedup();
-    let dropped: Vec<Vec<usize>> = match (0..nu)
+    let dropped: Vec<Vec<usize>> = match (0..passes.sus.names.len())
         .map(|su| dropped_for(passes, &excitations, &together, su))
         .collect::<Result<_, _>>()
     {
@@ -281,107 +265,20 @@ fn training_pose(
             return None;
         }
     };
-    // One fit per set of dropped DoFs, and the noise factor of each DoF excited together with
-    // others as a reading of it alone (that of the SUs it alone moves).
-    let mut classes: BTreeMap<Vec<usize>, ClassFit> = BTreeMap::new();
-    let mut alone: BTreeMap<usize, f64> = BTreeMap::new();
-    for &d in &together {
-        let solo: Vec<usize> = together.iter().copied().filter(|&e| e != d).collect();
-        let class = classes
-            .entry(solo)
-            .or_insert_with_key(|solo| ClassFit::new(&excitations, solo));
-        alone.insert(
-            d,
-            class.fit.alpha(d).map_or(0.0, |c| class.fit.sd_factor(c)),
-        );
-    }
-    for d in &dropped {
-        classes
-            .entry(d.clone())
-            .or_insert_with_key(|d| ClassFit::new(&excitations, d));
-    }
+    let fits = PoseFits::new(&excitations, &together, &dropped);
     let alpha = pattern.peak_acceleration();
-    let mut dynamic: BTreeMap<String, Vec<Reading>> = BTreeMap::new();
-    let mut dynamic_sd: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-    let mut powers = vec![(0.0, 0.0); windows.len()];
-    let resolution = &passes.grids[st.log].resolution;
-    for su in 0..nu {
-        let class = &classes[&dropped[su]];
-        let rhs: Vec<Vec<[f64; 3]>> = windows
-            .iter()
-            .zip(&class.kept)
-            .map(|(&xi, kept)| kept.iter().map(|&c| fits[xi][su].rhs[c]).collect())
-            .collect();
-        let coefficients = class
-            .fit
-            .solve(&rhs.iter().map(Vec::as_slice).collect::<Vec<_>>());
-        // The samples' noise through the fit, and the encoders' rounding through the measured
-        // accelerations of every DoF, weighted by that DoF's coefficient.
-        let rounding: f64 = class
-            .fit
-            .accelerations()
-            .map(|(e, c)| {
-                let k2 = (0..3).map(|a| coefficients[(c, a)].powi(2)).sum::<f64>() / 3.0;
-                resolution[e].powi(2) * k2
-            })
-            .sum();
-        for (w, x) in class.windows.iter().enumerate() {
-            let (other, own) = class.fit.powers(w, x, &coefficients);
-            powers[w].0 += other;
-            powers[w].1 += own;
-            for &d in &x.dofs {
-                let name = &passes.dofs[d];
-                if dynamic.get(name).is_some_and(|r| r.len() > su) {
-                    continue;
-                }
-                let (reading, variance) = match class.fit.alpha(d) {
-                    Some(column) => (
-                        [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha),
-                        passes.variance.as_ref().map(|v| {
-                            class.fit.sd_factor(column).powi(2) * v[su]
-                                + class.fit.rounding_factor(column).powi(2) * rounding
-                        }),
-                    ),
-                    None => (
-                        [0.0; 3],
-                        passes.variance.as_ref().map(|v| alone[&d].powi(2) * v[su]),
-                    ),
-                };
-                dynamic.entry(name.clone()).or_default().push(reading);
-                if let Some(variance) = variance {
-                    dynamic_sd
-                        .entry(name.clone())
-                        .or_default()
-                        .push(alpha * variance.sqrt());
-                }
-            }
-        }
-    }
-    let grid = &passes.grids[st.log];
-    for (x, (other, own)) in excitations.iter().zip(powers) {
-        let coupled_dofs = x.terms[1 + 4 * x.dofs.len()..]
-            .iter()
-            .filter_map(|t| match t {
-                super::fit::Term::Alpha(e) => Some(passes.dofs[*e].clone()),
-                _ => None,
-            })
-            .collect();
-        passes.reports[st.log].fits.push(ExcitationFit {
-            dof: passes.dofs[x.dofs[0]].clone(),
-            together: x.dofs[1..]
-                .iter()
-                .map(|&d| passes.dofs[d].clone())
-                .collect(),
-            start: grid.time(x.start),
-            duration: x.len() as f64 * grid.dt,
-            coupled_dofs,
-            coupled: if own > 0.0 { (other / own).sqrt() } else { 0.0 },
-        });
-    }
+    let readings = dynamic_readings(passes, st.log, &windows, &fits, alpha);
+    report_fits(
+        &mut passes.reports[st.log],
+        passes.dofs,
+        &passes.grids[st.log],
+        &excitations,
+        &readings.powers,
+    );
     let missing: Vec<&String> = passes
         .dofs
         .iter()
-        .filter(|d| !dynamic.contains_key(*d))
+        .filter(|d| !readings.dynamic.contains_key(*d))
         .collect();
     if !missing.is_empty() {
         let warning = format!(
@@ -400,11 +297,185 @@ fn training_pose(
     Some(TrainingPose {
         q: st.pose.clone(),
         static_readings,
-        dynamic,
+        dynamic: readings.dynamic,
         static_sd,
-        dynamic_sd,
+        dynamic_sd: readings.dynamic_sd,
         extra: Map::new(),
     })
+}
+
+/// The excitation windows of a station in which every SU has a sample (the others cannot be
+/// fitted; a warning says which SU had none).
+fn fittable_windows(passes: &mut Passes<'_>, st: &Station) -> Vec<usize> {
+    let seg = &passes.segs[st.log];
+    let fits = &passes.accumulated[st.log].fits;
+    let mut windows: Vec<usize> = Vec::new();
+    for &xi in &st.excitations {
+        let x = &seg.excitations[xi];
+        match (0..passes.sus.names.len())
+            .find(|&su| fits[xi].get(su).is_none_or(|f| f.samples == 0))
+        {
+            None => windows.push(xi),
+            Some(su) => {
+                let warning = format!(
+                    "{}: excitation of `{}` at {:.3} s skipped: SU `{}` has no sample in it",
+                    passes.path(st.log),
+                    passes.dofs[x.dofs[0]],
+                    passes.grids[st.log].time(x.start),
+                    passes.sus.names[su]
+                );
+                passes.warnings.push(warning);
+            }
+        }
+    }
+    windows
+}
+
+/// The pooled fits of a station's windows: one per set of DoFs dropped for an SU, with the noise
+/// factor of each DoF excited together with others as a reading of it alone.
+struct PoseFits<'d> {
+    classes: BTreeMap<Vec<usize>, ClassFit>,
+    /// Per DoF excited together with others, the noise factor of its reading alone (that of the
+    /// SUs it alone moves).
+    alone: BTreeMap<usize, f64>,
+    /// Per SU, the DoFs dropped from its fit.
+    dropped: &'d [Vec<usize>],
+}
+
+impl<'d> PoseFits<'d> {
+    fn new(excitations: &[&Excitation], together: &[usize], dropped: &'d [Vec<usize>]) -> Self {
+        let mut classes: BTreeMap<Vec<usize>, ClassFit> = BTreeMap::new();
+        let mut alone: BTreeMap<usize, f64> = BTreeMap::new();
+        for &d in together {
+            let solo: Vec<usize> = together.iter().copied().filter(|&e| e != d).collect();
+            let class = classes
+                .entry(solo)
+                .or_insert_with_key(|solo| ClassFit::new(excitations, solo));
+            alone.insert(
+                d,
+                class.fit.alpha(d).map_or(0.0, |c| class.fit.sd_factor(c)),
+            );
+        }
+        for d in dropped {
+            classes
+                .entry(d.clone())
+                .or_insert_with_key(|d| ClassFit::new(excitations, d));
+        }
+        PoseFits {
+            classes,
+            alone,
+            dropped,
+        }
+    }
+}
+
+/// A station's dynamic readings per DoF and SU, scaled to the pattern's peak acceleration
+/// `alpha`, their standard deviations, and per window the power of the fitted signal from other
+/// DoFs and from the excited one, summed over the SUs.
+struct DynamicReadings {
+    dynamic: BTreeMap<String, Vec<Reading>>,
+    dynamic_sd: BTreeMap<String, Vec<f64>>,
+    powers: Vec<(f64, f64)>,
+}
+
+fn dynamic_readings(
+    passes: &Passes<'_>,
+    log: usize,
+    windows: &[usize],
+    fits: &PoseFits<'_>,
+    alpha: f64,
+) -> DynamicReadings {
+    let sums = &passes.accumulated[log].fits;
+    let resolution = &passes.grids[log].resolution;
+    let mut out = DynamicReadings {
+        dynamic: BTreeMap::new(),
+        dynamic_sd: BTreeMap::new(),
+        powers: vec![(0.0, 0.0); windows.len()],
+    };
+    for su in 0..passes.sus.names.len() {
+        let class = &fits.classes[&fits.dropped[su]];
+        let rhs: Vec<Vec<[f64; 3]>> = windows
+            .iter()
+            .zip(&class.kept)
+            .map(|(&xi, kept)| kept.iter().map(|&c| sums[xi][su].rhs[c]).collect())
+            .collect();
+        let coefficients = class
+            .fit
+            .solve(&rhs.iter().map(Vec::as_slice).collect::<Vec<_>>());
+        // The samples' noise through the fit, and the encoders' rounding through the measured
+        // accelerations of every DoF, weighted by that DoF's coefficient.
+        let rounding: f64 = class
+            .fit
+            .accelerations()
+            .map(|(e, c)| {
+                let k2 = (0..3).map(|a| coefficients[(c, a)].powi(2)).sum::<f64>() / 3.0;
+                resolution[e].powi(2) * k2
+            })
+            .sum();
+        for (w, x) in class.windows.iter().enumerate() {
+            let (other, own) = class.fit.powers(w, x, &coefficients);
+            out.powers[w].0 += other;
+            out.powers[w].1 += own;
+            for &d in &x.dofs {
+                let name = &passes.dofs[d];
+                if out.dynamic.get(name).is_some_and(|r| r.len() > su) {
+                    continue;
+                }
+                let (reading, variance) = match class.fit.alpha(d) {
+                    Some(column) => (
+                        [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha),
+                        passes.variance.as_ref().map(|v| {
+                            class.fit.sd_factor(column).powi(2) * v[su]
+                                + class.fit.rounding_factor(column).powi(2) * rounding
+                        }),
+                    ),
+                    None => (
+                        [0.0; 3],
+                        passes
+                            .variance
+                            .as_ref()
+                            .map(|v| fits.alone[&d].powi(2) * v[su]),
+                    ),
+                };
+                out.dynamic.entry(name.clone()).or_default().push(reading);
+                if let Some(variance) = variance {
+                    out.dynamic_sd
+                        .entry(name.clone())
+                        .or_default()
+                        .push(alpha * variance.sqrt());
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Each window's fit in the log's report: its DoFs, time, the DoFs coupled into it and the
+/// share of the signal they carry.
+fn report_fits(
+    report: &mut LogReport,
+    dofs: &[String],
+    grid: &Grid,
+    excitations: &[&Excitation],
+    powers: &[(f64, f64)],
+) {
+    for (x, &(other, own)) in excitations.iter().zip(powers) {
+        let coupled_dofs = x.terms[1 + 4 * x.dofs.len()..]
+            .iter()
+            .filter_map(|t| match t {
+                super::fit::Term::Alpha(e) => Some(dofs[*e].clone()),
+                _ => None,
+            })
+            .collect();
+        report.fits.push(ExcitationFit {
+            dof: dofs[x.dofs[0]].clone(),
+            together: x.dofs[1..].iter().map(|&d| dofs[d].clone()).collect(),
+            start: grid.time(x.start),
+            duration: x.len() as f64 * grid.dt,
+            coupled_dofs,
+            coupled: if own > 0.0 { (other / own).sqrt() } else { 0.0 },
+        });
+    }
 }
 
 /// The DoFs in which pose `a` differs from `b`: beyond `motion_threshold`, and beyond
