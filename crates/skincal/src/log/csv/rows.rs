@@ -423,6 +423,12 @@ mod tests {
             "1-",
             "٣",
             "1,5",
+            // Bytes just past '9' and just before '0'.
+            "1234567:",
+            "12:34:56.789",
+            "0.12345;78",
+            "1234567/",
+            "99999999?",
             // Ties and near-ties of 53 bits.
             "9007199254740995",
             "18014398509481986.0",
@@ -470,6 +476,66 @@ mod tests {
                 prop_assert!(same(fields.number(), std_number(&field)), "`{}`", field);
             }
         }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 500, rng_seed: proptest::test_runner::RngSeed::Fixed(14), ..ProptestConfig::default() })]
+
+        /// Blocks of rows, read with the standard splitter and parser as the oracle: line ends
+        /// (CRLF too, and none at the end) and fields the fast path leaves to the standard parser.
+        #[test]
+        fn blocks_read_as_the_standard_splitter_and_parser(
+            rows in prop::collection::vec(
+                (
+                    prop::collection::vec(
+                        prop_oneof![
+                            "-?[0-9]{1,12}\\.[0-9]{0,9}",
+                            "[0-9]{10}\\.[0-9]{9}",
+                            prop::sample::select(vec!["1e3", " 2.5", "inf", "", "-", "7.", "0x10", "12345678901234567890"]).prop_map(String::from),
+                        ],
+                        5,
+                    ),
+                    "[a-z_0-9]{0,6}",
+                    prop::sample::select(vec!["\n", "\r\n"]),
+                ),
+                1..40,
+            ),
+        ) {
+            let mut text = String::new();
+            let mut expected = Vec::new();
+            for (numbers, frame, end) in &rows {
+                let fields = [&numbers[0], frame, &numbers[1], &numbers[2], &numbers[3]];
+                let row = fields.iter().map(|f| f.as_str()).collect::<Vec<_>>().join(",");
+                text.push_str(&row);
+                text.push_str(end);
+                let std: Vec<&str> = row.split(',').map(str::trim).collect();
+                let number = |i: usize| std_number(std[i]);
+                expected.push(match (number(0), number(2), number(3), number(4)) {
+                    (Some(t), Some(x), Some(y), Some(z)) if !std[1].is_empty() => {
+                        Some((t.to_bits(), std[1].to_string(), [x, y, z].map(f64::to_bits)))
+                    }
+                    _ => None,
+                });
+            }
+            // The last row without its line end, as at the end of a file.
+            text.truncate(text.trim_end().len());
+            let parsed = parse(text);
+            let mut got: Vec<Option<_>> = vec![None; rows.len()];
+            let mut next = parsed.rows.iter();
+            for (line, slot) in got.iter_mut().enumerate() {
+                if !parsed.bad.contains(&(line + 1)) {
+                    let &(t, (from, to), a) = next.next().expect("a row per good line");
+                    *slot = Some((
+                        t.to_bits(),
+                        parsed.text[from as usize..to as usize].to_string(),
+                        a.map(f64::to_bits),
+                    ));
+                }
+            }
+            prop_assert_eq!(parsed.lines, rows.len());
+            prop_assert_eq!(got, expected);
+        }
+
     }
 
     #[test]
