@@ -645,56 +645,9 @@ pub(super) fn assemble(
         ));
     }
     let (stations, group_count) = stations(passes.segs, passes.config);
-    let scatter = scatter(passes.accumulated, passes.sus.names.len());
-    passes.variance = scatter
-        .iter()
-        .all(|&(_, dof)| dof >= MIN_NOISE_DOF)
-        .then(|| scatter.iter().map(|&(ss, dof)| ss / dof).collect());
-    let (ss, dof) = scatter
-        .iter()
-        .fold((0.0, 0.0), |a, &(s, d)| (a.0 + s, a.1 + d));
-    let sample_noise = (dof > 0.0).then(|| (ss / dof).sqrt());
-
-    let mut orientations = Vec::new();
-    for g in 0..group_count {
-        let members: Vec<&Station> = stations
-            .iter()
-            .filter(|s| s.group == Some(g) && s.excitations.is_empty())
-            .collect();
-        if members.len() >= 2 {
-            orientations.extend(orientation(&mut passes, &members));
-        }
-    }
-    let together = stations.iter().any(|st| {
-        st.excitations
-            .iter()
-            .any(|&x| passes.segs[st.log].excitations[x].dofs.len() > 1)
-    });
-    if together && !orientations.is_empty() {
-        passes.moved_by = Some(moved_by(&passes, &orientations));
-    }
-    let mut poses = Vec::new();
-    let training: Vec<&Station> = stations
-        .iter()
-        .filter(|s| !s.excitations.is_empty())
-        .collect();
-    for st in &training {
-        poses.extend(training_pose(&mut passes, st, &pattern));
-    }
-    if !training.is_empty() && poses.is_empty() {
-        return Err(IngestError::Empty(format!(
-            "all {} training poses found in the joint states were skipped, so the result \
-             would have none; the first reason: {}",
-            training.len(),
-            passes
-                .warnings
-                .iter()
-                .find(|w| w.contains("training pose"))
-                .or(passes.warnings.first())
-                .map_or("unknown", String::as_str)
-        )));
-    }
-
+    let sample_noise = sample_noise(&mut passes);
+    let orientations = orientations(&mut passes, &stations, group_count);
+    let poses = training_poses(&mut passes, &stations, &pattern)?;
     if group_count > 0 && orientations.is_empty() && poses.is_empty() {
         return Err(IngestError::Empty(match passes.warnings.first() {
             Some(first) => format!(
@@ -707,7 +660,6 @@ pub(super) fn assemble(
                 .into(),
         }));
     }
-
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
     let dynamic = poses.iter().map(|p| p.dynamic.len()).sum();
     let (orientation_count, training_poses) = (orientations.len(), poses.len());
@@ -731,6 +683,100 @@ pub(super) fn assemble(
                 .into(),
         ));
     }
+    let warnings = warnings(&mut passes);
+    let report = IngestReport {
+        orientations: orientation_count,
+        training_poses,
+        dynamic,
+        sample_noise,
+        logs: passes.reports,
+        pattern,
+        pattern_source,
+        warnings,
+    };
+    Ok(Ingested {
+        measurements: set,
+        report,
+    })
+}
+
+/// Each SU's sample variance from the spread of its still windows (in `passes`, where every SU
+/// has enough samples to tell), and the noise of one sample over all SUs, m/s².
+fn sample_noise(passes: &mut Passes<'_>) -> Option<f64> {
+    let scatter = scatter(passes.accumulated, passes.sus.names.len());
+    passes.variance = scatter
+        .iter()
+        .all(|&(_, dof)| dof >= MIN_NOISE_DOF)
+        .then(|| scatter.iter().map(|&(ss, dof)| ss / dof).collect());
+    let (ss, dof) = scatter
+        .iter()
+        .fold((0.0, 0.0), |a, &(s, d)| (a.0 + s, a.1 + d));
+    (dof > 0.0).then(|| (ss / dof).sqrt())
+}
+
+/// The structure part's orientations, one per group of still stations without excitations;
+/// where DoFs were excited together, which DoFs move each SU by the tree they give (in
+/// `passes`).
+fn orientations(
+    passes: &mut Passes<'_>,
+    stations: &[Station],
+    group_count: usize,
+) -> Vec<Orientation> {
+    let mut orientations = Vec::new();
+    for g in 0..group_count {
+        let members: Vec<&Station> = stations
+            .iter()
+            .filter(|s| s.group == Some(g) && s.excitations.is_empty())
+            .collect();
+        if members.len() >= 2 {
+            orientations.extend(orientation(passes, &members));
+        }
+    }
+    let together = stations.iter().any(|st| {
+        st.excitations
+            .iter()
+            .any(|&x| passes.segs[st.log].excitations[x].dofs.len() > 1)
+    });
+    if together && !orientations.is_empty() {
+        passes.moved_by = Some(moved_by(passes, &orientations));
+    }
+    orientations
+}
+
+/// The training poses of the stations with excitations; an error when there were some and every
+/// one was skipped.
+fn training_poses(
+    passes: &mut Passes<'_>,
+    stations: &[Station],
+    pattern: &ExcitationPattern,
+) -> Result<Vec<TrainingPose>, IngestError> {
+    let training: Vec<&Station> = stations
+        .iter()
+        .filter(|s| !s.excitations.is_empty())
+        .collect();
+    let poses: Vec<TrainingPose> = training
+        .iter()
+        .filter_map(|st| training_pose(passes, st, pattern))
+        .collect();
+    if !training.is_empty() && poses.is_empty() {
+        return Err(IngestError::Empty(format!(
+            "all {} training poses found in the joint states were skipped, so the result \
+             would have none; the first reason: {}",
+            training.len(),
+            passes
+                .warnings
+                .iter()
+                .find(|w| w.contains("training pose"))
+                .or(passes.warnings.first())
+                .map_or("unknown", String::as_str)
+        )));
+    }
+    Ok(poses)
+}
+
+/// The warnings of the whole ingestion: those gathered in `passes`, then per log the unknown
+/// frame ids and the saturated samples.
+fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
     let mut warnings = std::mem::take(&mut passes.warnings);
     for r in &passes.reports {
         if !r.unknown_frames.is_empty() {
@@ -749,18 +795,5 @@ pub(super) fn assemble(
             ));
         }
     }
-    let report = IngestReport {
-        orientations: orientation_count,
-        training_poses,
-        dynamic,
-        sample_noise,
-        logs: passes.reports,
-        pattern,
-        pattern_source,
-        warnings,
-    };
-    Ok(Ingested {
-        measurements: set,
-        report,
-    })
+    warnings
 }
