@@ -17,6 +17,7 @@
 pub mod bag;
 pub mod csv;
 pub mod db3;
+mod in_order;
 pub mod mcap;
 pub mod ros;
 

@@ -1,20 +1,22 @@
-//! The rows of a CSV log, parsed: `imu.csv` a batch of blocks at a time in parallel, numbers
-//! converted as their fields are scanned.
+//! The rows of a CSV log, parsed: `imu.csv` in blocks on the thread pool while the next are read,
+//! numbers converted as their fields are scanned.
 
 use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::Path;
 
+use crate::log::in_order::InOrder;
 use crate::log::{LogError, ReadStats, Sample};
 
 /// Bytes of `imu.csv` parsed as one block (with the end of a line from the block before: far
 /// less than 4 GB in all, so byte ranges in a block fit in `u32`).
 const BLOCK: usize = 1 << 22;
-/// Blocks parsed together.
+/// Blocks being parsed at once, on the thread pool.
 const BLOCKS: usize = 4;
 
 /// The rows of `imu.csv` after its header: a producer thread reads blocks of whole lines and
-/// parses a batch of them in parallel; the caller's thread hands the rows to the visitor in order.
+/// hands each to the thread pool to be parsed; the caller's thread hands the rows to the visitor
+/// in order.
 pub(super) struct ImuRows<'a> {
     pub(super) path: &'a Path,
     /// Lines before the first block.
@@ -123,47 +125,47 @@ enum Produced {
 /// be read into memory whole.
 const LONGEST_LINE: usize = 1 << 26;
 
-/// Reads `file` (after `carry`) in blocks of whole lines, parses them a batch at a time in
-/// parallel, and sends them in order with the bytes read so far.
+/// Reads `file` (after `carry`) in blocks of whole lines, parses each on the thread pool while
+/// it reads the next, and sends them in order with the bytes read so far.
 fn produce(
     mut file: File,
     mut carry: Vec<u8>,
     blocks: &std::sync::mpsc::SyncSender<(Parsed, u64)>,
 ) -> Result<(), Produced> {
-    use rayon::prelude::*;
+    // Blocks being parsed, in file order: each on the thread pool as soon as it is read, so
+    // reading overlaps parsing.
+    let mut pending: InOrder<Result<Parsed, Produced>> = InOrder::new();
     let mut read = 0u64;
-    let mut done = false;
-    let mut long_line = None;
-    while !done {
-        let mut batch: Vec<(Vec<u8>, u64)> = Vec::with_capacity(BLOCKS);
-        while batch.len() < BLOCKS && !done {
-            let mut block = std::mem::take(&mut carry);
-            let start = block.len();
-            block.resize(start + BLOCK, 0);
-            let n = read_full(&mut file, &mut block[start..]).map_err(Produced::Io)?;
-            block.truncate(start + n);
-            done = n == 0;
-            // Whole lines only: the rest goes to the next block.
-            let cut = if done {
-                block.len()
-            } else {
-                memchr::memrchr(b'\n', &block).map_or(0, |i| i + 1)
-            };
-            carry = block.split_off(cut);
-            let at = read;
-            read += block.len() as u64;
-            if !block.is_empty() {
-                batch.push((block, at));
-            }
-            if carry.len() > LONGEST_LINE {
-                // Once the whole lines before it are handed over.
-                long_line = Some(read);
-                done = true;
-            }
-        }
-        let parsed: Vec<Result<Parsed, Produced>> = batch
-            .into_par_iter()
-            .map(|(block, at)| {
+    // Sends the oldest block on once it is parsed; false when the receiver is gone.
+    let forward = |pending: &mut InOrder<_>, read: u64| -> Result<bool, Produced> {
+        let Some(parsed) = pending.next() else {
+            return Ok(true);
+        };
+        let parsed = parsed.unwrap_or_else(|_| {
+            Err(Produced::Io(std::io::Error::other(
+                "parsing a block failed unexpectedly",
+            )))
+        })?;
+        Ok(blocks.send((parsed, read)).is_ok())
+    };
+    loop {
+        let mut block = std::mem::take(&mut carry);
+        let start = block.len();
+        block.resize(start + BLOCK, 0);
+        let n = read_full(&mut file, &mut block[start..]).map_err(Produced::Io)?;
+        block.truncate(start + n);
+        let done = n == 0;
+        // Whole lines only: the rest goes to the next block.
+        let cut = if done {
+            block.len()
+        } else {
+            memchr::memrchr(b'\n', &block).map_or(0, |i| i + 1)
+        };
+        carry = block.split_off(cut);
+        let at = read;
+        read += block.len() as u64;
+        if !block.is_empty() {
+            pending.spawn(move || {
                 String::from_utf8(block).map(parse).map_err(|e| {
                     let valid = e.utf8_error().valid_up_to();
                     let lines = memchr::memchr_iter(b'\n', &e.as_bytes()[..valid]).count();
@@ -172,15 +174,23 @@ fn produce(
                         lines,
                     }
                 })
-            })
-            .collect();
-        for p in parsed {
-            if blocks.send((p?, read)).is_err() {
+            });
+        }
+        let long_line = carry.len() > LONGEST_LINE;
+        let keep = if done || long_line { 0 } else { BLOCKS };
+        // Once the whole lines before a line too long are handed over, it is the error.
+        while pending.len() > keep {
+            if !forward(&mut pending, read)? {
                 return Ok(());
             }
         }
+        if long_line {
+            return Err(Produced::LongLine(read));
+        }
+        if done {
+            return Ok(());
+        }
     }
-    long_line.map_or(Ok(()), |at| Err(Produced::LongLine(at)))
 }
 
 /// Fills `buffer` as far as the file goes.

@@ -1,11 +1,11 @@
 //! Streaming MCAP reading at the speed of the disk.
 //!
 //! A producer thread reads the file with the `mcap` crate's sans-io reader, which hands over whole
-//! chunk records without decompressing them; it decompresses a batch of chunks at a time in
-//! parallel (rayon) and passes the decompressed chunks, in file order, through a bounded channel
-//! to the caller's thread, which walks their records and decodes the messages it wants. Reading,
-//! decompressing and decoding thus overlap, memory stays at a few batches whatever the file's
-//! length, and the decompressed buffers go back to the producer to be filled again.
+//! chunk records without decompressing them; it hands each chunk to the thread pool (rayon) to be
+//! decompressed as soon as it is read, and passes the decompressed chunks, in file order, through
+//! a bounded channel to the caller's thread, which walks their records and decodes the messages it
+//! wants. Reading, decompressing and decoding thus overlap, memory stays at a few chunks whatever
+//! the file's length, and the decompressed buffers go back to the producer to be filled again.
 
 use std::collections::HashMap;
 use std::fs::File;
@@ -15,18 +15,18 @@ use std::sync::mpsc::{channel, sync_channel, Receiver, SyncSender};
 
 use mcap::records::{op, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-use rayon::prelude::*;
 
+use crate::log::in_order::InOrder;
 use crate::log::{deliver, ChannelKind, LogError, PassStats, Sample, Stream, Topics};
 
 /// How many times its file size a decompressed chunk may be.
 const MAX_INFLATION: u64 = 256;
 /// The longest record read, bytes, whatever the file size (ROS 2 writes chunks of a few MB).
 const MAX_RECORD: usize = 1 << 30;
-/// Chunks decompressed together.
-const BATCH: usize = 4;
-/// Decompressed blocks in flight between the threads (beyond the batch being decompressed).
-const IN_FLIGHT: usize = 2 * BATCH;
+/// Chunks being decompressed at once, on the thread pool.
+const DECOMPRESSING: usize = 4;
+/// Decompressed blocks in flight between the threads (beyond those being decompressed).
+const IN_FLIGHT: usize = 2 * DECOMPRESSING;
 
 /// What the producer hands over, in file order.
 enum Block {
@@ -198,25 +198,21 @@ fn produce(
             .with_emit_chunks(true)
             .with_record_length_limit(limit),
     );
-    let mut batch: Vec<Compressed> = Vec::with_capacity(BATCH);
+    // Chunks being decompressed, in file order: each on the thread pool as soon as it is read,
+    // so reading overlaps decompressing.
+    let mut pending: InOrder<Result<Vec<u8>, mcap::McapError>> = InOrder::new();
     let mut read_bytes = 0u64;
-    // Sends the decompressed batch; false when the receiver is gone.
-    let flush = |batch: &mut Vec<Compressed>, read_bytes: u64| -> Result<bool, mcap::McapError> {
-        let buffers: Vec<Vec<u8>> = batch
-            .iter()
-            .map(|_| recycled.try_recv().unwrap_or_default())
-            .collect();
-        let decompressed: Vec<Result<Vec<u8>, mcap::McapError>> = batch
-            .par_drain(..)
-            .zip(buffers)
-            .map(|(chunk, buffer)| decompress(chunk, buffer))
-            .collect();
-        for d in decompressed {
-            if blocks.send((Block::Chunk(d?), read_bytes)).is_err() {
-                return Ok(false);
-            }
-        }
-        Ok(true)
+    // Sends the oldest chunk on once it is decompressed; false when the receiver is gone.
+    let forward = |pending: &mut InOrder<_>, read_bytes: u64| -> Result<bool, mcap::McapError> {
+        let Some(decompressed) = pending.next() else {
+            return Ok(true);
+        };
+        let records = decompressed.unwrap_or_else(|_| {
+            Err(mcap::McapError::DecompressionError(
+                "decompressing a chunk failed unexpectedly".into(),
+            ))
+        })?;
+        Ok(blocks.send((Block::Chunk(records), read_bytes)).is_ok())
     };
     while let Some(event) = reader.next_event() {
         match event? {
@@ -235,19 +231,25 @@ fn produce(
                         .ok()
                         .filter(|&s| s <= limit)
                         .ok_or(mcap::McapError::ChunkTooLarge(header.uncompressed_size))?;
-                    batch.push(Compressed {
+                    let chunk = Compressed {
                         compression: header.compression,
                         size,
                         crc: header.uncompressed_crc,
                         data: data.to_vec(),
-                    });
-                    if batch.len() == BATCH && !flush(&mut batch, read_bytes)? {
-                        return Ok(());
+                    };
+                    let buffer = recycled.try_recv().unwrap_or_default();
+                    pending.spawn(move || decompress(chunk, buffer));
+                    while pending.len() > DECOMPRESSING {
+                        if !forward(&mut pending, read_bytes)? {
+                            return Ok(());
+                        }
                     }
                 }
                 op::SCHEMA | op::CHANNEL | op::MESSAGE => {
-                    if !flush(&mut batch, read_bytes)? {
-                        return Ok(());
+                    while !pending.is_empty() {
+                        if !forward(&mut pending, read_bytes)? {
+                            return Ok(());
+                        }
                     }
                     let block = Block::Record(opcode, data.to_vec());
                     if blocks.send((block, read_bytes)).is_err() {
@@ -258,7 +260,11 @@ fn produce(
             },
         }
     }
-    flush(&mut batch, read_bytes)?;
+    while !pending.is_empty() {
+        if !forward(&mut pending, read_bytes)? {
+            return Ok(());
+        }
+    }
     Ok(())
 }
 
