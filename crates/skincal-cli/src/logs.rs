@@ -1050,6 +1050,19 @@ fn bench_program(sus: usize, seconds: f64) -> Result<(skincal::model::Robot, Pla
             ..PlanConfig::default()
         },
     )?;
+    // Ingestion needs an excitation and the still period after it.
+    let first = plan
+        .phases
+        .iter()
+        .position(|p| matches!(p.action, Action::Excitation { .. }))
+        .and_then(|i| plan.phases.get(i + 1))
+        .map_or(plan.duration, |still| still.start + still.duration);
+    if seconds < first {
+        bail!(
+            "--seconds {seconds} is too short: the program's first excitation and the still period \
+             after it end at {first:.1} s"
+        );
+    }
     plan.phases.retain(|p| p.start < seconds);
     plan.duration = seconds.min(plan.duration);
     Ok((robot, plan))

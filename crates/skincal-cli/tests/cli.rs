@@ -826,6 +826,12 @@ fn ingest_reports_what_it_cannot_use() {
         d,
         &["junk.mcap", "MCAP"],
     );
+    // A bench log too short to hold an excitation is refused before it is recorded.
+    fails_with(
+        &["bench", "ingest", "--seconds", "3"],
+        d,
+        &["--seconds 3", "too short", "first excitation"],
+    );
     fails_with(
         &[
             "plan",
