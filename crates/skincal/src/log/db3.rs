@@ -7,7 +7,7 @@ use std::path::Path;
 
 use rusqlite::{Connection, OpenFlags};
 
-use super::{deliver, ChannelKind, LogError, PassStats, Sample, Stream, Topics};
+use super::{deliver, ChannelKind, FrameNames, LogError, PassStats, Sample, Stream, Topics};
 
 /// Streams the samples of `stream` from the rosbag2 SQLite file at `path`.
 pub fn read(
@@ -52,6 +52,7 @@ pub fn read(
         }
     }
     let mut stats = PassStats::default();
+    let mut frames = FrameNames::default();
     // Topics not read on this pass are counted (once, on a pass of the joint states), not decoded.
     let wanted: Vec<i64> = kinds
         .iter()
@@ -108,7 +109,7 @@ pub fn read(
             since_progress = 0;
         }
         if let Some(kind) = kinds.get(&id) {
-            deliver(kind, body, stream, topics, &mut stats, visit)?;
+            deliver(kind, body, stream, topics, &mut frames, &mut stats, visit)?;
         }
     }
     progress(read);

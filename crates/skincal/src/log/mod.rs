@@ -21,6 +21,7 @@ mod in_order;
 pub mod mcap;
 pub mod ros;
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 pub use ros::Time;
@@ -295,26 +296,34 @@ impl ChannelKind {
 /// Decodes one CDR message of a topic of `kind` and gives it to `visit` when it belongs to
 /// `stream`; what cannot be decoded is counted in `stats`, other topics too (on a pass that reads
 /// the joint states).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn deliver(
     kind: &ChannelKind,
     body: &[u8],
     stream: Stream,
     topics: &Topics,
+    frames: &mut FrameNames,
     stats: &mut PassStats,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
     match kind {
-        ChannelKind::Imu if stream.imu() => match ros::imu_view(body) {
-            Ok(m) => {
-                stats.imu.samples += 1;
-                visit(Sample::Imu {
-                    stamp: m.stamp.seconds(),
-                    frame_id: m.frame_id,
-                    acceleration: m.linear_acceleration,
-                })?;
+        ChannelKind::Imu if stream.imu() => {
+            let sample = ros::imu_fields(body).and_then(|m| {
+                let frame = &body[m.frame.0 as usize..m.frame.1 as usize];
+                Ok((m, frames.name(frame).map_err(ros::utf8_error)?))
+            });
+            match sample {
+                Ok((m, frame_id)) => {
+                    stats.imu.samples += 1;
+                    visit(Sample::Imu {
+                        stamp: m.stamp.seconds(),
+                        frame_id,
+                        acceleration: m.linear_acceleration,
+                    })?;
+                }
+                Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
             }
-            Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
-        },
+        }
         ChannelKind::Joints if stream.joints() => match ros::decode_joint_state(body) {
             Ok(joint) => {
                 if joint.position.len() != joint.name.len() {
@@ -371,6 +380,41 @@ fn imu_sample(
         frame_id: &header.frame_id,
         acceleration: [a.x, a.y, a.z],
     })
+}
+
+/// The frame ids a reader has seen, so that each is checked to be UTF-8 once rather than in every
+/// message. SUs usually come in the same order at every time step: the one after the last is
+/// tried first.
+#[derive(Debug, Default)]
+pub(crate) struct FrameNames {
+    names: Vec<String>,
+    index: HashMap<Vec<u8>, usize>,
+    next: usize,
+}
+
+/// Frame ids remembered at most (beyond, the others are checked every time).
+const MOST_FRAMES: usize = 1 << 16;
+
+impl FrameNames {
+    /// `bytes` as text.
+    pub(crate) fn name<'a>(&'a mut self, bytes: &'a [u8]) -> Result<&'a str, std::str::Utf8Error> {
+        let found = match self.names.get(self.next) {
+            Some(n) if n.as_bytes() == bytes => Some(self.next),
+            _ => self.index.get(bytes).copied(),
+        };
+        if let Some(i) = found {
+            self.next = i + 1;
+            return Ok(&self.names[i]);
+        }
+        let name = std::str::from_utf8(bytes)?;
+        if self.names.len() == MOST_FRAMES {
+            return Ok(name);
+        }
+        self.index.insert(bytes.to_vec(), self.names.len());
+        self.names.push(name.to_string());
+        self.next = self.names.len();
+        Ok(&self.names[self.names.len() - 1])
+    }
 }
 
 /// The kind of a log path.
@@ -702,5 +746,32 @@ impl Drop for Staged {
                 release_transient(d);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_names_give_back_the_text_of_any_bytes_in_any_order() {
+        let mut frames = FrameNames::default();
+        let names: Vec<String> = (0..50).map(|i| format!("link{}_su{i}", i % 7)).collect();
+        // Round after round in the same order, then in another, then some never seen.
+        let order = (0..3 * names.len())
+            .map(|k| k % names.len())
+            .chain((0..names.len()).map(|k| (k * 17) % names.len()));
+        for i in order {
+            assert_eq!(frames.name(names[i].as_bytes()).unwrap(), names[i]);
+        }
+        assert_eq!(frames.name("süß".as_bytes()).unwrap(), "süß");
+        assert_eq!(frames.name(b"").unwrap(), "");
+        assert!(frames.name(&[b's', 0xff, b'u']).is_err());
+        // Past the most remembered, names are still right.
+        for i in 0..MOST_FRAMES + 10 {
+            let name = format!("f{i}");
+            assert_eq!(frames.name(name.as_bytes()).unwrap(), name);
+        }
+        assert_eq!(frames.names.len(), MOST_FRAMES);
     }
 }

@@ -256,6 +256,36 @@ pub struct ImuView<'a> {
 /// [`ImuView`] of a `sensor_msgs/msg/Imu` in CDR (either byte order); what does not fit in the
 /// bytes is an error, as with [`decode_imu`].
 pub fn imu_view(bytes: &[u8]) -> Result<ImuView<'_>, cdr::Error> {
+    let fields = imu_fields(bytes)?;
+    let frame_id = std::str::from_utf8(&bytes[fields.frame.0 as usize..fields.frame.1 as usize])
+        .map_err(utf8_error)?;
+    Ok(ImuView {
+        stamp: fields.stamp,
+        frame_id,
+        linear_acceleration: fields.linear_acceleration,
+    })
+}
+
+/// The error of a frame id that is not UTF-8.
+pub fn utf8_error(e: std::str::Utf8Error) -> cdr::Error {
+    cdr::Error::Message(e.to_string())
+}
+
+/// What [`imu_view`] reads, with the frame id as a byte range of the message, not yet checked to
+/// be UTF-8 (a reader checks each frame id once, not in every message).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuFields {
+    /// The header's stamp.
+    pub stamp: Time,
+    /// The frame id's bytes in the message, `[from, to)`, without the terminating NUL.
+    pub frame: (u32, u32),
+    /// m/s².
+    pub linear_acceleration: [f64; 3],
+}
+
+/// The [`ImuFields`] of a `sensor_msgs/msg/Imu` in CDR; what does not fit in the bytes is an
+/// error.
+pub fn imu_fields(bytes: &[u8]) -> Result<ImuFields, cdr::Error> {
     let (Some(&[_, kind, _, _]), Some(body)) = (bytes.first_chunk::<4>(), bytes.get(4..)) else {
         return Err(cdr::Error::InvalidEncapsulation);
     };
@@ -282,9 +312,11 @@ pub fn imu_view(bytes: &[u8]) -> Result<ImuView<'_>, cdr::Error> {
         return Err(too_long());
     };
     // Within the body: it ends before the acceleration.
-    let text = &body[12..text_end];
-    let text = text.strip_suffix(&[0]).unwrap_or(text);
-    let frame_id = std::str::from_utf8(text).map_err(|e| cdr::Error::Message(e.to_string()))?;
+    let nul = usize::from(body[12..text_end].last() == Some(&0));
+    let frame = (
+        16,
+        u32::try_from(4 + text_end - nul).map_err(|_| too_long())?,
+    );
     let float = |at: usize| {
         let b: [u8; 8] = a[at..at + 8].try_into().expect("8 bytes");
         if little {
@@ -293,12 +325,12 @@ pub fn imu_view(bytes: &[u8]) -> Result<ImuView<'_>, cdr::Error> {
             f64::from_be_bytes(b)
         }
     };
-    Ok(ImuView {
+    Ok(ImuFields {
         stamp: Time {
             sec: sec as i32,
             nanosec,
         },
-        frame_id,
+        frame,
         linear_acceleration: [float(0), float(8), float(16)],
     })
 }

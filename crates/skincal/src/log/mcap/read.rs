@@ -17,7 +17,7 @@ use mcap::records::{op, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use crate::log::in_order::InOrder;
-use crate::log::{deliver, ChannelKind, LogError, PassStats, Sample, Stream, Topics};
+use crate::log::{deliver, ChannelKind, FrameNames, LogError, PassStats, Sample, Stream, Topics};
 
 /// How many times its file size a decompressed chunk may be.
 const MAX_INFLATION: u64 = 256;
@@ -56,6 +56,7 @@ pub fn read(
     // By channel id: a lookup per message without hashing.
     let mut channels: Vec<Option<ChannelKind>> = Vec::new();
     let mut stats = PassStats::default();
+    let mut frames = FrameNames::default();
     let size = blocks(path, progress, &mut |opcode, data| match opcode {
         op::MESSAGE => {
             let Some((channel, body)) = message_body(data) else {
@@ -65,7 +66,15 @@ pub fn read(
                 return Ok(());
             };
             match channels.get(usize::from(channel)).and_then(Option::as_ref) {
-                Some(kind) => Ok(deliver(kind, body, stream, topics, &mut stats, visit)?),
+                Some(kind) => Ok(deliver(
+                    kind,
+                    body,
+                    stream,
+                    topics,
+                    &mut frames,
+                    &mut stats,
+                    visit,
+                )?),
                 None => {
                     stats
                         .general(stream)
@@ -230,7 +239,7 @@ fn produce(
                     let size = usize::try_from(header.uncompressed_size)
                         .ok()
                         .filter(|&s| s <= limit)
-                        .ok_or(mcap::McapError::ChunkTooLarge(header.uncompressed_size))?;
+                        .ok_or_else(|| mcap::McapError::ChunkTooLarge(header.uncompressed_size))?;
                     let chunk = Compressed {
                         compression: header.compression,
                         size,
@@ -322,16 +331,13 @@ fn walk(records: &[u8], record: &mut RecordVisitor<'_>) -> Result<(), RecordErro
     while at < records.len() {
         let header = records
             .get(at..at + 9)
-            .ok_or(RecordError::Mcap(mcap::McapError::UnexpectedEoc))?;
+            .ok_or_else(|| RecordError::Mcap(mcap::McapError::UnexpectedEoc))?;
         let opcode = header[0];
         let len = u64::from_le_bytes(header[1..9].try_into().expect("8 bytes"));
         let body = usize::try_from(len)
             .ok()
             .and_then(|len| records.get(at + 9..(at + 9).checked_add(len)?))
-            .ok_or(RecordError::Mcap(mcap::McapError::RecordTooLarge {
-                opcode,
-                len,
-            }))?;
+            .ok_or_else(|| RecordError::Mcap(mcap::McapError::RecordTooLarge { opcode, len }))?;
         record(opcode, body)?;
         at += 9 + body.len();
     }
