@@ -296,7 +296,6 @@ impl ChannelKind {
 /// Decodes one CDR message of a topic of `kind` and gives it to `visit` when it belongs to
 /// `stream`; what cannot be decoded is counted in `stats`, other topics too (on a pass that reads
 /// the joint states).
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn deliver(
     kind: &ChannelKind,
     body: &[u8],
