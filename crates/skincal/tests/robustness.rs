@@ -8,6 +8,7 @@ use skincal::estimate::body::calibrate_body;
 use skincal::estimate::ml::MlConfig;
 use skincal::estimate::EstimateError;
 use skincal::explore::{explore, ExploreConfig, Structure};
+use skincal::ingest::{ingest, IngestConfig};
 use skincal::io;
 use skincal::measurements::MeasurementSet;
 use skincal::model::presets;
@@ -24,6 +25,17 @@ fn paper_set(poses: usize) -> MeasurementSet {
     )
     .unwrap()
     .measurements
+}
+
+/// Why ingesting the log at `path` fails (it must).
+fn ingest_error(path: &Path, config: &IngestConfig) -> String {
+    ingest(
+        std::slice::from_ref(&path.to_path_buf()),
+        config,
+        &mut |_, _, _| {},
+    )
+    .unwrap_err()
+    .to_string()
 }
 
 fn as_value(set: &MeasurementSet) -> Value {
@@ -273,7 +285,6 @@ fn a_file_of_another_kind_is_named_for_what_it_is() {
 fn a_structure_only_log_ingests_without_a_pattern() {
     // Regression: "no measurements found" although the structure moves were all there, because
     // no excitation pattern could be estimated from a log that has none.
-    use skincal::ingest::{ingest, IngestConfig};
     use skincal::log::csv::CsvSink;
     use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
     use skincal::sim::timeseries::{record, LogConfig};
@@ -456,7 +467,6 @@ fn structure_log(dir: &Path) -> std::path::PathBuf {
 
 #[test]
 fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
-    use skincal::ingest::{ingest, IngestConfig};
     let dir = tempfile::tempdir().unwrap();
     let log = structure_log(dir.path());
     // Stamps in ms: every stamp × 1000.
@@ -480,13 +490,7 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
     for file in ["joint_states.csv", "imu.csv"] {
         std::fs::rename(log.join(format!("ms-{file}")), ms.join(file)).unwrap();
     }
-    let e = ingest(
-        std::slice::from_ref(&ms),
-        &IngestConfig::default(),
-        &mut |_, _, _| {},
-    )
-    .unwrap_err()
-    .to_string();
+    let e = ingest_error(&ms, &IngestConfig::default());
     assert!(
         e.contains("ms") && e.contains("seconds") && e.contains("/ms"),
         "{e}"
@@ -504,9 +508,7 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
         sus: Some(robot.model.su_names()),
         ..IngestConfig::default()
     };
-    let e = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})
-        .unwrap_err()
-        .to_string();
+    let e = ingest_error(&log, &config);
     assert!(
         e.contains("su3") && e.contains("skipped") && e.contains("/log"),
         "{e}"
@@ -516,7 +518,6 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
 #[test]
 fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
     // Regression: one flipped byte in a length field made the reader allocate 4 EB and abort.
-    use skincal::ingest::{ingest, IngestConfig};
     use skincal::log::mcap::{Compression, McapSink};
     use skincal::log::Topics;
     use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
@@ -552,13 +553,7 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
     let chunk = dir.path().join("chunk.mcap");
     std::fs::write(&chunk, &bytes).unwrap();
     for (path, words) in [(damaged, "damaged"), (empty, "empty"), (chunk, "damaged")] {
-        let e = ingest(
-            std::slice::from_ref(&path),
-            &IngestConfig::default(),
-            &mut |_, _, _| {},
-        )
-        .unwrap_err()
-        .to_string();
+        let e = ingest_error(&path, &IngestConfig::default());
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         assert!(e.contains(&name) && e.contains(words), "{e}");
     }
@@ -566,7 +561,6 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
 
 #[test]
 fn csv_logs_that_are_not_text_or_have_no_line_ends_are_refused_by_file_and_line() {
-    use skincal::ingest::{ingest, IngestConfig};
     let dir = tempfile::tempdir().unwrap();
     let header = "stamp,frame_id,ax,ay,az\n0.0,su1,0,0,9.81\n";
     let cases: [(&str, Vec<u8>, &str); 2] = [
@@ -588,13 +582,7 @@ fn csv_logs_that_are_not_text_or_have_no_line_ends_are_refused_by_file_and_line(
         std::fs::create_dir(&log).unwrap();
         std::fs::write(log.join("joint_states.csv"), "stamp,j1\n0.0,0\n0.001,0\n").unwrap();
         std::fs::write(log.join("imu.csv"), imu).unwrap();
-        let e = ingest(
-            std::slice::from_ref(&log),
-            &IngestConfig::default(),
-            &mut |_, _, _| {},
-        )
-        .unwrap_err()
-        .to_string();
+        let e = ingest_error(&log, &IngestConfig::default());
         assert!(
             e.contains("imu.csv") && e.contains("line 3") && e.contains(words),
             "{name}: {e}"
