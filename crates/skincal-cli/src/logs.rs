@@ -796,74 +796,10 @@ fn render_report(r: &IngestReport) -> String {
              transfers skipped",
             l.still_windows, l.pauses, l.excitations, l.moves, l.transfers
         );
-        let mut shares: Vec<&skincal::ingest::ExcitationFit> = l
-            .fits
-            .iter()
-            .filter(|f| !f.coupled_dofs.is_empty())
-            .collect();
-        if !shares.is_empty() {
-            shares.sort_by(|a, b| a.coupled.total_cmp(&b.coupled));
-            let largest = shares[shares.len() - 1];
-            let _ = writeln!(
-                s,
-                "  coupled motion: in {} of {} excitation windows other DoFs moved too and were \
-                 fitted out: median {:.0} %, largest {:.0} % of the signal ({} at {:.2} s)",
-                shares.len(),
-                l.fits.len(),
-                shares[shares.len() / 2].coupled * 100.0,
-                largest.coupled * 100.0,
-                largest.dof,
-                largest.start
-            );
+        if let Some(line) = coupled_motion(l) {
+            let _ = writeln!(s, "{line}");
         }
-        let mut issues = Vec::new();
-        for (n, what) in [
-            (l.unsorted_joint_stamps, "unsorted joint stamps"),
-            (l.duplicate_joint_stamps, "duplicate joint stamps"),
-            (l.joint_gaps, "joint-state gaps"),
-            (l.unsorted_imu_stamps, "unsorted skin stamps"),
-            (l.imu_outside, "skin samples outside the joint states' time"),
-            (l.filled, "missing skin samples filled"),
-            (l.joint_read.undecodable, "undecodable joint messages"),
-            (l.imu_read.undecodable, "undecodable skin messages"),
-        ] {
-            if n > 0 {
-                issues.push(format!("{n} {what}"));
-            }
-        }
-        let saturated: u64 = l.saturated.values().sum();
-        if saturated > 0 {
-            issues.push(format!(
-                "{saturated} saturated samples in windows (not used)"
-            ));
-        }
-        let unknown: u64 = l.unknown_frames.values().sum();
-        if unknown > 0 {
-            issues.push(format!(
-                "{unknown} samples of unknown frame ids {:?}",
-                l.unknown_frames.keys().collect::<Vec<_>>()
-            ));
-        }
-        if !l.unknown_joints.is_empty() {
-            issues.push(format!(
-                "unknown joints {:?}",
-                l.unknown_joints.keys().collect::<Vec<_>>()
-            ));
-        }
-        if !l.skipped.is_empty() {
-            issues.push(format!("{} motions skipped", l.skipped.len()));
-        }
-        for (topic, n) in &l.joint_read.other_topics {
-            issues.push(format!("{n} messages on {topic} (ignored)"));
-        }
-        if let Some(p) = l
-            .joint_read
-            .first_problem
-            .as_ref()
-            .or(l.imu_read.first_problem.as_ref())
-        {
-            issues.push(format!("first decoding problem: {p}"));
-        }
+        let issues = log_issues(l);
         if issues.is_empty() {
             let _ = writeln!(s, "  clean: no gaps, losses, unknown names or saturation");
         } else {
@@ -897,6 +833,83 @@ fn render_report(r: &IngestReport) -> String {
         let _ = writeln!(s, "warning: {w}");
     }
     s
+}
+
+/// The share of coupled motion fitted out of a log's excitation windows, if any had some.
+fn coupled_motion(l: &skincal::ingest::LogReport) -> Option<String> {
+    let mut shares: Vec<&skincal::ingest::ExcitationFit> = l
+        .fits
+        .iter()
+        .filter(|f| !f.coupled_dofs.is_empty())
+        .collect();
+    if shares.is_empty() {
+        return None;
+    }
+    shares.sort_by(|a, b| a.coupled.total_cmp(&b.coupled));
+    let largest = shares[shares.len() - 1];
+    Some(format!(
+        "  coupled motion: in {} of {} excitation windows other DoFs moved too and were fitted \
+         out: median {:.0} %, largest {:.0} % of the signal ({} at {:.2} s)",
+        shares.len(),
+        l.fits.len(),
+        shares[shares.len() / 2].coupled * 100.0,
+        largest.coupled * 100.0,
+        largest.dof,
+        largest.start
+    ))
+}
+
+/// What went wrong reading a log, one phrase each.
+fn log_issues(l: &skincal::ingest::LogReport) -> Vec<String> {
+    let mut issues = Vec::new();
+    for (n, what) in [
+        (l.unsorted_joint_stamps, "unsorted joint stamps"),
+        (l.duplicate_joint_stamps, "duplicate joint stamps"),
+        (l.joint_gaps, "joint-state gaps"),
+        (l.unsorted_imu_stamps, "unsorted skin stamps"),
+        (l.imu_outside, "skin samples outside the joint states' time"),
+        (l.filled, "missing skin samples filled"),
+        (l.joint_read.undecodable, "undecodable joint messages"),
+        (l.imu_read.undecodable, "undecodable skin messages"),
+    ] {
+        if n > 0 {
+            issues.push(format!("{n} {what}"));
+        }
+    }
+    let saturated: u64 = l.saturated.values().sum();
+    if saturated > 0 {
+        issues.push(format!(
+            "{saturated} saturated samples in windows (not used)"
+        ));
+    }
+    let unknown: u64 = l.unknown_frames.values().sum();
+    if unknown > 0 {
+        issues.push(format!(
+            "{unknown} samples of unknown frame ids {:?}",
+            l.unknown_frames.keys().collect::<Vec<_>>()
+        ));
+    }
+    if !l.unknown_joints.is_empty() {
+        issues.push(format!(
+            "unknown joints {:?}",
+            l.unknown_joints.keys().collect::<Vec<_>>()
+        ));
+    }
+    if !l.skipped.is_empty() {
+        issues.push(format!("{} motions skipped", l.skipped.len()));
+    }
+    for (topic, n) in &l.joint_read.other_topics {
+        issues.push(format!("{n} messages on {topic} (ignored)"));
+    }
+    if let Some(p) = l
+        .joint_read
+        .first_problem
+        .as_ref()
+        .or(l.imu_read.first_problem.as_ref())
+    {
+        issues.push(format!("first decoding problem: {p}"));
+    }
+    issues
 }
 
 #[derive(Debug, Args)]

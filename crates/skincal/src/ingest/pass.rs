@@ -20,7 +20,7 @@ use std::path::Path;
 use super::queue::Queue;
 use super::segment::{filter_points, pieces, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
-use super::timeline::{Grid, Timeline, GRID_SPAN, MAX_PAUSE};
+use super::timeline::{newest_common, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{self, LogError, PassStats, Sample, Stream};
 
@@ -295,11 +295,7 @@ impl Pass<'_> {
             }
             return;
         };
-        let newest = self
-            .series
-            .iter()
-            .map(|s| s.last().map_or(f64::MIN, |p| p.0))
-            .fold(f64::MAX, f64::min);
+        let newest = newest_common(&self.series);
         let to = ((newest - grid.t0) / grid.dt).floor();
         // A far-off stamp must not make a stretch of years: the two passes will say what is wrong.
         let samples = self.series.iter().map(Vec::len).max().unwrap_or(0) as f64;

@@ -113,10 +113,7 @@ impl Grid {
         path: &Path,
         cleaned: &[Vec<(f64, f64)>],
     ) -> Result<usize, IngestError> {
-        let t1 = cleaned
-            .iter()
-            .map(|s| s[s.len() - 1].0)
-            .fold(f64::MAX, f64::min);
+        let t1 = newest_common(cleaned);
         let unusable = |reason: String| IngestError::Unusable {
             path: path.to_path_buf(),
             reason,
@@ -152,11 +149,7 @@ impl Grid {
         config: &IngestConfig,
         report: &mut LogReport,
     ) {
-        report.duration = cleaned
-            .iter()
-            .map(|s| s[s.len() - 1].0)
-            .fold(f64::MAX, f64::min)
-            - self.t0;
+        report.duration = newest_common(cleaned) - self.t0;
         report.rate = 1.0 / self.dt;
         for s in cleaned {
             for w in s.windows(2) {
@@ -169,6 +162,14 @@ impl Grid {
         }
         self.resolution = cleaned.iter().map(|s| encoder_rounding(s)).collect();
     }
+}
+
+/// The newest stamp every DoF's series has reached (`f64::MIN` while one is empty).
+pub(super) fn newest_common(series: &[Vec<(f64, f64)>]) -> f64 {
+    series
+        .iter()
+        .map(|s| s.last().map_or(f64::MIN, |p| p.0))
+        .fold(f64::MAX, f64::min)
 }
 
 /// Joint positions of grid points `[first, first + len)` of one log.
