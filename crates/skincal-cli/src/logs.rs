@@ -958,7 +958,8 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
     outln!(
         "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), {} cores;\n\
          bare pass: read (and decompress) the log and walk every message or row, decoding nothing;\n\
-         the fastest of {} runs of each; peak MB: the most memory in use during an ingestion",
+         the fastest of {} runs of each; CPU s: the least CPU time of a run, every thread's;\n\
+         peak MB: the most memory in use during an ingestion",
         plan.duration,
         sus,
         sus * 1000,
@@ -966,13 +967,16 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         args.repeats
     );
     outln!(
-        "{:<12} {:>10} {:>12} {:>10} {:>10} {:>12} {:>12} {:>14} {:>10}",
+        "{:<12} {:>10} {:>12} {:>10} {:>10} {:>12} {:>12} {:>12} {:>10} {:>12} {:>14} {:>10}",
         "format",
         "size MB",
         "samples",
         "bare s",
         "ingest s",
         "ingest/bare",
+        "bare CPU s",
+        "ingest CPU s",
+        "CPU ratio",
         "× real time",
         "samples/s",
         "peak MB"
@@ -1004,14 +1008,19 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             ..IngestConfig::default()
         };
         let t = time_ingest(&path, &config, args.repeats)?;
+        let cpu_ratio = t.cpu.zip(t.bare_cpu).map(|(i, b)| i / b);
+        let optional = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.2}"));
         outln!(
-            "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12.1} {:>14.0} {:>10.0}",
+            "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12} {:>12} {:>10} {:>12.1} {:>14.0} {:>10.0}",
             name,
             size,
             t.samples,
             t.bare,
             t.seconds,
             t.seconds / t.bare,
+            optional(t.bare_cpu),
+            optional(t.cpu),
+            optional(cpu_ratio),
             plan.duration / t.seconds,
             t.samples as f64 / t.seconds,
             t.peak
@@ -1023,6 +1032,9 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             "bare_s": t.bare,
             "ingest_s": t.seconds,
             "ingest_over_bare": t.seconds / t.bare,
+            "bare_cpu_s": t.bare_cpu,
+            "ingest_cpu_s": t.cpu,
+            "cpu_ingest_over_bare": cpu_ratio,
             "times_real_time": plan.duration / t.seconds,
             "samples_per_s": t.samples as f64 / t.seconds,
             "peak_mb": t.peak,
@@ -1096,30 +1108,54 @@ fn bench_variants(
     variants
 }
 
-/// The fastest bare pass and ingestion of a log over some runs, the ingestions' peak memory (MB)
-/// and the skin samples read.
+/// The fastest bare pass and ingestion of a log over some runs (wall and CPU time, s; CPU time
+/// counts every thread's and is steadier than wall time on a shared machine), the ingestions'
+/// peak memory (MB) and the skin samples read.
 struct Timing {
     bare: f64,
     seconds: f64,
+    bare_cpu: Option<f64>,
+    cpu: Option<f64>,
     peak: f64,
     samples: u64,
+}
+
+/// The wall and CPU time `run` takes, s.
+fn timed<T>(run: impl FnOnce() -> Result<T>) -> Result<(T, f64, Option<f64>)> {
+    let cpu = crate::cpu_seconds();
+    let started = Instant::now();
+    let out = run()?;
+    let wall = started.elapsed().as_secs_f64();
+    let cpu = cpu.zip(crate::cpu_seconds()).map(|(a, b)| b - a);
+    Ok((out, wall, cpu))
+}
+
+/// The least of two optional times.
+fn least(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
 }
 
 fn time_ingest(path: &Path, config: &IngestConfig, repeats: usize) -> Result<Timing> {
     let mut t = Timing {
         bare: f64::INFINITY,
         seconds: f64::INFINITY,
+        bare_cpu: None,
+        cpu: None,
         peak: 0.0,
         samples: 0,
     };
     for _ in 0..repeats {
-        let started = Instant::now();
-        skincal::log::bare_pass(path)?;
-        t.bare = t.bare.min(started.elapsed().as_secs_f64());
+        let ((), wall, cpu) = timed(|| Ok(skincal::log::bare_pass(path).map(|_| ())?))?;
+        t.bare = t.bare.min(wall);
+        t.bare_cpu = least(t.bare_cpu, cpu);
         crate::reset_peak_memory();
-        let started = Instant::now();
-        let run = ingest(&[path.to_path_buf()], config, &mut |_, _, _| {})?;
-        t.seconds = t.seconds.min(started.elapsed().as_secs_f64());
+        let (run, wall, cpu) =
+            timed(|| Ok(ingest(&[path.to_path_buf()], config, &mut |_, _, _| {})?))?;
+        t.seconds = t.seconds.min(wall);
+        t.cpu = least(t.cpu, cpu);
         t.peak = t.peak.max(peak_memory_mb());
         t.samples = run.report.logs[0].imu_samples;
     }

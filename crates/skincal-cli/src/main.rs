@@ -1482,13 +1482,27 @@ fn demo(args: DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// Peak resident memory of this process, MB (Linux; 0 elsewhere).
 /// Starts the peak of [`peak_memory_mb`] again from the memory in use now (Linux; elsewhere the
 /// peak stays the process's).
 pub(crate) fn reset_peak_memory() {
     let _ = std::fs::write("/proc/self/clear_refs", "5");
 }
 
+/// CPU time this process has used so far, every thread's (those that ended too), s; `None` where
+/// the system has no such clock.
+pub(crate) fn cpu_seconds() -> Option<f64> {
+    #[cfg(unix)]
+    {
+        let t = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
+        Some(t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9)
+    }
+    #[cfg(not(unix))]
+    {
+        None
+    }
+}
+
+/// Peak resident memory of this process, MB (Linux; 0 elsewhere).
 pub(crate) fn peak_memory_mb() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()

@@ -1131,6 +1131,41 @@ fn json_summaries_are_the_whole_standard_output_and_say_what_the_text_says() {
     assert_eq!(v["each"].as_array().unwrap().len(), 2);
     assert_eq!(v["converged"], 2);
     assert!(v["summary"]["residual / σ"]["median"].as_f64().unwrap() < 1.5);
+    let text = ok(skincal(
+        &[
+            "bench",
+            "ingest",
+            "--sus",
+            "20",
+            "--seconds",
+            "6",
+            "--repeats",
+            "2",
+            "--json",
+        ],
+        d,
+    ));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    let rows = v["rows"].as_array().unwrap();
+    let formats: Vec<_> = rows.iter().map(|r| r["format"].as_str().unwrap()).collect();
+    assert_eq!(formats, ["mcap-zstd", "mcap-none", "csv"]);
+    // Every SU at every millisecond of the log, its ends included.
+    let sus = v["sus"].as_u64().unwrap();
+    let ms = (v["log_seconds"].as_f64().unwrap() * 1000.0).round() as u64;
+    let cores = v["cores"].as_f64().unwrap();
+    for r in rows {
+        assert_eq!(r["samples"].as_u64().unwrap(), sus * (ms + 1), "{r}");
+        // CPU time is positive and no more than every core for the whole run (with a clock tick).
+        for (cpu, wall) in [("bare_cpu_s", "bare_s"), ("ingest_cpu_s", "ingest_s")] {
+            let (cpu, wall) = (r[cpu].as_f64().unwrap(), r[wall].as_f64().unwrap());
+            assert!(cpu > 0.0 && cpu <= cores * wall + 0.011, "{r}");
+        }
+        let ratio = r["ingest_cpu_s"].as_f64().unwrap() / r["bare_cpu_s"].as_f64().unwrap();
+        assert!(
+            (r["cpu_ingest_over_bare"].as_f64().unwrap() - ratio).abs() < 1e-12,
+            "{r}"
+        );
+    }
 }
 
 #[test]
