@@ -306,23 +306,10 @@ pub(crate) fn deliver(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
     match kind {
-        ChannelKind::Imu if stream.imu() => {
-            let sample = ros::imu_fields(body).and_then(|m| {
-                let frame = &body[m.frame.0 as usize..m.frame.1 as usize];
-                Ok((m, frames.name(frame).map_err(ros::utf8_error)?))
-            });
-            match sample {
-                Ok((m, frame_id)) => {
-                    stats.imu.samples += 1;
-                    visit(Sample::Imu {
-                        stamp: m.stamp.seconds(),
-                        frame_id,
-                        acceleration: m.linear_acceleration,
-                    })?;
-                }
-                Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
-            }
-        }
+        ChannelKind::Imu if stream.imu() => match ros::imu_fields(body) {
+            Ok(m) => imu_sample(m, body, frames, stats, topics, visit)?,
+            Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
+        },
         ChannelKind::Joints if stream.joints() => match ros::decode_joint_state(body) {
             Ok(joint) => {
                 if joint.position.len() != joint.name.len() {
@@ -343,10 +330,10 @@ pub(crate) fn deliver(
             }
             Err(e) => stats.joints.problem(format!("{}: {e}", topics.joints)),
         },
-        ChannelKind::ImuArray if stream.imu() => match ros::decode_imu_array(body) {
+        ChannelKind::ImuArray if stream.imu() => match ros::imu_array_fields(body) {
             Ok(batch) => {
-                for m in &batch.imus {
-                    imu_sample(&m.header, &m.linear_acceleration, &mut stats.imu, visit)?;
+                for m in batch {
+                    imu_sample(m, body, frames, stats, topics, visit)?;
                 }
             }
             Err(e) => stats.imu.problem(format!("{}: {e}", topics.imu)),
@@ -366,19 +353,32 @@ pub(crate) fn deliver(
     Ok(())
 }
 
-/// One accelerometer sample to `visit`, counted.
+/// One accelerometer sample, read in place from the CDR `message`, to `visit`, counted; one whose
+/// frame id is not UTF-8 is counted as a problem.
 fn imu_sample(
-    header: &ros::Header,
-    a: &ros::Vector3,
-    stats: &mut ReadStats,
+    m: ros::ImuFields,
+    message: &[u8],
+    frames: &mut FrameNames,
+    stats: &mut PassStats,
+    topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
-    stats.samples += 1;
-    visit(Sample::Imu {
-        stamp: header.stamp.seconds(),
-        frame_id: &header.frame_id,
-        acceleration: [a.x, a.y, a.z],
-    })
+    let frame = &message[m.frame.0 as usize..m.frame.1 as usize];
+    match frames.name(frame) {
+        Ok(frame_id) => {
+            stats.imu.samples += 1;
+            visit(Sample::Imu {
+                stamp: m.stamp.seconds(),
+                frame_id,
+                acceleration: m.linear_acceleration,
+            })
+        }
+        Err(e) => {
+            let e = ros::utf8_error(e);
+            stats.imu.problem(format!("{}: {e}", topics.imu));
+            Ok(())
+        }
+    }
 }
 
 /// The frame ids a reader has seen, so that each is checked to be UTF-8 once rather than in every

@@ -237,7 +237,7 @@ pub fn decode<'de, T: Deserialize<'de>>(bytes: &[u8]) -> Result<T, cdr::Error> {
 
 /// A `sensor_msgs/msg/Imu` sample from a log, its lengths checked against the message first.
 pub fn decode_imu(bytes: &[u8]) -> Result<ImuAcceleration, cdr::Error> {
-    strings_fit(bytes, false)?;
+    lengths_fit(bytes, false)?;
     cdr::deserialize(bytes)
 }
 
@@ -286,10 +286,54 @@ pub struct ImuFields {
 /// The [`ImuFields`] of a `sensor_msgs/msg/Imu` in CDR; what does not fit in the bytes is an
 /// error.
 pub fn imu_fields(bytes: &[u8]) -> Result<ImuFields, cdr::Error> {
+    let (body, little) = cdr_body(bytes)?;
+    imu_at(body, little, 0).map(|(fields, _)| fields)
+}
+
+/// The [`ImuFields`] of every Imu of a `skin_msgs/msg/ImuArray` in CDR (a header, then the
+/// sequence of Imu messages); a string or sequence that claims more than the message holds, or an
+/// Imu cut short, is an error.
+pub fn imu_array_fields(bytes: &[u8]) -> Result<Vec<ImuFields>, cdr::Error> {
+    let (body, little) = cdr_body(bytes)?;
+    // The batch's header: its stamp (sec, nanosec), then its frame id.
+    let mut at = 8;
+    let n = length(body, little, &mut at)?;
+    if n > body.len().saturating_sub(at) {
+        return Err(too_long());
+    }
+    at += n;
+    let count = length(body, little, &mut at)?;
+    if count > body.len().saturating_sub(at) / SMALLEST_IMU {
+        return Err(too_long());
+    }
+    let mut imus = Vec::with_capacity(count);
+    for _ in 0..count {
+        let (fields, end) = imu_at(body, little, at)?;
+        if end > body.len() {
+            return Err(too_long());
+        }
+        imus.push(fields);
+        at = end;
+    }
+    Ok(imus)
+}
+
+/// The fewest bytes an Imu takes in CDR: its stamp, its frame id's length and 37 f64 (orientation
+/// 4, angular velocity and linear acceleration 3 each, three covariances of 9).
+const SMALLEST_IMU: usize = 12 + 8 * 37;
+
+/// The body of a CDR message (after its 4-byte encapsulation) and whether it is little-endian.
+fn cdr_body(bytes: &[u8]) -> Result<(&[u8], bool), cdr::Error> {
     let (Some(&[_, kind, _, _]), Some(body)) = (bytes.first_chunk::<4>(), bytes.get(4..)) else {
         return Err(cdr::Error::InvalidEncapsulation);
     };
-    let little = kind & 1 == 1;
+    Ok((body, kind & 1 == 1))
+}
+
+/// The [`ImuFields`] of the Imu at `at` in a CDR body (aligned from the body's start; byte
+/// ranges of the whole message, encapsulation included) and where the Imu ends, which may be
+/// beyond the body: only the fields read must be in it.
+fn imu_at(body: &[u8], little: bool, at: usize) -> Result<(ImuFields, usize), cdr::Error> {
     let word = |w: &[u8; 4]| {
         if little {
             u32::from_le_bytes(*w)
@@ -299,12 +343,15 @@ pub fn imu_fields(bytes: &[u8]) -> Result<ImuFields, cdr::Error> {
     };
     // The stamp (sec, nanosec) and the frame id's length, then its text (the length counts the
     // terminating NUL); then orientation (4), its covariance (9), angular velocity (3) and its
-    // covariance (9), all f64 and the first 8-aligned; then the linear acceleration (3 f64).
-    let Some((head, _)) = body.split_first_chunk::<12>() else {
+    // covariance (9), all f64 and the first 8-aligned; then the linear acceleration (3 f64) and
+    // its covariance (9).
+    let at = at.next_multiple_of(4);
+    let Some(head) = body.get(at..).and_then(<[u8]>::first_chunk::<12>) else {
         return Err(too_long());
     };
-    let [sec, nanosec, n] = [0, 4, 8].map(|at| word(head[at..at + 4].try_into().expect("4")));
-    let text_end = 12usize.saturating_add(n as usize);
+    let [sec, nanosec, n] = [0, 4, 8].map(|k| word(head[k..k + 4].try_into().expect("4")));
+    let text = at + 12;
+    let text_end = text.saturating_add(n as usize);
     let acceleration = text_end
         .next_multiple_of(8)
         .saturating_add(8 * (4 + 9 + 3 + 9));
@@ -312,44 +359,45 @@ pub fn imu_fields(bytes: &[u8]) -> Result<ImuFields, cdr::Error> {
         return Err(too_long());
     };
     // Within the body: it ends before the acceleration.
-    let nul = usize::from(body[12..text_end].last() == Some(&0));
-    let frame = (
-        16,
-        u32::try_from(4 + text_end - nul).map_err(|_| too_long())?,
-    );
-    let float = |at: usize| {
-        let b: [u8; 8] = a[at..at + 8].try_into().expect("8 bytes");
+    let nul = usize::from(body[text..text_end].last() == Some(&0));
+    let offset = |i: usize| u32::try_from(4 + i).map_err(|_| too_long());
+    let frame = (offset(text)?, offset(text_end - nul)?);
+    let float = |k: usize| {
+        let b: [u8; 8] = a[k..k + 8].try_into().expect("8 bytes");
         if little {
             f64::from_le_bytes(b)
         } else {
             f64::from_be_bytes(b)
         }
     };
-    Ok(ImuFields {
+    let fields = ImuFields {
         stamp: Time {
             sec: sec as i32,
             nanosec,
         },
         frame,
         linear_acceleration: [float(0), float(8), float(16)],
-    })
+    };
+    Ok((fields, acceleration + 8 * (3 + 9)))
 }
 
 /// A `skin_msgs/msg/ImuArray` from a log; no string or sequence may claim more bytes than the
 /// message has (a damaged log may claim gigabytes).
 pub fn decode_imu_array(bytes: &[u8]) -> Result<ImuArray, cdr::Error> {
+    imu_array_fields(bytes)?;
     cdr::deserialize_from(bytes, cdr::Bounded(bytes.len() as u64))
 }
 
 /// A `sensor_msgs/msg/JointState` from a log, its lengths checked against the message first.
 pub fn decode_joint_state(bytes: &[u8]) -> Result<JointState, cdr::Error> {
-    strings_fit(bytes, true)?;
+    lengths_fit(bytes, true)?;
     cdr::deserialize(bytes)
 }
 
-/// Walks the strings of a message (the header's `frame_id`, and a JointState's `name`) and checks
-/// that every length field fits in what is left of the message: a damaged log may claim gigabytes.
-fn strings_fit(bytes: &[u8], names: bool) -> Result<(), cdr::Error> {
+/// Walks the strings and sequences of a message (the header's `frame_id`, and a JointState's
+/// `name`, `position`, `velocity` and `effort`) and checks that every length field fits in what is
+/// left of the message: a damaged log may claim gigabytes.
+fn lengths_fit(bytes: &[u8], joint_state: bool) -> Result<(), cdr::Error> {
     let (Some(encapsulation), Some(body)) = (bytes.get(..4), bytes.get(4..)) else {
         return Err(cdr::Error::InvalidEncapsulation);
     };
@@ -365,7 +413,7 @@ fn strings_fit(bytes: &[u8], names: bool) -> Result<(), cdr::Error> {
     // Offsets are aligned relative to the body; the stamp (sec, nanosec) comes first.
     let mut at = 8usize;
     string(&mut at)?;
-    if names {
+    if joint_state {
         let n = length(body, little, &mut at)?;
         // Every name takes at least its 4-byte length.
         if n > body.len().saturating_sub(at) / 4 {
@@ -373,6 +421,17 @@ fn strings_fit(bytes: &[u8], names: bool) -> Result<(), cdr::Error> {
         }
         for _ in 0..n {
             string(&mut at)?;
+        }
+        // Positions, velocities and efforts: f64, 8-aligned after their length.
+        for _ in 0..3 {
+            let n = length(body, little, &mut at)?;
+            if n > 0 {
+                at = at.next_multiple_of(8);
+                if n > body.len().saturating_sub(at) / 8 {
+                    return Err(too_long());
+                }
+                at += 8 * n;
+            }
         }
     }
     Ok(())
@@ -458,6 +517,19 @@ mod tests {
         );
         bad[40..44].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(decode_joint_state(&bad).is_err());
+        // The count of positions: after "elbow\0" (44 + 6 → 50), aligned to 52; it claims
+        // 2^32 - 1 f64 (32 GB).
+        let mut bad = joints_cdr.clone();
+        assert_eq!(&bad[52..56], &2u32.to_le_bytes(), "two positions");
+        bad[52..56].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(lengths_fit(&bad, true).is_err());
+        assert!(decode_joint_state(&bad).is_err());
+        // The empty velocities' count: after the positions (aligned to 60, 16 bytes).
+        let mut bad = joints_cdr.clone();
+        assert_eq!(&bad[76..80], &0u32.to_le_bytes(), "no velocities");
+        bad[76..80].copy_from_slice(&1_000_000u32.to_le_bytes());
+        assert!(lengths_fit(&bad, true).is_err());
+        assert!(lengths_fit(&joints_cdr, true).is_ok());
         assert!(decode_imu(&imu_cdr[..10]).is_err());
         // A batch whose Imu count claims 3 billion samples, and one whose second frame_id claims
         // 3 GB: refused, nothing that size allocated.
@@ -477,5 +549,61 @@ mod tests {
         let mut bad = batch_cdr.clone();
         bad[second + 8..second + 12].copy_from_slice(&3_000_000_000u32.to_le_bytes());
         assert!(decode_imu_array(&bad).is_err());
+        assert!(imu_array_fields(&bad).is_err());
+        // The second Imu cut short in its last covariance.
+        assert!(imu_array_fields(&batch_cdr[..batch_cdr.len() - 8]).is_err());
+        assert!(imu_array_fields(&batch_cdr[..20]).is_err());
+    }
+
+    #[test]
+    fn the_in_place_batch_reader_reads_what_the_cdr_crate_decodes_in_either_byte_order() {
+        // Frame ids of every length modulo 8 shift the alignment of what follows each.
+        let names = [
+            "",
+            "a",
+            "su",
+            "su7",
+            "su_12",
+            "ü/su_1",
+            "arm/su7",
+            "left_forearm/su_12",
+        ];
+        let imus: Vec<Imu> = names
+            .iter()
+            .enumerate()
+            .map(|(i, name)| {
+                let stamp = Time::from_seconds(1.7e9 + i as f64 * 1e-4);
+                Imu::accelerometer(stamp, name, [0.1 * i as f64, -0.2, 9.81 - i as f64], 1e-4)
+            })
+            .collect();
+        for header in ["", "skin"] {
+            let batch = ImuArray {
+                header: Header {
+                    stamp: Time::from_seconds(1.7e9),
+                    frame_id: header.into(),
+                },
+                imus: imus.clone(),
+            };
+            let le = encode(&batch).unwrap();
+            let be = cdr::serialize::<_, _, cdr::CdrBe>(&batch, cdr::Infinite).unwrap();
+            for bytes in [&le, &be] {
+                let fields = imu_array_fields(bytes).unwrap();
+                assert_eq!(fields.len(), imus.len());
+                for (f, imu) in fields.iter().zip(&imus) {
+                    assert_eq!(f.stamp, imu.header.stamp);
+                    let frame = &bytes[f.frame.0 as usize..f.frame.1 as usize];
+                    assert_eq!(frame, imu.header.frame_id.as_bytes());
+                    let a = &imu.linear_acceleration;
+                    assert_eq!(f.linear_acceleration, [a.x, a.y, a.z]);
+                }
+            }
+        }
+        let empty = ImuArray {
+            header: Header::default(),
+            imus: vec![],
+        };
+        assert!(imu_array_fields(&encode(&empty).unwrap())
+            .unwrap()
+            .is_empty());
     }
 }
