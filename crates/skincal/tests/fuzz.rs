@@ -1,9 +1,11 @@
 //! Mutation fuzzing of every input format skincal reads.
 //!
 //! For each format a valid file is made here (measurement set, structure, model, robot TOML, URDF,
-//! pose CSV and JSON, plan, CSV log, MCAP log) and mutated many times, seeded: bit flips,
-//! truncations, duplicated and deleted spans, numbers replaced by extremes (NaN, ±inf, 1e308, -0,
-//! huge integers) and, for JSON, missing and extra fields and wrong types. The library's entry point
+//! pose CSV and JSON, plan, CSV log, MCAP logs (zstd; uncompressed without CRCs, with one Imu per
+//! SU or a batch per time step), a rosbag2 directory's metadata, a rosbag2 SQLite file, ROS 1 bags
+//! (uncompressed and bz2, written by the `rosbags` Python package)) and mutated many times,
+//! seeded: bit flips, truncations, duplicated and deleted spans, numbers replaced by extremes (NaN,
+//! ±inf, 1e308, -0, huge integers) and, for JSON, missing and extra fields and wrong types. The library's entry point
 //! reads each mutant from a file, and whatever it accepts goes on through the next stages
 //! (exploration, calibration, prediction, simulation, ingestion) within a budget. Every case must
 //! end without a panic, within a time limit, within a memory limit (the allocator refuses to hold
@@ -38,6 +40,10 @@ use skincal::predict::Predictor;
 use skincal::sim::timeseries::{record, LogConfig};
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
+mod bags;
+#[allow(dead_code)]
+mod common;
+
 /// Every allocation goes through this; a case that holds more than [`MEMORY_LIMIT`] aborts.
 #[global_allocator]
 static ALLOCATOR: cap::Cap<std::alloc::System> = cap::Cap::new(std::alloc::System, usize::MAX);
@@ -67,6 +73,9 @@ struct Format {
     file: &'static str,
     kind: Kind,
     valid: Vec<u8>,
+    /// For a log that is a directory: the files copied beside the mutant; the directory is
+    /// handed over.
+    beside: Vec<PathBuf>,
     /// Reads the file at the path (and goes on with what it accepts); `deep`: run the expensive
     /// stages too. Err is the library's message.
     run: Box<EntryPoint>,
@@ -220,27 +229,18 @@ fn run_bounded(format: &std::sync::Arc<Format>, path: PathBuf, deep: bool) -> Ou
 
 /// Writes the mutant where the entry point looks for it; returns the path to hand over.
 fn place(format: &Format, dir: &Path, bytes: &[u8]) -> PathBuf {
-    if format.name.starts_with("csv log") {
-        let log = dir.join("log");
-        std::fs::create_dir_all(&log).unwrap();
-        let (this, other) = if format.file == "imu.csv" {
-            ("imu.csv", "joint_states.csv")
-        } else {
-            ("joint_states.csv", "imu.csv")
-        };
-        std::fs::write(log.join(this), bytes).unwrap();
-        std::fs::copy(fixture_dir(dir).join(other), log.join(other)).unwrap();
-        log
-    } else {
+    if format.beside.is_empty() {
         let path = dir.join(format.file);
         std::fs::write(&path, bytes).unwrap();
-        path
+        return path;
     }
-}
-
-/// Where the valid files live (beside the case directories).
-fn fixture_dir(case_dir: &Path) -> PathBuf {
-    case_dir.parent().unwrap().join("valid")
+    let log = dir.join("log");
+    std::fs::create_dir_all(&log).unwrap();
+    std::fs::write(log.join(format.file), bytes).unwrap();
+    for other in &format.beside {
+        std::fs::copy(other, log.join(other.file_name().unwrap())).unwrap();
+    }
+    log
 }
 
 fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -533,6 +533,19 @@ fn formats(work: &Path) -> Vec<Format> {
     let mcap_path = valid.join("log.mcap");
     let mut sink = McapSink::new(&mcap_path, Topics::default(), Compression::Zstd, true);
     record(&arm, &plan, &log_config, &mut sink, &mut |_| {}).unwrap();
+    // The same log as a skin driver that publishes a batch per time step writes it, and in the
+    // formats of rosbag2 (a directory, an SQLite file) and of ROS 1.
+    let batches_path = valid.join("batches.mcap");
+    let mut sink =
+        McapSink::new(&batches_path, Topics::default(), Compression::None, true).batched();
+    record(&arm, &plan, &log_config, &mut sink, &mut |_| {}).unwrap();
+    let rosbag2_dir = valid.join("rosbag2");
+    bags::rosbag2(&rosbag2_dir, &[&mcap_path]);
+    let db3_path = valid.join("log.db3");
+    bags::mcap_to_db3(&mcap_path, &db3_path);
+    let (bag_path, bz2_path) = (valid.join("log.bag"), valid.join("bz2.bag"));
+    bags::ros1_bag(&csv_dir, &bag_path, "none");
+    bags::ros1_bag(&csv_dir, &bz2_path, "bz2");
     let urdf = std::fs::read(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/fixtures/arm.urdf"
@@ -578,6 +591,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "measurements.json",
             kind: Kind::Json,
             valid: set.to_json().into_bytes(),
+            beside: Vec::new(),
             run: Box::new(|path, deep| {
                 let set = io::read_measurements(path).map_err(err)?;
                 if let Ok(s) = explore(&set, &ExploreConfig::default()) {
@@ -596,6 +610,7 @@ fn formats(work: &Path) -> Vec<Format> {
             valid: serde_json::to_string_pretty(&structure)
                 .unwrap()
                 .into_bytes(),
+            beside: Vec::new(),
             run: Box::new(move |path, deep| {
                 let s = io::read_structure(path).map_err(err)?;
                 let _ = limb_chains(&s);
@@ -612,6 +627,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "model.json",
             kind: Kind::Json,
             valid: model_json.into_bytes(),
+            beside: Vec::new(),
             run: Box::new(move |path, _| {
                 let model = io::read_model(path).map_err(err)?;
                 let _ = skincal::predict::validate(&model, &set_for_model, "set");
@@ -630,6 +646,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "robot.toml",
             kind: Kind::Text,
             valid: ARM_TOML.as_bytes().to_vec(),
+            beside: Vec::new(),
             run: Box::new(|path, deep| {
                 let robot =
                     io::load_robot(path.to_str().unwrap(), SuPlacement::default()).map_err(err)?;
@@ -655,6 +672,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "robot.urdf",
             kind: Kind::Text,
             valid: urdf,
+            beside: Vec::new(),
             run: Box::new(move |path, _| {
                 if let Ok((text, alignment)) = io::read_urdf_alignment(&urdf_model, path) {
                     let _ = skincal::align::merge_sus(&alignment, &text, "skin_", false);
@@ -675,6 +693,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "poses.csv",
             kind: Kind::Text,
             valid: pose_csv.as_bytes().to_vec(),
+            beside: Vec::new(),
             run: Box::new(move |path, _| {
                 let table = io::read_poses(path).map_err(err)?;
                 let predictor = Predictor::new(&model_for_poses).map_err(err)?;
@@ -693,6 +712,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "poses.json",
             kind: Kind::Json,
             valid: pose_json.as_bytes().to_vec(),
+            beside: Vec::new(),
             run: Box::new(move |path, _| {
                 let table = io::read_poses(path).map_err(err)?;
                 let predictor = Predictor::new(&model_for_json).map_err(err)?;
@@ -707,6 +727,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "plan.json",
             kind: Kind::Json,
             valid: plan_json.into_bytes(),
+            beside: Vec::new(),
             run: Box::new(move |path, deep| {
                 let plan = io::read_plan(path).map_err(err)?;
                 if deep {
@@ -726,6 +747,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "imu.csv",
             kind: Kind::Text,
             valid: std::fs::read(csv_dir.join("imu.csv")).unwrap(),
+            beside: vec![csv_dir.join("joint_states.csv")],
             run: Box::new(ingest_log),
         },
         Format {
@@ -733,6 +755,7 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "joint_states.csv",
             kind: Kind::Text,
             valid: std::fs::read(csv_dir.join("joint_states.csv")).unwrap(),
+            beside: vec![csv_dir.join("imu.csv")],
             run: Box::new(ingest_log),
         },
         Format {
@@ -740,9 +763,79 @@ fn formats(work: &Path) -> Vec<Format> {
             file: "log.mcap",
             kind: Kind::Binary,
             valid: std::fs::read(&mcap_path).unwrap(),
+            beside: Vec::new(),
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "mcap raw",
+            file: "raw.mcap",
+            kind: Kind::Binary,
+            valid: exposed(&mcap_path),
+            beside: Vec::new(),
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "mcap batches",
+            file: "batches.mcap",
+            kind: Kind::Binary,
+            valid: exposed(&batches_path),
+            beside: Vec::new(),
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "rosbag2 yaml",
+            file: "metadata.yaml",
+            kind: Kind::Text,
+            valid: std::fs::read(rosbag2_dir.join("metadata.yaml")).unwrap(),
+            beside: vec![rosbag2_dir.join("bag_0.mcap")],
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "rosbag2 db3",
+            file: "log.db3",
+            kind: Kind::Binary,
+            valid: std::fs::read(&db3_path).unwrap(),
+            beside: Vec::new(),
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "ros1 bag",
+            file: "log.bag",
+            kind: Kind::Binary,
+            valid: std::fs::read(&bag_path).unwrap(),
+            beside: Vec::new(),
+            run: Box::new(ingest_log),
+        },
+        Format {
+            name: "ros1 bag bz2",
+            file: "bz2.bag",
+            kind: Kind::Binary,
+            valid: std::fs::read(&bz2_path).unwrap(),
+            beside: Vec::new(),
             run: Box::new(ingest_log),
         },
     ]
+}
+
+/// The MCAP log at `path` again, its chunks neither compressed nor checked by a CRC, so that
+/// mutations reach the records and messages rather than the decompressor or the checksum.
+fn exposed(path: &Path) -> Vec<u8> {
+    let bytes = std::fs::read(path).unwrap();
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut writer = mcap::WriteOptions::new()
+        .compression(None)
+        .calculate_chunk_crcs(false)
+        .calculate_data_section_crc(false)
+        .calculate_summary_section_crc(false)
+        .chunk_size(Some(16 << 10))
+        .create(&mut out)
+        .unwrap();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        writer.write(&message.unwrap()).unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    out.into_inner()
 }
 
 #[test]

@@ -4,6 +4,8 @@
 
 use std::path::Path;
 
+use crate::bags::{mcap_to_db3, ros1_bag, rosbag2};
+
 use nalgebra::Vector3;
 use skincal::estimate::body::calibrate_body;
 use skincal::estimate::ml::MlConfig;
@@ -625,21 +627,6 @@ fn recorded_imu_messages_carry_exact_millisecond_stamps_and_the_noise_covariance
     assert_eq!(first_seen, Some(first));
 }
 
-/// A rosbag2 directory of `files` (copied in) stored as MCAP, as `ros2 bag record -s mcap` writes.
-fn rosbag2(dir: &Path, files: &[&Path]) {
-    std::fs::create_dir_all(dir).unwrap();
-    let mut listed = String::new();
-    for (i, f) in files.iter().enumerate() {
-        let name = format!("bag_{i}.mcap");
-        std::fs::copy(f, dir.join(&name)).unwrap();
-        listed.push_str(&format!("    - {name}\n"));
-    }
-    let metadata = format!(
-        "rosbag2_bagfile_information:\n  version: 8\n  storage_identifier: mcap\n  duration:\n    nanoseconds: 1\n  relative_file_paths:\n{listed}  topics_with_message_count: []\n"
-    );
-    std::fs::write(dir.join("metadata.yaml"), metadata).unwrap();
-}
-
 #[test]
 fn rosbag2_bags_in_mcap_and_sqlite_read_as_one_log_and_other_formats_say_what_they_are() {
     let robot = robot("paper-7dof");
@@ -774,46 +761,6 @@ fn rosbag2_bags_in_mcap_and_sqlite_read_as_one_log_and_other_formats_say_what_th
     );
 }
 
-/// A rosbag2 SQLite file (`.db3`) with the messages of the MCAP file `mcap`, in the tables
-/// rosbag2 writes (`topics`, `messages`; receive time as the timestamp).
-fn mcap_to_db3(mcap: &Path, db3: &Path) {
-    let bytes = std::fs::read(mcap).unwrap();
-    let db = rusqlite::Connection::open(db3).unwrap();
-    db.execute_batch(
-        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
-         serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL); \
-         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, \
-         timestamp INTEGER NOT NULL, data BLOB NOT NULL); \
-         CREATE INDEX timestamp_idx ON messages (timestamp ASC); BEGIN;",
-    )
-    .unwrap();
-    let mut ids = std::collections::HashMap::new();
-    for message in mcap::MessageStream::new(&bytes).unwrap() {
-        let message = message.unwrap();
-        let channel = &message.channel;
-        let next = ids.len() as i64 + 1;
-        let id = *ids.entry(channel.topic.clone()).or_insert_with(|| {
-            let kind = channel
-                .schema
-                .as_ref()
-                .map(|s| s.name.clone())
-                .unwrap_or_default();
-            db.execute(
-                "INSERT INTO topics VALUES (?1, ?2, ?3, ?4, '')",
-                rusqlite::params![next, channel.topic, kind, channel.message_encoding],
-            )
-            .unwrap();
-            next
-        });
-        db.execute(
-            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
-            rusqlite::params![id, message.log_time as i64, &message.data[..]],
-        )
-        .unwrap();
-    }
-    db.execute_batch("COMMIT;").unwrap();
-}
-
 #[test]
 fn imu_batches_read_like_one_message_per_su() {
     // A skin driver that publishes every SU of a time step in one skin_msgs/ImuArray: the same
@@ -887,22 +834,9 @@ fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
         )
     };
     let from_csv = read(&csv).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros1_bag.py");
-    let python = crate::common::test_python();
     for compression in ["none", "bz2", "lz4"] {
         let bag = dir.path().join(format!("{compression}.bag"));
-        let out = std::process::Command::new(&python)
-            .arg(&script)
-            .arg(&csv)
-            .arg(&bag)
-            .args(["--compression", compression])
-            .output()
-            .expect("run the tests with `cargo xtask test`, which makes the Python environment");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        ros1_bag(&csv, &bag, compression);
         let from_bag = read(&bag).unwrap();
         let (a, b) = (&from_csv.measurements, &from_bag.measurements);
         assert_eq!(from_bag.report.logs[0].format, "ros1 bag");

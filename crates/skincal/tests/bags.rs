@@ -1,0 +1,77 @@
+//! Logs in the formats other tools write, made from the logs skincal records: rosbag2 directories
+//! and SQLite files, and ROS 1 bags written by the `rosbags` Python package.
+
+use std::path::Path;
+
+/// A rosbag2 directory of `files` (copied in) stored as MCAP, as `ros2 bag record -s mcap` writes.
+pub fn rosbag2(dir: &Path, files: &[&Path]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut listed = String::new();
+    for (i, f) in files.iter().enumerate() {
+        let name = format!("bag_{i}.mcap");
+        std::fs::copy(f, dir.join(&name)).unwrap();
+        listed.push_str(&format!("    - {name}\n"));
+    }
+    let metadata = format!(
+        "rosbag2_bagfile_information:\n  version: 8\n  storage_identifier: mcap\n  duration:\n    nanoseconds: 1\n  relative_file_paths:\n{listed}  topics_with_message_count: []\n"
+    );
+    std::fs::write(dir.join("metadata.yaml"), metadata).unwrap();
+}
+
+/// A rosbag2 SQLite file (`.db3`) with the messages of the MCAP file `mcap`, in the tables
+/// rosbag2 writes (`topics`, `messages`; receive time as the timestamp).
+pub fn mcap_to_db3(mcap: &Path, db3: &Path) {
+    let bytes = std::fs::read(mcap).unwrap();
+    let db = rusqlite::Connection::open(db3).unwrap();
+    db.execute_batch(
+        "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL, \
+         serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL); \
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL, \
+         timestamp INTEGER NOT NULL, data BLOB NOT NULL); \
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC); BEGIN;",
+    )
+    .unwrap();
+    let mut ids = std::collections::HashMap::new();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let channel = &message.channel;
+        let next = ids.len() as i64 + 1;
+        let id = *ids.entry(channel.topic.clone()).or_insert_with(|| {
+            let kind = channel
+                .schema
+                .as_ref()
+                .map(|s| s.name.clone())
+                .unwrap_or_default();
+            db.execute(
+                "INSERT INTO topics VALUES (?1, ?2, ?3, ?4, '')",
+                rusqlite::params![next, channel.topic, kind, channel.message_encoding],
+            )
+            .unwrap();
+            next
+        });
+        db.execute(
+            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![id, message.log_time as i64, &message.data[..]],
+        )
+        .unwrap();
+    }
+    db.execute_batch("COMMIT;").unwrap();
+}
+
+/// A ROS 1 bag of the CSV log `csv`, with chunks compressed by `compression` (`none`, `bz2` or
+/// `lz4`), written by the `rosbags` Python package (an independent implementation of the format).
+pub fn ros1_bag(csv: &Path, bag: &Path, compression: &str) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros1_bag.py");
+    let out = std::process::Command::new(crate::common::test_python())
+        .arg(&script)
+        .arg(csv)
+        .arg(bag)
+        .args(["--compression", compression])
+        .output()
+        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
