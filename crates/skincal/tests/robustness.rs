@@ -560,6 +560,66 @@ fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
 }
 
 #[test]
+fn skin_batches_whose_lengths_claim_gigabytes_are_counted_not_allocated() {
+    // Regression: a skin_msgs/ImuArray whose frame id claimed 2.9 GB made the CDR decoder
+    // reserve it (an abort where memory is capped, seconds of work elsewhere). Written through
+    // the MCAP writer, so that the chunks' CRCs hold and only the messages are damaged.
+    use skincal::log::mcap::{Compression, McapSink};
+    use skincal::log::Topics;
+    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+    use skincal::sim::timeseries::{record, LogConfig};
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("batches.mcap");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false).batched();
+    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let whole = ingest(
+        std::slice::from_ref(&path),
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let damaged = dir.path().join("damaged.mcap");
+    let mut writer = mcap::Writer::new(std::io::BufWriter::new(
+        std::fs::File::create(&damaged).unwrap(),
+    ))
+    .unwrap();
+    let mut batches = 0;
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let mut message = message.unwrap();
+        if message.channel.topic == Topics::default().imu {
+            batches += 1;
+            let mut data = message.data.into_owned();
+            // After the encapsulation (4) and the stamp (8): the batch's frame id length; after
+            // the empty frame id (4 + 1, aligned to 4 → 20): the count of Imu messages.
+            match batches {
+                100 => data[12..16].copy_from_slice(&0xAB00_0000u32.to_le_bytes()),
+                200 => data[20..24].copy_from_slice(&0xAB00_0000u32.to_le_bytes()),
+                _ => {}
+            }
+            message.data = data.into();
+        }
+        writer.write(&message).unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    let read = ingest(&[damaged], &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let (before, after) = (&whole.report.logs[0], &read.report.logs[0]);
+    let sus = robot.model.su_names().len() as u64;
+    assert_eq!(after.imu_read.undecodable, 2);
+    assert_eq!(after.imu_read.samples, before.imu_read.samples - 2 * sus);
+    let problem = after.imu_read.first_problem.as_deref().unwrap();
+    assert!(problem.contains("longer than the message"), "{problem}");
+}
+
+#[test]
 fn csv_logs_that_are_not_text_or_have_no_line_ends_are_refused_by_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
     let header = "stamp,frame_id,ax,ay,az\n0.0,su1,0,0,9.81\n";
