@@ -620,6 +620,96 @@ fn skin_batches_whose_lengths_claim_gigabytes_are_counted_not_allocated() {
 }
 
 #[test]
+fn non_finite_samples_and_joint_states_are_counted_not_averaged_in() {
+    // Drivers publish NaN for a reading they could not take. One Imu sample in fifty with a NaN
+    // or infinite component, and one joint state in a hundred with a NaN position: counted as
+    // undecodable, and the readings are those of the log without them.
+    use skincal::log::mcap::{Compression, McapSink};
+    use skincal::log::ros::{imu_fields, JointState};
+    use skincal::log::Topics;
+    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+    use skincal::sim::timeseries::{record, LogConfig};
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("log.mcap");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
+    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let read = |path: &Path| {
+        ingest(
+            std::slice::from_ref(&path.to_path_buf()),
+            &IngestConfig::default(),
+            &mut |_, _, _| {},
+        )
+    };
+    let whole = read(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let damaged = dir.path().join("nan.mcap");
+    let mut writer = mcap::Writer::new(std::io::BufWriter::new(
+        std::fs::File::create(&damaged).unwrap(),
+    ))
+    .unwrap();
+    let (mut imus, mut joints) = (0, 0);
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let mut message = message.unwrap();
+        let mut data = message.data.into_owned();
+        if message.channel.topic == Topics::default().imu {
+            imus += 1;
+            if imus % 50 == 0 {
+                // The acceleration is the last 24 + 72 bytes before the covariance's end.
+                let f = imu_fields(&data).unwrap();
+                let at = data.len() - 72 - 24 + 8 * (imus / 50 % 3);
+                let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][imus / 50 % 3];
+                assert_eq!(
+                    f64::from_le_bytes(data[at..at + 8].try_into().unwrap()),
+                    f.linear_acceleration[imus / 50 % 3]
+                );
+                data[at..at + 8].copy_from_slice(&bad.to_le_bytes());
+            }
+        } else if message.channel.topic == Topics::default().joints {
+            joints += 1;
+            if joints % 100 == 0 {
+                let mut j: JointState = skincal::log::ros::decode(&data).unwrap();
+                let d = joints / 100 % j.position.len();
+                j.position[d] = f64::NAN;
+                data = skincal::log::ros::encode(&j).unwrap();
+            }
+        }
+        message.data = data.into();
+        writer.write(&message).unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    let got = read(&damaged).unwrap();
+    let (before, after) = (&whole.report.logs[0], &got.report.logs[0]);
+    assert_eq!(after.imu_read.undecodable, (imus / 50) as u64, "{after:?}");
+    assert_eq!(
+        after.joint_read.undecodable,
+        (joints / 100) as u64,
+        "{after:?}"
+    );
+    assert_eq!(after.still_windows, before.still_windows);
+    let orientations = |m: &MeasurementSet| m.structure.as_ref().unwrap().orientations.clone();
+    let (a, b) = (
+        orientations(&whole.measurements),
+        orientations(&got.measurements),
+    );
+    assert_eq!(a.len(), b.len());
+    for (a, b) in a.iter().zip(&b) {
+        for (ra, rb) in a.rest.iter().zip(&b.rest) {
+            for (x, y) in ra.iter().zip(rb) {
+                assert!(y.is_finite() && (x - y).abs() < 0.01, "{x} {y}");
+            }
+        }
+    }
+}
+
+#[test]
 fn csv_logs_that_are_not_text_or_have_no_line_ends_are_refused_by_file_and_line() {
     let dir = tempfile::tempdir().unwrap();
     let header = "stamp,frame_id,ax,ay,az\n0.0,su1,0,0,9.81\n";

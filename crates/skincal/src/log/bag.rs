@@ -9,7 +9,9 @@ use std::path::Path;
 
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
-use super::{LogError, PassStats, Sample, Stream, Topics};
+use super::{
+    LogError, PassStats, Sample, Stream, Topics, NON_FINITE_ACCELERATION, NON_FINITE_POSITION,
+};
 
 /// ROS 1's name of the Imu type.
 const IMU: &str = "sensor_msgs/Imu";
@@ -139,6 +141,9 @@ fn read_checked(
                 }
                 MessageRecord::MessageData(m) => match kinds.get(&m.conn_id) {
                     Some(Kind::Imu) if stream.imu() => match imu(m.data) {
+                        Some((_, _, a)) if !a.iter().all(|v| v.is_finite()) => stats
+                            .imu
+                            .problem(format!("{}: {NON_FINITE_ACCELERATION}", topics.imu)),
                         Some((stamp, frame_id, acceleration)) => {
                             stats.imu.samples += 1;
                             visit(Sample::Imu {
@@ -153,6 +158,11 @@ fn read_checked(
                     },
                     Some(Kind::Joints) if stream.joints() => {
                         match joint_state(m.data, &mut names, &mut positions) {
+                            Some(_) if !positions.iter().all(|q| q.is_finite()) => {
+                                stats
+                                    .joints
+                                    .problem(format!("{}: {NON_FINITE_POSITION}", topics.joints));
+                            }
                             Some(stamp) => {
                                 stats.joints.samples += 1;
                                 visit(Sample::Joints {

@@ -321,6 +321,12 @@ pub(crate) fn deliver(
                     ));
                     return Ok(());
                 }
+                if !joint.position.iter().all(|q| q.is_finite()) {
+                    stats
+                        .joints
+                        .problem(format!("{}: {NON_FINITE_POSITION}", topics.joints));
+                    return Ok(());
+                }
                 stats.joints.samples += 1;
                 visit(Sample::Joints {
                     stamp: joint.header.stamp.seconds(),
@@ -353,8 +359,15 @@ pub(crate) fn deliver(
     Ok(())
 }
 
-/// One accelerometer sample, read in place from the CDR `message`, to `visit`, counted; one whose
-/// frame id is not UTF-8 is counted as a problem.
+/// Why a skin sample is not used: drivers publish NaN for a reading they could not take.
+pub(crate) const NON_FINITE_ACCELERATION: &str =
+    "a sample with a non-finite acceleration (NaN or infinite: a reading the driver could not take)";
+/// Why a joint state is not used.
+pub(crate) const NON_FINITE_POSITION: &str =
+    "a joint state with a non-finite position (NaN or infinite: a reading the driver could not take)";
+
+/// One accelerometer sample, read in place from the CDR `message`, to `visit`, counted; one with
+/// a non-finite component or whose frame id is not UTF-8 is counted as a problem.
 fn imu_sample(
     m: ros::ImuFields,
     message: &[u8],
@@ -363,6 +376,12 @@ fn imu_sample(
     topics: &Topics,
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
 ) -> Result<(), LogError> {
+    if !m.linear_acceleration.iter().all(|v| v.is_finite()) {
+        stats
+            .imu
+            .problem(format!("{}: {NON_FINITE_ACCELERATION}", topics.imu));
+        return Ok(());
+    }
     let frame = &message[m.frame.0 as usize..m.frame.1 as usize];
     match frames.name(frame) {
         Ok(frame_id) => {
