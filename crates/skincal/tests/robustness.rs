@@ -466,7 +466,7 @@ fn structure_log(dir: &Path) -> std::path::PathBuf {
 }
 
 #[test]
-fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
+fn logs_with_stamps_in_ms_are_errors_not_empty_results() {
     let dir = tempfile::tempdir().unwrap();
     let log = structure_log(dir.path());
     // Stamps in ms: every stamp × 1000.
@@ -495,7 +495,14 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
         e.contains("ms") && e.contains("seconds") && e.contains("/ms"),
         "{e}"
     );
-    // The SU su3 never sends a sample, but the robot says it is there.
+}
+
+#[test]
+fn an_su_the_robot_lists_but_the_log_never_holds_is_left_out_by_name() {
+    // Regression: one dead SU made every pose be skipped ("SU `su3` has no sample in its still
+    // windows"), so a skin with one broken unit gave no measurement set at all.
+    let dir = tempfile::tempdir().unwrap();
+    let log = structure_log(dir.path());
     let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
     let without: String = text
         .lines()
@@ -504,15 +511,31 @@ fn logs_with_stamps_in_ms_or_a_missing_su_are_errors_not_empty_results() {
         .collect();
     std::fs::write(log.join("imu.csv"), without).unwrap();
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let config = IngestConfig {
-        sus: Some(robot.model.su_names()),
-        ..IngestConfig::default()
+    let read = |sus: Option<Vec<String>>| {
+        let config = IngestConfig {
+            sus,
+            ..IngestConfig::default()
+        };
+        ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {}).unwrap()
     };
-    let e = ingest_error(&log, &config);
+    let listed = read(Some(robot.model.su_names()));
+    let warning = listed
+        .report
+        .warnings
+        .iter()
+        .find(|w| w.contains("`su3`"))
+        .expect("a warning names su3");
     assert!(
-        e.contains("su3") && e.contains("skipped") && e.contains("/log"),
-        "{e}"
+        warning.starts_with("1 SU has no sample") && warning.contains("left out"),
+        "{warning}"
     );
+    let mut expected = robot.model.su_names();
+    expected.retain(|s| s != "su3");
+    assert_eq!(listed.measurements.sus, expected);
+    // The others' readings are those of the log read without the robot's list.
+    let found = read(None);
+    assert_eq!(found.measurements.sus, expected);
+    assert_eq!(listed.measurements.structure, found.measurements.structure);
 }
 
 #[test]

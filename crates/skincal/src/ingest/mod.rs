@@ -449,6 +449,7 @@ fn ingest_logs(
         }
     };
 
+    let silent = sus.leave_out_silent(&mut accumulators);
     let passes = Passes {
         config,
         dofs: &dofs,
@@ -457,7 +458,7 @@ fn ingest_logs(
         segs: &plans,
         accumulated: &accumulators,
         reports,
-        warnings: Vec::new(),
+        warnings: silent.into_iter().collect(),
         variance: None,
         moved_by: None,
     };

@@ -50,6 +50,73 @@ impl SuRegistry {
     }
 }
 
+/// Most SU names a warning lists.
+const NAMED: usize = 10;
+
+impl SuRegistry {
+    /// Leaves out the SUs that have no sample in any window of any log (a unit that is broken,
+    /// unplugged or only ever sent NaN; one the robot lists but the logs do not hold), so that the
+    /// others' poses are not all skipped for want of it; re-indexes `accumulated` to match, and
+    /// returns a warning naming them. Nothing is left out when no SU has a sample.
+    pub(super) fn leave_out_silent(&mut self, accumulated: &mut [Accumulated]) -> Option<String> {
+        let heard = |su: usize| {
+            accumulated.iter().any(|acc| {
+                acc.stills
+                    .iter()
+                    .any(|w| w.get(su).is_some_and(|s| s.n > 0))
+                    || acc
+                        .fits
+                        .iter()
+                        .any(|w| w.get(su).is_some_and(|f| f.samples > 0))
+            })
+        };
+        let (kept, silent): (Vec<usize>, Vec<usize>) =
+            (0..self.names.len()).partition(|&su| heard(su));
+        if silent.is_empty() || kept.is_empty() {
+            return None;
+        }
+        // `kept` is sorted: the kept SUs a window has entries for come first.
+        fn compact<T: Clone>(v: &mut Vec<T>, kept: &[usize]) {
+            *v = kept
+                .iter()
+                .take_while(|&&su| su < v.len())
+                .map(|&su| v[su].clone())
+                .collect();
+        }
+        for acc in accumulated.iter_mut() {
+            acc.stills.iter_mut().for_each(|w| compact(w, &kept));
+            acc.fits.iter_mut().for_each(|w| compact(w, &kept));
+        }
+        let mut names: Vec<String> = silent
+            .iter()
+            .map(|&su| format!("`{}`", self.names[su]))
+            .collect();
+        if names.len() > NAMED {
+            let more = names.len() - NAMED;
+            names.truncate(NAMED);
+            names.push(format!("{more} more"));
+        }
+        self.names = kept.iter().map(|&su| self.names[su].clone()).collect();
+        self.index = self
+            .names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.clone(), i))
+            .collect();
+        let count = match silent.len() {
+            1 => "1 SU has".to_string(),
+            n => format!("{n} SUs have"),
+        };
+        Some(format!(
+            "{count} no sample in any still or excitation window of the logs (broken, unplugged, \
+             sending only NaN, or not on the part recorded): left out of the measurement set, \
+             which holds the other {}: {}",
+            kept.len(),
+            names.join(", ")
+        ))
+    }
+}
+
 /// Per SU, the running sums of a still window.
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct StillSum {
