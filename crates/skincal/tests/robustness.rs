@@ -498,6 +498,40 @@ fn logs_with_stamps_in_ms_are_errors_not_empty_results() {
 }
 
 #[test]
+fn skin_stamped_by_another_clock_than_the_joints_is_an_error_that_says_so() {
+    // Regression: a skin driver stamping with its own clock, 1000 s off ROS time, gave "training
+    // pose skipped: SU `su1` has no sample in its still windows".
+    let dir = tempfile::tempdir().unwrap();
+    let log = structure_log(dir.path());
+    let shifted = |by: f64| {
+        let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
+        let mut lines = text.lines();
+        let mut out = format!("{}\n", lines.next().unwrap());
+        for l in lines {
+            let (stamp, rest) = l.split_once(',').unwrap();
+            let t: f64 = stamp.parse().unwrap();
+            out.push_str(&format!("{:.6},{rest}\n", t + by));
+        }
+        let moved = dir.path().join(format!("shifted{by}"));
+        std::fs::create_dir_all(&moved).unwrap();
+        std::fs::write(moved.join("imu.csv"), out).unwrap();
+        std::fs::copy(log.join("joint_states.csv"), moved.join("joint_states.csv")).unwrap();
+        moved
+    };
+    let e = ingest_error(&shifted(-1000.0), &IngestConfig::default());
+    assert!(
+        e.contains("shifted-1000")
+            && e.contains("different clocks")
+            && e.contains("(-1000.000 s apart)"),
+        "{e}"
+    );
+    // A skin that starts late is not another clock: its samples outside are counted.
+    let late = ingest(&[shifted(0.5)], &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let report = &late.report.logs[0];
+    assert!(report.imu_outside > 0 && report.imu_outside * 10 < report.imu_samples);
+}
+
+#[test]
 fn an_su_the_robot_lists_but_the_log_never_holds_is_left_out_by_name() {
     // Regression: one dead SU made every pose be skipped ("SU `su3` has no sample in its still
     // windows"), so a skin with one broken unit gave no measurement set at all.

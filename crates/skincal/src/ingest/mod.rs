@@ -245,6 +245,11 @@ pub struct LogReport {
     pub unsorted_imu_stamps: u64,
     /// SU samples outside the time covered by the joint states.
     pub imu_outside: u64,
+    /// The first joint state's stamp, s (the log's clock, often since the epoch).
+    pub joint_start: f64,
+    /// The earliest and the latest stamp of the samples of known SUs, s (the log's clock).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub imu_span: Option<[f64; 2]>,
     /// Saturated SU samples inside still and excitation windows (not used), by SU.
     pub saturated: BTreeMap<String, u64>,
     /// Missing SU samples inside excitation windows, filled by linear interpolation.
@@ -420,6 +425,8 @@ fn ingest_logs(
                 )?
             }
         };
+        report.joint_start = log.grid.t0;
+        one_clock(path, &report)?;
         grids.push(log.grid);
         plans.push(log.seg);
         accumulators.push(log.acc);
@@ -463,6 +470,30 @@ fn ingest_logs(
         moved_by: None,
     };
     assemble(passes, pattern, pattern_source)
+}
+
+/// An error when most skin samples of the log at `path` lie outside the joint states' time: the
+/// two were stamped by different clocks (a driver's own clock against ROS time), and every window
+/// would be empty.
+fn one_clock(path: &Path, report: &LogReport) -> Result<(), IngestError> {
+    let Some([first, last]) = report.imu_span else {
+        return Ok(());
+    };
+    if report.imu_outside * 2 <= report.imu_samples {
+        return Ok(());
+    }
+    let (start, end) = (report.joint_start, report.joint_start + report.duration);
+    let apart = (first + last) / 2.0 - (start + end) / 2.0;
+    Err(IngestError::Unusable {
+        path: path.to_path_buf(),
+        reason: format!(
+            "{} of {} skin samples are stamped outside the joint states' time: the joint states \
+             run from {start:.3} to {end:.3} s, the skin samples from {first:.3} to {last:.3} s \
+             ({apart:+.3} s apart); they were stamped by different clocks: stamp both with one \
+             clock (ROS time, the header stamp of each message), or shift one file's stamps",
+            report.imu_outside, report.imu_samples
+        ),
+    })
 }
 
 /// The log at `path` read twice: its joint states (put on the grid and segmented), then its skin

@@ -171,6 +171,8 @@ pub(super) struct Router {
     route: usize,
     saturated: HashMap<usize, u64>,
     filled: u64,
+    /// The earliest and latest stamp of the samples of known SUs.
+    span: Option<(f64, f64)>,
 }
 
 impl Router {
@@ -191,6 +193,10 @@ impl Router {
             return None;
         };
         self.hint = su + 1;
+        self.span = match self.span {
+            Some((first, last)) => Some((first.min(stamp), last.max(stamp))),
+            None => Some((stamp, stamp)),
+        };
         grow(&mut self.last_stamp, su + 1);
         if stamp < self.last_stamp[su] {
             report.unsorted_imu_stamps += 1;
@@ -292,6 +298,7 @@ impl Router {
             }
         }
         report.filled = self.filled;
+        report.imu_span = self.span.map(|(first, last)| [first, last]);
         for (su, count) in self.saturated {
             report.saturated.insert(sus.names[su].clone(), count);
         }
