@@ -570,6 +570,33 @@ fn an_su_the_robot_lists_but_the_log_never_holds_is_left_out_by_name() {
     let found = read(None);
     assert_eq!(found.measurements.sus, expected);
     assert_eq!(listed.measurements.structure, found.measurements.structure);
+    // A skin driver that names its SUs otherwise: when none is the robot's, an error lists the
+    // log's names; when some are, the warning points at the others.
+    let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
+    std::fs::write(log.join("imu.csv"), text.replace(",su", ",skin/su")).unwrap();
+    let config = IngestConfig {
+        sus: Some(robot.model.su_names()),
+        ..IngestConfig::default()
+    };
+    let e = ingest_error(&log, &config);
+    assert!(
+        e.contains("no SU listed (`su1`, `su2`")
+            && e.contains("`skin/su1`, `skin/su2`")
+            && e.contains("/log"),
+        "{e}"
+    );
+    let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
+    std::fs::write(log.join("imu.csv"), text.replace(",skin/su1,", ",su1,")).unwrap();
+    let one = read(Some(robot.model.su_names()));
+    assert_eq!(one.measurements.sus, ["su1"]);
+    let warning = &one.report.warnings[0];
+    assert!(
+        warning.starts_with("6 SUs have no sample")
+            && warning.contains("`su2`, `su3`, `su4`")
+            && warning.contains("`skin/su2`, `skin/su4`")
+            && warning.contains("other names?"),
+        "{warning}"
+    );
 }
 
 #[test]

@@ -59,7 +59,7 @@ use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use assemble::{assemble, Passes};
 use pass::{one_pass, LogPass};
 use segment::{estimate_pattern, segment};
-use skin::{read_skin, SuRegistry};
+use skin::{leave_out_silent, read_skin, SuRegistry};
 use timeline::read_joints;
 
 /// Errors of an ingestion.
@@ -456,7 +456,7 @@ fn ingest_logs(
         }
     };
 
-    let silent = sus.leave_out_silent(&mut accumulators);
+    let silent = leave_out_silent(&mut sus, &mut accumulators, &reports)?;
     let passes = Passes {
         config,
         dofs: &dofs,

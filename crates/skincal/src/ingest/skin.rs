@@ -1,6 +1,6 @@
 //! The skin samples, routed to the windows they fall in.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use super::fit::Excitation;
@@ -50,15 +50,23 @@ impl SuRegistry {
     }
 }
 
-/// Most SU names a warning lists.
+/// Most names a message lists.
 const NAMED: usize = 10;
 
+/// `names` as a list for a message: the first [`NAMED`], then how many more.
+fn listed<'a>(names: impl ExactSizeIterator<Item = &'a str>) -> String {
+    let more = names.len().saturating_sub(NAMED);
+    let mut list: Vec<String> = names.take(NAMED).map(|n| format!("`{n}`")).collect();
+    if more > 0 {
+        list.push(format!("{more} more"));
+    }
+    list.join(", ")
+}
+
 impl SuRegistry {
-    /// Leaves out the SUs that have no sample in any window of any log (a unit that is broken,
-    /// unplugged or only ever sent NaN; one the robot lists but the logs do not hold), so that the
-    /// others' poses are not all skipped for want of it; re-indexes `accumulated` to match, and
-    /// returns a warning naming them. Nothing is left out when no SU has a sample.
-    pub(super) fn leave_out_silent(&mut self, accumulated: &mut [Accumulated]) -> Option<String> {
+    /// The SUs that have no sample in any window of any log: a unit that is broken, unplugged or
+    /// only ever sent NaN, one the robot lists but the logs do not hold, or one under another name.
+    pub(super) fn silent(&self, accumulated: &[Accumulated]) -> Vec<usize> {
         let heard = |su: usize| {
             accumulated.iter().any(|acc| {
                 acc.stills
@@ -70,11 +78,19 @@ impl SuRegistry {
                         .any(|w| w.get(su).is_some_and(|f| f.samples > 0))
             })
         };
-        let (kept, silent): (Vec<usize>, Vec<usize>) =
-            (0..self.names.len()).partition(|&su| heard(su));
-        if silent.is_empty() || kept.is_empty() {
-            return None;
-        }
+        (0..self.names.len()).filter(|&su| !heard(su)).collect()
+    }
+
+    /// Leaves out the SUs `silent` (sorted), so that the others' poses are not all skipped for want
+    /// of them, and re-indexes `accumulated` to match; returns the names left out.
+    pub(super) fn leave_out(
+        &mut self,
+        silent: &[usize],
+        accumulated: &mut [Accumulated],
+    ) -> Vec<String> {
+        let kept: Vec<usize> = (0..self.names.len())
+            .filter(|su| silent.binary_search(su).is_err())
+            .collect();
         // `kept` is sorted: the kept SUs a window has entries for come first.
         fn compact<T: Clone>(v: &mut Vec<T>, kept: &[usize]) {
             *v = kept
@@ -87,15 +103,7 @@ impl SuRegistry {
             acc.stills.iter_mut().for_each(|w| compact(w, &kept));
             acc.fits.iter_mut().for_each(|w| compact(w, &kept));
         }
-        let mut names: Vec<String> = silent
-            .iter()
-            .map(|&su| format!("`{}`", self.names[su]))
-            .collect();
-        if names.len() > NAMED {
-            let more = names.len() - NAMED;
-            names.truncate(NAMED);
-            names.push(format!("{more} more"));
-        }
+        let left_out = silent.iter().map(|&su| self.names[su].clone()).collect();
         self.names = kept.iter().map(|&su| self.names[su].clone()).collect();
         self.index = self
             .names
@@ -103,18 +111,62 @@ impl SuRegistry {
             .enumerate()
             .map(|(i, n)| (n.clone(), i))
             .collect();
-        let count = match silent.len() {
-            1 => "1 SU has".to_string(),
-            n => format!("{n} SUs have"),
-        };
-        Some(format!(
-            "{count} no sample in any still or excitation window of the logs (broken, unplugged, \
-             sending only NaN, or not on the part recorded): left out of the measurement set, \
-             which holds the other {}: {}",
-            kept.len(),
-            names.join(", ")
-        ))
+        left_out
     }
+}
+
+/// Leaves out the SUs with no sample in any window of the logs, with a warning that names them
+/// (and the frame ids the logs hold that are no SU's, which may be the same SUs under other
+/// names); an error when no SU has one but the logs hold other frame ids.
+pub(super) fn leave_out_silent(
+    sus: &mut SuRegistry,
+    accumulated: &mut [Accumulated],
+    reports: &[LogReport],
+) -> Result<Option<String>, IngestError> {
+    let silent = sus.silent(accumulated);
+    if silent.is_empty() {
+        return Ok(None);
+    }
+    let unknown: BTreeMap<&str, u64> = reports.iter().flat_map(|r| &r.unknown_frames).fold(
+        BTreeMap::new(),
+        |mut all, (name, n)| {
+            *all.entry(name.as_str()).or_default() += n;
+            all
+        },
+    );
+    let others = (!unknown.is_empty()).then(|| {
+        format!(
+            "the logs' frame ids that are no SU's: {}",
+            listed(unknown.keys().copied())
+        )
+    });
+    if silent.len() == sus.names.len() {
+        return match others {
+            Some(others) => Err(IngestError::Empty(format!(
+                ": no SU listed ({}) has a sample in the logs; {others}: the skin's frame ids must \
+                 be the robot's SU names",
+                listed(sus.names.iter().map(String::as_str))
+            ))),
+            // The windows will say what is missing.
+            None => Ok(None),
+        };
+    }
+    let kept = sus.names.len() - silent.len();
+    let left_out = sus.leave_out(&silent, accumulated);
+    let count = match left_out.len() {
+        1 => "1 SU has".to_string(),
+        n => format!("{n} SUs have"),
+    };
+    let mut warning = format!(
+        "{count} no sample in any still or excitation window of the logs (broken, unplugged, \
+         sending only NaN, or not on the part recorded): left out of the measurement set, which \
+         holds the other {kept}: {}",
+        listed(left_out.iter().map(String::as_str))
+    );
+    if let Some(others) = others {
+        warning.push_str(&format!("; {others} (the same SUs under other names?)"));
+    }
+    Ok(Some(warning))
 }
 
 /// Per SU, the running sums of a still window.
