@@ -393,6 +393,18 @@ fn dynamic_readings(
         powers: vec![(0.0, 0.0); windows.len()],
     };
     for su in 0..passes.sus.names.len() {
+        // The variance of a point's mean in units of one sample's (1 when the skin and the
+        // joint states run at the same rate; less for a faster skin, which gives several).
+        let (points, inverse) = windows.iter().fold((0u64, 0.0), |(n, i), &xi| {
+            sums[xi]
+                .get(su)
+                .map_or((n, i), |f| (n + f.points, i + f.inverse))
+        });
+        let thinned = if points > 0 {
+            inverse / points as f64
+        } else {
+            1.0
+        };
         let class = &fits.classes[&fits.dropped[su]];
         let rhs: Vec<Vec<[f64; 3]>> = windows
             .iter()
@@ -425,7 +437,7 @@ fn dynamic_readings(
                     Some(column) => (
                         [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha),
                         passes.variance.as_ref().map(|v| {
-                            class.fit.sd_factor(column).powi(2) * v[su]
+                            class.fit.sd_factor(column).powi(2) * v[su] * thinned
                                 + class.fit.rounding_factor(column).powi(2) * rounding
                         }),
                     ),
@@ -434,7 +446,7 @@ fn dynamic_readings(
                         passes
                             .variance
                             .as_ref()
-                            .map(|v| fits.alone[&d].powi(2) * v[su]),
+                            .map(|v| fits.alone[&d].powi(2) * v[su] * thinned),
                     ),
                 };
                 out.dynamic.entry(name.clone()).or_default().push(reading);

@@ -177,16 +177,82 @@ pub(super) struct StillSum {
     pub(super) squares: [f64; 3],
 }
 
-/// Per SU, the right-hand sides of an excitation's normal equations and the last sample seen.
+/// Per SU, the right-hand sides of an excitation's normal equations, from the mean of the
+/// samples at each grid point: a skin faster than the joint states gives several per point.
 #[derive(Debug, Clone, Default)]
 pub(super) struct FitSum {
     /// One per term of the window's model.
     pub(super) rhs: Vec<[f64; 3]>,
-    pub(super) last: Option<(usize, [f64; 3])>,
+    /// The newest grid point with samples (in the window), their sum and number: their mean
+    /// goes into `rhs` once a later point has a sample, or the window ends.
+    newest: Option<(usize, [f64; 3], u32)>,
+    /// Samples routed here.
     pub(super) samples: u64,
+    /// Grid points with samples, and the sum over them of one over their number of samples (the
+    /// variance of their means in units of one sample's).
+    pub(super) points: u64,
+    pub(super) inverse: f64,
 }
 
 impl FitSum {
+    /// A sample at point `local` of window `x`; returns the points filled by linear
+    /// interpolation (the gap since the newest point, or the window's start).
+    fn sample(&mut self, x: &Excitation, local: usize, a: [f64; 3]) -> u64 {
+        self.samples += 1;
+        match &mut self.newest {
+            Some((p, sum, k)) if *p == local => {
+                for (s, v) in sum.iter_mut().zip(a) {
+                    *s += v;
+                }
+                *k += 1;
+                0
+            }
+            &mut Some((p, sum, k)) if p < local => {
+                let value = sum.map(|s| s / f64::from(k));
+                self.mean(x, p, value, k);
+                for j in p + 1..local {
+                    let u = (j - p) as f64 / (local - p) as f64;
+                    self.add(x, j, [0, 1, 2].map(|i| value[i] + (a[i] - value[i]) * u));
+                }
+                self.newest = Some((local, a, 1));
+                (local - p - 1) as u64
+            }
+            // Earlier than the newest point (stamps out of order): on its own.
+            Some(_) => {
+                self.mean(x, local, a, 1);
+                0
+            }
+            None => {
+                for j in 0..local {
+                    self.add(x, j, a);
+                }
+                self.newest = Some((local, a, 1));
+                local as u64
+            }
+        }
+    }
+
+    /// The window's end: the newest point's mean added and the points after it filled with it;
+    /// returns how many were filled.
+    fn end(&mut self, x: &Excitation) -> u64 {
+        let Some((p, sum, k)) = self.newest.take() else {
+            return 0;
+        };
+        let value = sum.map(|s| s / f64::from(k));
+        self.mean(x, p, value, k);
+        for j in p + 1..x.len() {
+            self.add(x, j, value);
+        }
+        (x.len() - p - 1) as u64
+    }
+
+    /// The mean `value` of `k` samples at point `m`.
+    fn mean(&mut self, x: &Excitation, m: usize, value: [f64; 3], k: u32) {
+        self.add(x, m, value);
+        self.points += 1;
+        self.inverse += 1.0 / f64::from(k);
+    }
+
     fn add(&mut self, x: &Excitation, m: usize, a: [f64; 3]) {
         let nc = x.terms.len();
         if self.rhs.len() < nc {
@@ -299,32 +365,7 @@ impl Router {
             grow(&mut self.acc.fits, w + 1);
             let fits = &mut self.acc.fits[w];
             grow(fits, su + 1);
-            let f = &mut fits[su];
-            let local = m - start;
-            match f.last {
-                Some((prev, _)) if prev == local => return,
-                Some((prev, value)) if prev + 1 < local => {
-                    // Missing samples: linear interpolation.
-                    for j in prev + 1..local {
-                        let u = (j - prev) as f64 / (local - prev) as f64;
-                        let v = [0, 1, 2].map(|k| value[k] + (acceleration[k] - value[k]) * u);
-                        f.add(x, j, v);
-                        self.filled += 1;
-                    }
-                }
-                None if local > 0 => {
-                    for j in 0..local {
-                        f.add(x, j, acceleration);
-                        self.filled += 1;
-                    }
-                }
-                _ => {}
-            }
-            f.add(x, local, acceleration);
-            f.samples += 1;
-            if f.last.is_none_or(|(prev, _)| local > prev) {
-                f.last = Some((local, acceleration));
-            }
+            self.filled += fits[su].sample(x, m - start, acceleration);
         }
     }
 
@@ -341,12 +382,7 @@ impl Router {
         for (w, fits) in self.acc.fits.iter_mut().enumerate() {
             let x = &seg.excitations[w];
             for f in fits.iter_mut() {
-                if let Some((last, value)) = f.last {
-                    for j in last + 1..x.len() {
-                        f.add(x, j, value);
-                        self.filled += 1;
-                    }
-                }
+                self.filled += f.end(x);
             }
         }
         report.filled = self.filled;
