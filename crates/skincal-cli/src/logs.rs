@@ -868,7 +868,10 @@ fn log_issues(l: &skincal::ingest::LogReport) -> Vec<String> {
         (l.joint_gaps, "joint-state gaps"),
         (l.unsorted_imu_stamps, "unsorted skin stamps"),
         (l.imu_outside, "skin samples outside the joint states' time"),
-        (l.filled, "missing skin samples filled"),
+        (
+            l.filled,
+            "skin samples interpolated (lost, or a skin slower than the joint states)",
+        ),
         (l.joint_read.undecodable, "undecodable joint messages"),
         (l.imu_read.undecodable, "undecodable skin messages"),
     ] {

@@ -393,15 +393,20 @@ fn dynamic_readings(
         powers: vec![(0.0, 0.0); windows.len()],
     };
     for su in 0..passes.sus.names.len() {
-        // The variance of a point's mean in units of one sample's (1 when the skin and the
-        // joint states run at the same rate; less for a faster skin, which gives several).
-        let (points, inverse) = windows.iter().fold((0u64, 0.0), |(n, i), &xi| {
+        // The fit's variance in units of one with a sample at every grid point (1 when the skin
+        // and the joint states run at the same rate and none is lost): a faster skin gives
+        // several samples per point, whose mean varies less; points without a sample (lost, or
+        // a slower skin) are interpolated from their neighbours, whose noise then counts for
+        // them too.
+        let (points, inverse, length) = windows.iter().fold((0u64, 0.0, 0usize), |acc, &xi| {
+            let (n, i, len) = acc;
+            let len = len + passes.segs[log].excitations[xi].len();
             sums[xi]
                 .get(su)
-                .map_or((n, i), |f| (n + f.points, i + f.inverse))
+                .map_or((n, i, len), |f| (n + f.points, i + f.inverse, len))
         });
         let thinned = if points > 0 {
-            inverse / points as f64
+            inverse / points as f64 * (length as f64 / points as f64).max(1.0)
         } else {
             1.0
         };
