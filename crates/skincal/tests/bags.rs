@@ -61,17 +61,9 @@ pub fn mcap_to_db3(mcap: &Path, db3: &Path) {
 /// A ROS 1 bag of the CSV log `csv`, with chunks compressed by `compression` (`none`, `bz2` or
 /// `lz4`), written by the `rosbags` Python package (an independent implementation of the format).
 pub fn ros1_bag(csv: &Path, bag: &Path, compression: &str) {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/ros1_bag.py");
-    let out = std::process::Command::new(crate::common::test_python())
-        .arg(&script)
-        .arg(csv)
-        .arg(bag)
-        .args(["--compression", compression])
-        .output()
-        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let compression = Path::new(compression);
+    crate::common::run_python(
+        "ros1_bag.py",
+        &[csv, bag, Path::new("--compression"), compression],
     );
 }

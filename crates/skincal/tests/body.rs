@@ -10,7 +10,7 @@ use skincal::model::{forward_kinematics, presets, Robot};
 use skincal::predict::{validate, PredictError};
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
-use crate::common::{calibrated, held_out, test_python};
+use crate::common::{calibrated, held_out, run_python};
 
 fn noise_free(seed: u64) -> SimulationConfig {
     SimulationConfig {
@@ -283,21 +283,9 @@ fn urdf_export_loads_in_mujoco_with_the_same_kinematics() {
         serde_json::json!({"dofs": m.dof_names(), "cases": cases}).to_string(),
     )
     .unwrap();
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/urdf_fk.py");
-    let python = test_python();
-    let out = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(&urdf)
-        .arg(&poses)
-        .output()
-        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
-    assert!(
-        out.status.success(),
-        "MuJoCo refused the URDF: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let result: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // MuJoCo loads the URDF (a refusal fails here with its message) and compares the frames.
+    let out = run_python("urdf_fk.py", &[&urdf, &poses]);
+    let result: serde_json::Value = serde_json::from_slice(&out).unwrap();
     eprintln!("{result}");
     // Every moving segment is a body of its own in MuJoCo.
     assert!(result["compared"].as_u64().unwrap() >= 5 * (m.segments().len() as u64 - 1));

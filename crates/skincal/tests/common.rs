@@ -85,3 +85,22 @@ pub fn calibrated(
 pub fn test_python() -> std::ffi::OsString {
     std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into())
 }
+
+/// Runs `tests/python/<script>` with `args` and returns what it printed; a failure shows what it
+/// said.
+pub fn run_python(script: &str, args: &[&std::path::Path]) -> Vec<u8> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/python")
+        .join(script);
+    let out = std::process::Command::new(test_python())
+        .arg(&path)
+        .args(args)
+        .output()
+        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
+    assert!(
+        out.status.success(),
+        "{script}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}

@@ -436,7 +436,13 @@ fn explore_refuses_trees_that_the_readings_contradict() {
 
 /// A 200 Hz CSV log of paper-7dof's structure moves.
 fn structure_log(dir: &Path) -> std::path::PathBuf {
-    use skincal::log::csv::CsvSink;
+    let log = dir.join("log");
+    record_structure(&mut skincal::log::csv::CsvSink::new(&log, false));
+    log
+}
+
+/// The structure part of a plan of paper-7dof, recorded at 200 Hz by `sink`.
+fn record_structure(sink: &mut dyn skincal::log::LogSink) {
     use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
     use skincal::sim::timeseries::{record, LogConfig};
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
@@ -448,21 +454,43 @@ fn structure_log(dir: &Path) -> std::path::PathBuf {
         },
     )
     .unwrap();
-    let log = dir.join("log");
     let config = LogConfig {
         part: Some(Part::Structure),
         rate: 200.0,
         ..LogConfig::default()
     };
-    record(
-        &robot,
-        &plan,
-        &config,
-        &mut CsvSink::new(&log, false),
-        &mut |_| {},
-    )
-    .unwrap();
-    log
+    record(&robot, &plan, &config, sink, &mut |_| {}).unwrap();
+}
+
+/// The structure part of [`record_structure`] as an MCAP log (zstd) `name` in `dir`, with a skin
+/// batch per time step when `batched`.
+fn structure_mcap(dir: &Path, name: &str, batched: bool) -> std::path::PathBuf {
+    use skincal::log::mcap::{Compression, McapSink};
+    let path = dir.join(name);
+    let sink = McapSink::new(
+        &path,
+        skincal::log::Topics::default(),
+        Compression::Zstd,
+        false,
+    );
+    record_structure(&mut if batched { sink.batched() } else { sink });
+    path
+}
+
+/// The MCAP log `from` written again to `to` through the MCAP writer (so that its chunks' CRCs
+/// hold), each message's data first passed to `edit` with its topic.
+fn rewritten(from: &Path, to: &Path, mut edit: impl FnMut(&str, &mut Vec<u8>)) {
+    let bytes = std::fs::read(from).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(to).unwrap());
+    let mut writer = mcap::Writer::new(file).unwrap();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let mut message = message.unwrap();
+        let mut data = message.data.into_owned();
+        edit(&message.channel.topic, &mut data);
+        message.data = data.into();
+        writer.write(&message).unwrap();
+    }
+    writer.finish().unwrap();
 }
 
 #[test]
@@ -602,21 +630,8 @@ fn an_su_the_robot_lists_but_the_log_never_holds_is_left_out_by_name() {
 #[test]
 fn damaged_or_empty_mcap_logs_are_refused_without_taking_memory() {
     // Regression: one flipped byte in a length field made the reader allocate 4 EB and abort.
-    use skincal::log::mcap::{Compression, McapSink};
-    use skincal::log::Topics;
-    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
-    use skincal::sim::timeseries::{record, LogConfig};
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("log.mcap");
-    let config = LogConfig {
-        part: Some(Part::Structure),
-        rate: 200.0,
-        ..LogConfig::default()
-    };
-    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
-    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let path = structure_mcap(dir.path(), "log.mcap", false);
     let mut bytes = std::fs::read(&path).unwrap();
     // The footer record (opcode, length u64, …, 29 bytes) sits before the 8 magic bytes.
     let footer = bytes.len() - 8 - 29;
@@ -648,39 +663,20 @@ fn skin_batches_whose_lengths_claim_gigabytes_are_counted_not_allocated() {
     // Regression: a skin_msgs/ImuArray whose frame id claimed 2.9 GB made the CDR decoder
     // reserve it (an abort where memory is capped, seconds of work elsewhere). Written through
     // the MCAP writer, so that the chunks' CRCs hold and only the messages are damaged.
-    use skincal::log::mcap::{Compression, McapSink};
     use skincal::log::Topics;
-    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
-    use skincal::sim::timeseries::{record, LogConfig};
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("batches.mcap");
-    let config = LogConfig {
-        part: Some(Part::Structure),
-        rate: 200.0,
-        ..LogConfig::default()
-    };
-    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false).batched();
-    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let path = structure_mcap(dir.path(), "batches.mcap", true);
     let whole = ingest(
         std::slice::from_ref(&path),
         &IngestConfig::default(),
         &mut |_, _, _| {},
     )
     .unwrap();
-    let bytes = std::fs::read(&path).unwrap();
     let damaged = dir.path().join("damaged.mcap");
-    let mut writer = mcap::Writer::new(std::io::BufWriter::new(
-        std::fs::File::create(&damaged).unwrap(),
-    ))
-    .unwrap();
     let mut batches = 0;
-    for message in mcap::MessageStream::new(&bytes).unwrap() {
-        let mut message = message.unwrap();
-        if message.channel.topic == Topics::default().imu {
+    rewritten(&path, &damaged, |topic, data| {
+        if topic == Topics::default().imu {
             batches += 1;
-            let mut data = message.data.into_owned();
             // After the encapsulation (4) and the stamp (8): the batch's frame id length; after
             // the empty frame id (4 + 1, aligned to 4 → 20): the count of Imu messages.
             match batches {
@@ -688,15 +684,17 @@ fn skin_batches_whose_lengths_claim_gigabytes_are_counted_not_allocated() {
                 200 => data[20..24].copy_from_slice(&0xAB00_0000u32.to_le_bytes()),
                 _ => {}
             }
-            message.data = data.into();
         }
-        writer.write(&message).unwrap();
-    }
-    writer.finish().unwrap();
-    drop(writer);
+    });
     let read = ingest(&[damaged], &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
     let (before, after) = (&whole.report.logs[0], &read.report.logs[0]);
-    let sus = robot.model.su_names().len() as u64;
+    let sus = presets::find("paper-7dof")
+        .unwrap()
+        .robot()
+        .unwrap()
+        .model
+        .su_names()
+        .len() as u64;
     assert_eq!(after.imu_read.undecodable, 2);
     assert_eq!(after.imu_read.samples, before.imu_read.samples - 2 * sus);
     let problem = after.imu_read.first_problem.as_deref().unwrap();
@@ -708,22 +706,10 @@ fn non_finite_samples_and_joint_states_are_counted_not_averaged_in() {
     // Drivers publish NaN for a reading they could not take. One Imu sample in fifty with a NaN
     // or infinite component, and one joint state in a hundred with a NaN position: counted as
     // undecodable, and the readings are those of the log without them.
-    use skincal::log::mcap::{Compression, McapSink};
     use skincal::log::ros::{imu_fields, JointState};
     use skincal::log::Topics;
-    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
-    use skincal::sim::timeseries::{record, LogConfig};
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("log.mcap");
-    let config = LogConfig {
-        part: Some(Part::Structure),
-        rate: 200.0,
-        ..LogConfig::default()
-    };
-    let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
-    record(&robot, &plan, &config, &mut sink, &mut |_| {}).unwrap();
+    let path = structure_mcap(dir.path(), "log.mcap", false);
     let read = |path: &Path| {
         ingest(
             std::slice::from_ref(&path.to_path_buf()),
@@ -732,21 +718,14 @@ fn non_finite_samples_and_joint_states_are_counted_not_averaged_in() {
         )
     };
     let whole = read(&path).unwrap();
-    let bytes = std::fs::read(&path).unwrap();
     let damaged = dir.path().join("nan.mcap");
-    let mut writer = mcap::Writer::new(std::io::BufWriter::new(
-        std::fs::File::create(&damaged).unwrap(),
-    ))
-    .unwrap();
     let (mut imus, mut joints) = (0, 0);
-    for message in mcap::MessageStream::new(&bytes).unwrap() {
-        let mut message = message.unwrap();
-        let mut data = message.data.into_owned();
-        if message.channel.topic == Topics::default().imu {
+    rewritten(&path, &damaged, |topic, data| {
+        if topic == Topics::default().imu {
             imus += 1;
             if imus % 50 == 0 {
                 // The acceleration is the last 24 + 72 bytes before the covariance's end.
-                let f = imu_fields(&data).unwrap();
+                let f = imu_fields(data).unwrap();
                 let at = data.len() - 72 - 24 + 8 * (imus / 50 % 3);
                 let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][imus / 50 % 3];
                 assert_eq!(
@@ -755,20 +734,16 @@ fn non_finite_samples_and_joint_states_are_counted_not_averaged_in() {
                 );
                 data[at..at + 8].copy_from_slice(&bad.to_le_bytes());
             }
-        } else if message.channel.topic == Topics::default().joints {
+        } else if topic == Topics::default().joints {
             joints += 1;
             if joints % 100 == 0 {
-                let mut j: JointState = skincal::log::ros::decode(&data).unwrap();
+                let mut j: JointState = skincal::log::ros::decode(data).unwrap();
                 let d = joints / 100 % j.position.len();
                 j.position[d] = f64::NAN;
-                data = skincal::log::ros::encode(&j).unwrap();
+                *data = skincal::log::ros::encode(&j).unwrap();
             }
         }
-        message.data = data.into();
-        writer.write(&message).unwrap();
-    }
-    writer.finish().unwrap();
-    drop(writer);
+    });
     let got = read(&damaged).unwrap();
     let (before, after) = (&whole.report.logs[0], &got.report.logs[0]);
     assert_eq!(after.imu_read.undecodable, (imus / 50) as u64, "{after:?}");

@@ -183,21 +183,8 @@ fn su_frames_merged_into_the_users_urdf_read_what_the_model_predicts() {
         serde_json::json!({"joints": m.dof_names(), "links": placed, "poses": poses}).to_string(),
     )
     .unwrap();
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/python/urdf_link_rotations.py");
-    let python = crate::common::test_python();
-    let out = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(&urdf_path)
-        .arg(&request)
-        .output()
-        .expect("run the tests with `cargo xtask test`, which makes the Python environment");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let fk: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let out = crate::common::run_python("urdf_link_rotations.py", &[&urdf_path, &request]);
+    let fk: serde_json::Value = serde_json::from_slice(&out).unwrap();
 
     // Each SU hangs on the link of its segment.
     for su in &placed {
