@@ -873,6 +873,84 @@ fn rosbag2_bags_in_mcap_and_sqlite_read_as_one_log_and_other_formats_say_what_th
 }
 
 #[test]
+fn joint_states_split_over_messages_read_like_whole_ones() {
+    // Robots whose controllers each publish their own joints on /joint_states: every stamp's
+    // positions come in two messages, three DoFs and four.
+    use skincal::log::ros::JointState;
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 1,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("log.mcap");
+    let config = LogConfig {
+        part: Some(Part::Structure),
+        rate: 200.0,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &config, &path, true);
+    let split = dir.path().join("split.mcap");
+    let bytes = std::fs::read(&path).unwrap();
+    let file = std::io::BufWriter::new(std::fs::File::create(&split).unwrap());
+    let mut writer = mcap::Writer::new(file).unwrap();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        if message.channel.topic != Topics::default().joints {
+            writer.write(&message).unwrap();
+            continue;
+        }
+        let j: JointState = skincal::log::ros::decode(&message.data).unwrap();
+        for part in [0..3, 3..j.name.len()] {
+            let mut m = message.clone();
+            let half = JointState {
+                header: j.header.clone(),
+                name: j.name[part.clone()].to_vec(),
+                position: j.position[part.clone()].to_vec(),
+                velocity: j
+                    .velocity
+                    .get(part.clone())
+                    .map(<[f64]>::to_vec)
+                    .unwrap_or_default(),
+                effort: vec![],
+            };
+            m.data = skincal::log::ros::encode(&half).unwrap().into();
+            writer.write(&m).unwrap();
+        }
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    let read = |path: &Path| {
+        ingest(
+            std::slice::from_ref(&path.to_path_buf()),
+            &IngestConfig::default(),
+            &mut |_, _, _| {},
+        )
+        .unwrap()
+    };
+    let (whole, halves) = (read(&path), read(&split));
+    assert_eq!(
+        halves.report.logs[0].joint_states,
+        2 * whole.report.logs[0].joint_states
+    );
+    let readings = |m: &MeasurementSet| {
+        let s = m.structure.as_ref().unwrap();
+        s.orientations
+            .iter()
+            .map(|o| (o.rest.clone(), o.moves.clone()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        readings(&halves.measurements),
+        readings(&whole.measurements)
+    );
+}
+
+#[test]
 fn imu_batches_read_like_one_message_per_su() {
     // A skin driver that publishes every SU of a time step in one skin_msgs/ImuArray: the same
     // recording ingests to the same readings as with one sensor_msgs/Imu per SU.
