@@ -691,6 +691,33 @@ pub(crate) struct IngestArgs {
     /// Accelerometer range: samples at ±G or beyond are saturated, in g.
     #[arg(long, value_name = "G", default_value_t = 2.0)]
     saturation: f64,
+    /// The unit of the skin's samples: m/s² (what sensor_msgs/Imu carries), or g or mg for a
+    /// driver that publishes those.
+    #[arg(long, value_enum, default_value_t = SkinUnit::Ms2)]
+    skin_unit: SkinUnit,
+}
+
+/// The unit of a skin driver's accelerations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SkinUnit {
+    /// m/s²
+    #[value(name = "m/s2")]
+    Ms2,
+    /// Standard gravity, 9.80665 m/s²
+    G,
+    /// A thousandth of g
+    Mg,
+}
+
+impl SkinUnit {
+    /// m/s² per unit.
+    fn scale(self) -> f64 {
+        match self {
+            SkinUnit::Ms2 => 1.0,
+            SkinUnit::G => STANDARD_GRAVITY,
+            SkinUnit::Mg => STANDARD_GRAVITY / 1000.0,
+        }
+    }
 }
 
 pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
@@ -707,6 +734,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         filter: args.filter,
         max_gap: args.max_gap,
         saturation: args.saturation * STANDARD_GRAVITY,
+        skin_scale: args.skin_unit.scale(),
         ..IngestConfig::default()
     };
     if let Some(spec) = &args.robot {

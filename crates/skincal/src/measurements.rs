@@ -412,16 +412,24 @@ impl MeasurementSet {
         self.check_gravity_scale()
     }
 
+    /// The median norm of every static reading, m/s² (`None` without any): |g| for accelerometers
+    /// at rest, whatever their orientation.
+    pub fn median_static_norm(&self) -> Option<f64> {
+        let mut norms: Vec<f64> = self.static_readings().map(norm).collect();
+        if norms.is_empty() {
+            return None;
+        }
+        let mid = norms.len() / 2;
+        Some(*norms.select_nth_unstable_by(mid, f64::total_cmp).1)
+    }
+
     /// A resting accelerometer reads |g|: when the median norm of the static readings is far from
     /// it, the readings are in another unit (g, mg) or not accelerometer readings at all. A few dead
     /// or biased SUs do not move the median.
     fn check_gravity_scale(&self) -> Result<(), MeasurementError> {
-        let mut norms: Vec<f64> = self.static_readings().map(norm).collect();
-        if norms.is_empty() {
+        let Some(median) = self.median_static_norm() else {
             return Ok(());
-        }
-        let mid = norms.len() / 2;
-        let median = *norms.select_nth_unstable_by(mid, f64::total_cmp).1;
+        };
         let ratio = median / STANDARD_GRAVITY;
         if (0.5..=2.0).contains(&ratio) {
             return Ok(());

@@ -526,6 +526,61 @@ fn logs_with_stamps_in_ms_are_errors_not_empty_results() {
 }
 
 #[test]
+fn a_skin_in_g_or_mg_is_refused_with_the_option_that_reads_it() {
+    // Regression: a driver that publishes g gave a measurement set a tenth of the truth, refused
+    // only later by `explore`, which told the user to edit measurements.json.
+    use skincal::model::sensor::STANDARD_GRAVITY;
+    let dir = tempfile::tempdir().unwrap();
+    let log = structure_log(dir.path());
+    let read = |path: &Path, skin_scale: f64| {
+        let config = IngestConfig {
+            skin_scale,
+            ..IngestConfig::default()
+        };
+        ingest(
+            std::slice::from_ref(&path.to_path_buf()),
+            &config,
+            &mut |_, _, _| {},
+        )
+    };
+    let truth = read(&log, 1.0).unwrap();
+    for (unit, per_unit) in [("g", STANDARD_GRAVITY), ("mg", STANDARD_GRAVITY / 1000.0)] {
+        let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
+        let mut lines = text.lines();
+        let mut out = format!("{}\n", lines.next().unwrap());
+        for l in lines {
+            let f: Vec<&str> = l.split(',').collect();
+            let a: Vec<String> = f[2..]
+                .iter()
+                .map(|v| format!("{:.9}", v.parse::<f64>().unwrap() / per_unit))
+                .collect();
+            out.push_str(&format!("{},{},{}\n", f[0], f[1], a.join(",")));
+        }
+        let other = dir.path().join(unit);
+        std::fs::create_dir(&other).unwrap();
+        std::fs::write(other.join("imu.csv"), out).unwrap();
+        std::fs::copy(log.join("joint_states.csv"), other.join("joint_states.csv")).unwrap();
+        // Refused, naming the log and the option (in mg, every sample is beyond ±2 g).
+        let e = read(&other, 1.0).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("--skin-unit {unit}")) && e.contains(&other.display().to_string()),
+            "{e}"
+        );
+        // Read in its unit, it gives the readings of the log in m/s².
+        let got = read(&other, per_unit).unwrap();
+        let rest = |m: &MeasurementSet| m.structure.as_ref().unwrap().orientations[0].rest.clone();
+        for (a, b) in rest(&truth.measurements)
+            .iter()
+            .zip(&rest(&got.measurements))
+        {
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() < 1e-6, "{unit}: {x} {y}");
+            }
+        }
+    }
+}
+
+#[test]
 fn skin_stamped_by_another_clock_than_the_joints_is_an_error_that_says_so() {
     // Regression: a skin driver stamping with its own clock, 1000 s off ROS time, gave "training
     // pose skipped: SU `su1` has no sample in its still windows".

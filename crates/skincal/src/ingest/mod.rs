@@ -88,6 +88,9 @@ pub enum IngestError {
     /// Nothing usable was found in the logs.
     #[error("no measurements found {0}")]
     Empty(String),
+    /// The skin's samples are not in m/s².
+    #[error("{0}")]
+    SkinUnit(String),
 }
 
 /// Options of the ingestion.
@@ -116,6 +119,9 @@ pub struct IngestConfig {
     pub max_gap: f64,
     /// An axis at or beyond this magnitude is saturated, m/s².
     pub saturation: f64,
+    /// Every skin sample is multiplied by this: 1 for m/s² (what `sensor_msgs/Imu` carries),
+    /// [`STANDARD_GRAVITY`] for a driver that publishes g.
+    pub skin_scale: f64,
     /// The nominal pattern (estimated from the joint motion when `None`).
     pub pattern: Option<ExcitationPattern>,
     /// The DoFs expected (in this order); others are reported as unknown. All seen when `None`.
@@ -151,6 +157,7 @@ impl Default for IngestConfig {
             filter: 0.05,
             max_gap: 0.05,
             saturation: 2.0 * STANDARD_GRAVITY,
+            skin_scale: 1.0,
             pattern: None,
             dofs: None,
             sus: None,
@@ -169,6 +176,7 @@ impl IngestConfig {
             ("filter", self.filter),
             ("max_gap", self.max_gap),
             ("saturation", self.saturation),
+            ("skin_scale", self.skin_scale),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(IngestError::InvalidSetting {
@@ -456,7 +464,7 @@ fn ingest_logs(
         }
     };
 
-    let silent = leave_out_silent(&mut sus, &mut accumulators, &reports)?;
+    let silent = leave_out_silent(&mut sus, &mut accumulators, &reports, config.saturation)?;
     let passes = Passes {
         config,
         dofs: &dofs,
@@ -469,7 +477,47 @@ fn ingest_logs(
         variance: None,
         moved_by: None,
     };
-    assemble(passes, pattern, pattern_source)
+    let ingested = assemble(passes, pattern, pattern_source)?;
+    skin_unit(&ingested.measurements, config.skin_scale, logs)?;
+    Ok(ingested)
+}
+
+/// An error when the static readings' median norm is far from |g|: the skin's samples are in
+/// another unit than m/s² (a driver that publishes g or mg), and every reading would be off by
+/// that factor.
+fn skin_unit(set: &MeasurementSet, scale: f64, logs: &[PathBuf]) -> Result<(), IngestError> {
+    let Some(median) = set.median_static_norm() else {
+        return Ok(());
+    };
+    let ratio = median / STANDARD_GRAVITY;
+    if (0.5..=2.0).contains(&ratio) {
+        return Ok(());
+    }
+    let raw = median / scale;
+    let advice = if (0.5..=2.0).contains(&raw) {
+        "the skin's driver publishes g: give --skin-unit g".to_string()
+    } else if (500.0..=2000.0).contains(&raw) {
+        "the skin's driver publishes mg: give --skin-unit mg".to_string()
+    } else if median == 0.0 {
+        "most SUs read zero: dead sensors, or a driver that does not fill in the acceleration"
+            .to_string()
+    } else {
+        format!(
+            "the skin's samples are in another unit: they need scaling by {:.5}",
+            1.0 / ratio
+        )
+    };
+    let scaled = if scale == 1.0 {
+        String::new()
+    } else {
+        format!(", after scaling by {scale}")
+    };
+    let names: Vec<String> = logs.iter().map(|l| l.display().to_string()).collect();
+    Err(IngestError::SkinUnit(format!(
+        "{}: the static readings' median norm is {median:.4} m/s²{scaled}, but a resting \
+         accelerometer reads |g| = {STANDARD_GRAVITY} m/s² (sensor_msgs/Imu carries m/s²): {advice}",
+        names.join(", ")
+    )))
 }
 
 /// An error when most skin samples of the log at `path` lie outside the joint states' time: the

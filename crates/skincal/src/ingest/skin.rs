@@ -117,11 +117,13 @@ impl SuRegistry {
 
 /// Leaves out the SUs with no sample in any window of the logs, with a warning that names them
 /// (and the frame ids the logs hold that are no SU's, which may be the same SUs under other
-/// names); an error when no SU has one but the logs hold other frame ids.
+/// names); an error when no SU has one but the logs hold other frame ids, or every sample in a
+/// window was saturated (at `saturation`, m/s²).
 pub(super) fn leave_out_silent(
     sus: &mut SuRegistry,
     accumulated: &mut [Accumulated],
     reports: &[LogReport],
+    saturation: f64,
 ) -> Result<Option<String>, IngestError> {
     let silent = sus.silent(accumulated);
     if silent.is_empty() {
@@ -141,6 +143,14 @@ pub(super) fn leave_out_silent(
         )
     });
     if silent.len() == sus.names.len() {
+        let saturated: u64 = reports.iter().flat_map(|r| r.saturated.values()).sum();
+        if saturated > 0 {
+            return Err(IngestError::Empty(format!(
+                ": every skin sample in a window is saturated ({saturated} at or beyond \
+                 ±{saturation:.1} m/s²): a skin driver that publishes mg needs --skin-unit mg; \
+                 otherwise give the accelerometers' range with --saturation"
+            )));
+        }
         return match others {
             Some(others) => Err(IngestError::Empty(format!(
                 ": no SU listed ({}) has a sample in the logs; {others}: the skin's frame ids must \
@@ -332,6 +342,7 @@ impl Router {
         m: usize,
         acceleration: [f64; 3],
     ) {
+        let acceleration = acceleration.map(|v| v * config.skin_scale);
         // The window holding m: usually the current one or the next.
         let routes = &seg.routes;
         let route = self.route;
