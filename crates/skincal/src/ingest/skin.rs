@@ -204,6 +204,15 @@ pub(super) struct FitSum {
     pub(super) inverse: f64,
 }
 
+/// The mean of `k` samples whose sum is `sum` (the sum itself for one).
+fn mean_of(sum: [f64; 3], k: u32) -> [f64; 3] {
+    if k == 1 {
+        sum
+    } else {
+        sum.map(|s| s / f64::from(k))
+    }
+}
+
 impl FitSum {
     /// A sample at point `local` of window `x`; returns the points filled by linear
     /// interpolation (the gap since the newest point, or the window's start).
@@ -218,7 +227,7 @@ impl FitSum {
                 0
             }
             &mut Some((p, sum, k)) if p < local => {
-                let value = sum.map(|s| s / f64::from(k));
+                let value = mean_of(sum, k);
                 self.mean(x, p, value, k);
                 for j in p + 1..local {
                     let u = (j - p) as f64 / (local - p) as f64;
@@ -248,7 +257,7 @@ impl FitSum {
         let Some((p, sum, k)) = self.newest.take() else {
             return 0;
         };
-        let value = sum.map(|s| s / f64::from(k));
+        let value = mean_of(sum, k);
         self.mean(x, p, value, k);
         for j in p + 1..x.len() {
             self.add(x, j, value);
@@ -260,7 +269,8 @@ impl FitSum {
     fn mean(&mut self, x: &Excitation, m: usize, value: [f64; 3], k: u32) {
         self.add(x, m, value);
         self.points += 1;
-        self.inverse += 1.0 / f64::from(k);
+        // One sample per point is the rule: no division for it.
+        self.inverse += if k == 1 { 1.0 } else { 1.0 / f64::from(k) };
     }
 
     fn add(&mut self, x: &Excitation, m: usize, a: [f64; 3]) {
