@@ -430,21 +430,18 @@ impl MeasurementSet {
         let Some(median) = self.median_static_norm() else {
             return Ok(());
         };
-        let ratio = median / STANDARD_GRAVITY;
-        if (0.5..=2.0).contains(&ratio) {
-            return Ok(());
-        }
-        let looks_like = if (0.5..=2.0).contains(&median) {
-            "they look like g: multiply every reading by 9.81".to_string()
-        } else if (500.0..=2000.0).contains(&median) {
-            "they look like mg: multiply every reading by 0.00981".to_string()
-        } else if median == 0.0 {
-            "most SUs read zero: dead sensors, or readings not filled in".to_string()
-        } else {
-            format!(
-                "scale them by {:.4} if they are in another unit",
-                1.0 / ratio
-            )
+        let looks_like = match ApparentUnit::of(median) {
+            None => return Ok(()),
+            Some(ApparentUnit::G) => "they look like g: multiply every reading by 9.81".to_string(),
+            Some(ApparentUnit::Mg) => {
+                "they look like mg: multiply every reading by 0.00981".to_string()
+            }
+            Some(ApparentUnit::Zero) => {
+                "most SUs read zero: dead sensors, or readings not filled in".to_string()
+            }
+            Some(ApparentUnit::Other(scale)) => {
+                format!("scale them by {scale:.4} if they are in another unit")
+            }
         };
         Err(MeasurementError::InvalidValue {
             field: "static readings".into(),
@@ -453,6 +450,38 @@ impl MeasurementSet {
                 self.units.acceleration
             ),
         })
+    }
+}
+
+/// The unit accelerometer readings at rest seem to be in, told by their median norm taken as
+/// m/s² (|g| in m/s², 1 in g, 1000 in mg).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ApparentUnit {
+    /// Standard gravity.
+    G,
+    /// A thousandth of g.
+    Mg,
+    /// Nothing: most readings are zero.
+    Zero,
+    /// Another: the readings times this are in m/s².
+    Other(f64),
+}
+
+impl ApparentUnit {
+    /// The unit of readings whose median norm is `median`; `None` for m/s² (within a factor of 2
+    /// of |g|, which dead or biased sensors do not leave).
+    pub fn of(median: f64) -> Option<ApparentUnit> {
+        if (0.5..=2.0).contains(&(median / STANDARD_GRAVITY)) {
+            None
+        } else if (0.5..=2.0).contains(&median) {
+            Some(ApparentUnit::G)
+        } else if (500.0..=2000.0).contains(&median) {
+            Some(ApparentUnit::Mg)
+        } else if median == 0.0 {
+            Some(ApparentUnit::Zero)
+        } else {
+            Some(ApparentUnit::Other(STANDARD_GRAVITY / median))
+        }
     }
 }
 

@@ -544,6 +544,12 @@ fn a_skin_in_g_or_mg_is_refused_with_the_option_that_reads_it() {
         )
     };
     let truth = read(&log, 1.0).unwrap();
+    // A log in m/s² read as g is refused too (every sample beyond ±2 g).
+    let e = read(&log, STANDARD_GRAVITY).unwrap_err().to_string();
+    assert!(
+        e.contains("saturated") && e.contains("m/s² already, leave out --skin-unit"),
+        "{e}"
+    );
     for (unit, per_unit) in [("g", STANDARD_GRAVITY), ("mg", STANDARD_GRAVITY / 1000.0)] {
         let text = std::fs::read_to_string(log.join("imu.csv")).unwrap();
         let mut lines = text.lines();
@@ -563,7 +569,9 @@ fn a_skin_in_g_or_mg_is_refused_with_the_option_that_reads_it() {
         // Refused, naming the log and the option (in mg, every sample is beyond ±2 g).
         let e = read(&other, 1.0).unwrap_err().to_string();
         assert!(
-            e.contains(&format!("--skin-unit {unit}")) && e.contains(&other.display().to_string()),
+            e.contains(&format!("--skin-unit {unit}"))
+                && e.contains(&format!("{}: ", other.display()))
+                && !e.contains(": :"),
             "{e}"
         );
         // Read in its unit, it gives the readings of the log in m/s².
@@ -663,7 +671,7 @@ fn an_su_the_robot_lists_but_the_log_never_holds_is_left_out_by_name() {
     };
     let e = ingest_error(&log, &config);
     assert!(
-        e.contains("no SU listed (`su1`, `su2`")
+        e.contains(&format!("{}: no SU listed (`su1`, `su2`", log.display()))
             && e.contains("`skin/su1`, `skin/su2`")
             && e.contains("/log"),
         "{e}"

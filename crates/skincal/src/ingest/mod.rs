@@ -54,7 +54,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
-use crate::measurements::MeasurementSet;
+use crate::measurements::{ApparentUnit, MeasurementSet};
 use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use assemble::{assemble, Passes};
 use pass::{one_pass, LogPass};
@@ -464,7 +464,7 @@ fn ingest_logs(
         }
     };
 
-    let silent = leave_out_silent(&mut sus, &mut accumulators, &reports, config.saturation)?;
+    let silent = leave_out_silent(&mut sus, &mut accumulators, &reports, config)?;
     let passes = Passes {
         config,
         dofs: &dofs,
@@ -484,28 +484,26 @@ fn ingest_logs(
 
 /// An error when the static readings' median norm is far from |g|: the skin's samples are in
 /// another unit than m/s² (a driver that publishes g or mg), and every reading would be off by
-/// that factor.
+/// that factor; `scale` is what they were multiplied by.
 fn skin_unit(set: &MeasurementSet, scale: f64, logs: &[PathBuf]) -> Result<(), IngestError> {
     let Some(median) = set.median_static_norm() else {
         return Ok(());
     };
-    let ratio = median / STANDARD_GRAVITY;
-    if (0.5..=2.0).contains(&ratio) {
+    if ApparentUnit::of(median).is_none() {
         return Ok(());
     }
-    let raw = median / scale;
-    let advice = if (0.5..=2.0).contains(&raw) {
-        "the skin's driver publishes g: give --skin-unit g".to_string()
-    } else if (500.0..=2000.0).contains(&raw) {
-        "the skin's driver publishes mg: give --skin-unit mg".to_string()
-    } else if median == 0.0 {
-        "most SUs read zero: dead sensors, or a driver that does not fill in the acceleration"
-            .to_string()
-    } else {
-        format!(
-            "the skin's samples are in another unit: they need scaling by {:.5}",
-            1.0 / ratio
-        )
+    // What the samples are in as the driver published them.
+    let advice = match ApparentUnit::of(median / scale) {
+        None => "the skin's samples are in m/s² already: leave out --skin-unit".to_string(),
+        Some(ApparentUnit::G) => "the skin's driver publishes g: give --skin-unit g".to_string(),
+        Some(ApparentUnit::Mg) => "the skin's driver publishes mg: give --skin-unit mg".to_string(),
+        Some(ApparentUnit::Zero) => {
+            "most SUs read zero: dead sensors, or a driver that does not fill in the acceleration"
+                .to_string()
+        }
+        Some(ApparentUnit::Other(to_si)) => {
+            format!("the skin's samples are in another unit: they need scaling by {to_si:.5}")
+        }
     };
     let scaled = if scale == 1.0 {
         String::new()

@@ -118,12 +118,12 @@ impl SuRegistry {
 /// Leaves out the SUs with no sample in any window of the logs, with a warning that names them
 /// (and the frame ids the logs hold that are no SU's, which may be the same SUs under other
 /// names); an error when no SU has one but the logs hold other frame ids, or every sample in a
-/// window was saturated (at `saturation`, m/s²).
+/// window was saturated.
 pub(super) fn leave_out_silent(
     sus: &mut SuRegistry,
     accumulated: &mut [Accumulated],
     reports: &[LogReport],
-    saturation: f64,
+    config: &IngestConfig,
 ) -> Result<Option<String>, IngestError> {
     let silent = sus.silent(accumulated);
     if silent.is_empty() {
@@ -145,15 +145,24 @@ pub(super) fn leave_out_silent(
     if silent.len() == sus.names.len() {
         let saturated: u64 = reports.iter().flat_map(|r| r.saturated.values()).sum();
         if saturated > 0 {
+            let unit = if config.skin_scale == 1.0 {
+                "a skin driver that publishes mg needs --skin-unit mg".to_string()
+            } else {
+                format!(
+                    "they were scaled by {}: if the skin's samples are in m/s² already, leave \
+                     out --skin-unit",
+                    config.skin_scale
+                )
+            };
             return Err(IngestError::Empty(format!(
-                ": every skin sample in a window is saturated ({saturated} at or beyond \
-                 ±{saturation:.1} m/s²): a skin driver that publishes mg needs --skin-unit mg; \
-                 otherwise give the accelerometers' range with --saturation"
+                "every skin sample in a window is saturated ({saturated} at or beyond ±{:.1} \
+                 m/s²): {unit}; otherwise give the accelerometers' range with --saturation",
+                config.saturation
             )));
         }
         return match others {
             Some(others) => Err(IngestError::Empty(format!(
-                ": no SU listed ({}) has a sample in the logs; {others}: the skin's frame ids must \
+                "no SU listed ({}) has a sample in the logs; {others}: the skin's frame ids must \
                  be the robot's SU names",
                 listed(sus.names.iter().map(String::as_str))
             ))),
