@@ -203,6 +203,10 @@ pub struct LimbData {
     /// pose `p`, m/s², `[1 + k]` of its dynamic reading of chain DoF `k`; `None` unless the set
     /// gives every one of them.
     pub sd: Option<Vec<Vec<Vec<f64>>>>,
+    /// `missing[p][u][1 + k]`: the set has no dynamic reading of chain DoF `k` in pose `p` (an
+    /// excitation that was not recorded or not found in a log); its `dynamics` entry is zero and
+    /// no fit uses it. `[p][u][0]` is always `false`. Empty: nothing is missing.
+    pub missing: Vec<Vec<Vec<bool>>>,
 }
 
 impl LimbData {
@@ -241,16 +245,21 @@ impl LimbData {
         let mut q = Vec::new();
         let mut statics = Vec::new();
         let mut dynamics = Vec::new();
+        let mut missing = Vec::new();
         let mut sd = Some(Vec::new());
-        for (p, pose) in training.poses.iter().enumerate() {
+        for pose in &training.poses {
             if let (Some(all), Some(statics)) = (sd.as_mut(), &pose.static_sd) {
+                // A missing reading's deviation is never used: any positive value holds its place.
                 let per_su: Option<Vec<Vec<f64>>> = su_index
                     .iter()
                     .zip(&su_depth)
                     .map(|(&u, &depth)| {
-                        let dynamic = dofs[..depth]
-                            .iter()
-                            .map(|dof| pose.dynamic_sd.get(dof).map(|v| v[u]));
+                        let dynamic = dofs[..depth].iter().map(|dof| {
+                            match (pose.dynamic.contains_key(dof), pose.dynamic_sd.get(dof)) {
+                                (false, _) => Some(1.0),
+                                (true, sd) => sd.map(|v| v[u]),
+                            }
+                        });
                         std::iter::once(Some(statics[u])).chain(dynamic).collect()
                     })
                     .collect();
@@ -270,28 +279,21 @@ impl LimbData {
             );
             let mut per_su: Vec<Vec<Vector3<f64>>> =
                 su_depth.iter().map(|&d| Vec::with_capacity(d)).collect();
+            let mut lacking: Vec<Vec<bool>> =
+                su_depth.iter().map(|&d| vec![false; 1 + d]).collect();
             for (k, dof) in dofs.iter().enumerate() {
-                let needed = su_depth.iter().any(|&d| k < d);
-                if !needed {
-                    continue;
-                }
-                let readings =
-                    pose.dynamic
-                        .get(dof)
-                        .ok_or_else(|| EstimateError::MissingDynamic {
-                            pose: p,
-                            dof: dof.clone(),
-                            limb: chain.name.clone(),
-                        })?;
+                let readings = pose.dynamic.get(dof);
                 for (i, &u) in su_index.iter().enumerate() {
                     if k < su_depth[i] {
-                        per_su[i].push(Vector3::from(readings[u]));
+                        per_su[i].push(readings.map_or_else(Vector3::zeros, |r| r[u].into()));
+                        lacking[i][1 + k] = readings.is_none();
                     }
                 }
             }
             dynamics.push(per_su);
+            missing.push(lacking);
         }
-        Ok(Self {
+        let data = Self {
             chain: chain.clone(),
             q,
             su_depth,
@@ -299,7 +301,52 @@ impl LimbData {
             dynamics,
             pattern: training.pattern,
             sd,
-        })
+            missing,
+        };
+        data.check_excited()?;
+        Ok(data)
+    }
+
+    /// Whether the dynamic reading of chain DoF `k` is missing for SU `u` in pose `p`.
+    pub fn is_missing(&self, p: usize, u: usize, k: usize) -> bool {
+        self.missing
+            .get(p)
+            .and_then(|m| m.get(u))
+            .and_then(|m| m.get(1 + k))
+            .copied()
+            .unwrap_or(false)
+    }
+
+    /// The chain DoFs whose dynamic readings are missing, with the number of poses that lack
+    /// them, in chain order.
+    pub fn missing_excitations(&self) -> Vec<(String, usize)> {
+        let dofs = self.chain.dofs();
+        (0..dofs.len())
+            .filter_map(|k| {
+                let su = self.su_depth.iter().position(|&d| k < d)?;
+                let lacking = (0..self.poses())
+                    .filter(|&p| self.is_missing(p, su, k))
+                    .count();
+                (lacking > 0).then(|| (dofs[k].clone(), lacking))
+            })
+            .collect()
+    }
+
+    /// Every DoF of the limb must have been excited in at least one pose: its axis is found from
+    /// the accelerations it causes.
+    fn check_excited(&self) -> Result<(), EstimateError> {
+        match self
+            .missing_excitations()
+            .into_iter()
+            .find(|(_, lacking)| *lacking == self.poses())
+        {
+            Some((dof, _)) => Err(EstimateError::NeverExcited {
+                dof,
+                poses: self.poses(),
+                limb: self.chain.name.clone(),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Number of poses.
@@ -352,11 +399,26 @@ impl LimbData {
                 })
                 .collect()
         });
+        let missing = self
+            .missing
+            .iter()
+            .map(|per_su| {
+                per_su
+                    .iter()
+                    .map(|m| {
+                        (0..m.len())
+                            .map(|j| if j == 0 { m[0] } else { m[1 + permute(j - 1)] })
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect();
         Self {
             chain,
             q,
             dynamics,
             sd,
+            missing,
             ..self.clone()
         }
     }
@@ -382,6 +444,7 @@ impl From<&super::ChainData> for LimbData {
                 .collect(),
             pattern: data.pattern,
             sd: None,
+            missing: Vec::new(),
         }
     }
 }

@@ -47,13 +47,23 @@ pub enum EstimateError {
         /// The limb.
         limb: String,
     },
-    /// A training pose lacks the dynamic readings the chain needs.
-    #[error("training.poses[{pose}] has no dynamic readings for DoF `{dof}`, which limb {limb} needs: record the excitation pattern of every DoF of the limb in every pose")]
+    /// A training pose lacks the dynamic readings the paper's estimator needs.
+    #[error("training.poses[{pose}] has no dynamic readings for DoF `{dof}`, which the paper's estimator needs for limb {limb} in every pose: record the excitation pattern of every DoF of the limb in every pose, or calibrate by maximum likelihood (method `ml`), which uses the poses that have them")]
     MissingDynamic {
         /// The pose index.
         pose: usize,
         /// The DoF.
         dof: String,
+        /// The limb.
+        limb: String,
+    },
+    /// No training pose has a dynamic reading of a DoF of the limb.
+    #[error("none of the {poses} training poses has a dynamic reading of DoF `{dof}`, which limb {limb} needs: its axis is found from the accelerations its excitation pattern causes; record that pattern in some of the poses (missing it in a few costs only their readings)")]
+    NeverExcited {
+        /// The DoF.
+        dof: String,
+        /// The number of training poses.
+        poses: usize,
         /// The limb.
         limb: String,
     },

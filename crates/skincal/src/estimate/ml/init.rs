@@ -17,7 +17,11 @@ pub(super) fn onto_z(n: &Vector3<f64>) -> UnitQuaternion<f64> {
 
 /// The unit right singular vector of the smallest singular value of the rows, and that value².
 fn null_direction(rows: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
-    let m = DMatrix::from_fn(rows.len(), 3, |i, c| rows[i][c]);
+    // At least 3 rows (zeros added), so that the SVD has every right singular vector: with fewer,
+    // the thin SVD's smallest would lie in the rows' span.
+    let m = DMatrix::from_fn(rows.len().max(3), 3, |i, c| {
+        rows.get(i).map_or(0.0, |r| r[c])
+    });
     let svd = m.svd(false, true);
     let vt = svd.v_t.expect("requested");
     let smallest = (0..svd.singular_values.len())
@@ -37,7 +41,10 @@ fn null_direction(rows: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
 /// sense. (Those accelerations are the same in every pose, so the direction is fixed only up to a
 /// turn about them; the solves that follow settle it.)
 pub(super) fn su_from_axis(data: &Readings, u: usize, d: usize, sign: f64) -> Isometry3<f64> {
-    let rows: Vec<Vector3<f64>> = data.dynamics.iter().map(|p| p[u][d]).collect();
+    let rows: Vec<Vector3<f64>> = (0..data.q.len())
+        .filter(|&p| !data.is_rejected(p, u, 1 + d))
+        .map(|p| data.dynamics[p][u][d])
+        .collect();
     let n = null_direction(&rows).0 * sign;
     let mean: Vector3<f64> = rows.iter().sum::<Vector3<f64>>() / (rows.len() as f64 * data.alpha);
     let lever = mean.cross(&n);
@@ -321,13 +328,16 @@ fn add_lever_rows(
     k: usize,
     rseg: &Matrix3<f64>,
     c: &Vector3<f64>,
-    accelerations_world: impl Fn(usize) -> Vector3<f64>,
+    accelerations_world: impl Fn(usize) -> Option<Vector3<f64>>,
 ) {
     for d in 0..k {
+        let Some(a) = accelerations_world(d) else {
+            continue;
+        };
         let z = f.joints[d].rotation * Vector3::z();
         let o = f.joints[d].translation.vector;
         let m = z.cross_matrix() * rseg;
-        lsq.add(&m, &(accelerations_world(d) - z.cross(&(c - o))));
+        lsq.add(&m, &(a - z.cross(&(c - o))));
     }
 }
 
@@ -368,7 +378,8 @@ pub(super) fn joint_starts(
                     (seg * nalgebra::Point3::from(r * (turn * tail[p].translation.vector))).coords;
                 let rseg = seg.rotation.to_rotation_matrix().into_inner();
                 add_lever_rows(&mut lsq, f, k, &rseg, &c, |d| {
-                    r_world * data.dynamics[p][u][d] / data.alpha
+                    (!data.is_rejected(p, u, 1 + d))
+                        .then(|| r_world * data.dynamics[p][u][d] / data.alpha)
                 });
             }
             Isometry3::from_parts(Translation3::from(lsq.solve()), r)
@@ -405,7 +416,8 @@ pub(super) fn su_starts(
                 let rseg = seg.rotation.to_rotation_matrix().into_inner();
                 let r_world = seg.rotation * r;
                 add_lever_rows(&mut lsq, f, s, &rseg, &seg.translation.vector, |d| {
-                    r_world * data.dynamics[p][u][d] / data.alpha
+                    (!data.is_rejected(p, u, 1 + d))
+                        .then(|| r_world * data.dynamics[p][u][d] / data.alpha)
                 });
             }
             Isometry3::from_parts(Translation3::from(lsq.solve()), r)

@@ -237,8 +237,12 @@ fn rejected_counts(readings: &Readings, names: &[String]) -> Vec<SuRejected> {
         .enumerate()
         .filter_map(|(u, su)| {
             let (mut s, mut d, mut n) = (0, 0, 0);
-            for pose in &readings.rejected {
+            for (p, pose) in readings.rejected.iter().enumerate() {
                 for (j, &r) in pose[u].iter().enumerate() {
+                    let missing = readings.missing.get(p).is_some_and(|m| m[u][j]);
+                    if missing {
+                        continue;
+                    }
                     n += 1;
                     match (r, j) {
                         (true, 0) => s += 1,
@@ -397,6 +401,7 @@ fn readings(data: &LimbData) -> Readings {
         alpha: data.pattern.peak_acceleration(),
         huber: Some(HUBER),
         rejected: Vec::new(),
+        missing: data.missing.clone(),
         gauge_prior: Some(problem::POSITION_PRIOR_SD),
         sd: data.sd.clone().map(std::sync::Arc::new),
     }
@@ -438,7 +443,12 @@ fn screen(data: &Readings, sigma: f64) -> Vec<Vec<Vec<bool>>> {
         }
         let depth = data.dynamics.first().map_or(0, |d| d[u].len());
         for d in 0..depth {
-            let typical = median((0..poses).map(|p| data.dynamics[p][u][d].norm()).collect());
+            let typical = median(
+                (0..poses)
+                    .filter(|&p| !data.is_rejected(p, u, 1 + d))
+                    .map(|p| data.dynamics[p][u][d].norm())
+                    .collect(),
+            );
             for (p, pose) in out.iter_mut().enumerate() {
                 pose[u][1 + d] = data.dynamics[p][u][d].norm() > 3.0 * typical + 8.0 * sigma;
             }

@@ -64,6 +64,9 @@ pub(super) struct Readings {
     /// Readings left out (wild ones found after the fit): `rejected[p][u][0]` the static reading,
     /// `[1 + d]` the dynamic one of DoF `d`. Empty: none.
     pub rejected: Vec<Vec<Vec<bool>>>,
+    /// Readings the measurement set does not have (indexed as `rejected`; zero in `dynamics`):
+    /// never used, never counted as left out. Empty: none.
+    pub missing: Vec<Vec<Vec<bool>>>,
     /// The standard deviation of the weak priors on the positions of SUs and joints that hold the
     /// directions no reading tells near their frames, m ([`POSITION_PRIOR_SD`] for the search and
     /// the fit); `None` for what is reported about the fit (residual, covariance, bounds).
@@ -74,13 +77,16 @@ pub(super) struct Readings {
 }
 
 impl Readings {
+    /// Whether reading `row` of SU `u` in pose `p` is left out of the fit: wild, or missing.
     pub(super) fn is_rejected(&self, p: usize, u: usize, row: usize) -> bool {
-        self.rejected
-            .get(p)
-            .and_then(|r| r.get(u))
-            .and_then(|r| r.get(row))
-            .copied()
-            .unwrap_or(false)
+        let marked = |mask: &Vec<Vec<Vec<bool>>>| {
+            mask.get(p)
+                .and_then(|r| r.get(u))
+                .and_then(|r| r.get(row))
+                .copied()
+                .unwrap_or(false)
+        };
+        marked(&self.rejected) || marked(&self.missing)
     }
 
     /// The weight of a reading whose whitened residual has norm `s` (1 within the Huber
