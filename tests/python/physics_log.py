@@ -13,7 +13,8 @@ plan's poses with a protocol of their own, not the plan's timing:
 - holds: the plan's, except the pause after each pattern (`--pause`, 0.5 s);
 - excitations: the paper's pattern (eq. 10) *without a window*, one period from rest, so the
   commanded acceleration steps at both ends (on every DoF excited together, when the plan runs
-  limbs in parallel).
+  limbs in parallel); run backwards where forwards would leave the DoF's range (the plan's limits),
+  so that the speed reverses through zero at the pattern's middle on either side.
 
 Every SU is a site whose specific force (the second difference of its position over the integrator's
 substeps, minus gravity, in the site frame) is recorded with Gaussian noise and the quantisation of a
@@ -96,7 +97,7 @@ def pose_attributes(t):
     return f'pos="{p[0]:.12g} {p[1]:.12g} {p[2]:.12g}" quat="{q[0]:.12g} {q[1]:.12g} {q[2]:.12g} {q[3]:.12g}"'
 
 
-def mjcf(robot, gravity):
+def mjcf(robot, gravity, gravcomp=False):
     """MJCF of the robot: one body per segment (its frame is the segment frame of skincal's model,
     which the DoF turns), a capsule to every child joint and SU, a site per SU."""
     reference = robot["reference"]
@@ -128,7 +129,8 @@ def mjcf(robot, gravity):
             lines.append(f'{indent}<site name="{s["name"]}" {pose_attributes(sensor_frame(s))}/>')
         for d in children.get(segment, []):
             frame, axis = placement(d)
-            lines.append(f'{indent}<body name="{d["child"]}" {pose_attributes(frame)}>')
+            compensated = ' gravcomp="1"' if gravcomp else ""
+            lines.append(f'{indent}<body name="{d["child"]}" {pose_attributes(frame)}{compensated}>')
             lines.append(
                 f'{indent}  <joint name="{d["name"]}" type="hinge" axis="{axis[0]} {axis[1]} {axis[2]}" armature="0.02"/>'
             )
@@ -161,7 +163,7 @@ def quintic(a, b, u):
     return a + (b - a) * s
 
 
-def reference(plan, part, pause, dof_index):
+def reference(plan, part, pause, dof_index, backwards_near_limits=True):
     """The commanded trajectory as a list of (duration, function of time → q) segments."""
     pattern = plan["pattern"]
     amplitude, frequency = pattern["amplitude"], pattern["frequency"]
@@ -182,10 +184,17 @@ def reference(plan, part, pause, dof_index):
         elif action == "excitation":
             # One DoF, or several together (a plan's parallel limbs).
             excited = [dof_index[n] for n in [phase["dof"], *phase.get("together", [])]]
+            excursion = 2.0 * amplitude / w
+            sense = np.ones(len(excited))
+            if backwards_near_limits:
+                for i, d in enumerate(excited):
+                    upper = plan["dofs"][d].get("upper", math.inf)
+                    if a[d] + excursion > upper:
+                        sense[i] = -1.0
 
-            def excite(t, a=a, excited=excited):
+            def excite(t, a=a, excited=excited, sense=sense):
                 q = a.copy()
-                q[excited] += amplitude / w * (1.0 - math.cos(w * t))
+                q[excited] += sense * amplitude / w * (1.0 - math.cos(w * t))
                 return q
 
             segments.append((1.0 / frequency, excite))
@@ -208,7 +217,17 @@ def main():
         default="first",
         help="servo gains from the inertia at the first pose, or the largest over the plan's poses",
     )
+    parser.add_argument(
+        "--gravcomp",
+        action="store_true",
+        help="compensate gravity on every moving body (the servos then need not sag under it)",
+    )
     parser.add_argument("--pause", type=float, default=0.5, help="hold after each pattern, s")
+    parser.add_argument(
+        "--forwards-only",
+        action="store_true",
+        help="run every pattern forwards, also where it leaves the DoF's range",
+    )
     parser.add_argument("--noise", type=float, default=0.05, help="accelerometer noise σ, m/s²")
     parser.add_argument("--encoder-bits", type=int, default=17, help="encoder resolution (0: exact)")
     parser.add_argument("--adc-bits", type=int, default=10, help="accelerometer resolution over ±2 g (0: exact)")
@@ -221,7 +240,7 @@ def main():
     with open(args.plan) as f:
         plan = json.load(f)
     gravity = [float(x) for x in args.gravity.split(",")]
-    model = mujoco.MjModel.from_xml_string(mjcf(robot, gravity))
+    model = mujoco.MjModel.from_xml_string(mjcf(robot, gravity, args.gravcomp))
     data = mujoco.MjData(model)
     names = [d["name"] for d in plan["dofs"]]
     dof_index = {n: i for i, n in enumerate(names)}
@@ -229,7 +248,7 @@ def main():
     vadr = [model.jnt_dofadr[model.joint(n).id] for n in names]
     su_names = [s["name"] for s in robot["sus"]]
 
-    segments = reference(plan, args.part, args.pause, dof_index)
+    segments = reference(plan, args.part, args.pause, dof_index, not args.forwards_only)
     if not segments:
         sys.exit("the plan has no phase of that part")
     q0 = segments[0][1](0.0)
@@ -260,7 +279,10 @@ def main():
         model.actuator_biasprm[a, 2] = -kv[i]
     aadr = [model.actuator(n).id for n in names]
 
-    substeps = 4
+    # Stiff servos on light distal links need shorter steps for RK4 to stay stable: 4 substeps per
+    # 1 ms sample up to 6 Hz, more above (the stiffness grows with the bandwidth squared).
+    substeps = max(4, math.ceil(4 * (args.bandwidth / 6.0) ** 2))
+    model.opt.timestep = 0.001 / substeps
     dt = model.opt.timestep * substeps
     rng = np.random.default_rng(args.seed)
     encoder = 2.0 * math.pi / 2**args.encoder_bits if args.encoder_bits else 0.0

@@ -675,11 +675,11 @@ pub(crate) struct IngestArgs {
     /// (servo compliance): fitted as coupled motion, not a second excited DoF.
     #[arg(long, default_value_t = IngestConfig::default().coupled_fraction)]
     coupled_fraction: f64,
-    /// Shortest still window, s [default: 0.25; with --plan, at most 0.3 of its still periods].
+    /// Shortest still window, s [default: 0.15; with --plan, at most 0.3 of its still periods].
     #[arg(long)]
     min_still: Option<f64>,
-    /// Dropped at both ends of a still window, s [default: 0.1; with --plan, at most a tenth of
-    /// its still periods].
+    /// Dropped at both ends of a still window (at least the filter's half-width), s [default:
+    /// 0.05; with --plan, at most a tenth of its still periods].
     #[arg(long)]
     trim: Option<f64>,
     /// Half-width of the differentiation filter, s.

@@ -102,16 +102,21 @@ fn stations(segs: &[Segmentation], config: &IngestConfig) -> (Vec<Station>, usiz
     for (li, seg) in segs.iter().enumerate() {
         let mut current: Option<usize> = None;
         let mut group: Option<usize> = None;
+        // Whether the last motion was an excitation: the DoFs came back, and the pause after it
+        // is at the station's pose even where a servo ends it a few mrad off.
+        let mut returned = false;
         for event in &seg.events {
+            let after_excitation = std::mem::replace(&mut returned, false);
             match *event {
                 Event::Still(s) => {
                     let pose = &seg.stills[s].pose;
                     let same = current.is_some_and(|c| {
-                        stations[c]
-                            .pose
-                            .iter()
-                            .zip(pose)
-                            .all(|(a, b)| (a - b).abs() < tolerance)
+                        after_excitation
+                            || stations[c]
+                                .pose
+                                .iter()
+                                .zip(pose)
+                                .all(|(a, b)| (a - b).abs() < tolerance)
                     });
                     if let (true, Some(c)) = (same, current) {
                         stations[c].stills.push(s);
@@ -133,6 +138,7 @@ fn stations(segs: &[Segmentation], config: &IngestConfig) -> (Vec<Station>, usiz
                 Event::Excitation(x) => {
                     if let Some(c) = current {
                         stations[c].excitations.push(x);
+                        returned = true;
                     }
                 }
                 Event::Move => current = None,

@@ -166,7 +166,9 @@ pub(super) fn pieces(
     let n = timeline.len();
     let dt = timeline.grid.dt;
     let l = filter_points(config, dt);
-    let trim = ((config.trim / dt).round() as usize).max(2 * l + 1);
+    // A still point's speed is measured over ±l: the samples within l of a still run's ends may
+    // still move.
+    let trim = ((config.trim / dt).round() as usize).max(l + 1);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
     let first = timeline.first;
     let (pauses, still) = pauses(timeline, config, l, at_end);
@@ -331,6 +333,12 @@ fn motion(
 /// The largest change of position that a DoF's servo sag explains, in motion thresholds.
 const SAG_STEPS: f64 = 10.0;
 
+/// A motion whose DoFs all end within this fraction of their largest excursion from where they
+/// started came back (an excitation); one that ends farther went somewhere (a move or a transfer).
+/// A structure move ends at its farthest point (its overshoot is a few percent on a servo damped
+/// at 0.5 or more); a pattern that a slow servo lags ends a few percent of its excursion off.
+const RETURN_FRACTION: f64 = 0.5;
+
 /// What a motion between two still windows was.
 enum Motion {
     /// No DoF left its position.
@@ -372,10 +380,12 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
     let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
     let mut leading = vec![main];
     leading.extend((0..excursion.len()).filter(|&e| e != main && !followed(excursion[e], largest)));
-    if leading
-        .iter()
-        .all(|&e| net(&timeline.theta[e]) <= config.motion_threshold)
-    {
+    // A DoF came back when it ends nearer its start than its farthest point: a servo that lags
+    // a pattern or sags under its changed load ends a few mrad off, a move ends where it went.
+    let came_back = |e: usize| {
+        net(&timeline.theta[e]) <= config.motion_threshold.max(RETURN_FRACTION * excursion[e])
+    };
+    if leading.iter().all(|&e| came_back(e)) {
         return Motion::Excitation(leading);
     }
     if leading.len() > 1 {
