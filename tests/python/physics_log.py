@@ -14,7 +14,7 @@ plan's poses with a protocol of their own, not the plan's timing:
 - excitations: the paper's pattern (eq. 10) *without a window*, one period from rest, so the
   commanded acceleration steps at both ends (on every DoF excited together, when the plan runs
   limbs in parallel); run backwards where forwards would leave the DoF's range (the plan's limits),
-  so that the speed reverses through zero at the pattern's middle on either side.
+  or, with `--away-from-nearer-limit`, wherever the pose is nearer the upper limit.
 
 Every SU is a site whose specific force (the second difference of its position over the integrator's
 substeps, minus gravity, in the site frame) is recorded with Gaussian noise and the quantisation of a
@@ -163,7 +163,7 @@ def quintic(a, b, u):
     return a + (b - a) * s
 
 
-def reference(plan, part, pause, dof_index, backwards_near_limits=True):
+def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_from_nearer_limit=False):
     """The commanded trajectory as a list of (duration, function of time → q) segments."""
     pattern = plan["pattern"]
     amplitude, frequency = pattern["amplitude"], pattern["frequency"]
@@ -188,8 +188,10 @@ def reference(plan, part, pause, dof_index, backwards_near_limits=True):
             sense = np.ones(len(excited))
             if backwards_near_limits:
                 for i, d in enumerate(excited):
+                    lower = plan["dofs"][d].get("lower", -math.inf)
                     upper = plan["dofs"][d].get("upper", math.inf)
-                    if a[d] + excursion > upper:
+                    nearer_upper = away_from_nearer_limit and upper - a[d] < a[d] - lower
+                    if a[d] + excursion > upper or nearer_upper:
                         sense[i] = -1.0
 
             def excite(t, a=a, excited=excited, sense=sense):
@@ -228,6 +230,11 @@ def main():
         action="store_true",
         help="run every pattern forwards, also where it leaves the DoF's range",
     )
+    parser.add_argument(
+        "--away-from-nearer-limit",
+        action="store_true",
+        help="run each pattern away from the nearer limit of its DoF (backwards in the upper half)",
+    )
     parser.add_argument("--noise", type=float, default=0.05, help="accelerometer noise σ, m/s²")
     parser.add_argument("--encoder-bits", type=int, default=17, help="encoder resolution (0: exact)")
     parser.add_argument("--adc-bits", type=int, default=10, help="accelerometer resolution over ±2 g (0: exact)")
@@ -248,7 +255,9 @@ def main():
     vadr = [model.jnt_dofadr[model.joint(n).id] for n in names]
     su_names = [s["name"] for s in robot["sus"]]
 
-    segments = reference(plan, args.part, args.pause, dof_index, not args.forwards_only)
+    segments = reference(
+        plan, args.part, args.pause, dof_index, not args.forwards_only, args.away_from_nearer_limit
+    )
     if not segments:
         sys.exit("the plan has no phase of that part")
     q0 = segments[0][1](0.0)

@@ -14,7 +14,7 @@ use skincal::model::Robot;
 use skincal::predict::validate;
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
-fn description(path: &str) -> PathBuf {
+pub(crate) fn description(path: &str) -> PathBuf {
     let dir = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS").unwrap_or_else(|| {
         panic!(
             "SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`, which \
