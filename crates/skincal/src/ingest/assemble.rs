@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use serde_json::Map;
 
 use super::fit::{Excitation, PooledFit};
-use super::segment::{Event, Segmentation};
+use super::segment::{Event, Segmentation, SHORT_STILL};
 use super::skin::{Accumulated, SuRegistry};
 use super::timeline::Grid;
 use super::{ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
@@ -61,17 +61,30 @@ impl Passes<'_> {
         let windows = &self.segs[st.log].stills;
         if st.stills.iter().all(|&w| !windows[w].reading) {
             return Err(format!(
-                "it was never still for a static reading (every DoF below {} rad/s for {} s, \
+                "it was never still for a static reading (every DoF below {} rad/s for {:.3} s, \
                  plus {} s trimmed at both ends)",
-                self.config.still_velocity, self.config.min_still, self.config.trim
+                self.config.still_velocity,
+                self.config.min_still / SHORT_STILL as f64,
+                self.config.trim
             ));
         }
+        // The full windows, or the short ones where there is none.
+        let full = st
+            .stills
+            .iter()
+            .any(|&w| windows[w].reading && !windows[w].short);
+        let pooled: Vec<usize> = st
+            .stills
+            .iter()
+            .copied()
+            .filter(|&w| windows[w].short != full)
+            .collect();
         let acc = &self.accumulated[st.log];
         (0..self.sus.names.len())
             .map(|su| {
                 let mut n = 0u64;
                 let mut sum = [0.0; 3];
-                for &w in &st.stills {
+                for &w in &pooled {
                     if let Some(s) = acc.stills[w].get(su) {
                         n += s.n;
                         for (total, v) in sum.iter_mut().zip(&s.sum) {

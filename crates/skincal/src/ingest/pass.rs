@@ -18,7 +18,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use super::queue::Queue;
-use super::segment::{filter_points, pieces, Segmentation};
+use super::segment::{filter_points, pieces, trim_points, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
 use super::timeline::{newest_common, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
@@ -335,9 +335,11 @@ impl Pass<'_> {
                 }
                 // Once its pause is over, its still window is final and the next window, the
                 // motion's, starts 2l before the pause's end; until then the next windows start
-                // 2l + 1 points into the pause or later. The next stretch starts at the pause,
+                // a trim into the pause (the still window) or 2l + 1 points (the motion's: a
+                // pause is at least 4l + 1 long) or later. The next stretch starts at the pause,
                 // with the filter's reach before it.
                 let l = filter_points(self.config, grid.dt);
+                let earliest = trim_points(self.config, grid.dt, l).min(2 * l + 1);
                 if open.closed && !self.pause_added {
                     self.seg.add_pause(open, report);
                     self.pause_added = true;
@@ -345,7 +347,7 @@ impl Pass<'_> {
                 self.cut = if open.closed {
                     open.pause.1 - 2 * l
                 } else {
-                    open.pause.0 + 2 * l + 1
+                    open.pause.0 + earliest
                 };
                 self.from = open.pause.0.saturating_sub(l + 1);
             }

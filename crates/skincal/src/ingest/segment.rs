@@ -17,7 +17,15 @@ pub(super) struct StillWindow {
     pub(super) pose: Vec<f64>,
     /// Whether the range is a still window for a static reading.
     pub(super) reading: bool,
+    /// Whether that window is shorter than `min_still`: a servo that rings through most of a
+    /// short hold leaves no longer one. Its station's reading pools it only when the station
+    /// has no full one (it may hold the end of the settling motion).
+    pub(super) short: bool,
 }
+
+/// A still window may be this many times shorter than `min_still` where its station has no
+/// full one.
+pub(super) const SHORT_STILL: usize = 3;
 
 /// Runs of `true` in `mask` at least `min` long, as `[start, end)`.
 fn runs(mask: &[bool], min: usize) -> Vec<(usize, usize)> {
@@ -68,7 +76,9 @@ pub(super) struct Piece {
     still: StillWindow,
     /// The pause's span and the motion's in the report's timeline.
     spans: Vec<Span>,
-    after: After,
+    /// The motions after the pause, in order (one, unless a pause too short to be found
+    /// separated excitations of one DoF after another).
+    after: Vec<After>,
 }
 
 /// What follows a pause.
@@ -90,7 +100,14 @@ impl Segmentation {
             self.add_pause(&piece, report);
         }
         report.timeline.extend(piece.spans.drain(1..));
-        match piece.after {
+        for after in piece.after {
+            self.add_motion(after, report);
+        }
+    }
+
+    /// Adds the motion after a pause.
+    fn add_motion(&mut self, after: After, report: &mut LogReport) {
+        match after {
             After::Nothing => {}
             After::Broken(why) => {
                 report.skipped.push(why);
@@ -148,6 +165,12 @@ pub(super) fn segment(
     seg
 }
 
+/// The grid points dropped at both ends of a still run, with the filter's half-width `l`: a still
+/// point's speed is measured over ±l, so the samples within l of a run's ends may still move.
+pub(super) fn trim_points(config: &IngestConfig, dt: f64, l: usize) -> usize {
+    ((config.trim / dt).round() as usize).max(l + 1)
+}
+
 /// The half-width of the differentiation filter on a grid of period `dt`, grid points.
 pub(super) fn filter_points(config: &IngestConfig, dt: f64) -> usize {
     ((config.filter / dt).round() as usize).max(2)
@@ -166,19 +189,19 @@ pub(super) fn pieces(
     let n = timeline.len();
     let dt = timeline.grid.dt;
     let l = filter_points(config, dt);
-    // A still point's speed is measured over ±l: the samples within l of a still run's ends may
-    // still move.
-    let trim = ((config.trim / dt).round() as usize).max(l + 1);
+    let trim = trim_points(config, dt, l);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
     let first = timeline.first;
     let (pauses, still) = pauses(timeline, config, l, at_end);
     let mut out = Vec::with_capacity(pauses.len());
     for (k, &(s, e)) in pauses.iter().enumerate() {
-        // The longest still run of the pause, trimmed, gives the static reading.
-        let reading = runs(&still[s..e], min_still + 2 * trim)
+        // The longest still run of the pause, trimmed, gives the static reading; one shorter than
+        // `min_still` (but a third of it at least) only where its station has no other.
+        let reading = runs(&still[s..e], min_still.div_ceil(SHORT_STILL) + 2 * trim)
             .into_iter()
             .max_by_key(|(a, b)| b - a)
             .map(|(a, b)| (s + a + trim, s + b - trim));
+        let short = reading.is_some_and(|(a, b)| b - a < min_still);
         let (a, b) = reading.unwrap_or((s, e));
         let pose = timeline
             .theta
@@ -194,8 +217,8 @@ pub(super) fn pieces(
             e,
         )];
         let after = match pauses.get(k + 1) {
-            None => After::Nothing,
-            Some(&(next_s, _)) => motion(timeline, dofs, config, l, (e, next_s), &mut spans),
+            None => Vec::new(),
+            Some(&(next_s, _)) => motions(timeline, dofs, config, l, (e, next_s), &mut spans),
         };
         out.push(Piece {
             pause: (first + s, first + e),
@@ -205,6 +228,7 @@ pub(super) fn pieces(
                 end: first + b,
                 pose,
                 reading: reading.is_some(),
+                short,
             },
             spans,
             after,
@@ -273,14 +297,118 @@ fn span(
     }
 }
 
-/// What the motion over local grid points `[ms, me)`, between two pauses, was; its spans are
-/// added to `spans`.
-fn motion(
+/// What the motions over local grid points `[ms, me)`, between two pauses, were; their spans are
+/// added to `spans`. One motion, unless DoFs that all came back did so one after another: then
+/// each was excited alone and the pause between them was too short to be found (a servo that
+/// rings through a short pause), and each is a motion of its own.
+fn motions(
     timeline: &Timeline,
     dofs: &[String],
     config: &IngestConfig,
     l: usize,
     (ms, me): (usize, usize),
+    spans: &mut Vec<Span>,
+) -> Vec<After> {
+    let motion = classify(timeline, ms, me, config);
+    let parts = match &motion {
+        Motion::Excitation(excited) if excited.len() > 1 => {
+            one_after_another(timeline, excited, (ms, me), l)
+        }
+        _ => None,
+    };
+    // An excitation window reaches 2l into the pauses at its ends; at a cut, it ends there.
+    let window = |a: usize, b: usize| {
+        (
+            if a == ms { a.saturating_sub(2 * l) } else { a },
+            if b == me {
+                (b + 2 * l).min(timeline.len())
+            } else {
+                b
+            },
+        )
+    };
+    let Some(cuts) = parts else {
+        let window = window(ms, me);
+        return vec![motion_after(
+            timeline,
+            dofs,
+            l,
+            ((ms, me), window),
+            motion,
+            spans,
+        )];
+    };
+    let bounds: Vec<usize> = std::iter::once(ms)
+        .chain(cuts)
+        .chain(std::iter::once(me))
+        .collect();
+    bounds
+        .windows(2)
+        .map(|w| {
+            let part = classify(timeline, w[0], w[1], config);
+            let window = window(w[0], w[1]);
+            motion_after(timeline, dofs, l, ((w[0], w[1]), window), part, spans)
+        })
+        .collect()
+}
+
+/// Where to cut a motion of the DoFs `excited` (all came back) into motions of one DoF each,
+/// when each moved alone in turn: every DoF is active (beyond half its largest excursion) in a
+/// stretch that ends before the next one's begins, and each cut is at the slowest point between
+/// them, with room for the filter on both sides. `None`: they moved at the same time.
+fn one_after_another(
+    timeline: &Timeline,
+    excited: &[usize],
+    (ms, me): (usize, usize),
+    l: usize,
+) -> Option<Vec<usize>> {
+    let mut active: Vec<(usize, usize)> = excited
+        .iter()
+        .map(|&e| {
+            let th = &timeline.theta[e];
+            let excursion = th[ms..me]
+                .iter()
+                .fold(0.0f64, |m, q| m.max((q - th[ms]).abs()));
+            let beyond = |i: &usize| (th[*i] - th[ms]).abs() > 0.5 * excursion;
+            let first = (ms..me).find(beyond).unwrap_or(ms);
+            let last = (ms..me).rev().find(beyond).unwrap_or(me);
+            (first, last)
+        })
+        .collect();
+    active.sort_unstable();
+    let speed = |i: usize| {
+        timeline
+            .theta
+            .iter()
+            .map(|th| (th[(i + l).min(me)] - th[i.saturating_sub(l).max(ms)]).abs())
+            .fold(0.0f64, f64::max)
+    };
+    let mut cuts = Vec::with_capacity(active.len() - 1);
+    let mut from = ms;
+    for pair in active.windows(2) {
+        let (end, next) = (pair[0].1, pair[1].0);
+        if end >= next {
+            return None;
+        }
+        let cut = (end..=next).min_by(|&a, &b| speed(a).total_cmp(&speed(b)))?;
+        // Each part's excitation window must hold the fit's filter on both sides.
+        if cut < from + 2 * l + 1 || cut + 2 * l + 1 > me {
+            return None;
+        }
+        cuts.push(cut);
+        from = cut;
+    }
+    Some(cuts)
+}
+
+/// What the motion over local grid points `[ms, me)` was, classified as `motion`; its spans are
+/// added to `spans`; `[start, end)` is the window an excitation is fitted over.
+fn motion_after(
+    timeline: &Timeline,
+    dofs: &[String],
+    l: usize,
+    ((ms, me), (start, end)): ((usize, usize), (usize, usize)),
+    motion: Motion,
     spans: &mut Vec<Span>,
 ) -> After {
     let at = timeline.time(ms);
@@ -290,7 +418,7 @@ fn motion(
         span("broken", None);
         return After::Broken(format!("motion at {at:.3} s: joint states missing (gap)"));
     }
-    match classify(timeline, ms, me, config) {
+    match motion {
         Motion::None => After::Nothing,
         Motion::Move(d) => {
             span("move", Some(d));
@@ -300,33 +428,28 @@ fn motion(
             span("transfer", None);
             After::Transfer
         }
-        Motion::Excitation(excited) => {
-            // The window reaches 2l into both pauses.
-            let start = ms.saturating_sub(2 * l);
-            let end = (me + 2 * l).min(timeline.len());
-            match design(timeline, &excited, start, end, l) {
-                Some(mut x) => {
-                    for &d in &excited {
-                        span("excitation", Some(d));
-                    }
-                    x.start += timeline.first;
-                    x.end += timeline.first;
-                    After::Excitation(x)
+        Motion::Excitation(excited) => match design(timeline, &excited, start, end, l) {
+            Some(mut x) => {
+                for &d in &excited {
+                    span("excitation", Some(d));
                 }
-                None => {
-                    span("broken", Some(excited[0]));
-                    let names = excited
-                        .iter()
-                        .map(|&d| format!("`{}`", dofs[d]))
-                        .collect::<Vec<_>>()
-                        .join(" and ");
-                    After::Broken(format!(
-                        "excitation of {names} at {at:.3} s: too short or no acceleration to fit \
-                         against"
-                    ))
-                }
+                x.start += timeline.first;
+                x.end += timeline.first;
+                After::Excitation(x)
             }
-        }
+            None => {
+                span("broken", Some(excited[0]));
+                let names = excited
+                    .iter()
+                    .map(|&d| format!("`{}`", dofs[d]))
+                    .collect::<Vec<_>>()
+                    .join(" and ");
+                After::Broken(format!(
+                    "excitation of {names} at {at:.3} s: too short or no acceleration to fit \
+                         against"
+                ))
+            }
+        },
     }
 }
 
