@@ -332,13 +332,20 @@ impl LimbData {
             .collect()
     }
 
-    /// Every DoF of the limb must have been excited in at least one pose: its axis is found from
-    /// the accelerations it causes.
+    /// Every DoF of a joint of several DoFs must have been excited in at least one pose: their
+    /// order and axis lines are found from the accelerations they cause. A joint of one DoF
+    /// excited in no pose is found from gravity alone (its position is then unobservable).
     fn check_excited(&self) -> Result<(), EstimateError> {
+        let in_multi_dof_joint = |dof: &String| {
+            self.chain
+                .joints
+                .iter()
+                .any(|j| j.dofs.len() > 1 && j.dofs.contains(dof))
+        };
         match self
             .missing_excitations()
             .into_iter()
-            .find(|(_, lacking)| *lacking == self.poses())
+            .find(|(dof, lacking)| *lacking == self.poses() && in_multi_dof_joint(dof))
         {
             Some((dof, _)) => Err(EstimateError::NeverExcited {
                 dof,

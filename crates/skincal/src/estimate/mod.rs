@@ -57,8 +57,8 @@ pub enum EstimateError {
         /// The limb.
         limb: String,
     },
-    /// No training pose has a dynamic reading of a DoF of the limb.
-    #[error("none of the {poses} training poses has a dynamic reading of DoF `{dof}`, which limb {limb} needs: its axis is found from the accelerations its excitation pattern causes; record that pattern in some of the poses (missing it in a few costs only their readings)")]
+    /// No training pose has a dynamic reading of a DoF of a multi-DoF joint.
+    #[error("none of the {poses} training poses has a dynamic reading of DoF `{dof}`, which limb {limb} needs: it shares a joint with other DoFs, whose order and axis lines are found from the accelerations their excitation patterns cause; record that pattern in some of the poses (missing it in a few costs only their readings)")]
     NeverExcited {
         /// The DoF.
         dof: String,

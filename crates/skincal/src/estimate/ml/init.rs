@@ -39,17 +39,77 @@ fn null_direction(rows: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
 /// Closed-form placement of SU `u` on the segment that DoF `d` moves directly: an axis direction
 /// perpendicular to its DoF-`d` accelerations, the lever arm from their mean. `sign` picks the axis
 /// sense. (Those accelerations are the same in every pose, so the direction is fixed only up to a
-/// turn about them; the solves that follow settle it.)
-pub(super) fn su_from_axis(data: &Readings, u: usize, d: usize, sign: f64) -> Isometry3<f64> {
+/// turn about them; the solves that follow settle it.) Without a dynamic reading of `d` the axis
+/// comes from gravity ([`axis_from_gravity`]) and the lever arm is left at zero: static readings
+/// cannot tell it.
+pub(super) fn su_from_axis(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    u: usize,
+    d: usize,
+    sign: f64,
+) -> Isometry3<f64> {
     let rows: Vec<Vector3<f64>> = (0..data.q.len())
         .filter(|&p| !data.is_rejected(p, u, 1 + d))
         .map(|p| data.dynamics[p][u][d])
         .collect();
+    if rows.is_empty() {
+        let n = axis_from_gravity(state, layout, data, u, d) * sign;
+        return Isometry3::from_parts(Translation3::identity(), onto_z(&n));
+    }
     let n = null_direction(&rows).0 * sign;
     let mean: Vector3<f64> = rows.iter().sum::<Vector3<f64>>() / (rows.len() as f64 * data.alpha);
     let lever = mean.cross(&n);
     let rotation = onto_z(&n);
     Isometry3::from_parts(Translation3::from(rotation * lever), rotation)
+}
+
+/// The axis of DoF `d` in the frame of SU `u` on the segment it moves directly, from the SU's
+/// static readings `s_p` alone. Gravity seen from the segment before the DoF, `w_p`, and the SU's
+/// reading have the same component along the axis (the DoF turns about it): `a·s_p = n·w_p` with
+/// `a` the axis in the SU frame and `n` in that segment's. With the joints before `d` known (the
+/// search's state), `(a, n)` is the null vector of the rows `[s_pᵀ, −w_pᵀ]`. For the first DoF
+/// gravity is the same in every pose: the readings lie on a cone about the axis, which is the
+/// null direction of the readings less their mean.
+fn axis_from_gravity(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    u: usize,
+    d: usize,
+) -> Vector3<f64> {
+    let kept: Vec<usize> = (0..data.q.len())
+        .filter(|&p| !data.is_rejected(p, u, 0))
+        .collect();
+    if d == 0 {
+        let mean = kept
+            .iter()
+            .map(|&p| data.statics[p][u])
+            .sum::<Vector3<f64>>()
+            / kept.len().max(1) as f64;
+        let rows: Vec<Vector3<f64>> = kept.iter().map(|&p| data.statics[p][u] - mean).collect();
+        return null_direction(&rows).0;
+    }
+    let m = DMatrix::from_fn(kept.len().max(6), 6, |i, c| {
+        let Some(&p) = kept.get(i) else {
+            return 0.0;
+        };
+        if c < 3 {
+            data.statics[p][u][c]
+        } else {
+            let segment = frames(state, layout, &data.turns[p], None, d).segments[d];
+            -(segment.rotation.inverse() * -state.gravity)[c - 3]
+        }
+    });
+    let svd = m.svd(false, true);
+    let vt = svd.v_t.expect("requested");
+    let smallest = (0..svd.singular_values.len())
+        .min_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]))
+        .unwrap_or(0);
+    Vector3::new(vt[(smallest, 0)], vt[(smallest, 1)], vt[(smallest, 2)])
+        .try_normalize(1e-12)
+        .unwrap_or_else(Vector3::z)
 }
 
 /// Rotation by `angle` about the line through `o` along the unit vector `n`.

@@ -775,7 +775,7 @@ fn fit_ordered(
         if span.k0 == span.k1 {
             for sign in [1.0, -1.0] {
                 let mut s = empty.clone();
-                s.sus[u] = init::su_from_axis(&readings, u, 0, sign);
+                s.sus[u] = init::su_from_axis(&s, &layout, &readings, u, 0, sign);
                 starts.push(s);
             }
         } else {
@@ -855,7 +855,7 @@ fn fit_ordered(
             if k0 == k1 {
                 for sign in [1.0, -1.0] {
                     let mut s = state.clone();
-                    s.sus[u] = init::su_from_axis(&readings, u, k0, sign);
+                    s.sus[u] = init::su_from_axis(&s, &layout, &readings, u, k0, sign);
                     tails_of.push(s);
                 }
             } else {
@@ -1062,6 +1062,7 @@ fn final_fit(
         &names,
         config.observable_limit,
     );
+    let unobservable = positions_in_one(unobservable, data);
     let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
     let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
     let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, config.intrinsics);
@@ -1424,6 +1425,40 @@ fn su_intrinsics(
                 .collect(),
         })
         .collect()
+}
+
+/// The name that stands for every position of a limb whose set has no dynamic reading.
+pub const STATIC_ONLY_POSITIONS: &str =
+    "every joint line's and SU's position (the set has no dynamic reading of this limb: static \
+     readings tell orientations only)";
+
+/// Where a limb's set has no dynamic reading at all, every position is unobservable: its many
+/// directions are said once, by [`STATIC_ONLY_POSITIONS`].
+fn positions_in_one(unobservable: Vec<Unobservable>, data: &LimbData) -> Vec<Unobservable> {
+    let poses = data.poses();
+    let static_only = data
+        .missing_excitations()
+        .iter()
+        .all(|(_, lacking)| *lacking == poses)
+        && !data.missing_excitations().is_empty();
+    if !static_only {
+        return unobservable;
+    }
+    let position = |name: &String| {
+        [".x", ".y", ".z", ".shift_x", ".shift_y"]
+            .iter()
+            .any(|end| name.ends_with(end))
+    };
+    let mut out = vec![Unobservable {
+        singular_value: 0.0,
+        parameters: vec![STATIC_ONLY_POSITIONS.into()],
+    }];
+    out.extend(
+        unobservable
+            .into_iter()
+            .filter(|u| !u.parameters.iter().all(position)),
+    );
+    out
 }
 
 fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
