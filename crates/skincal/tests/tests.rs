@@ -14,6 +14,7 @@ mod measurements;
 mod ml_estimation;
 mod paper;
 mod physics;
+mod real_logs;
 mod real_robots;
 mod robot_like;
 mod robustness;

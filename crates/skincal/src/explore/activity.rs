@@ -80,6 +80,8 @@ pub struct BrokenSu {
 
 /// Below this norm, g, in every reading an SU is dead.
 const DEAD_NORM: f64 = 0.05;
+/// A still reading whose norm is off 1 g by more than this fraction is no working part's.
+const FAR_FROM_G: f64 = 0.5;
 /// An axis whose median static reading is beyond this, g, is railed: gravity and any bias of a
 /// working SU stay well below it.
 const RAIL: f64 = 1.5;
@@ -147,6 +149,33 @@ pub fn broken_sus(set: &MeasurementSet) -> Vec<BrokenSu> {
                 ));
                 break;
             }
+        }
+        if out.last().is_some_and(|b| &b.su == su) {
+            continue;
+        }
+        // Far from |g| in every still pose: no working part reads that (bias and scale move a
+        // reading's norm by a tenth at most). A driver's placeholder for a board that stopped
+        // answering, (-1, -1, -1), reads 0.18 g.
+        if readings
+            .iter()
+            .all(|r| (norm(r) / STANDARD_GRAVITY - 1.0).abs() > FAR_FROM_G)
+        {
+            let n = norm(readings[0]) / STANDARD_GRAVITY;
+            let same = readings.iter().all(|r| *r == readings[0]);
+            out.push(broken(
+                "dead",
+                format!(
+                    "every still reading's norm is far from 1 g ({n:.2} g{}), which no working accelerometer at rest reads (a placeholder value for a board that does not answer, or a broken part)",
+                    if same {
+                        format!(
+                            ", always ({:.3}, {:.3}, {:.3}) m/s²",
+                            readings[0][0], readings[0][1], readings[0][2]
+                        )
+                    } else {
+                        " in the first pose".into()
+                    }
+                ),
+            ));
         }
     }
     out
@@ -902,11 +931,15 @@ impl<'a> Screen<'a> {
                         .push(self.misread_at(u, oi, Some(&mv.dof), &mv.readings[u]));
                     changes[u] = None;
                 }
+                // Every move of a DoF is evidence (a move out, and a return that misses the rest
+                // pose by a degree): the largest change read counts, with its turn.
                 for (u, c) in changes.into_iter().enumerate() {
                     let c = c.filter(|_| !self.is_broken[u]);
-                    out.per[oi][u][d] = c;
-                    out.turns[oi][u][d] =
-                        c.map(|_| angle_between(&orientation.rest[u], &mv.readings[u]));
+                    if let Some(c) = c.filter(|&c| out.per[oi][u][d].is_none_or(|p| c > p)) {
+                        out.per[oi][u][d] = Some(c);
+                        out.turns[oi][u][d] =
+                            Some(angle_between(&orientation.rest[u], &mv.readings[u]));
+                    }
                 }
             }
         }
@@ -952,9 +985,18 @@ impl<'a> Screen<'a> {
                     v.sort_by(f64::total_cmp);
                     v[v.len() / 2]
                 });
+                // Each DoF's largest change over its moves, as `read_moves` keeps it.
+                let mut rebuilt: Vec<Option<f64>> = vec![None; per[oi][u].len()];
                 for mv in &orientation.moves {
                     if !self.misread(u, &mv.readings[u]) {
-                        per[oi][u][dof(mv)] = Some(largest_change(&rest, &mv.readings[u]));
+                        let c = largest_change(&rest, &mv.readings[u]);
+                        let entry = &mut rebuilt[dof(mv)];
+                        *entry = Some(entry.map_or(c, |p| p.max(c)));
+                    }
+                }
+                for (d, c) in rebuilt.into_iter().enumerate() {
+                    if c.is_some() {
+                        per[oi][u][d] = c;
                     }
                 }
             }

@@ -246,6 +246,12 @@ fn pauses(
 ) -> (Vec<(usize, usize)>, Vec<bool>) {
     let n = timeline.len();
     let dt = timeline.grid.dt;
+    let span = 2.0 * l as f64 * dt;
+    // A still DoF's encoder may read a count either way at both ends of the span: two counts
+    // over it are no motion (a flickering 0.044° encoder at ±50 ms reads 0.015 rad/s).
+    let flicker: Vec<f64> = (0..timeline.theta.len())
+        .map(|e| 2.0 * timeline.grid.count.get(e).copied().unwrap_or(0.0))
+        .collect();
     // Grid points where every DoF is slower than `limit`.
     let below = |limit: f64| -> Vec<bool> {
         (0..n)
@@ -256,7 +262,8 @@ fn pauses(
                 timeline
                     .theta
                     .iter()
-                    .all(|th| ((th[i + l] - th[i - l]) / (2.0 * l as f64 * dt)).abs() < limit)
+                    .zip(&flicker)
+                    .all(|(th, f)| (th[i + l] - th[i - l]).abs() < limit * span + f)
             })
             .collect()
     };

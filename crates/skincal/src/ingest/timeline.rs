@@ -24,6 +24,10 @@ pub(super) struct Grid {
     /// rounding, rad: the smallest step between two of its readings over √12 (0 for readings
     /// that are not rounded).
     pub(super) resolution: Vec<f64>,
+    /// Per DoF, its encoder's count (the smallest change of its readings in the first
+    /// [`GRID_SPAN`] seconds), rad; 0 where they do not change by whole counts. A still DoF's
+    /// readings may flicker by a count either way.
+    pub(super) count: Vec<f64>,
 }
 
 impl Grid {
@@ -103,6 +107,10 @@ impl Grid {
             t0: cleaned.iter().map(|s| s[0].0).fold(f64::MIN, f64::max),
             dt,
             resolution: Vec::new(),
+            count: cleaned
+                .iter()
+                .map(|s| encoder_rounding(&s[..prefix(s).min(s.len())]) * 12f64.sqrt())
+                .collect(),
         })
     }
 
