@@ -162,4 +162,37 @@ fn a_real_legs_dump_ingests_with_default_options_and_the_move_moves_every_live_b
     assert_eq!(never.len(), dofs.len() - 1, "{never:#?}");
     assert_eq!(set.sus.len(), sus.len());
     assert!(dofs.contains(&"r_hip_pitch".to_string()));
+
+    // With the robot's description (`ingest --robot`): its other 20 DoFs have no joint states in
+    // this log (a per-part port); they are named, not a reason to refuse it.
+    let with_robot = ingest(
+        &[dir.path().join("leg")],
+        &IngestConfig {
+            dofs: Some(robot.model.dof_names()),
+            sus: Some(robot.model.su_names()),
+            ..IngestConfig::default()
+        },
+        &mut |_, _, _| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let unrecorded = &with_robot.report.logs[0].unrecorded_joints;
+    let others: Vec<String> = robot
+        .model
+        .dof_names()
+        .into_iter()
+        .filter(|d| !dofs.contains(d))
+        .collect();
+    assert_eq!(unrecorded, &others);
+    assert_eq!(with_robot.measurements.dofs, dofs);
+    assert!(
+        with_robot
+            .report
+            .warnings
+            .iter()
+            .any(|w| w.contains("not recorded") && w.contains("l_knee")),
+        "{:#?}",
+        with_robot.report.warnings
+    );
+    // The description's SUs that this log has no sample of are left out by name.
+    assert_eq!(with_robot.measurements.sus, sus);
 }

@@ -815,6 +815,16 @@ fn training_poses(
 fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
     let mut warnings = std::mem::take(&mut passes.warnings);
     for r in &passes.reports {
+        if !r.unrecorded_joints.is_empty() {
+            warnings.push(format!(
+                "{}: no joint states for the robot's DoF(s) {:?}: not recorded (a log of one part \
+                 of the robot); the measurement set covers the {} DoF(s) the logs have, the others \
+                 held wherever they stood",
+                r.path.display(),
+                r.unrecorded_joints,
+                passes.dofs.len()
+            ));
+        }
         if !r.unknown_frames.is_empty() {
             warnings.push(format!(
                 "{}: samples of unknown frame ids ignored: {:?}",

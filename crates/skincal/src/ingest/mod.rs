@@ -247,6 +247,11 @@ pub struct LogReport {
     pub longest_joint_gap: f64,
     /// Joint names not expected, with their sample counts.
     pub unknown_joints: BTreeMap<String, u64>,
+    /// The robot's DoFs (the expected ones) that this log has no joint states for: a log of one
+    /// part of the robot (a per-part port, a controller's own topic). The measurement set covers
+    /// the DoFs the logs have.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unrecorded_joints: Vec<String>,
     /// Frame ids not expected, with their sample counts.
     pub unknown_frames: BTreeMap<String, u64>,
     /// SU samples earlier than the previous one of the same SU.

@@ -305,8 +305,10 @@ fn too_few(path: &Path, d: &str, s: &[(f64, f64)]) -> Result<(), IngestError> {
 }
 
 /// The DoFs of a log whose joint states named `seen` (in order of first appearance; `count` gives
-/// a name's samples): the expected ones, which must all be seen (other names are reported as
-/// unknown), else those seen, which become the expected ones of the next logs.
+/// a name's samples): the expected ones (other names are reported as unknown), else those seen,
+/// which become the expected ones of the next logs. Expected DoFs the log does not have (a log of
+/// one part of the robot) are named in the report and left out of the expected ones, provided it
+/// has one of them at least.
 pub(super) fn expected_dofs(
     path: &Path,
     config: &IngestConfig,
@@ -322,15 +324,21 @@ pub(super) fn expected_dofs(
                     report.unknown_joints.insert(name.clone(), count(name));
                 }
             }
-            let missing: Vec<&String> = known.iter().filter(|d| !seen.contains(*d)).collect();
-            if !missing.is_empty() {
+            let (recorded, missing): (Vec<String>, Vec<String>) =
+                known.iter().cloned().partition(|d| seen.contains(d));
+            if recorded.is_empty() {
                 return Err(IngestError::Unusable {
                     path: path.to_path_buf(),
                     reason: format!(
-                        "no joint states for DoF(s) {missing:?} (names seen: {seen:?}); check the \
-                         joint topic (--joint-topic) and that the log is of this robot"
+                        "no joint states for any of the DoF(s) {missing:?} (names seen: \
+                         {seen:?}); check the joint topic (--joint-topic) and that the log is of \
+                         this robot"
                     ),
                 });
+            }
+            if !missing.is_empty() {
+                report.unrecorded_joints = missing;
+                *known = recorded;
             }
             Ok(known.clone())
         }
