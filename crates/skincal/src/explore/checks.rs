@@ -53,6 +53,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
     }
     // Angles are compared with a tolerance well above the noise of one angle (σ/|g| per reading).
     let tolerance = RIGID_TOLERANCE.max(6.0 * sigma / STANDARD_GRAVITY);
+    found.extend(base_turns(set, a, 6.0 * sigma / STANDARD_GRAVITY));
     for (oi, o) in structure.orientations.iter().enumerate() {
         for mv in &o.moves {
             let Some(d) = a.dofs.iter().position(|x| *x == mv.dof) else {
@@ -82,7 +83,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             // SUs that turned further than the DoF travelled, each alone, read wrongly: the
             // activity matrix left them out already.
             let travel = (mv.pose[d] - o.rest_pose[d]).abs();
-            let lone = beyond_travel(&turned, travel, tolerance);
+            let lone = beyond_travel(&turned, travel, tolerance.max(INTRINSIC_SHARE * travel));
             turned.retain(|(_, u)| !lone.contains(u));
             if turned.len() < 2 {
                 continue;
@@ -99,11 +100,26 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             }
             moved.sort_by(f64::total_cmp);
             let median = moved[moved.len() / 2];
+            // A real accelerometer's bias and scale change how far its reading turns, by a share
+            // of the turn: angles that differ by less say nothing of a second rotation. They
+            // change its norm over the turn by a share too; a reading whose norm changed by more
+            // than bias and scale can is judged without that allowance.
+            let strict = tolerance;
+            let relaxed = tolerance.max(INTRINSIC_SHARE * median);
+            let norm_change = |u: usize| (norm(&mv.readings[u]) - norm(&o.rest[u])).abs();
+            let allowed_change = INTRINSIC_SHARE * median * STANDARD_GRAVITY + 6.0 * sigma;
+            let tolerance_of = |u: usize| {
+                if norm_change(u) > allowed_change {
+                    strict
+                } else {
+                    relaxed
+                }
+            };
             turned.sort_by(|x, y| x.0.total_cmp(&y.0));
             type Turned<'t> = Vec<&'t (f64, usize)>;
             let (odd, rest): (Turned, Turned) = turned
                 .iter()
-                .partition(|(angle, _)| (angle - median).abs() > tolerance);
+                .partition(|&&(angle, u)| (angle - median).abs() > tolerance_of(u));
             if odd.is_empty() {
                 continue;
             }
@@ -117,7 +133,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
             // (the base tilted). Odd SUs that agree with nobody read wrongly (glitches).
             let agreeing = odd.iter().any(|&&(x, u)| {
                 odd.iter()
-                    .any(|&&(y, v)| u != v && (x - y).abs() <= tolerance)
+                    .any(|&&(y, v)| u != v && (x - y).abs() <= relaxed)
             });
             let lone =
                 !agreeing && (rest.len() >= 2 || odd.iter().all(|&&(_, u)| !a.is_active(u, d)));
@@ -148,7 +164,96 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
     found
 }
 
+/// The moves during which the reference segment turned: its SUs — those that stay still in every
+/// other move of their orientation — all turned together, by more than the noise allows
+/// (`noise`, rad) and by much the same angle. A base that tilts by a few degrees moves no SU
+/// beyond the activity threshold far from the axis, and bias and scale errors do not make a
+/// still SU turn: this names what the angles of the moved SUs cannot.
+fn base_turns(set: &MeasurementSet, a: &ActivityMatrix, noise: f64) -> Vec<Diagnostic> {
+    let mut found = Vec::new();
+    let Some(structure) = &set.structure else {
+        return found;
+    };
+    let noise = noise.max(MIN_BASE_TURN);
+    let usable = |u: usize| !a.broken.iter().any(|b| b.su == a.sus[u]);
+    // angles[o][k][u]: how far SU u's reading turned in move k of orientation o.
+    let angles: Vec<Vec<Vec<f64>>> = structure
+        .orientations
+        .iter()
+        .map(|o| {
+            o.moves
+                .iter()
+                .map(|mv| {
+                    (0..a.sus.len())
+                        .map(|u| angle_between(&o.rest[u], &mv.readings[u]))
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    for (oi, o) in structure.orientations.iter().enumerate() {
+        for (m, mv) in o.moves.iter().enumerate() {
+            // Still in every other move of every orientation (three at least): an SU that only
+            // this move's DoF moves turns in that DoF's move in the other orientation too.
+            let reference: Vec<usize> = (0..a.sus.len())
+                .filter(|&u| usable(u))
+                .filter(|&u| {
+                    let others: Vec<f64> = angles
+                        .iter()
+                        .enumerate()
+                        .flat_map(|(p, moves)| {
+                            moves
+                                .iter()
+                                .enumerate()
+                                .filter(move |&(k, _)| (p, k) != (oi, m))
+                                .map(move |(_, turned)| turned[u])
+                        })
+                        .collect();
+                    others.len() >= 3 && others.iter().all(|&x| x < noise)
+                })
+                .collect();
+            if reference.len() < 2 {
+                continue;
+            }
+            let mut turned: Vec<f64> = reference.iter().map(|&u| angles[oi][m][u]).collect();
+            turned.sort_by(f64::total_cmp);
+            let (least, median) = (turned[0], turned[turned.len() / 2]);
+            // SUs that only this DoF moves, about an axis vertical in the other orientation,
+            // look still elsewhere too; they turn by the DoF's travel, a base by far less.
+            let d = set.dof_index(&mv.dof);
+            let travel = d.map_or(0.0, |d| (mv.pose[d] - o.rest_pose[d]).abs());
+            if least > noise && least > 0.5 * median && median < 0.5 * travel {
+                found.push(Diagnostic {
+                    kind: DiagnosticKind::MoveNotRigid,
+                    severity: Severity::Error,
+                    message: format!(
+                        "in the move of {} (orientation {}), the SUs that stay still in every other move — those on the reference segment — turned by about {:.1}° (the noise allows {:.1}°): the base tilted or moved during this move, and every SU's change in it is off by that turn. Hold the base still and record this move again",
+                        mv.dof,
+                        oi + 1,
+                        median.to_degrees(),
+                        noise.to_degrees()
+                    ),
+                    sus: reference.iter().map(|&u| a.sus[u].clone()).collect(),
+                    dofs: vec![mv.dof.clone()],
+                });
+            }
+        }
+    }
+    found
+}
+
+/// The smallest turn of the reference segment's SUs that counts as the base turning, rad: below
+/// it a still reading's noise and the settling of a compliant base explain it.
+const MIN_BASE_TURN: f64 = 0.0175;
+
 /// The noise must stay below the threshold by this factor.
 const NOISE_MARGIN: f64 = 3.0;
 /// Smallest difference between two SUs' gravity turn angles in one move that counts, rad.
 pub(super) const RIGID_TOLERANCE: f64 = 0.05;
+/// The share of a turn by which a real accelerometer's reading may turn further or less: a bias
+/// of up to 0.1 g moves a reading's norm, and so the angle between two readings, by a tenth or
+/// so, and scale factors that differ by up to ±5 % per axis by as much again (the angle between
+/// two readings of an SU with 0.06 g of bias and 3 % of scale errors differed by 3.7° in a 17°
+/// move of the humanoid's ankle). A second rotation (a base that tilts) turns the SUs the DoF
+/// does not move too, and those differ by the whole turn.
+const INTRINSIC_SHARE: f64 = 0.3;
