@@ -584,7 +584,8 @@ fn settle_by_tree(
 
 /// How far `active` is from a tree: the distinct non-empty rows that have no parent or several (no
 /// other row, or the empty one, lacks exactly one of their joints, or several do; columns equal
-/// over every SU form one joint), plus the joints whose rows do not all hold the shortest of them.
+/// over every SU form one joint), plus the joints whose rows do not all hold the shortest of them,
+/// plus the joints that directly move segments hanging from different parents.
 fn orphan_rows(active: &[Vec<bool>]) -> usize {
     let nd = active.first().map_or(0, Vec::len);
     let column = |d: usize| active.iter().map(|row| row[d]).collect::<Vec<bool>>();
@@ -638,7 +639,28 @@ fn orphan_rows(active: &[Vec<bool>]) -> usize {
             shortest.is_some_and(|s| with.iter().any(|r| !s.iter().all(|x| r.contains(x))))
         })
         .count();
-    orphans + split
+    // A joint moves one segment directly, hanging from one parent: rows that it ends (the row
+    // less it is a row, or empty) with different parents put it in two places (an SU on the first
+    // link read as moved by the fourth joint hangs the fourth joint from the first link too).
+    let crossing = (0..joints.len())
+        .filter(|&j| {
+            let mut parents: Vec<Vec<usize>> = rows
+                .iter()
+                .filter(|r| r.contains(&j))
+                .map(|r| {
+                    r.iter()
+                        .copied()
+                        .filter(|&x| x != j)
+                        .collect::<Vec<usize>>()
+                })
+                .filter(|p| p.is_empty() || rows.contains(p))
+                .collect();
+            parents.sort();
+            parents.dedup();
+            parents.len() > 1
+        })
+        .count();
+    orphans + split + crossing
 }
 
 /// A structure-experiment reading left out as misread.
