@@ -396,20 +396,22 @@ fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
     assert!(page.contains("(0.3000)"));
 }
 
+/// The paper's arm with its ±0.01 g noise (seed 4), and its measurement set.
+fn paper_arm_with_the_papers_noise() -> (Robot, skincal::measurements::MeasurementSet) {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let config = SimulationConfig {
+        seed: 4,
+        ..SimulationConfig::default()
+    };
+    let set = simulate(&robot, &config).unwrap().measurements;
+    (robot, set)
+}
+
 #[test]
 fn excitations_missing_from_some_poses_cost_only_their_readings() {
     // A log rarely holds every excitation of every pose: a window lost to a gap, a pattern the
     // servo did not follow. The fit uses what the set has; only a DoF never excited stops it.
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let full = simulate(
-        &robot,
-        &SimulationConfig {
-            seed: 4,
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
+    let (robot, full) = paper_arm_with_the_papers_noise();
     let structure = explore(&full, &ExploreConfig::default()).unwrap();
     let mut partial = full.clone();
     let mut removed = 0;
@@ -478,16 +480,7 @@ fn excitations_missing_from_some_poses_cost_only_their_readings() {
 fn a_set_of_static_readings_alone_calibrates_every_orientation() {
     // What many labs record: mean readings at a list of poses, no excitation. Gravity tells every
     // axis direction and SU orientation; no position, and the estimate says so in one line.
-    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let mut set = simulate(
-        &robot,
-        &SimulationConfig {
-            seed: 4,
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
+    let (robot, mut set) = paper_arm_with_the_papers_noise();
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     let config = MlConfig::default();
     let full = calibrate_body(&set, Some(&structure), &config, None).unwrap();

@@ -392,8 +392,12 @@ impl LimbData {
                     .collect()
             })
             .collect();
-        let sd = self.sd.as_ref().map(|sd| {
-            sd.iter()
+        // Per-reading values `[p][u][row]`: row 0 the static reading, `1 + k` chain DoF k's.
+        fn reordered<T: Copy>(
+            v: &[Vec<Vec<T>>],
+            permute: impl Fn(usize) -> usize,
+        ) -> Vec<Vec<Vec<T>>> {
+            v.iter()
                 .map(|per_su| {
                     per_su
                         .iter()
@@ -405,21 +409,9 @@ impl LimbData {
                         .collect()
                 })
                 .collect()
-        });
-        let missing = self
-            .missing
-            .iter()
-            .map(|per_su| {
-                per_su
-                    .iter()
-                    .map(|m| {
-                        (0..m.len())
-                            .map(|j| if j == 0 { m[0] } else { m[1 + permute(j - 1)] })
-                            .collect()
-                    })
-                    .collect()
-            })
-            .collect();
+        }
+        let sd = self.sd.as_ref().map(|sd| reordered(sd, permute));
+        let missing = reordered(&self.missing, permute);
         Self {
             chain,
             q,
