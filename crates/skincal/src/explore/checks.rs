@@ -17,24 +17,7 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
     let Some(structure) = &set.structure else {
         return found;
     };
-    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
-    // Noise from the norms: for each (SU, move), |r_move| − |r_rest| has twice the variance of
-    // the noise along gravity.
-    // The median of the squares (robust to misread readings) over that of χ² with one degree of
-    // freedom (0.455) estimates the variance.
-    let mut squares: Vec<f64> = Vec::new();
-    for o in &structure.orientations {
-        for mv in &o.moves {
-            for (before, after) in o.rest.iter().zip(&mv.readings) {
-                let d = norm(after) - norm(before);
-                squares.push(d * d);
-            }
-        }
-    }
-    squares.sort_by(f64::total_cmp);
-    let sigma = squares
-        .get(squares.len() / 2)
-        .map_or(0.0, |m| (m / 0.455 / 2.0).sqrt());
+    let sigma = static_noise(structure);
     if sigma * NOISE_MARGIN > a.threshold {
         found.push(Diagnostic {
             kind: DiagnosticKind::TooNoisy,
@@ -56,112 +39,144 @@ pub(super) fn physical_checks(set: &MeasurementSet, a: &ActivityMatrix) -> Vec<D
     found.extend(base_turns(set, a, 6.0 * sigma / STANDARD_GRAVITY));
     for (oi, o) in structure.orientations.iter().enumerate() {
         for mv in &o.moves {
-            let Some(d) = a.dofs.iter().position(|x| *x == mv.dof) else {
-                continue;
-            };
-            // The SUs it clearly moved, and the angle their gravity reading turned by.
-            // Readings whose norm is not |g| say nothing about how the move turned.
-            let misread = |u: usize| {
-                a.misread.iter().any(|m| {
-                    m.orientation == oi + 1
-                        && m.su == a.sus[u]
-                        && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
-                        && (m.norm_g - m.expected_g).abs() > super::activity::MISREAD_TOLERANCE
-                })
-            };
-            let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
-                .filter(|&u| !misread(u))
-                .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
-                .filter(|&u| {
-                    let c = (0..3)
-                        .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
-                        .fold(0.0, f64::max);
-                    c > a.threshold * a.uncertainty_factor
-                })
-                .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
-                .collect();
-            // SUs that turned further than the DoF travelled, each alone, read wrongly: the
-            // activity matrix left them out already.
-            let travel = (mv.pose[d] - o.rest_pose[d]).abs();
-            let lone = beyond_travel(&turned, travel, tolerance.max(INTRINSIC_SHARE * travel));
-            turned.retain(|(_, u)| !lone.contains(u));
-            if turned.len() < 2 {
-                continue;
-            }
-            // The angle of the move is that of the SUs the matrix says it moves (where a glitch
-            // and a moved SU are all there is, the glitch must not set it).
-            let mut moved: Vec<f64> = turned
-                .iter()
-                .filter(|&&(_, u)| a.is_active(u, d))
-                .map(|&(angle, _)| angle)
-                .collect();
-            if moved.is_empty() {
-                moved = turned.iter().map(|&(angle, _)| angle).collect();
-            }
-            moved.sort_by(f64::total_cmp);
-            let median = moved[moved.len() / 2];
-            // A real accelerometer's bias and scale change how far its reading turns, by a share
-            // of the turn: angles that differ by less say nothing of a second rotation. They
-            // change its norm over the turn by a share too; a reading whose norm changed by more
-            // than bias and scale can is judged without that allowance.
-            let strict = tolerance;
-            let relaxed = tolerance.max(INTRINSIC_SHARE * median);
-            let norm_change = |u: usize| (norm(&mv.readings[u]) - norm(&o.rest[u])).abs();
-            let allowed_change = INTRINSIC_SHARE * median * STANDARD_GRAVITY + 6.0 * sigma;
-            let tolerance_of = |u: usize| {
-                if norm_change(u) > allowed_change {
-                    strict
-                } else {
-                    relaxed
-                }
-            };
-            turned.sort_by(|x, y| x.0.total_cmp(&y.0));
-            type Turned<'t> = Vec<&'t (f64, usize)>;
-            let (odd, rest): (Turned, Turned) = turned
-                .iter()
-                .partition(|&&(angle, u)| (angle - median).abs() > tolerance_of(u));
-            if odd.is_empty() {
-                continue;
-            }
-            let names = |g: &[&(f64, usize)]| {
-                g.iter()
-                    .map(|(angle, u)| format!("{} {:.1}°", a.sus[*u], angle.to_degrees()))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
-            // Odd SUs that agree with each other turned by a second rotation: the move went wrong
-            // (the base tilted). Odd SUs that agree with nobody read wrongly (glitches).
-            let agreeing = odd.iter().any(|&&(x, u)| {
-                odd.iter()
-                    .any(|&&(y, v)| u != v && (x - y).abs() <= relaxed)
-            });
-            let lone =
-                !agreeing && (rest.len() >= 2 || odd.iter().all(|&&(_, u)| !a.is_active(u, d)));
-            found.push(Diagnostic {
-                kind: if lone {
-                    DiagnosticKind::MisreadReading
-                } else {
-                    DiagnosticKind::MoveNotRigid
-                },
-                severity: if lone {
-                    Severity::Warning
-                } else {
-                    Severity::Error
-                },
-                message: format!(
-                    "in the move of {} (orientation {}), the SUs' gravity readings turned by different angles: {} SUs by about {:.1}°, but {}. One DoF turns everything it moves by one rotation, so something else moved during this move — most often the base (the reference segment) tilted, or another DoF slipped. Hold the base still and record this move again",
-                    mv.dof,
-                    oi + 1,
-                    rest.len(),
-                    median.to_degrees(),
-                    names(&odd)
-                ),
-                sus: odd.iter().map(|(_, u)| a.sus[*u].clone()).collect(),
-                dofs: vec![a.dofs[d].clone()],
-            });
+            found.extend(unlike_turns(a, (oi, o), mv, sigma, tolerance));
         }
     }
     found
+}
+
+/// One move's SUs whose gravity turned by another angle than the others': more than the noise
+/// and the sensors' bias and scale allow (`tolerance` is the noise's part). Those that agree with
+/// each other turned by a second rotation (the move went wrong, an error); those that agree with
+/// nobody read wrongly (a warning).
+fn unlike_turns(
+    a: &ActivityMatrix,
+    (oi, o): (usize, &crate::measurements::Orientation),
+    mv: &crate::measurements::Move,
+    sigma: f64,
+    tolerance: f64,
+) -> Option<Diagnostic> {
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let d = a.dofs.iter().position(|x| *x == mv.dof)?;
+    // The SUs it clearly moved, and the angle their gravity reading turned by.
+    // Readings whose norm is not |g| say nothing about how the move turned.
+    let misread = |u: usize| {
+        a.misread.iter().any(|m| {
+            m.orientation == oi + 1
+                && m.su == a.sus[u]
+                && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
+                && (m.norm_g - m.expected_g).abs() > super::activity::MISREAD_TOLERANCE
+        })
+    };
+    let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
+        .filter(|&u| !misread(u))
+        .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
+        .filter(|&u| {
+            let c = (0..3)
+                .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
+                .fold(0.0, f64::max);
+            c > a.threshold * a.uncertainty_factor
+        })
+        .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
+        .collect();
+    // SUs that turned further than the DoF travelled, each alone, read wrongly: the
+    // activity matrix left them out already.
+    let travel = (mv.pose[d] - o.rest_pose[d]).abs();
+    let lone = beyond_travel(&turned, travel, tolerance.max(INTRINSIC_SHARE * travel));
+    turned.retain(|(_, u)| !lone.contains(u));
+    if turned.len() < 2 {
+        return None;
+    }
+    // The angle of the move is that of the SUs the matrix says it moves (where a glitch
+    // and a moved SU are all there is, the glitch must not set it).
+    let mut moved: Vec<f64> = turned
+        .iter()
+        .filter(|&&(_, u)| a.is_active(u, d))
+        .map(|&(angle, _)| angle)
+        .collect();
+    if moved.is_empty() {
+        moved = turned.iter().map(|&(angle, _)| angle).collect();
+    }
+    moved.sort_by(f64::total_cmp);
+    let median = moved[moved.len() / 2];
+    // A real accelerometer's bias and scale change how far its reading turns, by a share
+    // of the turn: angles that differ by less say nothing of a second rotation. They
+    // change its norm over the turn by a share too; a reading whose norm changed by more
+    // than bias and scale can is judged without that allowance.
+    let strict = tolerance;
+    let relaxed = tolerance.max(INTRINSIC_SHARE * median);
+    let norm_change = |u: usize| (norm(&mv.readings[u]) - norm(&o.rest[u])).abs();
+    let allowed_change = INTRINSIC_SHARE * median * STANDARD_GRAVITY + 6.0 * sigma;
+    let tolerance_of = |u: usize| {
+        if norm_change(u) > allowed_change {
+            strict
+        } else {
+            relaxed
+        }
+    };
+    turned.sort_by(|x, y| x.0.total_cmp(&y.0));
+    type Turned<'t> = Vec<&'t (f64, usize)>;
+    let (odd, rest): (Turned, Turned) = turned
+        .iter()
+        .partition(|&&(angle, u)| (angle - median).abs() > tolerance_of(u));
+    if odd.is_empty() {
+        return None;
+    }
+    let names = |g: &[&(f64, usize)]| {
+        g.iter()
+            .map(|(angle, u)| format!("{} {:.1}°", a.sus[*u], angle.to_degrees()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    // Odd SUs that agree with each other turned by a second rotation: the move went wrong
+    // (the base tilted). Odd SUs that agree with nobody read wrongly (glitches).
+    let agreeing = odd.iter().any(|&&(x, u)| {
+        odd.iter()
+            .any(|&&(y, v)| u != v && (x - y).abs() <= relaxed)
+    });
+    let lone = !agreeing && (rest.len() >= 2 || odd.iter().all(|&&(_, u)| !a.is_active(u, d)));
+    Some(Diagnostic {
+        kind: if lone {
+            DiagnosticKind::MisreadReading
+        } else {
+            DiagnosticKind::MoveNotRigid
+        },
+        severity: if lone {
+            Severity::Warning
+        } else {
+            Severity::Error
+        },
+        message: format!(
+            "in the move of {} (orientation {}), the SUs' gravity readings turned by different angles: {} SUs by about {:.1}°, but {}. One DoF turns everything it moves by one rotation, so something else moved during this move — most often the base (the reference segment) tilted, or another DoF slipped. Hold the base still and record this move again",
+            mv.dof,
+            oi + 1,
+            rest.len(),
+            median.to_degrees(),
+            names(&odd)
+        ),
+        sus: odd.iter().map(|(_, u)| a.sus[*u].clone()).collect(),
+        dofs: vec![a.dofs[d].clone()],
+    })
+}
+
+/// The noise of the static readings along gravity, m/s²: for each (SU, move), |r_move| − |r_rest|
+/// has twice its variance; the median of the squares (robust to misread readings) over that of χ²
+/// with one degree of freedom (0.455) estimates it.
+fn static_noise(structure: &crate::measurements::StructureExperiment) -> f64 {
+    let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let mut squares: Vec<f64> = Vec::new();
+    for o in &structure.orientations {
+        for mv in &o.moves {
+            for (before, after) in o.rest.iter().zip(&mv.readings) {
+                let d = norm(after) - norm(before);
+                squares.push(d * d);
+            }
+        }
+    }
+    squares.sort_by(f64::total_cmp);
+    squares
+        .get(squares.len() / 2)
+        .map_or(0.0, |m| (m / 0.455 / 2.0).sqrt())
 }
 
 /// The moves during which the reference segment turned: its SUs — those that stay still in every
