@@ -356,6 +356,18 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     for r in &e.retries {
         let _ = writeln!(out, "tried: {r}");
     }
+    if !e.missing_excitations.is_empty() {
+        let lacking: Vec<String> = e
+            .missing_excitations
+            .iter()
+            .map(|(dof, n)| format!("{dof} {n}"))
+            .collect();
+        let _ = writeln!(
+            out,
+            "dynamic readings missing from the set (fitted without them), poses lacking each: {}",
+            lacking.join(", ")
+        );
+    }
     for u in &e.unobservable {
         let _ = writeln!(
             out,

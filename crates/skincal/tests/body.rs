@@ -501,6 +501,8 @@ fn a_set_of_static_readings_alone_calibrates_every_orientation() {
         limb.unobservable[0].parameters,
         [skincal::estimate::ml::STATIC_ONLY_POSITIONS]
     );
+    let every: Vec<(String, usize)> = (1..=7).map(|k| (format!("dof{k}"), 20)).collect();
+    assert_eq!(limb.missing_excitations, every);
     let truth = held_out(&robot, 99);
     let (with, without) = (
         validate(&full, &truth, "held-out").unwrap(),

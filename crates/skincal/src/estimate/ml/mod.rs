@@ -362,6 +362,10 @@ pub struct MlChainEstimate {
     /// Per SU with wild readings (glitches): how many were left out of the fit.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub rejected: Vec<SuRejected>,
+    /// The limb's DoFs whose dynamic readings the set lacks, with the number of training poses
+    /// that lack them (a DoF lacking them in every pose is placed from gravity alone).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub missing_excitations: Vec<(String, usize)>,
     /// Per SU: the accelerometer intrinsics estimated with the kinematics (empty when none are).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics: Vec<SuIntrinsics>,
@@ -1124,6 +1128,7 @@ fn final_fit(
         joint_covariance,
         intrinsics,
         rejected,
+        missing_excitations: data.missing_excitations(),
         su_residual_ratio,
         iterations,
         seconds: started.elapsed().as_secs_f64(),
