@@ -832,6 +832,27 @@ fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
                 r.unknown_frames
             ));
         }
+        if !r.repeated.is_empty() {
+            let share: Vec<String> = r
+                .repeated
+                .iter()
+                .map(|(su, x)| {
+                    format!(
+                        "{su} ({:.0} % repeated, fresh at about {:.0} Hz)",
+                        100.0 * x.share,
+                        x.fresh_rate
+                    )
+                })
+                .collect();
+            warnings.push(format!(
+                "{}: SUs whose samples mostly repeat the one before exactly: {} — a board slower \
+                 than its port, which repeats its last sample; its readings' deviations count the \
+                 repeats as samples, and so are too small (by the square root of the share of \
+                 fresh samples)",
+                r.path.display(),
+                share.join(", ")
+            ));
+        }
         if !r.saturated.is_empty() {
             warnings.push(format!(
                 "{}: saturated samples (±{:.2} m/s²) not used: {:?}",

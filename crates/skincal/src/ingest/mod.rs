@@ -218,6 +218,15 @@ impl IngestConfig {
     }
 }
 
+/// An SU whose samples mostly repeat the one before (see [`LogReport::repeated`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Repeated {
+    /// The share of its samples that repeat the one before exactly.
+    pub share: f64,
+    /// Its fresh samples per second, Hz: the board's own rate.
+    pub fresh_rate: f64,
+}
+
 /// What happened to one log.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -265,6 +274,12 @@ pub struct LogReport {
     pub imu_span: Option<[f64; 2]>,
     /// Saturated SU samples inside still and excitation windows (not used), by SU.
     pub saturated: BTreeMap<String, u64>,
+    /// SUs whose samples mostly repeat the one before exactly, with how many do: a board slower
+    /// than the port that sends for it, which repeats its last sample (a working accelerometer's
+    /// noise makes two samples alike now and then, not most of the time). A board that never
+    /// changes is not here: it is dead or frozen, which `explore` names.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub repeated: BTreeMap<String, Repeated>,
     /// Missing SU samples inside excitation windows, filled by linear interpolation.
     pub filled: u64,
     /// Still windows found (each gives a static reading).

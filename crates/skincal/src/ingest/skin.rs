@@ -6,7 +6,7 @@ use std::path::Path;
 use super::fit::Excitation;
 use super::segment::Segmentation;
 use super::timeline::Timeline;
-use super::{IngestConfig, IngestError, LogReport, Progress};
+use super::{IngestConfig, IngestError, LogReport, Progress, Repeated};
 use crate::log::{self, Sample, Stream};
 
 /// Names of the SUs and their indices.
@@ -320,7 +320,73 @@ pub(super) struct Router {
     filled: u64,
     /// The earliest and latest stamp of the samples of known SUs.
     span: Option<(f64, f64)>,
+    /// Per SU: its last sample, its samples, how many repeated the one before exactly, and
+    /// whether any differed from it.
+    repeats: Vec<Repeats>,
 }
+
+/// How an SU's samples repeat (see [`LogReport::repeated`]).
+#[derive(Debug, Clone)]
+struct Repeats {
+    last: Option<[f64; 3]>,
+    samples: u64,
+    repeated: u64,
+    /// The length of the run of equal samples that goes on.
+    run: usize,
+    /// How many finished runs had each length (the last entry: that length or longer).
+    runs: [u64; LONGEST_RUN + 1],
+}
+
+impl Default for Repeats {
+    fn default() -> Self {
+        Self {
+            last: None,
+            samples: 0,
+            repeated: 0,
+            run: 0,
+            runs: [0; LONGEST_RUN + 1],
+        }
+    }
+}
+
+impl Repeats {
+    fn add(&mut self, sample: [f64; 3]) {
+        self.samples += 1;
+        if self.last == Some(sample) {
+            self.repeated += 1;
+            self.run += 1;
+            return;
+        }
+        if self.run > 0 {
+            self.runs[self.run.min(LONGEST_RUN)] += 1;
+        }
+        self.last = Some(sample);
+        self.run = 1;
+    }
+
+    /// A board held by a slower port: most samples repeat the one before, in short runs that
+    /// end (the typical run is 2 long or more). A simulated noise-free skin repeats for whole
+    /// still periods but changes at every sample in motion (its typical run is 1); a dead or
+    /// frozen board never changes.
+    fn held(&self) -> bool {
+        let finished: u64 = self.runs.iter().sum();
+        let mut below = 0;
+        let typical = (1..=LONGEST_RUN).find(|&k| {
+            below += self.runs[k];
+            2 * below >= finished
+        });
+        finished > 0
+            && self.repeated as f64 > HELD_SHARE * self.samples as f64
+            && typical.is_some_and(|k| (2..LONGEST_RUN).contains(&k))
+    }
+}
+
+/// An SU whose samples repeat the one before this often (in short runs) is a slower board behind
+/// a port that repeats its last sample.
+const HELD_SHARE: f64 = 0.5;
+/// Runs of equal samples this long or longer are counted together: a board this much slower
+/// than its port is a stale one.
+const LONGEST_RUN: usize = 64;
 
 impl Router {
     /// The SU of a sample of `frame_id` at `stamp`; `None` (counted) for a frame not expected.
@@ -362,6 +428,8 @@ impl Router {
         acceleration: [f64; 3],
     ) {
         let acceleration = acceleration.map(|v| v * config.skin_scale);
+        grow(&mut self.repeats, su + 1);
+        self.repeats[su].add(acceleration);
         // The window holding m: usually the current one or the next.
         let routes = &seg.routes;
         let route = self.route;
@@ -419,6 +487,18 @@ impl Router {
         report.imu_span = self.span.map(|(first, last)| [first, last]);
         for (su, count) in self.saturated {
             report.saturated.insert(sus.names[su].clone(), count);
+        }
+        let seconds = self.span.map_or(0.0, |(first, last)| last - first);
+        for (su, r) in self.repeats.iter().enumerate() {
+            if r.held() && seconds > 0.0 {
+                report.repeated.insert(
+                    sus.names[su].clone(),
+                    Repeated {
+                        share: r.repeated as f64 / r.samples as f64,
+                        fresh_rate: (r.samples - r.repeated) as f64 / seconds,
+                    },
+                );
+            }
         }
         self.acc
     }
