@@ -317,6 +317,23 @@ pub fn calibration_bench(
     out
 }
 
+/// The line naming the DoFs whose dynamic readings the set lacks, if any.
+fn missing_excitations(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
+    if e.missing_excitations.is_empty() {
+        return;
+    }
+    let lacking: Vec<String> = e
+        .missing_excitations
+        .iter()
+        .map(|(dof, n)| format!("{dof} {n}"))
+        .collect();
+    let _ = writeln!(
+        out,
+        "dynamic readings missing from the set (fitted without them), poses lacking each: {}",
+        lacking.join(", ")
+    );
+}
+
 pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     let mut out = String::new();
     let g = e.gravity;
@@ -356,18 +373,7 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     for r in &e.retries {
         let _ = writeln!(out, "tried: {r}");
     }
-    if !e.missing_excitations.is_empty() {
-        let lacking: Vec<String> = e
-            .missing_excitations
-            .iter()
-            .map(|(dof, n)| format!("{dof} {n}"))
-            .collect();
-        let _ = writeln!(
-            out,
-            "dynamic readings missing from the set (fitted without them), poses lacking each: {}",
-            lacking.join(", ")
-        );
-    }
+    missing_excitations(&mut out, e);
     for u in &e.unobservable {
         let _ = writeln!(
             out,
