@@ -75,6 +75,21 @@ fn physics_logs(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> (Path
     (upright, tilted)
 }
 
+/// The calibrated `model`'s predictions against 30 noise-free held-out poses of `robot` (seed 77),
+/// printed after `label`.
+fn held_out_rms(
+    model: &skincal::estimate::body::BodyModel,
+    robot: &Robot,
+    label: &str,
+) -> skincal::predict::Validation {
+    let v = validate(model, &crate::common::held_out(robot, 77), "held-out").unwrap();
+    eprintln!(
+        "{label}held-out RMS static {:.4}, dynamic {:.4} m/s²",
+        v.static_rms, v.dynamic_rms
+    );
+    v
+}
+
 /// Against the truth, static and dynamic: the RMS over the training poses of the norm of
 /// (ingested − truth), m/s², and the RMS of each component's error in its reported standard
 /// deviations.
@@ -234,11 +249,7 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     let ratio = unweighted.limbs[0].estimate.residual_ratio;
     eprintln!("with the default noise setting instead: residual {ratio:.2} σ");
     assert!(ratio < 0.5, "{ratio}");
-    let v = validate(&model, &crate::common::held_out(&robot, 77), "held-out").unwrap();
-    eprintln!(
-        "held-out RMS static {:.4}, dynamic {:.4} m/s²",
-        v.static_rms, v.dynamic_rms
-    );
+    let v = held_out_rms(&model, &robot, "");
     assert!(v.static_rms < 0.03 && v.dynamic_rms < 0.03, "{v:?}");
 }
 
@@ -393,11 +404,7 @@ fn kinova_on_soft_servos(extra: &[&str]) {
             limb.estimate.residual_ratio
         );
     }
-    let v = validate(&model, &crate::common::held_out(&robot, 77), "held-out").unwrap();
-    eprintln!(
-        "{extra:?}: held-out RMS static {:.4}, dynamic {:.4} m/s²",
-        v.static_rms, v.dynamic_rms
-    );
+    let v = held_out_rms(&model, &robot, &format!("{extra:?}: "));
     assert!(v.static_rms < 0.05 && v.dynamic_rms < 0.05, "{v:?}");
 }
 

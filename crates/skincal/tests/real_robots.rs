@@ -57,17 +57,22 @@ fn placed_sus_are_exact(truth: &Robot, s: &Structure) -> bool {
         })
 }
 
+/// The description in `file` with 2 random SUs on every link (placed by `seed`).
+fn with_two_sus_per_link(file: &std::path::Path, seed: u64) -> Robot {
+    load_robot(
+        file.to_str().unwrap(),
+        SuPlacement {
+            per_link: Some(2),
+            seed,
+        },
+    )
+    .unwrap()
+}
+
 fn calibrates(path: &str, seeds: &[u64]) {
     let file = description(path);
     for &seed in seeds {
-        let robot = load_robot(
-            file.to_str().unwrap(),
-            SuPlacement {
-                per_link: Some(2),
-                seed,
-            },
-        )
-        .unwrap();
+        let robot = with_two_sus_per_link(&file, seed);
         let set = simulate(
             &robot,
             &SimulationConfig {
@@ -207,14 +212,7 @@ fn glitches_set_aside_only_the_sus_they_hit_and_few_of_them() {
         let path = file.file_name().unwrap().to_string_lossy().to_string();
         let (mut set_aside, mut runs, mut misplaced) = (0, 0, Vec::new());
         for seed in 1..=25 {
-            let robot = load_robot(
-                file.to_str().unwrap(),
-                SuPlacement {
-                    per_link: Some(2),
-                    seed,
-                },
-            )
-            .unwrap();
+            let robot = with_two_sus_per_link(&file, seed);
             let config = |glitches| SimulationConfig {
                 seed,
                 poses: 2,

@@ -17,23 +17,33 @@ pub(super) fn onto_z(n: &Vector3<f64>) -> UnitQuaternion<f64> {
 
 /// The unit right singular vector of the smallest singular value of the rows, and that value².
 fn null_direction(rows: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
-    // At least 3 rows (zeros added), so that the SVD has every right singular vector: with fewer,
-    // the thin SVD's smallest would lie in the rows' span.
-    let m = DMatrix::from_fn(rows.len().max(3), 3, |i, c| {
-        rows.get(i).map_or(0.0, |r| r[c])
+    let m = DMatrix::from_fn(rows.len(), 3, |i, c| rows[i][c]);
+    let (v, value) = smallest_singular(&m);
+    let n = Vector3::new(v[0], v[1], v[2]);
+    (n.normalize(), if rows.len() >= 3 { value } else { 0.0 })
+}
+
+/// The right singular vector of `m`'s smallest singular value, and that value². Rows of zeros
+/// are added up to the number of columns, so that the SVD has every right singular vector
+/// (with fewer rows, the thin SVD's smallest would lie in the rows' span).
+fn smallest_singular(m: &DMatrix<f64>) -> (nalgebra::DVector<f64>, f64) {
+    let columns = m.ncols();
+    let padded = DMatrix::from_fn(m.nrows().max(columns), columns, |i, c| {
+        if i < m.nrows() {
+            m[(i, c)]
+        } else {
+            0.0
+        }
     });
-    let svd = m.svd(false, true);
+    let svd = padded.svd(false, true);
     let vt = svd.v_t.expect("requested");
     let smallest = (0..svd.singular_values.len())
         .min_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]))
         .unwrap_or(0);
-    let n = Vector3::new(vt[(smallest, 0)], vt[(smallest, 1)], vt[(smallest, 2)]);
-    let value = if rows.len() >= 3 {
-        svd.singular_values[smallest].powi(2)
-    } else {
-        0.0
-    };
-    (n.normalize(), value)
+    (
+        vt.row(smallest).transpose(),
+        svd.singular_values[smallest].powi(2),
+    )
 }
 
 /// Closed-form placement of SU `u` on the segment that DoF `d` moves directly: an axis direction
@@ -91,23 +101,23 @@ fn axis_from_gravity(
         let rows: Vec<Vector3<f64>> = kept.iter().map(|&p| data.statics[p][u] - mean).collect();
         return null_direction(&rows).0;
     }
-    let m = DMatrix::from_fn(kept.len().max(6), 6, |i, c| {
-        let Some(&p) = kept.get(i) else {
-            return 0.0;
-        };
-        if c < 3 {
-            data.statics[p][u][c]
-        } else {
+    // Gravity seen from the segment before the DoF, per kept pose.
+    let seen: Vec<Vector3<f64>> = kept
+        .iter()
+        .map(|&p| {
             let segment = frames(state, layout, &data.turns[p], None, d).segments[d];
-            -(segment.rotation.inverse() * -state.gravity)[c - 3]
+            segment.rotation.inverse() * -state.gravity
+        })
+        .collect();
+    let m = DMatrix::from_fn(kept.len(), 6, |i, c| {
+        if c < 3 {
+            data.statics[kept[i]][u][c]
+        } else {
+            -seen[i][c - 3]
         }
     });
-    let svd = m.svd(false, true);
-    let vt = svd.v_t.expect("requested");
-    let smallest = (0..svd.singular_values.len())
-        .min_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]))
-        .unwrap_or(0);
-    Vector3::new(vt[(smallest, 0)], vt[(smallest, 1)], vt[(smallest, 2)])
+    let (v, _) = smallest_singular(&m);
+    Vector3::new(v[0], v[1], v[2])
         .try_normalize(1e-12)
         .unwrap_or_else(Vector3::z)
 }

@@ -1440,12 +1440,10 @@ pub const STATIC_ONLY_POSITIONS: &str =
 /// Where a limb's set has no dynamic reading at all, every position is unobservable: its many
 /// directions are said once, by [`STATIC_ONLY_POSITIONS`].
 fn positions_in_one(unobservable: Vec<Unobservable>, data: &LimbData) -> Vec<Unobservable> {
-    let poses = data.poses();
-    let static_only = data
-        .missing_excitations()
-        .iter()
-        .all(|(_, lacking)| *lacking == poses)
-        && !data.missing_excitations().is_empty();
+    let missing = data.missing_excitations();
+    let static_only = !missing.is_empty()
+        && missing.len() == data.chain.dofs().len()
+        && missing.iter().all(|(_, lacking)| *lacking == data.poses());
     if !static_only {
         return unobservable;
     }
