@@ -380,3 +380,73 @@ fn dual_number_derivatives_match_central_differences() {
         }
     }
 }
+
+/// The motion of every segment and the specific force of every SU, from
+/// [`skincal::model::segment_motion`], against central differences of the forward kinematics along
+/// a smooth trajectory of a random tree (the SU's position differenced twice, its rotation's rate
+/// and the rate of that): the velocity recursion is checked by nothing but the positions.
+#[test]
+fn segment_motion_is_the_second_derivative_of_the_forward_kinematics() {
+    use skincal::model::{segment_motion, specific_force};
+    use skincal::sim::{random_tree, RandomTreeConfig};
+    let config = RandomTreeConfig {
+        dofs: 9,
+        sus: 14,
+        ..RandomTreeConfig::default()
+    };
+    let robot = random_tree(&config, 11).unwrap();
+    let n = robot.model.dofs().len();
+    // q(t) = a sin(w t + phase): every DoF moving, with velocity and acceleration at once.
+    let at = |t: f64, order: u32| -> Vec<f64> {
+        (0..n)
+            .map(|d| {
+                let (a, w, phase) = (0.4 + 0.05 * d as f64, 1.3 + 0.37 * d as f64, 0.7 * d as f64);
+                let x = w * t + phase;
+                a * w.powi(order as i32)
+                    * match order % 4 {
+                        0 => x.sin(),
+                        1 => x.cos(),
+                        2 => -x.sin(),
+                        _ => -x.cos(),
+                    }
+            })
+            .collect()
+    };
+    let g = Vector3::new(0.3, -0.2, -9.81);
+    let h = 1e-4;
+    for &t in &[0.0, 0.37, 1.9] {
+        let frames = |t: f64| forward_kinematics(&robot.model, &robot.parameters, &at(t, 0));
+        let (before, now, after) = (frames(t - h), frames(t), frames(t + h));
+        let motion = segment_motion(&robot.model, &now, &at(t, 1), &at(t, 2));
+        for (u, su) in robot.model.sus().iter().enumerate() {
+            let p = |f: &skincal::model::Kinematics<f64>| f.sus[u].translation.vector;
+            let accel = (p(&after) - 2.0 * p(&now) + p(&before)) / (h * h);
+            let m = &motion[su.segment];
+            let analytic = m.point_acceleration(&p(&now));
+            assert!(
+                (analytic - accel).norm() < 1e-4 * (1.0 + accel.norm()),
+                "SU {u} at t = {t}: {analytic:?} against {accel:?}"
+            );
+            // Angular velocity: the rotation's rate, R(t+h) R(t−h)ᵀ ≈ exp(2h [ω]×).
+            let turn = after.sus[u].rotation * before.sus[u].rotation.inverse();
+            let omega = turn.scaled_axis() / (2.0 * h);
+            assert!(
+                (m.omega - omega).norm() < 1e-6 * (1.0 + omega.norm()),
+                "ω of SU {u}"
+            );
+            let force = specific_force(&now.sus[u], m, &g);
+            let expected = now.sus[u].rotation.inverse() * (accel - g);
+            assert!((force - expected).norm() < 1e-4 * (1.0 + expected.norm()));
+        }
+        // Angular acceleration: the rate of the angular velocity.
+        let omega_at = |t: f64| segment_motion(&robot.model, &frames(t), &at(t, 1), &at(t, 2));
+        let (wb, wa) = (omega_at(t - h), omega_at(t + h));
+        for (s, m) in motion.iter().enumerate() {
+            let alpha = (wa[s].omega - wb[s].omega) / (2.0 * h);
+            assert!(
+                (m.alpha - alpha).norm() < 1e-5 * (1.0 + alpha.norm()),
+                "α of segment {s}"
+            );
+        }
+    }
+}

@@ -1,8 +1,8 @@
 //! Forward kinematics of the segment tree (paper eq. 4, generalised to trees).
 
-use nalgebra::{Isometry3, RealField, Vector3};
+use nalgebra::{Isometry3, Matrix3, RealField, Vector3};
 
-use super::transform::{rotation_about, vector};
+use super::transform::{rotation_about, scalar, vector};
 use super::{DofIndex, RobotModel, SuIndex};
 
 /// The frames of one configuration, all expressed in the reference frame.
@@ -75,4 +75,104 @@ pub fn forward_kinematics<T: RealField>(
         segments,
         sus,
     }
+}
+
+/// How a rigid body moves at one instant, in the reference frame: its angular velocity `omega`
+/// and angular acceleration `alpha` (rad/s, rad/s²), and `accel`, the acceleration of the body's
+/// point that is at the reference origin (m/s²). A point `p` of the body accelerates at
+/// `accel + alpha × p + omega × (omega × p)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyMotion<T: RealField> {
+    /// Angular velocity, rad/s.
+    pub omega: Vector3<T>,
+    /// Angular acceleration, rad/s².
+    pub alpha: Vector3<T>,
+    /// Acceleration of the body's point at the reference origin, m/s².
+    pub accel: Vector3<T>,
+}
+
+impl<T: RealField> BodyMotion<T> {
+    /// A body that does not move (the static reference segment).
+    pub fn still() -> Self {
+        Self {
+            omega: Vector3::zeros(),
+            alpha: Vector3::zeros(),
+            accel: Vector3::zeros(),
+        }
+    }
+
+    /// The acceleration of the body's point now at `p`, m/s².
+    pub fn point_acceleration(&self, p: &Vector3<T>) -> Vector3<T> {
+        self.accel.clone() + self.alpha.cross(p) + self.omega.cross(&self.omega.cross(p))
+    }
+
+    /// The matrix `M` with `alpha × p + omega × (omega × p) = M·p`.
+    pub fn point_matrix(&self) -> Matrix3<T> {
+        let w = self.omega.cross_matrix();
+        self.alpha.cross_matrix() + &w * &w
+    }
+
+    /// The motion of a body that turns relative to this one about the line through `point` along
+    /// the unit `axis` (both fixed in this body, in the reference frame now) at rate `rate` and
+    /// acceleration `accel` (rad/s, rad/s²).
+    ///
+    /// The relative motion of a point `p` is a rotation about a fixed line of this body:
+    /// `a = a_this(p) + q̈ z × r + q̇² z × (z × r) + 2 ω × (q̇ z × r)`, `r = p − point`; the
+    /// angular acceleration gains `q̈ z + ω × q̇ z` (the axis turns with this body).
+    pub fn through(&self, axis: &Vector3<T>, point: &Vector3<T>, rate: T, accel: T) -> Self {
+        let spin = axis.clone() * rate.clone();
+        // The relative terms at the reference origin (r = −point).
+        let r = -point.clone();
+        let tangential = axis.cross(&r) * accel.clone();
+        let centripetal = spin.cross(&spin.cross(&r));
+        let coriolis = self.omega.cross(&spin.cross(&r)) * scalar::<T>(2.0);
+        Self {
+            omega: self.omega.clone() + spin.clone(),
+            alpha: self.alpha.clone() + axis.clone() * accel + self.omega.cross(&spin),
+            accel: self.accel.clone() + tangential + centripetal + coriolis,
+        }
+    }
+}
+
+/// The motion of every segment at pose `q` with joint velocities `qd` and accelerations `qdd`
+/// (one per DoF, rad/s and rad/s²), from the frames of [`forward_kinematics`] at `q`, with the
+/// reference segment still.
+///
+/// # Panics
+/// If `qd` or `qdd` do not have one entry per DoF.
+pub fn segment_motion<T: RealField>(
+    model: &RobotModel,
+    frames: &Kinematics<T>,
+    qd: &[T],
+    qdd: &[T],
+) -> Vec<BodyMotion<T>> {
+    assert_eq!(qd.len(), model.dofs().len(), "velocity vector length");
+    assert_eq!(qdd.len(), model.dofs().len(), "acceleration vector length");
+    let mut motion = vec![BodyMotion::still(); model.segments().len()];
+    for (s, segment) in model.segments().iter().enumerate().skip(1) {
+        let d = segment
+            .parent_dof
+            .expect("non-root segments have a parent DoF");
+        let parent = model.dofs()[d].parent;
+        motion[s] = motion[parent].through(
+            &frames.axis(model, d),
+            &frames.axis_point(d),
+            qd[d].clone(),
+            qdd[d].clone(),
+        );
+    }
+    motion
+}
+
+/// The specific force an ideal accelerometer with frame `frame` (reference ← SU) reads on a body
+/// moving as `motion` under `gravity` (reference frame): `Rᵀ (a(p) − g)`, m/s².
+pub fn specific_force<T: RealField>(
+    frame: &Isometry3<T>,
+    motion: &BodyMotion<T>,
+    gravity: &Vector3<T>,
+) -> Vector3<T> {
+    let a = motion.point_acceleration(&frame.translation.vector);
+    frame
+        .rotation
+        .inverse_transform_vector(&(a - gravity.clone()))
 }
