@@ -36,6 +36,7 @@ mod json;
 pub mod log;
 pub mod measurements;
 pub mod model;
+pub mod motion;
 pub mod plan;
 pub mod predict;
 pub mod report;

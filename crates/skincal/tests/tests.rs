@@ -12,6 +12,7 @@ mod kinematics;
 mod logs;
 mod measurements;
 mod ml_estimation;
+mod motion;
 mod paper;
 mod physics;
 mod real_logs;

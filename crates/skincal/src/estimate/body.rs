@@ -17,7 +17,7 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::limb::{limb_chains, LimbChain, LimbData};
-use super::ml::{estimate_limb, LimbBase, MlChainEstimate, MlConfig};
+use super::ml::{estimate_limb, refine_on_motion, LimbBase, LimbMotion, MlChainEstimate, MlConfig};
 use super::sublimb;
 use super::{chain_in_listed_order, EstimateError};
 use crate::explore::{BrokenSu, Structure};
@@ -25,6 +25,7 @@ use crate::measurements::MeasurementSet;
 use crate::model::description::RobotFile;
 use crate::model::sensor::ExcitationPattern;
 use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use crate::motion::MotionRecord;
 
 /// Format name of a calibrated model file.
 pub const MODEL_FORMAT: &str = "skincal-model";
@@ -198,6 +199,34 @@ pub fn calibrate_body_reporting(
     keep: &[String],
     progress: &mut dyn FnMut(&str, usize, usize),
 ) -> Result<BodyModel, EstimateError> {
+    calibrate_body_on(set, None, structure, config, only, keep, progress)
+}
+
+/// [`calibrate_body_reporting`], each limb then fitted again on every sample of `motion` (the
+/// motion record of the logs `set` was ingested from; see [`refine_on_motion`]), with the skin's
+/// delay behind the joint states.
+pub fn calibrate_body_on_motion(
+    set: &MeasurementSet,
+    motion: &MotionRecord,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+    keep: &[String],
+    progress: &mut dyn FnMut(&str, usize, usize),
+) -> Result<BodyModel, EstimateError> {
+    motion.check().map_err(EstimateError::InvalidStructure)?;
+    calibrate_body_on(set, Some(motion), structure, config, only, keep, progress)
+}
+
+fn calibrate_body_on(
+    set: &MeasurementSet,
+    motion: Option<&MotionRecord>,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+    keep: &[String],
+    progress: &mut dyn FnMut(&str, usize, usize),
+) -> Result<BodyModel, EstimateError> {
     let plain;
     let set = if config.reading_sd {
         set
@@ -309,6 +338,9 @@ pub fn calibrate_body_reporting(
                 estimate = better_of(estimate, again, note);
             }
         }
+        if let Some(record) = motion {
+            estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
+        }
         progress(&estimate.chain.name, estimates.len() + 1, chains.len());
         estimates.push(estimate);
         parent_of.push(parent);
@@ -354,6 +386,30 @@ pub fn calibrate_body_reporting(
     model.not_calibrated = not_calibrated;
     model.broken = broken;
     Ok(model)
+}
+
+/// A limb's estimate fitted again on every sample of `record`, from where the readings' fit
+/// ended; the search's record (orders tried, retries) is kept.
+fn on_motion(
+    set: &MeasurementSet,
+    record: &MotionRecord,
+    estimate: MlChainEstimate,
+    base: Option<&LimbBase>,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let data = LimbData::new(set, &estimate.chain)?;
+    let Some(start) = estimate.state.clone() else {
+        return Ok(estimate);
+    };
+    let motion = LimbMotion::new(record, &data, config.noise_sd)?;
+    let refined = refine_on_motion(&data, base, start, motion, config)?;
+    Ok(MlChainEstimate {
+        joint_orders: estimate.joint_orders,
+        retries: estimate.retries,
+        iterations: estimate.iterations + refined.iterations,
+        seconds: estimate.seconds + refined.seconds,
+        ..refined
+    })
 }
 
 /// Puts `new_parent` in place of `estimates[p]` and fits the limbs already fitted on its old path

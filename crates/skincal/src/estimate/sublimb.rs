@@ -140,6 +140,7 @@ pub(crate) fn carried_start(
             joints,
             sus,
             intrinsics,
+            skin_delay: 0.0,
         },
     ))
 }

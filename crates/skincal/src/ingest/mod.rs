@@ -42,6 +42,7 @@
 
 mod assemble;
 mod fit;
+pub mod motion;
 mod pass;
 mod queue;
 mod segment;

@@ -402,7 +402,7 @@ const FINEST_STEP: f64 = 1e-9;
 /// rounded reading changes by whole steps, the smallest of them (over √12, a uniform rounding
 /// error's deviation); 0 when the readings change by less than a step's worth anywhere (they are
 /// not rounded, or the DoF never moved).
-fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
+pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
     let step = series
         .windows(2)
         .map(|w| (w[1].1 - w[0].1).abs())

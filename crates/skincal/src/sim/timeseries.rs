@@ -46,6 +46,8 @@ pub struct LogConfig {
     pub drop_probability: f64,
     /// Seed of noise, bias, jitter and drops.
     pub seed: u64,
+    /// The skin's stamps run this late behind the joint states' (a driver's latency), s.
+    pub skin_delay: f64,
 }
 
 impl Default for LogConfig {
@@ -60,6 +62,7 @@ impl Default for LogConfig {
             jitter: 0.0,
             drop_probability: 0.0,
             seed: 0,
+            skin_delay: 0.0,
         }
     }
 }
@@ -84,6 +87,7 @@ impl LogConfig {
         for (setting, v) in [
             ("encoder_resolution", self.encoder_resolution),
             ("jitter", self.jitter),
+            ("skin_delay", self.skin_delay),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(setting, format!("{v} must be zero or positive"));
@@ -271,6 +275,8 @@ pub fn record(
                 summary.saturated += 1;
             }
             let s = stamp(&mut rng);
+            let late = (config.skin_delay * 1e9).round() as i64;
+            let s = Time::from_nanoseconds(s.nanoseconds() as i64 + late);
             sink.imu(s, receive, su, v.into())?;
             summary.imu_messages += 1;
         }

@@ -71,6 +71,7 @@ fn sequence_state_of(
         joints,
         intrinsics: vec![Intrinsics::default(); su_states.len()],
         sus: su_states,
+        skin_delay: 0.0,
     })
 }
 

@@ -42,7 +42,10 @@
 
 mod bound;
 mod init;
+mod motion;
 mod problem;
+
+pub use motion::{LimbMotion, MAX_DELAY};
 
 pub use bound::{
     cramer_rao_bound, limb_state_of, observable_su_errors, state_of, ObservableErrors,
@@ -161,6 +164,9 @@ pub struct ChainState {
     pub sus: Vec<Isometry3<f64>>,
     /// Each SU's accelerometer intrinsics.
     pub intrinsics: Vec<Intrinsics>,
+    /// How late the skin's stamps run behind the joint states', s (fitted on a motion record
+    /// only; 0 otherwise).
+    pub skin_delay: f64,
 }
 
 /// The part of a limb that an earlier estimate fixed: the joint frames of the DoFs from the static
@@ -322,6 +328,17 @@ pub struct JointOrder {
     pub alternatives: Vec<OrderMisfit>,
 }
 
+/// What a limb's time-domain fit used and found beside the kinematics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionFit {
+    /// Blocks of the motion record fitted.
+    pub blocks: usize,
+    /// How late the skin's stamps run behind the joint states', s.
+    pub skin_delay: f64,
+    /// Its standard deviation, s.
+    pub skin_delay_sd: f64,
+}
+
 /// The maximum-likelihood estimate of one limb.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MlChainEstimate {
@@ -376,6 +393,10 @@ pub struct MlChainEstimate {
     /// The same limb in the paper's DH+2 form (only for a paper-style chain: single-DoF joints,
     /// one SU per segment).
     pub dh: Option<DhTable>,
+    /// The time-domain fit's share: the blocks of the motion record fitted, and how late the skin's
+    /// stamps run behind the joint states'. `None`: fitted on the measurement set's readings.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion: Option<MotionFit>,
     /// LM iterations, all solves.
     pub iterations: usize,
     /// Wall time, s. Not written to files: a model file is the same for the same data, whichever
@@ -408,6 +429,7 @@ fn readings(data: &LimbData) -> Readings {
         missing: data.missing.clone(),
         gauge_prior: Some(problem::POSITION_PRIOR_SD),
         sd: data.sd.clone().map(std::sync::Arc::new),
+        motion: None,
     }
 }
 
@@ -757,6 +779,7 @@ fn fit_ordered(
         joints: vec![Isometry3::identity(); dofs],
         sus: vec![Isometry3::identity(); sus],
         intrinsics: vec![Intrinsics::default(); sus],
+        skin_delay: 0.0,
     };
     let solve_init = |state: ChainState, spec: &Spec, max: usize| {
         solve(state, &layout, &readings, spec, sigma, max, INIT_TOLERANCE)
@@ -993,6 +1016,59 @@ pub fn refine_limb(
     )
 }
 
+/// The final fit of a limb on every sample of its motion record (`motion`, from the same robot's
+/// log), from `start` (a fit on the measurement set's readings: the search's starts come from
+/// there); the skin's delay behind the joint states is fitted with it. With `base`, the base
+/// path and gravity are held at `base`, as in [`refine_limb`].
+pub fn refine_on_motion(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    mut start: ChainState,
+    motion: LimbMotion,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    validate(config)?;
+    let dofs = data.q.first().map_or(0, |q| q.len());
+    if start.joints.len() != dofs || start.sus.len() != data.su_depth.len() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: data.chain.name.clone(),
+            reason: "the start has another layout than the limb".into(),
+        });
+    }
+    if motion.is_empty() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: data.chain.name.clone(),
+            reason: "the motion record has no block to fit".into(),
+        });
+    }
+    if let Some(b) = base {
+        start.joints[..b.joints.len()].copy_from_slice(&b.joints);
+        start.gravity = b.gravity;
+    }
+    let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
+    // The samples alone: the measurement set's readings came from the same log.
+    let readings = Readings {
+        q: Vec::new(),
+        turns: Vec::new(),
+        statics: Vec::new(),
+        dynamics: Vec::new(),
+        missing: Vec::new(),
+        sd: None,
+        motion: Some(std::sync::Arc::new(motion)),
+        ..readings(data)
+    };
+    final_fit(
+        data,
+        base,
+        readings,
+        start,
+        vertical,
+        0,
+        Instant::now(),
+        config,
+    )
+}
+
 /// The final fit of a limb from `state`, and all that is reported of it: residual, covariance,
 /// what is unobservable, intrinsics. `readings`: the limb's, screened; `vertical`: gravity is held
 /// along the first axis.
@@ -1030,6 +1106,9 @@ fn final_fit(
             // Gravity along the first axis: its direction is held, which leaves the turn of
             // everything after segment 1 about that axis exactly free (reported below).
             spec.held.extend([(0, 0), (0, 1)]);
+        }
+        if readings.motion.is_some() {
+            spec.blocks.push(Block::SkinDelay);
         }
         if base.is_none() && intrinsics.components() > 3 {
             // A common scale error of every SU and a gravity as much weaker read the same: the
@@ -1128,7 +1207,19 @@ fn final_fit(
         joint_covariance,
         intrinsics,
         rejected,
-        missing_excitations: data.missing_excitations(),
+        missing_excitations: if readings.motion.is_some() {
+            Vec::new()
+        } else {
+            data.missing_excitations()
+        },
+        motion: readings.motion.as_ref().map(|m| {
+            let at = names.iter().position(|n| n == "skin.delay");
+            MotionFit {
+                blocks: m.len(),
+                skin_delay: state.skin_delay,
+                skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
+            }
+        }),
         su_residual_ratio,
         iterations,
         seconds: started.elapsed().as_secs_f64(),
@@ -1251,6 +1342,7 @@ fn su_residual_ratios(
     sigma: f64,
 ) -> Vec<f64> {
     let norms = problem::reading_norms(state, layout, readings, spec, sigma);
+    let motion = problem::motion_sums(state, layout, readings, spec, sigma);
     (0..layout.su_segment.len())
         .map(|u| {
             let (sum, n) = norms
@@ -1263,6 +1355,7 @@ fn su_residual_ratios(
                         .filter(|&(j, _)| !readings.is_rejected(p, u, j))
                         .fold((s, n), |(s, n), (_, x)| (s + x * x, n + 3))
                 });
+            let (sum, n) = (sum + motion[u].0, n + motion[u].1);
             (sum / n.max(1) as f64).sqrt()
         })
         .collect()
@@ -1484,6 +1577,7 @@ fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<String> {
                 sus[u],
                 ["rotation_x", "rotation_y", "rotation_z", "x", "y", "z"][c]
             ),
+            Block::SkinDelay => "skin.delay".into(),
         })
         .collect()
 }
@@ -1638,7 +1732,10 @@ fn su_uncertainty(
             let relevant: Vec<usize> = (0..n)
                 .filter(|&c| match spec.blocks[columns[c].0] {
                     Block::Su(v) => v == u || v + 1 == u,
-                    Block::Intrinsics(_) | Block::Gravity | Block::GravityDirection => false,
+                    Block::Intrinsics(_)
+                    | Block::Gravity
+                    | Block::GravityDirection
+                    | Block::SkinDelay => false,
                     Block::Joint(_) | Block::JointFull(_) => true,
                 })
                 .collect();

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use nalgebra::{DMatrix, DVector, Isometry3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
+use super::motion::{segment_terms, LimbMotion, SegmentTerms, MAX_DELAY};
 use super::{ChainState, Unobservable};
 use crate::model::sensor::STANDARD_GRAVITY;
 
@@ -74,6 +75,9 @@ pub(super) struct Readings {
     /// Each reading's own standard deviation (`[p][u][row]` as `rejected`), m/s²; `None`: every
     /// reading has the estimator's `sigma`.
     pub sd: Option<Arc<Vec<Vec<Vec<f64>>>>>,
+    /// The limb's motion record, fitted sample by sample (rows after the poses'), each block
+    /// whitened by its SU's own noise; `None`: readings only.
+    pub motion: Option<Arc<LimbMotion>>,
 }
 
 impl Readings {
@@ -114,6 +118,8 @@ pub(super) enum Block {
     Su(usize),
     /// The 9 accelerometer intrinsics of SU `u`: bias (3), scale (3), misalignment (3).
     Intrinsics(usize),
+    /// How late the skin's clock runs behind the joint states', s (motion rows only).
+    SkinDelay,
 }
 
 impl Block {
@@ -124,6 +130,7 @@ impl Block {
             Block::Joint(_) => 4,
             Block::JointFull(_) | Block::Su(_) => 6,
             Block::Intrinsics(_) => 9,
+            Block::SkinDelay => 1,
         }
     }
 }
@@ -337,7 +344,7 @@ fn effect(
     match block {
         Block::Gravity => Some(Effect::Gravity(Vector3::ith(c, 1.0))),
         Block::GravityDirection => Some(Effect::Gravity(gravity[c])),
-        Block::Intrinsics(_) => None,
+        Block::Intrinsics(_) | Block::SkinDelay => None,
         Block::Joint(k) | Block::JointFull(k) => {
             if k >= s {
                 return None;
@@ -391,6 +398,136 @@ fn pose_frames(state: &ChainState, layout: &Layout, data: &Readings, spec: &Spec
         .collect()
 }
 
+/// The motion rows' segment terms at `state` for the SUs of `spec` (with their derivatives along
+/// the shared columns when `jacobian`); `None` without a motion record.
+fn motion_terms(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    jacobian: bool,
+) -> Option<Vec<SegmentTerms>> {
+    let motion = data.motion.as_ref()?;
+    let last = spec
+        .sus
+        .iter()
+        .map(|&u| layout.su_segment[u])
+        .max()
+        .unwrap_or(0);
+    let columns: Vec<(Block, usize)> = map
+        .shared
+        .iter()
+        .map(|&(b, c)| (spec.blocks[b], c))
+        .collect();
+    Some(segment_terms(
+        state,
+        motion,
+        last,
+        jacobian.then_some(columns.as_slice()),
+    ))
+}
+
+/// The motion rows of one SU: where they start in its block, and what they need.
+struct MotionRows<'a> {
+    spec: &'a Spec,
+    map: &'a ColumnMap,
+    motion: &'a LimbMotion,
+    terms: &'a [SegmentTerms],
+    /// The SU, its place in `spec.sus`, and its segment's entry in the terms (segment − 1).
+    u: usize,
+    i: usize,
+    segment: usize,
+    /// The first motion row.
+    at: usize,
+}
+
+impl MotionRows<'_> {
+    /// Fills the SU's motion rows of `r` (and of its Jacobian blocks `(own, shared)` when given):
+    /// `(K Rᵀ (c + N p) + b − measured) / sd` per sample, Huber-weighted. Returns the cost and the
+    /// number of rows that count.
+    fn fill(
+        &self,
+        state: &ChainState,
+        data: &Readings,
+        r: &mut DVector<f64>,
+        mut jacobian: Option<(&mut DMatrix<f64>, &mut DMatrix<f64>)>,
+    ) -> (f64, usize) {
+        let (u, motion) = (self.u, self.motion);
+        let s = self.segment;
+        let sd = motion.sd[u];
+        let intrinsics = &state.intrinsics[u];
+        let k = intrinsics.matrix();
+        let bias = Vector3::from(intrinsics.bias);
+        let rl = state.sus[u].rotation.to_rotation_matrix().into_inner();
+        let rlt = rl.transpose();
+        let p = state.sus[u].translation.vector;
+        let (mut cost, mut count) = (0.0, 0);
+        let predicted: Vec<Vector3<f64>> = self
+            .terms
+            .iter()
+            .map(|t| k * (rlt * (t.c[s] + t.n[s] * p)) + bias)
+            .collect();
+        let delay_column = self
+            .map
+            .shared
+            .iter()
+            .position(|&(b, _)| self.spec.blocks[b] == Block::SkinDelay);
+        for (j, terms) in self.terms.iter().enumerate() {
+            let row = self.at + 3 * j;
+            let Some(measured) = motion.measured(u, j, state.skin_delay) else {
+                continue;
+            };
+            let residual = (predicted[j] - measured) / sd;
+            let (w, c) = data.robust(residual.norm());
+            cost += c;
+            count += 3;
+            let scale = w.sqrt() / sd;
+            r.fixed_rows_mut::<3>(row).copy_from(&(residual * w.sqrt()));
+            let Some((own, shared)) = jacobian.as_mut() else {
+                continue;
+            };
+            let v = terms.c[s] + terms.n[s] * p;
+            let ideal = rlt * v;
+            let partials = intrinsics.partials(&ideal, true);
+            for (col, &(b, c)) in self.map.own[self.i].iter().enumerate() {
+                let d = match self.spec.blocks[b] {
+                    Block::Su(_) if c < 3 => k * (rlt * v.cross(&Vector3::ith(c, 1.0))),
+                    Block::Su(_) => k * (rlt * terms.n[s].column(c - 3)),
+                    Block::Intrinsics(_) => partials[c],
+                    _ => continue,
+                };
+                own.fixed_view_mut::<3, 1>(row, col).copy_from(&(d * scale));
+            }
+            for (col, (dc, dn)) in terms.dc[s].iter().zip(&terms.dn[s]).enumerate() {
+                let d = k * (rlt * (dc + dn * p));
+                shared
+                    .fixed_view_mut::<3, 1>(row, col)
+                    .copy_from(&(d * scale));
+            }
+            if let Some(col) = delay_column {
+                // The residual's rate with the delay: minus the rate of what is measured, which
+                // the prediction's own rate stands for (smooth where the samples are noisy).
+                let rate = |a: usize, b: usize| {
+                    (predicted[b] - predicted[a]) / (motion.period() * (b - a) as f64)
+                };
+                let before = (j > 0 && motion.adjacent(j - 1, j)).then(|| j - 1);
+                let after = (j + 1 < self.terms.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
+                let d = match (before, after) {
+                    (Some(a), Some(b)) => rate(a, b),
+                    (Some(a), None) => rate(a, j),
+                    (None, Some(b)) => rate(j, b),
+                    (None, None) => Vector3::zeros(),
+                };
+                shared
+                    .fixed_view_mut::<3, 1>(row, col)
+                    .copy_from(&(-d * scale));
+            }
+        }
+        (cost, count)
+    }
+}
+
 /// One SU's residuals (whitened; rows: pose by pose, the static reading then the dynamic
 /// acceleration of every DoF before it) and, when asked, the Jacobian columns of its own block and
 /// of the shared parameters.
@@ -412,6 +549,7 @@ fn su_block(
     spec: &Spec,
     map: &ColumnMap,
     frames: &[Frames],
+    terms: Option<&[SegmentTerms]>,
     i: usize,
     sigma: f64,
     jacobian: bool,
@@ -431,7 +569,9 @@ fn su_block(
         })
         .map(|(col, &(b, c))| (col, spec.blocks[b], c))
         .collect();
-    let readings_rows = per_pose * data.q.len();
+    let pose_rows = per_pose * data.q.len();
+    let motion_rows = data.motion.as_ref().map_or(0, |m| 3 * m.len());
+    let readings_rows = pose_rows + motion_rows;
     let rows = readings_rows + priors.len();
     let mut r = DVector::zeros(rows);
     let (mut own, mut shared) = if jacobian {
@@ -556,6 +696,26 @@ fn su_block(
             }
         }
     }
+    if let (Some(motion), Some(terms)) = (&data.motion, terms) {
+        let rows = MotionRows {
+            spec,
+            map,
+            motion,
+            terms,
+            u,
+            i,
+            segment: s - 1,
+            at: pose_rows,
+        };
+        let (c, n) = rows.fill(
+            state,
+            data,
+            &mut r,
+            jacobian.then_some((&mut own, &mut shared)),
+        );
+        cost += c;
+        count += n;
+    }
     let values = intrinsics.to_array();
     for (n, &(col, block, c)) in priors.iter().enumerate() {
         let (value, sd) = match block {
@@ -613,13 +773,25 @@ pub(super) fn normal_system(
     sigma: f64,
 ) -> Normal {
     let frames = pose_frames(state, layout, data, spec);
+    let terms = motion_terms(state, layout, data, spec, map, true);
     let m = map.shared.len();
     // Per SU: its own pieces, J_sᵀJ_s, J_sᵀr, |r|² and the number of residuals.
     type Part = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
     let parts: Vec<Part> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
-            let block = su_block(state, layout, data, spec, map, &frames, i, sigma, true);
+            let block = su_block(
+                state,
+                layout,
+                data,
+                spec,
+                map,
+                &frames,
+                terms.as_deref(),
+                i,
+                sigma,
+                true,
+            );
             (
                 SuNormal {
                     a: block.own.tr_mul(&block.own),
@@ -691,6 +863,7 @@ pub(super) fn cost_of(
     sigma: f64,
 ) -> f64 {
     let frames = pose_frames(state, layout, data, spec);
+    let terms = motion_terms(state, layout, data, spec, map, false);
     let priors: f64 = joint_priors(state, data, spec, map)
         .iter()
         .map(|(_, _, r)| r.norm_squared())
@@ -698,7 +871,13 @@ pub(super) fn cost_of(
     priors
         + (0..spec.sus.len())
             .into_par_iter()
-            .map(|i| su_block(state, layout, data, spec, map, &frames, i, sigma, false).cost)
+            .map(|i| {
+                let terms = terms.as_deref();
+                su_block(
+                    state, layout, data, spec, map, &frames, terms, i, sigma, false,
+                )
+                .cost
+            })
             .sum::<f64>()
 }
 
@@ -765,12 +944,16 @@ pub(super) fn reading_norms(
     };
     let map = ColumnMap::new(spec);
     let frames = pose_frames(state, layout, &plain, spec);
+    let terms = motion_terms(state, layout, &plain, spec, &map, false);
     let blocks: Vec<(usize, SuBlock)> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
+            let terms = terms.as_deref();
             (
                 spec.sus[i],
-                su_block(state, layout, &plain, spec, &map, &frames, i, sigma, false),
+                su_block(
+                    state, layout, &plain, spec, &map, &frames, terms, i, sigma, false,
+                ),
             )
         })
         .collect();
@@ -786,6 +969,56 @@ pub(super) fn reading_norms(
     out
 }
 
+/// Per SU (layout index; zero outside `spec.sus`): the sum of squares of its whitened motion
+/// rows, plain least squares, and how many count.
+pub(super) fn motion_sums(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> Vec<(f64, usize)> {
+    let mut out = vec![(0.0, 0); layout.su_segment.len()];
+    let Some(motion) = &data.motion else {
+        return out;
+    };
+    let plain = Readings {
+        huber: None,
+        ..data.clone()
+    };
+    let map = ColumnMap::new(spec);
+    let frames = pose_frames(state, layout, &plain, spec);
+    let terms = motion_terms(state, layout, &plain, spec, &map, false);
+    let sums: Vec<(usize, (f64, usize))> = (0..spec.sus.len())
+        .into_par_iter()
+        .map(|i| {
+            let u = spec.sus[i];
+            let block = su_block(
+                state,
+                layout,
+                &plain,
+                spec,
+                &map,
+                &frames,
+                terms.as_deref(),
+                i,
+                sigma,
+                false,
+            );
+            let at = (1 + layout.su_segment[u]) * 3 * data.q.len();
+            let rows = block.r.rows(at, 3 * motion.len());
+            let count = (0..motion.len())
+                .filter(|&j| rows.fixed_rows::<3>(3 * j).norm_squared() > 0.0)
+                .count();
+            (u, (rows.norm_squared(), 3 * count))
+        })
+        .collect();
+    for (u, sum) in sums {
+        out[u] = sum;
+    }
+    out
+}
+
 /// Residuals and the dense Jacobian (columns in `spec.columns()` order, rows SU by SU).
 pub(super) fn dense_problem(
     state: &ChainState,
@@ -796,8 +1029,14 @@ pub(super) fn dense_problem(
 ) -> (DVector<f64>, DMatrix<f64>) {
     let map = ColumnMap::new(spec);
     let frames = pose_frames(state, layout, data, spec);
+    let terms = motion_terms(state, layout, data, spec, &map, true);
     let blocks: Vec<SuBlock> = (0..spec.sus.len())
-        .map(|i| su_block(state, layout, data, spec, &map, &frames, i, sigma, true))
+        .map(|i| {
+            let terms = terms.as_deref();
+            su_block(
+                state, layout, data, spec, &map, &frames, terms, i, sigma, true,
+            )
+        })
         .collect();
     let rows: usize = blocks.iter().map(|b| b.r.len()).sum();
     let mut r = DVector::zeros(rows);
@@ -892,6 +1131,9 @@ pub(super) fn retract_columns(
             Block::Gravity => next.gravity += Vector3::new(x[0], x[1], x[2]),
             Block::GravityDirection => next.gravity = turn_gravity(&state.gravity, x[0], x[1]),
             Block::Intrinsics(u) => next.intrinsics[u] = state.intrinsics[u].moved(&x),
+            Block::SkinDelay => {
+                next.skin_delay = (state.skin_delay + x[0]).clamp(-MAX_DELAY, MAX_DELAY)
+            }
             Block::Joint(k) => {
                 let local = Isometry3::from_parts(
                     Translation3::new(x[2], x[3], 0.0),

@@ -1,0 +1,395 @@
+//! Logs → the motion record of the time-domain estimator (`motion.json`): every joint state and
+//! skin sample of the logs on one grid of short blocks.
+//!
+//! Joint positions, velocities and accelerations at each block's centre come from a polynomial of
+//! degree [`DEGREE`] fitted by least squares to the joint states within a half-width of it (jitter
+//! and lost messages need no resampling first; an encoder's rounding is averaged over a window as wide as
+//! its rounding needs, [`HALF_WIDTHS`]);
+//! the skin's fresh samples are averaged per block and corrected for the block's averaging.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{SMatrix, SVector};
+
+use super::timeline::encoder_rounding;
+use super::{IngestConfig, IngestError, Progress};
+use crate::log::{self, Sample, Stream};
+use crate::motion::{MotionRecord, MotionRun, MOTION_FORMAT, MOTION_VERSION};
+
+/// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
+/// of any excitation a servo follows).
+pub const BLOCK: f64 = 0.01;
+/// Degree of the local polynomial of the joint states: 4 leaves a bias of 0.03 % of the
+/// acceleration of a 2 Hz motion at 40 ms half-width (2: 1 %).
+pub const DEGREE: usize = 4;
+/// Half-widths of the joint states' local polynomial, s, narrowest first: each DoF takes the
+/// narrowest at which its encoder's rounding leaves the acceleration a standard deviation of at
+/// most [`ACCELERATION_NOISE`]. Narrow follows every change of the motion (a servo's jerk is
+/// no smoother than its commands); wide averages a coarse encoder.
+pub const HALF_WIDTHS: [f64; 6] = [0.02, 0.03, 0.04, 0.05, 0.065, 0.08];
+/// The largest standard deviation of a DoF's acceleration that its encoder's rounding may leave,
+/// rad/s² (0.01 m/s² at half a metre, half a block mean's noise).
+pub const ACCELERATION_NOISE: f64 = 0.02;
+/// The fewest joint states on each side of a block's centre within [`HALF_WIDTH`].
+const FEWEST_PER_SIDE: usize = 3;
+/// The fewest pairs of still blocks an SU's noise is estimated from.
+const FEWEST_STILL_PAIRS: usize = 20;
+/// The median of a χ² variable of one degree of freedom.
+const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_7;
+
+/// One SU's fresh samples, summed per block: `[Σx, Σy, Σz, n]`.
+#[derive(Default)]
+struct SkinBlocks {
+    sums: Vec<[f64; 4]>,
+    last: Option<[f64; 3]>,
+}
+
+impl SkinBlocks {
+    fn add(&mut self, block: usize, a: [f64; 3]) {
+        if self.last == Some(a) {
+            // Exactly the sample before: a slower board's value held by its port.
+            return;
+        }
+        self.last = Some(a);
+        if self.sums.len() <= block {
+            self.sums.resize(block + 1, [0.0; 4]);
+        }
+        let s = &mut self.sums[block];
+        s[0] += a[0];
+        s[1] += a[1];
+        s[2] += a[2];
+        s[3] += 1.0;
+    }
+
+    fn mean(&self, block: usize) -> Option<[f64; 3]> {
+        let s = self.sums.get(block)?;
+        (s[3] > 0.0).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
+    }
+}
+
+/// What one pass over a log gathers: every DoF's joint states and the skin's block sums.
+struct Gathered {
+    /// `(stamp, position)` per DoF, in stamp order.
+    joints: Vec<Vec<(f64, f64)>>,
+    skin: Vec<SkinBlocks>,
+    /// The first stamp of the log (block 0 starts there).
+    origin: f64,
+}
+
+/// The motion record of `logs` for the DoFs and SUs named (those of the measurement set the same
+/// logs gave), in one pass over each log.
+pub fn motion_record(
+    logs: &[PathBuf],
+    dofs: &[String],
+    sus: &[String],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<MotionRecord, IngestError> {
+    let mut runs = Vec::new();
+    for path in logs {
+        let gathered = gather(path, dofs, sus, config, progress)?;
+        runs.extend(runs_of(path, &gathered, config));
+    }
+    if runs.is_empty() {
+        return Err(IngestError::Empty(format!(
+            "for the time-domain record in {}: no stretch of {} s where every DoF has joint states on both sides",
+            logs.iter()
+                .map(|l| l.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            2.0 * HALF_WIDTHS[HALF_WIDTHS.len() - 1]
+        )));
+    }
+    let noise_sd = (0..sus.len())
+        .map(|u| still_noise(&runs, u, config))
+        .collect();
+    let record = MotionRecord {
+        format: MOTION_FORMAT.into(),
+        version: MOTION_VERSION,
+        period: BLOCK,
+        dofs: dofs.to_vec(),
+        sus: sus.to_vec(),
+        noise_sd,
+        runs,
+    };
+    Ok(record)
+}
+
+fn gather(
+    path: &Path,
+    dofs: &[String],
+    sus: &[String],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Gathered, IngestError> {
+    let dof_index: HashMap<&str, usize> = dofs
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (n.as_str(), i))
+        .collect();
+    let su_index: HashMap<&str, usize> = sus
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (n.as_str(), i))
+        .collect();
+    let mut gathered = Gathered {
+        joints: vec![Vec::new(); dofs.len()],
+        skin: (0..sus.len()).map(|_| SkinBlocks::default()).collect(),
+        origin: f64::NAN,
+    };
+    let total = log::size_of(path, Stream::Both);
+    let label = format!("motion of {}", path.display());
+    log::read_log(
+        path,
+        Stream::Both,
+        &config.topics,
+        &mut |sample| {
+            match sample {
+                Sample::Joints {
+                    stamp,
+                    names,
+                    positions,
+                } => {
+                    if gathered.origin.is_nan() {
+                        gathered.origin = stamp;
+                    }
+                    for (name, &q) in names.iter().zip(positions) {
+                        if let (Some(&d), true) = (dof_index.get(name.as_str()), q.is_finite()) {
+                            gathered.joints[d].push((stamp, q));
+                        }
+                    }
+                }
+                Sample::Imu {
+                    stamp,
+                    frame_id,
+                    acceleration,
+                } => {
+                    if gathered.origin.is_nan() {
+                        gathered.origin = stamp;
+                    }
+                    let a = acceleration.map(|x| x * config.skin_scale);
+                    let block = (stamp - gathered.origin) / BLOCK;
+                    let usable = a
+                        .iter()
+                        .all(|x| x.is_finite() && x.abs() < config.saturation);
+                    if let (Some(&u), true, true) = (su_index.get(frame_id), usable, block >= 0.0) {
+                        gathered.skin[u].add(block as usize, a);
+                    }
+                }
+            }
+            Ok(())
+        },
+        &mut |done| progress(&label, done, total),
+    )?;
+    for series in &mut gathered.joints {
+        series.sort_by(|a, b| a.0.total_cmp(&b.0));
+        series.dedup_by(|a, b| a.0 == b.0);
+    }
+    Ok(gathered)
+}
+
+/// The runs of consecutive blocks at whose centres every DoF's local polynomial can be fitted.
+fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<MotionRun> {
+    let Some(last) = gathered
+        .joints
+        .iter()
+        .map(|s| s.last().map_or(f64::NEG_INFINITY, |x| x.0))
+        .reduce(f64::min)
+        .filter(|t| t.is_finite())
+    else {
+        return Vec::new();
+    };
+    let blocks = ((last - gathered.origin) / BLOCK).floor().max(0.0) as usize;
+    let mut runs: Vec<MotionRun> = Vec::new();
+    let mut open = false;
+    let mut cursors = vec![0usize; gathered.joints.len()];
+    let widths: Vec<(f64, f64)> = gathered
+        .joints
+        .iter()
+        .map(|s| (half_width(s), encoder_rounding(s)))
+        .collect();
+    for b in 0..blocks {
+        let centre = gathered.origin + (b as f64 + 0.5) * BLOCK;
+        let fitted: Option<Vec<[f64; 4]>> = gathered
+            .joints
+            .iter()
+            .zip(&mut cursors)
+            .zip(&widths)
+            .map(|((series, cursor), &(h, rounding))| {
+                local_polynomial(series, cursor, centre, h, rounding, config.max_gap)
+            })
+            .collect();
+        let Some(fitted) = fitted else {
+            open = false;
+            continue;
+        };
+        if !open {
+            runs.push(MotionRun {
+                log: path.display().to_string(),
+                start: centre,
+                q: Vec::new(),
+                qd: Vec::new(),
+                qdd: Vec::new(),
+                qdd_sd: Vec::new(),
+                skin: Vec::new(),
+            });
+            open = true;
+        }
+        let run = runs.last_mut().expect("a run was opened");
+        run.q.push(fitted.iter().map(|x| x[0]).collect());
+        run.qd.push(fitted.iter().map(|x| x[1]).collect());
+        run.qdd.push(fitted.iter().map(|x| x[2]).collect());
+        run.qdd_sd.push(fitted.iter().map(|x| x[3]).collect());
+        run.skin
+            .push(gathered.skin.iter().map(|s| s.mean(b)).collect());
+    }
+    runs.retain(|r| r.len() >= 3);
+    for run in &mut runs {
+        undo_block_averaging(&mut run.skin);
+    }
+    runs
+}
+
+/// The narrowest of [`HALF_WIDTHS`] at which the rounding of the DoF's encoder (from its
+/// `(stamp, position)` series) leaves its acceleration within [`ACCELERATION_NOISE`]: the
+/// variance of the polynomial's second coefficient on a window of evenly spaced states at the
+/// series' median rate.
+fn half_width(series: &[(f64, f64)]) -> f64 {
+    let rounding = encoder_rounding(series);
+    let mut steps: Vec<f64> = series.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    if rounding == 0.0 || steps.is_empty() {
+        return HALF_WIDTHS[0];
+    }
+    let mid = steps.len() / 2;
+    let step = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let sd = |h: f64| {
+        let n = (h / step).floor() as i64;
+        let mut a = SMatrix::<f64, { DEGREE + 1 }, { DEGREE + 1 }>::zeros();
+        for i in -n..=n {
+            let phi = powers(i as f64 * step / h);
+            a += phi * phi.transpose();
+        }
+        let inverse = a.try_inverse().map_or(f64::INFINITY, |m| m[(2, 2)]);
+        rounding * 2.0 / (h * h) * inverse.sqrt()
+    };
+    HALF_WIDTHS
+        .into_iter()
+        .find(|&h| sd(h) <= ACCELERATION_NOISE)
+        .unwrap_or(HALF_WIDTHS[HALF_WIDTHS.len() - 1])
+}
+
+/// `(1, x, x², …, x^DEGREE)`.
+fn powers(x: f64) -> SVector<f64, { DEGREE + 1 }> {
+    let mut phi = SVector::<f64, { DEGREE + 1 }>::zeros();
+    let mut power = 1.0;
+    for p in phi.iter_mut() {
+        *p = power;
+        power *= x;
+    }
+    phi
+}
+
+/// Position, velocity, acceleration and the acceleration's standard deviation at `centre` from
+/// the polynomial of degree [`DEGREE`] fitted to the joint states within `h` (`rounding`: the
+/// encoder's); `None` where too few lie on either side or a gap
+/// longer than `max_gap` lies among them. `cursor`: the first state not before the window of the
+/// previous (earlier) centre.
+fn local_polynomial(
+    series: &[(f64, f64)],
+    cursor: &mut usize,
+    centre: f64,
+    h: f64,
+    rounding: f64,
+    max_gap: f64,
+) -> Option<[f64; 4]> {
+    const N: usize = DEGREE + 1;
+    while *cursor < series.len() && series[*cursor].0 < centre - h {
+        *cursor += 1;
+    }
+    let window: Vec<(f64, f64)> = series[*cursor..]
+        .iter()
+        .take_while(|s| s.0 <= centre + h)
+        .copied()
+        .collect();
+    let before = window.iter().filter(|s| s.0 < centre).count();
+    if before < FEWEST_PER_SIDE || window.len() - before < FEWEST_PER_SIDE {
+        return None;
+    }
+    let edges = [
+        window[0].0 - (centre - h),
+        centre + h - window[window.len() - 1].0,
+    ];
+    let gaps = window.windows(2).map(|w| w[1].0 - w[0].0);
+    if edges.into_iter().chain(gaps).any(|g| g > max_gap) {
+        return None;
+    }
+    // In the scaled time x = (t − centre)/h, about the window's first position.
+    let q0 = window[0].1;
+    let mut a = SMatrix::<f64, N, N>::zeros();
+    let mut rhs = SVector::<f64, N>::zeros();
+    for &(t, q) in &window {
+        let x = (t - centre) / h;
+        let phi = powers(x);
+        a += phi * phi.transpose();
+        rhs += phi * (q - q0);
+    }
+    let cholesky = a.cholesky()?;
+    let c = cholesky.solve(&rhs);
+    // The acceleration's standard deviation from the fit's own misfit (an encoder's rounding, or
+    // a change of the motion the polynomial cannot follow), and the rounding's at least.
+    let misfit: f64 = window
+        .iter()
+        .map(|&(t, q)| (q - q0 - powers((t - centre) / h).dot(&c)).powi(2))
+        .sum::<f64>()
+        / (window.len() - N).max(1) as f64;
+    let spread = cholesky.inverse()[(2, 2)];
+    let qdd_sd = 2.0 / (h * h) * (misfit.max(rounding * rounding) * spread).sqrt();
+    Some([q0 + c[0], c[1] / h, 2.0 * c[2] / (h * h), qdd_sd])
+}
+
+/// Each block mean minus `1/24` of its second difference: the mean of a smooth signal over a block
+/// is its value at the centre plus `Δ²/24` of its second derivative. Blocks without both
+/// neighbours keep their mean.
+fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
+    let means = skin.to_vec();
+    for b in 1..means.len().saturating_sub(1) {
+        for (u, cell) in skin[b].iter_mut().enumerate() {
+            if let (Some(m), Some(before), Some(after)) =
+                (means[b][u], means[b - 1][u], means[b + 1][u])
+            {
+                *cell = Some(std::array::from_fn(|i| {
+                    m[i] - (after[i] - 2.0 * m[i] + before[i]) / 24.0
+                }));
+            }
+        }
+    }
+}
+
+/// The standard deviation of one component of SU `u`'s corrected block means, from consecutive
+/// blocks in which every DoF was still (the median of their squared differences, robust to a
+/// glitch), or `None` when fewer than [`FEWEST_STILL_PAIRS`] such pairs exist.
+fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
+    let still =
+        |run: &MotionRun, b: usize| run.qd[b].iter().all(|v| v.abs() < config.still_velocity);
+    let mut squares = Vec::new();
+    for run in runs {
+        for b in 1..run.len() {
+            if !(still(run, b) && still(run, b - 1)) {
+                continue;
+            }
+            if let (Some(a), Some(c)) = (run.skin[b][u], run.skin[b - 1][u]) {
+                squares.extend((0..3).map(|i| (a[i] - c[i]).powi(2)));
+            }
+        }
+    }
+    if squares.len() < 3 * FEWEST_STILL_PAIRS {
+        return None;
+    }
+    squares.sort_by(f64::total_cmp);
+    let median = squares[squares.len() / 2];
+    // Two neighbouring corrected means differ by (27 m₀ − 27 m₋₁ − m₁ + m₋₂)/24 of independent
+    // means, a variance of 1460/576 of one mean's; one corrected mean has 678/576 of it.
+    let sd = (median / CHI2_1_MEDIAN * 678.0 / 1460.0).sqrt();
+    (sd > 0.0).then_some(sd)
+}

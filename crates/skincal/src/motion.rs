@@ -1,0 +1,158 @@
+//! A log's motion as the time-domain estimator takes it (`motion.json`): the joint states and their
+//! first two derivatives, and the skin's samples, on one grid of short blocks.
+//!
+//! Every sample of the log is in it. A block holds the mean of each SU's fresh samples in it (a
+//! sample that exactly repeats the one before is a board behind its port, not a measurement) and
+//! the joint positions, velocities and accelerations at its centre from a local polynomial fitted
+//! to the joint states around it. The skin's block means are corrected for the block's own
+//! averaging (the mean of a signal over a block is its value at the centre plus `Δ²/24` of its
+//! second derivative), so that both sides describe the same instant; nothing else is smoothed.
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::sensor::MAX_READING;
+
+/// The `format` of a motion record.
+pub const MOTION_FORMAT: &str = "skincal-motion";
+/// The `version` of a motion record.
+pub const MOTION_VERSION: u32 = 1;
+
+/// The motion of a robot over one or more logs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionRecord {
+    /// Always [`MOTION_FORMAT`].
+    pub format: String,
+    /// Always [`MOTION_VERSION`].
+    pub version: u32,
+    /// Length of a block, s.
+    pub period: f64,
+    /// The DoFs, in the order of every `q`, `qd`, `qdd` row.
+    pub dofs: Vec<String>,
+    /// The SUs, in the order of every `skin` row.
+    pub sus: Vec<String>,
+    /// Each SU's standard deviation of one component of a block mean, m/s², from the blocks in
+    /// which the robot was still (`null`: never still long enough to tell).
+    pub noise_sd: Vec<Option<f64>>,
+    /// Stretches of consecutive blocks (a log, or the part of one between gaps in the joint
+    /// states).
+    pub runs: Vec<MotionRun>,
+}
+
+/// Consecutive blocks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MotionRun {
+    /// The log the run comes from.
+    pub log: String,
+    /// Centre of the first block on the joint states' clock, s.
+    pub start: f64,
+    /// `q[b][d]`: position of DoF `d` at the centre of block `b`, rad.
+    pub q: Vec<Vec<f64>>,
+    /// Velocities, rad/s.
+    pub qd: Vec<Vec<f64>>,
+    /// Accelerations, rad/s².
+    pub qdd: Vec<Vec<f64>>,
+    /// The standard deviation of each acceleration, rad/s², from the local polynomial's misfit: an
+    /// encoder's rounding, or a change of the motion too sudden for the polynomial to follow.
+    pub qdd_sd: Vec<Vec<f64>>,
+    /// `skin[b][u]`: the mean specific force SU `u` read in block `b` (SU frame, m/s²), `null`
+    /// where it sent no fresh sample.
+    pub skin: Vec<Vec<Option<[f64; 3]>>>,
+}
+
+impl MotionRun {
+    /// The number of blocks.
+    pub fn len(&self) -> usize {
+        self.q.len()
+    }
+
+    /// Whether the run has no block.
+    pub fn is_empty(&self) -> bool {
+        self.q.is_empty()
+    }
+}
+
+impl MotionRecord {
+    /// Checks the format, the shapes and the ranges; the error names the field.
+    pub fn check(&self) -> Result<(), String> {
+        if self.format != MOTION_FORMAT || self.version != MOTION_VERSION {
+            return Err(format!(
+                "`format`/`version` are {:?}/{}, expected {MOTION_FORMAT:?}/{MOTION_VERSION} (a record written by `skincal ingest`)",
+                self.format, self.version
+            ));
+        }
+        if !(self.period.is_finite() && self.period > 0.0 && self.period <= 1.0) {
+            return Err(format!(
+                "`period` is {}, expected a block length in (0, 1] s",
+                self.period
+            ));
+        }
+        if self.noise_sd.len() != self.sus.len() {
+            return Err(format!(
+                "`noise_sd` has {} entries for {} SUs",
+                self.noise_sd.len(),
+                self.sus.len()
+            ));
+        }
+        if let Some((u, sd)) = self
+            .noise_sd
+            .iter()
+            .enumerate()
+            .find_map(|(u, s)| s.filter(|s| !(s.is_finite() && *s > 0.0)).map(|s| (u, s)))
+        {
+            return Err(format!(
+                "`noise_sd[{u}]` is {sd}, expected a positive number"
+            ));
+        }
+        for (r, run) in self.runs.iter().enumerate() {
+            let n = run.len();
+            let rows = [("qd", &run.qd), ("qdd", &run.qdd), ("qdd_sd", &run.qdd_sd)];
+            if let Some((name, _)) = rows.iter().find(|(_, v)| v.len() != n) {
+                return Err(format!("`runs[{r}].{name}` has another length than `q`"));
+            }
+            if run.skin.len() != n {
+                return Err(format!("`runs[{r}].skin` has another length than `q`"));
+            }
+            let all = [
+                ("q", &run.q),
+                ("qd", &run.qd),
+                ("qdd", &run.qdd),
+                ("qdd_sd", &run.qdd_sd),
+            ];
+            for (name, rows) in all {
+                for (b, row) in rows.iter().enumerate() {
+                    if row.len() != self.dofs.len() || row.iter().any(|x| !x.is_finite()) {
+                        return Err(format!(
+                            "`runs[{r}].{name}[{b}]`: expected {} finite numbers",
+                            self.dofs.len()
+                        ));
+                    }
+                }
+            }
+            for (b, row) in run.skin.iter().enumerate() {
+                if row.len() != self.sus.len() {
+                    return Err(format!(
+                        "`runs[{r}].skin[{b}]` has {} entries for {} SUs",
+                        row.len(),
+                        self.sus.len()
+                    ));
+                }
+                let wild = row
+                    .iter()
+                    .flatten()
+                    .flatten()
+                    .any(|x| !x.is_finite() || x.abs() > MAX_READING);
+                if wild {
+                    return Err(format!(
+                        "`runs[{r}].skin[{b}]`: a reading beyond ±{MAX_READING} m/s²"
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The number of blocks over every run.
+    pub fn blocks(&self) -> usize {
+        self.runs.iter().map(MotionRun::len).sum()
+    }
+}
