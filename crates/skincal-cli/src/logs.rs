@@ -636,9 +636,13 @@ pub(crate) struct IngestArgs {
     /// orientation.
     #[arg(required = true)]
     logs: Vec<PathBuf>,
-    /// Output directory: measurements.json and ingest-report.json.
+    /// Output directory: measurements.json, ingest-report.json and motion.json (every sample of
+    /// the logs with training poses, for `calibrate`'s time-domain fit).
     #[arg(long)]
     out: PathBuf,
+    /// Write no motion.json: `calibrate` then fits the readings of measurements.json only.
+    #[arg(long)]
+    no_motion: bool,
     /// Overwrite existing output files.
     #[arg(long)]
     force: bool,
@@ -757,8 +761,9 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     }
     let measurements = args.out.join("measurements.json");
     let report_path = args.out.join("ingest-report.json");
+    let motion_path = args.out.join("motion.json");
     if !args.force {
-        for p in [&measurements, &report_path] {
+        for p in [&measurements, &report_path, &motion_path] {
             if p.exists() {
                 bail!(
                     "{} exists; choose another --out or pass --force",
@@ -778,21 +783,67 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         }
         bar.set_position(done);
     })?;
+    // The time-domain record: the logs with training poses (one base orientation's gravity).
+    let training_logs: Vec<PathBuf> = ingested
+        .report
+        .logs
+        .iter()
+        .filter(|l| l.excitations > 0)
+        .map(|l| l.path.clone())
+        .collect();
+    let motion = if args.no_motion || training_logs.is_empty() {
+        None
+    } else {
+        let set = &ingested.measurements;
+        let record = skincal::ingest::motion::motion_record(
+            &training_logs,
+            &set.dofs,
+            &set.sus,
+            &config,
+            &mut |what, done, total| {
+                if what != current {
+                    current = what.to_string();
+                    bar.set_message(what.to_string());
+                    bar.set_length(total.max(1));
+                }
+                bar.set_position(done);
+            },
+        )?;
+        Some(record)
+    };
     bar.finish_and_clear();
-    io::write_all(
-        &[
-            (measurements.clone(), ingested.measurements.to_json()),
-            (
-                report_path.clone(),
-                serde_json::to_string_pretty(&ingested.report)?,
-            ),
-        ],
-        args.force,
-    )?;
+    let mut files = vec![
+        (measurements.clone(), ingested.measurements.to_json()),
+        (
+            report_path.clone(),
+            serde_json::to_string_pretty(&ingested.report)?,
+        ),
+    ];
+    if let Some(record) = &motion {
+        files.push((motion_path.clone(), serde_json::to_string(record)?));
+    }
+    io::write_all(&files, args.force)?;
+    if motion.is_none() && motion_path.exists() {
+        // An earlier ingest's record would be fitted with this set (only reached with --force).
+        std::fs::remove_file(&motion_path)
+            .with_context(|| format!("removing the old {}", motion_path.display()))?;
+    }
     out!("{}", render_report(&ingested.report));
+    if let Some(record) = &motion {
+        outln!(
+            "motion record: {} blocks of {} ms in {} runs from {} log(s) with training poses",
+            record.blocks(),
+            record.period * 1e3,
+            record.runs.len(),
+            training_logs.len()
+        );
+    }
     outln!("in {:.2} s", started.elapsed().as_secs_f64());
     outln!("wrote {}", measurements.display());
     outln!("wrote {}", report_path.display());
+    if motion.is_some() {
+        outln!("wrote {}", motion_path.display());
+    }
     Ok(())
 }
 

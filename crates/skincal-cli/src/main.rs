@@ -171,6 +171,11 @@ struct CalibrateArgs {
     /// iterations and time; what was left out (the model file is written as always).
     #[arg(long)]
     json: bool,
+    /// Fit the readings of measurements.json only, even where DIR holds the motion record of
+    /// its logs (motion.json, from `skincal ingest`), which is fitted sample by sample by default
+    /// (method ml).
+    #[arg(long)]
+    readings_only: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -726,16 +731,41 @@ fn calibrate_ml(
         )
     };
     outln!(
-        "kinematic estimation, maximum likelihood ({noise}; intrinsics per SU: {}); {source}\n",
+        "kinematic estimation, maximum likelihood ({noise}; intrinsics per SU: {}); {source}",
         config.intrinsics.name()
     );
-    let model = skincal::estimate::body::calibrate_body_keeping(
-        set,
-        structure,
-        &config,
-        args.limb.as_deref(),
-        &args.keep,
-    )?;
+    let motion_path = dir.join("motion.json");
+    let motion = if motion_path.exists() && !args.readings_only {
+        let record = io::read_motion(&motion_path)?;
+        outln!(
+            "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
+            motion_path.display(),
+            record.blocks(),
+            record.period * 1e3
+        );
+        Some(record)
+    } else {
+        None
+    };
+    outln!();
+    let model = match &motion {
+        Some(record) => skincal::estimate::body::calibrate_body_on_motion(
+            set,
+            record,
+            structure,
+            &config,
+            args.limb.as_deref(),
+            &args.keep,
+            &mut |_, _, _| {},
+        )?,
+        None => skincal::estimate::body::calibrate_body_keeping(
+            set,
+            structure,
+            &config,
+            args.limb.as_deref(),
+            &args.keep,
+        )?,
+    };
     for limb in &model.limbs {
         out!("{}", limb_report(limb, truth)?);
     }
@@ -765,6 +795,7 @@ fn calibrate_ml(
             "sus": l.sus,
             "converged": l.estimate.converged,
             "residual_ratio": l.estimate.residual_ratio,
+            "motion": l.estimate.motion,
             "iterations": l.estimate.iterations,
             "seconds": l.estimate.seconds,
             "retries": l.estimate.retries,

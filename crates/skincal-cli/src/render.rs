@@ -350,7 +350,19 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     } else {
         "NOT CONVERGED"
     };
-    if e.reading_sd {
+    if let Some(m) = &e.motion {
+        let _ = writeln!(
+            out,
+            "fitted on every sample of the log: {} blocks of the motion record; residual RMS {:.3}× each SU's own noise: {verdict}",
+            m.blocks, e.residual_ratio
+        );
+        let _ = writeln!(
+            out,
+            "the skin's stamps run {:.2} ± {:.2} ms behind the joint states'",
+            m.skin_delay * 1e3,
+            m.skin_delay_sd * 1e3
+        );
+    } else if e.reading_sd {
         let _ = writeln!(
             out,
             "residual RMS {:.3}× the readings' own standard deviations: {verdict}",

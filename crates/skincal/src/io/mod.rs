@@ -284,6 +284,18 @@ pub fn read_structure(path: &Path) -> Result<crate::explore::Structure, IoError>
     Ok(structure)
 }
 
+/// Reads a motion record (`motion.json`, written by `skincal ingest`) and checks it.
+pub fn read_motion(path: &Path) -> Result<crate::motion::MotionRecord, IoError> {
+    let json = |message: String| IoError::Json {
+        path: path.to_path_buf(),
+        message,
+    };
+    let record: crate::motion::MotionRecord =
+        crate::json::parse(&read(path)?, "a motion record").map_err(json)?;
+    record.check().map_err(json)?;
+    Ok(record)
+}
+
 /// Reads a calibrated model (`model.json`) and checks that it is one.
 pub fn read_model(path: &Path) -> Result<crate::estimate::body::BodyModel, IoError> {
     let json = |message: String| IoError::Json {

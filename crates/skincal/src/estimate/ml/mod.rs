@@ -1024,7 +1024,7 @@ pub fn refine_on_motion(
     data: &LimbData,
     base: Option<&LimbBase>,
     mut start: ChainState,
-    motion: LimbMotion,
+    mut motion: LimbMotion,
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
     validate(config)?;
@@ -1046,6 +1046,7 @@ pub fn refine_on_motion(
         start.gravity = b.gravity;
     }
     let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
+    motion.weigh(&start, &data.su_depth);
     // The samples alone: the measurement set's readings came from the same log.
     let readings = Readings {
         q: Vec::new(),

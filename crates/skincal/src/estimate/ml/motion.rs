@@ -36,6 +36,7 @@ pub(super) struct MotionSample {
     q: Vec<f64>,
     qd: Vec<f64>,
     qdd: Vec<f64>,
+    qdd_sd: Vec<f64>,
 }
 
 /// A limb's share of a motion record: its DoFs (chain order) and SUs.
@@ -47,6 +48,9 @@ pub struct LimbMotion {
     skin: Vec<Vec<Vec<Option<Vector3<f64>>>>>,
     /// Each SU's standard deviation of one component of a block mean, m/s².
     pub(super) sd: Vec<f64>,
+    /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
+    /// prediction at sample `i`, (m/s²)² (empty until [`LimbMotion::weigh`]).
+    joint_var: Vec<Vec<f64>>,
 }
 
 impl LimbMotion {
@@ -98,6 +102,7 @@ impl LimbMotion {
                     q: pick(&run.q[b]),
                     qd: pick(&run.qd[b]),
                     qdd: pick(&run.qdd[b]),
+                    qdd_sd: pick(&run.qdd_sd[b]),
                 });
             }
             skin.push(
@@ -121,7 +126,54 @@ impl LimbMotion {
             samples,
             skin,
             sd,
+            joint_var: Vec::new(),
         })
+    }
+
+    /// Sets what each sample's joint accelerations add to the variance of each SU's prediction,
+    /// at `state` (the start of the fit, held through it so that the weights do not pull the
+    /// SUs towards the axes): `Σ_d σ²(q̈_d) |z_d × (p − o_d)|²` over the DoFs before the SU on
+    /// segment `su_segment[u]`.
+    pub(super) fn weigh(&mut self, state: &ChainState, su_segment: &[usize]) {
+        let joint_var: Vec<Vec<f64>> = self
+            .samples
+            .par_iter()
+            .map(|sample| {
+                let mut segment = Isometry3::<f64>::identity();
+                let mut segments = vec![segment];
+                let mut axes = Vec::with_capacity(state.joints.len());
+                for (k, joint) in state.joints.iter().enumerate() {
+                    let frame = segment * joint;
+                    axes.push((frame.rotation * Vector3::z(), frame.translation.vector));
+                    segment =
+                        frame * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), sample.q[k]);
+                    segments.push(segment);
+                }
+                su_segment
+                    .iter()
+                    .zip(&state.sus)
+                    .map(|(&s, su)| {
+                        let p = (segments[s] * su).translation.vector;
+                        axes.iter()
+                            .take(s)
+                            .zip(&sample.qdd_sd)
+                            .map(|((z, o), sd)| (z.cross(&(p - o)) * *sd).norm_squared())
+                            .sum()
+                    })
+                    .collect()
+            })
+            .collect();
+        // Transposed: per SU, per sample.
+        self.joint_var = (0..su_segment.len())
+            .map(|u| joint_var.iter().map(|v| v[u]).collect())
+            .collect();
+    }
+
+    /// The standard deviation of one component of SU `u`'s residual at sample `i`: its block
+    /// mean's noise and what the joint accelerations add.
+    pub(super) fn residual_sd(&self, u: usize, i: usize) -> f64 {
+        let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
+        (self.sd[u].powi(2) + extra.unwrap_or(0.0)).sqrt()
     }
 
     /// The number of blocks the fit uses.

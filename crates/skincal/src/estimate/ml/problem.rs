@@ -455,7 +455,6 @@ impl MotionRows<'_> {
     ) -> (f64, usize) {
         let (u, motion) = (self.u, self.motion);
         let s = self.segment;
-        let sd = motion.sd[u];
         let intrinsics = &state.intrinsics[u];
         let k = intrinsics.matrix();
         let bias = Vector3::from(intrinsics.bias);
@@ -478,6 +477,7 @@ impl MotionRows<'_> {
             let Some(measured) = motion.measured(u, j, state.skin_delay) else {
                 continue;
             };
+            let sd = motion.residual_sd(u, j);
             let residual = (predicted[j] - measured) / sd;
             let (w, c) = data.robust(residual.norm());
             cost += c;
