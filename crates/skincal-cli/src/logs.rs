@@ -774,15 +774,17 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     }
     let started = Instant::now();
     let bar = progress_bar(1, "reading");
+    // The bar follows each pass: its message and length change with what is read.
     let mut current = String::new();
-    let ingested = ingest(&args.logs, &config, &mut |what, done, total| {
+    let mut show = |what: &str, done: u64, total: u64| {
         if what != current {
             current = what.to_string();
             bar.set_message(what.to_string());
             bar.set_length(total.max(1));
         }
         bar.set_position(done);
-    })?;
+    };
+    let ingested = ingest(&args.logs, &config, &mut show)?;
     // The time-domain record: the logs with training poses (one base orientation's gravity).
     let training_logs: Vec<PathBuf> = ingested
         .report
@@ -800,14 +802,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
             &set.dofs,
             &set.sus,
             &config,
-            &mut |what, done, total| {
-                if what != current {
-                    current = what.to_string();
-                    bar.set_message(what.to_string());
-                    bar.set_length(total.max(1));
-                }
-                bar.set_position(done);
-            },
+            &mut show,
         )?;
         Some(record)
     };

@@ -210,3 +210,81 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
         assert!(record.blocks() as f64 > 0.99 * plan.duration / record.period);
     }
 }
+
+/// The motion rows' analytic Jacobian (SU blocks by hand, joint lines by dual numbers, gravity
+/// in closed form) against central differences of the residuals through the retraction, at the
+/// truth of a noise-free log with a skin 3 ms late (plain least squares); the delay's column (the
+/// prediction's rate standing for the measured one's) within 10 % RMS.
+#[test]
+fn the_motion_rows_jacobian_matches_central_differences() {
+    use skincal::estimate::ml::{internals, state_of};
+    use skincal::estimate::{ChainData, SerialChain};
+    use skincal::sim::Imperfections;
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 2,
+            seed: 3,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("log.mcap");
+    let config = LogConfig {
+        imperfections: Imperfections::none(),
+        skin_delay: 0.003,
+        ..LogConfig::default()
+    };
+    record_to(&robot, &plan, &config, &log);
+    let ingest_config = IngestConfig::default();
+    let set = ingest(
+        std::slice::from_ref(&log),
+        &ingest_config,
+        &mut |_, _, _| {},
+    )
+    .unwrap()
+    .measurements;
+    let record = motion_record(
+        &[log],
+        &set.dofs,
+        &set.sus,
+        &ingest_config,
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let chain = SerialChain {
+        name: "chain".into(),
+        dofs: (1..=7).map(|k| format!("dof{k}")).collect(),
+        sus: (1..=7).map(|k| format!("su{k}")).collect(),
+    };
+    let data = ChainData::new(&set, &chain).unwrap();
+    let mut state = state_of(&robot, &chain, &nalgebra::Vector3::new(0.0, 0.0, -9.81)).unwrap();
+    state.skin_delay = 0.002;
+    let (_, jac, _) = internals::motion_problem(&data, &record, &state, &[]);
+    let h = 1e-6;
+    let steps: Vec<Vec<f64>> = (0..jac.ncols())
+        .flat_map(|c| {
+            [h, -h].map(|x| {
+                let mut d = vec![0.0; jac.ncols()];
+                d[c] = x;
+                d
+            })
+        })
+        .collect();
+    let (_, _, after) = internals::motion_problem(&data, &record, &state, &steps);
+    for c in 0..jac.ncols() {
+        let numeric = (&after[2 * c] - &after[2 * c + 1]) / (2.0 * h);
+        let error = &numeric - jac.column(c);
+        if c + 1 == jac.ncols() {
+            // The delay: the prediction's rate over two blocks stands for the measured rate of
+            // the interpolated block means (noisy on a real skin); 7 % apart here.
+            let relative = error.norm() / numeric.norm();
+            assert!(relative < 0.1, "the delay's column: {relative}");
+        } else {
+            let diff = error.amax();
+            assert!(diff < 1e-3 * (1.0 + numeric.amax()), "column {c}: {diff}");
+        }
+    }
+}

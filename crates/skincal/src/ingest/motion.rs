@@ -37,6 +37,9 @@ const FEWEST_PER_SIDE: usize = 3;
 const FEWEST_STILL_PAIRS: usize = 20;
 /// The median of a χ² variable of one degree of freedom.
 const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_7;
+/// The smallest noise a block mean is given, m/s² (0.01 mg): a simulated skin without noise
+/// would otherwise weigh its still blocks without bound.
+pub const NOISE_FLOOR: f64 = 1e-4;
 
 /// One SU's fresh samples, summed per block: `[Σx, Σy, Σz, n]`.
 #[derive(Default)]
@@ -368,7 +371,8 @@ fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
 
 /// The standard deviation of one component of SU `u`'s corrected block means, from consecutive
 /// blocks in which every DoF was still (the median of their squared differences, robust to a
-/// glitch), or `None` when fewer than [`FEWEST_STILL_PAIRS`] such pairs exist.
+/// glitch; at least [`NOISE_FLOOR`]), or `None` when fewer than [`FEWEST_STILL_PAIRS`] such pairs
+/// exist.
 fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
     let still =
         |run: &MotionRun, b: usize| run.qd[b].iter().all(|v| v.abs() < config.still_velocity);
@@ -391,5 +395,5 @@ fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f6
     // Two neighbouring corrected means differ by (27 m₀ − 27 m₋₁ − m₁ + m₋₂)/24 of independent
     // means, a variance of 1460/576 of one mean's; one corrected mean has 678/576 of it.
     let sd = (median / CHI2_1_MEDIAN * 678.0 / 1460.0).sqrt();
-    (sd > 0.0).then_some(sd)
+    Some(sd.max(NOISE_FLOOR))
 }

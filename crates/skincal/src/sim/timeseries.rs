@@ -194,6 +194,7 @@ pub fn record(
     // meant (1767225600.123 is held as …600.12299990654).
     let first = (config.start_stamp * 1e6).round() as i64 * 1000;
     let period = 1e9 / config.rate;
+    let skin_late = (config.skin_delay * 1e9).round() as i64;
     let mut summary = LogSummary {
         duration: end - begin,
         joint_messages: 0,
@@ -274,9 +275,7 @@ pub fn record(
             if saturation.is_some_and(|s| v.iter().any(|x| x.abs() >= s * (1.0 - 1e-9))) {
                 summary.saturated += 1;
             }
-            let s = stamp(&mut rng);
-            let late = (config.skin_delay * 1e9).round() as i64;
-            let s = Time::from_nanoseconds(s.nanoseconds() as i64 + late);
+            let s = Time::from_nanoseconds(stamp(&mut rng).nanoseconds() as i64 + skin_late);
             sink.imu(s, receive, su, v.into())?;
             summary.imu_messages += 1;
         }

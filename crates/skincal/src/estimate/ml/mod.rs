@@ -986,22 +986,10 @@ fn fit_ordered(
 pub fn refine_limb(
     data: &LimbData,
     base: Option<&LimbBase>,
-    mut start: ChainState,
+    start: ChainState,
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
-    validate(config)?;
-    let dofs = data.q.first().map_or(0, |q| q.len());
-    if start.joints.len() != dofs || start.sus.len() != data.su_depth.len() {
-        return Err(EstimateError::UnsupportedLimb {
-            limb: data.chain.name.clone(),
-            reason: "the start has another layout than the limb".into(),
-        });
-    }
-    if let Some(b) = base {
-        start.joints[..b.joints.len()].copy_from_slice(&b.joints);
-        start.gravity = b.gravity;
-    }
-    let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
+    let (start, vertical) = held_start(data, base, start, config)?;
     let mut readings = readings(data);
     readings.rejected = screen(&readings, config.noise_sd);
     final_fit(
@@ -1016,17 +1004,14 @@ pub fn refine_limb(
     )
 }
 
-/// The final fit of a limb on every sample of its motion record (`motion`, from the same robot's
-/// log), from `start` (a fit on the measurement set's readings: the search's starts come from
-/// there); the skin's delay behind the joint states is fitted with it. With `base`, the base
-/// path and gravity are held at `base`, as in [`refine_limb`].
-pub fn refine_on_motion(
+/// A refit's start checked against the limb, its base path and gravity held at `base`'s; and
+/// whether gravity is held along the first axis (exactly vertical in `start`, no base).
+fn held_start(
     data: &LimbData,
     base: Option<&LimbBase>,
     mut start: ChainState,
-    mut motion: LimbMotion,
     config: &MlConfig,
-) -> Result<MlChainEstimate, EstimateError> {
+) -> Result<(ChainState, bool), EstimateError> {
     validate(config)?;
     let dofs = data.q.first().map_or(0, |q| q.len());
     if start.joints.len() != dofs || start.sus.len() != data.su_depth.len() {
@@ -1035,17 +1020,32 @@ pub fn refine_on_motion(
             reason: "the start has another layout than the limb".into(),
         });
     }
+    if let Some(b) = base {
+        start.joints[..b.joints.len()].copy_from_slice(&b.joints);
+        start.gravity = b.gravity;
+    }
+    let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
+    Ok((start, vertical))
+}
+
+/// The final fit of a limb on every sample of its motion record (`motion`, from the same robot's
+/// log), from `start` (a fit on the measurement set's readings: the search's starts come from
+/// there); the skin's delay behind the joint states is fitted with it. With `base`, the base
+/// path and gravity are held at `base`, as in [`refine_limb`].
+pub fn refine_on_motion(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    start: ChainState,
+    mut motion: LimbMotion,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let (start, vertical) = held_start(data, base, start, config)?;
     if motion.is_empty() {
         return Err(EstimateError::UnsupportedLimb {
             limb: data.chain.name.clone(),
             reason: "the motion record has no block to fit".into(),
         });
     }
-    if let Some(b) = base {
-        start.joints[..b.joints.len()].copy_from_slice(&b.joints);
-        start.gravity = b.gravity;
-    }
-    let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
     motion.weigh(&start, &data.su_depth);
     // The samples alone: the measurement set's readings came from the same log.
     let readings = Readings {
@@ -1856,6 +1856,46 @@ pub mod internals {
             &spec,
             sigma,
         )
+    }
+
+    /// The full problem of the motion rows alone (every block of `record`, the skin's delay a
+    /// column after the others): residuals, analytic Jacobian, and the residuals after a step
+    /// `delta` of its columns for each step given.
+    pub fn motion_problem(
+        data: &ChainData,
+        record: &crate::motion::MotionRecord,
+        state: &ChainState,
+        deltas: &[Vec<f64>],
+    ) -> (
+        nalgebra::DVector<f64>,
+        DMatrix<f64>,
+        Vec<nalgebra::DVector<f64>>,
+    ) {
+        let limb = LimbData::from(data);
+        let layout = serial_layout(data.chain.dofs.len());
+        let mut spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
+        spec.blocks.push(Block::SkinDelay);
+        let mut motion = LimbMotion::new(record, &limb, 0.05).expect("the record has the chain");
+        motion.weigh(state, &limb.su_depth);
+        let readings = Readings {
+            q: Vec::new(),
+            turns: Vec::new(),
+            statics: Vec::new(),
+            dynamics: Vec::new(),
+            motion: Some(std::sync::Arc::new(motion)),
+            // Plain least squares: Huber's weights change with the state and have no column.
+            huber: None,
+            ..readings(&limb)
+        };
+        let (r, jac) = problem::dense_problem(state, &layout, &readings, &spec, 0.05);
+        let after = deltas
+            .iter()
+            .map(|d| {
+                let moved = retract(state, &spec, d);
+                problem::dense_problem(&moved, &layout, &readings, &spec, 0.05).0
+            })
+            .collect();
+        (r, jac, after)
     }
 
     /// Residuals after a step `delta` of the full problem's columns.

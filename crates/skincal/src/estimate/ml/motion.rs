@@ -230,19 +230,24 @@ pub(super) struct SegmentTerms {
     pub dn: Vec<Vec<Matrix3<f64>>>,
 }
 
-/// `(c_s, N_s)` of segments `1..=last` of a chain whose joint frames (each on the segment before
-/// it, as in [`ChainState::joints`]) are `joints`, at one sample, under `gravity`.
+/// `(c_s, N_s, R_s)` of segments `1..=last` of a chain whose joint frames (each on the segment
+/// before it, as in [`ChainState::joints`]) are `joints`, at one sample, under `gravity`; with
+/// `step`, joint `k`'s frame is followed by the local motion given.
 fn terms<T: RealField + Copy>(
     joints: &[Isometry3<T>],
+    step: Option<(usize, &Isometry3<T>)>,
     sample: &MotionSample,
     gravity: &Vector3<T>,
     last: usize,
-) -> Vec<(Vector3<T>, Matrix3<T>)> {
+) -> Vec<(Vector3<T>, Matrix3<T>, Matrix3<T>)> {
     let mut segment = Isometry3::<T>::identity();
     let mut motion = BodyMotion::<T>::still();
     let mut out = Vec::with_capacity(last);
     for (k, joint) in joints.iter().enumerate().take(last) {
-        let frame = segment * joint;
+        let mut frame = segment * joint;
+        if let Some((_, local)) = step.filter(|(at, _)| *at == k) {
+            frame *= local;
+        }
         let axis = frame.rotation * Vector3::z();
         let point = frame.translation.vector;
         motion = motion.through(
@@ -256,7 +261,7 @@ fn terms<T: RealField + Copy>(
         let r = segment.rotation.to_rotation_matrix().into_inner();
         let m = motion.point_matrix();
         let c = r.transpose() * (motion.accel + m * segment.translation.vector - gravity);
-        out.push((c, r.transpose() * m * r));
+        out.push((c, r.transpose() * m * r, r));
     }
     out
 }
@@ -291,50 +296,53 @@ fn joint_step(full: bool, c: usize) -> Isometry3<Dual64> {
 }
 
 /// The segment terms of every sample at `state`, for segments `1..=last`; with `columns` (the
-/// shared columns of the problem: block and component), their derivatives too.
+/// shared columns of the problem: block and component), their derivatives too: along gravity
+/// `∂c_s = −R_sᵀ δg` (`N_s` does not see it), along a joint line by dual numbers through
+/// [`terms`], one pass per column.
 pub(super) fn segment_terms(
     state: &ChainState,
     motion: &LimbMotion,
     last: usize,
     columns: Option<&[(Block, usize)]>,
 ) -> Vec<SegmentTerms> {
-    let g = state.gravity;
-    let directions = gravity_directions(&g);
+    let directions = gravity_directions(&state.gravity);
     let lifted: Vec<Isometry3<Dual64>> = state.joints.iter().map(lift).collect();
-    let g_dual = g.map(Dual64::from);
+    let g_dual = state.gravity.map(Dual64::from);
+    let steps: Vec<Option<(usize, Isometry3<Dual64>)>> = columns
+        .unwrap_or(&[])
+        .iter()
+        .map(|&(block, c)| match block {
+            Block::Joint(k) | Block::JointFull(k) if k < last => {
+                Some((k, joint_step(matches!(block, Block::JointFull(_)), c)))
+            }
+            _ => None,
+        })
+        .collect();
     motion
         .samples
         .par_iter()
         .map(|sample| {
-            let values = terms(&state.joints, sample, &g, last);
+            let values = terms(&state.joints, None, sample, &state.gravity, last);
             let mut out = SegmentTerms {
                 c: values.iter().map(|v| v.0).collect(),
                 n: values.iter().map(|v| v.1).collect(),
                 dc: vec![Vec::new(); last],
                 dn: vec![Vec::new(); last],
             };
-            for &(block, c) in columns.unwrap_or(&[]) {
-                let derivative: Option<Vec<(Vector3<Dual64>, Matrix3<Dual64>)>> = match block {
-                    Block::Gravity | Block::GravityDirection => {
-                        let dir = if block == Block::Gravity {
-                            Vector3::ith(c, 1.0)
-                        } else {
-                            directions[c]
-                        };
-                        let gd = g_dual + dir.map(|x| Dual64::new(0.0, x));
-                        Some(terms(&lifted, sample, &gd, last))
-                    }
-                    Block::Joint(k) | Block::JointFull(k) if k < last => {
-                        let mut joints = lifted.clone();
-                        joints[k] *= joint_step(matches!(block, Block::JointFull(_)), c);
-                        Some(terms(&joints, sample, &g_dual, last))
-                    }
+            for (&(block, c), step) in columns.unwrap_or(&[]).iter().zip(&steps) {
+                let gravity = match block {
+                    Block::Gravity => Some(Vector3::ith(c, 1.0)),
+                    Block::GravityDirection => Some(directions[c]),
                     _ => None,
                 };
-                for s in 0..last {
-                    let (dc, dn) = match &derivative {
-                        Some(d) => (d[s].0.map(|x| x.eps), d[s].1.map(|x| x.eps)),
-                        None => (Vector3::zeros(), Matrix3::zeros()),
+                let along = step
+                    .as_ref()
+                    .map(|(k, local)| terms(&lifted, Some((*k, local)), sample, &g_dual, last));
+                for (s, (_, _, r)) in values.iter().enumerate() {
+                    let (dc, dn) = match (&along, gravity) {
+                        (Some(d), _) => (d[s].0.map(|x| x.eps), d[s].1.map(|x| x.eps)),
+                        (None, Some(dir)) => (-(r.transpose() * dir), Matrix3::zeros()),
+                        (None, None) => (Vector3::zeros(), Matrix3::zeros()),
                     };
                     out.dc[s].push(dc);
                     out.dn[s].push(dn);

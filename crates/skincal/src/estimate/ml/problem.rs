@@ -377,14 +377,18 @@ fn effect(
     }
 }
 
-/// Frames of every pose for the SUs of `spec`.
-fn pose_frames(state: &ChainState, layout: &Layout, data: &Readings, spec: &Spec) -> Vec<Frames> {
-    let last = spec
-        .sus
+/// The outermost segment that carries an SU of `spec`.
+fn last_segment(layout: &Layout, spec: &Spec) -> usize {
+    spec.sus
         .iter()
         .map(|&u| layout.su_segment[u])
         .max()
-        .unwrap_or(0);
+        .unwrap_or(0)
+}
+
+/// Frames of every pose for the SUs of `spec`.
+fn pose_frames(state: &ChainState, layout: &Layout, data: &Readings, spec: &Spec) -> Vec<Frames> {
+    let last = last_segment(layout, spec);
     (0..data.q.len())
         .map(|p| {
             frames(
@@ -409,12 +413,7 @@ fn motion_terms(
     jacobian: bool,
 ) -> Option<Vec<SegmentTerms>> {
     let motion = data.motion.as_ref()?;
-    let last = spec
-        .sus
-        .iter()
-        .map(|&u| layout.su_segment[u])
-        .max()
-        .unwrap_or(0);
+    let last = last_segment(layout, spec);
     let columns: Vec<(Block, usize)> = map
         .shared
         .iter()
