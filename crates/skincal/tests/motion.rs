@@ -166,6 +166,35 @@ fn a_skin_stamped_8_ms_late_is_found_8_ms_late() {
     }
 }
 
+/// Encoders of 0.044° (a real leg's: every block's acceleration uncertain beyond the absolute
+/// limit) and a skin 8 ms late: the blocks left out are only the sudden ones, the delay is found,
+/// and every sample predicts the dynamic readings three times better than the windows.
+#[test]
+fn coarse_encoders_leave_out_only_their_sudden_blocks() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let upright = LogConfig {
+        seed: 5,
+        skin_delay: 0.008,
+        encoder_resolution: 0.044f64.to_radians(),
+        ..LogConfig::default()
+    };
+    let fits = fit_both(&robot, &upright);
+    let [(ws, wd), (ss, sd)] = held_out_errors(&robot, &fits);
+    assert!(
+        ss < ws && sd < wd / 3.0,
+        "static {ss} vs {ws}, dynamic {sd} vs {wd}"
+    );
+    for limb in &fits.samples.limbs {
+        let fit = limb.estimate.motion.as_ref().unwrap();
+        assert!(fit.blocks > 6500, "{} blocks", fit.blocks);
+        assert!(
+            (fit.skin_delay - 0.008).abs() < 5e-4,
+            "{} s",
+            fit.skin_delay
+        );
+    }
+}
+
 /// The record's joint velocities and accelerations against the plan's analytic ones (the
 /// trajectory the simulator sampled), with exact and with 17-bit encoders.
 #[test]

@@ -25,8 +25,11 @@ use crate::motion::MotionRecord;
 pub const MAX_DELAY: f64 = 0.05;
 /// A block whose DoF accelerations are less certain than this is not fitted, rad/s²: the joint
 /// motion changed faster than the record's local polynomial follows (a jerk at a phase's start),
-/// and its prediction would be wrong by that much times the lever arm.
+/// and its prediction would be wrong by that much times the lever arm. A DoF whose encoder
+/// leaves every block less certain gets [`SUDDEN`] times its median instead.
 pub const MAX_ACCELERATION_SD: f64 = 0.05;
+/// How many times its median uncertainty makes a DoF's acceleration too uncertain to fit.
+pub const SUDDEN: f64 = 3.0;
 
 /// One block of the record that the limb's fit uses.
 #[derive(Debug, Clone, PartialEq)]
@@ -88,12 +91,32 @@ impl LimbMotion {
             .map(|s| find("SU", &record.sus, s))
             .collect::<Result<_, _>>()?;
         let margin = (MAX_DELAY / record.period).ceil() as usize + 2;
+        let limits: Vec<f64> = dofs
+            .iter()
+            .map(|&d| {
+                let mut sds: Vec<f64> = record
+                    .runs
+                    .iter()
+                    .flat_map(|run| run.qdd_sd.iter().map(move |row| row[d]))
+                    .collect();
+                if sds.is_empty() {
+                    return MAX_ACCELERATION_SD;
+                }
+                let mid = sds.len() / 2;
+                let median = *sds.select_nth_unstable_by(mid, f64::total_cmp).1;
+                MAX_ACCELERATION_SD.max(SUDDEN * median)
+            })
+            .collect();
         let mut samples = Vec::new();
         let mut skin = Vec::new();
         for (r, run) in record.runs.iter().enumerate() {
             let pick = |row: &Vec<f64>| dofs.iter().map(|&d| row[d]).collect::<Vec<f64>>();
             for b in margin..run.len().saturating_sub(margin) {
-                if dofs.iter().any(|&d| run.qdd_sd[b][d] > MAX_ACCELERATION_SD) {
+                let sudden = dofs.iter().zip(&limits);
+                if sudden
+                    .into_iter()
+                    .any(|(&d, &limit)| run.qdd_sd[b][d] > limit)
+                {
                     continue;
                 }
                 samples.push(MotionSample {
