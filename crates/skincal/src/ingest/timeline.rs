@@ -397,6 +397,10 @@ pub(super) fn read_joints(
 
 /// Steps between readings below this are floating-point noise, not an encoder's, rad.
 const FINEST_STEP: f64 = 1e-9;
+/// The changes of at most this many steps tell whether an encoder's readings are rounded.
+const FEW_STEPS: f64 = 20.0;
+/// How far from a whole number of steps such a change may be.
+const WHOLE: f64 = 0.02;
 
 /// The standard deviation of an encoder's rounding from its readings `(stamp, position)`: a
 /// rounded reading changes by whole steps, the smallest of them (over √12, a uniform rounding
@@ -411,11 +415,14 @@ pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
     if !step.is_finite() {
         return 0.0;
     }
-    // A rounded encoder: every change is a whole number of steps.
+    // A rounded encoder: every change of a few steps is a whole number of them, within what the
+    // log's printed decimals leave. A large change carries the step's own error times its count
+    // (9 decimals on a 17-bit step: 1e-5 of it) and tells nothing.
     let whole = series
         .windows(2)
         .map(|w| (w[1].1 - w[0].1).abs() / step)
-        .all(|k| (k - k.round()).abs() < 1e-3);
+        .filter(|&k| k <= FEW_STEPS)
+        .all(|k| (k - k.round()).abs() < WHOLE);
     if whole {
         step / 12f64.sqrt()
     } else {
@@ -446,6 +453,20 @@ mod tests {
             "{rounded}"
         );
         assert_eq!(encoder_rounding(&series(false)), 0.0);
+        // Printed with 9 decimals, as a CSV log holds it, and moving fast (hundreds of steps
+        // per sample): still told rounded by its small changes.
+        let fast: Vec<(f64, f64)> = (0..2000)
+            .map(|i| {
+                let t = f64::from(i) * 1e-3;
+                let q = ((1.5 * (10.0 * t).sin()) / step).round() * step;
+                (t, format!("{q:.9}").parse().unwrap())
+            })
+            .collect();
+        let printed = encoder_rounding(&fast);
+        assert!(
+            (printed / (step / 12f64.sqrt()) - 1.0).abs() < 1e-3,
+            "{printed}"
+        );
         assert_eq!(encoder_rounding(&[(0.0, 0.25), (0.001, 0.25)]), 0.0);
     }
 }
