@@ -692,7 +692,8 @@ pub(crate) struct IngestArgs {
     /// Joint-state gaps longer than this make a motion unusable, s.
     #[arg(long, default_value_t = IngestConfig::default().max_gap)]
     max_gap: f64,
-    /// Accelerometer range: samples at ±G or beyond are saturated, in g.
+    /// Accelerometer range: samples at ±G or beyond (or within a converter step of 9 bits or
+    /// more below it: the highest code) are saturated, in g.
     #[arg(long, value_name = "G", default_value_t = 2.0)]
     saturation: f64,
     /// The unit of the skin's samples: m/s² (what sensor_msgs/Imu carries), or g or mg for a

@@ -94,6 +94,10 @@ pub enum IngestError {
     SkinUnit(String),
 }
 
+/// The share of the range below it that an accelerometer's highest code may sit: one step of a
+/// converter of 9 bits or more over its range.
+pub const TOP_CODE: f64 = 1.0 / 256.0;
+
 /// Options of the ingestion.
 #[derive(Debug, Clone, PartialEq)]
 pub struct IngestConfig {
@@ -118,7 +122,8 @@ pub struct IngestConfig {
     pub filter: f64,
     /// Joint-state gaps longer than this make the motion they fall in unusable, s.
     pub max_gap: f64,
-    /// An axis at or beyond this magnitude is saturated, m/s².
+    /// An axis at or beyond this magnitude (the accelerometer's range) is saturated, m/s²; so is
+    /// one within [`TOP_CODE`] of it (see [`IngestConfig::saturated`]).
     pub saturation: f64,
     /// Every skin sample is multiplied by this: 1 for m/s² (what `sensor_msgs/Imu` carries),
     /// [`STANDARD_GRAVITY`] for a driver that publishes g.
@@ -132,6 +137,15 @@ pub struct IngestConfig {
 }
 
 impl IngestConfig {
+    /// Whether a skin sample (m/s², scaled) reached the accelerometer's range on an axis: at
+    /// least `saturation` less [`TOP_CODE`] of it. A two's-complement converter's highest code is
+    /// one step below its range (a 10-bit one over ±2 g tops at +19.575 m/s² and −19.613): the
+    /// positive rail would otherwise pass for a reading.
+    pub fn saturated(&self, a: &[f64; 3]) -> bool {
+        a.iter()
+            .any(|v| v.abs() >= self.saturation * (1.0 - TOP_CODE))
+    }
+
     /// The still-window lengths made to fit still periods of `still` seconds (a plan's): the
     /// trim shrinks to a tenth of the period and the shortest window to 0.3 of it, where the
     /// defaults would not fit. Longer periods keep the defaults.
@@ -593,6 +607,17 @@ mod tests {
     use crate::plan::{Part, Plan, PlanConfig, PlanDof};
     use crate::sim::timeseries::{record, LogConfig};
     use crate::sim::BaseOrientation;
+
+    #[test]
+    fn a_converters_highest_code_is_its_rail() {
+        // A 10-bit converter over ±2 g: codes −512…511 of 4·9.80665/1024 m/s².
+        let config = IngestConfig::default();
+        let step = 4.0 * STANDARD_GRAVITY / 1024.0;
+        assert!(config.saturated(&[0.0, 511.0 * step, 0.0]));
+        assert!(config.saturated(&[-512.0 * step, 0.0, 0.0]));
+        assert!(!config.saturated(&[0.0, 0.0, 509.0 * step]));
+        assert!(!config.saturated(&[-9.81, 3.0, 1.0]));
+    }
 
     /// The ingestion of `logs` read once (segmented every `step` samples) and read twice.
     fn once_and_twice(logs: &[PathBuf], step: usize) -> (Ingested, Ingested) {

@@ -173,9 +173,7 @@ fn gather(
                     }
                     let a = acceleration.map(|x| x * config.skin_scale);
                     let block = (stamp - gathered.origin) / BLOCK;
-                    let usable = a
-                        .iter()
-                        .all(|x| x.is_finite() && x.abs() < config.saturation);
+                    let usable = a.iter().all(|x| x.is_finite()) && !config.saturated(&a);
                     if let (Some(&u), true, true) = (su_index.get(frame_id), usable, block >= 0.0) {
                         gathered.skin[u].add(block as usize, a);
                     }

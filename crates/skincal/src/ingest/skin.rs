@@ -442,7 +442,7 @@ impl Router {
         if m < start || m >= end {
             return;
         }
-        if acceleration.iter().any(|v| v.abs() >= config.saturation) {
+        if config.saturated(&acceleration) {
             // Only samples the readings would use are counted: a saturated sample during a
             // transfer does not matter.
             *self.saturated.entry(su).or_default() += 1;
