@@ -1134,7 +1134,7 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
 }
 
 /// The paper's 7-DoF arm with about `sus` random SUs, and a training program cut to `seconds`.
-fn bench_program(sus: usize, seconds: f64) -> Result<(skincal::model::Robot, Plan)> {
+pub(crate) fn bench_program(sus: usize, seconds: f64) -> Result<(skincal::model::Robot, Plan)> {
     let base = io::load_robot("paper-7dof", SuPlacement::default())?;
     let segments = base
         .model
@@ -1241,10 +1241,10 @@ fn time_ingest(path: &Path, config: &IngestConfig, repeats: usize) -> Result<Tim
 }
 
 /// A scratch directory, removed when dropped, on an error, or by a signal.
-struct Scratch(PathBuf);
+pub(crate) struct Scratch(pub(crate) PathBuf);
 
 impl Scratch {
-    fn create() -> Result<Scratch> {
+    pub(crate) fn create() -> Result<Scratch> {
         let dir = std::env::temp_dir().join(format!("skincal-bench-ingest-{}", std::process::id()));
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;

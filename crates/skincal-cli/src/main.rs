@@ -4,6 +4,7 @@
 
 mod bench_body;
 mod bench_limbs;
+mod bench_motion;
 mod bench_report;
 mod bench_sensors;
 mod logs;
@@ -189,6 +190,9 @@ enum BenchCommand {
     Body(bench_body::BenchBodyArgs),
     /// Ingestion of a 1 kHz log with many SUs (MCAP and CSV): time against real time.
     Ingest(logs::BenchIngestArgs),
+    /// The time-domain fit on a 1 kHz log (the motion record, the readings' fit and the refit on
+    /// every sample): time, memory and held-out accuracy.
+    Motion(bench_motion::BenchMotionArgs),
     /// Real sensors and imperfect skins (intrinsics, glitches, broken SUs) against clean data.
     Sensors(bench_sensors::BenchSensorsArgs),
     /// Robot-like limbs (parallel and intersecting axes, joint limits, several SUs per segment):
@@ -478,6 +482,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate(args),
         Command::Bench(BenchCommand::Ingest(args)) => logs::bench_ingest(args),
+        Command::Bench(BenchCommand::Motion(args)) => bench_motion::bench_motion(args),
         Command::Bench(BenchCommand::Report(args)) => bench_report::bench_report(args),
         Command::Plan(args) => logs::plan(args),
         Command::Record(args) => logs::record_log(args),

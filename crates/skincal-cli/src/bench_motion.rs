@@ -1,0 +1,157 @@
+//! `skincal bench motion`: the time-domain fit on a simulated 1 kHz log — the motion record's
+//! pass, the readings' fit and the refit on every sample, timed on a pool of `--threads`, with
+//! the held-out accuracy of both fits against the simulator's robot.
+
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use clap::Args;
+use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion};
+use skincal::estimate::ml::MlConfig;
+use skincal::explore::{explore, ExploreConfig};
+use skincal::ingest::{ingest, motion::motion_record, IngestConfig};
+use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::Topics;
+use skincal::predict::validate;
+use skincal::sim::timeseries::{record, LogConfig};
+use skincal::sim::{simulate, Imperfections, SimulationConfig};
+
+use crate::logs::{bench_program, Scratch};
+use crate::out::{self, outln};
+
+#[derive(Debug, Args)]
+pub(crate) struct BenchMotionArgs {
+    /// SUs on the robot (random, on the paper's 7-DoF arm).
+    #[arg(long, default_value_t = 100)]
+    sus: usize,
+    /// Seconds of log (the paper's training program at 1 kHz, ±0.01 g noise).
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+    /// Threads of the fits (1: one core).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Print the table as JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
+    if args.sus == 0 || args.threads == 0 || !args.seconds.is_finite() || args.seconds <= 0.0 {
+        bail!("--sus, --seconds and --threads must be positive");
+    }
+    let (robot, plan) = bench_program(args.sus, args.seconds)?;
+    let scratch = Scratch::create()?;
+    let log = scratch.0.join("log.mcap");
+    let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
+    record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {})?;
+    let config = IngestConfig::default();
+    let started = Instant::now();
+    let set = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?.measurements;
+    let ingest_s = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    let motion = motion_record(&[log], &set.dofs, &set.sus, &config, &mut |_, _, _| {})?;
+    let record_s = started.elapsed().as_secs_f64();
+    // The tree from the robot's own structure experiment (the log has none).
+    let condensed = simulate(&robot, &SimulationConfig::default())?.measurements;
+    let structure = explore(&condensed, &ExploreConfig::default())?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()?;
+    let ml = MlConfig::default();
+    let (readings, readings_s, samples, samples_s) = pool.install(|| -> Result<_> {
+        let started = Instant::now();
+        let readings = calibrate_body(&set, Some(&structure), &ml, None)?;
+        let readings_s = started.elapsed().as_secs_f64();
+        let started = Instant::now();
+        let samples = calibrate_body_on_motion(
+            &set,
+            &motion,
+            Some(&structure),
+            &ml,
+            None,
+            &[],
+            &mut |_, _, _| {},
+        )?;
+        Ok((
+            readings,
+            readings_s,
+            samples,
+            started.elapsed().as_secs_f64(),
+        ))
+    })?;
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            seed: 77,
+            structure: false,
+            imperfections: Imperfections::none(),
+            ..SimulationConfig::default()
+        },
+    )?
+    .measurements;
+    let [r, s] = [&readings, &samples].map(|m| validate(m, &held_out, "held-out"));
+    let (r, s) = (r?, s?);
+    let blocks: usize = samples
+        .limbs
+        .iter()
+        .filter_map(|l| l.estimate.motion.as_ref().map(|m| m.blocks))
+        .max()
+        .unwrap_or(0);
+    outln!(
+        "The time-domain fit of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} blocks of {} ms), \
+         fits on {} thread(s); held-out: 30 noise-free poses, RMS m/s²",
+        plan.duration,
+        robot.model.sus().len(),
+        motion.blocks(),
+        motion.period * 1e3,
+        args.threads
+    );
+    outln!(
+        "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>9}",
+        "ingest s",
+        "record s",
+        "readings s",
+        "samples s",
+        "fitted",
+        "readings stat",
+        "readings dyn",
+        "samples stat",
+        "samples dyn",
+        "peak MB"
+    );
+    let peak = crate::peak_memory_mb();
+    // The refit starts from the readings' fit, which its time includes.
+    outln!(
+        "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>9.0}",
+        ingest_s,
+        record_s,
+        readings_s,
+        samples_s,
+        blocks,
+        r.static_rms,
+        r.dynamic_rms,
+        s.static_rms,
+        s.dynamic_rms,
+        peak
+    );
+    out::json(&serde_json::json!({
+        "command": "bench motion",
+        "seconds": plan.duration,
+        "sus": robot.model.sus().len(),
+        "blocks": motion.blocks(),
+        "threads": args.threads,
+        "ingest_s": ingest_s,
+        "record_s": record_s,
+        "readings_fit_s": readings_s,
+        "samples_fit_s": samples_s,
+        "held_out": {
+            "readings": [r.static_rms, r.dynamic_rms],
+            "samples": [s.static_rms, s.dynamic_rms],
+        },
+        "peak_mb": peak,
+    }));
+    Ok(())
+}
