@@ -44,6 +44,9 @@ pub(crate) enum Protocol {
     /// 0.5 s still periods, one-period excitations, the limbs excited in parallel, and as many
     /// poses (at least 6) as the forecast needs for 0.009 m/s² held-out RMS.
     Short,
+    /// The short structure experiment, then every DoF moving at once along smooth random paths
+    /// (20 s; no training pose, no still period, no pattern), calibrated on every sample.
+    Continuous,
 }
 
 #[derive(Debug, Args)]
@@ -60,9 +63,15 @@ pub(crate) struct PlanArgs {
     /// The program: `short` (0.5 s still periods, one-period excitations, the limbs of a tree
     /// excited at the same time, at least 6 poses and as many as the forecast needs for 0.009 m/s²
     /// held-out RMS) or `paper` (20 poses, 1 s still periods, 2 s excitations, one DoF at a time,
-    /// as the paper does); the options below change single values.
+    /// as the paper does), or `continuous` (every DoF at once along smooth random paths for
+    /// --sweep seconds after the structure experiment, calibrated on every sample of its log);
+    /// the options below change single values.
     #[arg(long, value_enum, default_value_t = Protocol::Short)]
     protocol: Protocol,
+    /// Seconds of continuous motion of every DoF at once in place of the training poses
+    /// [default: 20 for `continuous`, none for the others].
+    #[arg(long, value_name = "SECONDS")]
+    sweep: Option<f64>,
     /// Number of training poses P [default: the protocol's].
     #[arg(long)]
     poses: Option<usize>,
@@ -200,6 +209,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     let protocol = match args.protocol {
         Protocol::Paper => PlanConfig::default(),
         Protocol::Short => PlanConfig::short(),
+        Protocol::Continuous => PlanConfig::continuous(),
     };
     let config = PlanConfig {
         structure: !args.no_structure,
@@ -215,6 +225,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         pattern: args.pattern.as_deref().map(parse_pattern).transpose()?,
         seed: args.seed,
         parallel: protocol.parallel && !args.one_at_a_time,
+        sweep: args.sweep.unwrap_or(protocol.sweep),
         ..protocol
     };
     if !(args.rate.is_finite() && args.rate >= 1.0) {
@@ -228,7 +239,13 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
             bail!("--{flag}: must be a positive number of m/s²");
         }
     }
+    if config.sweep > 0.0 && args.accuracy.is_some() {
+        bail!(
+            "--accuracy adds training poses; a continuous program has none (give --sweep longer)"
+        );
+    }
     let accuracy = args.accuracy.or((args.protocol == Protocol::Short
+        && config.sweep == 0.0
         && args.poses.is_none()
         && !args.no_forecast)
         .then_some(skincal::design::SHORT_ACCURACY));
@@ -314,26 +331,15 @@ fn planned(
 fn render_plan(plan: &Plan) -> String {
     use std::fmt::Write as _;
     let mut s = String::new();
-    let p = &plan.pattern;
-    let _ = writeln!(
-        s,
-        "Excitation pattern: A = {:.4} rad/s, f = {:.3} Hz → peak α = 2πfA = {:.3} rad/s², excursion \
-         A/(πf) = {:.4} rad ({:.2}°)",
-        p.amplitude,
-        p.frequency,
-        p.peak_acceleration(),
-        p.excursion(),
-        p.excursion().to_degrees()
-    );
-    let _ = writeln!(s, "  limited by {}", plan.pattern_limited_by);
-    let _ = writeln!(
-        s,
-        "  window: {} period(s) rise, {} at full amplitude, {} fall ({:.2} s per excitation)",
-        plan.window.ramp_cycles,
-        plan.window.hold_cycles,
-        plan.window.ramp_cycles,
-        plan.window.duration(p.frequency)
-    );
+    let sweep = plan.phases.iter().find_map(|phase| match &phase.action {
+        Action::Sweep(sweep) => Some((sweep, phase.duration)),
+        _ => None,
+    });
+    if let Some((sweep, duration)) = sweep {
+        render_sweep(&mut s, plan, sweep, duration);
+    } else {
+        render_pattern(&mut s, plan);
+    }
     let assumed: Vec<&str> = plan
         .dofs
         .iter()
@@ -352,10 +358,15 @@ fn render_plan(plan: &Plan) -> String {
         );
     }
     let (still, moving, exciting) = plan.time_by_action();
+    let exciting_what = if sweep.is_some() {
+        "continuous motion"
+    } else {
+        "excitations"
+    };
     let count = |f: &dyn Fn(&Action) -> bool| plan.phases.iter().filter(|p| f(&p.action)).count();
     let _ = writeln!(
         s,
-        "\nProgram: {:.1} s in all ({:.1} s still, {:.1} s moves and transfers, {:.1} s excitations)",
+        "\nProgram: {:.1} s in all ({:.1} s still, {:.1} s moves and transfers, {:.1} s {exciting_what})",
         plan.duration, still, moving, exciting
     );
     if plan.config.structure {
@@ -374,7 +385,14 @@ fn render_plan(plan: &Plan) -> String {
              ingest` (a vertical axis cannot be seen in one orientation)."
         );
     }
-    if plan.config.training {
+    if plan.config.training && sweep.is_some() {
+        let _ = writeln!(
+            s,
+            "  training experiment: {:.1} – {:.1} s, every DoF at once along its path (no still \
+             period): `skincal ingest` keeps every sample for the time-domain fit",
+            plan.structure_duration, plan.duration
+        );
+    } else if plan.config.training {
         let windows = count(&|a| matches!(a, Action::Excitation { .. }));
         let _ = writeln!(
             s,
@@ -413,6 +431,59 @@ fn render_plan(plan: &Plan) -> String {
         );
     }
     s
+}
+
+/// The excitation pattern and its window.
+fn render_pattern(s: &mut String, plan: &Plan) {
+    use std::fmt::Write as _;
+    let p = &plan.pattern;
+    let _ = writeln!(
+        s,
+        "Excitation pattern: A = {:.4} rad/s, f = {:.3} Hz → peak α = 2πfA = {:.3} rad/s², excursion \
+         A/(πf) = {:.4} rad ({:.2}°)",
+        p.amplitude,
+        p.frequency,
+        p.peak_acceleration(),
+        p.excursion(),
+        p.excursion().to_degrees()
+    );
+    let _ = writeln!(s, "  limited by {}", plan.pattern_limited_by);
+    let _ = writeln!(
+        s,
+        "  window: {} period(s) rise, {} at full amplitude, {} fall ({:.2} s per excitation)",
+        plan.window.ramp_cycles,
+        plan.window.hold_cycles,
+        plan.window.ramp_cycles,
+        plan.window.duration(p.frequency)
+    );
+}
+
+/// The continuous motion: its frequencies and how much of each limit the paths use.
+fn render_sweep(s: &mut String, plan: &Plan, sweep: &skincal::plan::Sweep, duration: f64) {
+    use std::fmt::Write as _;
+    let highest = sweep.frequency * sweep.harmonics.iter().map(Vec::len).max().unwrap_or(1) as f64;
+    let _ = writeln!(
+        s,
+        "Continuous motion: {duration:.1} s of every DoF at once, {} harmonics of {:.3} Hz (up to \
+         {highest:.3} Hz), {:.1} s rise and fall",
+        sweep.harmonics.first().map_or(0, Vec::len),
+        sweep.frequency,
+        sweep.ramp
+    );
+    let (mut range, mut velocity, mut acceleration) = (0.0f64, 0.0f64, 0.0f64);
+    for (d, dof) in plan.dofs.iter().enumerate() {
+        let [q, v, a] = sweep.peaks(d, duration);
+        range = range.max(q);
+        velocity = velocity.max(v / dof.velocity);
+        acceleration = acceleration.max(a / dof.acceleration);
+    }
+    let _ = writeln!(
+        s,
+        "  paths reach ±{range:.2} rad about the middle of each range, {:.0} % of a velocity limit, \
+         {:.0} % of an acceleration limit at most",
+        100.0 * velocity,
+        100.0 * acceleration
+    );
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -786,14 +857,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         bar.set_position(done);
     };
     let ingested = ingest(&args.logs, &config, &mut show)?;
-    // The time-domain record: the logs with training poses (one base orientation's gravity).
-    let training_logs: Vec<PathBuf> = ingested
-        .report
-        .logs
-        .iter()
-        .filter(|l| l.excitations > 0)
-        .map(|l| l.path.clone())
-        .collect();
+    let training_logs = skincal::ingest::motion::training_logs(&ingested.report);
     let motion = if args.no_motion || training_logs.is_empty() {
         None
     } else {
@@ -827,7 +891,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     out!("{}", render_report(&ingested.report));
     if let Some(record) = &motion {
         outln!(
-            "motion record: {} blocks of {} ms in {} runs from {} log(s) with training poses",
+            "motion record: {} blocks of {} ms in {} runs from {} log(s) with training motion",
             record.blocks(),
             record.period * 1e3,
             record.runs.len(),

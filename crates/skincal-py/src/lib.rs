@@ -247,6 +247,7 @@ impl Measurements {
                 .map_err(|e| error(format!("structure: not a structure experiment: {e}")))?;
         }
         inner.training = (p > 0).then(|| TrainingExperiment {
+            from_motion: false,
             pattern: ExcitationPattern {
                 amplitude: pattern.0,
                 frequency: pattern.1,

@@ -287,6 +287,7 @@ pub fn forecast(
         let mut set = MeasurementSet::new(robot.model.dof_names(), robot.model.su_names());
         set.structure.clone_from(&reference.explored.structure);
         set.training = Some(TrainingExperiment {
+            from_motion: false,
             pattern: plan.pattern,
             poses: poses
                 .iter()

@@ -173,6 +173,11 @@ pub struct TrainingExperiment {
     pub pattern: ExcitationPattern,
     /// The poses.
     pub poses: Vec<TrainingPose>,
+    /// The poses are quiet moments of a motion record
+    /// ([`crate::motion::MotionRecord::quiet_poses`]): static readings only, a start for the fit
+    /// on every sample, which finds the positions and the order of a joint's DoFs from the motion.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub from_motion: bool,
     /// Unknown fields, kept as written.
     #[serde(flatten)]
     pub extra: Map<String, Value>,

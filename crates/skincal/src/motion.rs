@@ -156,3 +156,83 @@ impl MotionRecord {
         self.runs.iter().map(MotionRun::len).sum()
     }
 }
+
+/// The reach assumed when a motion record's quiet blocks stand in for static readings, m: the
+/// acceleration an SU feels besides gravity is at most about this times the joints' `Σ|q̈| + Σq̇²`.
+pub const QUIET_REACH: f64 = 1.0;
+/// How far from a quiet block an SU's nearest fresh sample may lie, blocks (a 20 Hz board sends
+/// one every 5).
+const QUIET_SEARCH: usize = 25;
+/// The standard deviation of a reading an SU did not send near a quiet block, m/s²: no weight.
+const UNKNOWN_SD: f64 = 1e3;
+
+impl MotionRecord {
+    /// `count` static readings from the record's quietest moments, spread over it: of each of
+    /// `count` equal stretches of its blocks, the one whose joint motion adds the least to
+    /// gravity. Each SU reads its nearest fresh sample; each reading's standard deviation adds to
+    /// the SU's noise what motion could add to gravity there (at a reach of [`QUIET_REACH`]:
+    /// `Σ|q̈| + Σq̇²` times the reach, and the turn of gravity between the block and the sample).
+    ///
+    /// A start for a time-domain fit of a log without training poses (a continuous program,
+    /// ordinary work): orientations and axes from gravity, which the fit on every sample then
+    /// corrects with the rest.
+    pub fn quiet_poses(&self, count: usize) -> Vec<crate::measurements::TrainingPose> {
+        let g = crate::model::sensor::STANDARD_GRAVITY;
+        let blocks: Vec<(usize, usize)> = self
+            .runs
+            .iter()
+            .enumerate()
+            .flat_map(|(r, run)| (0..run.len()).map(move |b| (r, b)))
+            .collect();
+        let count = count.min(blocks.len());
+        let motion = |(r, b): (usize, usize)| -> f64 {
+            let run = &self.runs[r];
+            let qdd: f64 = run.qdd[b].iter().map(|a| a.abs()).sum();
+            let qd2: f64 = run.qd[b].iter().map(|v| v * v).sum();
+            QUIET_REACH * (qdd + qd2)
+        };
+        (0..count)
+            .filter_map(|k| {
+                let slice = &blocks[k * blocks.len() / count..(k + 1) * blocks.len() / count];
+                let &(r, b) = slice
+                    .iter()
+                    .min_by(|x, y| motion(**x).total_cmp(&motion(**y)))?;
+                let run = &self.runs[r];
+                let speed: f64 = run.qd[b].iter().map(|v| v.abs()).sum();
+                let (readings, sd): (Vec<[f64; 3]>, Vec<f64>) = (0..self.sus.len())
+                    .map(|u| {
+                        let noise = self.noise_sd[u].unwrap_or(0.0);
+                        match nearest_sample(run, u, b) {
+                            Some((reading, off)) => {
+                                let turned = g * speed * off as f64 * self.period;
+                                let bound = motion((r, b)) + turned;
+                                (reading, (noise * noise + bound * bound).sqrt())
+                            }
+                            None => ([0.0; 3], UNKNOWN_SD),
+                        }
+                    })
+                    .unzip();
+                Some(crate::measurements::TrainingPose {
+                    q: run.q[b].clone(),
+                    static_readings: readings,
+                    dynamic: Default::default(),
+                    static_sd: Some(sd),
+                    dynamic_sd: Default::default(),
+                    extra: Default::default(),
+                })
+            })
+            .collect()
+    }
+}
+
+/// SU `u`'s fresh sample nearest block `b` of `run`, within [`QUIET_SEARCH`] blocks, with how
+/// many blocks away it is.
+fn nearest_sample(run: &MotionRun, u: usize, b: usize) -> Option<([f64; 3], usize)> {
+    (0..=QUIET_SEARCH).find_map(|off| {
+        [b.checked_sub(off), Some(b + off)]
+            .into_iter()
+            .flatten()
+            .find_map(|i| run.skin.get(i).and_then(|row| row[u]))
+            .map(|s| (s, off))
+    })
+}

@@ -660,6 +660,7 @@ fn respects_every_limit(robot: &Robot, dofs: &[PlanDof], protocol: PlanConfig) {
             }
             Action::Move { .. } => assert_eq!(moved, 1),
             Action::Transfer => {}
+            Action::Sweep(_) => panic!("a program of training poses has no sweep"),
         }
     }
     assert!(excited.iter().all(|&n| n == config.poses), "{excited:?}");

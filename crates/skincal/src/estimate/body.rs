@@ -17,11 +17,14 @@ use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::limb::{limb_chains, LimbChain, LimbData};
-use super::ml::{estimate_limb, refine_on_motion, LimbBase, LimbMotion, MlChainEstimate, MlConfig};
+use super::ml::{
+    estimate_limb, order_on_motion, refine_on_motion, LimbBase, LimbMotion, MlChainEstimate,
+    MlConfig,
+};
 use super::sublimb;
 use super::{chain_in_listed_order, EstimateError};
 use crate::explore::{BrokenSu, Structure};
-use crate::measurements::MeasurementSet;
+use crate::measurements::{MeasurementSet, TrainingExperiment};
 use crate::model::description::RobotFile;
 use crate::model::sensor::ExcitationPattern;
 use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
@@ -205,6 +208,11 @@ pub fn calibrate_body_reporting(
 /// [`calibrate_body_reporting`], each limb then fitted again on every sample of `motion` (the
 /// motion record of the logs `set` was ingested from; see [`refine_on_motion`]), with the skin's
 /// delay behind the joint states.
+///
+/// A set without training poses (a continuous program, a log of ordinary work: ingest finds no
+/// reading in it) starts from [`QUIET_POSES`] of the record's quietest moments
+/// ([`MotionRecord::quiet_poses`], weighted by what the motion there could add to gravity): the
+/// tree must then come from an earlier structure experiment.
 pub fn calibrate_body_on_motion(
     set: &MeasurementSet,
     motion: &MotionRecord,
@@ -215,8 +223,41 @@ pub fn calibrate_body_on_motion(
     progress: &mut dyn FnMut(&str, usize, usize),
 ) -> Result<BodyModel, EstimateError> {
     motion.check().map_err(EstimateError::InvalidStructure)?;
-    calibrate_body_on(set, Some(motion), structure, config, only, keep, progress)
+    if set.training.as_ref().is_some_and(|t| !t.poses.is_empty()) {
+        return calibrate_body_on(set, Some(motion), structure, config, only, keep, progress);
+    }
+    if motion.dofs != set.dofs || motion.sus != set.sus {
+        return Err(EstimateError::InvalidStructure(
+            "the motion record names other DoFs or SUs than the measurement set: ingest both \
+             from the same logs"
+                .into(),
+        ));
+    }
+    let mut quiet = set.clone();
+    quiet.training = Some(TrainingExperiment {
+        pattern: ExcitationPattern::default(),
+        poses: motion.quiet_poses(QUIET_POSES),
+        from_motion: true,
+        extra: Default::default(),
+    });
+    // The quiet readings' deviations are what weighs them, whatever weighs the rest.
+    let config = MlConfig {
+        reading_sd: true,
+        ..*config
+    };
+    calibrate_body_on(
+        &quiet,
+        Some(motion),
+        structure,
+        &config,
+        only,
+        keep,
+        progress,
+    )
 }
+
+/// Quiet moments of a motion record that start a fit without training poses.
+pub const QUIET_POSES: usize = 40;
 
 fn calibrate_body_on(
     set: &MeasurementSet,
@@ -398,6 +439,7 @@ fn on_motion(
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
     let data = LimbData::new(set, &estimate.chain)?;
+    let (estimate, data) = order_on_motion(&data, base, estimate, record, config)?;
     let Some(start) = estimate.state.clone() else {
         return Ok(estimate);
     };

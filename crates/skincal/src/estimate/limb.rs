@@ -303,7 +303,9 @@ impl LimbData {
             sd,
             missing,
         };
-        data.check_excited()?;
+        if !training.from_motion {
+            data.check_excited()?;
+        }
         Ok(data)
     }
 
@@ -330,6 +332,15 @@ impl LimbData {
                 (lacking > 0).then(|| (dofs[k].clone(), lacking))
             })
             .collect()
+    }
+
+    /// Whether no pose has a dynamic reading of any of the limb's DoFs: static readings, which
+    /// tell orientations and axes only.
+    pub fn static_only(&self) -> bool {
+        let missing = self.missing_excitations();
+        !missing.is_empty()
+            && missing.len() == self.chain.dofs().len()
+            && missing.iter().all(|(_, lacking)| *lacking == self.poses())
     }
 
     /// Every DoF of a joint of several DoFs must have been excited in at least one pose: their

@@ -684,7 +684,10 @@ pub(super) fn assemble(
     let sample_noise = sample_noise(&mut passes);
     let orientations = orientations(&mut passes, &stations, group_count);
     let poses = training_poses(&mut passes, &stations, &pattern)?;
-    if group_count > 0 && orientations.is_empty() && poses.is_empty() {
+    // Motion of several DoFs at once (a continuous program, ordinary work) gives no reading, but
+    // its motion record calibrates given the tree of an earlier structure experiment.
+    let moved = passes.reports.iter().any(|r| r.transfers > 0);
+    if group_count > 0 && orientations.is_empty() && poses.is_empty() && !moved {
         return Err(IngestError::Empty(match passes.warnings.first() {
             Some(first) => format!(
                 "every structure pose found in the joint states was skipped; the first reason: \
@@ -707,12 +710,20 @@ pub(super) fn assemble(
     }
     if !poses.is_empty() {
         set.training = Some(TrainingExperiment {
+            from_motion: false,
             pattern,
             poses,
             extra: Map::new(),
         });
     }
-    if set.structure.is_none() && set.training.is_none() {
+    if set.structure.is_none() && set.training.is_none() && moved {
+        passes.warnings.push(
+            "no structure moves and no training poses, only motion of several DoFs at once: \
+             the motion record (motion.json) calibrates it given the tree of an earlier structure \
+             experiment (its structure.json in this directory)"
+                .into(),
+        );
+    } else if set.structure.is_none() && set.training.is_none() {
         return Err(IngestError::Empty(
             "no structure moves and no training poses in the logs: do they follow the protocol \
              (still periods, one DoF moving at a time)? The thresholds are options."

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{SMatrix, SVector};
 
 use super::timeline::encoder_rounding;
-use super::{IngestConfig, IngestError, Progress};
+use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{self, Sample, Stream};
 use crate::motion::{MotionRecord, MotionRun, MOTION_FORMAT, MOTION_VERSION};
 
@@ -78,6 +78,27 @@ struct Gathered {
     skin: Vec<SkinBlocks>,
     /// The first stamp of the log (block 0 starts there).
     origin: f64,
+}
+
+/// The logs whose every sample the time-domain fit takes, all in one base orientation: those with
+/// training poses (excitations), or where none has any, those where several DoFs moved at once (a
+/// continuous program, ordinary work). A structure experiment's logs in other orientations have
+/// neither.
+pub fn training_logs(report: &IngestReport) -> Vec<PathBuf> {
+    let with = |keep: &dyn Fn(&LogReport) -> bool| -> Vec<PathBuf> {
+        report
+            .logs
+            .iter()
+            .filter(|l| keep(l))
+            .map(|l| l.path.clone())
+            .collect()
+    };
+    let excited = with(&|l| l.excitations > 0);
+    if excited.is_empty() {
+        with(&|l| l.transfers > 0)
+    } else {
+        excited
+    }
 }
 
 /// The motion record of `logs` for the DoFs and SUs named (those of the measurement set the same

@@ -468,6 +468,9 @@ const SAG_STEPS: f64 = 10.0;
 /// A structure move ends at its farthest point (its overshoot is a few percent on a servo damped
 /// at 0.5 or more); a pattern that a slow servo lags ends a few percent of its excursion off.
 const RETURN_FRACTION: f64 = 0.5;
+/// A DoF that went this share of its excursion to the other side of its start too went both
+/// ways: more than a servo's overshoot at the end of a pattern.
+const OTHER_SIDE_FRACTION: f64 = 0.3;
 
 /// What a motion between two still windows was.
 enum Motion {
@@ -515,6 +518,21 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
     let came_back = |e: usize| {
         net(&timeline.theta[e]) <= config.motion_threshold.max(RETURN_FRACTION * excursion[e])
     };
+    // A pattern moves a DoF to one side of its pose and back (ringing aside): DoFs that went far
+    // to both sides together followed a path (a continuous program's sweep), not patterns.
+    let both_sides = |e: usize| {
+        let th = &timeline.theta[e][ms..=me];
+        let (up, down) = th.iter().fold((0.0f64, 0.0f64), |(u, d), q| {
+            (u.max(q - th[0]), d.max(th[0] - q))
+        });
+        up.min(down)
+            > config
+                .motion_threshold
+                .max(OTHER_SIDE_FRACTION * up.max(down))
+    };
+    if leading.len() > 1 && leading.iter().filter(|&&e| both_sides(e)).count() > 1 {
+        return Motion::Transfer;
+    }
     if leading.iter().all(|&e| came_back(e)) {
         return Motion::Excitation(leading);
     }

@@ -673,6 +673,7 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
             });
         }
         set.training = Some(TrainingExperiment {
+            from_motion: false,
             pattern: config.pattern,
             poses,
             extra: Map::new(),

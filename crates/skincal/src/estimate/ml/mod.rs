@@ -1046,17 +1046,17 @@ pub fn refine_on_motion(
             reason: "the motion record has no block to fit".into(),
         });
     }
+    let readings = motion_readings(data);
+    let (start, iterations) = if data.static_only() {
+        let ((led, _), its) = lead(data, base, &readings, &motion, start, vertical, config);
+        (led, its)
+    } else {
+        (start, 0)
+    };
     motion.weigh(&start, &data.su_depth);
-    // The samples alone: the measurement set's readings came from the same log.
     let readings = Readings {
-        q: Vec::new(),
-        turns: Vec::new(),
-        statics: Vec::new(),
-        dynamics: Vec::new(),
-        missing: Vec::new(),
-        sd: None,
         motion: Some(std::sync::Arc::new(motion)),
-        ..readings(data)
+        ..readings
     };
     final_fit(
         data,
@@ -1064,10 +1064,198 @@ pub fn refine_on_motion(
         readings,
         start,
         vertical,
-        0,
+        iterations,
         Instant::now(),
         config,
     )
+}
+
+/// A limb's readings for a fit on its motion record alone: the measurement set's readings came
+/// from the same log.
+fn motion_readings(data: &LimbData) -> Readings {
+    Readings {
+        q: Vec::new(),
+        turns: Vec::new(),
+        statics: Vec::new(),
+        dynamics: Vec::new(),
+        missing: Vec::new(),
+        sd: None,
+        motion: None,
+        ..readings(data)
+    }
+}
+
+/// [`led_from_statics`] from `start` and, where gravity is held along a vertical first axis,
+/// from its mirror image too ([`mirrored`]: gravity alone cannot tell which way that axis turns,
+/// the motion tells): the better, with its cost, and the LM iterations of both.
+#[allow(clippy::too_many_arguments)]
+fn lead(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    readings: &Readings,
+    motion: &LimbMotion,
+    start: ChainState,
+    vertical: bool,
+    config: &MlConfig,
+) -> ((ChainState, f64), usize) {
+    let led = |start| led_from_statics(data, base, readings, motion, start, vertical, config);
+    let (first, its) = led(start.clone());
+    if !vertical {
+        return (first, its);
+    }
+    let (second, more) = led(mirrored(&start, &data.su_depth));
+    let better = if second.1 < first.1 { second } else { first };
+    (better, its + more)
+}
+
+/// Of every order of the DoFs inside the limb's joints of several DoFs (gravity alone cannot
+/// tell them apart), the readings' fit whose start leads best to the motion of `record`
+/// ([`lead`] on every [`ORDER_THINNING`]-th block), with the limb's data in that order. `first`:
+/// the fit of `data`'s order, kept where the limb has no such joint or the readings hold
+/// dynamic readings (which tell the order themselves).
+pub fn order_on_motion(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    first: MlChainEstimate,
+    record: &crate::motion::MotionRecord,
+    config: &MlConfig,
+) -> Result<(MlChainEstimate, LimbData), EstimateError> {
+    let chain = &data.chain;
+    let joints: Vec<usize> = (chain.base_joints..chain.joints.len())
+        .filter(|&j| chain.joints[j].dofs.len() > 1)
+        .collect();
+    if joints.is_empty() || !data.static_only() {
+        return Ok((first, data.clone()));
+    }
+    // Every combination of the joints' orders.
+    let mut choices: Vec<Vec<Vec<usize>>> = vec![Vec::new()];
+    for &j in &joints {
+        let orders = init::permutations(chain.joints[j].dofs.len());
+        choices = choices
+            .into_iter()
+            .flat_map(|c| {
+                orders.iter().map(move |o| {
+                    let mut c = c.clone();
+                    c.push(o.clone());
+                    c
+                })
+            })
+            .collect();
+    }
+    let mut best: Option<(f64, MlChainEstimate, LimbData)> = None;
+    for choice in choices.into_iter().take(MAX_ORDER_CHOICES) {
+        let identity = choice
+            .iter()
+            .all(|o| o.iter().enumerate().all(|(i, &k)| i == k));
+        let ordered = joints
+            .iter()
+            .zip(&choice)
+            .fold(data.clone(), |d, (&j, o)| d.with_joint_order(j, o));
+        let estimate = if identity {
+            first.clone()
+        } else {
+            estimate_limb(&ordered, base, config)?
+        };
+        let Some(start) = estimate.state.clone() else {
+            continue;
+        };
+        let (start, vertical) = held_start(&ordered, base, start, config)?;
+        let motion = LimbMotion::new(record, &ordered, config.noise_sd)?.thinned(ORDER_THINNING);
+        let readings = motion_readings(&ordered);
+        let ((_, cost), _) = lead(&ordered, base, &readings, &motion, start, vertical, config);
+        if best.as_ref().is_none_or(|b| cost < b.0) {
+            best = Some((cost, estimate, ordered));
+        }
+    }
+    Ok(best.map_or_else(|| (first, data.clone()), |(_, e, d)| (e, d)))
+}
+
+/// [`order_on_motion`] fits every this many blocks of the record times [`LEAD_THINNING`].
+const ORDER_THINNING: usize = 4;
+/// The most combinations of joint orders [`order_on_motion`] tries (two joints of three DoFs).
+const MAX_ORDER_CHOICES: usize = 36;
+
+/// The steps of [`led_from_statics`]: how much of what the motion adds to gravity is taken as
+/// error.
+const QUASI_STATIC_STEPS: [f64; 3] = [1.0, 0.3, 0.1];
+/// The steps of [`led_from_statics`] fit every this many blocks of the record: they lead the fit
+/// to the right basin, the final fit takes every block.
+const LEAD_THINNING: usize = 5;
+/// The relative change of the cost at which a step of [`led_from_statics`] stops.
+const LEAD_TOLERANCE: f64 = 1e-6;
+
+/// A start from static readings alone (orientations and axes from gravity, every position at its
+/// prior) led to the whole motion: fitted with the motion's share of each prediction taken as
+/// error, lowered step by step ([`QUASI_STATIC_STEPS`], [`LimbMotion::weigh_as_static`]) — a
+/// fit on every block at once from positions that are all wrong would explain gravity's errors
+/// with metres of lever arm. Returns the state and the LM iterations.
+fn led_from_statics(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    readings: &Readings,
+    motion: &LimbMotion,
+    start: ChainState,
+    vertical: bool,
+    config: &MlConfig,
+) -> ((ChainState, f64), usize) {
+    let layout = Layout {
+        dofs: data.q.first().map_or(0, |q| q.len()),
+        su_segment: data.su_depth.clone(),
+    };
+    let mut spec = full_spec(
+        &layout,
+        data.chain.base_dofs().max(1),
+        base.is_none(),
+        Some(0).filter(|_| base.is_none()),
+        IntrinsicsModel::None,
+    );
+    if vertical {
+        spec.held.extend([(0, 0), (0, 1)]);
+    }
+    let (mut state, mut cost, mut iterations) = (start, f64::INFINITY, 0);
+    let coarse = motion.thinned(LEAD_THINNING);
+    for kappa in QUASI_STATIC_STEPS {
+        let mut weighed = coarse.clone();
+        weighed.weigh_as_static(&state, &data.su_depth, kappa);
+        let stage = Readings {
+            huber: None,
+            motion: Some(std::sync::Arc::new(weighed)),
+            ..readings.clone()
+        };
+        let solved = solve(
+            state,
+            &layout,
+            &stage,
+            &spec,
+            config.noise_sd,
+            config.max_iterations,
+            LEAD_TOLERANCE,
+        );
+        state = solved.state;
+        cost = solved.cost;
+        iterations += solved.iterations;
+    }
+    ((state, cost), iterations)
+}
+
+/// The mirror image of a limb's state about its vertical first axis: gravity reversed, and what
+/// sits on the first segment (the next joint's frame, its SUs) turned half a turn about the
+/// reference's x axis. In every pose each SU reads gravity as before, but the first DoF turns
+/// the other way.
+fn mirrored(state: &ChainState, su_segment: &[usize]) -> ChainState {
+    let half_turn = Isometry3::from_parts(
+        nalgebra::Translation3::identity(),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+    );
+    let mut out = state.clone();
+    out.gravity = -state.gravity;
+    if let Some(j) = out.joints.get_mut(1) {
+        *j = half_turn * *j;
+    }
+    for (su, _) in out.sus.iter_mut().zip(su_segment).filter(|(_, &s)| s == 1) {
+        *su = half_turn * *su;
+    }
+    out
 }
 
 /// The final fit of a limb from `state`, and all that is reported of it: residual, covariance,
@@ -1146,7 +1334,7 @@ fn final_fit(
         &names,
         config.observable_limit,
     );
-    let unobservable = positions_in_one(unobservable, data);
+    let unobservable = positions_in_one(unobservable, data, &readings);
     let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
     let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
     let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, config.intrinsics);
@@ -1533,12 +1721,12 @@ pub const STATIC_ONLY_POSITIONS: &str =
 
 /// Where a limb's set has no dynamic reading at all, every position is unobservable: its many
 /// directions are said once, by [`STATIC_ONLY_POSITIONS`].
-fn positions_in_one(unobservable: Vec<Unobservable>, data: &LimbData) -> Vec<Unobservable> {
-    let missing = data.missing_excitations();
-    let static_only = !missing.is_empty()
-        && missing.len() == data.chain.dofs().len()
-        && missing.iter().all(|(_, lacking)| *lacking == data.poses());
-    if !static_only {
+fn positions_in_one(
+    unobservable: Vec<Unobservable>,
+    data: &LimbData,
+    readings: &Readings,
+) -> Vec<Unobservable> {
+    if readings.motion.is_some() || !data.static_only() {
         return unobservable;
     }
     let position = |name: &String| {

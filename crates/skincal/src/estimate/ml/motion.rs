@@ -18,7 +18,7 @@ use super::ChainState;
 use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
 use crate::model::BodyMotion;
-use crate::motion::MotionRecord;
+use crate::motion::{MotionRecord, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
 /// latency; more is another clock, which ingest refuses).
@@ -158,6 +158,15 @@ impl LimbMotion {
     /// SUs towards the axes): `Σ_d σ²(q̈_d) |z_d × (p − o_d)|²` over the DoFs before the SU on
     /// segment `su_segment[u]`.
     pub(super) fn weigh(&mut self, state: &ChainState, su_segment: &[usize]) {
+        self.weigh_as_static(state, su_segment, 0.0);
+    }
+
+    /// [`LimbMotion::weigh`], and each prediction taken as if the limb stood still, with what its
+    /// motion could add to gravity as error: `kappa` times [`QUIET_REACH`] times
+    /// `Σ|q̈_d| + (Σ|q̇_d|)²` over the DoFs before the SU. With `kappa` 1 the quiet blocks count
+    /// and the fast ones hardly; lowered step by step, the fit is led from a start that gravity
+    /// alone gave (orientations and axes) to the whole motion.
+    pub(super) fn weigh_as_static(&mut self, state: &ChainState, su_segment: &[usize], kappa: f64) {
         let joint_var: Vec<Vec<f64>> = self
             .samples
             .par_iter()
@@ -177,11 +186,15 @@ impl LimbMotion {
                     .zip(&state.sus)
                     .map(|(&s, su)| {
                         let p = (segments[s] * su).translation.vector;
-                        axes.iter()
+                        let joints: f64 = axes
+                            .iter()
                             .take(s)
                             .zip(&sample.qdd_sd)
                             .map(|((z, o), sd)| (z.cross(&(p - o)) * *sd).norm_squared())
-                            .sum()
+                            .sum();
+                        let spin: f64 = sample.qd.iter().take(s).map(|v| v.abs()).sum();
+                        let turn: f64 = sample.qdd.iter().take(s).map(|a| a.abs()).sum();
+                        joints + (kappa * QUIET_REACH * (turn + spin * spin)).powi(2)
                     })
                     .collect()
             })
@@ -197,6 +210,17 @@ impl LimbMotion {
     pub(super) fn residual_sd(&self, u: usize, i: usize) -> f64 {
         let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
         (self.sd[u].powi(2) + extra.unwrap_or(0.0)).sqrt()
+    }
+
+    /// Every `every`-th of the blocks the fit uses (the skin kept whole): a coarse version for
+    /// the steps that only lead a fit to where the whole record takes over.
+    pub(super) fn thinned(&self, every: usize) -> Self {
+        let every = every.max(1);
+        Self {
+            samples: self.samples.iter().step_by(every).cloned().collect(),
+            joint_var: Vec::new(),
+            ..self.clone()
+        }
     }
 
     /// The number of blocks the fit uses.

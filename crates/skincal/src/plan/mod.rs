@@ -16,6 +16,10 @@
 //! with zero velocity and acceleration. Moves and transfers follow the same quintic from one pose to
 //! the next, as fast as the velocity and acceleration limits allow.
 //!
+//! The continuous program ([`PlanConfig::continuous`]) has no training poses: after the structure
+//! experiment every DoF moves at once along its own smooth random path for [`PlanConfig::sweep`]
+//! seconds (a [`Sweep`]), never still, and the time-domain estimator fits every sample of it.
+//!
 //! `A` and `f` are chosen from the limits ([`choose_pattern`]): the largest peak acceleration
 //! `2πfA` that keeps every DoF's velocity and acceleration within its limit and the excursion
 //! `A/(πf)` within `max_excursion`, starting from the paper's `A = 0.5 rad/s`, `f = 2 Hz`.
@@ -27,6 +31,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::model::sensor::ExcitationPattern;
 use crate::model::Robot;
+
+mod sweep;
+pub use sweep::Sweep;
 
 /// `format` of a plan file.
 pub const FORMAT: &str = "skincal-plan";
@@ -114,6 +121,14 @@ pub struct PlanConfig {
     /// Excite the DoFs of different limbs together (one excitation slot per depth of the tree,
     /// see [`slots`]) instead of one DoF at a time.
     pub parallel: bool,
+    /// Seconds of continuous motion of every DoF at once (a [`Sweep`]) in place of the training
+    /// poses; 0 for the training poses.
+    pub sweep: f64,
+    /// The sweep's fundamental frequency, Hz.
+    pub sweep_frequency: f64,
+    /// The sweep's harmonics of the fundamental (its highest frequency is this many times the
+    /// fundamental).
+    pub sweep_harmonics: usize,
 }
 
 impl Default for PlanConfig {
@@ -134,6 +149,9 @@ impl Default for PlanConfig {
             limit_fraction: 0.95,
             seed: 0,
             parallel: false,
+            sweep: 0.0,
+            sweep_frequency: 0.05,
+            sweep_harmonics: 32,
         }
     }
 }
@@ -155,6 +173,17 @@ impl PlanConfig {
             hold_cycles: 0.0,
             parallel: true,
             ..Self::default()
+        }
+    }
+
+    /// The continuous program: the short program's structure experiment, then 20 s of every DoF
+    /// moving at once along smooth random paths of 0.05–1.6 Hz ([`Sweep`]) — no training pose, no
+    /// still period, no excitation pattern. Calibrated on every sample of its log given the tree
+    /// from the structure experiment.
+    pub fn continuous() -> Self {
+        Self {
+            sweep: 20.0,
+            ..Self::short()
         }
     }
 
@@ -207,7 +236,25 @@ impl PlanConfig {
                 reason: "a plan needs the structure or the training experiment".into(),
             });
         }
-        if self.training && self.poses == 0 {
+        if !(self.sweep.is_finite() && (0.0..=MAX_DURATION).contains(&self.sweep)) {
+            return Err(PlanError::InvalidConfig {
+                field: "sweep",
+                reason: format!(
+                    "{} must be 0 (training poses) or a number of seconds",
+                    self.sweep
+                ),
+            });
+        }
+        if self.sweep > 0.0 {
+            positive("sweep_frequency", self.sweep_frequency)?;
+            if !(1..=1000).contains(&self.sweep_harmonics) {
+                return Err(PlanError::InvalidConfig {
+                    field: "sweep_harmonics",
+                    reason: format!("{} must be 1 to 1000", self.sweep_harmonics),
+                });
+            }
+        }
+        if self.training && self.sweep == 0.0 && self.poses == 0 {
             return Err(PlanError::InvalidConfig {
                 field: "poses",
                 reason: "the training experiment needs at least one pose".into(),
@@ -306,7 +353,7 @@ pub enum Part {
 }
 
 /// What the robot does during a phase.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "action", rename_all = "snake_case")]
 pub enum Action {
     /// Hold the pose (static readings).
@@ -327,6 +374,8 @@ pub enum Action {
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         together: Vec<String>,
     },
+    /// Every DoF at once along its smooth random path, returning to the pose.
+    Sweep(Sweep),
 }
 
 /// One phase of a plan.
@@ -670,7 +719,31 @@ impl Plan {
             }
         }
         let structure_duration = builder.t;
-        if config.training {
+        if config.training && config.sweep > 0.0 {
+            let mut rng = crate::sim::pose_stream(config.seed);
+            let centre = sweep::centre(&dofs, config.pose_range);
+            let path = Sweep::draw(
+                &dofs,
+                &centre,
+                config.sweep,
+                config.sweep_frequency,
+                config.sweep_harmonics,
+                config.pose_range,
+                config.limit_fraction,
+                &mut rng,
+            );
+            builder.go(Part::Training, &centre, None);
+            builder.push(
+                Part::Training,
+                Action::Sweep(path),
+                config.sweep,
+                centre,
+                None,
+            );
+            // The robot comes to rest at the end: a log that stops in motion loses its last
+            // samples' derivatives.
+            builder.still(Part::Training, config.still, None);
+        } else if config.training {
             let mut rng = crate::sim::pose_stream(config.seed);
             let excursion = pattern.excursion() * 1.01;
             let drawn: Vec<Vec<f64>> = (0..config.poses)
@@ -782,6 +855,12 @@ impl Plan {
                     std::iter::once(dof).chain(together).collect()
                 }
                 Action::Still | Action::Transfer => Vec::new(),
+                Action::Sweep(sweep) => {
+                    sweep
+                        .check(nd, p.duration)
+                        .map_err(|e| PlanError::Inconsistent(format!("phases[{i}]: {e}")))?;
+                    Vec::new()
+                }
             };
             for dof in named {
                 if !self.dofs.iter().any(|d| &d.name == dof) {
@@ -884,6 +963,14 @@ impl Plan {
                     }
                 }
             }
+            Action::Sweep(sweep) => {
+                for d in 0..nd {
+                    let [x, v, a] = sweep.at(d, phase.duration, tau);
+                    s.q[d] += x;
+                    s.qd[d] = v;
+                    s.qdd[d] = a;
+                }
+            }
         }
         s
     }
@@ -912,14 +999,15 @@ impl Plan {
         out
     }
 
-    /// Total time spent in each kind of phase: `(still, moves and transfers, excitations)`, s.
+    /// Total time spent in each kind of phase: `(still, moves and transfers, excitations and
+    /// sweeps)`, s.
     pub fn time_by_action(&self) -> (f64, f64, f64) {
         let mut out = (0.0, 0.0, 0.0);
         for p in &self.phases {
             match p.action {
                 Action::Still => out.0 += p.duration,
                 Action::Move { .. } | Action::Transfer => out.1 += p.duration,
-                Action::Excitation { .. } => out.2 += p.duration,
+                Action::Excitation { .. } | Action::Sweep(_) => out.2 += p.duration,
             }
         }
         out
