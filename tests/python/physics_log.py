@@ -163,6 +163,32 @@ def quintic(a, b, u):
     return a + (b - a) * s
 
 
+def sweep(phase, centre):
+    """A continuous program's sweep: every DoF along its windowed Fourier series about `centre`."""
+    frequency, ramp, duration = phase["frequency"], phase["ramp"], phase["duration"]
+    harmonics = [np.array(h, dtype=float).reshape(-1, 2) for h in phase["harmonics"]]
+
+    def window(t):
+        if t <= 0.0 or t >= duration:
+            return 0.0
+        if ramp > 0.0 and t < ramp:
+            return quintic(0.0, 1.0, t / ramp)
+        if ramp > 0.0 and t > duration - ramp:
+            return quintic(0.0, 1.0, (duration - t) / ramp)
+        return 1.0
+
+    def at(t, centre=centre):
+        q = centre.copy()
+        w = window(t)
+        for d, h in enumerate(harmonics):
+            k = np.arange(1, len(h) + 1)
+            phase_angle = 2.0 * math.pi * frequency * k * t
+            q[d] += w * float(np.sum(h[:, 0] * np.sin(phase_angle) + h[:, 1] * np.cos(phase_angle)))
+        return q
+
+    return at
+
+
 def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_from_nearer_limit=False):
     """The commanded trajectory as a list of (duration, function of time → q) segments."""
     pattern = plan["pattern"]
@@ -181,6 +207,8 @@ def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_fro
         elif action in ("move", "transfer"):
             duration = phase["duration"]
             segments.append((duration, lambda t, a=a, b=b, T=duration: quintic(a, b, min(t / T, 1.0))))
+        elif action == "sweep":
+            segments.append((phase["duration"], sweep(phase, a)))
         elif action == "excitation":
             # One DoF, or several together (a plan's parallel limbs).
             excited = [dof_index[n] for n in [phase["dof"], *phase.get("together", [])]]

@@ -118,9 +118,9 @@ pub(crate) struct PlanArgs {
     /// Excite one DoF at a time even where the protocol runs the limbs in parallel.
     #[arg(long)]
     one_at_a_time: bool,
-    /// Add training poses until the forecast held-out RMS error (static and dynamic) is at most
-    /// this, m/s², starting from --poses or the protocol's [default: 0.009 for `short` without
-    /// --poses].
+    /// Add training poses (a continuous program: lengthen its sweep) until the forecast held-out
+    /// RMS error (static and dynamic) is at most this, m/s², starting from --poses (--sweep) or
+    /// the protocol's [default: 0.009 for `short` without --poses].
     #[arg(long, value_name = "M/S²")]
     accuracy: Option<f64>,
     /// The accelerometers' noise per axis and sample, m/s² (standard deviation) for the forecast
@@ -239,11 +239,6 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
             bail!("--{flag}: must be a positive number of m/s²");
         }
     }
-    if config.sweep > 0.0 && args.accuracy.is_some() {
-        bail!(
-            "--accuracy adds training poses; a continuous program has none (give --sweep longer)"
-        );
-    }
     let accuracy = args.accuracy.or((args.protocol == Protocol::Short
         && config.sweep == 0.0
         && args.poses.is_none()
@@ -299,6 +294,22 @@ fn planned(
 ) -> Result<(Plan, String)> {
     use skincal::design;
     let context = "cannot plan the exploration";
+    if let (Some(target), true) = (accuracy, config.training && config.sweep > 0.0) {
+        let (plan, forecast) =
+            design::sweep_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
+        let note = if forecast.worst() <= target {
+            format!(
+                "a sweep of {} s meets {target} m/s² held-out RMS by the forecast (--accuracy)",
+                plan.config.sweep
+            )
+        } else {
+            format!(
+                "warning: even a sweep of {} s misses --accuracy {target} m/s² by the forecast",
+                plan.config.sweep
+            )
+        };
+        return Ok((plan, note));
+    }
     if let (Some(target), true) = (accuracy, config.training) {
         let (plan, forecast) =
             design::poses_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
@@ -413,7 +424,16 @@ fn render_plan(plan: &Plan) -> String {
             }
         );
     }
-    if let Some(f) = &plan.forecast {
+    if let (Some(f), true) = (&plan.forecast, sweep.is_some()) {
+        let _ = writeln!(
+            s,
+            "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the sweep\n  \
+             (recorded once on the description with sample noise {:.3} m/s², a block mean's \
+             {:.4};\n  calibrated from its motion alone with the description's tree, against {} \
+             held-out poses)",
+            f.static_rms, f.dynamic_rms, f.noise.sample_sd, f.noise.static_sd, f.held_out
+        );
+    } else if let Some(f) = &plan.forecast {
         let _ = writeln!(
             s,
             "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the {} training \

@@ -742,12 +742,23 @@ fn calibrate_ml(
     let motion_path = dir.join("motion.json");
     let motion = if motion_path.exists() && !args.readings_only {
         let record = io::read_motion(&motion_path)?;
-        outln!(
-            "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
-            motion_path.display(),
-            record.blocks(),
-            record.period * 1e3
-        );
+        if set.training.as_ref().is_some_and(|t| !t.poses.is_empty()) {
+            outln!(
+                "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
+                motion_path.display(),
+                record.blocks(),
+                record.period * 1e3
+            );
+        } else {
+            outln!(
+                "no readings in the set: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
+                 and is fitted on every sample of it",
+                skincal::estimate::body::QUIET_POSES,
+                motion_path.display(),
+                record.blocks(),
+                record.period * 1e3
+            );
+        }
         Some(record)
     } else {
         None

@@ -11,6 +11,9 @@
 //!    a noise-free held-out set of 20 random poses; the forecast is the RMS over the trials.
 //!
 //! [`poses_for`] adds training poses until the forecast meets a target (`plan --accuracy`).
+//!
+//! A continuous program ([`PlanConfig::continuous`]) has no poses: [`forecast_sweep`] records its
+//! sweep once and calibrates the description from that log's motion alone.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -20,9 +23,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use crate::estimate::body::calibrate_body;
+use crate::estimate::body::{calibrate_body, calibrate_body_on_motion};
 use crate::estimate::ml::MlConfig;
 use crate::explore::{explore, ExploreConfig, Structure};
+use crate::ingest::motion::motion_record;
 use crate::ingest::{ingest, IngestConfig};
 use crate::log::csv::CsvSink;
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
@@ -315,16 +319,84 @@ pub fn forecast(
     })
 }
 
-/// The forecast of `plan` as it is (its poses), stored in its `forecast`.
+/// The forecast of `plan` as it is (its poses, or its sweep: [`forecast_sweep`]), stored in its
+/// `forecast`.
 pub fn forecast_plan(
     robot: &Robot,
     plan: &mut Plan,
     sample_sd: Option<f64>,
 ) -> Result<(), DesignError> {
-    let noise = reading_noise(robot, plan, sample_sd)?;
-    let f = forecast(robot, &Reference::of(robot)?, plan, &noise, TRIALS)?;
+    let f = if plan.config.sweep > 0.0 {
+        forecast_sweep(robot, &Reference::of(robot)?, plan, sample_sd)?
+    } else {
+        let noise = reading_noise(robot, plan, sample_sd)?;
+        forecast(robot, &Reference::of(robot)?, plan, &noise, TRIALS)?
+    };
     plan.forecast = Some(f);
     Ok(())
+}
+
+/// The expected held-out RMS of a calibration from a continuous program's sweep: its training
+/// part recorded once as a 1 kHz log of the description with samples of `sample_sd` m/s² per axis
+/// (the simulator's uniform ±0.01 g when `None`), its motion record calibrated with the
+/// description's tree from the record alone (as `calibrate` does with such a log), and compared
+/// with `reference`'s held-out poses. The noise it reports is a block mean's.
+pub fn forecast_sweep(
+    robot: &Robot,
+    reference: &Reference,
+    plan: &Plan,
+    sample_sd: Option<f64>,
+) -> Result<Forecast, DesignError> {
+    if robot.model.sus().is_empty() {
+        return Err(DesignError::NoSus);
+    }
+    let scratch = Scratch::new()?;
+    let imperfections = sensor(sample_sd);
+    let config = LogConfig {
+        imperfections,
+        part: Some(Part::Training),
+        ..LogConfig::default()
+    };
+    let mut sink = CsvSink::new(&scratch.0, true);
+    record(robot, plan, &config, &mut sink, &mut |_| {})
+        .map_err(|e| DesignError::Step(format!("recording the sweep: {e}")))?;
+    let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
+    let motion = motion_record(
+        std::slice::from_ref(&scratch.0),
+        &dofs,
+        &sus,
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .map_err(|e| DesignError::Step(format!("reading the recorded sweep: {e}")))?;
+    let mut set = MeasurementSet::new(dofs, sus);
+    set.structure.clone_from(&reference.explored.structure);
+    let calibrated = calibrate_body_on_motion(
+        &set,
+        &motion,
+        Some(&reference.structure),
+        &MlConfig::default(),
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .map_err(|e| DesignError::Step(format!("calibrating from the sweep: {e}")))?;
+    let check = validate(&calibrated, &reference.held_out, "held-out")
+        .map_err(|e| DesignError::Step(format!("predicting the held-out poses: {e}")))?;
+    let block: Vec<f64> = motion.noise_sd.iter().flatten().copied().collect();
+    let block_sd = (block.iter().map(|s| s * s).sum::<f64>() / block.len().max(1) as f64).sqrt();
+    Ok(Forecast {
+        poses: 0,
+        static_rms: check.static_rms,
+        dynamic_rms: check.dynamic_rms,
+        noise: ReadingNoise {
+            static_sd: block_sd,
+            dynamic_sd: block_sd,
+            sample_sd: per_sample_sd(&imperfections),
+        },
+        trials: 1,
+        held_out: reference.held_out.summary().training_poses,
+    })
 }
 
 /// The held-out RMS, m/s², that the short protocol plans for when no number of poses is given
@@ -401,5 +473,38 @@ pub fn poses_for(
         // as many again.
         let wanted = (poses as f64 * (f.worst() / (AIM * target)).powi(2)).ceil() as usize;
         poses = wanted.clamp(poses + 1, (poses * 3 / 2).max(poses + 1).min(MAX_POSES));
+    }
+}
+
+/// The longest sweep [`sweep_for`] tries, s.
+pub const MAX_SWEEP: f64 = 240.0;
+
+/// The continuous program with the shortest sweep (from `config.sweep` up, at most
+/// [`MAX_SWEEP`] s) whose forecast ([`forecast_sweep`]) meets `target` m/s² RMS, static and
+/// dynamic, with its forecast (also in the plan's `forecast`); the longest tried when none does.
+pub fn sweep_for(
+    robot: &Robot,
+    dofs: &[PlanDof],
+    config: &PlanConfig,
+    target: f64,
+    sample_sd: Option<f64>,
+) -> Result<(Plan, Forecast), DesignError> {
+    let reference = Reference::of(robot)?;
+    let mut sweep = config.sweep.max(1.0);
+    loop {
+        let config = PlanConfig {
+            sweep,
+            ..config.clone()
+        };
+        let mut plan = Plan::new(dofs.to_vec(), &config)?;
+        let f = forecast_sweep(robot, &reference, &plan, sample_sd)?;
+        plan.forecast = Some(f.clone());
+        if f.worst() <= target || sweep >= MAX_SWEEP {
+            return Ok((plan, f));
+        }
+        // The error falls about as 1/√T, faster where a longer sweep also reaches further: aim a
+        // tenth below the target, a quarter longer at least, twice as long at most.
+        let factor = (f.worst() / (AIM * target)).powi(2).clamp(1.25, 2.0);
+        sweep = (sweep * factor).ceil().min(MAX_SWEEP);
     }
 }

@@ -124,11 +124,9 @@ pub struct PlanConfig {
     /// Seconds of continuous motion of every DoF at once (a [`Sweep`]) in place of the training
     /// poses; 0 for the training poses.
     pub sweep: f64,
-    /// The sweep's fundamental frequency, Hz.
+    /// The highest frequency of the sweep's paths, Hz: they are the harmonics of one period over
+    /// the whole sweep up to this.
     pub sweep_frequency: f64,
-    /// The sweep's harmonics of the fundamental (its highest frequency is this many times the
-    /// fundamental).
-    pub sweep_harmonics: usize,
 }
 
 impl Default for PlanConfig {
@@ -150,8 +148,7 @@ impl Default for PlanConfig {
             seed: 0,
             parallel: false,
             sweep: 0.0,
-            sweep_frequency: 0.05,
-            sweep_harmonics: 32,
+            sweep_frequency: 1.6,
         }
     }
 }
@@ -177,7 +174,7 @@ impl PlanConfig {
     }
 
     /// The continuous program: the short program's structure experiment, then 20 s of every DoF
-    /// moving at once along smooth random paths of 0.05–1.6 Hz ([`Sweep`]) — no training pose, no
+    /// moving at once along smooth random paths of up to 1.6 Hz ([`Sweep`]) — no training pose, no
     /// still period, no excitation pattern. Calibrated on every sample of its log given the tree
     /// from the structure experiment.
     pub fn continuous() -> Self {
@@ -247,10 +244,13 @@ impl PlanConfig {
         }
         if self.sweep > 0.0 {
             positive("sweep_frequency", self.sweep_frequency)?;
-            if !(1..=1000).contains(&self.sweep_harmonics) {
+            if self.sweep * self.sweep_frequency > 1000.0 {
                 return Err(PlanError::InvalidConfig {
-                    field: "sweep_harmonics",
-                    reason: format!("{} must be 1 to 1000", self.sweep_harmonics),
+                    field: "sweep_frequency",
+                    reason: format!(
+                        "{} Hz over {} s is more than 1000 harmonics",
+                        self.sweep_frequency, self.sweep
+                    ),
                 });
             }
         }
@@ -727,11 +727,14 @@ impl Plan {
                 &centre,
                 config.sweep,
                 config.sweep_frequency,
-                config.sweep_harmonics,
                 config.pose_range,
                 config.limit_fraction,
                 &mut rng,
             );
+            if builder.t == 0.0 {
+                // A log that starts in motion has no pause before it to tell where it starts.
+                builder.still(Part::Training, config.still, None);
+            }
             builder.go(Part::Training, &centre, None);
             builder.push(
                 Part::Training,

@@ -25,8 +25,8 @@ use serde::{Deserialize, Serialize};
 use super::{smoothstep, PlanDof};
 
 /// How a harmonic's amplitude falls with its order `k`: `k^−FALL`. On the paper's arm, 20 s of
-/// 32 harmonics of 0.05 Hz predicted held-out poses at 0.0027/0.0036 m/s² (static/dynamic) with
-/// 1.25, 0.0028/0.0074 with 1.75 (too little acceleration) and 0.0052/0.0050 with 24 harmonics.
+/// harmonics up to 1.6 Hz predicted held-out poses at 0.0027/0.0036 m/s² (static/dynamic) with
+/// 1.25, 0.0028/0.0074 with 1.75 (too little acceleration) and 0.0052/0.0050 up to 1.2 Hz.
 const FALL: f64 = 1.25;
 /// Grid points per period of the highest harmonic on which a drawn path's peaks are found.
 const PEAK_GRID: f64 = 64.0;
@@ -68,20 +68,22 @@ impl Sweep {
         [w * s, dw * s + w * ds, ddw * s + 2.0 * dw * ds + w * dds]
     }
 
-    /// Draws a sweep of `duration` s about `centre` for `dofs`: `harmonics` harmonics of
-    /// `frequency` Hz, each DoF scaled to its range about the centre (within `±pose_range` of 0)
-    /// and to `fraction` of its speed and acceleration limits.
-    #[allow(clippy::too_many_arguments)]
+    /// Draws a sweep of `duration` s about `centre` for `dofs`: the harmonics of one period over
+    /// the sweep up to `highest` Hz, each DoF scaled to its range about the centre (within
+    /// `±pose_range` of 0) and to `fraction` of its speed and acceleration limits. The
+    /// fundamental falls as the sweep grows, so that a longer sweep also reaches further on a
+    /// DoF whose speed limit is what bounds it.
     pub(super) fn draw(
         dofs: &[PlanDof],
         centre: &[f64],
         duration: f64,
-        frequency: f64,
-        harmonics: usize,
+        highest: f64,
         pose_range: f64,
         fraction: f64,
         rng: &mut impl Rng,
     ) -> Sweep {
+        let frequency = 1.0 / duration;
+        let harmonics = ((highest * duration).round() as usize).max(1);
         let ramp = ramp(duration, frequency);
         let mut sweep = Sweep {
             frequency,
@@ -243,7 +245,7 @@ mod tests {
     fn derivatives_match_differences() {
         let dofs = [dof(-1.0, 2.0)];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let sweep = Sweep::draw(&dofs, &[0.5], 12.0, 0.2, 6, 3.0, 0.9, &mut rng);
+        let sweep = Sweep::draw(&dofs, &[0.5], 12.0, 0.5, 3.0, 0.9, &mut rng);
         let h = 1e-5;
         for i in 1..200 {
             let t = 12.0 * i as f64 / 200.0;
@@ -270,7 +272,8 @@ mod tests {
         let centre = centre(&dofs, 1.5);
         assert_eq!(centre, vec![0.6, 0.0, 0.1]);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let sweep = Sweep::draw(&dofs, &centre, 20.0, 0.1, 8, 1.5, 0.95, &mut rng);
+        let sweep = Sweep::draw(&dofs, &centre, 20.0, 0.8, 1.5, 0.95, &mut rng);
+        assert_eq!(sweep.harmonics[0].len(), 16);
         for (d, dof) in dofs.iter().enumerate() {
             let n = 20.0 * 0.8 * PEAK_GRID * 10.0;
             let mut peaks = [0.0f64; 3];
