@@ -101,6 +101,26 @@ impl Drop for Scratch {
     }
 }
 
+/// `plan`'s training part recorded as a 1 kHz CSV log of `robot` with `imperfections`, in a
+/// scratch directory; `what` names it in an error.
+fn recorded(
+    robot: &Robot,
+    plan: &Plan,
+    imperfections: &Imperfections,
+    what: &str,
+) -> Result<Scratch, DesignError> {
+    let scratch = Scratch::new()?;
+    let config = LogConfig {
+        imperfections: *imperfections,
+        part: Some(Part::Training),
+        ..LogConfig::default()
+    };
+    let mut sink = CsvSink::new(&scratch.0, true);
+    record(robot, plan, &config, &mut sink, &mut |_| {})
+        .map_err(|e| DesignError::Step(format!("recording {what}: {e}")))?;
+    Ok(scratch)
+}
+
 /// The noise of one reading under `plan`'s protocol with samples of `sample_sd` m/s² per axis
 /// (the simulator's uniform ±0.01 g when `None`): one training pose recorded and ingested.
 pub fn reading_noise(
@@ -121,16 +141,8 @@ pub fn reading_noise(
             ..plan.config.clone()
         },
     )?;
-    let scratch = Scratch::new()?;
     let imperfections = sensor(sample_sd);
-    let config = LogConfig {
-        imperfections,
-        part: Some(Part::Training),
-        ..LogConfig::default()
-    };
-    let mut sink = CsvSink::new(&scratch.0, true);
-    record(robot, &one, &config, &mut sink, &mut |_| {})
-        .map_err(|e| DesignError::Step(format!("recording one pose: {e}")))?;
+    let scratch = recorded(robot, &one, &imperfections, "one pose")?;
     let ingest_config = IngestConfig {
         pattern: Some(plan.pattern),
         ..IngestConfig::default()
@@ -350,16 +362,8 @@ pub fn forecast_sweep(
     if robot.model.sus().is_empty() {
         return Err(DesignError::NoSus);
     }
-    let scratch = Scratch::new()?;
     let imperfections = sensor(sample_sd);
-    let config = LogConfig {
-        imperfections,
-        part: Some(Part::Training),
-        ..LogConfig::default()
-    };
-    let mut sink = CsvSink::new(&scratch.0, true);
-    record(robot, plan, &config, &mut sink, &mut |_| {})
-        .map_err(|e| DesignError::Step(format!("recording the sweep: {e}")))?;
+    let scratch = recorded(robot, plan, &imperfections, "the sweep")?;
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
     let motion = motion_record(
         std::slice::from_ref(&scratch.0),

@@ -314,20 +314,25 @@ fn limbs_excited_in_parallel_on_compliant_servos_are_told_apart() {
     }
 }
 
-/// The Kinova arm's description (2 SUs per link) on softer servos than the paper's arm test: 6 Hz
-/// at damping 0.5, tuned at the largest inertia, gravity compensated, the short program's 0.5 s
-/// holds, and the servo options `extra`; with default options every excitation and move must be
-/// found, the readings must match the truth and the calibration predict held-out poses.
-fn kinova_on_soft_servos(extra: &[&str]) {
+/// The Kinova arm's description with 2 SUs per link.
+fn kinova() -> Robot {
     let file = crate::real_robots::description("kinova_description/robots/kinova.urdf");
-    let robot = skincal::io::load_robot(
+    skincal::io::load_robot(
         file.to_str().unwrap(),
         skincal::io::SuPlacement {
             per_link: Some(2),
             seed: 1,
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+/// The Kinova arm's description (2 SUs per link) on softer servos than the paper's arm test: 6 Hz
+/// at damping 0.5, tuned at the largest inertia, gravity compensated, the short program's 0.5 s
+/// holds, and the servo options `extra`; with default options every excitation and move must be
+/// found, the readings must match the truth and the calibration predict held-out poses.
+fn kinova_on_soft_servos(extra: &[&str]) {
+    let robot = kinova();
     let poses = 4;
     let limits = PlanDof::from_robot(&robot);
     let plan = Plan::new(
@@ -468,15 +473,7 @@ fn excitations_whose_short_pauses_ring_through_are_read_one_by_one() {
 /// the speed limits bound how far the sweep reaches, and a longer one reaches further).
 #[test]
 fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
-    let file = crate::real_robots::description("kinova_description/robots/kinova.urdf");
-    let robot = skincal::io::load_robot(
-        file.to_str().unwrap(),
-        skincal::io::SuPlacement {
-            per_link: Some(2),
-            seed: 1,
-        },
-    )
-    .unwrap();
+    let robot = kinova();
     let plan = Plan::new(
         PlanDof::from_robot(&robot),
         &PlanConfig {

@@ -416,19 +416,7 @@ impl Window {
 
     /// `F(τ)` and its first two derivatives for a pattern of frequency `f`.
     fn at(&self, tau: f64, frequency: f64) -> [f64; 3] {
-        let ramp = self.ramp_cycles / frequency;
-        let total = self.duration(frequency);
-        if tau <= 0.0 || tau >= total {
-            [0.0, 0.0, 0.0]
-        } else if tau < ramp {
-            let [s, ds, dds] = smoothstep(tau / ramp);
-            [s, ds / ramp, dds / (ramp * ramp)]
-        } else if tau > total - ramp {
-            let [s, ds, dds] = smoothstep((total - tau) / ramp);
-            [s, -ds / ramp, dds / (ramp * ramp)]
-        } else {
-            [1.0, 0.0, 0.0]
-        }
+        plateau(self.ramp_cycles / frequency, self.duration(frequency), tau)
     }
 
     /// The windowed pattern (eq. 13) at `τ`: displacement, velocity and acceleration.
@@ -471,6 +459,24 @@ fn smoothstep(u: f64) -> [f64; 3] {
         30.0 * u2 * (1.0 - u) * (1.0 - u),
         60.0 * u * (1.0 - u) * (1.0 - 2.0 * u),
     ]
+}
+
+/// A window of `total` s at `tau`, with its first two derivatives: 0 outside, rising to 1 over
+/// the first `ramp` s by the quintic smoothstep, 1, and falling over the last `ramp` s.
+fn plateau(ramp: f64, total: f64, tau: f64) -> [f64; 3] {
+    if tau <= 0.0 || tau >= total {
+        [0.0, 0.0, 0.0]
+    } else if ramp <= 0.0 {
+        [1.0, 0.0, 0.0]
+    } else if tau < ramp {
+        let [s, ds, dds] = smoothstep(tau / ramp);
+        [s, ds / ramp, dds / (ramp * ramp)]
+    } else if tau > total - ramp {
+        let [s, ds, dds] = smoothstep((total - tau) / ramp);
+        [s, -ds / ramp, dds / (ramp * ramp)]
+    } else {
+        [1.0, 0.0, 0.0]
+    }
 }
 
 /// Peak velocity of the smoothstep per unit distance and duration: `15/8`.

@@ -22,7 +22,7 @@ use std::f64::consts::PI;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{smoothstep, PlanDof};
+use super::{plateau, PlanDof};
 
 /// How a harmonic's amplitude falls with its order `k`: `k^−FALL`. On the paper's arm, 20 s of
 /// harmonics up to 1.6 Hz predicted held-out poses at 0.0027/0.0036 m/s² (static/dynamic) with
@@ -53,7 +53,7 @@ impl Sweep {
         let Some(series) = self.harmonics.get(dof) else {
             return [0.0; 3];
         };
-        let [w, dw, ddw] = window(self.ramp, duration, tau);
+        let [w, dw, ddw] = plateau(self.ramp, duration, tau);
         if w == 0.0 && dw == 0.0 && ddw == 0.0 {
             return [0.0; 3];
         }
@@ -183,23 +183,6 @@ fn ramp(duration: f64, frequency: f64) -> f64 {
 
 /// The longest rise and fall of a sweep's window, s.
 const MAX_RAMP: f64 = 2.0;
-
-/// The window `w(τ)` and its first two derivatives.
-fn window(ramp: f64, duration: f64, tau: f64) -> [f64; 3] {
-    if tau <= 0.0 || tau >= duration {
-        [0.0; 3]
-    } else if ramp <= 0.0 {
-        [1.0, 0.0, 0.0]
-    } else if tau < ramp {
-        let [s, ds, dds] = smoothstep(tau / ramp);
-        [s, ds / ramp, dds / (ramp * ramp)]
-    } else if tau > duration - ramp {
-        let [s, ds, dds] = smoothstep((duration - tau) / ramp);
-        [s, -ds / ramp, dds / (ramp * ramp)]
-    } else {
-        [1.0, 0.0, 0.0]
-    }
-}
 
 /// The range a DoF sweeps in: its limits within `±pose_range`.
 fn usable_range(dof: &PlanDof, pose_range: f64) -> (f64, f64) {

@@ -1048,7 +1048,15 @@ pub fn refine_on_motion(
     }
     let readings = motion_readings(data);
     let (start, iterations) = if data.static_only() {
-        let ((led, _), its) = lead(data, base, &readings, &motion, start, vertical, config);
+        let lead = Lead {
+            data,
+            base,
+            readings: &readings,
+            motion: &motion,
+            vertical,
+            config,
+        };
+        let ((led, _), its) = lead.run(start);
         (led, its)
     } else {
         (start, 0)
@@ -1085,32 +1093,91 @@ fn motion_readings(data: &LimbData) -> Readings {
     }
 }
 
-/// [`led_from_statics`] from `start` and, where gravity is held along a vertical first axis,
-/// from its mirror image too ([`mirrored`]: gravity alone cannot tell which way that axis turns,
-/// the motion tells): the better, with its cost, and the LM iterations of both.
-#[allow(clippy::too_many_arguments)]
-fn lead(
-    data: &LimbData,
-    base: Option<&LimbBase>,
-    readings: &Readings,
-    motion: &LimbMotion,
-    start: ChainState,
+/// What leading a start from static readings to a limb's motion takes: the limb, its base, its
+/// readings (the motion rows come from `motion`) and whether gravity is held along a vertical
+/// first axis.
+struct Lead<'a> {
+    data: &'a LimbData,
+    base: Option<&'a LimbBase>,
+    readings: &'a Readings,
+    motion: &'a LimbMotion,
     vertical: bool,
-    config: &MlConfig,
-) -> ((ChainState, f64), usize) {
-    let led = |start| led_from_statics(data, base, readings, motion, start, vertical, config);
-    let (first, its) = led(start.clone());
-    if !vertical {
-        return (first, its);
+    config: &'a MlConfig,
+}
+
+impl Lead<'_> {
+    /// [`Lead::stages`] from `start` and, where gravity is held along a vertical first
+    /// axis, from its mirror image too ([`mirrored`]: gravity alone cannot tell which way that
+    /// axis turns, the motion tells): the better, with its cost, and the LM iterations of both.
+    fn run(&self, start: ChainState) -> ((ChainState, f64), usize) {
+        let (first, its) = self.stages(start.clone());
+        if !self.vertical {
+            return (first, its);
+        }
+        let (second, more) = self.stages(mirrored(&start, &self.data.su_depth));
+        let better = if second.1 < first.1 { second } else { first };
+        (better, its + more)
     }
-    let (second, more) = led(mirrored(&start, &data.su_depth));
-    let better = if second.1 < first.1 { second } else { first };
-    (better, its + more)
+
+    /// A start from static readings alone (orientations and axes from gravity, every position
+    /// at its prior) led to the whole motion: fitted with the motion's share of each prediction
+    /// taken as error, lowered step by step ([`QUASI_STATIC_STEPS`],
+    /// [`LimbMotion::weigh_as_static`]) — a fit on every block at once from positions that are
+    /// all wrong would explain gravity's errors with metres of lever arm. Returns the state with
+    /// its cost and the LM iterations.
+    fn stages(&self, start: ChainState) -> ((ChainState, f64), usize) {
+        let Lead {
+            data,
+            base,
+            readings,
+            motion,
+            vertical,
+            config,
+        } = *self;
+        let layout = Layout {
+            dofs: data.q.first().map_or(0, |q| q.len()),
+            su_segment: data.su_depth.clone(),
+        };
+        let mut spec = full_spec(
+            &layout,
+            data.chain.base_dofs().max(1),
+            base.is_none(),
+            Some(0).filter(|_| base.is_none()),
+            IntrinsicsModel::None,
+        );
+        if vertical {
+            spec.held.extend([(0, 0), (0, 1)]);
+        }
+        let (mut state, mut cost, mut iterations) = (start, f64::INFINITY, 0);
+        let coarse = motion.thinned(LEAD_THINNING);
+        for kappa in QUASI_STATIC_STEPS {
+            let mut weighed = coarse.clone();
+            weighed.weigh_as_static(&state, &data.su_depth, kappa);
+            let stage = Readings {
+                huber: None,
+                motion: Some(std::sync::Arc::new(weighed)),
+                ..readings.clone()
+            };
+            let solved = solve(
+                state,
+                &layout,
+                &stage,
+                &spec,
+                config.noise_sd,
+                config.max_iterations,
+                LEAD_TOLERANCE,
+            );
+            state = solved.state;
+            cost = solved.cost;
+            iterations += solved.iterations;
+        }
+        ((state, cost), iterations)
+    }
 }
 
 /// Of every order of the DoFs inside the limb's joints of several DoFs (gravity alone cannot
 /// tell them apart), the readings' fit whose start leads best to the motion of `record`
-/// ([`lead`] on every [`ORDER_THINNING`]-th block), with the limb's data in that order. `first`:
+/// ([`Lead::run`] on every [`ORDER_THINNING`]-th block), with the limb's data in that order. `first`:
 /// the fit of `data`'s order, kept where the limb has no such joint or the readings hold
 /// dynamic readings (which tell the order themselves).
 pub fn order_on_motion(
@@ -1165,7 +1232,15 @@ pub fn order_on_motion(
         let (start, vertical) = held_start(&ordered, base, start, config)?;
         let motion = LimbMotion::new(record, &ordered, config.noise_sd)?.thinned(ORDER_THINNING);
         let readings = motion_readings(&ordered);
-        let ((_, cost), _) = lead(&ordered, base, &readings, &motion, start, vertical, config);
+        let lead = Lead {
+            data: &ordered,
+            base,
+            readings: &readings,
+            motion: &motion,
+            vertical,
+            config,
+        };
+        let ((_, cost), _) = lead.run(start);
         let residuals = 3 * motion.len() * ordered.su_depth.len();
         let at_noise = cost <= ORDER_ACCEPTED * residuals as f64;
         if best.as_ref().is_none_or(|b| cost < b.0) {
@@ -1186,68 +1261,14 @@ const ORDER_ACCEPTED: f64 = 2.0;
 /// The most combinations of joint orders [`order_on_motion`] tries (two joints of three DoFs).
 const MAX_ORDER_CHOICES: usize = 36;
 
-/// The steps of [`led_from_statics`]: how much of what the motion adds to gravity is taken as
+/// The steps of [`Lead::stages`]: how much of what the motion adds to gravity is taken as
 /// error.
 const QUASI_STATIC_STEPS: [f64; 4] = [1.0, 0.3, 0.1, 0.0];
-/// The steps of [`led_from_statics`] fit every this many blocks of the record: they lead the fit
+/// The steps of [`Lead::stages`] fit every this many blocks of the record: they lead the fit
 /// to the right basin, the final fit takes every block.
 const LEAD_THINNING: usize = 5;
-/// The relative change of the cost at which a step of [`led_from_statics`] stops.
+/// The relative change of the cost at which a step of [`Lead::stages`] stops.
 const LEAD_TOLERANCE: f64 = 1e-6;
-
-/// A start from static readings alone (orientations and axes from gravity, every position at its
-/// prior) led to the whole motion: fitted with the motion's share of each prediction taken as
-/// error, lowered step by step ([`QUASI_STATIC_STEPS`], [`LimbMotion::weigh_as_static`]) — a
-/// fit on every block at once from positions that are all wrong would explain gravity's errors
-/// with metres of lever arm. Returns the state and the LM iterations.
-fn led_from_statics(
-    data: &LimbData,
-    base: Option<&LimbBase>,
-    readings: &Readings,
-    motion: &LimbMotion,
-    start: ChainState,
-    vertical: bool,
-    config: &MlConfig,
-) -> ((ChainState, f64), usize) {
-    let layout = Layout {
-        dofs: data.q.first().map_or(0, |q| q.len()),
-        su_segment: data.su_depth.clone(),
-    };
-    let mut spec = full_spec(
-        &layout,
-        data.chain.base_dofs().max(1),
-        base.is_none(),
-        Some(0).filter(|_| base.is_none()),
-        IntrinsicsModel::None,
-    );
-    if vertical {
-        spec.held.extend([(0, 0), (0, 1)]);
-    }
-    let (mut state, mut cost, mut iterations) = (start, f64::INFINITY, 0);
-    let coarse = motion.thinned(LEAD_THINNING);
-    for kappa in QUASI_STATIC_STEPS {
-        let mut weighed = coarse.clone();
-        weighed.weigh_as_static(&state, &data.su_depth, kappa);
-        let stage = Readings {
-            huber: None,
-            motion: Some(std::sync::Arc::new(weighed)),
-            ..readings.clone()
-        };
-        let solved = solve(
-            state,
-            &layout,
-            &stage,
-            &spec,
-            config.noise_sd,
-            config.max_iterations,
-            LEAD_TOLERANCE,
-        );
-        state = solved.state;
-        cost = solved.cost;
-        iterations += solved.iterations;
-    }
-    ((state, cost), iterations)
-}
 
 /// The mirror image of a limb's state about its vertical first axis: gravity reversed, and what
 /// sits on the first segment (the next joint's frame, its SUs) turned half a turn about the
