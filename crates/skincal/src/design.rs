@@ -101,18 +101,19 @@ impl Drop for Scratch {
     }
 }
 
-/// `plan`'s training part recorded as a 1 kHz CSV log of `robot` with `imperfections`, in a
-/// scratch directory; `what` names it in an error.
+/// `plan` (its training part alone, with `part`) recorded as a 1 kHz CSV log of `robot` with
+/// `imperfections`, in a scratch directory; `what` names it in an error.
 fn recorded(
     robot: &Robot,
     plan: &Plan,
+    part: Option<Part>,
     imperfections: &Imperfections,
     what: &str,
 ) -> Result<Scratch, DesignError> {
     let scratch = Scratch::new()?;
     let config = LogConfig {
         imperfections: *imperfections,
-        part: Some(Part::Training),
+        part,
         ..LogConfig::default()
     };
     let mut sink = CsvSink::new(&scratch.0, true);
@@ -142,7 +143,13 @@ pub fn reading_noise(
         },
     )?;
     let imperfections = sensor(sample_sd);
-    let scratch = recorded(robot, &one, &imperfections, "one pose")?;
+    let scratch = recorded(
+        robot,
+        &one,
+        Some(Part::Training),
+        &imperfections,
+        "one pose",
+    )?;
     let ingest_config = IngestConfig {
         pattern: Some(plan.pattern),
         ..IngestConfig::default()
@@ -348,8 +355,8 @@ pub fn forecast_plan(
     Ok(())
 }
 
-/// The expected held-out RMS of a calibration from a continuous program's sweep: its training
-/// part recorded once as a 1 kHz log of the description with samples of `sample_sd` m/s² per axis
+/// The expected held-out RMS of a calibration from a continuous program's sweep: the program
+/// recorded once (upright, structure part and sweep) as a 1 kHz log of the description with samples of `sample_sd` m/s² per axis
 /// (the simulator's uniform ±0.01 g when `None`), its motion record calibrated with the
 /// description's tree from the record alone (as `calibrate` does with such a log), and compared
 /// with `reference`'s held-out poses. The noise it reports is a block mean's.
@@ -363,7 +370,9 @@ pub fn forecast_sweep(
         return Err(DesignError::NoSus);
     }
     let imperfections = sensor(sample_sd);
-    let scratch = recorded(robot, plan, &imperfections, "the sweep")?;
+    // The whole upright log, as the robot records it: the structure part's still periods are
+    // the quiet moments the fit starts from.
+    let scratch = recorded(robot, plan, None, &imperfections, "the program")?;
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
     let motion = motion_record(
         std::slice::from_ref(&scratch.0),

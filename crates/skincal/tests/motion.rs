@@ -451,3 +451,30 @@ fn the_motion_tells_a_joints_order_that_gravity_cannot() {
         neck.estimate.residual_ratio
     );
 }
+
+/// A continuous program's forecast (its recording on the description, calibrated from the motion
+/// alone) agrees with the whole path's result on the same robot (0.0031/0.0033 m/s² in
+/// `a_continuous_program_calibrates_from_its_motion_alone`, another recording).
+#[test]
+fn a_continuous_programs_forecast_is_what_its_recording_reaches() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let mut plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            seed: 2,
+            ..PlanConfig::continuous()
+        },
+    )
+    .unwrap();
+    skincal::design::forecast_plan(&robot, &mut plan, None).unwrap();
+    let f = plan.forecast.unwrap();
+    eprintln!(
+        "forecast: static {:.4}, dynamic {:.4} m/s²",
+        f.static_rms, f.dynamic_rms
+    );
+    assert_eq!(f.poses, 0);
+    assert!(
+        (0.001..0.006).contains(&f.static_rms) && (0.001..0.006).contains(&f.dynamic_rms),
+        "{f:?}"
+    );
+}
