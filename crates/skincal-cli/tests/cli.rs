@@ -1317,3 +1317,87 @@ fn the_short_program_runs_the_whole_path_and_compares_with_the_recorded_truth() 
         "{calibrated}"
     );
 }
+
+/// The continuous program as a user runs it: plan, record (upright and the structure part
+/// tilted), ingest (no training pose; the motion record), explore, calibrate from the motion
+/// alone, validate against noise-free held-out poses of the same robot.
+#[test]
+fn a_continuous_program_runs_from_plan_to_validation() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let plan = succeeds(
+        &[
+            "plan",
+            "--robot",
+            "paper-7dof",
+            "--protocol",
+            "continuous",
+            "--out",
+            "plan",
+            "--no-forecast",
+        ],
+        d,
+    );
+    assert!(plan.contains("Continuous motion: 20.0 s"), "{plan}");
+    succeeds(
+        &[
+            "record",
+            "--robot",
+            "paper-7dof",
+            "--plan",
+            "plan/plan.json",
+            "--out",
+            "up.mcap",
+        ],
+        d,
+    );
+    succeeds(
+        &[
+            "record",
+            "--robot",
+            "paper-7dof",
+            "--plan",
+            "plan/plan.json",
+            "--out",
+            "tilt.mcap",
+            "--part",
+            "structure",
+            "--tilted",
+        ],
+        d,
+    );
+    let ingest = succeeds(&["ingest", "up.mcap", "tilt.mcap", "--out", "run"], d);
+    assert!(ingest.contains("0 training poses"), "{ingest}");
+    assert!(ingest.contains("wrote run/motion.json"), "{ingest}");
+    succeeds(&["explore", "run"], d);
+    let calibrate = succeeds(&["calibrate", "run"], d);
+    assert!(
+        calibrate.contains("no readings in the set: every limb starts from 40 quiet moments"),
+        "{calibrate}"
+    );
+    assert!(calibrate.contains(": converged"), "{calibrate}");
+    succeeds(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--noise",
+            "0",
+            "--seed",
+            "77",
+            "--poses",
+            "30",
+            "--no-tilt",
+            "--out",
+            "held",
+        ],
+        d,
+    );
+    let check = succeeds(&["validate", "run/model.json", "held", "--json"], d);
+    let v: serde_json::Value = serde_json::from_str(&check).unwrap();
+    let (s, dy) = (
+        v["validation"]["static_rms"].as_f64().unwrap(),
+        v["validation"]["dynamic_rms"].as_f64().unwrap(),
+    );
+    assert!(s < 0.01 && dy < 0.01, "{check}");
+}
