@@ -606,6 +606,23 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     let (file, dir) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
     let (structure, source) = structure_of(&set, &dir)?;
+    let no_readings = set.training.as_ref().is_none_or(|t| t.poses.is_empty());
+    if no_readings && dir.join("motion.json").exists() {
+        if args.method != Method::Ml {
+            anyhow::bail!(
+                "{} has no readings, only the motion record motion.json: the paper's method fits \
+                 readings; use --method ml (the default), which fits the motion",
+                file.display()
+            );
+        }
+        if args.readings_only {
+            anyhow::bail!(
+                "{} has no readings, only the motion record motion.json: leave out \
+                 --readings-only to calibrate from the motion",
+                file.display()
+            );
+        }
+    }
     let truth_path = dir.join("truth.json");
     let truth = if truth_path.exists() {
         Some(io::read_true_robot(&truth_path)?)

@@ -1370,6 +1370,16 @@ fn a_continuous_program_runs_from_plan_to_validation() {
     assert!(ingest.contains("0 training poses"), "{ingest}");
     assert!(ingest.contains("wrote run/motion.json"), "{ingest}");
     succeeds(&["explore", "run"], d);
+    fails_with(
+        &["calibrate", "run", "--readings-only"],
+        d,
+        &["has no readings", "leave out --readings-only"],
+    );
+    fails_with(
+        &["calibrate", "run", "--method", "paper"],
+        d,
+        &["has no readings", "--method ml"],
+    );
     let calibrate = succeeds(&["calibrate", "run"], d);
     assert!(
         calibrate.contains("no readings in the set: every limb starts from 40 quiet moments"),
