@@ -1142,7 +1142,7 @@ impl Lead<'_> {
             &layout,
             data.chain.base_dofs().max(1),
             base.is_none(),
-            Some(0).filter(|_| base.is_none()),
+            gauge_su(data, base),
             IntrinsicsModel::None,
         );
         if vertical {
@@ -1210,13 +1210,12 @@ pub fn order_on_motion(
             .collect();
     }
     let mut best: Option<(f64, MlChainEstimate, LimbData)> = None;
-    // The order of the first fit is taken as soon as it fits at the noise level: the wrong ones
-    // leave residuals of ten to sixty standard deviations.
-    choices.sort_by_key(|c| !c.iter().all(|o| o.iter().enumerate().all(|(i, &k)| i == k)));
+    // The order of the first fit comes first and is taken as soon as it fits at the noise level:
+    // the wrong ones leave residuals of ten to sixty standard deviations.
+    let unchanged = |c: &[Vec<usize>]| c.iter().all(|o| o.iter().enumerate().all(|(i, &k)| i == k));
+    choices.sort_by_key(|c| !unchanged(c));
     for choice in choices.into_iter().take(MAX_ORDER_CHOICES) {
-        let identity = choice
-            .iter()
-            .all(|o| o.iter().enumerate().all(|(i, &k)| i == k));
+        let identity = unchanged(&choice);
         let ordered = joints
             .iter()
             .zip(&choice)
@@ -1270,6 +1269,14 @@ const LEAD_THINNING: usize = 5;
 /// The relative change of the cost at which a step of [`Lead::stages`] stops.
 const LEAD_TOLERANCE: f64 = 1e-6;
 
+/// The SU whose turn about and shift along the first axis are held in a limb's final fit: the
+/// first, where the limb starts at the reference with a joint of one DoF (after a joint of several,
+/// that freedom is left to the damping, not to a parameter).
+fn gauge_su(data: &LimbData, base: Option<&LimbBase>) -> Option<usize> {
+    let first = &spans(data)[data.chain.base_joints];
+    (base.is_none() && first.k0 == first.k1).then_some(0)
+}
+
 /// The mirror image of a limb's state about its vertical first axis: gravity reversed, and what
 /// sits on the first segment (the next joint's frame, its SUs) turned half a turn about the
 /// reference's x axis. In every pose each SU reads gravity as before, but the first DoF turns
@@ -1310,11 +1317,9 @@ fn final_fit(
         dofs: data.q.first().map_or(0, |q| q.len()),
         su_segment: data.su_depth.clone(),
     };
-    let spans = spans(data);
-    let first = chain.base_joints;
     let sigma = config.noise_sd;
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
-    let gauge_su = (base.is_none() && spans[first].k0 == spans[first].k1).then_some(0);
+    let gauge_su = gauge_su(data, base);
     let final_spec = |intrinsics: IntrinsicsModel| {
         let mut spec = full_spec(
             &layout,
