@@ -54,7 +54,9 @@ pub(crate) struct PlanArgs {
     /// A built-in robot, a .toml description or a .urdf file: DoF names and limits.
     #[arg(long)]
     robot: String,
-    /// Output directory: plan.json, trajectory.csv, trajectory.json.
+    /// Output directory: plan.json, trajectory.csv, trajectory.json, and ros2/ (what a ROS 2
+    /// joint trajectory controller executes: goal.yaml, goal_structure.yaml, start.yaml,
+    /// joint_trajectory.mcap, joint_trajectory_structure.mcap).
     #[arg(long)]
     out: PathBuf,
     /// Overwrite existing output files.
@@ -136,6 +138,22 @@ pub(crate) struct PlanArgs {
     /// Seed of the training poses.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The ros2_control joint trajectory controller that executes the plan: ros2/*.mcap publish
+    /// on /NAME/joint_trajectory; the goals are for /NAME/follow_joint_trajectory.
+    #[arg(
+        long,
+        value_name = "NAME",
+        default_value = "joint_trajectory_controller"
+    )]
+    controller: String,
+    /// Knot spacing of the ROS 2 trajectories inside moving phases, s (each knot has positions,
+    /// velocities and accelerations; the controller's quintic splines follow the plan between).
+    #[arg(long, value_name = "SECONDS", default_value_t = skincal::plan::trajectory::DEFAULT_STEP)]
+    knot_step: f64,
+    /// Time ros2/start.yaml gives the robot to reach the plan's first pose from wherever it
+    /// stands, s.
+    #[arg(long, value_name = "SECONDS", default_value_t = 10.0)]
+    start_time: f64,
 }
 
 /// `[DOF=]X` options applied to `dofs` through `set`.
@@ -231,6 +249,22 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     if !(args.rate.is_finite() && args.rate >= 1.0) {
         bail!("--rate {}: use at least 1 Hz", args.rate);
     }
+    if !(args.knot_step.is_finite() && args.knot_step >= 1e-3) {
+        bail!("--knot-step {}: use at least 0.001 s", args.knot_step);
+    }
+    if !(args.start_time.is_finite() && args.start_time > 0.0) {
+        bail!(
+            "--start-time {}: use a positive number of seconds",
+            args.start_time
+        );
+    }
+    let controller = args.controller.trim_matches('/');
+    if controller.is_empty() || controller.contains(char::is_whitespace) {
+        bail!(
+            "--controller `{}`: give the controller's name, e.g. joint_trajectory_controller",
+            args.controller
+        );
+    }
     for (flag, v) in [
         ("accuracy", args.accuracy),
         ("sample-noise", args.sample_noise),
@@ -263,17 +297,18 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         "time": samples.iter().map(|(t, _)| *t).collect::<Vec<_>>(),
         "positions": samples.iter().map(|(_, q)| q).collect::<Vec<_>>(),
     });
-    let files = [
+    let mut files = vec![
         (
             args.out.join("plan.json"),
-            serde_json::to_string_pretty(&plan)?,
+            serde_json::to_string_pretty(&plan)?.into_bytes(),
         ),
-        (args.out.join("trajectory.csv"), csv),
+        (args.out.join("trajectory.csv"), csv.into_bytes()),
         (
             args.out.join("trajectory.json"),
-            serde_json::to_string(&trajectory)?,
+            serde_json::to_string(&trajectory)?.into_bytes(),
         ),
     ];
+    files.extend(ros2_files(&plan, &args)?);
     io::write_all(&files, args.force)?;
     out!("{}", render_plan(&plan));
     outln!("{forecast_note}");
@@ -282,6 +317,40 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// What a ROS 2 robot executes (`ros2/` in the output directory): the goals of the
+/// controller's FollowJointTrajectory action for the whole program, the structure part alone
+/// (for the tilted base) and the way to the first pose, and the two trajectories as MCAP.
+fn ros2_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8>)>> {
+    use skincal::log::trajectory::{goal_yaml, mcap};
+    use skincal::plan::trajectory::Section;
+    let dir = args.out.join("ros2");
+    let topic = format!("/{}/joint_trajectory", args.controller.trim_matches('/'));
+    let whole = plan.trajectory(Section::Whole, args.knot_step);
+    let mut sections = vec![("", whole.clone())];
+    if plan.structure_duration > 0.0 && plan.structure_duration < plan.duration {
+        sections.push((
+            "_structure",
+            plan.trajectory(Section::Structure, args.knot_step),
+        ));
+    }
+    let mut files = vec![(
+        dir.join("start.yaml"),
+        goal_yaml(&whole.start_goal(args.start_time), GOAL_TIME_TOLERANCE).into_bytes(),
+    )];
+    for (suffix, trajectory) in sections {
+        files.push((
+            dir.join(format!("goal{suffix}.yaml")),
+            goal_yaml(&trajectory, GOAL_TIME_TOLERANCE).into_bytes(),
+        ));
+        let bag = mcap(&trajectory, &topic).context("cannot write the ROS 2 trajectory")?;
+        files.push((dir.join(format!("joint_trajectory{suffix}.mcap")), bag));
+    }
+    Ok(files)
+}
+
+/// Time a controller may take past a goal's last knot, s.
+const GOAL_TIME_TOLERANCE: f64 = 0.5;
 
 /// The plan, with its forecast when the description allows one (and as many poses as
 /// `--accuracy` needs), and a line about the forecast.

@@ -670,7 +670,14 @@ fn calibrate_defaults_to_maximum_likelihood_and_writes_model_json() {
 /// Runs the Python interoperability script with the test environment's Python (`cargo xtask test`
 /// makes it and sets `SKINCAL_TEST_PYTHON`), or `python3` when run by other means.
 fn python(args: &[&str], dir: &Path) -> Output {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/python/mcap_interop.py");
+    python_script("mcap_interop.py", args, dir)
+}
+
+/// Runs `tests/python/<name>` as [`python`] does.
+fn python_script(name: &str, args: &[&str], dir: &Path) -> Output {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/python")
+        .join(name);
     let interpreter = std::env::var_os("SKINCAL_TEST_PYTHON").unwrap_or_else(|| "python3".into());
     let out = Command::new(&interpreter)
         .arg(&script)
@@ -682,11 +689,61 @@ fn python(args: &[&str], dir: &Path) -> Output {
         });
     assert!(
         !stderr(&out).contains("ModuleNotFoundError"),
-        "the MCAP interoperability test needs the Python packages of tests/python/requirements.txt: \
+        "the Python interoperability tests need the Python packages of tests/python/requirements.txt: \
          run the tests with `cargo xtask test`, which installs them into target/test-env\n{}",
         stderr(&out)
     );
     out
+}
+
+/// The plan's ROS 2 goals and trajectories, read by the reference ROS 2 libraries (PyYAML as
+/// `ros2 action send_goal` parses, the rosbags typestore's real message definitions, the mcap
+/// reader): the same joint names as the robot's description, knots within 1e-9 rad of the
+/// trajectory the plan samples, times increasing, the MCAP message byte for byte what ROS 2
+/// serialises from the goal.
+#[test]
+fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let panda = d.join("panda.urdf");
+    let stock = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
+        .map(|r| Path::new(&r).join("panda_description/urdf/panda.urdf"))
+        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let text = std::fs::read_to_string(stock).unwrap();
+    // The fingers are held: the plan drives the arm's seven joints.
+    std::fs::write(&panda, text.replace("type=\"prismatic\"", "type=\"fixed\"")).unwrap();
+    for (robot, program, first_joint) in [
+        ("paper-7dof", ["--poses", "3"], "dof1"),
+        (panda.to_str().unwrap(), ["--sweep", "5"], "panda_joint1"),
+        ("humanoid", ["--poses", "3"], "neck_yaw"),
+    ] {
+        let mut args = vec![
+            "plan",
+            "--robot",
+            robot,
+            "--out",
+            "p",
+            "--no-forecast",
+            "--force",
+        ];
+        args.extend(program);
+        let out = skincal(&args, d);
+        assert!(out.status.success(), "{robot}: {}", stderr(&out));
+        let out = python_script("ros2_trajectory.py", &["check", "p"], d);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{robot}: {text}{}", stderr(&out));
+        assert!(
+            text.contains("goal.yaml:") && text.contains("goal_structure.yaml:"),
+            "{text}"
+        );
+        let goal = std::fs::read_to_string(d.join("p/ros2/goal.yaml")).unwrap();
+        assert!(
+            goal.contains(&format!("joint_names: [{first_joint},")),
+            "{robot}"
+        );
+        let start = std::fs::read_to_string(d.join("p/ros2/start.yaml")).unwrap();
+        assert!(start.contains("sec: 10"), "{start}");
+    }
 }
 
 #[test]

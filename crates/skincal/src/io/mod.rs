@@ -235,7 +235,7 @@ pub fn read_true_robot(path: &Path) -> Result<Robot, IoError> {
 
 /// Writes every `(path, contents)` pair whole or not at all. Without `force`, fails before writing
 /// anything if one of the paths exists. Creates missing directories.
-pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError> {
+pub fn write_all<C: AsRef<[u8]>>(files: &[(PathBuf, C)], force: bool) -> Result<(), IoError> {
     if !force {
         if let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
             return Err(IoError::Exists { path: path.clone() });
@@ -246,7 +246,7 @@ pub fn write_all(files: &[(PathBuf, String)], force: bool) -> Result<(), IoError
     let mut staged = Vec::with_capacity(files.len());
     for (path, contents) in files {
         let (stage, mut file) = Staged::create(path, true).map_err(as_io)?;
-        std::io::Write::write_all(&mut file, contents.as_bytes()).map_err(|source| {
+        std::io::Write::write_all(&mut file, contents.as_ref()).map_err(|source| {
             IoError::Write {
                 path: stage.tmp().to_path_buf(),
                 source,

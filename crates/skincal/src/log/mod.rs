@@ -20,6 +20,7 @@ pub mod db3;
 mod in_order;
 pub mod mcap;
 pub mod ros;
+pub mod trajectory;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -62,6 +62,21 @@ pub fn imu_array_schema() -> String {
     )
 }
 
+/// Type name of a planned trajectory.
+pub const JOINT_TRAJECTORY: &str = "trajectory_msgs/msg/JointTrajectory";
+
+/// The `ros2msg` schema of `trajectory_msgs/msg/JointTrajectory`.
+pub fn joint_trajectory_schema() -> String {
+    format!(
+        "std_msgs/Header header\nstring[] joint_names\nJointTrajectoryPoint[] points\n\
+         {SEPARATOR}MSG: std_msgs/Header\n{HEADER_MSG}{SEPARATOR}MSG: builtin_interfaces/Time\n\
+         {TIME_MSG}{SEPARATOR}MSG: trajectory_msgs/JointTrajectoryPoint\nfloat64[] positions\n\
+         float64[] velocities\nfloat64[] accelerations\nfloat64[] effort\n\
+         builtin_interfaces/Duration time_from_start\n{SEPARATOR}\
+         MSG: builtin_interfaces/Duration\n{TIME_MSG}"
+    )
+}
+
 /// `builtin_interfaces/Time`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct Time {
@@ -221,6 +236,32 @@ pub struct JointState {
     pub velocity: Vec<f64>,
     /// N·m, or empty.
     pub effort: Vec<f64>,
+}
+
+/// `trajectory_msgs/msg/JointTrajectoryPoint`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct JointTrajectoryPoint {
+    /// rad.
+    pub positions: Vec<f64>,
+    /// rad/s.
+    pub velocities: Vec<f64>,
+    /// rad/s².
+    pub accelerations: Vec<f64>,
+    /// N·m, or empty.
+    pub effort: Vec<f64>,
+    /// `builtin_interfaces/Duration` (the same fields as a time).
+    pub time_from_start: Time,
+}
+
+/// `trajectory_msgs/msg/JointTrajectory`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct JointTrajectory {
+    /// A zero stamp: start on arrival.
+    pub header: Header,
+    /// The joints, in the order of every point's values.
+    pub joint_names: Vec<String>,
+    /// The knots.
+    pub points: Vec<JointTrajectoryPoint>,
 }
 
 /// CDR (little-endian, with the encapsulation header) of a message.

@@ -33,6 +33,7 @@ use crate::model::sensor::ExcitationPattern;
 use crate::model::Robot;
 
 mod sweep;
+pub mod trajectory;
 pub use sweep::Sweep;
 
 /// `format` of a plan file.

@@ -26,6 +26,34 @@ pub enum Compression {
     Zstd,
 }
 
+/// A ROS 2 MCAP file in memory with one channel, `topic`, of `schema` (`ros2msg` text, type
+/// `schema_name`) and the CDR `messages` at their log times (ns); zstd chunks.
+pub fn one_channel(
+    topic: &str,
+    schema_name: &str,
+    schema: &str,
+    messages: &[(u64, Vec<u8>)],
+) -> Result<Vec<u8>, mcap::McapError> {
+    let mut writer = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile("ros2")
+        .library(concat!("skincal ", env!("CARGO_PKG_VERSION")))
+        .create(std::io::Cursor::new(Vec::new()))?;
+    let id = writer.add_schema(schema_name, ros::SCHEMA_ENCODING, schema.as_bytes())?;
+    let channel = writer.add_channel(id, topic, ros::MESSAGE_ENCODING, &BTreeMap::new())?;
+    for (sequence, (log_time, data)) in messages.iter().enumerate() {
+        let header = MessageHeader {
+            channel_id: channel,
+            sequence: sequence as u32,
+            log_time: *log_time,
+            publish_time: *log_time,
+        };
+        writer.write_to_known_channel(&header, data)?;
+    }
+    writer.finish()?;
+    Ok(writer.into_inner().into_inner())
+}
+
 /// Writes a skin log as ROS 2 MCAP: `sensor_msgs/msg/JointState` and `sensor_msgs/msg/Imu`.
 pub struct McapSink {
     path: PathBuf,
