@@ -6,7 +6,7 @@
 //!   `target/test-env` that is made once and updated only when the requirements change, so the
 //!   second run costs nothing; the tests find it through `SKINCAL_TEST_PYTHON`;
 //! - real robots' descriptions: the one wheel of `tests/python/robot-descriptions.txt` (pinned,
-//!   hash checked), downloaded once with the environment's pip and its URDF files unpacked into
+//!   hash checked), downloaded once with the environment's pip and its URDF and SRDF files and collision meshes unpacked into
 //!   `target/robot-descriptions`; the tests find them through `SKINCAL_ROBOT_DESCRIPTIONS`;
 //! - system packages (Debian's `python3` and `python3-venv` when the environment cannot be made
 //!   without them; `chromium`, in which the HTML report is rendered headless), installed with
@@ -228,7 +228,8 @@ fn test_env() -> Result<PathBuf, String> {
 }
 
 /// Downloads (once) the wheel of `tests/python/robot-descriptions.txt` with the test
-/// environment's pip, hash checked, and unpacks its URDF files; returns the directory.
+/// environment's pip, hash checked, and unpacks its URDF and SRDF files and collision meshes;
+/// returns the directory.
 fn robot_descriptions(python: &Path) -> Result<PathBuf, String> {
     let root = workspace_root();
     let list_file = root.join("tests/python/robot-descriptions.txt");
@@ -236,7 +237,9 @@ fn robot_descriptions(python: &Path) -> Result<PathBuf, String> {
         fs::read_to_string(&list_file).map_err(|e| format!("{}: {e}", list_file.display()))?;
     let dir = target_dir(&root).join("robot-descriptions");
     let stamp = dir.join("skincal-robot-descriptions.txt");
-    if fs::read_to_string(&stamp).is_ok_and(|s| s == list) {
+    // What is unpacked: a new layout unpacks again.
+    let stamp_text = format!("{list}# unpacked: URDF, SRDF and collision meshes\n");
+    if fs::read_to_string(&stamp).is_ok_and(|s| s == stamp_text) {
         return Ok(dir);
     }
     let wheels = target_dir(&root).join("robot-description-wheels");
@@ -276,20 +279,31 @@ fn robot_descriptions(python: &Path) -> Result<PathBuf, String> {
             wheels.display()
         ));
     }
-    // The URDF files only (the wheels carry meshes the tests do not need), by the wheel's paths
-    // under its robots/ folder.
+    // The URDF and SRDF files, and the meshes the URDFs' <collision> elements name (the wheels
+    // carry visual meshes the tests do not need), by the wheel's paths under its robots/ folder.
     let unpack = r#"
-import pathlib, sys, zipfile
+import pathlib, re, sys, zipfile
 wheels, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
 count = 0
 for wheel in sorted(wheels.glob("*.whl")):
     with zipfile.ZipFile(wheel) as z:
-        for name in z.namelist():
-            if name.endswith(".urdf") and "/robots/" in name:
-                target = out / name.split("/robots/", 1)[1]
-                target.parent.mkdir(parents=True, exist_ok=True)
-                target.write_bytes(z.read(name))
-                count += 1
+        names = z.namelist()
+        by_suffix = {n.split("/robots/", 1)[1]: n for n in names if "/robots/" in n}
+        wanted = set()
+        for name in names:
+            if name.endswith((".urdf", ".srdf")) and "/robots/" in name:
+                wanted.add(name.split("/robots/", 1)[1])
+                if name.endswith(".urdf"):
+                    text = z.read(name).decode("utf-8", "replace")
+                    for element in re.findall(r"<collision.*?</collision>", text, re.S):
+                        for f in re.findall(r'filename="package://[^/]+/robots/([^"]+)"', element):
+                            if f in by_suffix:
+                                wanted.add(f)
+        for suffix in sorted(wanted):
+            target = out / suffix
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(z.read(by_suffix[suffix]))
+            count += suffix.endswith(".urdf")
 if count == 0:
     sys.exit("no URDF file in " + str(wheels))
 "#;
@@ -302,12 +316,12 @@ if count == 0:
         .map_err(|e| format!("could not run {}: {e}", python.display()))?;
     if !unpacked.success() {
         return Err(format!(
-            "could not unpack the URDF files of {} into {} (see above)",
+            "could not unpack the robot descriptions of {} into {} (see above)",
             wheels.display(),
             dir.display()
         ));
     }
-    fs::write(&stamp, &list).map_err(|e| format!("{}: {e}", stamp.display()))?;
+    fs::write(&stamp, &stamp_text).map_err(|e| format!("{}: {e}", stamp.display()))?;
     Ok(dir)
 }
 

@@ -154,6 +154,20 @@ pub(crate) struct PlanArgs {
     /// stands, s.
     #[arg(long, value_name = "SECONDS", default_value_t = 10.0)]
     start_time: f64,
+    /// Smallest distance allowed between two links of the robot, m: the skin's thickness on
+    /// both (checked on the URDF's collision geometry when --robot is a URDF).
+    #[arg(long, value_name = "M", default_value_t = skincal::collision::CollisionOptions::default().clearance)]
+    clearance: f64,
+    /// A floor or table plane at this height in the base's frame (z up), m: no moving link
+    /// comes nearer than half the clearance (the upright program only).
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    floor: Option<f64>,
+    /// The robot's SRDF: the link pairs its `disable_collisions` names are not checked.
+    #[arg(long, value_name = "FILE")]
+    srdf: Option<PathBuf>,
+    /// Check joint limits only, not the robot's body.
+    #[arg(long)]
+    no_collision_check: bool,
 }
 
 /// `[DOF=]X` options applied to `dofs` through `set`.
@@ -278,7 +292,30 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         && args.poses.is_none()
         && !args.no_forecast)
         .then_some(skincal::design::SHORT_ACCURACY));
-    let (plan, forecast_note) = planned(&robot, dofs, &config, &args, accuracy)?;
+    let body = collision_body(&args, &robot)?;
+    let names: Vec<String> = dofs.iter().map(|d| d.name.clone()).collect();
+    let clearance = body
+        .as_ref()
+        .map(|body| skincal::collision::PlanClearance::new(body, &robot, &names))
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("the collision check: {e}"))?;
+    let clearance = clearance
+        .as_ref()
+        .map(|c| c as &(dyn skincal::plan::Clearance + Sync));
+    let (mut plan, forecast_note) = planned(&robot, dofs, &config, &args, accuracy, clearance)?;
+    if let (Some(body), Some(check)) = (&body, plan.collision.as_mut()) {
+        check.clearance = body.options().clearance;
+        check.not_checked = body
+            .excluded()
+            .iter()
+            .map(|e| [e.a.clone(), e.b.clone()])
+            .collect();
+        check.touching_at_rest = body
+            .touching_at_rest()
+            .iter()
+            .map(|c| (c.a.clone(), c.b.clone(), c.distance))
+            .collect();
+    }
     let samples = plan.sample(args.rate);
     let names = plan.dof_names();
     let mut csv = format!("time,{}\n", names.join(","));
@@ -311,6 +348,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     files.extend(ros2_files(&plan, &args)?);
     io::write_all(&files, args.force)?;
     out!("{}", render_plan(&plan));
+    outln!("{}", render_collision(&plan, body.as_ref()));
     outln!("{forecast_note}");
     for (f, _) in &files {
         outln!("wrote {}", f.display());
@@ -349,6 +387,115 @@ fn ros2_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     Ok(files)
 }
 
+/// The robot's collision body from its URDF (none for descriptions without one, or with
+/// `--no-collision-check`).
+fn collision_body(
+    args: &PlanArgs,
+    robot: &skincal::model::Robot,
+) -> Result<Option<skincal::collision::Body>> {
+    if !(args.clearance.is_finite() && args.clearance >= 0.0) {
+        bail!(
+            "--clearance {}: give a distance in m, 0 or more",
+            args.clearance
+        );
+    }
+    if args.floor.is_some_and(|f| !f.is_finite()) {
+        bail!("--floor: give a height in m");
+    }
+    if args.no_collision_check {
+        return Ok(None);
+    }
+    let Some(urdf) = io::urdf_of(&args.robot)? else {
+        if args.srdf.is_some() || args.floor.is_some() {
+            bail!(
+                "--srdf and --floor need the robot's collision geometry: give --robot as a URDF \
+                 (or a description that names one)"
+            );
+        }
+        return Ok(None);
+    };
+    let options = skincal::collision::CollisionOptions {
+        clearance: args.clearance,
+        floor: args.floor,
+        disabled: Vec::new(),
+    };
+    let body = io::load_body(&urdf, robot, args.srdf.as_deref(), &options).context(
+        "cannot check the program against the robot's body (--no-collision-check skips it)",
+    )?;
+    Ok(Some(body))
+}
+
+fn render_collision(plan: &Plan, body: Option<&skincal::collision::Body>) -> String {
+    use std::fmt::Write as _;
+    let (Some(body), Some(check)) = (body, &plan.collision) else {
+        return "Self-collision: not checked (no URDF collision geometry): the program keeps the \
+                joint limits only"
+            .into();
+    };
+    let mut s = format!(
+        "Self-collision: {} parts of the URDF's collision geometry, {} pairs checked at {} poses \
+         ({} mm clearance{}); {} pairs of adjacent links{} not checked",
+        body.part_count(),
+        body.pair_count(),
+        check.checked,
+        body.options().clearance * 1e3,
+        body.options()
+            .floor
+            .map(|f| format!(", floor at {f} m"))
+            .unwrap_or_default(),
+        body.excluded()
+            .iter()
+            .filter(|e| e.why == skincal::collision::Exclusion::Adjacent)
+            .count(),
+        match body
+            .excluded()
+            .iter()
+            .filter(|e| e.why == skincal::collision::Exclusion::Srdf)
+            .count()
+        {
+            0 => String::new(),
+            n => format!(" and {n} the SRDF disables"),
+        }
+    );
+    if !body.touching_at_rest().is_empty() {
+        let _ =
+            write!(
+            s,
+            "\n  {} link pairs touch at the rest pose (checked against coming {} mm nearer): {}",
+            body.touching_at_rest().len(),
+            skincal::collision::REST_SLACK * 1e3,
+            body.touching_at_rest()
+                .iter()
+                .take(4)
+                .map(|c| format!("{}–{}", c.a, c.b))
+                .collect::<Vec<_>>()
+                .join(", ")
+                + if body.touching_at_rest().len() > 4 { ", …" } else { "" }
+        );
+    }
+    if check.redrawn_poses + check.redrawn_sweeps > 0 {
+        let _ = write!(
+            s,
+            "\n  mended where they touched (drawn again nearer the rest pose): {} training poses or transfers, {} sweeps",
+            check.redrawn_poses, check.redrawn_sweeps
+        );
+    }
+    if check.contacts.is_empty() {
+        s.push_str("\n  no contact in the program");
+    } else {
+        let _ = write!(
+            s,
+            "\n  WARNING: the program still touches {} times (the structure part's moves are \
+             fixed: change --structure-angle or --range):",
+            check.contacts.len()
+        );
+        for c in check.contacts.iter().take(5) {
+            let _ = write!(s, "\n    at {:.2} s: {}", c.time, c.what);
+        }
+    }
+    s
+}
+
 /// Time a controller may take past a goal's last knot, s.
 const GOAL_TIME_TOLERANCE: f64 = 0.5;
 
@@ -360,12 +507,14 @@ fn planned(
     config: &PlanConfig,
     args: &PlanArgs,
     accuracy: Option<f64>,
+    clearance: Option<&(dyn skincal::plan::Clearance + Sync)>,
 ) -> Result<(Plan, String)> {
     use skincal::design;
     let context = "cannot plan the exploration";
     if let (Some(target), true) = (accuracy, config.training && config.sweep > 0.0) {
         let (plan, forecast) =
-            design::sweep_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
+            design::sweep_for(robot, &dofs, config, target, args.sample_noise, clearance)
+                .context(context)?;
         let note = if forecast.worst() <= target {
             format!(
                 "a sweep of {} s meets {target} m/s² held-out RMS by the forecast (--accuracy)",
@@ -381,7 +530,8 @@ fn planned(
     }
     if let (Some(target), true) = (accuracy, config.training) {
         let (plan, forecast) =
-            design::poses_for(robot, &dofs, config, target, args.sample_noise).context(context)?;
+            design::poses_for(robot, &dofs, config, target, args.sample_noise, clearance)
+                .context(context)?;
         let note = if forecast.worst() <= target {
             format!(
                 "{} training poses (the best of {} draws) meet {target} m/s² held-out RMS by the forecast \
@@ -397,7 +547,12 @@ fn planned(
         };
         return Ok((plan, note));
     }
-    let mut plan = Plan::new(dofs, config).context(context)?;
+    let mut plan = Plan::new_clear(
+        dofs,
+        config,
+        clearance.map(|c| c as &dyn skincal::plan::Clearance),
+    )
+    .context(context)?;
     if args.no_forecast || !config.training {
         return Ok((plan, String::new()));
     }

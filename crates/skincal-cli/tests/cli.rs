@@ -746,6 +746,121 @@ fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
     }
 }
 
+/// Planned programs on stock descriptions' collision geometry (STL meshes, SRDFs) checked by
+/// MuJoCo's own collision detection on every 10 ms of the motion and at every training pose;
+/// a pose skincal finds in collision, put into a plan by hand, fails the same check.
+#[test]
+fn planned_programs_keep_clear_of_the_robots_body_by_mujocos_collision_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
+        .map(std::path::PathBuf::from)
+        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    // Copies with the fingers held and the meshes named by absolute paths.
+    let copy = |path: &str| {
+        let text = std::fs::read_to_string(root.join(path)).unwrap();
+        let text = text
+            .replace("type=\"prismatic\"", "type=\"fixed\"")
+            .replace(
+                "package://example-robot-data/robots/",
+                &format!("file://{}/", root.display()),
+            );
+        let file = d.join(Path::new(path).file_name().unwrap());
+        std::fs::write(&file, text).unwrap();
+        file
+    };
+    let panda = copy("panda_description/urdf/panda.urdf");
+    let talos = copy("talos_data/robots/talos_reduced.urdf");
+    // The humanoid's structure part moves from the rest pose, where its hands touch its
+    // thighs: its contacts there are reported (another test), so its training part alone here.
+    let cases = [
+        (&talos, "talos_data/srdf/talos.srdf", "25", true),
+        (&panda, "panda_description/srdf/panda.srdf", "150", false),
+    ];
+    for (urdf, srdf, poses, no_structure) in cases {
+        let srdf = root.join(srdf);
+        let mut args = vec![
+            "plan",
+            "--robot",
+            urdf.to_str().unwrap(),
+            "--srdf",
+            srdf.to_str().unwrap(),
+            "--out",
+            "p",
+            "--force",
+            "--no-forecast",
+            "--poses",
+            poses,
+            "--rate",
+            "100",
+        ];
+        if no_structure {
+            args.push("--no-structure");
+        }
+        let out = skincal(&args, d);
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{}", stderr(&out));
+        assert!(text.contains("no contact in the program"), "{text}");
+        let check = [
+            "p".to_string(),
+            urdf.display().to_string(),
+            root.display().to_string(),
+        ];
+        let check: Vec<&str> = check.iter().map(String::as_str).collect();
+        let out = python_script("collision_check.py", &check, d);
+        let printed = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{}: {printed}{}",
+            urdf.display(),
+            stderr(&out)
+        );
+    }
+    // The Panda folded into itself: the first of seeded draws that skincal finds 10 mm deep.
+    use rand::{Rng, SeedableRng};
+    let robot =
+        skincal::io::load_robot(panda.to_str().unwrap(), skincal::io::SuPlacement::default())
+            .unwrap();
+    let body = skincal::io::load_body(&panda, &robot, None, &Default::default()).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let colliding = (0..10_000)
+        .map(|_| {
+            robot
+                .model
+                .dofs()
+                .iter()
+                .map(|dof| rng.random_range(dof.limits.lower..=dof.limits.upper))
+                .collect::<Vec<f64>>()
+        })
+        .find(|q| body.contact(&robot, q).is_some_and(|c| c.distance < -0.01))
+        .expect("a pose 10 mm deep in itself");
+    let plan_file = d.join("p/plan.json");
+    let mut plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&plan_file).unwrap()).unwrap();
+    let Some(transfer) = plan["phases"]
+        .as_array_mut()
+        .unwrap()
+        .iter_mut()
+        .find(|p| p["action"] == "transfer" && p["part"] == "training")
+    else {
+        panic!("no training transfer in the Panda's plan");
+    };
+    transfer["to"] = serde_json::json!(colliding);
+    std::fs::write(&plan_file, serde_json::to_string(&plan).unwrap()).unwrap();
+    let check = [
+        "p".to_string(),
+        panda.display().to_string(),
+        root.display().to_string(),
+    ];
+    let check: Vec<&str> = check.iter().map(String::as_str).collect();
+    let out = python_script("collision_check.py", &check, d);
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !out.status.success() && printed.contains("overlap"),
+        "{printed}"
+    );
+}
+
 #[test]
 fn mcap_logs_interoperate_with_the_python_ros2_reader_and_writer() {
     let dir = tempfile::tempdir().unwrap();

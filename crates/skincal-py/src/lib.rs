@@ -601,7 +601,7 @@ fn plan(
     let plan = py
         .detach(|| -> Result<Plan, String> {
             match target {
-                Some(t) => skincal::design::poses_for(&robot, &dofs, &config, t, None)
+                Some(t) => skincal::design::poses_for(&robot, &dofs, &config, t, None, None)
                     .map(|(plan, _)| plan)
                     .map_err(|e| e.to_string()),
                 None => {

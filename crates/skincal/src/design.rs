@@ -32,8 +32,8 @@ use crate::log::csv::CsvSink;
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::Robot;
+use crate::plan::{Clearance, Part, Plan, PlanConfig, PlanDof, PlanError};
 pub use crate::plan::{Forecast, ReadingNoise};
-use crate::plan::{Part, Plan, PlanConfig, PlanDof, PlanError};
 use crate::predict::validate;
 use crate::sim::timeseries::{record, LogConfig};
 use crate::sim::{simulate, Imperfections, SimulationConfig};
@@ -435,17 +435,19 @@ pub fn best_draw(
     dofs: &[PlanDof],
     config: &PlanConfig,
     noise: &ReadingNoise,
+    clearance: Option<&(dyn Clearance + Sync)>,
 ) -> Result<(Plan, Forecast), DesignError> {
     use rayon::prelude::*;
     let tried: Vec<(Plan, Forecast)> = (0..CANDIDATES as u64)
         .into_par_iter()
         .map(|k| {
-            let plan = Plan::new(
+            let plan = Plan::new_clear(
                 dofs.to_vec(),
                 &PlanConfig {
                     seed: config.seed.wrapping_add(k),
                     ..config.clone()
                 },
+                clearance.map(|c| c as &dyn Clearance),
             )?;
             let f = forecast(robot, reference, &plan, noise, TRIALS)?;
             Ok((plan, f))
@@ -466,6 +468,7 @@ pub fn poses_for(
     config: &PlanConfig,
     target: f64,
     sample_sd: Option<f64>,
+    clearance: Option<&(dyn Clearance + Sync)>,
 ) -> Result<(Plan, Forecast), DesignError> {
     let mut poses = config.poses.max(1);
     let noise = reading_noise(robot, &Plan::new(dofs.to_vec(), config)?, sample_sd)?;
@@ -475,7 +478,7 @@ pub fn poses_for(
             poses,
             ..config.clone()
         };
-        let (mut plan, f) = best_draw(robot, &reference, dofs, &config, &noise)?;
+        let (mut plan, f) = best_draw(robot, &reference, dofs, &config, &noise, clearance)?;
         if f.worst() <= target || poses >= MAX_POSES {
             plan.forecast = Some(f.clone());
             return Ok((plan, f));
@@ -501,6 +504,7 @@ pub fn sweep_for(
     config: &PlanConfig,
     target: f64,
     sample_sd: Option<f64>,
+    clearance: Option<&(dyn Clearance + Sync)>,
 ) -> Result<(Plan, Forecast), DesignError> {
     let reference = Reference::of(robot)?;
     let mut sweep = config.sweep.max(1.0);
@@ -509,7 +513,11 @@ pub fn sweep_for(
             sweep,
             ..config.clone()
         };
-        let mut plan = Plan::new(dofs.to_vec(), &config)?;
+        let mut plan = Plan::new_clear(
+            dofs.to_vec(),
+            &config,
+            clearance.map(|c| c as &dyn Clearance),
+        )?;
         let f = forecast_sweep(robot, &reference, &plan, sample_sd)?;
         plan.forecast = Some(f.clone());
         if f.worst() <= target || sweep >= MAX_SWEEP {

@@ -26,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod align;
+pub mod collision;
 pub mod design;
 pub mod estimate;
 pub mod explore;

@@ -281,7 +281,7 @@ fn short_program_whole_path(name: &str) -> (Plan, f64, f64) {
     let robot = robot(name);
     let dofs = PlanDof::from_robot(&robot);
     let (plan, forecast) =
-        skincal::design::poses_for(&robot, &dofs, &PlanConfig::short(), 0.009, None).unwrap();
+        skincal::design::poses_for(&robot, &dofs, &PlanConfig::short(), 0.009, None, None).unwrap();
     assert!(forecast.worst() <= 0.009, "{forecast:?}");
     let dir = tempfile::tempdir().unwrap();
     let upright = dir.path().join("upright.mcap");

@@ -4,6 +4,7 @@
 
 mod bags;
 mod body;
+mod collision;
 mod common;
 mod descriptions;
 mod estimation;

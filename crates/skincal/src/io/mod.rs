@@ -13,8 +13,10 @@ use crate::model::urdf::{from_urdf, UrdfSus};
 use crate::model::Robot;
 use crate::sim::Truth;
 
+mod body;
 mod predictions;
 
+pub use body::{load_body, resolve_mesh};
 pub use predictions::{stream_predictions, write_predictions};
 
 /// Errors reading or writing files; every variant names the file.
@@ -68,6 +70,14 @@ pub enum IoError {
         path: PathBuf,
         /// What the parser said.
         message: String,
+    },
+    /// A URDF's collision geometry or an SRDF cannot be used.
+    #[error("{path}: {source}")]
+    Collision {
+        /// The URDF or SRDF.
+        path: PathBuf,
+        /// What is wrong.
+        source: crate::collision::CollisionError,
     },
     /// A URDF cannot be aligned with the model.
     #[error("{path}: {source}")]
@@ -176,6 +186,30 @@ fn read(path: &Path) -> Result<String, IoError> {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// The URDF file a `--robot` argument describes the robot with: the file itself, or the `urdf`
+/// a TOML description names; `None` for built-in robots and TOML descriptions of their own.
+pub fn urdf_of(spec: &str) -> Result<Option<PathBuf>, IoError> {
+    let path = Path::new(spec);
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("urdf") => Ok(Some(path.to_path_buf())),
+        Some("toml") => {
+            let file =
+                RobotFile::from_toml(&read(path)?).map_err(|source| IoError::Description {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+            Ok(file
+                .urdf
+                .map(|urdf| path.parent().unwrap_or(Path::new(".")).join(urdf)))
+        }
+        _ => Ok(None),
+    }
 }
 
 /// Reads and validates a measurement set.

@@ -70,8 +70,7 @@ pub struct UrdfTree {
 impl UrdfTree {
     /// Parses URDF text and checks that it is one tree.
     pub fn parse(text: &str) -> Result<Self, DescriptionError> {
-        let urdf =
-            urdf_rs::read_from_string(text).map_err(|e| DescriptionError::Urdf(e.to_string()))?;
+        let urdf = read_urdf(text)?;
         let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
         let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
         for j in &urdf.joints {
@@ -177,6 +176,24 @@ impl UrdfTree {
         self.joints.iter().find(|j| j.child == link)
     }
 
+    /// Links joined by fixed joints are one segment, named after the link closest to the root.
+    pub fn segments(&self) -> Segments {
+        let root = self.root.clone();
+        let mut links = HashMap::from([(root.clone(), (root, Isometry3::identity()))]);
+        let mut joints = HashMap::new();
+        for j in self.order.iter().map(|&i| &self.joints[i]) {
+            let (segment, offset) = links[&j.parent].clone();
+            let origin = offset * j.origin;
+            if matches!(j.kind, urdf_rs::JointType::Fixed) {
+                links.insert(j.child.clone(), (segment, origin));
+            } else {
+                joints.insert(j.name.clone(), (segment, origin));
+                links.insert(j.child.clone(), (j.child.clone(), Isometry3::identity()));
+            }
+        }
+        Segments { links, joints }
+    }
+
     /// The nearest joint above `link` that moves (not fixed), if any.
     pub fn moving_joint_above(&self, link: &str) -> Option<&UrdfJoint> {
         let mut link = link;
@@ -188,6 +205,42 @@ impl UrdfTree {
         }
         None
     }
+}
+
+/// Parses URDF text with `urdf-rs`, leaving out what makers' files carry and `urdf-rs` refuses
+/// although it says nothing: `<texture/>` elements without a file name (iCub's).
+pub fn read_urdf(text: &str) -> Result<urdf_rs::Robot, DescriptionError> {
+    let parse =
+        |t: &str| urdf_rs::read_from_string(t).map_err(|e| DescriptionError::Urdf(e.to_string()));
+    let Ok(doc) = roxmltree::Document::parse(text) else {
+        return parse(text);
+    };
+    let mut empty: Vec<std::ops::Range<usize>> = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("texture") && n.attribute("filename").is_none())
+        .map(|n| n.range())
+        .collect();
+    if empty.is_empty() {
+        return parse(text);
+    }
+    empty.sort_by_key(|r| r.start);
+    let mut kept = String::with_capacity(text.len());
+    let mut at = 0;
+    for range in empty {
+        kept.push_str(&text[at..range.start]);
+        at = range.end;
+    }
+    kept.push_str(&text[at..]);
+    parse(&kept)
+}
+
+/// Where a URDF's links and moving joints sit on the segments of its robot model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segments {
+    /// Per link: its segment and its frame in that segment (`T_segment←link`).
+    pub links: HashMap<String, (String, Isometry3<f64>)>,
+    /// Per moving joint: its parent segment and its origin in that segment.
+    pub joints: HashMap<String, (String, Isometry3<f64>)>,
 }
 
 /// Converts URDF text into a robot.
@@ -209,23 +262,11 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
         });
     }
 
-    // Each link's segment (links joined by fixed joints are one) and its offset in that segment.
-    let root = tree.root.as_str();
-    let mut placement: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
-    placement.insert(root, (root.to_string(), Isometry3::identity()));
-    let mut joint_origin: HashMap<&str, (String, Isometry3<f64>)> = HashMap::new();
-    for j in tree.order.iter().map(|&i| &tree.joints[i]) {
-        let (segment, offset) = placement[j.parent.as_str()].clone();
-        let origin = offset * j.origin;
-        if matches!(j.kind, urdf_rs::JointType::Fixed) {
-            placement.insert(j.child.as_str(), (segment, origin));
-        } else {
-            joint_origin.insert(j.name.as_str(), (segment, origin));
-            placement.insert(j.child.as_str(), (j.child.clone(), Isometry3::identity()));
-        }
-    }
-
-    let mut builder = RobotBuilder::new(tree.name.clone(), root);
+    let Segments {
+        links: placement,
+        joints: joint_origin,
+    } = tree.segments();
+    let mut builder = RobotBuilder::new(tree.name.clone(), &tree.root);
     for j in tree
         .joints
         .iter()

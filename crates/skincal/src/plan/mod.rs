@@ -81,7 +81,74 @@ pub enum PlanError {
     /// A plan file is not consistent.
     #[error("plan: {0}")]
     Inconsistent(String),
+    /// No pose (or sweep) clear of the robot's own body was found.
+    #[error("{what}: none of {tries} draws is clear of the robot's body (the last: {contact}); give a smaller --pose-range, --range for the DoFs involved, or a smaller --clearance")]
+    NoClearPose {
+        /// The training pose or the sweep.
+        what: String,
+        /// How many were drawn.
+        tries: usize,
+        /// What touched in the last one.
+        contact: String,
+    },
 }
+
+/// Tells whether the robot's body is clear of itself (and of the floor) at a pose.
+pub trait Clearance {
+    /// `None` when the pose `q` (rad, one per DoF of the plan) is clear with `extra` m to
+    /// spare beyond what is allowed; else what touches.
+    fn contact(&self, q: &[f64], extra: f64) -> Option<Touch>;
+}
+
+/// What touches at a pose, and the DoFs that move the two apart.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Touch {
+    /// What touches, for people.
+    pub what: String,
+    /// The plan's DoFs (indices) between the two parts (or between the base and a part that
+    /// touches the floor): moving them changes the contact.
+    pub dofs: Vec<usize>,
+}
+
+/// What the collision check did to a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CollisionCheck {
+    /// Training poses drawn again because they, their excitations or the transfer to them
+    /// touched.
+    pub redrawn_poses: usize,
+    /// Sweeps drawn again because they touched.
+    pub redrawn_sweeps: usize,
+    /// Poses of the finished program checked (every [`CHECK_STEP`] s).
+    pub checked: usize,
+    /// Where the finished program still touches (the structure part, which has no choice).
+    pub contacts: Vec<PlannedContact>,
+    /// The smallest distance allowed between two links, m.
+    #[serde(default)]
+    pub clearance: f64,
+    /// Link pairs that are not checked (adjacent, or disabled by the SRDF).
+    #[serde(default)]
+    pub not_checked: Vec<[String; 2]>,
+    /// Link pairs that touch at the rest pose, with their signed distance there, m: they may
+    /// not come nearer by more than the slack.
+    #[serde(default)]
+    pub touching_at_rest: Vec<(String, String, f64)>,
+}
+
+/// A contact left in a program.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlannedContact {
+    /// Time, s.
+    pub time: f64,
+    /// What touches.
+    pub what: String,
+}
+
+/// Time step of the finished program's collision check, s.
+pub const CHECK_STEP: f64 = 0.01;
+/// The largest step of any DoF between two checked poses of a path, rad.
+const PATH_STEP: f64 = 0.01;
+/// Draws of a training pose or a sweep before giving up.
+const CLEAR_TRIES: usize = 200;
 
 /// The longest plan accepted from a file, s.
 const MAX_DURATION: f64 = 86_400.0;
@@ -672,6 +739,10 @@ pub struct Plan {
     /// What the plan is expected to reach, when forecast ([`crate::design`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub forecast: Option<Forecast>,
+    /// The collision check, when the plan was made with the robot's body
+    /// ([`Plan::new_clear`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collision: Option<CollisionCheck>,
 }
 
 /// Position, velocity and acceleration of every DoF at one instant.
@@ -688,6 +759,18 @@ pub struct JointState {
 impl Plan {
     /// Builds the plan for DoFs with `dofs`' limits.
     pub fn new(dofs: Vec<PlanDof>, config: &PlanConfig) -> Result<Plan, PlanError> {
+        Self::new_clear(dofs, config, None)
+    }
+
+    /// Builds the plan, with `clearance` (if given) keeping the robot clear of its own body:
+    /// training poses whose pose, excitations or transfer touch, and sweeps that touch, are
+    /// drawn again; the finished program is checked every [`CHECK_STEP`] s and what still
+    /// touches (the structure part has no choice) is recorded in [`Plan::collision`].
+    pub fn new_clear(
+        dofs: Vec<PlanDof>,
+        config: &PlanConfig,
+        clearance: Option<&dyn Clearance>,
+    ) -> Result<Plan, PlanError> {
         config.validate()?;
         for d in &dofs {
             d.check()?;
@@ -707,6 +790,12 @@ impl Plan {
             t: 0.0,
             pose: rest.clone(),
         };
+        let mut guard = Guard {
+            clearance,
+            rest: &rest,
+            redrawn_poses: 0,
+            redrawn_sweeps: 0,
+        };
         if config.structure {
             builder.still(Part::Structure, config.still, None);
             for d in 0..nd {
@@ -719,6 +808,17 @@ impl Plan {
                 let target = crate::sim::structure_move(&limits, rest[d], config.structure_angle);
                 let mut moved = rest.clone();
                 moved[d] = target;
+                // A move that touches goes the other way if that way is clear and in range.
+                let other = 2.0 * rest[d] - target;
+                if guard.path_contact(&rest, &moved).is_some()
+                    && (dofs[d].lower..=dofs[d].upper).contains(&other)
+                {
+                    let mut back = rest.clone();
+                    back[d] = other;
+                    if guard.path_contact(&rest, &back).is_none() {
+                        moved = back;
+                    }
+                }
                 builder.go(Part::Structure, &moved, None);
                 builder.still(Part::Structure, config.still, None);
                 builder.go(Part::Structure, &rest, None);
@@ -728,16 +828,19 @@ impl Plan {
         let structure_duration = builder.t;
         if config.training && config.sweep > 0.0 {
             let mut rng = crate::sim::pose_stream(config.seed);
-            let centre = sweep::centre(&dofs, config.pose_range);
-            let path = Sweep::draw(
-                &dofs,
-                &centre,
-                config.sweep,
-                config.sweep_frequency,
-                config.pose_range,
-                config.limit_fraction,
-                &mut rng,
-            );
+            let mut centre = sweep::centre(&dofs, config.pose_range);
+            let start = builder.pose.clone();
+            let path = guard.clear_sweep(&start, &mut centre, config, |centre| {
+                Sweep::draw(
+                    &dofs,
+                    centre,
+                    config.sweep,
+                    config.sweep_frequency,
+                    config.pose_range,
+                    config.limit_fraction,
+                    &mut rng,
+                )
+            })?;
             if builder.t == 0.0 {
                 // A log that starts in motion has no pause before it to tell where it starts.
                 builder.still(Part::Training, config.still, None);
@@ -756,32 +859,23 @@ impl Plan {
         } else if config.training {
             let mut rng = crate::sim::pose_stream(config.seed);
             let excursion = pattern.excursion() * 1.01;
-            let drawn: Vec<Vec<f64>> = (0..config.poses)
-                .map(|_| {
-                    dofs.iter()
-                        .map(|d| {
-                            let lo = d.lower.max(-config.pose_range);
-                            let hi = (d.upper - excursion).min(config.pose_range);
-                            let (lo, hi) = if lo <= hi {
-                                (lo, hi)
-                            } else {
-                                (d.lower, (d.upper - excursion).max(d.lower))
-                            };
-                            if hi > lo {
-                                rng.random_range(lo..=hi)
-                            } else {
-                                lo
-                            }
-                        })
-                        .collect()
-                })
-                .collect();
             let slots = if config.parallel {
                 slots(&dofs)
             } else {
                 (0..nd).map(|d| vec![d]).collect()
             };
+            let mut draw = || draw_pose(&dofs, config.pose_range, excursion, &mut rng);
+            let drawn = (0..config.poses)
+                .map(|p| guard.clear_pose(p, &slots, excursion, None, &mut draw))
+                .collect::<Result<Vec<_>, _>>()?;
             for (p, q) in builder.nearest_first(drawn).into_iter().enumerate() {
+                let q = match guard.path_contact(&builder.pose, &q) {
+                    None => q,
+                    Some(_) => {
+                        let from = builder.pose.clone();
+                        guard.clear_pose(p, &slots, excursion, Some(&from), &mut draw)?
+                    }
+                };
                 builder.go(Part::Training, &q, Some(p));
                 builder.still(Part::Training, config.still, Some(p));
                 for slot in &slots {
@@ -794,7 +888,7 @@ impl Plan {
         }
         let duration = builder.t;
         let phases = builder.phases;
-        Ok(Plan {
+        let mut plan = Plan {
             format: FORMAT.into(),
             version: VERSION,
             dofs,
@@ -802,12 +896,48 @@ impl Plan {
             pattern_limited_by: choice.limited_by,
             window,
             config: config.clone(),
-            rest_pose: rest,
+            rest_pose: rest.clone(),
             structure_duration,
             duration,
             phases,
             forecast: None,
-        })
+            collision: None,
+        };
+        if let Some(clearance) = clearance {
+            plan.collision = Some(plan.check_collisions(clearance, &guard));
+        }
+        Ok(plan)
+    }
+
+    /// The finished program checked every [`CHECK_STEP`] s (with [`PATH_GRACE`]): one contact
+    /// per touching stretch.
+    fn check_collisions(&self, clearance: &dyn Clearance, guard: &Guard<'_>) -> CollisionCheck {
+        let n = (self.duration / CHECK_STEP).ceil() as usize;
+        let mut contacts: Vec<PlannedContact> = Vec::new();
+        let mut touching = false;
+        for i in 0..=n {
+            let time = (i as f64 * CHECK_STEP).min(self.duration);
+            match clearance.contact(&self.state(time).q, -PATH_GRACE) {
+                Some(touch) if !touching => {
+                    contacts.push(PlannedContact {
+                        time,
+                        what: touch.what,
+                    });
+                    touching = true;
+                }
+                Some(_) => {}
+                None => touching = false,
+            }
+        }
+        CollisionCheck {
+            redrawn_poses: guard.redrawn_poses,
+            redrawn_sweeps: guard.redrawn_sweeps,
+            checked: n + 1,
+            contacts,
+            clearance: 0.0,
+            not_checked: Vec::new(),
+            touching_at_rest: Vec::new(),
+        }
     }
 
     /// DoF names in pose order.
@@ -1051,6 +1181,188 @@ pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
         out[k].push(d);
     }
     out
+}
+
+/// A random training pose within each DoF's range (within ±`pose_range`), leaving room for the
+/// excitation's `excursion` above it.
+fn draw_pose(dofs: &[PlanDof], pose_range: f64, excursion: f64, rng: &mut impl Rng) -> Vec<f64> {
+    dofs.iter()
+        .map(|d| {
+            let lo = d.lower.max(-pose_range);
+            let hi = (d.upper - excursion).min(pose_range);
+            let (lo, hi) = if lo <= hi {
+                (lo, hi)
+            } else {
+                (d.lower, (d.upper - excursion).max(d.lower))
+            };
+            if hi > lo {
+                rng.random_range(lo..=hi)
+            } else {
+                lo
+            }
+        })
+        .collect()
+}
+
+/// The collision check while a plan is built, and what it changed.
+struct Guard<'a> {
+    clearance: Option<&'a dyn Clearance>,
+    /// The pose a touching DoF is brought back towards.
+    rest: &'a [f64],
+    redrawn_poses: usize,
+    redrawn_sweeps: usize,
+}
+
+/// How far a touching DoF of a pose or a sweep is brought back towards the rest each time.
+const SHRINK: f64 = 0.8;
+/// How much nearer than the clearance the paths between poses may come, m: a path that leaves
+/// a pose at the very limit would otherwise touch at once.
+pub const PATH_GRACE: f64 = 0.002;
+/// Attempts to mend one drawn pose before another is drawn.
+const MEND_ROUND: usize = 50;
+
+impl Guard<'_> {
+    /// The first contact on the straight joint-space path from `from` to `to` (every path a
+    /// transfer or a move takes, whatever its timing), checked every [`PATH_STEP`] rad.
+    fn path_contact(&self, from: &[f64], to: &[f64]) -> Option<Touch> {
+        self.clearance?;
+        let widest = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| (b - a).abs())
+            .fold(0.0, f64::max);
+        let steps = ((widest / PATH_STEP).ceil() as usize).max(1);
+        let clearance = self.clearance?;
+        (1..=steps).find_map(|i| {
+            let u = i as f64 / steps as f64;
+            let q: Vec<f64> = from.iter().zip(to).map(|(a, b)| a + (b - a) * u).collect();
+            clearance.contact(&q, -PATH_GRACE)
+        })
+    }
+
+    /// The first contact of a training pose or its excitations: every slot's DoFs together at
+    /// half and at the whole of the pattern's `excursion` (the pattern moves a DoF one way).
+    fn pose_contact(&self, q: &[f64], slots: &[Vec<usize>], excursion: f64) -> Option<Touch> {
+        let clearance = self.clearance?;
+        let spare = |q: &[f64]| clearance.contact(q, 0.0);
+        spare(q).or_else(|| {
+            slots.iter().find_map(|slot| {
+                [0.5, 1.0].iter().find_map(|share| {
+                    let mut moved = q.to_vec();
+                    for &d in slot {
+                        moved[d] += excursion * share;
+                    }
+                    spare(&moved)
+                })
+            })
+        })
+    }
+
+    /// A training pose clear of the body with its excitations (and of the path from `from`, if
+    /// given). A touching pose is mended where it touches: the DoFs between the two parts are
+    /// drawn again, and after every few draws brought a share nearer the rest pose, so that a
+    /// humanoid's pose keeps its random arms while a leg that crossed the other is redrawn.
+    fn clear_pose(
+        &mut self,
+        p: usize,
+        slots: &[Vec<usize>],
+        excursion: f64,
+        from: Option<&[f64]>,
+        draw: &mut dyn FnMut() -> Vec<f64>,
+    ) -> Result<Vec<f64>, PlanError> {
+        let mut q = draw();
+        let mut mended = false;
+        let mut last = String::new();
+        for attempt in 0..CLEAR_TRIES {
+            if attempt % MEND_ROUND == MEND_ROUND - 1 {
+                // Mending one draw led nowhere: start again from another.
+                q = draw();
+            }
+            let touch = self
+                .pose_contact(&q, slots, excursion)
+                .or_else(|| from.and_then(|from| self.path_contact(from, &q)));
+            let Some(touch) = touch else {
+                if mended {
+                    self.redrawn_poses += 1;
+                }
+                return Ok(q);
+            };
+            mended = true;
+            let fresh = draw();
+            let shrink = SHRINK.powi(((attempt % MEND_ROUND) / 4) as i32);
+            let dofs = if touch.dofs.is_empty() {
+                (0..q.len()).collect()
+            } else {
+                touch.dofs
+            };
+            for d in dofs {
+                q[d] = self.rest[d] + (fresh[d] - self.rest[d]) * shrink;
+            }
+            last = touch.what;
+        }
+        Err(PlanError::NoClearPose {
+            what: format!("training pose {}", p + 1),
+            tries: CLEAR_TRIES,
+            contact: last,
+        })
+    }
+
+    /// A sweep clear of the body on its whole path (and on the way from `from` to its
+    /// `centre`), checked every [`CHECK_STEP`] s: a sweep that touches is mended where it
+    /// touches, the DoFs between the two parts moving a share less (and their centre a share
+    /// nearer the rest pose when the centre itself touches).
+    fn clear_sweep(
+        &mut self,
+        from: &[f64],
+        centre: &mut [f64],
+        config: &PlanConfig,
+        mut draw: impl FnMut(&[f64]) -> Sweep,
+    ) -> Result<Sweep, PlanError> {
+        let mut sweep = draw(centre);
+        if self.clearance.is_none() {
+            return Ok(sweep);
+        }
+        let steps = (config.sweep / CHECK_STEP).ceil() as usize;
+        let mut last = String::new();
+        for _ in 0..CLEAR_TRIES {
+            let on_the_way = self.path_contact(from, centre);
+            let touch = on_the_way.clone().or_else(|| {
+                (0..=steps).find_map(|i| {
+                    let t = config.sweep * i as f64 / steps as f64;
+                    let q: Vec<f64> = (0..centre.len())
+                        .map(|d| centre[d] + sweep.at(d, config.sweep, t)[0])
+                        .collect();
+                    self.clearance.and_then(|c| c.contact(&q, -PATH_GRACE))
+                })
+            });
+            let Some(touch) = touch else {
+                return Ok(sweep);
+            };
+            self.redrawn_sweeps = 1;
+            let dofs = if touch.dofs.is_empty() {
+                (0..centre.len()).collect()
+            } else {
+                touch.dofs
+            };
+            if on_the_way.is_some() {
+                // A new centre: the path is drawn again about it, within the limits there.
+                for d in dofs {
+                    centre[d] = self.rest[d] + (centre[d] - self.rest[d]) * SHRINK;
+                }
+                sweep = draw(centre);
+            } else {
+                for d in dofs {
+                    sweep.scale(d, SHRINK);
+                }
+            }
+            last = touch.what;
+        }
+        Err(PlanError::NoClearPose {
+            what: "the sweep".into(),
+            tries: CLEAR_TRIES,
+            contact: last,
+        })
+    }
 }
 
 struct Builder<'a> {

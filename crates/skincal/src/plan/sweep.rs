@@ -68,6 +68,15 @@ impl Sweep {
         [w * s, dw * s + w * ds, ddw * s + 2.0 * dw * ds + w * dds]
     }
 
+    /// DoF `dof`'s path `factor` times as wide (and as fast): below 1 it keeps every limit the
+    /// drawn path kept.
+    pub fn scale(&mut self, dof: usize, factor: f64) {
+        for h in self.harmonics.get_mut(dof).into_iter().flatten() {
+            h[0] *= factor;
+            h[1] *= factor;
+        }
+    }
+
     /// Draws a sweep of `duration` s about `centre` for `dofs`: the harmonics of one period over
     /// the sweep up to `highest` Hz, each DoF scaled to its range about the centre (within
     /// `±pose_range` of 0) and to `fraction` of its speed and acceleration limits. The
