@@ -95,6 +95,17 @@ fn export_into(
         let ext = if args.snippet { "xacro" } else { "urdf" };
         into.with_file_name(format!("{stem}-skin.{ext}"))
     });
+    // Mesh names relative to the robot's URDF would not load from another folder.
+    let folder = |p: &std::path::Path| {
+        let parent = p.parent().filter(|d| !d.as_os_str().is_empty());
+        std::path::absolute(parent.unwrap_or(std::path::Path::new("."))).ok()
+    };
+    let merged = match (folder(into), folder(&out)) {
+        (Some(from), Some(to)) if from != to && !args.snippet => {
+            skincal::align::absolute_file_names(&merged, &from)
+        }
+        _ => merged,
+    };
     io::write_all(&[(out.clone(), merged)], args.force)?;
     let links: std::collections::BTreeSet<&str> =
         alignment.sus.iter().map(|s| s.link.as_str()).collect();

@@ -226,6 +226,33 @@ fn a_calibrated_model_exports_predicts_and_validates() {
     let urdf = std::fs::read_to_string(d.join("arm.urdf")).unwrap();
     assert_eq!(urdf.matches("type=\"continuous\"").count(), 26);
     assert!(urdf.contains("<joint name=\"l_elbow\"") && urdf.contains("<link name=\"torso_back\""));
+    // MuJoCo's own URDF reader keeps one body per SU, where the model's kinematics puts it.
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
+    let robot: skincal::model::description::RobotFile =
+        serde_json::from_value(model["robot"].clone()).unwrap();
+    let robot = robot.build().unwrap();
+    let dofs: Vec<&str> = robot.model.dofs().iter().map(|d| d.name.as_str()).collect();
+    let poses: Vec<Vec<f64>> = (0..3)
+        .map(|k| (0..dofs.len()).map(|i| 0.3 * ((k * 7 + i) as f64).sin()).collect())
+        .collect();
+    let mut sus = serde_json::Map::new();
+    for (u, su) in robot.model.sus().iter().enumerate() {
+        let at: Vec<Vec<f64>> = poses
+            .iter()
+            .map(|q| {
+                let k = skincal::model::forward_kinematics(&robot.model, &robot.parameters, q);
+                k.su_position(u).iter().copied().collect()
+            })
+            .collect();
+        sus.insert(su.name.clone(), serde_json::json!(at));
+    }
+    let frames = serde_json::json!({"dofs": dofs, "poses": poses, "sus": sus});
+    std::fs::write(d.join("frames.json"), frames.to_string()).unwrap();
+    let out = python_script("mujoco_model.py", &["check", "arm.urdf", "frames.json"], d);
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{printed}{}", stderr(&out));
+    assert!(printed.contains("31 SU bodies"), "{printed}");
     // Refuses to overwrite without --force, and nothing changes.
     fails_with(
         &["export-urdf", "demo/model.json", "--out", "arm.urdf"],

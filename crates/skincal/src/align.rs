@@ -724,6 +724,12 @@ pub fn merge_sus(
             j = xml_escape(&joint),
         ));
     }
+    if !snippet && !urdf_text.contains("<mujoco") {
+        // MuJoCo's URDF reader would fuse the SU links into their parents.
+        block.push_str(&format!(
+            "  <mujoco><compiler fusestatic=\"false\"/></mujoco>{newline}"
+        ));
+    }
     if snippet {
         return Ok(format!(
             "<?xml version=\"1.0\"?>{newline}<!-- Include inside your robot's xacro: <xacro:include filename=\"this file\"/> -->{newline}<robot xmlns:xacro=\"http://www.ros.org/wiki/xacro\">{newline}{block}</robot>{newline}"
@@ -746,6 +752,29 @@ pub fn merge_sus(
         }
     }
     Ok(text)
+}
+
+/// The URDF `text`, read from the folder `from`, with its relative file names (meshes, textures)
+/// made absolute, so that it loads from any other folder; `package://` and `file://` names, which
+/// do not depend on the file's folder, are kept.
+pub fn absolute_file_names(text: &str, from: &std::path::Path) -> String {
+    const KEY: &str = "filename=\"";
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find(KEY) {
+        let (head, tail) = rest.split_at(at + KEY.len());
+        out.push_str(head);
+        let end = tail.find('"').unwrap_or(tail.len());
+        let name = &tail[..end];
+        if name.contains("://") || std::path::Path::new(name).is_absolute() || name.is_empty() {
+            out.push_str(name);
+        } else {
+            out.push_str(&crate::show::xml_escape(&from.join(name).to_string_lossy()));
+        }
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    out
 }
 
 /// `text` with `block` inserted before its last `</robot>`, on a line of its own.

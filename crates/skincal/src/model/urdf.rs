@@ -369,9 +369,11 @@ pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
          continuous joints; each notes the range the calibration data covered). -->\n",
     );
     out.push_str(&format!("<robot name=\"{}\">\n", xml_escape(m.name())));
-    // MuJoCo refuses moving bodies without mass: it may bound them instead (other readers skip
-    // the element).
-    out.push_str("  <mujoco><compiler boundmass=\"1e-6\" boundinertia=\"1e-12\"/></mujoco>\n");
+    // MuJoCo refuses moving bodies without mass: it may bound them instead; and it keeps links
+    // on fixed joints (the SUs) as bodies of their own (other readers skip the element).
+    out.push_str(
+        "  <mujoco><compiler boundmass=\"1e-6\" boundinertia=\"1e-12\" fusestatic=\"false\"/></mujoco>\n",
+    );
     for s in m.segments() {
         out.push_str(&format!("  <link name=\"{}\"/>\n", xml_escape(&s.name)));
     }
