@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::out::{out, outln};
+use crate::out::{self, out, outln};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -168,6 +168,9 @@ pub(crate) struct PlanArgs {
     /// Check joint limits only, not the robot's body.
     #[arg(long)]
     no_collision_check: bool,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 /// `[DOF=]X` options applied to `dofs` through `set`.
@@ -208,6 +211,9 @@ fn positive(text: &str, unit: &str) -> Result<f64> {
 }
 
 pub(crate) fn plan(args: PlanArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let robot = io::load_robot(&args.robot, SuPlacement::default())?;
     let mut dofs = PlanDof::from_robot(&robot);
     apply_limits(&mut dofs, &args.velocity, "velocity", |d, v| {
@@ -353,6 +359,16 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     for (f, _) in &files {
         outln!("wrote {}", f.display());
     }
+    out::json(&serde_json::json!({
+        "wrote": files.iter().map(|(f, _)| f.display().to_string()).collect::<Vec<_>>(),
+        "duration": plan.duration,
+        "structure_duration": plan.structure_duration,
+        "training_poses": plan.training_poses().len(),
+        "pattern": plan.pattern,
+        "forecast": plan.forecast,
+        "collision": plan.collision,
+        "note": forecast_note,
+    }));
     Ok(())
 }
 
@@ -823,6 +839,9 @@ pub(crate) struct RecordArgs {
     /// Seed of noise, bias, jitter and losses (and of random SUs).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 fn sink_for(
@@ -838,6 +857,9 @@ fn sink_for(
 }
 
 pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let robot = io::load_robot(
         &args.robot,
         SuPlacement {
@@ -933,6 +955,17 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
     );
     outln!("wrote {}", args.out.display());
     outln!("wrote {}", truth_path.display());
+    out::json(&serde_json::json!({
+        "wrote": [args.out.display().to_string(), truth_path.display().to_string()],
+        "duration": summary.duration,
+        "rate": config.rate,
+        "orientation": config.orientation.label,
+        "joint_messages": summary.joint_messages,
+        "imu_messages": summary.imu_messages,
+        "sus": robot.model.sus().len(),
+        "lost": summary.dropped,
+        "saturated": summary.saturated,
+    }));
     Ok(())
 }
 
@@ -1015,6 +1048,9 @@ pub(crate) struct IngestArgs {
     /// driver that publishes those.
     #[arg(long, value_enum, default_value_t = SkinUnit::Ms2)]
     skin_unit: SkinUnit,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 /// The unit of a skin driver's accelerations.
@@ -1041,6 +1077,9 @@ impl SkinUnit {
 }
 
 pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let mut config = IngestConfig {
         topics: Topics {
             joints: args.joint_topic.clone(),
@@ -1148,6 +1187,12 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     if motion.is_some() {
         outln!("wrote {}", motion_path.display());
     }
+    out::json(&serde_json::json!({
+        "wrote": files.iter().map(|(f, _)| f.display().to_string()).collect::<Vec<_>>(),
+        "seconds": started.elapsed().as_secs_f64(),
+        "report": ingested.report,
+        "motion_blocks": motion.as_ref().map(|r| r.blocks()),
+    }));
     Ok(())
 }
 

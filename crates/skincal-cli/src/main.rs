@@ -62,7 +62,7 @@ enum Command {
     Simulate(SimulateArgs),
     /// List the built-in robots.
     #[command(after_help = EXIT_CODES)]
-    Robots,
+    Robots(RobotsArgs),
     /// Structural exploration: find segments, joints and limbs in DIR/measurements.json; writes
     /// DIR/structure.json and DIR/structure.dot.
     #[command(after_help = EXIT_CODES)]
@@ -225,6 +225,13 @@ struct PredictArgs {
 }
 
 #[derive(Debug, Args)]
+struct RobotsArgs {
+    /// Print one JSON document instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Args)]
 struct ReportArgs {
     /// A result directory (measurements.json, structure.json, model.json: what it has).
     dir: PathBuf,
@@ -240,6 +247,9 @@ struct ReportArgs {
     /// Overwrite an existing page.
     #[arg(long)]
     force: bool,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -349,6 +359,9 @@ struct DemoArgs {
     /// Write into --out even if it holds files that demo did not make.
     #[arg(long)]
     force: bool,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -417,6 +430,9 @@ struct SimulateArgs {
     /// and intrinsics from --seed) recorded again, e.g. as a held-out set for `validate`.
     #[arg(long, value_name = "SEED")]
     pose_seed: Option<u64>,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 fn main() -> ExitCode {
@@ -468,7 +484,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Demo(args) => demo(args),
         Command::Simulate(args) => simulate(args),
-        Command::Robots => robots(),
+        Command::Robots(args) => robots(args),
         Command::Explore(args) => explore(args),
         Command::Calibrate(args) => calibrate(args),
         Command::ExportUrdf(args) => urdf::export_urdf(args),
@@ -899,6 +915,9 @@ fn limb_report(
 }
 
 fn report_page(args: ReportArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let inputs = io::read_report_inputs(&args.dir, args.validate.as_deref(), args.urdf.as_deref())?;
     if inputs.measurements.is_none() && inputs.structure.is_none() && inputs.model.is_none() {
         anyhow::bail!(
@@ -907,8 +926,10 @@ fn report_page(args: ReportArgs) -> Result<()> {
         );
     }
     let out = args.out.unwrap_or_else(|| args.dir.join("report.html"));
-    io::write_all(&[(out.clone(), skincal::html::render(&inputs))], args.force)?;
+    let page = skincal::html::render(&inputs);
+    io::write_all(&[(out.clone(), &page)], args.force)?;
     outln!("wrote {}", out.display());
+    out::json(&serde_json::json!({"wrote": out.display().to_string(), "bytes": page.len()}));
     Ok(())
 }
 
@@ -1263,7 +1284,10 @@ fn bench_explore(args: BenchExploreArgs) -> Result<()> {
     Ok(())
 }
 
-fn robots() -> Result<()> {
+fn robots(args: RobotsArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let mut rows = Vec::new();
     for p in PRESETS {
         let robot = p
@@ -1279,10 +1303,22 @@ fn robots() -> Result<()> {
         });
     }
     out!("{}", render::robots_table(&rows));
+    out::json(&serde_json::json!({
+        "robots": rows.iter().map(|r| serde_json::json!({
+            "name": r.name,
+            "dofs": r.dofs,
+            "segments": r.segments,
+            "sus": r.sus,
+            "description": r.description,
+        })).collect::<Vec<_>>(),
+    }));
     Ok(())
 }
 
 fn simulate(args: SimulateArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let robot = io::load_robot(
         &args.robot,
         SuPlacement {
@@ -1327,9 +1363,16 @@ fn simulate(args: SimulateArgs) -> Result<()> {
     };
     let files = write_simulation(&robot, &config, &args.out, args.force)?;
     out!("{}", files.1);
-    for f in files.0 {
+    for f in &files.0 {
         outln!("wrote {}", f.display());
     }
+    out::json(&serde_json::json!({
+        "wrote": files.0.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "robot": robot.model.name(),
+        "dofs": robot.model.dofs().len(),
+        "sus": robot.model.sus().len(),
+        "training_poses": config.poses,
+    }));
     Ok(())
 }
 
@@ -1435,6 +1478,9 @@ fn prepare_demo_dir(out: &Path, force: bool) -> Result<()> {
 }
 
 fn demo(args: DemoArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let started = std::time::Instant::now();
     let out = args
         .out
@@ -1535,7 +1581,7 @@ fn demo(args: DemoArgs) -> Result<()> {
     )?;
     files.push(report_path);
     outln!();
-    for f in files {
+    for f in &files {
         outln!("wrote {}", f.display());
     }
     outln!(
@@ -1543,6 +1589,21 @@ fn demo(args: DemoArgs) -> Result<()> {
         started.elapsed().as_secs_f64(),
         out.join("model.json").display()
     );
+    out::json(&serde_json::json!({
+        "wrote": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+        "seconds": started.elapsed().as_secs_f64(),
+        "limbs": model.limbs.iter().map(|l| serde_json::json!({
+            "name": l.name,
+            "dofs": l.dofs.len(),
+            "sus": l.sus.len(),
+            "residual_ratio": l.estimate.residual_ratio,
+            "converged": l.estimate.converged,
+        })).collect::<Vec<_>>(),
+        "held_out": {
+            "static_rms": check.static_rms,
+            "dynamic_rms": check.dynamic_rms,
+        },
+    }));
     Ok(())
 }
 

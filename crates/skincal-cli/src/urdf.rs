@@ -31,6 +31,9 @@ pub struct ExportUrdfArgs {
     /// Overwrite an existing output.
     #[arg(long)]
     force: bool,
+    /// Print one JSON document (what was written and the result's figures) instead of text.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -45,6 +48,9 @@ pub struct CheckUrdfArgs {
 }
 
 pub fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
     let model = io::read_model(&args.model)?;
     if let Some(into) = &args.into {
         return export_into(&args, &model, into);
@@ -79,6 +85,12 @@ pub fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
         robot.model.dofs().len(),
         robot.model.sus().len()
     );
+    out::json(&serde_json::json!({
+        "wrote": out.display().to_string(),
+        "links": robot.model.segments().len() + robot.model.sus().len(),
+        "joints": robot.model.dofs().len(),
+        "sus": robot.model.sus().len(),
+    }));
     Ok(())
 }
 
@@ -130,6 +142,13 @@ fn export_into(
             alignment.check.disagree.join(", ")
         );
     }
+    out::json(&serde_json::json!({
+        "wrote": out.display().to_string(),
+        "sus": alignment.sus.len(),
+        "links": links.len(),
+        "not_placed": alignment.unplaced.iter().map(|(su, why)| serde_json::json!({"su": su, "why": why})).collect::<Vec<_>>(),
+        "disagree": alignment.check.disagree,
+    }));
     Ok(())
 }
 

@@ -215,6 +215,71 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
     );
 }
 
+/// Every command that writes a result prints one JSON document with --json, and no text.
+#[test]
+fn every_command_that_writes_a_result_prints_one_json_document() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let json = |args: &[&str]| -> serde_json::Value {
+        let mut all = args.to_vec();
+        all.push("--json");
+        let out = skincal(&all, d);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{args:?}: {e} in\n{text}"))
+    };
+    let robots = json(&["robots"]);
+    assert_eq!(robots["robots"][0]["name"], "paper-7dof");
+    let demo = json(&["demo", "--out", "demo"]);
+    assert!(
+        demo["held_out"]["static_rms"].as_f64().unwrap() < 0.05,
+        "{demo}"
+    );
+    assert!(demo["limbs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|l| l["converged"] == true));
+    let sim = json(&[
+        "simulate",
+        "--robot",
+        "paper-7dof",
+        "--out",
+        "s",
+        "--poses",
+        "4",
+    ]);
+    assert_eq!(sim["sus"], 7);
+    let report = json(&["report", "demo", "--force"]);
+    assert!(report["bytes"].as_u64().unwrap() > 10_000);
+    let urdf = json(&["export-urdf", "demo/model.json", "--out", "m.urdf"]);
+    assert_eq!(urdf["joints"], 26);
+    let plan = json(&[
+        "plan",
+        "--robot",
+        "paper-7dof",
+        "--out",
+        "p",
+        "--poses",
+        "1",
+        "--no-forecast",
+    ]);
+    assert_eq!(plan["training_poses"], 1);
+    assert!(plan["wrote"].as_array().unwrap().len() >= 8, "{plan}");
+    let record = json(&[
+        "record",
+        "--robot",
+        "paper-7dof",
+        "--plan",
+        "p/plan.json",
+        "--out",
+        "up.mcap",
+    ]);
+    assert!(record["imu_messages"].as_u64().unwrap() > 1000, "{record}");
+    let ingest = json(&["ingest", "up.mcap", "--plan", "p/plan.json", "--out", "i"]);
+    assert!(ingest["report"].is_object(), "{ingest}");
+}
+
 #[test]
 fn a_calibrated_model_exports_predicts_and_validates() {
     let dir = tempfile::tempdir().unwrap();
@@ -234,7 +299,11 @@ fn a_calibrated_model_exports_predicts_and_validates() {
     let robot = robot.build().unwrap();
     let dofs: Vec<&str> = robot.model.dofs().iter().map(|d| d.name.as_str()).collect();
     let poses: Vec<Vec<f64>> = (0..3)
-        .map(|k| (0..dofs.len()).map(|i| 0.3 * ((k * 7 + i) as f64).sin()).collect())
+        .map(|k| {
+            (0..dofs.len())
+                .map(|i| 0.3 * ((k * 7 + i) as f64).sin())
+                .collect()
+        })
         .collect();
     let mut sus = serde_json::Map::new();
     for (u, su) in robot.model.sus().iter().enumerate() {

@@ -262,8 +262,14 @@ fn the_merge_keeps_the_files_line_endings_and_a_closing_tag_on_a_line_of_its_own
 fn relative_mesh_names_become_absolute_and_package_names_stay() {
     let text = r#"<robot name="r"><link name="a"><visual><geometry><mesh filename="../meshes/a.stl"/></geometry></visual><collision><geometry><mesh filename="package://r/meshes/a.stl" scale="1 1 1"/></geometry></collision></link><link name="b"><visual><geometry><mesh filename="/opt/b.dae"/></geometry></visual></link></robot>"#;
     let out = skincal::align::absolute_file_names(text, std::path::Path::new("/home/u/r/urdf"));
-    assert!(out.contains(r#"filename="/home/u/r/urdf/../meshes/a.stl""#), "{out}");
-    assert!(out.contains(r#"filename="package://r/meshes/a.stl" scale="1 1 1""#), "{out}");
+    assert!(
+        out.contains(r#"filename="/home/u/r/urdf/../meshes/a.stl""#),
+        "{out}"
+    );
+    assert!(
+        out.contains(r#"filename="package://r/meshes/a.stl" scale="1 1 1""#),
+        "{out}"
+    );
     assert!(out.contains(r#"filename="/opt/b.dae""#), "{out}");
     assert_eq!(out.len(), text.len() + "/home/u/r/urdf/".len());
 }
