@@ -34,8 +34,8 @@ Exit codes:
      read or written; the message names the file or field and what to do
   2  usage error: unknown command or option
   3  incomplete: the results were written, but part of them is missing or unreliable (explore:
-     the tree has error-level diagnostics), or a check failed (check-urdf: a joint of the URDF
-     disagrees with the calibration); the message says which
+     the tree has error-level diagnostics), or a check failed (check-urdf, and report --urdf: a
+     joint of the URDF disagrees with the calibration); the message says which
   130 interrupted (Ctrl-C, SIGTERM, SIGHUP): half-written outputs were removed
 
 No command overwrites an existing result unless --force is given (demo replaces only the
@@ -930,7 +930,15 @@ fn report_page(args: ReportArgs) -> Result<()> {
     io::write_all(&[(out.clone(), &page)], args.force)?;
     outln!("wrote {}", out.display());
     out::json(&serde_json::json!({"wrote": out.display().to_string(), "bytes": page.len()}));
-    Ok(())
+    // One rule for every check: a joint that disagrees is exit code 3, here as in check-urdf.
+    match &inputs.urdf_check {
+        Some((check, _)) if !check.disagree.is_empty() => Err(Incomplete(format!(
+            "the page is written; {} with the calibration beyond 3σ",
+            urdf::disagreement(&check.disagree)
+        ))
+        .into()),
+        _ => Ok(()),
+    }
 }
 
 /// `SU=FAULT` → a broken SU of the simulation.

@@ -138,8 +138,8 @@ fn export_into(
     }
     if !alignment.check.disagree.is_empty() {
         eprintln!(
-            "warning: the URDF's {} disagree with the calibration beyond 3σ; the SU frames after them are placed relative to the calibrated axes (see `skincal check-urdf`)",
-            alignment.check.disagree.join(", ")
+            "warning: {} with the calibration beyond 3σ; the SU frames after them are placed relative to the calibrated axes (see `skincal check-urdf`)",
+            disagreement(&alignment.check.disagree)
         );
     }
     out::json(&serde_json::json!({
@@ -177,10 +177,19 @@ pub fn check_urdf(args: CheckUrdfArgs) -> Result<()> {
         Ok(())
     } else {
         Err(Incomplete(format!(
-            "{} of the URDF disagree with the calibration beyond 3σ",
-            check.disagree.join(", ")
+            "{} with the calibration beyond 3σ",
+            disagreement(&check.disagree)
         ))
         .into())
+    }
+}
+
+/// "the URDF's joint `a` disagrees" or "the URDF's joints `a`, `b` disagree".
+pub(crate) fn disagreement(joints: &[String]) -> String {
+    let names: Vec<String> = joints.iter().map(|j| format!("`{j}`")).collect();
+    match names.as_slice() {
+        [one] => format!("the URDF's joint {one} disagrees"),
+        many => format!("the URDF's joints {} disagree", many.join(", ")),
     }
 }
 
@@ -222,9 +231,12 @@ pub fn demo_step(
         alignment.unplaced.len()
     );
     outln!(
-        "its joints against the calibration: {} agree, {} disagree beyond 3σ, {} limb bases not observable",
+        "its joints against the calibration: {} agree, {} beyond 3σ, {} limb bases not observable",
         count(V::Agrees),
-        count(V::Disagrees),
+        match count(V::Disagrees) {
+            1 => "1 disagrees".to_string(),
+            n => format!("{n} disagree"),
+        },
         count(V::LimbBase)
     );
     Ok(vec![urdf_path, merged_path])

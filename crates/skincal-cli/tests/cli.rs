@@ -210,9 +210,14 @@ fn su_frames_go_into_the_robots_own_urdf_and_its_joints_are_checked() {
     let out = skincal(&["check-urdf", "demo/model.json", "tilted.urdf"], d);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        text.contains("DISAGREES") && stderr(&out).contains("l_elbow"),
+        text.contains("DISAGREES") && stderr(&out).contains("joint `l_elbow` disagrees"),
         "{text}"
     );
+    assert_eq!(out.status.code(), Some(3));
+    // The report with that URDF: written, and the same exit code as check-urdf.
+    let out = skincal(&["report", "demo", "--urdf", "tilted.urdf", "--force"], d);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    assert!(stderr(&out).contains("`l_elbow`") && d.join("demo/report.html").exists());
 }
 
 /// Every command that writes a result prints one JSON document with --json, and no text.
