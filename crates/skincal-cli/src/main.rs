@@ -641,7 +641,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     }
     let truth_path = dir.join("truth.json");
     let truth = if truth_path.exists() {
-        Some(io::read_true_robot(&truth_path)?)
+        truth_of_this_set(io::read_true_robot(&truth_path)?, &set, &truth_path)
     } else {
         None
     };
@@ -1382,6 +1382,43 @@ fn simulate(args: SimulateArgs) -> Result<()> {
         "training_poses": config.poses,
     }));
     Ok(())
+}
+
+/// The truth beside a set, if it is the truth of that set's robot: every DoF and SU of the set
+/// named in it. Otherwise a warning names what it lacks, and the comparison is left out.
+fn truth_of_this_set(
+    truth: skincal::model::Robot,
+    set: &skincal::measurements::MeasurementSet,
+    path: &std::path::Path,
+) -> Option<skincal::model::Robot> {
+    let m = &truth.model;
+    let missing: Vec<String> = set
+        .dofs
+        .iter()
+        .filter(|d| !m.dofs().iter().any(|x| &x.name == *d))
+        .map(|d| format!("DoF `{d}`"))
+        .chain(
+            set.sus
+                .iter()
+                .filter(|u| !m.sus().iter().any(|x| &x.name == *u))
+                .map(|u| format!("SU `{u}`")),
+        )
+        .collect();
+    if missing.is_empty() {
+        return Some(truth);
+    }
+    eprintln!(
+        "warning: {} is not the truth of this measurement set: it has no {}{}; calibrating \
+         without comparing against it",
+        path.display(),
+        missing[..missing.len().min(3)].join(", "),
+        if missing.len() > 3 {
+            format!(" and {} more", missing.len() - 3)
+        } else {
+            String::new()
+        }
+    );
+    None
 }
 
 /// Simulates and writes `measurements.json` and `truth.json`; returns the paths and a summary.

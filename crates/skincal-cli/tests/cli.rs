@@ -426,6 +426,38 @@ fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
     }
 }
 
+/// A truth file of another robot beside a set: calibrated without it, with a warning that
+/// names what the truth lacks (it was blamed on the set).
+#[test]
+fn a_truth_file_of_another_robot_is_named_and_left_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sim = skincal(
+        &[
+            "simulate",
+            "--robot",
+            "paper-7dof",
+            "--out",
+            "s",
+            "--poses",
+            "8",
+        ],
+        d,
+    );
+    assert!(sim.status.success(), "{}", stderr(&sim));
+    let path = d.join("s/measurements.json");
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, text.replace("\"su3\"", "\"su 3\"")).unwrap();
+    let out = skincal(&["calibrate", "s"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(
+        stderr(&out)
+            .contains("truth.json is not the truth of this measurement set: it has no SU `su 3`"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 #[test]
 fn bad_input_exits_non_zero_with_a_clear_message() {
     let dir = tempfile::tempdir().unwrap();
