@@ -321,3 +321,42 @@ fn bad_settings_are_refused() {
         assert!(simulate(&robot, &config).is_err());
     }
 }
+
+#[test]
+fn a_robot_too_large_to_simulate_is_refused_with_the_size_it_would_need() {
+    // A 3000-link chain with one SU per link: 20 poses × 3001 excitations × 3001 SUs × 3 numbers
+    // would take about 5 GB in memory and 12 GB as JSON; refused before anything is allocated.
+    let n = 3000;
+    let links: String = (0..=n).map(|i| format!("<link name=\"l{i}\"/>")).collect();
+    let joints: String = (0..n)
+        .map(|i| {
+            format!(
+                "<joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{i}\"/><child link=\"l{}\"/>\
+                 <origin xyz=\"0 0 0.01\"/><axis xyz=\"0 {} {}\"/>\
+                 <limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint>",
+                i + 1,
+                i % 2,
+                (i + 1) % 2
+            )
+        })
+        .collect();
+    let text = format!("<robot name=\"long\">{links}{joints}</robot>");
+    let robot = skincal::model::urdf::from_urdf(
+        &text,
+        skincal::model::urdf::UrdfSus::RandomPerLink {
+            per_link: 1,
+            seed: 1,
+        },
+    )
+    .unwrap();
+    let config = skincal::sim::SimulationConfig::default();
+    let e = skincal::sim::simulate(&robot, &config)
+        .unwrap_err()
+        .to_string();
+    // 3 × 3001 × (2 × 3001 + 20 × 3001) readings.
+    assert!(
+        e.contains(&format!("{} readings", 3 * 3001 * 22 * 3001)),
+        "{e}"
+    );
+    assert!(e.contains("--poses"), "{e}");
+}

@@ -541,11 +541,48 @@ impl<'a> Sensors<'a> {
     }
 }
 
+/// The most readings (numbers) a simulated measurement set may hold: 100 million take 0.8 GB
+/// in memory and about 2 GB as JSON.
+pub const MAX_READINGS: u64 = 100_000_000;
+
+/// Refuses a simulation whose measurement set would not fit: every SU reads 3 numbers in the rest
+/// pose and after every DoF's move (per base orientation), and statically and for every DoF's
+/// excitation in every training pose.
+fn check_size(nd: usize, nu: usize, config: &SimulationConfig) -> Result<(), SimulationError> {
+    let (nd, nu) = (nd as u64, nu as u64);
+    let orientations = if config.tilted_orientation { 2 } else { 1 };
+    let structure = if config.structure {
+        orientations * (1 + nd)
+    } else {
+        0
+    };
+    let training = if config.training {
+        config.poses as u64 * (1 + nd)
+    } else {
+        0
+    };
+    let readings = 3 * nu * (structure + training);
+    if readings <= MAX_READINGS {
+        return Ok(());
+    }
+    Err(SimulationError::InvalidSetting {
+        setting: "size",
+        reason: format!(
+            "{nd} DoFs and {nu} SUs would give {readings} readings ({:.1} GB in memory, about \
+             {:.0} GB as JSON), more than the {MAX_READINGS} a measurement set may hold: simulate \
+             fewer training poses (--poses), fewer SUs per link, or a part of the robot",
+            readings as f64 * 8e-9,
+            readings as f64 * 20e-9
+        ),
+    })
+}
+
 /// Runs the experiments of `config` on `robot`.
 pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, SimulationError> {
     config.validate()?;
     let model = &robot.model;
     let (nd, nu) = (model.dofs().len(), model.sus().len());
+    check_size(nd, nu, config)?;
     let imperfections = &config.imperfections;
     let data_seed = config.pose_seed.unwrap_or(config.seed);
     let mut sensors = Sensors::new(imperfections, nu, config.seed, data_seed);
