@@ -94,7 +94,9 @@ pub fn bench_body(args: BenchBodyArgs) -> Result<()> {
             args.poses, args.noise, args.seeds
         );
         let mut runs = Vec::new();
+        let bar = crate::out::progress_bar(args.seeds, "bench body: seeds");
         for seed in 1..=args.seeds {
+            bar.inc(1);
             let robot = match subject {
                 Subject::RandomTree(dofs) => sim::random_tree(
                     &RandomTreeConfig {
@@ -117,6 +119,7 @@ pub fn bench_body(args: BenchBodyArgs) -> Result<()> {
                 Err(e) => outln!("seed {seed}: {e}"),
             }
         }
+        bar.finish_and_clear();
         out!("{}", table(&runs));
         outln!();
         let name = match subject {

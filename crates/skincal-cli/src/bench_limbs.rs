@@ -176,7 +176,12 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         args.poses
     );
     let mut outcomes = Vec::new();
+    let bar = crate::out::progress_bar(
+        (last + 1).saturating_sub(args.first_seed),
+        "bench limbs: limbs",
+    );
     for seed in args.first_seed..=last {
+        bar.inc(1);
         match run(seed, &args) {
             Ok(o) => {
                 if args.each {
@@ -199,6 +204,7 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
             Err(e) => outln!("seed {seed}: {e}"),
         }
     }
+    bar.finish_and_clear();
     let n = outcomes.len();
     let converged = outcomes.iter().filter(|o| o.converged).count();
     let col = |f: fn(&Outcome) -> f64| outcomes.iter().map(f).collect::<Vec<f64>>();

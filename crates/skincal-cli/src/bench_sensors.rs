@@ -167,7 +167,9 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
     }
     let mut tallies: Vec<Tally> = scenarios.iter().map(|_| Tally::default()).collect();
     let mut named = 0;
+    let bar = crate::out::progress_bar(args.seeds, "bench sensors: seeds");
     for seed in 1..=args.seeds {
+        bar.inc(1);
         let clean_config = SimulationConfig {
             seed,
             ..SimulationConfig::default()
@@ -205,6 +207,7 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
             named += named_faults(&config.faults, &r.model);
         }
     }
+    bar.finish_and_clear();
     out!("{}", table(&scenarios, &tallies));
     if !broken_names.is_empty() {
         outln!(

@@ -1,13 +1,11 @@
 //! `plan`, `record`, `ingest` and `bench ingest`: from a real robot's logs to a measurement set.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::out::{self, out, outln};
+use crate::out::{self, out, outln, progress_bar};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use skincal::ingest::{ingest, IngestConfig, IngestReport};
 use skincal::io::{self, SuPlacement};
 use skincal::log::csv::CsvSink;
@@ -19,22 +17,6 @@ use skincal::sim::timeseries::{record, LogConfig};
 use skincal::sim::{BaseOrientation, Imperfections};
 
 use crate::{parse_pattern, peak_memory_mb};
-
-/// A progress bar on stderr, hidden when stderr is not a terminal.
-fn progress_bar(total: u64, what: &str) -> ProgressBar {
-    let bar = if std::io::stderr().is_terminal() {
-        ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr())
-    } else {
-        ProgressBar::hidden()
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{msg:40} [{bar:30}] {percent:>3}% {elapsed} (eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
 
 /// An exploration program.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -1101,7 +1101,9 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     if intrinsics != ml::IntrinsicsModel::None {
         bounds.push((intrinsics, 0.0, 0.0));
     }
+    let bar = crate::out::progress_bar(args.seeds, "bench calibrate: seeds");
     for seed in args.first_seed..args.first_seed.saturating_add(args.seeds) {
+        bar.inc(1);
         let config = SimulationConfig {
             poses: args.poses,
             seed,
@@ -1172,6 +1174,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
             });
         }
     }
+    bar.finish_and_clear();
     let n = args.seeds.max(1) as f64;
     let bounds: Vec<(String, (f64, f64))> = bounds
         .into_iter()
