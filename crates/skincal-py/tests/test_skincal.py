@@ -122,6 +122,9 @@ def test_ingest_and_plan_give_what_the_cli_gives(tmp_path, monkeypatch):
     assert data.to_json() == (tmp_path / "real" / "measurements.json").read_text()
     assert report["training_poses"] == 3 and report["warnings"] == []
     assert calls and all(done <= total for _, done, total in calls if total)
+    # A job of a fraction of a second reports each stage and its end, not every step.
+    stages = {stage for stage, _, _ in calls}
+    assert len(calls) <= 3 * len(stages) + 5, calls
     t = data.training
     assert t.static_sd.shape == (3, 7) and np.all(t.static_sd > 0)
     program = skincal.plan("paper-7dof")
@@ -133,8 +136,12 @@ def test_ingest_and_plan_give_what_the_cli_gives(tmp_path, monkeypatch):
 def test_bad_input_raises_skincal_errors_that_say_what_is_wrong(tmp_path):
     with pytest.raises(skincal.SkincalError, match="no-such-robot"):
         skincal.simulate("no-such-robot")
-    with pytest.raises(skincal.SkincalError, match="cannot read"):
+    with pytest.raises(FileNotFoundError, match="missing.json"):
         skincal.MeasurementSet.load(tmp_path / "missing.json")
+    with pytest.raises(FileNotFoundError):
+        skincal.Model.load(str(tmp_path / "missing.json"))
+    with pytest.raises(FileNotFoundError, match="nowhere.mcap"):
+        skincal.ingest([tmp_path / "nowhere.mcap"])
     data = skincal.simulate("paper-7dof", poses=4)
     broken = json.loads(data.to_json())
     broken["training"]["poses"][1]["static"][2] = [0.0, 0.0]
@@ -146,6 +153,14 @@ def test_bad_input_raises_skincal_errors_that_say_what_is_wrong(tmp_path):
     model = skincal.calibrate(data, noise=0.01)
     with pytest.raises(skincal.SkincalError, match="one angle per DoF"):
         model.predict(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="finite"):
+        model.predict(np.full(7, np.nan))
+    # Paths where a set is expected: the file, or its directory.
+    data.save(tmp_path / "set" / "measurements.json")
+    assert skincal.explore(tmp_path / "set").complete
+    assert skincal.explore(str(tmp_path / "set" / "measurements.json")).complete
+    with pytest.raises(TypeError, match="MeasurementSet"):
+        skincal.explore(42)
     with pytest.raises(ValueError, match="ml"):
         skincal.calibrate(data, method="paper")
     model.save(tmp_path / "model.json")

@@ -14,12 +14,17 @@ data and exports URDF. Units are SI throughout (m, rad, m/s²); arrays are numpy
     [True]
 
 Errors are :class:`SkincalError` with the library's message (it names the file, field or sensor
-and what to do). Long work releases the interpreter, so other threads run meanwhile.
+and what to do); a file that does not exist is a :class:`FileNotFoundError` and a pose that is not
+finite a :class:`ValueError`, as Python's own. Long work releases the interpreter, so other
+threads run meanwhile.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import time
 from dataclasses import dataclass, field
 from functools import cached_property
 from os import PathLike
@@ -29,6 +34,47 @@ import numpy as np
 
 from . import _skincal
 from ._skincal import SkincalError, __version__
+
+
+def _existing(path: "Path", what: str) -> str:
+    """``path`` as a string, or :class:`FileNotFoundError` naming it and what it should hold."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, f"no {what} at this path", str(path))
+    return str(path)
+
+
+def _measurement_set(data: "Union[MeasurementSet, Path]") -> "MeasurementSet":
+    """A measurement set, or the one a path names (a ``measurements.json`` or its directory)."""
+    if isinstance(data, MeasurementSet):
+        return data
+    if isinstance(data, (str, PathLike)):
+        path = os.fspath(data)
+        if os.path.isdir(path):
+            path = os.path.join(path, "measurements.json")
+        return MeasurementSet.load(path)
+    raise TypeError(
+        f"expected a MeasurementSet or the path of a measurements.json (or its directory), "
+        f"not {type(data).__name__}"
+    )
+
+
+def _throttled(progress, interval: float = 0.2):
+    """``progress(stage, done, total)`` called on a new stage, at its end, and otherwise at most
+    every ``interval`` s: a fast job reports a few lines, not hundreds."""
+    if progress is None:
+        return None
+    last = {"stage": None, "done": None, "at": 0.0}
+
+    def report(stage, done, total):
+        now = time.monotonic()
+        if stage == last["stage"] and done == last["done"]:
+            return
+        new_stage, finished = stage != last["stage"], total and done >= total
+        if new_stage or finished or now - last["at"] >= interval:
+            last.update(stage=stage, done=done, at=now)
+            progress(stage, done, total)
+
+    return report
 
 __all__ = [
     "SkincalError",
@@ -86,7 +132,7 @@ class MeasurementSet:
     @classmethod
     def load(cls, path: Path) -> "MeasurementSet":
         """Reads and checks a ``measurements.json`` file."""
-        return cls(_skincal.Measurements.load(str(path)))
+        return cls(_skincal.Measurements.load(_existing(path, "measurement set")))
 
     @classmethod
     def from_json(cls, text: str) -> "MeasurementSet":
@@ -216,7 +262,7 @@ class Structure:
     @classmethod
     def load(cls, path: Path) -> "Structure":
         """Reads and checks a ``structure.json`` file."""
-        return cls(_skincal.NativeStructure.load(str(path)))
+        return cls(_skincal.NativeStructure.load(_existing(path, "structure")))
 
     def save(self, path: Path, force: bool = False) -> None:
         """Writes ``structure.json`` as ``skincal explore`` does, whole or not at all."""
@@ -355,7 +401,7 @@ class Model:
     @classmethod
     def load(cls, path: Path) -> "Model":
         """Reads and checks a ``model.json`` file."""
-        return cls(_skincal.NativeModel.load(str(path)))
+        return cls(_skincal.NativeModel.load(_existing(path, "model")))
 
     def save(self, path: Path, force: bool = False) -> None:
         """Writes ``model.json`` byte for byte as ``skincal calibrate`` does, whole or not at
@@ -423,15 +469,18 @@ class Model:
         (N×U×3) and the dynamic acceleration of ``pattern`` (default: the training data's) on each
         DoF (N×D×U×3), m/s², in the order of :attr:`dofs` and :attr:`sus`."""
         q = np.asarray(poses, dtype=np.float64)
+        if not np.all(np.isfinite(q)):
+            raise ValueError("poses: every angle must be a finite number of rad (found NaN or inf)")
         single = q.ndim == 1
         q = np.ascontiguousarray(q.reshape(1, -1) if single else q)
         p = self.pattern if pattern is None else (float(pattern[0]), float(pattern[1]))
         static, dynamic = self._native.predict(q, p)
         return (static[0], dynamic[0]) if single else (static, dynamic)
 
-    def validate(self, other: MeasurementSet) -> Validation:
-        """Predicts ``other``'s training experiment (its poses and pattern) and compares."""
-        v = json.loads(self._native.validate(other._native))
+    def validate(self, other: Union[MeasurementSet, Path]) -> Validation:
+        """Predicts ``other``'s training experiment (its poses and pattern) and compares;
+        ``other`` may be the path of a measurement set or its directory."""
+        v = json.loads(self._native.validate(_measurement_set(other)._native))
         return Validation(
             poses=v["poses"],
             static_rms=v["static_rms"],
@@ -470,14 +519,14 @@ def simulate(
     return MeasurementSet(native, json.loads(truth))
 
 
-def explore(measurements: MeasurementSet) -> Structure:
+def explore(measurements: Union[MeasurementSet, Path]) -> Structure:
     """Structural exploration (default settings): the kinematic tree from the structure
-    experiment."""
-    return Structure(_skincal.explore(measurements._native))
+    experiment. ``measurements`` may be the path of a set or of its directory."""
+    return Structure(_skincal.explore(_measurement_set(measurements)._native))
 
 
 def calibrate(
-    measurements: MeasurementSet,
+    measurements: Union[MeasurementSet, Path],
     structure: Optional[Structure] = None,
     method: str = "ml",
     noise: Optional[float] = None,
@@ -487,9 +536,10 @@ def calibrate(
     method is ``skincal calibrate --method paper``). ``structure`` defaults to exploring the set's
     structure experiment; ``noise`` (g, uniform) weights every reading alike instead of by its own
     standard deviation, as ``skincal calibrate --noise``; ``progress(limb, done, total)`` is called
-    as each limb is calibrated."""
+    as each limb is calibrated. ``measurements`` may be the path of a set or of its directory."""
     if method != "ml":
         raise ValueError(f"method {method!r}: the Python package calibrates with 'ml'")
+    measurements = _measurement_set(measurements)
     native = _skincal.calibrate(
         measurements._native, None if structure is None else structure._native, noise, progress
     )
@@ -505,13 +555,14 @@ def ingest(
     """Reads robot logs (MCAP, rosbag2 directories with .mcap or .db3, ROS 1 bags, skincal's CSV
     directories) into a measurement set, as ``skincal ingest``: ``plan`` is the ``plan.json`` they
     follow (its pattern and still periods), ``pattern`` the nominal (A, f) instead;
-    ``progress(stage, done, total)`` is called while the logs are read. Returns the set and the
+    ``progress(stage, done, total)`` is called while the logs are read (on each new stage, at
+    its end, and at most five times a second between). Returns the set and the
     report (windows found, excitations, coupled motion, warnings)."""
     native, report = _skincal.ingest(
-        [str(p) for p in logs],
-        None if plan is None else str(plan),
+        [_existing(p, "log") for p in logs],
+        None if plan is None else _existing(plan, "plan"),
         None if pattern is None else (float(pattern[0]), float(pattern[1])),
-        progress,
+        _throttled(progress),
     )
     return MeasurementSet(native), json.loads(report)
 
