@@ -22,15 +22,19 @@ const ARM: &str = r#"<robot name="arm">
   <joint name="elbow" type="revolute"><parent link="beam"/><child link="tip"/><origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-3.2" upper="3.2" effort="1" velocity="1"/></joint>
 </robot>"#;
 
-fn arm(options: &CollisionOptions) -> (skincal::model::Robot, Body) {
-    let robot = from_urdf(
+fn arm_robot() -> skincal::model::Robot {
+    from_urdf(
         ARM,
         UrdfSus::RandomPerLink {
             per_link: 1,
             seed: 1,
         },
     )
-    .unwrap();
+    .unwrap()
+}
+
+fn arm(options: &CollisionOptions) -> (skincal::model::Robot, Body) {
+    let robot = arm_robot();
     let body = Body::new(ARM, &robot, options, &mut |_| Err("no meshes".into())).unwrap();
     (robot, body)
 }
@@ -96,14 +100,7 @@ fn distances_pairs_and_the_floor_as_computed_by_hand() {
     assert!(body.contact(&robot, &hanging).is_none());
     // An SRDF of another robot is refused by name.
     let other = vec![("tip".to_string(), "gripper".to_string())];
-    let robot = from_urdf(
-        ARM,
-        UrdfSus::RandomPerLink {
-            per_link: 1,
-            seed: 1,
-        },
-    )
-    .unwrap();
+    let robot = arm_robot();
     let options = CollisionOptions {
         disabled: other,
         ..Default::default()
