@@ -290,7 +290,15 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     let clearance = clearance
         .as_ref()
         .map(|c| c as &(dyn skincal::plan::Clearance + Sync));
-    let (mut plan, forecast_note) = planned(&robot, dofs, &config, &args, accuracy, clearance)?;
+    let busy = out::spinner(match (&body, args.no_forecast) {
+        (Some(_), true) => "planning, clear of the robot's body",
+        (Some(_), false) => "planning, clear of the robot's body, and forecasting its accuracy",
+        (None, true) => "planning",
+        (None, false) => "planning and forecasting its accuracy",
+    });
+    let planned = planned(&robot, dofs, &config, &args, accuracy, clearance);
+    busy.finish_and_clear();
+    let (mut plan, forecast_note) = planned?;
     if let (Some(body), Some(check)) = (&body, plan.collision.as_mut()) {
         check.clearance = body.options().clearance;
         check.not_checked = body
