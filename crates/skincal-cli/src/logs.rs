@@ -298,20 +298,7 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     });
     let planned = planned(&robot, dofs, &config, &args, accuracy, clearance);
     busy.finish_and_clear();
-    let (mut plan, forecast_note) = planned?;
-    if let (Some(body), Some(check)) = (&body, plan.collision.as_mut()) {
-        check.clearance = body.options().clearance;
-        check.not_checked = body
-            .excluded()
-            .iter()
-            .map(|e| [e.a.clone(), e.b.clone()])
-            .collect();
-        check.touching_at_rest = body
-            .touching_at_rest()
-            .iter()
-            .map(|c| (c.a.clone(), c.b.clone(), c.distance))
-            .collect();
-    }
+    let (plan, forecast_note) = planned?;
     let samples = plan.sample(args.rate);
     let names = plan.dof_names();
     let mut csv = format!("time,{}\n", names.join(","));

@@ -20,7 +20,7 @@
 //! The floor check leaves out the reference segment's parts (the base stands on the floor).
 //! Mesh files are read by the caller ([`crate::io::load_body`]); this module touches no file.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use parry3d_f64::bounding_volume::{Aabb, BoundingVolume};
@@ -343,16 +343,21 @@ impl Body {
             .iter()
             .flat_map(|(a, b)| [(a.as_str(), b.as_str()), (b.as_str(), a.as_str())])
             .collect();
-        let mut excluded: HashMap<(String, String), Exclusion> = HashMap::new();
+        // By link pair, names in order, so that the lists come out sorted.
+        let link_pair = |a: &Part, b: &Part| {
+            let (a, b) = (a.link.clone(), b.link.clone());
+            if a <= b {
+                (a, b)
+            } else {
+                (b, a)
+            }
+        };
+        let mut excluded: BTreeMap<(String, String), Exclusion> = BTreeMap::new();
         let mut candidates = Vec::new();
         for i in 0..self.parts.len() {
             for j in i + 1..self.parts.len() {
                 let (a, b) = (&self.parts[i], &self.parts[j]);
-                let key = if a.link <= b.link {
-                    (a.link.clone(), b.link.clone())
-                } else {
-                    (b.link.clone(), a.link.clone())
-                };
+                let key = link_pair(a, b);
                 if a.segment == b.segment
                     || above(a.segment) == Some(b.segment)
                     || above(b.segment) == Some(a.segment)
@@ -371,7 +376,7 @@ impl Body {
         let frames = self.frames(robot, &rest);
         let boxes = self.boxes(&frames);
         let clearance = self.options.clearance;
-        let mut at_rest: HashMap<(String, String), f64> = HashMap::new();
+        let mut at_rest: BTreeMap<(String, String), f64> = BTreeMap::new();
         let mut pairs = Vec::with_capacity(candidates.len());
         for (i, j) in candidates {
             let Some(d) = self.distance(&frames, &boxes, (i, j), clearance) else {
@@ -383,27 +388,23 @@ impl Body {
                 || above(b.segment).and_then(above) == Some(a.segment);
             if next_but_one {
                 excluded
-                    .entry((a.link.clone(), b.link.clone()))
+                    .entry(link_pair(a, b))
                     .or_insert(Exclusion::NextButOneTouching);
                 continue;
             }
-            let nearest = at_rest.entry((a.link.clone(), b.link.clone())).or_insert(d);
+            let nearest = at_rest.entry(link_pair(a, b)).or_insert(d);
             *nearest = nearest.min(d);
             pairs.push((i, j, d - REST_SLACK));
         }
         self.pairs = pairs;
-        let mut excluded: Vec<ExcludedPair> = excluded
+        self.excluded = excluded
             .into_iter()
             .map(|((a, b), why)| ExcludedPair { a, b, why })
             .collect();
-        excluded.sort_by(|x, y| (&x.a, &x.b).cmp(&(&y.a, &y.b)));
-        self.excluded = excluded;
-        let mut at_rest: Vec<RestContact> = at_rest
+        self.at_rest = at_rest
             .into_iter()
             .map(|((a, b), distance)| RestContact { a, b, distance })
             .collect();
-        at_rest.sort_by(|x, y| (&x.a, &x.b).cmp(&(&y.a, &y.b)));
-        self.at_rest = at_rest;
     }
 
     /// Every part's frame at `q`.
@@ -520,6 +521,8 @@ pub struct PlanClearance<'a> {
     robot: &'a Robot,
     /// Per plan DoF, the robot's DoF.
     dofs: Vec<usize>,
+    /// Where the robot's other DoFs stay.
+    rest: Vec<f64>,
 }
 
 impl<'a> PlanClearance<'a> {
@@ -537,13 +540,18 @@ impl<'a> PlanClearance<'a> {
                     .ok_or_else(|| format!("the robot has no DoF `{n}`"))
             })
             .collect::<Result<_, _>>()?;
-        Ok(Self { body, robot, dofs })
+        Ok(Self {
+            body,
+            robot,
+            dofs,
+            rest: rest_pose(robot),
+        })
     }
 }
 
 impl crate::plan::Clearance for PlanClearance<'_> {
     fn contact(&self, q: &[f64], extra: f64) -> Option<crate::plan::Touch> {
-        let mut pose = rest_pose(self.robot);
+        let mut pose = self.rest.clone();
         for (&d, &v) in self.dofs.iter().zip(q) {
             pose[d] = v;
         }
@@ -555,6 +563,23 @@ impl crate::plan::Clearance for PlanClearance<'_> {
                 .filter(|&i| between.contains(&self.dofs[i]))
                 .collect(),
         })
+    }
+
+    fn rules(&self) -> crate::plan::CollisionRules {
+        let body = self.body;
+        crate::plan::CollisionRules {
+            clearance: body.options.clearance,
+            not_checked: body
+                .excluded
+                .iter()
+                .map(|e| [e.a.clone(), e.b.clone()])
+                .collect(),
+            touching_at_rest: body
+                .at_rest
+                .iter()
+                .map(|c| (c.a.clone(), c.b.clone(), c.distance))
+                .collect(),
+        }
     }
 }
 

@@ -98,6 +98,24 @@ pub trait Clearance {
     /// `None` when the pose `q` (rad, one per DoF of the plan) is clear with `extra` m to
     /// spare beyond what is allowed; else what touches.
     fn contact(&self, q: &[f64], extra: f64) -> Option<Touch>;
+
+    /// What counts as a contact, recorded with the plan.
+    fn rules(&self) -> CollisionRules;
+}
+
+/// What counts as a contact.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct CollisionRules {
+    /// The smallest distance allowed between two links, m.
+    #[serde(default)]
+    pub clearance: f64,
+    /// Link pairs that are not checked (adjacent, or disabled by the SRDF).
+    #[serde(default)]
+    pub not_checked: Vec<[String; 2]>,
+    /// Link pairs that touch at the rest pose, with their signed distance there, m: they may
+    /// not come nearer by more than the slack.
+    #[serde(default)]
+    pub touching_at_rest: Vec<(String, String, f64)>,
 }
 
 /// What touches at a pose, and the DoFs that move the two apart.
@@ -122,16 +140,9 @@ pub struct CollisionCheck {
     pub checked: usize,
     /// Where the finished program still touches (the structure part, which has no choice).
     pub contacts: Vec<PlannedContact>,
-    /// The smallest distance allowed between two links, m.
-    #[serde(default)]
-    pub clearance: f64,
-    /// Link pairs that are not checked (adjacent, or disabled by the SRDF).
-    #[serde(default)]
-    pub not_checked: Vec<[String; 2]>,
-    /// Link pairs that touch at the rest pose, with their signed distance there, m: they may
-    /// not come nearer by more than the slack.
-    #[serde(default)]
-    pub touching_at_rest: Vec<(String, String, f64)>,
+    /// What counted as a contact.
+    #[serde(flatten)]
+    pub rules: CollisionRules,
 }
 
 /// A contact left in a program.
@@ -934,9 +945,7 @@ impl Plan {
             redrawn_sweeps: guard.redrawn_sweeps,
             checked: n + 1,
             contacts,
-            clearance: 0.0,
-            not_checked: Vec::new(),
-            touching_at_rest: Vec::new(),
+            rules: clearance.rules(),
         }
     }
 
@@ -1244,15 +1253,15 @@ impl Guard<'_> {
     /// half and at the whole of the pattern's `excursion` (the pattern moves a DoF one way).
     fn pose_contact(&self, q: &[f64], slots: &[Vec<usize>], excursion: f64) -> Option<Touch> {
         let clearance = self.clearance?;
-        let spare = |q: &[f64]| clearance.contact(q, 0.0);
-        spare(q).or_else(|| {
+        let touch = |q: &[f64]| clearance.contact(q, 0.0);
+        touch(q).or_else(|| {
             slots.iter().find_map(|slot| {
                 [0.5, 1.0].iter().find_map(|share| {
                     let mut moved = q.to_vec();
                     for &d in slot {
                         moved[d] += excursion * share;
                     }
-                    spare(&moved)
+                    touch(&moved)
                 })
             })
         })
