@@ -604,17 +604,6 @@ fn structure_of(
     Ok((structure, source))
 }
 
-/// The paper's serial chains of a structure (or the DoFs in listed order).
-fn chains_of(
-    set: &skincal::measurements::MeasurementSet,
-    structure: Option<&skincal::explore::Structure>,
-) -> Result<Vec<SerialChain>> {
-    Ok(match structure {
-        Some(s) => estimate::serial_chains(s)?,
-        None => vec![estimate::chain_in_listed_order(set)?],
-    })
-}
-
 fn calibrate(args: CalibrateArgs) -> Result<()> {
     if args.json {
         out::json_mode();
@@ -655,22 +644,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
             &dir,
         );
     }
-    let mut chains = chains_of(&set, structure.as_ref())?;
-    if let Some(limb) = &args.limb {
-        let known = chains
-            .iter()
-            .map(|c| c.name.clone())
-            .collect::<Vec<_>>()
-            .join(", ");
-        chains.retain(|c| &c.name == limb);
-        if chains.is_empty() {
-            return Err(estimate::EstimateError::UnknownLimb {
-                limb: limb.clone(),
-                known,
-            }
-            .into());
-        }
-    }
+    let chains = estimate::paper::chains(&set, structure.as_ref(), args.limb.as_deref())?;
     let config = PaperConfig {
         seed: args.seed,
         e_stop: args.e_stop,
@@ -681,7 +655,13 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     let mut estimates = Vec::new();
     for chain in &chains {
         let data = ChainData::new(&set, chain)?;
-        let estimate = estimate::paper::estimate_chain(&data, &config)?;
+        let busy = out::spinner(&format!(
+            "limb {}: the paper's progressive steps",
+            chain.name
+        ));
+        let estimate = estimate::paper::estimate_chain(&data, &config);
+        busy.finish_and_clear();
+        let estimate = estimate?;
         outln!(
             "limb {} ({} DoFs, {} training poses)\n",
             chain.name,
@@ -710,7 +690,8 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         outln!();
         estimates.push(estimate);
     }
-    let model = serde_json::json!({ "format": "skincal-model-paper", "version": 1, "method": "paper", "limbs": estimates });
+    let model = estimate::paper::PaperModel::new(estimates);
+    let estimates = &model.limbs;
     let out = dir.join(model_file("model-paper", args.limb.as_deref()));
     io::write_all(
         &[(out.clone(), serde_json::to_string_pretty(&model)?)],

@@ -49,6 +49,22 @@ fn call(callback: &Option<Py<PyAny>>, stage: &str, done: u64, total: u64) {
     }
 }
 
+/// The SU frames of `robot` at `q` as 4×4 arrays.
+fn su_frames_at<'py>(
+    py: Python<'py>,
+    robot: &skincal::model::Robot,
+    q: &[f64],
+) -> Vec<Bound<'py, PyArray2<f64>>> {
+    let k = skincal::model::forward_kinematics(&robot.model, &robot.parameters, q);
+    k.sus
+        .iter()
+        .map(|t| {
+            let m = t.to_homogeneous();
+            Array2::from_shape_fn((4, 4), |(i, j)| m[(i, j)]).into_pyarray(py)
+        })
+        .collect()
+}
+
 fn json<T: serde::Serialize>(value: &T) -> PyResult<String> {
     serde_json::to_string_pretty(value).map_err(error)
 }
@@ -390,14 +406,7 @@ impl NativeModel {
                 robot.model.dofs().len()
             )));
         }
-        let k = skincal::model::forward_kinematics(&robot.model, &robot.parameters, &q);
-        Ok(k.sus
-            .iter()
-            .map(|t| {
-                let m = t.to_homogeneous();
-                Array2::from_shape_fn((4, 4), |(i, j)| m[(i, j)]).into_pyarray(py)
-            })
-            .collect())
+        Ok(su_frames_at(py, &robot, &q))
     }
 
     /// The model's DoFs and SUs, in the order of `predict`'s arrays.
@@ -522,6 +531,102 @@ fn calibrate(
         })
         .map_err(error)?;
     Ok(NativeModel { inner })
+}
+
+/// Kinematic estimation by the paper's method (progressive NLopt MLSL-LDS + Nelder–Mead on e_T)
+/// of every serial chain, as `skincal calibrate --method paper`: the structure given, else the
+/// set's own explored, else its DoFs in listed order. `progress(limb, done, total)` is called as
+/// each chain starts and after the last. Returns what `model-paper.json` holds.
+#[pyfunction]
+#[pyo3(signature = (measurements, structure = None, seed = 1, e_stop = 0.1, max_evaluations = 100_000, progress = None))]
+fn calibrate_paper(
+    py: Python<'_>,
+    measurements: &Measurements,
+    structure: Option<&NativeStructure>,
+    seed: u64,
+    e_stop: f64,
+    max_evaluations: u32,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<NativePaperModel> {
+    use skincal::estimate::paper;
+    let config = paper::PaperConfig {
+        seed,
+        e_stop,
+        max_evaluations,
+        ..paper::PaperConfig::default()
+    };
+    let model = py
+        .detach(|| {
+            let explored = match structure {
+                Some(_) => None,
+                None if measurements.inner.structure.is_some() => Some(
+                    skincal::explore::explore(&measurements.inner, &ExploreConfig::default())
+                        .map_err(|e| e.to_string())?,
+                ),
+                None => None,
+            };
+            let structure = structure.map(|s| &s.inner).or(explored.as_ref());
+            if structure.is_some_and(|s| !s.complete) {
+                return Err(
+                    "the explored structure is incomplete (see skincal.explore): fix the \
+                     structure experiment before calibrating"
+                        .to_string(),
+                );
+            }
+            let chains =
+                paper::chains(&measurements.inner, structure, None).map_err(|e| e.to_string())?;
+            paper::estimate_chains(
+                &measurements.inner,
+                &chains,
+                &config,
+                &mut |limb, done, total| call(&progress, limb, done as u64, total as u64),
+            )
+            .map_err(|e| e.to_string())
+        })
+        .map_err(error)?;
+    Ok(NativePaperModel { inner: model })
+}
+
+/// The paper's estimate of every chain (what `model-paper.json` holds).
+#[pyclass(module = "skincal._skincal", name = "NativePaperModel", frozen)]
+struct NativePaperModel {
+    inner: skincal::estimate::paper::PaperModel,
+}
+
+#[pymethods]
+impl NativePaperModel {
+    fn to_json(&self) -> PyResult<String> {
+        json(&self.inner)
+    }
+
+    fn save(&self, path: PathBuf, force: bool) -> PyResult<()> {
+        write(path, json(&self.inner)?, force)
+    }
+
+    /// The SU frames (4×4, m, in the chain's base frame) of chain `limb` at `q` (one angle per
+    /// DoF of the chain).
+    fn su_frames<'py>(
+        &self,
+        py: Python<'py>,
+        limb: usize,
+        q: Vec<f64>,
+    ) -> PyResult<Vec<Bound<'py, PyArray2<f64>>>> {
+        let estimate = self.inner.limbs.get(limb).ok_or_else(|| {
+            error(format!(
+                "limb {limb}: the model has {}",
+                self.inner.limbs.len()
+            ))
+        })?;
+        let robot = estimate.robot();
+        if q.len() != robot.model.dofs().len() || q.iter().any(|v| !v.is_finite()) {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "pose: {} finite angles expected, one per DoF of limb `{}`",
+                robot.model.dofs().len(),
+                estimate.chain.name
+            )));
+        }
+        Ok(su_frames_at(py, &robot, &q))
+    }
 }
 
 /// Ingests robot logs (MCAP, rosbag2 directories, ROS 1 bags, CSV directories). `plan` is a plan
@@ -662,9 +767,11 @@ fn _skincal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Measurements>()?;
     m.add_class::<NativeStructure>()?;
     m.add_class::<NativeModel>()?;
+    m.add_class::<NativePaperModel>()?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(explore, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_paper, m)?)?;
     m.add_function(wrap_pyfunction!(ingest, m)?)?;
     m.add_function(wrap_pyfunction!(plan, m)?)?;
     m.add_function(wrap_pyfunction!(robots, m)?)?;

@@ -106,6 +106,67 @@ def test_calibrate_returns_the_clis_model_byte_for_byte(tmp_path):
         assert np.array_equal(a, b)
 
 
+def _rz(t):
+    c, s = np.cos(t), np.sin(t)
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    return m
+
+
+def _rx(t):
+    c, s = np.cos(t), np.sin(t)
+    m = np.eye(4)
+    m[1:3, 1:3] = [[c, -s], [s, c]]
+    return m
+
+
+def _shift(x=0.0, z=0.0):
+    m = np.eye(4)
+    m[0, 3], m[2, 3] = x, z
+    return m
+
+
+def test_the_papers_method_gives_the_clis_chains_and_frames_by_eq_5_and_7(tmp_path):
+    cli("simulate", "--robot", "paper-7dof", "--seed", "3", "--out", "sim", cwd=tmp_path)
+    cli("calibrate", "sim", "--method", "paper", cwd=tmp_path)
+    calls = []
+    model = skincal.calibrate(
+        tmp_path / "sim", method="paper", progress=lambda *c: calls.append(c)
+    )
+    assert isinstance(model, skincal.PaperModel)
+    assert calls[0] == ("S7", 0, 1) and calls[-1][1:] == (1, 1)
+    # The CLI's file, but for the wall times.
+    def timeless(text):
+        data = json.loads(text)
+        for limb in data["limbs"]:
+            for step in limb["steps"]:
+                step.pop("seconds")
+        return data
+    assert timeless(model.to_json()) == timeless((tmp_path / "sim" / "model-paper.json").read_text())
+    (limb,) = model.limbs
+    assert limb.dofs == [f"dof{k}" for k in range(1, 8)] and limb.dof_dof.shape == (6, 4)
+    assert limb.dof_su.shape == (7, 6) and len(limb.steps) == 7
+    # The SU frames by the paper's chain (eq. 4, 5 and 7), written here from the DH tables.
+    q = np.random.default_rng(2).uniform(-1, 1, 7)
+    frames = model.su_frames("S7", q)
+    segment = np.eye(4)
+    for k, su in enumerate(limb.sus):
+        t0, d, a, al, tacc, dacc = limb.dof_su[k]
+        expected = segment @ _rz(q[k] + t0) @ _shift(z=d) @ _shift(x=a) @ _rx(al) @ _rz(tacc) @ _shift(z=dacc)
+        assert np.allclose(frames[su], expected, atol=1e-12), su
+        if k < 6:
+            t0, d, a, al = limb.dof_dof[k]
+            segment = segment @ _rz(q[k] + t0) @ _shift(z=d) @ _shift(x=a) @ _rx(al)
+    with pytest.raises(ValueError):
+        model.su_frames("S7", np.full(7, np.nan))
+    with pytest.raises(KeyError):
+        model.su_frames("S8", q)
+    with pytest.raises(ValueError):
+        skincal.calibrate(tmp_path / "sim", method="paper", noise=0.01)
+    model.save(tmp_path / "again.json")
+    assert json.loads((tmp_path / "again.json").read_text()) == json.loads(model.to_json())
+
+
 def test_ingest_and_plan_give_what_the_cli_gives(tmp_path, monkeypatch):
     cli("plan", "--robot", "paper-7dof", "--poses", "3", "--out", "p", cwd=tmp_path)
     cli("record", "--robot", "paper-7dof", "--plan", "p/plan.json", "--out", "up.mcap", cwd=tmp_path)

@@ -88,6 +88,8 @@ __all__ = [
     "Model",
     "Limb",
     "Validation",
+    "PaperModel",
+    "PaperLimb",
     "simulate",
     "explore",
     "calibrate",
@@ -525,24 +527,115 @@ def explore(measurements: Union[MeasurementSet, Path]) -> Structure:
     return Structure(_skincal.explore(_measurement_set(measurements)._native))
 
 
+@dataclass(frozen=True)
+class PaperLimb:
+    """One chain as the paper's method estimated it (Fig. 6): ``dof_dof`` the DoF-to-DoF DH rows
+    (theta0, d, a, alpha per row, rad and m), ``dof_su`` the DoF-to-SU rows (also theta_acc,
+    d_acc), ``fixed`` the parameters the data cannot determine, ``steps`` the progressive steps
+    (SU, excited DoFs, evaluations, seconds, e_T in g², NLopt's stop)."""
+
+    name: str
+    dofs: List[str]
+    sus: List[str]
+    dof_dof: np.ndarray
+    dof_su: np.ndarray
+    fixed: List[str]
+    steps: List[dict]
+
+    @property
+    def converged(self) -> bool:
+        """Whether every step reached e_T ≤ e_stop."""
+        return all(s["converged"] for s in self.steps)
+
+    @property
+    def evaluations(self) -> int:
+        return sum(s["evaluations"] for s in self.steps)
+
+
+class PaperModel:
+    """The paper's estimate of every serial chain: what ``skincal calibrate --method paper``
+    writes to ``model-paper.json``."""
+
+    def __init__(self, native: "_skincal.NativePaperModel"):
+        self._native = native
+
+    @cached_property
+    def _data(self) -> dict:
+        return json.loads(self._native.to_json())
+
+    def save(self, path: Path, force: bool = False) -> None:
+        """Writes ``model-paper.json``, whole or not at all."""
+        self._native.save(str(path), force)
+
+    def to_json(self) -> str:
+        return self._native.to_json()
+
+    @property
+    def limbs(self) -> List[PaperLimb]:
+        dh = ("theta0", "d", "a", "alpha")
+        su = dh + ("theta_acc", "d_acc")
+        return [
+            PaperLimb(
+                name=e["chain"]["name"],
+                dofs=list(e["chain"]["dofs"]),
+                sus=list(e["chain"]["sus"]),
+                dof_dof=np.array([[r[k] for k in dh] for r in e["dof_dof"]]).reshape(-1, 4),
+                dof_su=np.array([[r[k] for k in su] for r in e["dof_su"]]).reshape(-1, 6),
+                fixed=list(e["fixed"]),
+                steps=list(e["steps"]),
+            )
+            for e in self._data["limbs"]
+        ]
+
+    def su_frames(self, limb: str, pose: np.ndarray) -> Dict[str, np.ndarray]:
+        """Each SU's frame (4×4, m) of chain ``limb`` at ``pose`` (one angle per DoF of the
+        chain, rad), in the chain's base frame."""
+        names = [l.name for l in self.limbs]
+        if limb not in names:
+            raise KeyError(f"limb {limb!r}: the model has {', '.join(names)}")
+        i = names.index(limb)
+        q = np.asarray(pose, dtype=float).ravel()
+        frames = self._native.su_frames(i, q.tolist())
+        return dict(zip(self.limbs[i].sus, frames))
+
+    def __repr__(self) -> str:
+        limbs = self.limbs
+        done = sum(l.converged for l in limbs)
+        return f"<PaperModel: {len(limbs)} chains, {done} converged>"
+
+
 def calibrate(
     measurements: Union[MeasurementSet, Path],
     structure: Optional[Structure] = None,
     method: str = "ml",
     noise: Optional[float] = None,
     progress: Optional[Callable[[str, int, int], None]] = None,
-) -> Model:
-    """Kinematic estimation of every limb by maximum likelihood (``method="ml"``; the paper's
-    method is ``skincal calibrate --method paper``). ``structure`` defaults to exploring the set's
-    structure experiment; ``noise`` (g, uniform) weights every reading alike instead of by its own
-    standard deviation, as ``skincal calibrate --noise``; ``progress(limb, done, total)`` is called
-    as each limb is calibrated. ``measurements`` may be the path of a set or of its directory."""
-    if method != "ml":
-        raise ValueError(f"method {method!r}: the Python package calibrates with 'ml'")
+    seed: int = 1,
+    e_stop: float = 0.1,
+    max_evaluations: int = 100_000,
+) -> Union[Model, PaperModel]:
+    """Kinematic estimation of every limb, as ``skincal calibrate``.
+
+    ``method="ml"`` (the default) fits every limb by maximum likelihood and returns a
+    :class:`Model`; ``noise`` (g, uniform) weights every reading alike instead of by its own
+    standard deviation, as ``--noise``. ``method="paper"`` runs the paper's estimator
+    (progressive MLSL-LDS + Nelder–Mead on e_T) on every serial chain and returns a
+    :class:`PaperModel`; ``seed``, ``e_stop`` (g²) and ``max_evaluations`` (per step) are its
+    settings, as ``--seed``, ``--e-stop`` and ``--max-evaluations``. ``structure`` defaults to
+    exploring the set's structure experiment; ``progress(limb, done, total)`` is called as each
+    limb is calibrated. ``measurements`` may be the path of a set or of its directory."""
+    if method not in ("ml", "paper"):
+        raise ValueError(f"method {method!r}: use 'ml' or 'paper'")
     measurements = _measurement_set(measurements)
-    native = _skincal.calibrate(
-        measurements._native, None if structure is None else structure._native, noise, progress
-    )
+    native_structure = None if structure is None else structure._native
+    if method == "paper":
+        if noise is not None:
+            raise ValueError("noise: the paper's method weighs no reading; leave it out")
+        native = _skincal.calibrate_paper(
+            measurements._native, native_structure, seed, e_stop, max_evaluations, progress
+        )
+        return PaperModel(native)
+    native = _skincal.calibrate(measurements._native, native_structure, noise, progress)
     return Model(native)
 
 

@@ -66,6 +66,11 @@ class NativeModel:
     def validate(self, other: Measurements) -> str: ...
     def to_urdf(self) -> str: ...
 
+class NativePaperModel:
+    def to_json(self) -> str: ...
+    def save(self, path: str, force: bool = False) -> None: ...
+    def su_frames(self, limb: int, q: List[float]) -> List[npt.NDArray[np.float64]]: ...
+
 def simulate(
     robot: str,
     poses: int = 20,
@@ -83,6 +88,14 @@ def calibrate(
     noise: Optional[float] = None,
     progress: Optional[Callable[[str, int, int], None]] = None,
 ) -> NativeModel: ...
+def calibrate_paper(
+    measurements: Measurements,
+    structure: Optional[NativeStructure] = None,
+    seed: int = 1,
+    e_stop: float = 0.1,
+    max_evaluations: int = 100000,
+    progress: Optional[Callable[[str, int, int], None]] = None,
+) -> NativePaperModel: ...
 def ingest(
     logs: List[str],
     plan: Optional[str] = None,

@@ -30,7 +30,12 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use skincal_nlopt::{Algorithm, Optimizer};
 
-use super::{dh_chain_robot, ChainData, DhRow, EstimateError, SerialChain, SuRow};
+use super::{
+    chain_in_listed_order, dh_chain_robot, serial_chains, ChainData, DhRow, EstimateError,
+    SerialChain, SuRow,
+};
+use crate::explore::Structure;
+use crate::measurements::MeasurementSet;
 use crate::model::forward_kinematics;
 use crate::model::sensor::{peak_dynamic_accelerations_at, STANDARD_GRAVITY};
 use crate::model::Robot;
@@ -123,6 +128,76 @@ impl PaperChainEstimate {
     pub fn seconds(&self) -> f64 {
         self.steps.iter().map(|s| s.seconds).sum()
     }
+}
+
+/// What `model-paper.json` holds: the paper's estimate of every chain of a set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PaperModel {
+    /// `skincal-model-paper`.
+    pub format: String,
+    /// The file format's version (1).
+    pub version: u32,
+    /// `paper`.
+    pub method: String,
+    /// One estimate per chain, in the structure's order.
+    pub limbs: Vec<PaperChainEstimate>,
+}
+
+impl PaperModel {
+    /// The file of these chain estimates.
+    pub fn new(limbs: Vec<PaperChainEstimate>) -> Self {
+        Self {
+            format: "skincal-model-paper".into(),
+            version: 1,
+            method: "paper".into(),
+            limbs,
+        }
+    }
+}
+
+/// The paper's serial chains of a set: those of its structure, or, without one, its DoFs in their
+/// listed order as one chain. `limb` keeps the chain of that name alone (an error lists the others).
+pub fn chains(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    limb: Option<&str>,
+) -> Result<Vec<SerialChain>, EstimateError> {
+    let mut chains = match structure {
+        Some(s) => serial_chains(s)?,
+        None => vec![chain_in_listed_order(set)?],
+    };
+    if let Some(limb) = limb {
+        let known = chains
+            .iter()
+            .map(|c| c.name.clone())
+            .collect::<Vec<_>>()
+            .join(", ");
+        chains.retain(|c| c.name == limb);
+        if chains.is_empty() {
+            return Err(EstimateError::UnknownLimb {
+                limb: limb.into(),
+                known,
+            });
+        }
+    }
+    Ok(chains)
+}
+
+/// The paper's estimate of every chain of [`chains`], one after another; `progress(chain, done,
+/// total)` is called before each and after the last.
+pub fn estimate_chains(
+    set: &MeasurementSet,
+    chains: &[SerialChain],
+    config: &PaperConfig,
+    progress: &mut dyn FnMut(&str, usize, usize),
+) -> Result<PaperModel, EstimateError> {
+    let mut limbs = Vec::with_capacity(chains.len());
+    for (i, chain) in chains.iter().enumerate() {
+        progress(&chain.name, i, chains.len());
+        limbs.push(estimate_chain(&ChainData::new(set, chain)?, config)?);
+    }
+    progress("", chains.len(), chains.len());
+    Ok(PaperModel::new(limbs))
 }
 
 /// The paper's `e_T` of step `n` (0-based SU index) for the full step parameter vector
