@@ -114,7 +114,7 @@ fn export_into(
     };
     let merged = match (folder(into), folder(&out)) {
         (Some(from), Some(to)) if from != to && !args.snippet => {
-            skincal::align::absolute_file_names(&merged, &from)
+            skincal::align::relocated(&merged, &from)
         }
         _ => merged,
     };

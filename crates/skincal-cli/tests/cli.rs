@@ -885,6 +885,100 @@ fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
 /// MuJoCo's own collision detection on every 10 ms of the motion and at every training pose;
 /// a pose skincal finds in collision, put into a plan by hand, fails the same check.
 #[test]
+fn the_merged_urdf_loads_in_mujoco_where_the_robots_own_did_with_one_body_per_su() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
+        .map(std::path::PathBuf::from)
+        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let stock = std::fs::read_to_string(root.join("panda_description/urdf/panda.urdf"))
+        .unwrap()
+        .replace("type=\"prismatic\"", "type=\"fixed\"");
+    let meshes = root.join("panda_description/meshes/collision");
+    // Two ways a robot's URDF loads in MuJoCo: its own block strips the `package://` names and
+    // the meshes lie beside it; or its names are relative to its folder.
+    let beside = d.join("beside");
+    let relative = d.join("relative");
+    std::fs::create_dir_all(relative.join("meshes/collision")).unwrap();
+    std::fs::create_dir_all(&beside).unwrap();
+    for mesh in std::fs::read_dir(&meshes).unwrap() {
+        let mesh = mesh.unwrap().path();
+        let name = mesh.file_name().unwrap();
+        std::fs::copy(&mesh, beside.join(name)).unwrap();
+        std::fs::copy(&mesh, relative.join("meshes/collision").join(name)).unwrap();
+    }
+    std::fs::write(
+        beside.join("panda.urdf"),
+        stock.replacen(
+            "</robot>",
+            "<mujoco><compiler strippath=\"true\"/></mujoco></robot>",
+            1,
+        ),
+    )
+    .unwrap();
+    std::fs::write(
+        relative.join("panda.urdf"),
+        stock.replace(
+            "package://example-robot-data/robots/panda_description/meshes/",
+            "meshes/",
+        ),
+    )
+    .unwrap();
+    let urdf = relative.join("panda.urdf");
+    for args in [
+        vec![
+            "simulate",
+            "--robot",
+            urdf.to_str().unwrap(),
+            "--out",
+            "sim",
+        ],
+        vec!["explore", "sim"],
+        vec!["calibrate", "sim"],
+    ] {
+        let out = skincal(&args, d);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    }
+    let sus = {
+        let model: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("sim/model.json")).unwrap())
+                .unwrap();
+        model["robot"]["sus"].as_array().unwrap().len()
+    };
+    let placed = sus - 1; // the SU on the base: only its tilt is known, not placed
+    for (into, out) in [
+        ("beside/panda.urdf", "elsewhere/beside.urdf"),
+        ("relative/panda.urdf", "elsewhere/relative.urdf"),
+        ("relative/panda.urdf", "relative/panda-skin.urdf"),
+    ] {
+        std::fs::create_dir_all(d.join("elsewhere")).unwrap();
+        let export = skincal(
+            &[
+                "export-urdf",
+                "sim/model.json",
+                "--into",
+                into,
+                "--out",
+                out,
+            ],
+            d,
+        );
+        assert!(export.status.success(), "{into}: {}", stderr(&export));
+        let check = python_script("mujoco_model.py", &["merged", out, &placed.to_string()], d);
+        let printed = String::from_utf8_lossy(&check.stdout);
+        assert!(
+            check.status.success(),
+            "{into} → {out}: {printed}{}",
+            stderr(&check)
+        );
+        assert!(
+            printed.contains(&format!("{placed} SU bodies")) && printed.contains("9 meshes"),
+            "{printed}"
+        );
+    }
+}
+
+#[test]
 fn planned_programs_keep_clear_of_the_robots_body_by_mujocos_collision_check() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

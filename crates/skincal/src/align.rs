@@ -724,8 +724,10 @@ pub fn merge_sus(
             j = xml_escape(&joint),
         ));
     }
+    // MuJoCo's URDF reader would fuse the SU links into their parents: its block says not to,
+    // unless the robot's own says otherwise.
+    let urdf_text = &with_compiler_attribute(urdf_text, "fusestatic", "false");
     if !snippet && !urdf_text.contains("<mujoco") {
-        // MuJoCo's URDF reader would fuse the SU links into their parents.
         block.push_str(&format!(
             "  <mujoco><compiler fusestatic=\"false\"/></mujoco>{newline}"
         ));
@@ -754,10 +756,48 @@ pub fn merge_sus(
     Ok(text)
 }
 
-/// The URDF `text`, read from the folder `from`, with its relative file names (meshes, textures)
-/// made absolute, so that it loads from any other folder; `package://` and `file://` names, which
-/// do not depend on the file's folder, are kept.
-pub fn absolute_file_names(text: &str, from: &std::path::Path) -> String {
+/// The URDF `text`, read from the folder `from`, made to load from any other folder as it loaded
+/// from there: its relative file names (meshes, textures) made absolute (`package://` and
+/// `file://` names, which do not depend on the file's folder, are kept), and the `<compiler>` of
+/// its `<mujoco>` block given `meshdir="from"` when it has none — MuJoCo's URDF reader strips file
+/// names to their last part by default and looks for them beside the model, so a robot whose
+/// meshes lie beside its URDF is found there again.
+pub fn relocated(text: &str, from: &std::path::Path) -> String {
+    let text = absolute_file_names(text, from);
+    with_compiler_attribute(&text, "meshdir", &from.to_string_lossy())
+}
+
+/// `text` with `name="value"` on the `<compiler>` of its `<mujoco>` block (one made when the
+/// block has none) unless the compiler sets it already; as it is without a `<mujoco>` block.
+fn with_compiler_attribute(text: &str, name: &str, value: &str) -> String {
+    let Some(block) = text.find("<mujoco") else {
+        return text.to_string();
+    };
+    let block_end = text[block..]
+        .find("</mujoco>")
+        .map_or(text.len(), |i| block + i);
+    let attribute = format!(" {name}=\"{}\"", crate::show::xml_escape(value));
+    let Some(at) = text[block..block_end].find("<compiler").map(|i| block + i) else {
+        // No compiler: one right after the block's opening tag.
+        let Some(open) = text[block..].find('>').map(|i| block + i + 1) else {
+            return text.to_string();
+        };
+        if text[..open].ends_with("/>") {
+            return text.to_string();
+        }
+        return format!("{}<compiler{attribute}/>{}", &text[..open], &text[open..]);
+    };
+    let end = text[at..].find('>').map_or(text.len(), |i| at + i);
+    if text[at..end].contains(&format!(" {name}=")) || text[at..end].contains(&format!("\t{name}="))
+    {
+        return text.to_string();
+    }
+    let at = at + "<compiler".len();
+    format!("{}{attribute}{}", &text[..at], &text[at..])
+}
+
+/// The URDF `text`, read from the folder `from`, with its relative file names made absolute.
+fn absolute_file_names(text: &str, from: &std::path::Path) -> String {
     const KEY: &str = "filename=\"";
     let mut out = String::with_capacity(text.len());
     let mut rest = text;

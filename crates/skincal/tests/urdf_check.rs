@@ -259,9 +259,10 @@ fn the_merge_keeps_the_files_line_endings_and_a_closing_tag_on_a_line_of_its_own
 }
 
 #[test]
-fn relative_mesh_names_become_absolute_and_package_names_stay() {
+fn a_relocated_urdf_names_its_meshes_absolutely_keeps_package_names_and_tells_mujoco_where_they_were(
+) {
     let text = r#"<robot name="r"><link name="a"><visual><geometry><mesh filename="../meshes/a.stl"/></geometry></visual><collision><geometry><mesh filename="package://r/meshes/a.stl" scale="1 1 1"/></geometry></collision></link><link name="b"><visual><geometry><mesh filename="/opt/b.dae"/></geometry></visual></link></robot>"#;
-    let out = skincal::align::absolute_file_names(text, std::path::Path::new("/home/u/r/urdf"));
+    let out = skincal::align::relocated(text, std::path::Path::new("/home/u/r/urdf"));
     assert!(
         out.contains(r#"filename="/home/u/r/urdf/../meshes/a.stl""#),
         "{out}"
@@ -272,4 +273,18 @@ fn relative_mesh_names_become_absolute_and_package_names_stay() {
     );
     assert!(out.contains(r#"filename="/opt/b.dae""#), "{out}");
     assert_eq!(out.len(), text.len() + "/home/u/r/urdf/".len());
+    // A MuJoCo block: its compiler looks for the meshes' last names where the file was, unless
+    // it says where already.
+    let with_block = text.replace(
+        "</robot>",
+        r#"<mujoco><compiler fusestatic="false"/></mujoco></robot>"#,
+    );
+    let out = skincal::align::relocated(&with_block, std::path::Path::new("/home/u/r/urdf"));
+    assert!(
+        out.contains(r#"<compiler meshdir="/home/u/r/urdf" fusestatic="false"/>"#),
+        "{out}"
+    );
+    let told = with_block.replace("<compiler ", r#"<compiler meshdir="m" "#);
+    let out = skincal::align::relocated(&told, std::path::Path::new("/home/u/r/urdf"));
+    assert!(out.contains(r#"<compiler meshdir="m" fusestatic"#), "{out}");
 }
