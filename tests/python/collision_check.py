@@ -3,7 +3,8 @@
     python3 collision_check.py PLAN_DIR URDF DESCRIPTIONS
         Loads URDF in MuJoCo (its package://example-robot-data/robots/ meshes taken from the
         folder DESCRIPTIONS; links kept as bodies, visual geometry dropped, meshes collided as
-        their convex hulls, as MuJoCo does), then sets every row of PLAN_DIR/trajectory.csv (the
+        their convex hulls, as MuJoCo does; Collada meshes, which MuJoCo does not read, converted
+        to STL here from the Collada specification, their <up_axis> applied), then sets every row of PLAN_DIR/trajectory.csv (the
         planned motion) and every training pose of plan.json, and runs MuJoCo's collision
         detection. A contact (MuJoCo reports geoms that overlap) between two links fails the
         check unless plan.json's collision check lists the pair as not checked (adjacent links,
@@ -20,9 +21,13 @@ import csv
 import json
 import os
 import re
+import struct
 import sys
+import tempfile
+import xml.etree.ElementTree as ET
 
 import mujoco
+import numpy as np
 
 # skincal's slack for pairs that touch at rest and its grace on paths between poses, m.
 SLACK = 0.005 + 0.002
@@ -34,12 +39,79 @@ def fail(message):
     sys.exit(1)
 
 
+# Collada's <up_axis> as a rotation onto Z up (COLLADA 1.4.1 specification, 5-112: Y_UP is the
+# default of many tools; X_UP and Y_UP are turned so that their up direction becomes +Z).
+UP_AXIS = {
+    "Z_UP": np.eye(3),
+    "Y_UP": np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]),
+    "X_UP": np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
+}
+
+
+def collada_to_stl(dae, stl):
+    """Every triangle of the Collada file's geometries (polylists, triangles, polygons, fanned),
+    in metres along its <unit>, Z up, written as binary STL. Refuses scene transforms, which the
+    robots checked here do not use."""
+    ns = {"c": "http://www.collada.org/2005/11/COLLADASchema"}
+    root = ET.parse(dae).getroot()
+    up = root.findtext("c:asset/c:up_axis", "Y_UP", ns).strip()
+    unit = root.find("c:asset/c:unit", ns)
+    scale = float(unit.get("meter", "1")) if unit is not None else 1.0
+    for tag in ("matrix", "translate", "rotate", "scale", "instance_node"):
+        if root.find(f".//c:library_visual_scenes//c:{tag}", ns) is not None:
+            fail(f"{dae}: a <{tag}> in the scene, which this converter does not apply")
+    triangles = []
+    for mesh in root.findall("c:library_geometries/c:geometry/c:mesh", ns):
+        vertices = mesh.find("c:vertices", ns)
+        position = vertices.find("c:input[@semantic='POSITION']", ns).get("source")[1:]
+        source = mesh.find(f"c:source[@id='{position}']", ns)
+        points = np.array(source.findtext("c:float_array", "", ns).split(), float).reshape(-1, 3)
+        points = points * scale @ UP_AXIS[up].T
+        for kind in ("triangles", "polylist", "polygons"):
+            for prims in mesh.findall(f"c:{kind}", ns):
+                inputs = prims.findall("c:input", ns)
+                stride = max(int(i.get("offset", 0)) for i in inputs) + 1
+                offset = int(next(i for i in inputs if i.get("semantic") == "VERTEX").get("offset", 0))
+                blocks = [prims.findtext("c:p", "", ns)] if kind != "polygons" else [
+                    p.text or "" for p in prims.findall("c:p", ns)
+                ]
+                for block in blocks:
+                    index = np.array(block.split(), int)[offset::stride]
+                    if kind == "triangles":
+                        counts = [3] * (len(index) // 3)
+                    elif kind == "polylist":
+                        counts = [int(v) for v in prims.findtext("c:vcount", "", ns).split()]
+                    else:
+                        counts = [len(index)]
+                    at = 0
+                    for n in counts:
+                        polygon = index[at : at + n]
+                        at += n
+                        for k in range(1, n - 1):
+                            triangles.append(points[[polygon[0], polygon[k], polygon[k + 1]]])
+    if not triangles:
+        fail(f"{dae}: no triangles")
+    with open(stl, "wb") as f:
+        f.write(b"\0" * 80 + struct.pack("<I", len(triangles)))
+        for t in triangles:
+            f.write(struct.pack("<12fH", 0, 0, 0, *t.ravel(), 0))
+
+
 def load(urdf, descriptions):
     with open(urdf) as f:
         text = f.read()
     text = text.replace(
         "package://example-robot-data/robots/", os.path.abspath(descriptions) + "/"
     ).replace('filename="file://', 'filename="')
+    # Visual geometry is not collided; Collada collision meshes become STL files.
+    text = re.sub(r"<visual>.*?</visual>", "", text, flags=re.S)
+    scratch = tempfile.mkdtemp(prefix="collision_check_")
+    def converted(match):
+        dae = match.group(1)
+        stl = os.path.join(scratch, f"{len(os.listdir(scratch))}.stl")
+        collada_to_stl(dae, stl)
+        return f'filename="{stl}"'
+    text = re.sub(r'filename="([^"]+\.dae)"', converted, text, flags=re.I)
     # MuJoCo needs mass on every moving link; a description without inertials gets a small one.
     text = re.sub(
         r"<link name=\"([^\"]+)\"\s*/>",

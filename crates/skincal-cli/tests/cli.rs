@@ -1000,10 +1000,13 @@ fn planned_programs_keep_clear_of_the_robots_body_by_mujocos_collision_check() {
     };
     let panda = copy("panda_description/urdf/panda.urdf");
     let talos = copy("talos_data/robots/talos_reduced.urdf");
-    // The humanoid's structure part moves from the rest pose, where its hands touch its
-    // thighs: its contacts there are reported (another test), so its training part alone here.
+    let icub = copy("icub_description/robots/icub_reduced.urdf");
+    // The humanoids' structure part moves from the rest pose, where their hands touch their
+    // thighs: its contacts there are reported (another test), so their training part alone here.
+    // iCub's meshes are Collada, which the check converts to STL itself.
     let cases = [
         (&talos, "talos_data/srdf/talos.srdf", "25", true),
+        (&icub, "icub_description/srdf/icub.srdf", "25", true),
         (&panda, "panda_description/srdf/panda.srdf", "150", false),
     ];
     for (urdf, srdf, poses, no_structure) in cases {
