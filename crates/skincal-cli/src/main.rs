@@ -778,6 +778,14 @@ fn calibrate_ml(
         None
     };
     outln!();
+    let bar = out::progress_bar(1, "calibrating");
+    let mut progress = |limb: &str, done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        if !limb.is_empty() {
+            bar.set_message(format!("calibrating (limb {limb} done)"));
+        }
+    };
     let model = match &motion {
         Some(record) => skincal::estimate::body::calibrate_body_on_motion(
             set,
@@ -786,16 +794,19 @@ fn calibrate_ml(
             &config,
             args.limb.as_deref(),
             &args.keep,
-            &mut |_, _, _| {},
-        )?,
-        None => skincal::estimate::body::calibrate_body_keeping(
+            &mut progress,
+        ),
+        None => skincal::estimate::body::calibrate_body_reporting(
             set,
             structure,
             &config,
             args.limb.as_deref(),
             &args.keep,
-        )?,
+            &mut progress,
+        ),
     };
+    bar.finish_and_clear();
+    let model = model?;
     for limb in &model.limbs {
         out!("{}", limb_report(limb, truth)?);
     }
@@ -987,9 +998,33 @@ fn predict(args: PredictArgs) -> Result<()> {
             names.join(", ")
         );
     }
+    let bar = out::progress_bar(1, "predicting");
+    let to_file = args.out.is_some();
+    let mut progress = |p: io::PredictionProgress| match p {
+        io::PredictionProgress::Predicted(poses) => {
+            bar.set_message(format!("predicting: {poses} poses"));
+            bar.tick();
+        }
+        // On standard output the bar would break into the text.
+        io::PredictionProgress::Written { .. } if !to_file => bar.finish_and_clear(),
+        io::PredictionProgress::Written { parts, of } => {
+            bar.set_message("writing");
+            bar.set_length(of as u64);
+            bar.set_position(parts as u64);
+        }
+    };
     match args.out {
         Some(out) => {
-            let poses = io::write_predictions(&predictor, &args.poses, &pattern, &out, args.force)?;
+            let poses = io::write_predictions(
+                &predictor,
+                &args.poses,
+                &pattern,
+                &out,
+                args.force,
+                &mut progress,
+            );
+            bar.finish_and_clear();
+            let poses = poses?;
             outln!(
                 "wrote {} ({poses} poses, {} SUs, pattern A = {} rad/s, f = {} Hz)",
                 out.display(),
@@ -1007,7 +1042,9 @@ fn predict(args: PredictArgs) -> Result<()> {
                 &std::env::temp_dir(),
                 &mut stdout,
                 Path::new("standard output"),
+                &mut progress,
             );
+            bar.finish_and_clear();
             match streamed {
                 // The reader has gone (`| head`): nothing is lost but the rest of the text.
                 Err(io::IoError::Write { path, source })

@@ -332,7 +332,8 @@ fn streamed_predictions_equal_the_in_memory_ones() {
     let path = dir.path().join("poses.csv");
     std::fs::write(&path, csv).unwrap();
     let out = dir.path().join("predicted.json");
-    let n = io::write_predictions(&predictor, &path, &model.pattern, &out, false).unwrap();
+    let n =
+        io::write_predictions(&predictor, &path, &model.pattern, &out, false, &mut |_| {}).unwrap();
     assert_eq!(n, 2);
     let streamed: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     let table = PoseTable::from_csv(csv).unwrap();
@@ -342,10 +343,12 @@ fn streamed_predictions_equal_the_in_memory_ones() {
     assert_eq!(streamed, in_memory);
     // No spill files are left beside the output, and it is not overwritten unasked.
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
-    assert!(io::write_predictions(&predictor, &path, &model.pattern, &out, false).is_err());
+    assert!(
+        io::write_predictions(&predictor, &path, &model.pattern, &out, false, &mut |_| {}).is_err()
+    );
     // A bad row names the file and the line.
     std::fs::write(&path, "dof1,dof2,dof3,dof4,dof5,dof6,dof7\n1,2,3,x,5,6,7\n").unwrap();
-    let e = io::write_predictions(&predictor, &path, &model.pattern, &out, true)
+    let e = io::write_predictions(&predictor, &path, &model.pattern, &out, true, &mut |_| {})
         .unwrap_err()
         .to_string();
     assert!(e.contains("poses.csv") && e.contains("line 2"), "{e}");

@@ -17,7 +17,7 @@ mod body;
 mod predictions;
 
 pub use body::{load_body, resolve_mesh};
-pub use predictions::{stream_predictions, write_predictions};
+pub use predictions::{stream_predictions, write_predictions, Progress as PredictionProgress};
 
 /// Errors reading or writing files; every variant names the file.
 #[derive(Debug, thiserror::Error)]

@@ -21,20 +21,37 @@ pub fn write_predictions(
     pattern: &ExcitationPattern,
     out: &Path,
     force: bool,
+    progress: &mut dyn FnMut(Progress),
 ) -> Result<usize, IoError> {
     let (mut stage, mut file) = Staged::create(out, force).map_err(|e| staging_error(e, out))?;
     let beside = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let count = stream_predictions(predictor, poses, pattern, beside, &mut file, out)?;
+    let count = stream_predictions(predictor, poses, pattern, beside, &mut file, out, progress)?;
     stage.commit().map_err(|e| staging_error(e, out))?;
     Ok(count)
 }
 
+/// How far [`stream_predictions`] has come.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Progress {
+    /// This many poses predicted (how many the file holds is known at its end).
+    Predicted(usize),
+    /// The output written: this many parts of `of` (each SU's static readings, then each SU's
+    /// dynamic readings).
+    Written {
+        /// Parts written.
+        parts: usize,
+        /// Parts in all.
+        of: usize,
+    },
+}
+
 /// Streams the predictions of `predictor` for every pose of the pose file `poses` to `out` (named
 /// `out_path` in errors), as the JSON of [`Predictor::predict`], compact; the arrays are spilled
-/// to a temporary directory in `spill_in`. Returns the number of poses.
+/// to a temporary directory in `spill_in`. Returns the number of poses. `progress` is called after
+/// each pose, then as each SU's arrays are written out.
 pub fn stream_predictions(
     predictor: &Predictor,
     poses: &Path,
@@ -42,6 +59,7 @@ pub fn stream_predictions(
     spill_in: &Path,
     out: &mut dyn Write,
     out_path: &Path,
+    progress: &mut dyn FnMut(Progress),
 ) -> Result<usize, IoError> {
     let mut spill = Spill::create(spill_in)?;
     let mut count = 0usize;
@@ -57,10 +75,11 @@ pub fn stream_predictions(
             }
         }
         count += 1;
+        progress(Progress::Predicted(count));
         Ok(())
     })?;
     spill
-        .write_json(&mut BufWriter::new(out), predictor, pattern)
+        .write_json(&mut BufWriter::new(out), predictor, pattern, progress)
         .map_err(|source| match source {
             Failure::Out(source) => IoError::Write {
                 path: out_path.to_path_buf(),
@@ -197,6 +216,7 @@ impl Spill {
         w: &mut dyn Write,
         predictor: &Predictor,
         pattern: &ExcitationPattern,
+        progress: &mut dyn FnMut(Progress),
     ) -> Result<(), Failure> {
         let (dofs, sus) = (predictor.dofs(), predictor.sus());
         let put = |w: &mut dyn Write, s: &str| w.write_all(s.as_bytes()).map_err(Failure::Out);
@@ -213,10 +233,18 @@ impl Spill {
         for (u, su) in sus.iter().enumerate() {
             put(w, &format!("{}{}:", if u > 0 { "," } else { "" }, json(su)))?;
             self.copy(w, Array::Static(u))?;
+            progress(Progress::Written {
+                parts: u + 1,
+                of: 2 * sus.len(),
+            });
         }
         put(w, "},\"dynamic\":{")?;
         let mut first = true;
         for (u, su) in sus.iter().enumerate() {
+            progress(Progress::Written {
+                parts: sus.len() + u + 1,
+                of: 2 * sus.len(),
+            });
             let moved: Vec<usize> = (0..dofs.len())
                 .filter(|&d| self.arrays.contains_key(&Array::Dynamic(u, d)))
                 .collect();
