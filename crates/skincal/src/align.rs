@@ -758,12 +758,16 @@ pub fn merge_sus(
 
 /// The URDF `text`, read from the folder `from`, made to load from any other folder as it loaded
 /// from there: its relative file names (meshes, textures) made absolute (`package://` and
-/// `file://` names, which do not depend on the file's folder, are kept), and the `<compiler>` of
-/// its `<mujoco>` block given `meshdir="from"` when it has none — MuJoCo's URDF reader strips file
+/// `file://` names, which do not depend on the file's folder, are kept), and, when it names files,
+/// the `<compiler>` of its `<mujoco>` block given `meshdir="from"` when it has none — MuJoCo's URDF reader strips file
 /// names to their last part by default and looks for them beside the model, so a robot whose
 /// meshes lie beside its URDF is found there again.
 pub fn relocated(text: &str, from: &std::path::Path) -> String {
     let text = absolute_file_names(text, from);
+    if !text.contains("filename=\"") {
+        // No file to find: the text stays as the robot's.
+        return text;
+    }
     with_compiler_attribute(&text, "meshdir", &from.to_string_lossy())
 }
 
