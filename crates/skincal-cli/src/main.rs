@@ -105,6 +105,9 @@ enum Command {
 /// Which accelerometer intrinsics `ml` estimates per SU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum IntrinsicsArg {
+    /// Chosen by the data per limb: none, a bias, or a bias and a scale error, each taken only
+    /// when it fits significantly better than the one before (nested F test at 99.9 %).
+    Auto,
     /// Ideal accelerometers.
     None,
     /// A zero-g offset per axis.
@@ -115,10 +118,18 @@ pub(crate) enum IntrinsicsArg {
     Full,
 }
 
+impl IntrinsicsArg {
+    /// Whether the data choose the model (up to the one `into` gives).
+    pub(crate) fn selects(self) -> bool {
+        self == IntrinsicsArg::Auto
+    }
+}
+
 impl From<IntrinsicsArg> for skincal::estimate::ml::IntrinsicsModel {
     fn from(a: IntrinsicsArg) -> Self {
         use skincal::estimate::ml::IntrinsicsModel as M;
         match a {
+            IntrinsicsArg::Auto => M::BiasScale,
             IntrinsicsArg::None => M::None,
             IntrinsicsArg::Bias => M::Bias,
             IntrinsicsArg::BiasScale => M::BiasScale,
@@ -151,7 +162,7 @@ struct CalibrateArgs {
     #[arg(long, value_name = "ID")]
     limb: Option<String>,
     /// Accelerometer intrinsics estimated per SU with the kinematics (method ml).
-    #[arg(long, value_enum, default_value_t = IntrinsicsArg::BiasScale)]
+    #[arg(long, value_enum, default_value_t = IntrinsicsArg::Auto)]
     intrinsics: IntrinsicsArg,
     /// Keep this SU in the fit even if its readings look broken (repeatable; method ml).
     #[arg(long, value_name = "SU")]
@@ -301,7 +312,7 @@ struct BenchCalibrateArgs {
     #[arg(long)]
     random_chains: bool,
     /// Accelerometer intrinsics that `ml` estimates.
-    #[arg(long, value_enum, default_value_t = IntrinsicsArg::BiasScale)]
+    #[arg(long, value_enum, default_value_t = IntrinsicsArg::Auto)]
     intrinsics: IntrinsicsArg,
     /// Simulated bias per SU and axis, uniform in ±G, g.
     #[arg(long, value_name = "G", default_value_t = 0.0)]
@@ -730,6 +741,7 @@ fn calibrate_ml(
     let config = MlConfig {
         noise_sd: uniform * skincal::model::sensor::STANDARD_GRAVITY / 3f64.sqrt(),
         intrinsics: args.intrinsics.into(),
+        select_intrinsics: args.intrinsics.selects(),
         reading_sd: args.noise.is_none(),
         ..MlConfig::default()
     };
@@ -751,7 +763,11 @@ fn calibrate_ml(
     };
     outln!(
         "kinematic estimation, maximum likelihood ({noise}; intrinsics per SU: {}); {source}",
-        config.intrinsics.name()
+        if config.select_intrinsics {
+            format!("up to {}, as the data choose", config.intrinsics.name())
+        } else {
+            config.intrinsics.name().to_string()
+        }
     );
     let motion_path = dir.join("motion.json");
     let motion = if motion_path.exists() && !args.readings_only {
@@ -1174,6 +1190,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
                         &MlConfig {
                             noise_sd: sd.max(1e-6),
                             intrinsics,
+                            select_intrinsics: args.intrinsics.selects(),
                             ..MlConfig::default()
                         },
                     )?;

@@ -385,6 +385,29 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     for r in &e.retries {
         let _ = writeln!(out, "tried: {r}");
     }
+    if !e.intrinsics_tests.is_empty() {
+        let tests: Vec<String> = e
+            .intrinsics_tests
+            .iter()
+            .map(|t| {
+                format!(
+                    "{} against {}: F = {:.2} (+{} parameters), z = {:.1} → {}",
+                    t.model.name(),
+                    t.against.name(),
+                    t.f,
+                    t.parameters,
+                    t.z,
+                    if t.taken { "taken" } else { "not needed" }
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "intrinsics as the data chose: {} ({})",
+            e.intrinsics_model.map_or("?", |m| m.name()),
+            tests.join("; ")
+        );
+    }
     missing_excitations(&mut out, e);
     for u in &e.unobservable {
         let _ = writeln!(

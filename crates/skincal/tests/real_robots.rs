@@ -69,6 +69,14 @@ fn with_two_sus_per_link(file: &std::path::Path, seed: u64) -> Robot {
     .unwrap()
 }
 
+/// The two-sided 99.9 % band of χ² with `k` degrees of freedom (Wilson–Hilferty).
+fn chi2_band(k: usize) -> (f64, f64) {
+    let k = k.max(1) as f64;
+    let a = 2.0 / (9.0 * k);
+    let at = |z: f64| k * (1.0 - a + z * a.sqrt()).powi(3);
+    (at(-3.29), at(3.29))
+}
+
 fn calibrates(path: &str, seeds: &[u64]) {
     let file = description(path);
     for &seed in seeds {
@@ -117,20 +125,33 @@ fn calibrates(path: &str, seeds: &[u64]) {
             check.dynamic_rms
         );
         // The robot's own URDF checked against the calibration: its joints are where the
-        // calibration puts them, within the uncertainty it reports (χ² per degree of freedom near
-        // 1; at 3σ about one joint in 370 is flagged by chance).
+        // calibration puts them, within the uncertainty it reports — χ² of the joints of limbs on
+        // the reference segment within its two-sided 99.9 % band for its degrees of freedom (at
+        // 3σ about one joint in 370 is flagged by chance). A limb on another limb's segment is
+        // fitted with that limb's path and gravity held, whose uncertainty its covariance does
+        // not carry (the check says so at its base): its joints' χ² is printed, not bounded.
         let urdf = std::fs::read_to_string(&file).unwrap();
         let urdf_check = skincal::align::align(&model, &urdf).unwrap().check;
-        let compared: Vec<_> = urdf_check
-            .joints
+        let on_reference: std::collections::BTreeSet<&str> = model
+            .limbs
             .iter()
-            .filter(|j| j.components > 0)
+            .filter(|l| l.parent.is_none())
+            .flat_map(|l| l.dofs.iter().map(String::as_str))
             .collect();
-        let per_dof = compared.iter().map(|j| j.chi2).sum::<f64>()
-            / compared.iter().map(|j| j.components).sum::<usize>().max(1) as f64;
+        let (mut chi2, mut components, mut sub_chi2, mut sub_components) = (0.0, 0, 0.0, 0);
+        for j in urdf_check.joints.iter().filter(|j| j.components > 0) {
+            if on_reference.contains(j.dof.as_str()) {
+                chi2 += j.chi2;
+                components += j.components;
+            } else {
+                sub_chi2 += j.chi2;
+                sub_components += j.components;
+            }
+        }
         eprintln!(
-            "{path}, seed {seed}: {} joints compared, χ²/dof {per_dof:.2}, disagree {:?}",
-            compared.len(),
+            "{path}, seed {seed}: χ²/dof {:.2} over {components} components of limbs on the reference, {:.2} over {sub_components} of limbs on limbs; disagree {:?}",
+            chi2 / components.max(1) as f64,
+            sub_chi2 / sub_components.max(1) as f64,
             urdf_check.disagree
         );
         // Every calibrated DoF is compared or starts a limb.
@@ -142,11 +163,17 @@ fn calibrates(path: &str, seeds: &[u64]) {
                 j.note
             );
         }
+        let (low, high) = chi2_band(components);
         assert!(
-            (0.5..1.6).contains(&per_dof),
-            "{path}, seed {seed}: {per_dof}"
+            (low..high).contains(&chi2),
+            "{path}, seed {seed}: χ² {chi2:.1} over {components} components, outside {low:.1}–{high:.1}"
         );
-        assert!(urdf_check.disagree.len() <= 1, "{:?}", urdf_check.disagree);
+        let disagree_on_reference = urdf_check
+            .disagree
+            .iter()
+            .filter(|d| on_reference.contains(d.as_str()))
+            .count();
+        assert!(disagree_on_reference <= 1, "{:?}", urdf_check.disagree);
     }
 }
 

@@ -35,10 +35,82 @@ fn same_skin_held_out(config: &SimulationConfig) -> SimulationConfig {
     }
 }
 
+/// The estimator with the intrinsics model given, not chosen by the data.
 fn config(intrinsics: IntrinsicsModel) -> MlConfig {
     MlConfig {
         intrinsics,
+        select_intrinsics: false,
         ..MlConfig::default()
+    }
+}
+
+#[test]
+fn the_data_choose_the_intrinsics_ideal_sensors_lose_nothing_and_real_ones_get_their_correction() {
+    // A Panda-like arm of 2 SUs per segment and the humanoid, ideal and real accelerometers;
+    // the default estimator against the same data fitted with each model given.
+    let arm = skincal::sim::robot_like_limb(
+        &skincal::sim::RobotLikeConfig {
+            min_dofs: 7,
+            max_dofs: 7,
+            max_sus_per_segment: 2,
+        },
+        3,
+    )
+    .unwrap();
+    let humanoid = presets::find("humanoid").unwrap().robot().unwrap();
+    for (robot, seed) in [(&arm, 3), (&humanoid, 5)] {
+        let clean = SimulationConfig {
+            seed,
+            ..SimulationConfig::default()
+        };
+        for (sim, wanted) in [
+            (clean.clone(), IntrinsicsModel::None),
+            (real_sensors(seed), IntrinsicsModel::BiasScale),
+        ] {
+            let set = simulate(robot, &sim).unwrap().measurements;
+            let held_out = simulate(robot, &same_skin_held_out(&sim))
+                .unwrap()
+                .measurements;
+            let tree = explore(&set, &ExploreConfig::default()).unwrap();
+            let chosen = calibrate_body(&set, Some(&tree), &MlConfig::default(), None).unwrap();
+            let given = calibrate_body(&set, Some(&tree), &config(wanted), None).unwrap();
+            let mut models = Vec::new();
+            for limb in &chosen.limbs {
+                let e = &limb.estimate;
+                let first = e.intrinsics_tests.first().expect("a test per limb");
+                // Bias against none: far beyond the 99.9 % point on real sensors; a draw of
+                // about N(0, 1) on ideal ones.
+                if wanted == IntrinsicsModel::None {
+                    assert!(first.z.abs() < 3.09, "{}: {first:?}", limb.name);
+                } else {
+                    assert!(first.z > 10.0, "{}: {first:?}", limb.name);
+                }
+                models.push(e.intrinsics_model.unwrap());
+            }
+            if wanted == IntrinsicsModel::None {
+                assert!(models.iter().all(|m| *m == wanted), "{models:?}");
+            } else {
+                // A short limb may not tell a scale from its kinematics: a bias alone there.
+                assert!(
+                    models.iter().all(|m| *m != IntrinsicsModel::None)
+                        && models.iter().filter(|m| **m == wanted).count() * 2 > models.len(),
+                    "{models:?}"
+                );
+            }
+            let a = validate(&chosen, &held_out, "held-out").unwrap();
+            let b = validate(&given, &held_out, "held-out").unwrap();
+            assert!(
+                a.static_rms <= 1.1 * b.static_rms && a.dynamic_rms <= 1.1 * b.dynamic_rms,
+                "{}, {}: chosen {} / {} against {} given {} / {}",
+                robot.model.name(),
+                wanted.name(),
+                a.static_rms,
+                a.dynamic_rms,
+                wanted.name(),
+                b.static_rms,
+                b.dynamic_rms
+            );
+        }
     }
 }
 

@@ -444,7 +444,17 @@ fn on_motion(
         return Ok(estimate);
     };
     let motion = LimbMotion::new(record, &data, config.noise_sd)?;
-    let refined = refine_on_motion(&data, base, start, motion, config)?;
+    // The intrinsics the readings chose: the motion's thousands of rows would take a larger
+    // model for the smallest misfit of the signal chain, and pay for it in variance.
+    let config = match estimate.intrinsics_model {
+        Some(model) if config.select_intrinsics && !data.static_only() => MlConfig {
+            intrinsics: model,
+            select_intrinsics: false,
+            ..*config
+        },
+        _ => *config,
+    };
+    let refined = refine_on_motion(&data, base, start, motion, &config)?;
     Ok(MlChainEstimate {
         joint_orders: estimate.joint_orders,
         retries: estimate.retries,

@@ -87,9 +87,15 @@ pub struct MlConfig {
     /// A parameter direction that the data determine only to worse than this (m or rad) is
     /// reported as unobservable.
     pub observable_limit: f64,
-    /// Which accelerometer intrinsics are estimated with the kinematics.
+    /// Which accelerometer intrinsics are estimated with the kinematics: with
+    /// `select_intrinsics`, the largest model the data may choose.
     #[serde(default)]
     pub intrinsics: IntrinsicsModel,
+    /// Let the data choose the intrinsics: each model from none up to `intrinsics` is taken only
+    /// when it fits significantly better than the one before ([`IntrinsicsTest`]), so that ideal
+    /// sensors are not given parameters that only add variance.
+    #[serde(default)]
+    pub select_intrinsics: bool,
     /// Weight each reading by its own standard deviation where the measurement set gives them all
     /// (ingested logs); `noise_sd` is then only the unit the residuals are reported in.
     #[serde(default = "weigh_by_reading_sd")]
@@ -148,6 +154,7 @@ impl Default for MlConfig {
             vertical_test: 9.21,
             observable_limit: 1.0,
             intrinsics: IntrinsicsModel::default(),
+            select_intrinsics: true,
             reading_sd: true,
         }
     }
@@ -339,6 +346,70 @@ pub struct MotionFit {
     pub skin_delay_sd: f64,
 }
 
+/// A larger intrinsics model against the smaller one before it, fitted to the same readings: the
+/// nested F test, `F = ((χ²_small − χ²_large) / k) / (χ²_large / ν)` with `k` the added
+/// parameters and `ν` the large model's residual degrees of freedom, whose scale does not depend
+/// on the noise assumed. The larger model is taken when `F` lies beyond the 99.9 % point of
+/// F(k, ν) (`z` > 3.09 in Paulson's normal approximation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct IntrinsicsTest {
+    /// The larger model.
+    pub model: IntrinsicsModel,
+    /// The model it was tested against.
+    pub against: IntrinsicsModel,
+    /// Parameters it adds.
+    pub parameters: usize,
+    /// Residual degrees of freedom of the larger model.
+    pub degrees_of_freedom: usize,
+    /// The F statistic.
+    pub f: f64,
+    /// Paulson's normal deviate of `f` (≈ N(0, 1) when the larger model adds nothing).
+    pub z: f64,
+    /// Whether the larger model was taken.
+    pub taken: bool,
+}
+
+/// The normal deviate that [`IntrinsicsTest`] takes a larger model beyond (the 99.9 % point).
+pub const INTRINSICS_TEST_Z: f64 = 3.09;
+
+impl IntrinsicsTest {
+    fn new(
+        model: IntrinsicsModel,
+        against: IntrinsicsModel,
+        small: f64,
+        large: f64,
+        parameters: usize,
+        degrees_of_freedom: usize,
+    ) -> Self {
+        let (k, nu) = (parameters.max(1) as f64, degrees_of_freedom.max(1) as f64);
+        let f = ((small - large).max(0.0) / k) / (large / nu).max(1e-300);
+        // Paulson (1942): F^(1/3) is nearly normal.
+        let (a, b) = (2.0 / (9.0 * k), 2.0 / (9.0 * nu));
+        let root = f.cbrt();
+        let z = ((1.0 - b) * root - (1.0 - a)) / (a + root * root * b).sqrt();
+        Self {
+            model,
+            against,
+            parameters,
+            degrees_of_freedom,
+            f,
+            z,
+            taken: z > INTRINSICS_TEST_Z,
+        }
+    }
+}
+
+/// The noise of a limb's static and dynamic readings, estimated apart (two variance components)
+/// from the residuals of a fit that weighed every reading alike: a dynamic reading is a difference
+/// of samples, √2 times a static one's noise and more.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NoiseComponents {
+    /// Standard deviation of a static reading's component, m/s².
+    pub static_sd: f64,
+    /// Standard deviation of a dynamic reading's component, m/s².
+    pub dynamic_sd: f64,
+}
+
 /// The maximum-likelihood estimate of one limb.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MlChainEstimate {
@@ -386,6 +457,16 @@ pub struct MlChainEstimate {
     /// Per SU: the accelerometer intrinsics estimated with the kinematics (empty when none are).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics: Vec<SuIntrinsics>,
+    /// The intrinsics fitted (with `select_intrinsics`, the model the data chose).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intrinsics_model: Option<IntrinsicsModel>,
+    /// With `select_intrinsics`: each larger model against the one before it, in order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub intrinsics_tests: Vec<IntrinsicsTest>,
+    /// Where the set gives no reading its own deviation: the static and the dynamic readings'
+    /// noise estimated apart from the residuals, which weighed them in the fit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_components: Option<NoiseComponents>,
     /// Other orders of joints' DoFs tried because the first fit was not at the noise level, and
     /// how each fitted.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -1343,15 +1424,28 @@ fn final_fit(
         }
         spec
     };
-    let (solved, spec, its) = fit_with_intrinsics(state, &layout, &readings, final_spec, config);
+    let (solved, spec, intrinsics_model, intrinsics_tests, its) =
+        fit_with_intrinsics(state, &layout, &readings, final_spec, config);
     iterations += its;
     let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
     iterations += its;
     let rejected = rejected_counts(&readings, &data.chain.sus());
-    // What is reported about the fit comes from the readings alone, not the gauge priors.
-    let readings = Readings {
+    let (solved, weighted, its, noise_components) =
+        weigh_by_noise_components(solved, &layout, readings, &spec, config);
+    iterations += its;
+    // What is reported about the fit comes from the readings alone, not the gauge priors; the
+    // residual against the noise configured (or the set's own deviations), the covariance from
+    // the readings weighed as the fit weighed them.
+    let weighted = Readings {
         gauge_prior: None,
-        ..readings
+        ..weighted
+    };
+    let readings = match noise_components {
+        Some(_) => Readings {
+            sd: None,
+            ..weighted.clone()
+        },
+        None => weighted.clone(),
     };
     let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
     let state = solved.state;
@@ -1360,21 +1454,31 @@ fn final_fit(
     let flat_sus = data.chain.sus();
     let names = column_names(&flat_dofs, &flat_sus, &spec);
     let map = ColumnMap::new(&spec);
+    let ratio_of = |normal: &problem::Normal| {
+        (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
+    };
     let normal = normal_system(&state, &layout, &readings, &spec, &map, sigma);
-    let noise_sd_estimate =
-        sigma * (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt();
-    let residual_ratio = noise_sd_estimate / sigma;
+    let residual_ratio = ratio_of(&normal);
+    let noise_sd_estimate = sigma * residual_ratio;
+    let (normal, scale) = match noise_components {
+        Some(_) => {
+            let normal = normal_system(&state, &layout, &weighted, &spec, &map, sigma);
+            let ratio = ratio_of(&normal);
+            (normal, ratio)
+        }
+        None => (normal, residual_ratio),
+    };
     let (cov, unobservable) = covariance(
         &normal,
         &map,
-        residual_ratio.max(1.0),
+        scale.max(1.0),
         &names,
         config.observable_limit,
     );
     let unobservable = positions_in_one(unobservable, data, &readings);
     let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
     let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
-    let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, config.intrinsics);
+    let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, intrinsics_model);
     let mut fixed = Vec::new();
     match (base, gauge_su) {
         (Some(_), _) => fixed.push(format!(
@@ -1432,6 +1536,9 @@ fn final_fit(
         uncertainty,
         joint_covariance,
         intrinsics,
+        intrinsics_model: Some(intrinsics_model),
+        intrinsics_tests,
+        noise_components,
         rejected,
         missing_excitations: if readings.motion.is_some() {
             Vec::new()
@@ -1454,15 +1561,17 @@ fn final_fit(
 }
 
 /// The final fit from the search's best state: the kinematics alone, then, with `config`'s
-/// intrinsics, everything together (gravity set to 9.81 m/s² when only its direction is free).
-/// Returns the solution, its problem and the LM iterations.
+/// intrinsics, everything together (gravity set to 9.81 m/s² when only its direction is free);
+/// with `select_intrinsics`, each model from none upwards only when the data ask for it (each
+/// fitted from the one before). Returns the solution, its problem, the model fitted, the tests
+/// and the LM iterations.
 fn fit_with_intrinsics(
     state: ChainState,
     layout: &Layout,
     readings: &Readings,
     final_spec: impl Fn(IntrinsicsModel) -> Spec,
     config: &MlConfig,
-) -> (Solved, Spec, usize) {
+) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
     let fit = |state: ChainState, spec: &Spec| {
         solve(
             state,
@@ -1474,21 +1583,142 @@ fn fit_with_intrinsics(
             FINAL_TOLERANCE,
         )
     };
+    let from = |solved: &Solved, spec: &Spec| {
+        let mut start = solved.state.clone();
+        if spec.blocks.first() == Some(&Block::GravityDirection) {
+            start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
+        }
+        start
+    };
     let spec = final_spec(IntrinsicsModel::None);
-    let solved = fit(state, &spec);
-    if config.intrinsics == IntrinsicsModel::None {
-        let its = solved.iterations;
-        return (solved, spec, its);
+    let mut solved = fit(state, &spec);
+    let mut iterations = solved.iterations;
+    let (mut spec, mut model) = (spec, IntrinsicsModel::None);
+    let mut tests = Vec::new();
+    let ladder: Vec<IntrinsicsModel> = if config.select_intrinsics {
+        [
+            IntrinsicsModel::Bias,
+            IntrinsicsModel::BiasScale,
+            IntrinsicsModel::Full,
+        ]
+        .into_iter()
+        .filter(|m| m.components() <= config.intrinsics.components())
+        .collect()
+    } else if config.intrinsics == IntrinsicsModel::None {
+        Vec::new()
+    } else {
+        vec![config.intrinsics]
+    };
+    // The residual rows that count (the same for every model: the readings do not change).
+    let rows = if config.select_intrinsics && !ladder.is_empty() {
+        let map = ColumnMap::new(&spec);
+        normal_system(
+            &solved.state,
+            layout,
+            readings,
+            &spec,
+            &map,
+            config.noise_sd,
+        )
+        .rows
+    } else {
+        0
+    };
+    for next in ladder {
+        let next_spec = final_spec(next);
+        let larger = fit(from(&solved, &next_spec), &next_spec);
+        iterations += larger.iterations;
+        if config.select_intrinsics {
+            let (before, after) = (spec.columns().len(), next_spec.columns().len());
+            let test = IntrinsicsTest::new(
+                next,
+                model,
+                solved.cost,
+                larger.cost,
+                after.saturating_sub(before),
+                rows.saturating_sub(after),
+            );
+            tests.push(test);
+            if !test.taken {
+                break;
+            }
+        }
+        (solved, spec, model) = (larger, next_spec, next);
     }
-    let spec = final_spec(config.intrinsics);
-    let mut start = solved.state;
-    if spec.blocks.first() == Some(&Block::GravityDirection) {
-        start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
+    (solved, spec, model, tests, iterations)
+}
+
+/// Where the set gives no reading its own deviation (and the fit has no motion record): the
+/// static and the dynamic readings' noise estimated apart from the residuals (their sums of
+/// squares, corrected for the parameters fitted), every reading weighed by its component's, and
+/// the fit repeated. Returns the solution, the readings with those deviations, the LM iterations
+/// and the components; unchanged when there is nothing to estimate.
+fn weigh_by_noise_components(
+    solved: Solved,
+    layout: &Layout,
+    readings: Readings,
+    spec: &Spec,
+    config: &MlConfig,
+) -> (Solved, Readings, usize, Option<NoiseComponents>) {
+    if readings.sd.is_some() || readings.motion.is_some() {
+        return (solved, readings, 0, None);
     }
-    let its = solved.iterations;
-    let solved = fit(start, &spec);
-    let its = its + solved.iterations;
-    (solved, spec, its)
+    let sigma = config.noise_sd;
+    let norms = problem::reading_norms(&solved.state, layout, &readings, spec, sigma);
+    let (mut sums, mut counts) = ([0.0f64; 2], [0usize; 2]);
+    for (p, pose) in norms.iter().enumerate() {
+        for (u, rows) in pose.iter().enumerate() {
+            for (j, n) in rows.iter().enumerate() {
+                if !readings.is_rejected(p, u, j) {
+                    let kind = usize::from(j > 0);
+                    sums[kind] += n * n;
+                    counts[kind] += 3;
+                }
+            }
+        }
+    }
+    let rows = counts[0] + counts[1];
+    let parameters = spec.columns().len();
+    if counts.contains(&0) || rows <= 2 * parameters {
+        return (solved, readings, 0, None);
+    }
+    let correction = rows as f64 / (rows - parameters) as f64;
+    let [s, d] = [0, 1].map(|k| sigma * (sums[k] / counts[k] as f64 * correction).sqrt());
+    if !(s > 0.0 && d > 0.0 && s.is_finite() && d.is_finite()) {
+        return (solved, readings, 0, None);
+    }
+    let sd: Vec<Vec<Vec<f64>>> = (0..readings.q.len())
+        .map(|_| {
+            layout
+                .su_segment
+                .iter()
+                .map(|&seg| (0..=seg).map(|j| if j == 0 { s } else { d }).collect())
+                .collect()
+        })
+        .collect();
+    let readings = Readings {
+        sd: Some(std::sync::Arc::new(sd)),
+        ..readings
+    };
+    let solved = solve(
+        solved.state,
+        layout,
+        &readings,
+        spec,
+        sigma,
+        config.max_iterations,
+        FINAL_TOLERANCE,
+    );
+    let iterations = solved.iterations;
+    (
+        solved,
+        readings,
+        iterations,
+        Some(NoiseComponents {
+            static_sd: s,
+            dynamic_sd: d,
+        }),
+    )
 }
 
 /// Wild readings (glitches) out and the fit repeated by plain least squares on the rest, until
