@@ -233,6 +233,10 @@ struct PredictArgs {
     /// the acceleration), not what the SU reads with its calibrated bias and scale.
     #[arg(long)]
     ideal: bool,
+    /// With --out, print one JSON document of what was written instead of the line (without
+    /// --out the predictions themselves are the JSON printed).
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -993,6 +997,9 @@ fn parse_pattern(text: &str) -> Result<ExcitationPattern> {
 }
 
 fn predict(args: PredictArgs) -> Result<()> {
+    if args.json && args.out.is_some() {
+        out::json_mode();
+    }
     let model = io::read_model(&args.model)?;
     let pattern = match &args.pattern {
         Some(p) => parse_pattern(p)?,
@@ -1048,6 +1055,14 @@ fn predict(args: PredictArgs) -> Result<()> {
                 pattern.amplitude,
                 pattern.frequency
             );
+            out::json(&serde_json::json!({
+                "command": "predict",
+                "wrote": out.display().to_string(),
+                "poses": poses,
+                "sus": predictor.sus().len(),
+                "pattern": {"amplitude": pattern.amplitude, "frequency": pattern.frequency},
+                "ideal": args.ideal,
+            }));
         }
         None => {
             let mut stdout = std::io::stdout().lock();

@@ -259,6 +259,26 @@ fn every_command_that_writes_a_result_prints_one_json_document() {
     assert!(report["bytes"].as_u64().unwrap() > 10_000);
     let urdf = json(&["export-urdf", "demo/model.json", "--out", "m.urdf"]);
     assert_eq!(urdf["joints"], 26);
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
+    let names: Vec<&str> = model["robot"]["dofs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x["name"].as_str().unwrap())
+        .collect();
+    let row = vec!["0.1"; names.len()].join(",");
+    std::fs::write(d.join("poses.csv"), format!("{}\n{row}\n", names.join(","))).unwrap();
+    let predicted = json(&[
+        "predict",
+        "demo/model.json",
+        "--poses",
+        "poses.csv",
+        "--out",
+        "pred.json",
+    ]);
+    assert_eq!(predicted["poses"], 1);
+    assert_eq!(predicted["sus"], 31);
     let plan = json(&[
         "plan",
         "--robot",
