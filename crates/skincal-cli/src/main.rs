@@ -106,7 +106,7 @@ enum Command {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum IntrinsicsArg {
     /// Chosen by the data per limb: none, a bias, or a bias and a scale error, each taken only
-    /// when it fits significantly better than the one before (nested F test at 99.9 %).
+    /// when it fits significantly better than the one before (nested F test, 5σ).
     Auto,
     /// Ideal accelerometers.
     None,

@@ -403,7 +403,7 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
             .collect();
         let _ = writeln!(
             out,
-            "intrinsics as the data chose: {} ({})",
+            "intrinsics as the data chose, every limb of the skin pooled: {} ({})",
             e.intrinsics_model.map_or("?", |m| m.name()),
             tests.join("; ")
         );

@@ -78,10 +78,10 @@ fn the_data_choose_the_intrinsics_ideal_sensors_lose_nothing_and_real_ones_get_t
             for limb in &chosen.limbs {
                 let e = &limb.estimate;
                 let first = e.intrinsics_tests.first().expect("a test per limb");
-                // Bias against none: far beyond the 99.9 % point on real sensors; a draw of
-                // about N(0, 1) on ideal ones.
+                // Bias against none: far beyond the threshold on real sensors; a draw of about
+                // N(0, 1) on ideal ones.
                 if wanted == IntrinsicsModel::None {
-                    assert!(first.z.abs() < 3.09, "{}: {first:?}", limb.name);
+                    assert!(first.z.abs() < 3.5, "{}: {first:?}", limb.name);
                 } else {
                     assert!(first.z > 10.0, "{}: {first:?}", limb.name);
                 }

@@ -268,6 +268,52 @@ fn calibrate_body_on(
     keep: &[String],
     progress: &mut dyn FnMut(&str, usize, usize),
 ) -> Result<BodyModel, EstimateError> {
+    let model = calibrate_limbs(set, motion, structure, config, only, keep, progress)?;
+    if !config.select_intrinsics {
+        return Ok(model);
+    }
+    // One skin, one sensor model: the limbs' tests pooled decide it, so that a limb with few SUs
+    // (a trunk, whose estimate the limbs on it hold) is not left to decide alone.
+    let Some((chosen, pooled)) = super::ml::pooled_intrinsics(
+        model
+            .limbs
+            .iter()
+            .map(|l| l.estimate.intrinsics_tests.as_slice()),
+    ) else {
+        return Ok(model);
+    };
+    let mut model = if model
+        .limbs
+        .iter()
+        .all(|l| l.estimate.intrinsics_model == Some(chosen))
+    {
+        model
+    } else {
+        let fixed = MlConfig {
+            intrinsics: chosen,
+            select_intrinsics: false,
+            ..*config
+        };
+        calibrate_limbs(set, motion, structure, &fixed, only, keep, progress)?
+    };
+    for limb in &mut model.limbs {
+        limb.estimate.intrinsics_model = Some(chosen);
+        limb.estimate.intrinsics_tests.clone_from(&pooled);
+    }
+    Ok(model)
+}
+
+/// Every limb of the body in parent-first order with `config` as it is (see
+/// [`calibrate_body_on`]).
+fn calibrate_limbs(
+    set: &MeasurementSet,
+    motion: Option<&MotionRecord>,
+    structure: Option<&Structure>,
+    config: &MlConfig,
+    only: Option<&str>,
+    keep: &[String],
+    progress: &mut dyn FnMut(&str, usize, usize),
+) -> Result<BodyModel, EstimateError> {
     let plain;
     let set = if config.reading_sd {
         set
