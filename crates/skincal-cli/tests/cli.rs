@@ -901,9 +901,8 @@ fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
     }
 }
 
-/// Planned programs on stock descriptions' collision geometry (STL meshes, SRDFs) checked by
-/// MuJoCo's own collision detection on every 10 ms of the motion and at every training pose;
-/// a pose skincal finds in collision, put into a plan by hand, fails the same check.
+/// `export-urdf --into` a stock robot's URDF: the merged file loads in MuJoCo (its own URDF
+/// reader, as written) wherever the robot's did, every SU a body where the URDF puts it.
 #[test]
 fn the_merged_urdf_loads_in_mujoco_where_the_robots_own_did_with_one_body_per_su() {
     let dir = tempfile::tempdir().unwrap();
@@ -998,6 +997,9 @@ fn the_merged_urdf_loads_in_mujoco_where_the_robots_own_did_with_one_body_per_su
     }
 }
 
+/// Planned programs on stock descriptions' collision geometry (STL meshes, SRDFs) checked by
+/// MuJoCo's own collision detection on every 10 ms of the motion and at every training pose;
+/// a pose skincal finds in collision, put into a plan by hand, fails the same check.
 #[test]
 fn planned_programs_keep_clear_of_the_robots_body_by_mujocos_collision_check() {
     let dir = tempfile::tempdir().unwrap();

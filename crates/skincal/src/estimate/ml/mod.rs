@@ -1620,17 +1620,7 @@ fn fit_with_intrinsics(
     final_spec: impl Fn(IntrinsicsModel) -> Spec,
     config: &MlConfig,
 ) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
-    let fit = |state: ChainState, spec: &Spec| {
-        solve(
-            state,
-            layout,
-            readings,
-            spec,
-            config.noise_sd,
-            config.max_iterations,
-            FINAL_TOLERANCE,
-        )
-    };
+    let fit = |state: ChainState, spec: &Spec| refit(state, layout, readings, spec, config);
     let from = |solved: &Solved, spec: &Spec| {
         let mut start = solved.state.clone();
         if spec.blocks.first() == Some(&Block::GravityDirection) {
@@ -1705,6 +1695,25 @@ fn fit_with_intrinsics(
     (solved, spec, model, tests, iterations)
 }
 
+/// The final fit's solve: from `state` to [`FINAL_TOLERANCE`].
+fn refit(
+    state: ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    spec: &Spec,
+    config: &MlConfig,
+) -> Solved {
+    solve(
+        state,
+        layout,
+        readings,
+        spec,
+        config.noise_sd,
+        config.max_iterations,
+        FINAL_TOLERANCE,
+    )
+}
+
 /// Where the set gives no reading its own deviation (and the fit has no motion record): the
 /// static and the dynamic readings' noise estimated apart from the residuals (their sums of
 /// squares, corrected for the parameters fitted), every reading weighed by its component's, and
@@ -1757,15 +1766,7 @@ fn weigh_by_noise_components(
         sd: Some(std::sync::Arc::new(sd)),
         ..readings
     };
-    let solved = solve(
-        solved.state,
-        layout,
-        &readings,
-        spec,
-        sigma,
-        config.max_iterations,
-        FINAL_TOLERANCE,
-    );
+    let solved = refit(solved.state, layout, &readings, spec, config);
     let iterations = solved.iterations;
     (
         solved,
@@ -1804,15 +1805,7 @@ fn leave_out_glitches(
         if unchanged {
             break;
         }
-        solved = solve(
-            solved.state,
-            layout,
-            &readings,
-            spec,
-            sigma,
-            config.max_iterations,
-            FINAL_TOLERANCE,
-        );
+        solved = refit(solved.state, layout, &readings, spec, config);
         iterations += solved.iterations;
     }
     (solved, readings, iterations)
