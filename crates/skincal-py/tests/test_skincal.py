@@ -222,7 +222,9 @@ def test_bad_input_raises_skincal_errors_that_say_what_is_wrong(tmp_path):
     assert skincal.explore(str(tmp_path / "set" / "measurements.json")).complete
     with pytest.raises(TypeError, match="MeasurementSet"):
         skincal.explore(42)
-    with pytest.raises(ValueError, match="ml"):
+    with pytest.raises(ValueError, match="'ml' or 'paper'"):
+        skincal.calibrate(data, method="kalman")
+    with pytest.raises(skincal.SkincalError, match="at least 10 poses"):
         skincal.calibrate(data, method="paper")
     model.save(tmp_path / "model.json")
     with pytest.raises(skincal.SkincalError, match="exists"):
