@@ -105,8 +105,9 @@ enum Command {
 /// Which accelerometer intrinsics `ml` estimates per SU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum IntrinsicsArg {
-    /// Chosen by the data per limb: none, a bias, or a bias and a scale error, each taken only
-    /// when it fits significantly better than the one before (nested F test, 5σ).
+    /// Chosen by the data for the whole skin: none, a bias, or a bias and a scale error, each
+    /// taken only when it fits significantly better than the one before (the limbs' nested F
+    /// tests pooled, 5σ).
     Auto,
     /// Ideal accelerometers.
     None,

@@ -505,24 +505,12 @@ fn calibrate(
         reading_sd: noise.is_none(),
         ..MlConfig::default()
     };
-    let explored;
-    let structure = match structure {
-        Some(s) => Some(&s.inner),
-        None if measurements.inner.structure.is_some() => {
-            explored = py
-                .detach(|| {
-                    skincal::explore::explore(&measurements.inner, &ExploreConfig::default())
-                })
-                .map_err(error)?;
-            Some(&explored)
-        }
-        None => None,
-    };
+    let structure = structure_for(py, measurements, structure)?;
     let inner = py
         .detach(|| {
             skincal::estimate::body::calibrate_body_reporting(
                 &measurements.inner,
-                structure,
+                structure.as_deref(),
                 &config,
                 None,
                 &[],
@@ -531,6 +519,24 @@ fn calibrate(
         })
         .map_err(error)?;
     Ok(NativeModel { inner })
+}
+
+/// The structure a calibration uses: the one given, else the set's structure experiment explored
+/// with the default settings (the interpreter released), else none.
+fn structure_for<'a>(
+    py: Python<'_>,
+    measurements: &Measurements,
+    structure: Option<&'a NativeStructure>,
+) -> PyResult<Option<std::borrow::Cow<'a, skincal::explore::Structure>>> {
+    use std::borrow::Cow;
+    Ok(match structure {
+        Some(s) => Some(Cow::Borrowed(&s.inner)),
+        None if measurements.inner.structure.is_some() => Some(Cow::Owned(
+            py.detach(|| skincal::explore::explore(&measurements.inner, &ExploreConfig::default()))
+                .map_err(error)?,
+        )),
+        None => None,
+    })
 }
 
 /// Kinematic estimation by the paper's method (progressive NLopt MLSL-LDS + Nelder–Mead on e_T)
@@ -555,17 +561,10 @@ fn calibrate_paper(
         max_evaluations,
         ..paper::PaperConfig::default()
     };
+    let structure = structure_for(py, measurements, structure)?;
     let model = py
         .detach(|| {
-            let explored = match structure {
-                Some(_) => None,
-                None if measurements.inner.structure.is_some() => Some(
-                    skincal::explore::explore(&measurements.inner, &ExploreConfig::default())
-                        .map_err(|e| e.to_string())?,
-                ),
-                None => None,
-            };
-            let structure = structure.map(|s| &s.inner).or(explored.as_ref());
+            let structure = structure.as_deref();
             if structure.is_some_and(|s| !s.complete) {
                 return Err(
                     "the explored structure is incomplete (see skincal.explore): fix the \

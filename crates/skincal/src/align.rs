@@ -759,9 +759,10 @@ pub fn merge_sus(
 /// The URDF `text`, read from the folder `from`, made to load from any other folder as it loaded
 /// from there: its relative file names (meshes, textures) made absolute (`package://` and
 /// `file://` names, which do not depend on the file's folder, are kept), and, when it names files,
-/// the `<compiler>` of its `<mujoco>` block given `meshdir="from"` when it has none — MuJoCo's URDF reader strips file
-/// names to their last part by default and looks for them beside the model, so a robot whose
-/// meshes lie beside its URDF is found there again.
+/// the `<compiler>` of its `<mujoco>` block given `meshdir="from"` when it has none: with
+/// `strippath`, MuJoCo's URDF reader cuts file names to their last part and looks for them in
+/// `meshdir`, beside the model by default, so a robot whose meshes lie beside its URDF is found
+/// there again.
 pub fn relocated(text: &str, from: &std::path::Path) -> String {
     let text = absolute_file_names(text, from);
     if !text.contains("filename=\"") {
@@ -792,7 +793,10 @@ fn with_compiler_attribute(text: &str, name: &str, value: &str) -> String {
         return format!("{}<compiler{attribute}/>{}", &text[..open], &text[open..]);
     };
     let end = text[at..].find('>').map_or(text.len(), |i| at + i);
-    if text[at..end].contains(&format!(" {name}=")) || text[at..end].contains(&format!("\t{name}="))
+    let set = format!("{name}=");
+    if text[at..end]
+        .split_whitespace()
+        .any(|word| word.starts_with(&set))
     {
         return text.to_string();
     }

@@ -287,4 +287,7 @@ fn a_relocated_urdf_names_its_meshes_absolutely_keeps_package_names_and_tells_mu
     let told = with_block.replace("<compiler ", r#"<compiler meshdir="m" "#);
     let out = skincal::align::relocated(&told, std::path::Path::new("/home/u/r/urdf"));
     assert!(out.contains(r#"<compiler meshdir="m" fusestatic"#), "{out}");
+    let told = with_block.replace("<compiler ", "<compiler\n    meshdir=\"m\" ");
+    let out = skincal::align::relocated(&told, std::path::Path::new("/home/u/r/urdf"));
+    assert_eq!(out.matches("meshdir").count(), 1, "{out}");
 }

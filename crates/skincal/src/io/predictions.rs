@@ -38,8 +38,8 @@ pub fn write_predictions(
 pub enum Progress {
     /// This many poses predicted (how many the file holds is known at its end).
     Predicted(usize),
-    /// The output written: this many parts of `of` (each SU's static readings, then each SU's
-    /// dynamic readings).
+    /// The output written so far: this many parts of `of` (each SU's static readings, then each
+    /// SU's dynamic readings).
     Written {
         /// Parts written.
         parts: usize,
@@ -242,7 +242,7 @@ impl Spill {
         let mut first = true;
         for (u, su) in sus.iter().enumerate() {
             progress(Progress::Written {
-                parts: sus.len() + u + 1,
+                parts: sus.len() + u,
                 of: 2 * sus.len(),
             });
             let moved: Vec<usize> = (0..dofs.len())

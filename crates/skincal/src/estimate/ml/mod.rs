@@ -1488,12 +1488,15 @@ fn final_fit(
         gauge_prior: None,
         ..weighted
     };
-    let readings = match noise_components {
-        Some(_) => Readings {
-            sd: None,
-            ..weighted.clone()
-        },
-        None => weighted.clone(),
+    let (readings, weighted) = match noise_components {
+        Some(_) => (
+            Readings {
+                sd: None,
+                ..weighted.clone()
+            },
+            Some(weighted),
+        ),
+        None => (weighted, None),
     };
     let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
     let state = solved.state;
@@ -1508,9 +1511,9 @@ fn final_fit(
     let normal = normal_system(&state, &layout, &readings, &spec, &map, sigma);
     let residual_ratio = ratio_of(&normal);
     let noise_sd_estimate = sigma * residual_ratio;
-    let (normal, scale) = match noise_components {
-        Some(_) => {
-            let normal = normal_system(&state, &layout, &weighted, &spec, &map, sigma);
+    let (normal, scale) = match &weighted {
+        Some(weighted) => {
+            let normal = normal_system(&state, &layout, weighted, &spec, &map, sigma);
             let ratio = ratio_of(&normal);
             (normal, ratio)
         }
@@ -1621,19 +1624,16 @@ fn fit_with_intrinsics(
     config: &MlConfig,
 ) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
     let fit = |state: ChainState, spec: &Spec| refit(state, layout, readings, spec, config);
-    let from = |solved: &Solved, spec: &Spec| {
-        let mut start = solved.state.clone();
+    // A start for `spec`: gravity at 9.81 m/s² when only its direction is free.
+    let from = |state: &ChainState, spec: &Spec| {
+        let mut start = state.clone();
         if spec.blocks.first() == Some(&Block::GravityDirection) {
             start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
         }
         start
     };
     let spec = final_spec(IntrinsicsModel::None);
-    let mut start = state;
-    if spec.blocks.first() == Some(&Block::GravityDirection) {
-        start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
-    }
-    let mut solved = fit(start, &spec);
+    let mut solved = fit(from(&state, &spec), &spec);
     let mut iterations = solved.iterations;
     let (mut spec, mut model) = (spec, IntrinsicsModel::None);
     let mut tests = Vec::new();
@@ -1672,7 +1672,7 @@ fn fit_with_intrinsics(
     let mut current = (solved.clone(), spec.clone(), model);
     for next in ladder {
         let next_spec = final_spec(next);
-        let larger = fit(from(&current.0, &next_spec), &next_spec);
+        let larger = fit(from(&current.0.state, &next_spec), &next_spec);
         iterations += larger.iterations;
         if config.select_intrinsics {
             let (before, after) = (current.1.columns().len(), next_spec.columns().len());
@@ -1714,7 +1714,8 @@ fn refit(
     )
 }
 
-/// Where the set gives no reading its own deviation (and the fit has no motion record): the
+/// Where the set gives no reading its own deviation, no uniform noise was asked for
+/// (`reading_sd`) and the fit has no motion record: the
 /// static and the dynamic readings' noise estimated apart from the residuals (their sums of
 /// squares, corrected for the parameters fitted), every reading weighed by its component's, and
 /// the fit repeated. Returns the solution, the readings with those deviations, the LM iterations
@@ -1726,7 +1727,7 @@ fn weigh_by_noise_components(
     spec: &Spec,
     config: &MlConfig,
 ) -> (Solved, Readings, usize, Option<NoiseComponents>) {
-    if readings.sd.is_some() || readings.motion.is_some() {
+    if readings.sd.is_some() || readings.motion.is_some() || !config.reading_sd {
         return (solved, readings, 0, None);
     }
     let sigma = config.noise_sd;
