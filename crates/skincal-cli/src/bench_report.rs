@@ -62,6 +62,7 @@ pub fn bench_report(args: BenchReportArgs) -> Result<()> {
         model: Some(model),
         validation: Some((check, "held-out".into())),
         urdf_check: None,
+        urdf_su_frames: Default::default(),
         ingest: None,
         truth: Some(robot),
         paper: Vec::new(),

@@ -172,6 +172,16 @@ pub struct Alignment {
     pub unplaced: Vec<(String, String)>,
 }
 
+impl Alignment {
+    /// Every placed SU's frame at the zero pose, in the URDF's root frame.
+    pub fn su_frames(&self) -> std::collections::BTreeMap<String, Isometry3<f64>> {
+        self.sus
+            .iter()
+            .filter_map(|s| Some((s.su.clone(), self.tree.frames.get(&s.link)? * s.pose)))
+            .collect()
+    }
+}
+
 /// What the alignment needs of the URDF, per calibrated DoF.
 struct Plan {
     /// Per DoF: the URDF joint's frame with z on its axis, in the URDF root's frame (none: not

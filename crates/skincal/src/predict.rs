@@ -399,20 +399,26 @@ pub struct Validation {
     pub dynamic_max: f64,
     /// SUs of the set that the model does not cover (not compared).
     pub not_in_model: Vec<String>,
+    /// The static error a perfect model would show, m/s² RMS: the readings' own noise (the norm
+    /// of a 3-vector of it), from the set's standard deviations, else the model's noise.
+    #[serde(default)]
+    pub static_floor: f64,
+    /// The same for the dynamic readings.
+    #[serde(default)]
+    pub dynamic_floor: f64,
+    /// Where the floors come from: `"the readings' standard deviations"` or `"the model's noise"`.
+    #[serde(default)]
+    pub floor_source: String,
 }
 
-/// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
-/// Every DoF and SU of the model must be in the set.
-pub fn validate(
-    model: &BodyModel,
+/// Each model DoF's and SU's column in `set`, which must name them all.
+fn columns_in(
+    dofs: &[String],
+    sus: &[String],
     set: &MeasurementSet,
     source: &str,
-) -> Result<Validation, PredictError> {
-    let predictor = Predictor::new(model)?;
-    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
-    let dofs = predictor.dofs();
-    let sus = predictor.sus();
-    for (what, names, given) in [("DoFs", &dofs, &set.dofs), ("SUs", &sus, &set.sus)] {
+) -> Result<(Vec<usize>, Vec<usize>), PredictError> {
+    for (what, names, given) in [("DoFs", dofs, &set.dofs), ("SUs", sus, &set.sus)] {
         let missing: Vec<String> = names
             .iter()
             .filter(|n| !given.contains(n))
@@ -426,15 +432,114 @@ pub fn validate(
             });
         }
     }
-    let dof_col: Vec<usize> = dofs
+    let column = |names: &[String], given: &[String]| -> Vec<usize> {
+        names
+            .iter()
+            .map(|n| given.iter().position(|g| g == n).expect("checked"))
+            .collect()
+    };
+    Ok((column(dofs, &set.dofs), column(sus, &set.sus)))
+}
+
+/// One SU's residuals on a measurement set: every component of every reading, predicted minus
+/// read, divided by the reading's standard deviation (the set's own where it has one, else the
+/// static or dynamic noise its limb's fit estimated, else the model's noise). A model whose noise
+/// is right leaves them standard normal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuResiduals {
+    /// The SU.
+    pub su: String,
+    /// Its static readings' components, whitened.
+    pub statics: Vec<f64>,
+    /// Its dynamic readings' components, whitened.
+    pub dynamics: Vec<f64>,
+}
+
+/// The whitened residuals ([`SuResiduals`]) of every SU of the model on the training poses of
+/// `set`, in the model's SU order.
+pub fn whitened_residuals(
+    model: &BodyModel,
+    set: &MeasurementSet,
+    source: &str,
+) -> Result<Vec<SuResiduals>, PredictError> {
+    let predictor = Predictor::new(model)?;
+    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
+    let (dofs, sus) = (predictor.dofs(), predictor.sus());
+    let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
+    let estimated: BTreeMap<&str, (f64, f64)> = model
+        .limbs
         .iter()
-        .map(|d| set.dofs.iter().position(|g| g == d).expect("checked"))
+        .filter_map(|l| {
+            let n = l.estimate.noise_components.as_ref()?;
+            Some(
+                l.sus
+                    .iter()
+                    .map(move |s| (s.as_str(), (n.static_sd, n.dynamic_sd))),
+            )
+        })
+        .flatten()
         .collect();
-    let su_col: Vec<usize> = sus
+    let noise: Vec<(f64, f64)> = sus
         .iter()
-        .map(|s| set.sus.iter().position(|g| g == s).expect("checked"))
+        .map(|s| {
+            estimated
+                .get(s.as_str())
+                .copied()
+                .unwrap_or((model.noise_sd, model.noise_sd))
+        })
         .collect();
+    let mut out: Vec<SuResiduals> = sus
+        .iter()
+        .map(|su| SuResiduals {
+            su: su.clone(),
+            statics: Vec::new(),
+            dynamics: Vec::new(),
+        })
+        .collect();
+    let push = |into: &mut Vec<f64>, e: Vector3<f64>, sd: f64| {
+        into.extend(e.iter().map(|c| c / sd));
+    };
+    for pose in &training.poses {
+        let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
+        let r = predictor.readings(&q, &training.pattern);
+        for (u, res) in out.iter_mut().enumerate() {
+            let sd = pose
+                .static_sd
+                .as_ref()
+                .map_or(noise[u].0, |sd| sd[su_col[u]]);
+            let e = r.statics[u] - Vector3::from(pose.static_readings[su_col[u]]);
+            push(&mut res.statics, e, sd);
+        }
+        for (d, moved) in r.dynamic.iter().enumerate() {
+            let Some(measured) = pose.dynamic.get(&dofs[d]) else {
+                continue;
+            };
+            let own = pose.dynamic_sd.get(&dofs[d]);
+            for (u, a) in moved {
+                let sd = own.map_or(noise[*u].1, |sd| sd[su_col[*u]]);
+                let e = a - Vector3::from(measured[su_col[*u]]);
+                push(&mut out[*u].dynamics, e, sd);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
+/// Every DoF and SU of the model must be in the set.
+pub fn validate(
+    model: &BodyModel,
+    set: &MeasurementSet,
+    source: &str,
+) -> Result<Validation, PredictError> {
+    let predictor = Predictor::new(model)?;
+    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
+    let (dofs, sus) = (predictor.dofs(), predictor.sus());
+    let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
     let n = sus.len();
+    // The readings' own noise: a component's variance, summed over the 3 components.
+    let assumed = 3.0 * model.noise_sd * model.noise_sd;
+    let (mut s_noise, mut d_noise, mut own_sd) = (0.0, 0.0, true);
     let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) = (
         vec![0.0; n],
         vec![0.0f64; n],
@@ -447,6 +552,13 @@ pub fn validate(
         let r = predictor.readings(&q, &training.pattern);
         for u in 0..n {
             let e = (r.statics[u] - Vector3::from(pose.static_readings[su_col[u]])).norm();
+            s_noise += match &pose.static_sd {
+                Some(sd) => 3.0 * sd[su_col[u]].powi(2),
+                None => {
+                    own_sd = false;
+                    assumed
+                }
+            };
             s_sum[u] += e * e;
             s_max[u] = s_max[u].max(e);
         }
@@ -456,6 +568,13 @@ pub fn validate(
             };
             for (u, a) in moved {
                 let e = (a - Vector3::from(measured[su_col[*u]])).norm();
+                d_noise += match pose.dynamic_sd.get(&dofs[d]) {
+                    Some(sd) => 3.0 * sd[su_col[*u]].powi(2),
+                    None => {
+                        own_sd = false;
+                        assumed
+                    }
+                };
                 d_sum[*u] += e * e;
                 d_max[*u] = d_max[*u].max(e);
                 d_count[*u] += 1;
@@ -487,5 +606,13 @@ pub fn validate(
             .filter(|s| !sus.contains(s))
             .cloned()
             .collect(),
+        static_floor: (s_noise / (poses * n).max(1) as f64).sqrt(),
+        dynamic_floor: (d_noise / total_d.max(1) as f64).sqrt(),
+        floor_source: if own_sd {
+            "the readings' standard deviations"
+        } else {
+            "the model's noise"
+        }
+        .into(),
     })
 }

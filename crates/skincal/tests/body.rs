@@ -320,12 +320,16 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
         structure: Some(structure.clone()),
         model: Some(model.clone()),
         validation: Some((check, "held-out".into())),
-        urdf_check: None,
-        ingest: None,
-        truth: None,
-        paper: Vec::new(),
+        ..Default::default()
     });
-    for section in ["summary", "activity", "tree", "limbs", "validation"] {
+    for section in [
+        "summary",
+        "activity",
+        "tree",
+        "limbs",
+        "validation",
+        "set-aside",
+    ] {
         assert!(
             page.contains(&format!("<section id=\"{section}\"")),
             "{section}"
@@ -335,9 +339,47 @@ fn the_html_report_has_a_section_per_input_and_draws_the_whole_tree() {
     let m = &structure.matrix;
     let filled = m.entries.iter().flatten().filter(|&&e| e).count();
     assert_eq!(page.matches("<td class=\"on").count(), filled);
+    // The SU × DoF matrices as explored: an SU's change passes the threshold in some orientation
+    // exactly where the merged matrix says the DoF's joint moves the SU's segment.
+    let data = page
+        .split("<script type=\"application/json\" id=\"su-activity-data\">")
+        .nth(1)
+        .and_then(|rest| rest.split("</script>").next())
+        .expect("the SU × DoF matrices");
+    let data: serde_json::Value = serde_json::from_str(data).unwrap();
+    let names = |key: &str| -> Vec<String> { serde_json::from_value(data[key].clone()).unwrap() };
+    let (sus, dofs) = (names("sus"), names("dofs"));
+    let levels = data["levels"].as_str().unwrap();
+    let orientations = names("orientations");
+    assert_eq!((sus.len(), dofs.len(), orientations.len()), (31, 26, 2));
+    let segment_of = |su: &str| {
+        structure
+            .segments
+            .iter()
+            .position(|g| g.sus.iter().any(|s| s == su))
+    };
+    let joint_of = |dof: &str| {
+        structure
+            .joints
+            .iter()
+            .position(|j| j.dofs.iter().any(|d| d == dof))
+    };
+    for (i, su) in sus.iter().enumerate() {
+        for (j, dof) in dofs.iter().enumerate() {
+            let active = orientations.iter().any(|cells| {
+                let c = cells.as_bytes()[i * dofs.len() + j] as char;
+                levels.find(c).unwrap() >= 32
+            });
+            let seg = &structure.segments[segment_of(su).unwrap()].id;
+            let joint = &structure.joints[joint_of(dof).unwrap()].id;
+            let r = m.segments.iter().position(|x| x == seg).unwrap();
+            let c = m.joints.iter().position(|x| x == joint).unwrap();
+            assert_eq!(active, m.entries[r][c], "{su} × {dof}");
+        }
+    }
     // The tree: one edge per joint, one node per segment.
     assert_eq!(
-        page.matches("<line class=\"joint\"").count(),
+        page.matches("<path class=\"joint\"").count(),
         structure.joints.len()
     );
     assert_eq!(

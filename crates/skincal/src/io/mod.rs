@@ -404,15 +404,17 @@ pub fn read_report_inputs(
         }
         _ => None,
     };
-    let urdf_check = match (urdf, &model) {
+    let (urdf_check, urdf_su_frames) = match (urdf, &model) {
         (Some(path), Some(model)) => {
             let (_, alignment) = read_urdf_alignment(model, path)?;
-            Some((alignment.check, path.display().to_string()))
+            let frames = alignment.su_frames();
+            (Some((alignment.check, path.display().to_string())), frames)
         }
-        _ => None,
+        _ => (None, Default::default()),
     };
     Ok(crate::html::ReportInputs {
         urdf_check,
+        urdf_su_frames,
         title: dir.file_name().map_or_else(
             || dir.display().to_string(),
             |n| n.to_string_lossy().into_owned(),
