@@ -828,8 +828,27 @@ fn calibrate_ml(
     };
     bar.finish_and_clear();
     let model = model?;
-    for limb in &model.limbs {
-        out!("{}", limb_report(limb, truth)?);
+    // Each limb's SU poses against the truth (the report draws the same).
+    let accuracies = model
+        .limbs
+        .iter()
+        .map(|limb| {
+            let e = &limb.estimate;
+            truth
+                .map(|t| {
+                    estimate::consecutive_su_errors(
+                        t,
+                        &e.to_robot(),
+                        &e.chain.su_sequence(),
+                        estimate::ACCURACY_POSES,
+                        estimate::ACCURACY_SEED,
+                    )
+                })
+                .transpose()
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    for (limb, accuracy) in model.limbs.iter().zip(&accuracies) {
+        out!("{}", limb_report(limb, truth, accuracy.as_ref())?);
     }
     if !model.not_calibrated.is_empty() {
         outln!("Not calibrated ({}):", model.not_calibrated.len());
@@ -850,8 +869,9 @@ fn calibrate_ml(
         "model": out.display().to_string(),
         "weights": if own { "each reading's own standard deviation" } else { "one noise for every reading" },
         "noise_sd": config.noise_sd,
-        "limbs": model.limbs.iter().map(|l| serde_json::json!({
+        "limbs": model.limbs.iter().zip(&accuracies).map(|(l, accuracy)| serde_json::json!({
             "name": l.name,
+            "accuracy": accuracy,
             "parent": l.parent,
             "dofs": l.dofs,
             "sus": l.sus,
@@ -888,6 +908,7 @@ fn model_file(stem: &str, limb: Option<&str>) -> String {
 fn limb_report(
     limb: &skincal::estimate::body::BodyLimb,
     truth: Option<&skincal::model::Robot>,
+    accuracy: Option<&estimate::ChainAccuracy>,
 ) -> Result<String> {
     use std::fmt::Write as _;
     let e = &limb.estimate;
@@ -917,11 +938,9 @@ fn limb_report(
             true_rows.as_ref(),
         ));
     }
-    if let Some(t) = truth {
-        let accuracy =
-            estimate::consecutive_su_errors(t, &e.to_robot(), &e.chain.su_sequence(), 30, 1)?;
+    if let Some(accuracy) = accuracy {
         writeln!(out, "\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n")?;
-        out.push_str(&report::chain_accuracy(&accuracy));
+        out.push_str(&report::chain_accuracy(accuracy));
     }
     out.push('\n');
     Ok(out)

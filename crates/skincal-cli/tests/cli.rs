@@ -1631,33 +1631,77 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
             "no section {section}"
         );
     }
-    // The 3D view's script ran: one slider per DoF of the humanoid; with every DoF at 0.3 rad it
-    // put each SU where the model's own forward kinematics does.
+    // The 3D view's script ran: one slider per DoF of the humanoid.
     assert_eq!(dom_text.matches("type=\"range\"").count(), 26);
+    let drawn_sus = |dom: &str| -> Vec<(String, nalgebra::Vector3<f64>)> {
+        let drawn = dom
+            .split("<pre id=\"view3d-sus\" hidden=\"\">")
+            .nth(1)
+            .and_then(|rest| rest.split("</pre>").next())
+            .expect("the drawing's SU positions");
+        let drawn: Vec<(String, [f64; 3])> = serde_json::from_str(drawn).unwrap();
+        drawn.into_iter().map(|(n, p)| (n, p.into())).collect()
+    };
+    let model: skincal::estimate::body::BodyModel =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
+    let robot = model.check().unwrap();
+    let m = &robot.model;
+    // At the zero pose every SU is drawn where the robot's URDF with the skin merged into it
+    // (`export-urdf --into`, read here by the URDF's own link frames) puts it: the limbs sit on
+    // the reference segment as the URDF places them. The two differ by the calibration's
+    // error against the URDF's joints: a few mm.
+    let merged = std::fs::read_to_string(d.join("demo/humanoid-skin.urdf")).unwrap();
+    let urdf = skincal::model::urdf::UrdfTree::parse(&merged).unwrap();
+    let at_rest = drawn_sus(&dom_text);
+    assert_eq!(at_rest.len(), m.sus().len());
+    let mut worst = 0.0f64;
+    for (name, p) in &at_rest {
+        // An SU on the reference segment has no position any reading tells: not merged.
+        if m.sus()[m.su_index(name).unwrap()].segment == 0 {
+            continue;
+        }
+        let placed = urdf
+            .frames
+            .get(name)
+            .unwrap_or_else(|| panic!("{name} not in the merged URDF"))
+            .translation
+            .vector;
+        worst = worst.max((p - placed).norm());
+    }
+    assert!(
+        worst < 0.01,
+        "an SU drawn {worst} m from where the URDF puts it"
+    );
+    // Posed (every DoF at 0.3 rad), each limb moves as the model's own forward kinematics says:
+    // the distances between the SUs that one limb on the reference segment carries are the
+    // model's, and SUs on the reference segment stay where the model has them.
     let posed = Command::new(&browser)
         .args(["--headless", "--no-sandbox", "--disable-gpu", "--dump-dom"])
         .arg(format!("{url}#pose=0.3"))
         .output()
         .unwrap();
-    let posed = String::from_utf8_lossy(&posed.stdout);
-    let drawn = posed
-        .split("<pre id=\"view3d-sus\" hidden=\"\">")
-        .nth(1)
-        .and_then(|rest| rest.split("</pre>").next())
-        .expect("the drawing's SU positions");
-    let drawn: Vec<(String, [f64; 3])> = serde_json::from_str(drawn).unwrap();
-    let model: skincal::estimate::body::BodyModel =
-        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
-    let robot = model.check().unwrap();
-    let m = &robot.model;
+    let posed = drawn_sus(&String::from_utf8_lossy(&posed.stdout));
     let k = skincal::model::forward_kinematics(m, &robot.parameters, &vec![0.3; m.dofs().len()]);
-    assert_eq!(drawn.len(), m.sus().len());
-    for (name, p) in &drawn {
-        let u = m.su_index(name).unwrap();
-        let truth = k.sus[u].translation.vector;
-        let error = (nalgebra::Vector3::from(*p) - truth).norm();
-        assert!(error < 1e-9, "{name}: drawn {error} m away");
+    let limb_of =
+        |u: usize| (0..m.dofs().len()).find(|&d| m.dofs()[d].parent == 0 && m.moves_su(d, u));
+    let mut compared = 0;
+    for (a, (name_a, pa)) in posed.iter().enumerate() {
+        let ua = m.su_index(name_a).unwrap();
+        let truth_a = k.sus[ua].translation.vector;
+        if limb_of(ua).is_none() {
+            assert!((pa - truth_a).norm() < 1e-9, "{name_a}");
+        }
+        for (name_b, pb) in &posed[a + 1..] {
+            let ub = m.su_index(name_b).unwrap();
+            if limb_of(ua).is_some() && limb_of(ua) == limb_of(ub) {
+                let model_distance = (truth_a - k.sus[ub].translation.vector).norm();
+                let error = ((pa - pb).norm() - model_distance).abs();
+                assert!(error < 1e-9, "{name_a}–{name_b}: {error} m");
+                compared += 1;
+            }
+        }
     }
+    assert!(compared > 50, "{compared}");
     assert!(
         dom_text.contains("<pre id=\"script-errors\"></pre>"),
         "the page's script reported errors"
@@ -1675,6 +1719,15 @@ fn the_demo_report_renders_in_headless_chromium_with_every_section_and_no_script
     let out = run(&["--window-size=1200,3000", &screenshot]);
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(std::fs::metadata(&shot).unwrap().len() > 10_000);
+    // "Save as PDF": the print stylesheet gives pages (each section on its own), kept too.
+    let pdf = artifacts.join("demo-report.pdf");
+    let print = format!("--print-to-pdf={}", pdf.display());
+    let out = run(&["--no-pdf-header-footer", &print]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let bytes = std::fs::read(&pdf).unwrap();
+    assert!(bytes.starts_with(b"%PDF"));
+    let pages = bytes.windows(11).filter(|w| w == b"/Type /Page").count();
+    assert!(pages >= 5, "{pages} pages");
 }
 
 #[test]
@@ -1836,4 +1889,193 @@ fn a_continuous_program_runs_from_plan_to_validation() {
         v["validation"]["dynamic_rms"].as_f64().unwrap(),
     );
     assert!(s < 0.01 && dy < 0.01, "{check}");
+}
+
+/// Every chart of a report page: its JSON (`data-chart`), in page order.
+fn charts_of(page: &str) -> Vec<serde_json::Value> {
+    page.split("data-chart=\"")
+        .skip(1)
+        .map(|rest| {
+            let raw = rest.split('"').next().unwrap();
+            let json = raw
+                .replace("&quot;", "\"")
+                .replace("&lt;", "<")
+                .replace("&gt;", ">")
+                .replace("&amp;", "&");
+            serde_json::from_str(&json).unwrap()
+        })
+        .collect()
+}
+
+/// The values of the series `name` of the chart whose labels are `labels` (`None`: a gap).
+fn series(charts: &[serde_json::Value], name: &str, labels: &[String]) -> Vec<Option<f64>> {
+    let chart = charts
+        .iter()
+        .find(|c| {
+            c["labels"].as_array().is_some_and(|l| {
+                l.iter()
+                    .map(|v| v.as_str().unwrap())
+                    .eq(labels.iter().map(String::as_str))
+            }) && c["series"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|s| s["name"] == name)
+        })
+        .unwrap_or_else(|| panic!("no chart `{name}` over {labels:?}"));
+    let s = chart["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == name)
+        .unwrap();
+    s["values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64())
+        .collect()
+}
+
+#[test]
+fn every_number_the_report_draws_is_the_one_the_cli_prints() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |args: &[&str]| succeeds(args, d);
+    ok(&["demo", "--out", "demo"]);
+    // The CLI's own figures: the calibration (with the truth beside it), the held-out check.
+    let calibrated: serde_json::Value =
+        serde_json::from_str(&ok(&["calibrate", "demo", "--force", "--json"])).unwrap();
+    let checked: serde_json::Value = serde_json::from_str(&ok(&[
+        "validate",
+        "demo/model.json",
+        "demo/held-out",
+        "--json",
+    ]))
+    .unwrap();
+    ok(&["report", "demo", "--validate", "demo/held-out", "--force"]);
+    let page = std::fs::read_to_string(d.join("demo/report.html")).unwrap();
+    let charts = charts_of(&page);
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/model.json")).unwrap()).unwrap();
+    let set: skincal::measurements::MeasurementSet =
+        serde_json::from_str(&std::fs::read_to_string(d.join("demo/measurements.json")).unwrap())
+            .unwrap();
+    let training = set.training.as_ref().unwrap();
+    let names =
+        |v: &serde_json::Value| -> Vec<String> { serde_json::from_value(v.clone()).unwrap() };
+    let limbs = model["limbs"].as_array().unwrap();
+    assert_eq!(limbs.len(), 5);
+    for (limb, printed) in limbs.iter().zip(calibrated["limbs"].as_array().unwrap()) {
+        let e = &limb["estimate"];
+        let sus = names(&limb["sus"]);
+        // Residual per SU and position uncertainty: the model's own numbers.
+        let ratios: Vec<Option<f64>> = e["su_residual_ratio"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64())
+            .collect();
+        assert_eq!(series(&charts, "residual", &sus), ratios);
+        let sd: Vec<Option<f64>> = e["uncertainty"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|u| Some(u["position_sd"].as_f64().unwrap() * 1e3))
+            .collect();
+        assert_eq!(series(&charts, "position sd", &sus), sd);
+        // Fig. 6: the pose errors `calibrate --json` prints against the truth.
+        let pairs = printed["accuracy"]["pairs"].as_array().unwrap();
+        let to: Vec<String> = pairs
+            .iter()
+            .map(|p| p["to"].as_str().unwrap().to_string())
+            .collect();
+        let position: Vec<Option<f64>> = pairs
+            .iter()
+            .map(|p| Some(p["position_rms"].as_f64().unwrap() * 1e3))
+            .collect();
+        assert_eq!(series(&charts, "position error (RMS)", &to), position);
+        let rotation: Vec<Option<f64>> = pairs
+            .iter()
+            .map(|p| Some(p["rotation_rms"].as_f64().unwrap().to_degrees()))
+            .collect();
+        assert_eq!(series(&charts, "rotation error (RMS)", &to), rotation);
+        // The residual histogram counts every component of every reading of the limb's SUs:
+        // 3 per static reading, 3 per dynamic reading of a DoF that moves the SU.
+        let dofs = names(&limb["dofs"]);
+        let hist = charts
+            .iter()
+            .filter(|c| c["x_title"] == "whitened residual")
+            .nth(limbs.iter().position(|l| l == limb).unwrap())
+            .unwrap();
+        let counted: f64 = hist["series"][0]["values"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .sum();
+        let chain: Vec<Vec<String>> = e["chain"]["joints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|j| (names(&j["dofs"]), names(&j["sus"])))
+            .scan(Vec::new(), |before: &mut Vec<String>, (jd, js)| {
+                before.extend(jd);
+                Some(js.into_iter().map(|_| before.clone()).collect::<Vec<_>>())
+            })
+            .flatten()
+            .collect();
+        assert_eq!(chain.len(), sus.len());
+        let dynamic: usize = chain
+            .iter()
+            .map(|moved_by| {
+                training
+                    .poses
+                    .iter()
+                    .map(|p| {
+                        moved_by
+                            .iter()
+                            .filter(|d| p.dynamic.contains_key(*d))
+                            .count()
+                    })
+                    .sum::<usize>()
+            })
+            .sum();
+        let expected = 3 * (training.poses.len() * sus.len() + dynamic);
+        assert!(dofs.iter().all(|d| set.dofs.contains(d)));
+        // Components beyond ±5 σ fall outside the bins: none with the demo's noise.
+        assert_eq!(counted as usize, expected, "limb {}", limb["name"]);
+    }
+    // The held-out check: `validate --json`'s numbers, a gap where an SU has no dynamic reading.
+    let v = &checked["validation"];
+    let per_su = v["sus"].as_array().unwrap();
+    let sus: Vec<String> = per_su
+        .iter()
+        .map(|s| s["su"].as_str().unwrap().to_string())
+        .collect();
+    let statics: Vec<Option<f64>> = per_su.iter().map(|s| s["static_rms"].as_f64()).collect();
+    assert_eq!(series(&charts, "static error", &sus), statics);
+    let dynamics: Vec<Option<f64>> = per_su
+        .iter()
+        .map(|s| {
+            (s["dynamic_count"].as_u64().unwrap() > 0).then(|| s["dynamic_rms"].as_f64().unwrap())
+        })
+        .collect();
+    assert_eq!(series(&charts, "dynamic error", &sus), dynamics);
+    let floor = series(&charts, "noise floor", &sus);
+    assert_eq!(floor[0], v["static_floor"].as_f64());
+    // The floor is the readings' noise: uniform ±0.01 g on each of 3 components, σ² = (0.01 g)²/3.
+    let g = skincal::model::sensor::STANDARD_GRAVITY;
+    let expected = (3.0 * (0.01 * g).powi(2) / 3.0).sqrt();
+    assert!(
+        (v["static_floor"].as_f64().unwrap() / expected - 1.0).abs() < 1e-9,
+        "{v}"
+    );
+    // The summary's figures.
+    for key in ["static_rms", "dynamic_rms"] {
+        assert!(
+            page.contains(&format!("{:.4}", v[key].as_f64().unwrap())),
+            "{key}"
+        );
+    }
 }

@@ -378,6 +378,12 @@ struct FirstPair {
     point: Vector3<f64>,
 }
 
+/// How many held-out poses, from which seed, `calibrate` and the report judge each limb's SU
+/// poses against the truth over ([`consecutive_su_errors`]).
+pub const ACCURACY_POSES: usize = 30;
+/// See [`ACCURACY_POSES`].
+pub const ACCURACY_SEED: u64 = 1;
+
 /// Accuracy of a chain estimate against the truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChainAccuracy {

@@ -173,4 +173,6 @@ pub(super) const DRAW: &str = r#"(function () {
     var data = [xs].concat(spec.series.map(function (s) { return s.values; }));
     new uPlot(opts, data, el);
   });
+  // How long the page took to draw itself, ms from the start of loading.
+  document.documentElement.setAttribute('data-drawn-ms', performance.now().toFixed(0));
 })();"#;

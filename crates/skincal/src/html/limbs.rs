@@ -11,7 +11,7 @@ use super::charts::{normal_quantiles, Chart, Mark, Series};
 use crate::estimate::body::{BodyLimb, BodyModel};
 use crate::estimate::ml::{self, MlConfig};
 use crate::estimate::paper::PaperChainEstimate;
-use crate::estimate::{ChainAccuracy, LimbData};
+use crate::estimate::{ChainAccuracy, LimbData, ACCURACY_POSES, ACCURACY_SEED};
 use crate::measurements::MeasurementSet;
 use crate::model::Robot;
 use crate::predict::SuResiduals;
@@ -21,9 +21,6 @@ const QQ_POINTS: usize = 400;
 /// The histogram's bins: whitened residuals from −`HISTOGRAM_RANGE` to +`HISTOGRAM_RANGE`.
 const HISTOGRAM_RANGE: f64 = 5.0;
 const HISTOGRAM_BINS: usize = 40;
-/// Held-out poses and seed of the pose errors against the truth (as `calibrate` prints them).
-pub(super) const ACCURACY_POSES: usize = 30;
-pub(super) const ACCURACY_SEED: u64 = 1;
 
 /// The most SUs of a limb whose Cramér–Rao bound the page computes: the bound's cost grows with
 /// the cube of the number of SUs (a dense Fisher information and its eigenvectors), seconds beyond.

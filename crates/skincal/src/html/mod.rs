@@ -1,21 +1,22 @@
-//! The HTML report: one self-contained page (inline CSS, SVG and script; nothing fetched) made
-//! from whatever a result directory holds. Every section appears only when its inputs do:
+//! The HTML report: one self-contained page (inline CSS, SVG, script and uPlot for the charts;
+//! nothing fetched) made from whatever a result directory holds. Every section appears only when
+//! its inputs do, one module each:
 //!
-//! - `summary`: what the directory holds;
-//! - `activity`: the sorted activity matrix (the paper's Fig. 2), uncertain entries marked, the
-//!   change in g on hover;
-//! - `tree`: the kinematic tree drawn (laid out here: depth down, leaves across), limbs coloured,
-//!   end effectors and branching segments marked, left-out DoFs and SUs listed;
-//! - `view3d`: the calibrated body drawn in 3D (segments, joint axes, SU frames as triads, each
-//!   SU's position uncertainty as a circle), turned with the mouse, a slider per DoF;
-//! - `limbs`: per limb the fit (converged, residual, iterations), its SUs' residuals and pose
-//!   uncertainties as charts, broken SUs flagged, the paper's DH+2 table where the limb has one;
-//! - `validation`: held-out errors per SU;
-//! - `timeline`: for logs, each recording's still windows, pauses, moves, excitations (with the
-//!   share of coupled motion fitted out) and skipped transfers per DoF, and the noise found.
+//! - `summary` (here): what the directory holds;
+//! - [`structure`]: the activity matrices (the paper's Fig. 2: SUs × DoFs as explored, per base
+//!   orientation, and segments × joints merged, uncertain entries marked) and the kinematic tree;
+//! - [`body3d`]: the calibrated body in 3D, limbs where the URDF puts them (else a layout),
+//!   turned with the mouse, a slider per DoF;
+//! - [`limbs`]: per limb the fit, its residuals and uncertainties, every reading's whitened
+//!   residual (normal quantile plot, histogram), the pose errors against the truth beside the
+//!   Cramér–Rao bound (Fig. 6), the DH+2 table;
+//! - [`checks`]: held-out errors per SU against the noise floor, the URDF's joints, what was set
+//!   aside and why;
+//! - [`timeline`]: for logs, each recording's windows, moves and excitations per DoF.
 //!
-//! A script catches JavaScript errors into `#script-errors`, so that a headless browser's DOM says
-//! whether the page ran cleanly.
+//! Charts are drawn by [`charts`]: their numbers are in the page as JSON. A script catches
+//! JavaScript errors into `#script-errors`, so that a headless browser's DOM says whether the page
+//! ran cleanly; the page records how long it took to draw in `data-drawn-ms`.
 
 mod body3d;
 mod charts;
@@ -89,7 +90,7 @@ h2, h3, h4 { break-after: avoid; page-break-after: avoid; }
   body { max-width: none; padding: 0; font-size: 11px; }
   .scroll { overflow: visible; } .scroll svg { max-width: 100%; height: auto; }
   #view3d-sliders { display: none; } canvas { max-width: 100%; height: auto !important; }
-  .limb { break-before: page; } section { break-before: page; } section#summary { break-before: auto; }
+  section { break-before: page; } section#summary { break-before: auto; }
 }
 ";
 
