@@ -65,7 +65,7 @@ pub(super) fn activity(s: &Structure) -> Markup {
             h3 { "Segments × joints, merged" }
             p class="note" { "Segments × joints, sorted into lower-triangular form: a filled cell means the joint moves the segment's SUs (gravity turned by more than "
                 (format!("{:.3}", s.threshold_g)) " g over " (s.orientations) " base orientation(s)). Dashed: within the uncertainty band; hover for the change in g." }
-            table class="matrix" {
+            div class="scroll" { table class="matrix" {
                 tr { th {} @for j in &m.joints { th title=(dofs_of(j)) { (j) } } }
                 @for (r, seg) in m.segments.iter().enumerate() {
                     tr {
@@ -80,7 +80,7 @@ pub(super) fn activity(s: &Structure) -> Markup {
                         }
                     }
                 }
-            }
+            } }
         }
     }
 }
@@ -159,16 +159,16 @@ const SU_ACTIVITY: &str = r#"(function () {
   var data = JSON.parse(document.getElementById('su-activity-data').textContent);
   var box = document.getElementById('su-activity');
   var rows = data.sus.length, cols = data.dofs.length;
-  var cw = Math.max(4, Math.min(16, Math.floor(420 / Math.max(1, cols))));
+  var cw = Math.max(4, Math.min(16, Math.floor(960 / Math.max(1, cols))));
   var ch = Math.max(1, Math.min(12, Math.floor(900 / Math.max(1, rows))));
-  var named = rows <= 80, top = cols <= 80 ? 90 : 4, left = named ? 110 : 4;
+  var named = rows <= 80 && ch >= 9, labelled = cw >= 10, top = labelled ? 90 : 4, left = named ? 110 : 4;
   data.orientations.forEach(function (cells, o) {
     var figure = document.createElement('figure'), canvas = document.createElement('canvas');
     figure.className = 'chart matrix-figure';
     canvas.width = left + cols * cw + 4; canvas.height = top + rows * ch + 4;
     var ctx = canvas.getContext('2d');
     ctx.font = '10px system-ui, sans-serif'; ctx.fillStyle = '#222';
-    if (cols <= 80) {
+    if (labelled) {
       data.dofs.forEach(function (d, j) {
         ctx.save(); ctx.translate(left + j * cw + cw * 0.7, top - 4); ctx.rotate(-Math.PI / 2);
         ctx.fillText(d, 0, 0); ctx.restore();
