@@ -44,7 +44,13 @@ for k in range(len(dh["a"])):
         f"     {np.degrees(dh['alpha'][k]):8.3f} ± {np.degrees(sd['alpha'][k]):5.3f}"
     )
 for su, (position, orientation) in limb.su_sd.items():
-    print(f"  {su}: position ± {1e3 * position:.2f} mm, orientation ± {np.degrees(orientation):.3f}°")
+    free = limb.su_undetermined.get(su)
+    note = (
+        f" (and {len(free['position'])} position direction(s), {len(free['orientation'])} axis(es) no reading determines)"
+        if free
+        else ""
+    )
+    print(f"  {su}: position ± {1e3 * position:.2f} mm, orientation ± {np.degrees(orientation):.3f}°{note}")
 
 # %% [markdown]
 # ## Held-out poses: the same skin, noise-free readings at 20 other poses

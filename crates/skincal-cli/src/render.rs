@@ -466,12 +466,14 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
             .map_or(String::new(), |r| {
                 (r.static_readings + r.dynamic_readings).to_string()
             });
+        // A pose with directions no reading determines is marked: its deviations cover the rest.
+        let mark = if u.is_partial() { "†" } else { "" };
         let _ = writeln!(
             out,
-            "{:>12} {:>16.2} {:>18.3} {:>11} {:>22} {:>20} {:>9}",
+            "{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
             u.su,
-            u.position_sd * 1e3,
-            u.orientation_sd.to_degrees(),
+            format!("{:.2}{mark}", u.position_sd * 1e3),
+            format!("{:.3}{mark}", u.orientation_sd.to_degrees()),
             ratio,
             bias,
             scale,
@@ -491,6 +493,14 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
         );
     }
     let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
+    for u in e.uncertainty.iter().filter(|u| u.is_partial()) {
+        let _ = writeln!(
+            out,
+            "† {}: not determined by any reading: {} (position in the frame it is relative to, turn in its own; the deviations cover the other directions)",
+            u.su,
+            u.undetermined()
+        );
+    }
     out
 }
 

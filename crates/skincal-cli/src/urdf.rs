@@ -136,6 +136,9 @@ fn export_into(
     for (su, why) in &alignment.unplaced {
         outln!("  not placed: {su}: {why}");
     }
+    for (su, why) in &alignment.partial {
+        outln!("  partly measured: {su}: {why}");
+    }
     if !alignment.check.disagree.is_empty() {
         eprintln!(
             "warning: {} with the calibration beyond 3σ; the SU frames after them are placed relative to the calibrated axes (see `skincal check-urdf`)",
@@ -147,6 +150,7 @@ fn export_into(
         "sus": alignment.sus.len(),
         "links": links.len(),
         "not_placed": alignment.unplaced.iter().map(|(su, why)| serde_json::json!({"su": su, "why": why})).collect::<Vec<_>>(),
+        "partly_measured": alignment.partial.iter().map(|(su, why)| serde_json::json!({"su": su, "why": why})).collect::<Vec<_>>(),
         "disagree": alignment.check.disagree,
     }));
     Ok(())

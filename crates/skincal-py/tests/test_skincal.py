@@ -51,6 +51,11 @@ def test_the_paper_arm_end_to_end_against_the_truth():
         assert np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-12)
     assert limb.dh is not None and limb.dh["dof_dof"]["a"].shape == (6,)
     assert np.all(limb.dh["dof_dof_sd"]["a"] > 0)
+    # What no reading tells is named, never given a deviation: the first SU's and the first
+    # pair's height along and turn about the vertical first axis; every later pair is determined.
+    assert set(limb.su_undetermined) == {"su1", "su2"}, limb.su_undetermined
+    first = limb.su_undetermined["su1"]["position"]
+    assert first.shape[1] == 3 and np.isclose(np.linalg.norm(first @ [0.0, 0.0, 1.0]), 1.0)
     # Noise-free readings of the true robot at 30 other poses: the model predicts them to the
     # accuracy the calibration's noise allows (the CLI's own figures for this setting).
     held = skincal.simulate("paper-7dof", seed=3, pose_seed=99, noise=0.0, structure=False)

@@ -170,6 +170,9 @@ pub struct Alignment {
     pub sus: Vec<SuOnLink>,
     /// SUs that could not be placed, and why.
     pub unplaced: Vec<(String, String)>,
+    /// SUs placed with directions of their pose that no reading determines, and which: placed
+    /// where the calibration's gauge left them in those directions, not measured.
+    pub partial: Vec<(String, String)>,
 }
 
 impl Alignment {
@@ -373,6 +376,10 @@ pub fn align(body: &BodyModel, urdf_text: &str) -> Result<Alignment, AlignError>
         .map(|j| j.dof.clone())
         .collect();
     let (sus, unplaced) = place_sus(&robot, &k.sus, &tree, &plan, &nominal.a);
+    let partial = partly_placed(body)
+        .into_iter()
+        .filter(|(su, _)| sus.iter().any(|s| &s.su == su))
+        .collect();
     Ok(Alignment {
         check: UrdfCheck {
             robot: tree.name.clone(),
@@ -382,7 +389,36 @@ pub fn align(body: &BodyModel, urdf_text: &str) -> Result<Alignment, AlignError>
         tree,
         sus,
         unplaced,
+        partial,
     })
+}
+
+/// The SUs whose pose relative to the rest of their limb no reading fully determines: those
+/// before the last SU of the limb whose pose relative to the SU before it has an undetermined
+/// direction (on an arm with a vertical first axis, the SUs on the first link: how far along and
+/// about that axis they sit from the rest). The alignment places a limb by its later axes, so
+/// these SUs stay where the calibration's gauge left them in those directions.
+pub fn partly_placed(body: &BodyModel) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    for limb in &body.limbs {
+        let u = &limb.estimate.uncertainty;
+        let Some(j) = (1..u.len()).rev().find(|&j| u[j].is_partial()) else {
+            continue;
+        };
+        for before in &u[..j] {
+            out.push((
+                before.su.clone(),
+                format!(
+                    "its pose relative to `{}` (limb {}) is not determined by any reading in some directions ({}, in `{}`'s frame): placed where the calibration's gauge left it there, not measured",
+                    u[j].su,
+                    limb.name,
+                    u[j].undetermined(),
+                    u[j - 1].su
+                ),
+            ));
+        }
+    }
+    out
 }
 
 /// Per DoF, the covariance of its check's components (none when no limb holds a joint
@@ -717,6 +753,12 @@ pub fn merge_sus(
     for s in &alignment.sus {
         let link = format!("{prefix}{}", s.su);
         let joint = format!("{link}_mount");
+        if alignment.partial.iter().any(|(su, _)| su == &s.su) {
+            block.push_str(&format!(
+                "  <!-- {}: partly measured: see the note of `skincal export-urdf` (its pose along some directions is the calibration's gauge, not a measurement). -->{newline}",
+                xml_escape(&s.su).replace("--", "- -")
+            ));
+        }
         for name in [&link, &joint] {
             if taken.contains(name.as_str()) {
                 return Err(AlignError::NameTaken(name.clone()));

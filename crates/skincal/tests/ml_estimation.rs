@@ -225,6 +225,69 @@ fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
 }
 
 #[test]
+fn what_no_reading_tells_is_listed_as_undetermined_never_given_a_deviation() {
+    // The paper's arm starts at the reference with one vertical DoF: where along that axis its
+    // first SU sits, and how far it is turned about it, no reading tells (the gauge holds them).
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let data = paper_noise_data(&truth, 1);
+    let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+    // The length of `v`'s share in the span of `basis` (orthonormal).
+    let share = |basis: &[[f64; 3]], v: Vector3<f64>| {
+        basis
+            .iter()
+            .map(|b| Vector3::from(*b).dot(&v).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let first = &e.uncertainty[0];
+    // The limb's reference frame is its first joint frame: the first axis is its z.
+    let z = Vector3::z();
+    assert!(
+        (share(&first.undetermined_position, z) - 1.0).abs() < 1e-6,
+        "{first:?}"
+    );
+    let robot = e.to_robot();
+    let k = skincal::model::forward_kinematics(&robot.model, &robot.parameters, &[0.0; 7]);
+    let own_axis = k.sus[0].rotation.inverse() * z;
+    assert!(
+        (share(&first.undetermined_orientation, own_axis) - 1.0).abs() < 1e-6,
+        "{first:?}"
+    );
+    assert!(first.undetermined().contains("position along"));
+    // So is the first pair's: the first SU is moved by the first DoF alone, whose accelerations
+    // are perpendicular to its axis and whose turn leaves gravity alone, so how far along and
+    // about that axis the second SU sits from the first no reading tells either (the paper's
+    // first pair, compared up to that screw).
+    let pair = &e.uncertainty[1];
+    let in_first = k.sus[0].rotation.inverse() * z;
+    let in_second = k.sus[1].rotation.inverse() * z;
+    assert!(
+        (share(&pair.undetermined_position, in_first) - 1.0).abs() < 1e-6,
+        "{pair:?}"
+    );
+    assert!(
+        (share(&pair.undetermined_orientation, in_second) - 1.0).abs() < 1e-6,
+        "{pair:?}"
+    );
+    assert_eq!(
+        (
+            pair.undetermined_position.len(),
+            pair.undetermined_orientation.len()
+        ),
+        (2, 1),
+        "a screw: along the axis, and a turn about it that moves the SU too"
+    );
+    // Every later SU's pose relative to the one before is determined in every direction.
+    for u in &e.uncertainty[2..] {
+        assert!(!u.is_partial(), "{u:?}");
+    }
+    // The same in `model.json`: the directions are written, and read back.
+    let json = serde_json::to_string(&e.uncertainty).unwrap();
+    let back: Vec<skincal::estimate::ml::SuUncertainty> = serde_json::from_str(&json).unwrap();
+    assert_eq!(back, e.uncertainty);
+}
+
+#[test]
 fn the_dh_form_of_the_truth_is_the_papers_table_and_the_estimate_gives_it_back() {
     use skincal::estimate::{dh_form, true_dh_table};
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();

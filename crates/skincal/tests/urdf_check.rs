@@ -291,3 +291,29 @@ fn a_relocated_urdf_names_its_meshes_absolutely_keeps_package_names_and_tells_mu
     let out = skincal::align::relocated(&told, std::path::Path::new("/home/u/r/urdf"));
     assert_eq!(out.matches("meshdir").count(), 1, "{out}");
 }
+
+#[test]
+fn an_su_whose_place_no_reading_tells_is_merged_with_a_word_saying_so() {
+    // The paper's arm: su1 is moved by the vertical first DoF alone, so how far along and about
+    // that axis it sits from su2 on, no reading tells; everything after su1 is determined.
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let model = crate::common::calibrated(&robot, &SimulationConfig::default());
+    let text = users_urdf(&robot, &[]);
+    let alignment = align(&model, &text).unwrap();
+    let named: Vec<&str> = alignment
+        .partial
+        .iter()
+        .map(|(su, _)| su.as_str())
+        .collect();
+    assert_eq!(named, ["su1"], "{:?}", alignment.partial);
+    assert!(
+        alignment.partial[0].1.contains("position along"),
+        "{:?}",
+        alignment.partial
+    );
+    let merged = merge_sus(&alignment, &text, "", false).unwrap();
+    assert_eq!(merged.matches("partly measured").count(), 1);
+    let comment = merged.find("<!-- su1: partly measured").unwrap();
+    let link = merged.find("<link name=\"su1\"/>").unwrap();
+    assert!(comment < link);
+}

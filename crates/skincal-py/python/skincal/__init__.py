@@ -342,7 +342,10 @@ class Limb:
 
     ``su_poses``: each SU's pose (4×4, m) in the body frame at the zero pose;
     ``su_sd``: each SU's position (m) and orientation (rad) standard deviation relative to the
-    previous SU; ``joint_covariance``: the covariance of the fitted joint lines (4 per DoF of
+    previous SU (the first: to the reference frame), in the directions the readings determine;
+    ``su_undetermined``: for an SU whose pose has directions no reading determines, those
+    directions (unit vectors: its position's in the frame it is relative to, its orientation's
+    axes in its own frame) — their standard deviation is not finite; ``joint_covariance``: the covariance of the fitted joint lines (4 per DoF of
     ``joint_covariance_dofs``: turns about x, y in rad, shifts along x, y in m); ``dh``: for a
     paper-style chain, the DH+2 table as arrays (``dof_dof``: theta0, d, a, alpha per DoF;
     ``dof_su``: also theta_acc, d_acc per SU; and their ``_sd``), else None.
@@ -356,6 +359,7 @@ class Limb:
     residual: float
     su_poses: Dict[str, np.ndarray]
     su_sd: Dict[str, Tuple[float, float]]
+    su_undetermined: Dict[str, Dict[str, np.ndarray]]
     joint_covariance: np.ndarray
     joint_covariance_dofs: List[str]
     gravity: np.ndarray
@@ -447,6 +451,14 @@ class Model:
                     residual=e["residual_ratio"],
                     su_poses={s: frames[s] for s in limb["sus"] if s in frames},
                     su_sd={u["su"]: (u["position_sd"], u["orientation_sd"]) for u in e["uncertainty"]},
+                    su_undetermined={
+                        u["su"]: {
+                            "position": np.array(u.get("undetermined_position", []), dtype=float).reshape(-1, 3),
+                            "orientation": np.array(u.get("undetermined_orientation", []), dtype=float).reshape(-1, 3),
+                        }
+                        for u in e["uncertainty"]
+                        if u.get("undetermined_position") or u.get("undetermined_orientation")
+                    },
                     joint_covariance=np.array(cov["matrix"], dtype=float).reshape(
                         4 * len(cov["dofs"]), 4 * len(cov["dofs"])
                     ),

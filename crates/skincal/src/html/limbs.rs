@@ -196,7 +196,7 @@ fn one_limb(
             div class="charts" {
                 (ratios.figure(html! { "Residual per SU, in σ; dashed: the noise level."
                     @if !flagged.is_empty() { " " span class="bad" { "Above 1.5 σ or broken: " (flagged.join(", ")) "." } } }))
-                (uncertainty.figure(html! { "SU position uncertainty (1σ), mm." }))
+                (uncertainty.figure(html! { "SU position uncertainty (1σ), mm, relative to the SU before it (the first: to the reference frame), in the directions the readings determine; the table lists those they do not." }))
                 @if whitened.len() >= 8 {
                     (quantile_plot(&whitened).figure(html! { "Normal quantile plot of every reading's whitened residual ("
                         (whitened.len()) " components): on the dashed line where the noise model is right; a steeper line means more noise than assumed, bent ends heavy tails." }))
@@ -207,13 +207,14 @@ fn one_limb(
                 }
             }
             table {
-                tr { th class="name" { "SU" } th { "position sd, mm" } th { "orientation sd, °" } th { "residual, σ" } }
+                tr { th class="name" { "SU" } th { "position sd, mm" } th { "orientation sd, °" } th { "residual, σ" } th class="name" { "not determined by any reading" } }
                 @for (u, r) in e.uncertainty.iter().zip(&e.su_residual_ratio) {
                     tr {
                         td class="name" { (u.su) }
                         td { (format!("{:.2}", u.position_sd * 1e3)) }
                         td { (format!("{:.3}", u.orientation_sd.to_degrees())) }
                         td class=(if *r > 1.5 { "bad" } else { "" }) { (format!("{r:.2}")) }
+                        td class="name note" { (u.undetermined()) }
                     }
                 }
             }

@@ -53,7 +53,7 @@ pub use bound::{
 
 use std::time::Instant;
 
-use nalgebra::{DMatrix, Isometry3, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -198,15 +198,46 @@ impl LimbBase {
 }
 
 /// One SU's parameter uncertainty, relative to the previous SU of the chain (to the reference frame
-/// for the first), at the zero pose.
+/// for the first), at the zero pose: what the readings determine, and the directions they do not.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SuUncertainty {
     /// The SU.
     pub su: String,
-    /// Standard deviation of its position, m (root of the trace of the 3×3 covariance).
+    /// Standard deviation of its position in the directions the readings determine, m (root of
+    /// the trace of the 3×3 covariance with `undetermined_position` taken out).
     pub position_sd: f64,
-    /// Standard deviation of its orientation, rad (root of the trace of the rotation covariance).
+    /// Standard deviation of its orientation about the axes the readings determine, rad.
     pub orientation_sd: f64,
+    /// Directions (unit vectors in the previous SU's frame, the reference frame for the first)
+    /// along which no reading determines its position: a gauge the estimate holds or a direction
+    /// the information leaves free. Its standard deviation there is not finite.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub undetermined_position: Vec<[f64; 3]>,
+    /// Axes (unit vectors in its own frame) about which no reading determines its orientation.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub undetermined_orientation: Vec<[f64; 3]>,
+}
+
+impl SuUncertainty {
+    /// Whether some direction of its pose is not determined by the readings.
+    pub fn is_partial(&self) -> bool {
+        !self.undetermined_position.is_empty() || !self.undetermined_orientation.is_empty()
+    }
+
+    /// The undetermined directions in words, e.g. `position along (0.00, 0.00, 1.00); turn
+    /// about (0.00, 0.00, 1.00)`; empty when every direction is determined.
+    pub fn undetermined(&self) -> String {
+        let list = |what: &str, v: &[[f64; 3]]| {
+            v.iter()
+                .map(|d| format!("{what} ({:.2}, {:.2}, {:.2})", d[0], d[1], d[2]))
+                .collect::<Vec<_>>()
+        };
+        list("position along", &self.undetermined_position)
+            .into_iter()
+            .chain(list("turn about", &self.undetermined_orientation))
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
 }
 
 /// The covariance of a limb's free joint lines, for checks of the joints' geometry (`check-urdf`).
@@ -1519,7 +1550,7 @@ fn final_fit(
         }
         None => (normal, residual_ratio),
     };
-    let (cov, unobservable) = covariance(
+    let (cov, unobservable, _) = covariance(
         &normal,
         &map,
         scale.max(1.0),
@@ -1527,7 +1558,8 @@ fn final_fit(
         config.observable_limit,
     );
     let unobservable = positions_in_one(unobservable, data, &readings);
-    let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov);
+    let open = free_directions(&state, &layout, &readings, &spec, sigma);
+    let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov, &open);
     let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
     let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, intrinsics_model);
     let mut fixed = Vec::new();
@@ -2220,12 +2252,68 @@ fn relative_pose(state: &ChainState, layout: &Layout, u: usize) -> Isometry3<f64
     }
 }
 
+/// A change of an SU's relative pose smaller than this per unit step along a free direction (m or
+/// rad per unit of the direction) does not count as the direction moving it.
+const FREE_MOTION: f64 = 1e-6;
+
+/// Unit vectors spanning `vectors` (Gram–Schmidt), those shorter than [`FREE_MOTION`] left out.
+fn span_of(vectors: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    let mut basis: Vec<Vector3<f64>> = Vec::new();
+    for v in vectors {
+        let mut r = *v;
+        for b in &basis {
+            r -= b * b.dot(&r);
+        }
+        if r.norm() > FREE_MOTION.max(1e-3 * v.norm()) && basis.len() < 3 {
+            basis.push(r.normalize());
+        }
+    }
+    basis
+}
+
+/// The standard deviation left in a 3×3 covariance once the directions of `basis` are taken out.
+fn sd_without(cov: &Matrix3<f64>, basis: &[Vector3<f64>]) -> f64 {
+    let p = basis
+        .iter()
+        .fold(Matrix3::identity(), |p, b| p - b * b.transpose());
+    (p * cov * p).trace().max(0.0).sqrt()
+}
+
+/// The directions no reading determines, with the gauge released: `spec` with its SUs' held
+/// components freed (the gauge holds one SU's turn about and shift along the first axis, which
+/// fixes a direction without being it: the free motion is a turn about the axis itself), and the
+/// null directions of the information of that problem, unit vectors over its columns.
+fn free_directions(
+    state: &ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> (Spec, Vec<DVector<f64>>) {
+    let mut open = spec.clone();
+    open.held
+        .retain(|(b, _)| !matches!(spec.blocks[*b], Block::Su(_)));
+    let readings = Readings {
+        gauge_prior: None,
+        ..readings.clone()
+    };
+    let map = ColumnMap::new(&open);
+    let normal = normal_system(state, layout, &readings, &open, &map, sigma);
+    let names = vec![String::new(); open.columns().len()];
+    let (_, _, free) = covariance(&normal, &map, 1.0, &names, f64::INFINITY);
+    (open, free)
+}
+
+/// Each SU's pose uncertainty relative to the previous SU, and the directions of it that no
+/// reading determines: the images of the free directions of the problem with its gauge released
+/// ([`free_directions`]).
 fn su_uncertainty(
     state: &ChainState,
     layout: &Layout,
     spec: &Spec,
     names: &[String],
     covariance: &DMatrix<f64>,
+    (open, free): &(Spec, Vec<DVector<f64>>),
 ) -> Vec<SuUncertainty> {
     let columns = spec.columns();
     let n = columns.len();
@@ -2234,43 +2322,71 @@ fn su_uncertainty(
         .into_par_iter()
         .map(|u| {
             let base = relative_pose(state, layout, u);
+            // How a step along `column` of `these` columns moves the relative pose (position in
+            // the previous SU's frame, rotation in the SU's own), per unit.
+            let motion_in = |spec: &Spec,
+                             these: &[(usize, usize)],
+                             column: usize|
+             -> Vector6<f64> {
+                let mut delta = vec![0.0; these.len()];
+                delta[column] = h;
+                let plus = relative_pose(&retract_columns(state, spec, these, &delta), layout, u);
+                delta[column] = -h;
+                let minus = relative_pose(&retract_columns(state, spec, these, &delta), layout, u);
+                let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
+                let dr = ((base.rotation.inverse() * plus.rotation).scaled_axis()
+                    - (base.rotation.inverse() * minus.rotation).scaled_axis())
+                    / (2.0 * h);
+                Vector6::new(dt.x, dt.y, dt.z, dr.x, dr.y, dr.z)
+            };
             // Only the two SUs' own blocks and the joints move the relative pose (no intrinsics,
             // no gravity).
-            let relevant: Vec<usize> = (0..n)
-                .filter(|&c| match spec.blocks[columns[c].0] {
-                    Block::Su(v) => v == u || v + 1 == u,
-                    Block::Intrinsics(_)
-                    | Block::Gravity
-                    | Block::GravityDirection
-                    | Block::SkinDelay => false,
-                    Block::Joint(_) | Block::JointFull(_) => true,
-                })
-                .collect();
+            let moves = |b: usize| match spec.blocks[b] {
+                Block::Su(v) => v == u || v + 1 == u,
+                Block::Intrinsics(_)
+                | Block::Gravity
+                | Block::GravityDirection
+                | Block::SkinDelay => false,
+                Block::Joint(_) | Block::JointFull(_) => true,
+            };
+            let relevant: Vec<usize> = (0..n).filter(|&c| moves(columns[c].0)).collect();
             let mut jac = DMatrix::zeros(6, relevant.len());
             for (j, &c) in relevant.iter().enumerate() {
-                let mut delta = vec![0.0; n];
-                delta[c] = h;
-                let plus =
-                    relative_pose(&retract_columns(state, spec, &columns, &delta), layout, u);
-                delta[c] = -h;
-                let minus =
-                    relative_pose(&retract_columns(state, spec, &columns, &delta), layout, u);
-                let dt = (plus.translation.vector - minus.translation.vector) / (2.0 * h);
-                let dr = (base.rotation.inverse() * plus.rotation).scaled_axis()
-                    - (base.rotation.inverse() * minus.rotation).scaled_axis();
-                for i in 0..3 {
-                    jac[(i, j)] = dt[i];
-                    jac[(3 + i, j)] = dr[i] / (2.0 * h);
-                }
+                jac.set_column(j, &motion_in(spec, &columns, c));
             }
             let sub = DMatrix::from_fn(relevant.len(), relevant.len(), |a, b| {
                 covariance[(relevant[a], relevant[b])]
             });
             let cov = &jac * sub * jac.transpose();
+            // What no reading tells: the images of the free directions with the gauge released.
+            let open_columns = open.columns();
+            let moved: Vec<(usize, Vector6<f64>)> = (0..open_columns.len())
+                .filter(|&c| moves(open_columns[c].0))
+                .map(|c| (c, motion_in(open, &open_columns, c)))
+                .collect();
+            let unmoored: Vec<Vector6<f64>> = free
+                .iter()
+                .map(|f| moved.iter().map(|(c, m)| m * f[*c]).sum())
+                .collect();
+            let position = span_of(
+                &unmoored
+                    .iter()
+                    .map(|m| m.fixed_rows::<3>(0).into_owned())
+                    .collect::<Vec<_>>(),
+            );
+            let orientation = span_of(
+                &unmoored
+                    .iter()
+                    .map(|m| m.fixed_rows::<3>(3).into_owned())
+                    .collect::<Vec<_>>(),
+            );
+            let block = |r: usize| Matrix3::from_fn(|i, j| cov[(r + i, r + j)]);
             SuUncertainty {
                 su: names[u].clone(),
-                position_sd: (cov[(0, 0)] + cov[(1, 1)] + cov[(2, 2)]).max(0.0).sqrt(),
-                orientation_sd: (cov[(3, 3)] + cov[(4, 4)] + cov[(5, 5)]).max(0.0).sqrt(),
+                position_sd: sd_without(&block(0), &position),
+                orientation_sd: sd_without(&block(3), &orientation),
+                undetermined_position: position.iter().map(|v| (*v).into()).collect(),
+                undetermined_orientation: orientation.iter().map(|v| (*v).into()).collect(),
             }
         })
         .collect()

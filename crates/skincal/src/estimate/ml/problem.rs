@@ -1244,15 +1244,15 @@ fn pseudo_inverse(m: &DMatrix<f64>, floor: f64) -> (DMatrix<f64>, Vec<(f64, DVec
 /// equations at the solution, by the Schur complement with symmetric eigen-decompositions of the
 /// small SU blocks and of the reduced shared system. Directions with no information at all (a
 /// gauge the data leave free: eigenvalue below 1e-12 of the largest diagonal entry) get no
-/// variance; directions the data determine only to worse than `limit` (m or rad) are reported by
-/// the parameters that make them up.
+/// variance, and are returned as unit vectors over the columns; directions the data determine only
+/// to worse than `limit` (m or rad) are reported by the parameters that make them up.
 pub(super) fn covariance(
     normal: &Normal,
     map: &ColumnMap,
     scale: f64,
     names: &[String],
     limit: f64,
-) -> (DMatrix<f64>, Vec<Unobservable>) {
+) -> (DMatrix<f64>, Vec<Unobservable>, Vec<DVector<f64>>) {
     let n = map.slots.len();
     let largest = normal
         .sus
@@ -1282,11 +1282,19 @@ pub(super) fn covariance(
         parts.sort_by(|a, b| b.0.total_cmp(&a.0));
         parts.iter().map(|&(_, c)| names[c].clone()).collect()
     };
+    let mut free = Vec::new();
     let mut a_inverse = Vec::with_capacity(normal.sus.len());
     let mut s = normal.c.clone();
     for (i, su) in normal.sus.iter().enumerate() {
         let (inv, pairs) = pseudo_inverse(&su.a, floor);
         for (e, v) in pairs {
+            if e <= floor {
+                let mut direction = DVector::zeros(n);
+                for (&c, x) in own_index[i].iter().zip(v.iter()) {
+                    direction[c] = *x;
+                }
+                free.push(direction);
+            }
             if e < weak {
                 let weights: Vec<(usize, f64)> = own_index[i]
                     .iter()
@@ -1320,6 +1328,13 @@ pub(super) fn covariance(
                 let own = -(ki * &v);
                 weights.extend(own_index[i].iter().copied().zip(own.iter().copied()));
             }
+            if e <= floor {
+                let mut direction = DVector::zeros(n);
+                for &(c, w) in &weights {
+                    direction[c] = w;
+                }
+                free.push(direction.normalize());
+            }
             unobservable.push(Unobservable {
                 singular_value: (e.max(0.0) / largest).sqrt(),
                 parameters: name_direction(&weights),
@@ -1348,5 +1363,5 @@ pub(super) fn covariance(
             put(&mut cov, &own_index[i], &own_index[j], &block);
         }
     }
-    (cov, unobservable)
+    (cov, unobservable, free)
 }
