@@ -2316,6 +2316,7 @@ fn su_uncertainty(
     (open, free): &(Spec, Vec<DVector<f64>>),
 ) -> Vec<SuUncertainty> {
     let columns = spec.columns();
+    let open_columns = open.columns();
     let n = columns.len();
     let h = 1e-6;
     (0..layout.su_segment.len())
@@ -2349,21 +2350,26 @@ fn su_uncertainty(
                 | Block::SkinDelay => false,
                 Block::Joint(_) | Block::JointFull(_) => true,
             };
+            // How each column moves the pose, once, over the open problem's columns (the
+            // fitted problem's are among them).
+            let moved: Vec<(usize, Vector6<f64>)> = (0..open_columns.len())
+                .filter(|&c| moves(open_columns[c].0))
+                .map(|c| (c, motion_in(open, &open_columns, c)))
+                .collect();
             let relevant: Vec<usize> = (0..n).filter(|&c| moves(columns[c].0)).collect();
             let mut jac = DMatrix::zeros(6, relevant.len());
             for (j, &c) in relevant.iter().enumerate() {
-                jac.set_column(j, &motion_in(spec, &columns, c));
+                let m = moved
+                    .iter()
+                    .find(|(o, _)| open_columns[*o] == columns[c])
+                    .map_or_else(|| motion_in(spec, &columns, c), |(_, m)| *m);
+                jac.set_column(j, &m);
             }
             let sub = DMatrix::from_fn(relevant.len(), relevant.len(), |a, b| {
                 covariance[(relevant[a], relevant[b])]
             });
             let cov = &jac * sub * jac.transpose();
             // What no reading tells: the images of the free directions with the gauge released.
-            let open_columns = open.columns();
-            let moved: Vec<(usize, Vector6<f64>)> = (0..open_columns.len())
-                .filter(|&c| moves(open_columns[c].0))
-                .map(|c| (c, motion_in(open, &open_columns, c)))
-                .collect();
             let unmoored: Vec<Vector6<f64>> = free
                 .iter()
                 .map(|f| moved.iter().map(|(c, m)| m * f[*c]).sum())
