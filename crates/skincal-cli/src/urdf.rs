@@ -170,11 +170,23 @@ pub fn check_urdf(args: CheckUrdfArgs) -> Result<()> {
         check.robot
     );
     out!("{}", skincal::report::urdf_check(check));
+    if !alignment.partial.is_empty() {
+        let sus: Vec<&str> = alignment
+            .partial
+            .iter()
+            .map(|(su, _)| su.as_str())
+            .collect();
+        outln!(
+            "\nnot measured: where {} sit along and about the axes before them relative to the rest of their limb (see `export-urdf --into`); nothing here checks the URDF there",
+            sus.join(", ")
+        );
+    }
     out::json(&serde_json::json!({
         "command": "check-urdf",
         "model": args.model.display().to_string(),
         "urdf": args.urdf.display().to_string(),
         "check": check,
+        "partly_measured": alignment.partial.iter().map(|(su, why)| serde_json::json!({"su": su, "why": why})).collect::<Vec<_>>(),
     }));
     if check.disagree.is_empty() {
         outln!("\nevery compared joint agrees with the calibration within 3σ");
