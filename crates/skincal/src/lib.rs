@@ -9,9 +9,19 @@
 //! 2. **Kinematic estimation** — Denavit–Hartenberg chains and SU frames fitted to static gravity
 //!    readings and to the accelerations of short excitation patterns.
 //!
-//! Modules, in the direction their dependencies point:
-//! [`model`] (kinematic tree, DH, sensor model, descriptions) ← [`measurements`] (the measurement
-//! set contract) ← [`sim`] (simulated experiments) ← [`io`] (files).
+//! Modules, in the direction their dependencies point (ARCHITECTURE.md has the map):
+//!
+//! - [`model`]: the kinematic tree, DH and URDF placements, the sensor model, robot descriptions;
+//! - [`measurements`]: the measurement-set contract; [`motion`]: the motion record of a log;
+//! - [`plan`]: the exploration program; [`collision`]: self-collision on a URDF's geometry;
+//! - [`log`]: ROS 2 (MCAP, rosbag2), ROS 1 and CSV logs, read and written as streams;
+//! - [`sim`]: simulated experiments and logs with the ground truth;
+//! - [`explore`]: structural exploration (the activity matrix, the tree);
+//! - [`ingest`]: logs into a measurement set and a motion record;
+//! - [`estimate`]: kinematic estimation (the paper's estimator, maximum likelihood, the body);
+//! - [`predict`]: what a calibrated model predicts, checked against a measurement set;
+//! - [`design`]: what a plan can be expected to reach; [`align`]: the model on the robot's URDF;
+//! - [`report`] and [`html`]: text and the report page; [`io`]: every file read and written.
 //!
 //! Units are SI throughout: m, rad, s, m/s².
 //!

@@ -3,18 +3,18 @@
 //! its inputs do, one module each:
 //!
 //! - `summary` (here): what the directory holds;
-//! - [`structure`]: the activity matrices (the paper's Fig. 2: SUs × DoFs as explored, per base
+//! - `structure`: the activity matrices (the paper's Fig. 2: SUs × DoFs as explored, per base
 //!   orientation, and segments × joints merged, uncertain entries marked) and the kinematic tree;
-//! - [`body3d`]: the calibrated body in 3D, limbs where the URDF puts them (else a layout),
+//! - `body3d`: the calibrated body in 3D, limbs where the URDF puts them (else a layout),
 //!   turned with the mouse, a slider per DoF;
-//! - [`limbs`]: per limb the fit, its residuals and uncertainties, every reading's whitened
+//! - `limbs`: per limb the fit, its residuals and uncertainties, every reading's whitened
 //!   residual (normal quantile plot, histogram), the pose errors against the truth beside the
 //!   Cramér–Rao bound (Fig. 6), the DH+2 table;
-//! - [`checks`]: held-out errors per SU against the noise floor, the URDF's joints, what was set
+//! - `checks`: held-out errors per SU against the noise floor, the URDF's joints, what was set
 //!   aside and why;
-//! - [`timeline`]: for logs, each recording's windows, moves and excitations per DoF.
+//! - `timeline`: for logs, each recording's windows, moves and excitations per DoF.
 //!
-//! Charts are drawn by [`charts`]: their numbers are in the page as JSON. A script catches
+//! Charts are drawn by `charts`: their numbers are in the page as JSON. A script catches
 //! JavaScript errors into `#script-errors`, so that a headless browser's DOM says whether the page
 //! ran cleanly; the page records how long it took to draw in `data-drawn-ms`.
 

@@ -3,7 +3,7 @@
 //! A log (MCAP or CSV, see [`crate::log`]) holds joint states and raw accelerometer samples of a
 //! robot that followed the exploration protocol: still periods, and between them motions of one
 //! DoF at a time (structure moves and windowed excitation patterns) or transfers of several DoFs.
-//! Ingestion reads each log once, streaming ([`pass`]: the skin samples wait until the window they
+//! Ingestion reads each log once, streaming (`pass`: the skin samples wait until the window they
 //! fall in is known; a log that breaks what this relies on is read twice, the joint states first):
 //!
 //! 1. **Joint states → windows.** The joint positions are put on a uniform grid at the log's rate

@@ -2,9 +2,9 @@
 //!
 //! Two formats written by the time-series simulator and read by the ingestion:
 //!
-//! * **MCAP** ([`mcap`](self::mcap)): ROS 2 messages, CDR-encoded ([`ros`]); joint states on
+//! * **MCAP** ([`mcap`]): ROS 2 messages, CDR-encoded ([`ros`]); joint states on
 //!   `/joint_states`, skin samples on `/skin/imu` (topic names are options when reading).
-//! * **CSV** ([`csv`](self::csv)): a directory with `joint_states.csv` (`stamp,<DoF names…>`, rad)
+//! * **CSV** ([`csv`]): a directory with `joint_states.csv` (`stamp,<DoF names…>`, rad)
 //!   and `imu.csv` (`stamp,frame_id,ax,ay,az`, m/s²); stamps in seconds.
 //!
 //! Read as well: rosbag2 directories (their `metadata.yaml` lists MCAP or SQLite files,

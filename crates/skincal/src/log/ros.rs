@@ -153,7 +153,7 @@ pub struct Vector3 {
 pub struct Imu {
     /// Stamp and SU name.
     pub header: Header,
-    /// Unknown for skin (covariance[0] = −1).
+    /// Unknown for skin (`covariance[0] = −1`).
     pub orientation: Quaternion,
     /// Row-major 3×3.
     pub orientation_covariance: [f64; 9],

@@ -133,7 +133,7 @@ impl Sweep {
     }
 
     /// The largest `|displacement|`, `|velocity|` and `|acceleration|` of DoF `dof`'s path over a
-    /// sweep of `duration` s, on a grid of [`PEAK_GRID`] points per period of the highest harmonic.
+    /// sweep of `duration` s, on a grid of `PEAK_GRID` points per period of the highest harmonic.
     pub fn peaks(&self, dof: usize, duration: f64) -> [f64; 3] {
         let highest = self.frequency * self.harmonics.get(dof).map_or(1, Vec::len).max(1) as f64;
         let n = (duration * highest * PEAK_GRID).ceil().max(2.0) as usize;

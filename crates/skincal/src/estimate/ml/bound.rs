@@ -75,7 +75,7 @@ fn sequence_state_of(
     })
 }
 
-/// The Cramér–Rao bound on the consecutive-SU pose errors of [`super::consecutive_su_errors`]:
+/// The Cramér–Rao bound on the consecutive-SU pose errors of [`crate::estimate::consecutive_su_errors`]:
 /// the parameter covariance `σ²(JᵀJ)⁻¹` of the whitened Jacobian at the truth (for the training poses
 /// of `data`; readings do not enter), propagated to each SU's pose relative to the previous one over
 /// `poses` random held-out poses (seeded, each DoF uniform in ±2.62 rad). Returns the RMS position

@@ -1335,7 +1335,7 @@ impl Lead<'_> {
 
 /// Of every order of the DoFs inside the limb's joints of several DoFs (gravity alone cannot
 /// tell them apart), the readings' fit whose start leads best to the motion of `record`
-/// ([`Lead::run`] on every [`ORDER_THINNING`]-th block), with the limb's data in that order. `first`:
+/// (the lead on every fourth block), with the limb's data in that order. `first`:
 /// the fit of `data`'s order, kept where the limb has no such joint or the readings hold
 /// dynamic readings (which tell the order themselves).
 pub fn order_on_motion(
