@@ -20,9 +20,15 @@
 //! `R ← exp(ω)·R`), so there are no Euler-angle or DH singularities; the Jacobian is analytic at
 //! the point of linearisation and checked against central differences in the tests.
 //!
-//! **Solver.** Levenberg–Marquardt with Marquardt scaling: every step solves the damped system by
-//! Householder QR of the stacked matrix `[J; √λ·D]` (never `(JᵀJ)⁻¹`); the damping grows on rejected
-//! steps and shrinks on accepted ones.
+//! **Solver.** Levenberg–Marquardt on the normal equations, block by block (`problem.rs`): every
+//! SU's rows depend on its own parameters and on the shared ones (gravity, the joint lines) only,
+//! so each SU block is linearised on its own (in parallel), reduced to its small normal-equation
+//! pieces and eliminated by the Schur complement (Cholesky of each damped SU block), and only the
+//! reduced shared system is factorised (Cholesky; a step whose damped system is not positive
+//! definite is not taken). Time is linear in the number of SUs; the damping grows on rejected
+//! steps and shrinks on accepted ones. Readings are weighed by their own
+//! standard deviations where the set has them, with a Huber weight per reading; weak 10 m priors
+//! hold what no reading tells near the frames during the solves (never in what is reported).
 //!
 //! **Initialisation**, segment by segment (the physics first, search only where it is needed):
 //! 1. An SU on the segment that DoF `k` moves directly sees all its DoF-`k` accelerations
@@ -36,9 +42,11 @@
 //! 4. Every candidate (both signs of the axis, every searched angle) is refined by LM on the
 //!    segment's data; the best is kept. Finally the whole chain is refined jointly.
 //!
-//! **Uncertainty.** The parameter covariance is `σ̂²·(RᵀR)⁻¹` from the R factor of the whitened
-//! Jacobian's QR (triangular solves, no explicit normal-matrix inverse), and is propagated to each
-//! SU's position and orientation relative to the previous SU.
+//! **Uncertainty.** The parameter covariance is `σ̂²·(JᵀJ)⁺` by the same elimination, with
+//! symmetric eigen-decompositions of the SU blocks and of the reduced shared system (directions
+//! with no information get none), propagated to each SU's position and orientation relative to the
+//! previous SU. The directions of that pose no reading determines — the null directions of the
+//! information with the gauge released — are listed per SU, never given a deviation.
 
 mod bound;
 mod init;
