@@ -606,3 +606,52 @@ fn a_set_of_static_readings_alone_calibrates_every_orientation() {
         "{err}"
     );
 }
+
+#[test]
+fn an_su_the_tree_puts_on_the_wrong_segment_is_named_as_misplaced_with_the_segment_it_fits() {
+    // The humanoid's tree as explored, then one SU moved by hand one segment up its arm: the
+    // calibration must not call the limb fine nor the sensor noisy, but say where it fits.
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let set = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let explored = explore(&set, &ExploreConfig::default()).unwrap();
+    let home = |s: &skincal::explore::Structure, su: &str| {
+        s.segments
+            .iter()
+            .find(|g| g.sus.iter().any(|x| x == su))
+            .map(|g| g.id.clone())
+            .unwrap()
+    };
+    let (su, from) = ("l_forearm_front", home(&explored, "l_forearm_front"));
+    let upper = home(&explored, "l_upper_arm_front");
+    assert_ne!(from, upper);
+    let mut wrong = explored.clone();
+    for g in &mut wrong.segments {
+        g.sus.retain(|x| x != su);
+        if g.id == upper {
+            g.sus.push(su.into());
+        }
+    }
+    for l in &mut wrong.limbs {
+        l.sus.retain(|x| x != su);
+        if l.segments.contains(&upper) {
+            l.sus.push(su.into());
+        }
+    }
+    let model = calibrate_body(&set, Some(&wrong), &MlConfig::default(), None).unwrap();
+    let named = model
+        .broken
+        .iter()
+        .find(|b| b.su == su)
+        .expect("the misplaced SU");
+    assert_eq!(named.kind, "misplaced", "{named:?}");
+    assert!(
+        named.detail.contains(&format!("on segment {upper} where"))
+            && named.detail.contains(&format!("on segment {from}:")),
+        "{named:?}"
+    );
+    // Nothing else is blamed, and every limb fits at the noise without it.
+    assert_eq!(model.broken.len(), 1, "{:?}", model.broken);
+    assert!(model.limbs.iter().all(|l| l.estimate.converged));
+}

@@ -652,6 +652,14 @@ fn set_aside_misfits(
                     "its fitted sensitivities ({sensitivities}) are far from 1: a wrong range setting or a faulty part"
                 ),
             )
+        } else if let Some((segment, r)) = fits_elsewhere(set, &chain, joint, &su, base, config) {
+            (
+                "misplaced",
+                format!(
+                    "its readings fit {:.1}× the noise on segment {} where the structure puts it, but {r:.2}× on segment {segment}: the tree is wrong for this SU (check its row of the activity matrix, or record its structure moves again and explore)",
+                    ratios[u], chain.joints[joint].segment
+                ),
+            )
         } else if let Some(r) = reflected().filter(|&r| r < config.converged_ratio) {
             (
                 "improper frame",
@@ -678,6 +686,33 @@ fn set_aside_misfits(
         estimate = estimate_limb(&LimbData::new(set, &chain)?, base, config)?;
     }
     Ok(estimate)
+}
+
+/// The segment of `chain` (other than its joint `joint`'s) on which SU `su` fits at the noise
+/// level, and its residual there: the limb fitted again with the SU moved to each of the others
+/// (the one it fits best, if any fits). A wrong tree for one SU then reads as what it is, not as
+/// a noisy sensor.
+fn fits_elsewhere(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    joint: usize,
+    su: &str,
+    base: Option<&LimbBase>,
+    config: &MlConfig,
+) -> Option<(String, f64)> {
+    (chain.base_joints..chain.joints.len())
+        .filter(|&j| j != joint)
+        .filter_map(|j| {
+            let mut moved = chain.clone();
+            moved.joints[joint].sus.retain(|s| s != su);
+            moved.joints[j].sus.push(su.to_string());
+            let e = estimate_limb(&LimbData::new(set, &moved).ok()?, base, config).ok()?;
+            let at = e.chain.sus().iter().position(|s| s == su)?;
+            let r = *e.su_residual_ratio.get(at)?;
+            (e.converged && r < config.converged_ratio)
+                .then(|| (moved.joints[j].segment.clone(), r))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
 }
 
 /// `set` with SU `su`'s training readings mirrored (z negated).
