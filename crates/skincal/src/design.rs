@@ -75,29 +75,29 @@ fn per_sample_sd(imperfections: &Imperfections) -> f64 {
     (imperfections.uniform_noise.powi(2) / 3.0 + imperfections.gaussian_noise.powi(2)).sqrt() * g
 }
 
-/// A temporary directory, removed on drop.
-struct Scratch(PathBuf);
+/// A scratch directory for a recorded log, removed on drop (or by
+/// [`crate::log::remove_transient`] on a signal).
+struct Scratch {
+    dir: tempfile::TempDir,
+    /// The log's path inside it (`ingest` takes paths).
+    log: PathBuf,
+}
 
 impl Scratch {
     fn new() -> Result<Scratch, DesignError> {
-        let stamp = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        let dir =
-            std::env::temp_dir().join(format!("skincal-forecast-{}-{stamp}", std::process::id()));
-        std::fs::create_dir_all(&dir).map_err(|e| {
-            DesignError::Step(format!(
-                "cannot create the scratch directory {}: {e}",
-                dir.display()
-            ))
-        })?;
-        Ok(Scratch(dir))
+        let dir = tempfile::Builder::new()
+            .prefix("skincal-forecast-")
+            .tempdir()
+            .map_err(|e| DesignError::Step(format!("cannot create a scratch directory: {e}")))?;
+        crate::log::hold_transient(dir.path());
+        let log = dir.path().to_path_buf();
+        Ok(Scratch { dir, log })
     }
 }
 
 impl Drop for Scratch {
     fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
+        crate::log::release_transient(self.dir.path());
     }
 }
 
@@ -116,7 +116,7 @@ fn recorded(
         part,
         ..LogConfig::default()
     };
-    let mut sink = CsvSink::new(&scratch.0, true);
+    let mut sink = CsvSink::new(&scratch.log, true);
     record(robot, plan, &config, &mut sink, &mut |_| {})
         .map_err(|e| DesignError::Step(format!("recording {what}: {e}")))?;
     Ok(scratch)
@@ -156,7 +156,7 @@ pub fn reading_noise(
     }
     .for_still_periods(plan.config.still);
     let ingested = ingest(
-        std::slice::from_ref(&scratch.0),
+        std::slice::from_ref(&scratch.log),
         &ingest_config,
         &mut |_, _, _| {},
     )
@@ -375,7 +375,7 @@ pub fn forecast_sweep(
     let scratch = recorded(robot, plan, None, &imperfections, "the program")?;
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
     let motion = motion_record(
-        std::slice::from_ref(&scratch.0),
+        std::slice::from_ref(&scratch.log),
         &dofs,
         &sus,
         &IngestConfig::default(),

@@ -164,21 +164,20 @@ enum Failure {
 
 /// The spilled arrays, in a temporary directory that is removed when dropped (or on a signal).
 struct Spill {
-    dir: PathBuf,
+    dir: tempfile::TempDir,
     arrays: BTreeMap<Array, (PathBuf, BufWriter<fs::File>, bool)>,
 }
 
 impl Spill {
     fn create(beside: &Path) -> Result<Self, IoError> {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.subsec_nanos());
-        let dir = beside.join(format!(".skincal-spill-{}-{nanos}", std::process::id()));
-        fs::create_dir_all(&dir).map_err(|source| IoError::Write {
-            path: dir.clone(),
-            source,
-        })?;
-        crate::log::hold_transient(&dir);
+        let dir = tempfile::Builder::new()
+            .prefix(".skincal-spill-")
+            .tempdir_in(beside)
+            .map_err(|source| IoError::Write {
+                path: beside.to_path_buf(),
+                source,
+            })?;
+        crate::log::hold_transient(dir.path());
         Ok(Spill {
             dir,
             arrays: BTreeMap::new(),
@@ -192,7 +191,7 @@ impl Spill {
             move |source| IoError::Write { path, source }
         };
         if !self.arrays.contains_key(&array) {
-            let path = self.dir.join(self.arrays.len().to_string());
+            let path = self.dir.path().join(self.arrays.len().to_string());
             let file = fs::File::create(&path).map_err(written(&path))?;
             self.arrays
                 .insert(array, (path, BufWriter::new(file), true));
@@ -289,9 +288,9 @@ impl Spill {
 
 impl Drop for Spill {
     fn drop(&mut self) {
+        // The files closed first; the directory goes with `dir`.
         self.arrays.clear();
-        let _ = fs::remove_dir_all(&self.dir);
-        crate::log::release_transient(&self.dir);
+        crate::log::release_transient(self.dir.path());
     }
 }
 
