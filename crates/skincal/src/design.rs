@@ -25,18 +25,19 @@ use rand_distr::{Distribution, Normal};
 
 use crate::estimate::body::{calibrate_body, calibrate_body_on_motion};
 use crate::estimate::ml::MlConfig;
-use crate::explore::{explore, ExploreConfig, Structure};
+use crate::estimate::EstimateError;
+use crate::explore::{explore, ExploreConfig, ExploreError, Structure};
 use crate::ingest::motion::motion_record;
-use crate::ingest::{ingest, IngestConfig};
+use crate::ingest::{ingest, IngestConfig, IngestError};
 use crate::log::csv::CsvSink;
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::Robot;
 use crate::plan::{Clearance, Part, Plan, PlanConfig, PlanDof, PlanError};
 pub use crate::plan::{Forecast, ReadingNoise};
-use crate::predict::validate;
-use crate::sim::timeseries::{record, LogConfig};
-use crate::sim::{simulate, Imperfections, SimulationConfig};
+use crate::predict::{validate, PredictError};
+use crate::sim::timeseries::{record, LogConfig, RecordError};
+use crate::sim::{simulate, Imperfections, SimulationConfig, SimulationError};
 
 /// Why no forecast could be made.
 #[derive(Debug, thiserror::Error)]
@@ -49,9 +50,54 @@ pub enum DesignError {
          wrote)"
     )]
     NoSus,
-    /// A step of the forecast failed; the message says which.
+    /// The scratch directory for a recorded log could not be made.
+    #[error("forecast: cannot create a scratch directory: {0}")]
+    Scratch(#[source] std::io::Error),
+    /// Simulating the description failed.
+    #[error("forecast: simulating {what}: {source}")]
+    Simulate {
+        /// What was simulated.
+        what: &'static str,
+        /// Why.
+        #[source]
+        source: SimulationError,
+    },
+    /// Recording the plan as a log failed.
+    #[error("forecast: recording {what}: {source}")]
+    Record {
+        /// What was recorded.
+        what: &'static str,
+        /// Why.
+        #[source]
+        source: RecordError,
+    },
+    /// Reading the recorded log failed.
+    #[error("forecast: {what}: {source}")]
+    Ingest {
+        /// What was read.
+        what: &'static str,
+        /// Why.
+        #[source]
+        source: IngestError,
+    },
+    /// Exploring the simulated structure experiment failed.
+    #[error("forecast: exploring the description: {0}")]
+    Explore(#[source] ExploreError),
+    /// Calibrating on the forecast's readings failed.
+    #[error("forecast: {what}: {source}")]
+    Calibrate {
+        /// From what.
+        what: &'static str,
+        /// Why.
+        #[source]
+        source: EstimateError,
+    },
+    /// Predicting the held-out poses failed.
+    #[error("forecast: predicting the held-out poses: {0}")]
+    Predict(#[source] PredictError),
+    /// A step gave less than the forecast needs (the message says what).
     #[error("forecast: {0}")]
-    Step(String),
+    Incomplete(&'static str),
     /// The plan itself.
     #[error(transparent)]
     Plan(#[from] PlanError),
@@ -88,7 +134,7 @@ impl Scratch {
         let dir = tempfile::Builder::new()
             .prefix("skincal-forecast-")
             .tempdir()
-            .map_err(|e| DesignError::Step(format!("cannot create a scratch directory: {e}")))?;
+            .map_err(DesignError::Scratch)?;
         crate::log::hold_transient(dir.path());
         let log = dir.path().to_path_buf();
         Ok(Scratch { dir, log })
@@ -108,7 +154,7 @@ fn recorded(
     plan: &Plan,
     part: Option<Part>,
     imperfections: &Imperfections,
-    what: &str,
+    what: &'static str,
 ) -> Result<Scratch, DesignError> {
     let scratch = Scratch::new()?;
     let config = LogConfig {
@@ -118,7 +164,7 @@ fn recorded(
     };
     let mut sink = CsvSink::new(&scratch.log, true);
     record(robot, plan, &config, &mut sink, &mut |_| {})
-        .map_err(|e| DesignError::Step(format!("recording {what}: {e}")))?;
+        .map_err(|source| DesignError::Record { what, source })?;
     Ok(scratch)
 }
 
@@ -160,18 +206,23 @@ pub fn reading_noise(
         &ingest_config,
         &mut |_, _, _| {},
     )
-    .map_err(|e| DesignError::Step(format!("ingesting one recorded pose: {e}")))?;
+    .map_err(|source| DesignError::Ingest {
+        what: "ingesting one recorded pose",
+        source,
+    })?;
     let pose = ingested
         .measurements
         .training
         .as_ref()
         .and_then(|t| t.poses.first())
-        .ok_or_else(|| DesignError::Step("one recorded pose gave no training pose".into()))?;
+        .ok_or(DesignError::Incomplete(
+            "one recorded pose gave no training pose",
+        ))?;
     let rms = |v: &mut dyn Iterator<Item = f64>| {
         let (sum, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
         (n > 0).then(|| (sum / n as f64).sqrt())
     };
-    let missing = || DesignError::Step("ingest gave no reading uncertainty".into());
+    let missing = || DesignError::Incomplete("ingest gave no reading uncertainty");
     let static_sd = rms(&mut pose.static_sd.iter().flatten().copied()).ok_or_else(missing)?;
     let dynamic_sd = rms(&mut pose.dynamic_sd.values().flatten().copied()).ok_or_else(missing)?;
     Ok(ReadingNoise {
@@ -196,10 +247,10 @@ impl Reference {
         if robot.model.sus().is_empty() {
             return Err(DesignError::NoSus);
         }
-        let simulated = |config: SimulationConfig, what: &str| {
+        let simulated = |config: SimulationConfig, what: &'static str| {
             simulate(robot, &config)
                 .map(|s| s.measurements)
-                .map_err(|e| DesignError::Step(format!("simulating {what}: {e}")))
+                .map_err(|source| DesignError::Simulate { what, source })
         };
         let explored = simulated(
             SimulationConfig {
@@ -209,11 +260,11 @@ impl Reference {
             },
             "the structure part",
         )?;
-        let structure = explore(&explored, &ExploreConfig::default())
-            .map_err(|e| DesignError::Step(format!("exploring the description: {e}")))?;
+        let structure =
+            explore(&explored, &ExploreConfig::default()).map_err(DesignError::Explore)?;
         if !structure.complete {
-            return Err(DesignError::Step(
-                "exploring the description does not give its whole tree".into(),
+            return Err(DesignError::Incomplete(
+                "exploring the description does not give its whole tree",
             ));
         }
         let held_out = simulated(
@@ -320,10 +371,14 @@ pub fn forecast(
             extra: Default::default(),
         });
         let calibrated =
-            calibrate_body(&set, Some(&reference.structure), &MlConfig::default(), None)
-                .map_err(|e| DesignError::Step(format!("calibrating the plan's poses: {e}")))?;
-        let check = validate(&calibrated, &reference.held_out, "held-out")
-            .map_err(|e| DesignError::Step(format!("predicting the held-out poses: {e}")))?;
+            calibrate_body(&set, Some(&reference.structure), &MlConfig::default(), None).map_err(
+                |source| DesignError::Calibrate {
+                    what: "calibrating the plan's poses",
+                    source,
+                },
+            )?;
+        let check =
+            validate(&calibrated, &reference.held_out, "held-out").map_err(DesignError::Predict)?;
         static_ss += check.static_rms.powi(2);
         dynamic_ss += check.dynamic_rms.powi(2);
     }
@@ -381,7 +436,10 @@ pub fn forecast_sweep(
         &IngestConfig::default(),
         &mut |_, _, _| {},
     )
-    .map_err(|e| DesignError::Step(format!("reading the recorded sweep: {e}")))?;
+    .map_err(|source| DesignError::Ingest {
+        what: "reading the recorded sweep",
+        source,
+    })?;
     let mut set = MeasurementSet::new(dofs, sus);
     set.structure.clone_from(&reference.explored.structure);
     let calibrated = calibrate_body_on_motion(
@@ -393,9 +451,12 @@ pub fn forecast_sweep(
         &[],
         &mut |_, _, _| {},
     )
-    .map_err(|e| DesignError::Step(format!("calibrating from the sweep: {e}")))?;
-    let check = validate(&calibrated, &reference.held_out, "held-out")
-        .map_err(|e| DesignError::Step(format!("predicting the held-out poses: {e}")))?;
+    .map_err(|source| DesignError::Calibrate {
+        what: "calibrating from the sweep",
+        source,
+    })?;
+    let check =
+        validate(&calibrated, &reference.held_out, "held-out").map_err(DesignError::Predict)?;
     let block: Vec<f64> = motion.noise_sd.iter().flatten().copied().collect();
     let block_sd = (block.iter().map(|s| s * s).sum::<f64>() / block.len().max(1) as f64).sqrt();
     Ok(Forecast {
@@ -456,7 +517,7 @@ pub fn best_draw(
     tried
         .into_iter()
         .min_by(|a, b| a.1.worst().total_cmp(&b.1.worst()))
-        .ok_or_else(|| DesignError::Step("no pose draw tried".into()))
+        .ok_or(DesignError::Incomplete("no pose draw tried"))
 }
 
 /// The plan with the fewest training poses (from `config.poses` up, at most [`MAX_POSES`]) whose
