@@ -436,6 +436,8 @@ fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
     );
     // The truth's a of dof2 → dof3 (0.3 m) is there.
     assert!(page.contains("(0.3000)"));
+    // The first rows' θ0 and d are the estimator's gauge: named so, with no deviation.
+    assert_eq!(page.matches("(gauge)").count(), 4);
 }
 
 /// A limb's fit converged with a residual at its noise level (within 15 %).

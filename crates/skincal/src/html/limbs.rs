@@ -87,12 +87,15 @@ pub(super) fn truth_errors(
     })
 }
 
-/// A DH+2 value, and the true one beside it when known.
-fn dh_cell(value: f64, sd: Option<f64>, truth: Option<f64>) -> Markup {
+/// A DH+2 value with its standard deviation, the true one beside it when known; `gauge` for the
+/// first rows' θ0 and d, which no reading determines (a choice of the estimator, not a
+/// measurement: no deviation).
+fn dh_cell(value: f64, sd: Option<f64>, truth: Option<f64>, gauge: bool) -> Markup {
     html! {
         td {
             (format!("{value:.4}"))
-            @if let Some(sd) = sd { span class="note" { " ± " (format!("{sd:.4}")) } }
+            @if gauge { span class="note" { " (gauge)" } }
+            @else if let Some(sd) = sd { span class="note" { " ± " (format!("{sd:.4}")) } }
             @if let Some(t) = truth { br; span class="note" { "(" (format!("{t:.4}")) ")" } }
         }
     }
@@ -326,7 +329,7 @@ fn dh_tables(limb: &BodyLimb, inputs: &LimbInputs) -> Markup {
                     @let t = true_rows.as_ref().and_then(|(rows, _)| rows.get(k)).map(|r| r.values());
                     @let sd = dh.dof_dof_sd.get(k).map(|r| r.values());
                     tr { td class="name" { (serial.dofs[k]) " → " (serial.dofs.get(k + 1).cloned().unwrap_or_default()) }
-                        @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]))) } }
+                        @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]), k == 0 && i < 2)) } }
                     @if let Some(row) = by_paper.and_then(|p| p.dof_dof.get(k)) {
                         tr class="paper" { td class="name" { i { "paper's method" } }
                             @for v in row.values() { td { i { (format!("{v:.4}")) } } } }
@@ -339,7 +342,7 @@ fn dh_tables(limb: &BodyLimb, inputs: &LimbInputs) -> Markup {
                     @let t = true_rows.as_ref().and_then(|(_, rows)| rows.get(k)).map(|r| r.values());
                     @let sd = dh.dof_su_sd.get(k).map(|r| r.values());
                     tr { td class="name" { (serial.dofs[k]) " → " (serial.sus.get(k).cloned().unwrap_or_default()) }
-                        @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]))) } }
+                        @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]), k == 0 && i < 2)) } }
                     @if let Some(row) = by_paper.and_then(|p| p.dof_su.get(k)) {
                         tr class="paper" { td class="name" { i { "paper's method" } }
                             @for v in row.values() { td { i { (format!("{v:.4}")) } } } }
