@@ -455,6 +455,59 @@ pub struct SuResiduals {
     pub dynamics: Vec<f64>,
 }
 
+/// One reading of a measurement set beside the model's prediction of it.
+struct Compared {
+    /// The SU, in the model's order.
+    su: usize,
+    /// Whether it is a dynamic reading.
+    dynamic: bool,
+    /// Predicted minus read, m/s².
+    error: Vector3<f64>,
+    /// The standard deviation of each component that the set gives, if it does.
+    sd: Option<f64>,
+}
+
+/// Every reading of `set`'s training poses that `predictor` predicts — each SU's static reading,
+/// and its dynamic reading for every excited DoF that moves it — handed to `visit` pose by pose;
+/// returns the number of poses.
+fn compare_readings(
+    predictor: &Predictor,
+    set: &MeasurementSet,
+    source: &str,
+    mut visit: impl FnMut(Compared),
+) -> Result<usize, PredictError> {
+    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
+    let (dofs, sus) = (predictor.dofs(), predictor.sus());
+    let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
+    for pose in &training.poses {
+        let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
+        let r = predictor.readings(&q, &training.pattern);
+        for (u, predicted) in r.statics.iter().enumerate() {
+            visit(Compared {
+                su: u,
+                dynamic: false,
+                error: predicted - Vector3::from(pose.static_readings[su_col[u]]),
+                sd: pose.static_sd.as_ref().map(|sd| sd[su_col[u]]),
+            });
+        }
+        for (d, moved) in r.dynamic.iter().enumerate() {
+            let Some(measured) = pose.dynamic.get(&dofs[d]) else {
+                continue;
+            };
+            let sd = pose.dynamic_sd.get(&dofs[d]);
+            for (u, a) in moved {
+                visit(Compared {
+                    su: *u,
+                    dynamic: true,
+                    error: a - Vector3::from(measured[su_col[*u]]),
+                    sd: sd.map(|sd| sd[su_col[*u]]),
+                });
+            }
+        }
+    }
+    Ok(training.poses.len())
+}
+
 /// The whitened residuals ([`SuResiduals`]) of every SU of the model on the training poses of
 /// `set`, in the model's SU order.
 pub fn whitened_residuals(
@@ -463,9 +516,7 @@ pub fn whitened_residuals(
     source: &str,
 ) -> Result<Vec<SuResiduals>, PredictError> {
     let predictor = Predictor::new(model)?;
-    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
-    let (dofs, sus) = (predictor.dofs(), predictor.sus());
-    let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
+    // Where the set gives no deviation: the static and dynamic noise the SU's limb estimated.
     let estimated: BTreeMap<&str, (f64, f64)> = model
         .limbs
         .iter()
@@ -479,50 +530,32 @@ pub fn whitened_residuals(
         })
         .flatten()
         .collect();
-    let noise: Vec<(f64, f64)> = sus
-        .iter()
-        .map(|s| {
-            estimated
-                .get(s.as_str())
+    let mut out: Vec<(SuResiduals, (f64, f64))> = predictor
+        .sus()
+        .into_iter()
+        .map(|su| {
+            let noise = estimated
+                .get(su.as_str())
                 .copied()
-                .unwrap_or((model.noise_sd, model.noise_sd))
-        })
-        .collect();
-    let mut out: Vec<SuResiduals> = sus
-        .iter()
-        .map(|su| SuResiduals {
-            su: su.clone(),
-            statics: Vec::new(),
-            dynamics: Vec::new(),
-        })
-        .collect();
-    let push = |into: &mut Vec<f64>, e: Vector3<f64>, sd: f64| {
-        into.extend(e.iter().map(|c| c / sd));
-    };
-    for pose in &training.poses {
-        let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
-        let r = predictor.readings(&q, &training.pattern);
-        for (u, res) in out.iter_mut().enumerate() {
-            let sd = pose
-                .static_sd
-                .as_ref()
-                .map_or(noise[u].0, |sd| sd[su_col[u]]);
-            let e = r.statics[u] - Vector3::from(pose.static_readings[su_col[u]]);
-            push(&mut res.statics, e, sd);
-        }
-        for (d, moved) in r.dynamic.iter().enumerate() {
-            let Some(measured) = pose.dynamic.get(&dofs[d]) else {
-                continue;
+                .unwrap_or((model.noise_sd, model.noise_sd));
+            let residuals = SuResiduals {
+                su,
+                statics: Vec::new(),
+                dynamics: Vec::new(),
             };
-            let own = pose.dynamic_sd.get(&dofs[d]);
-            for (u, a) in moved {
-                let sd = own.map_or(noise[*u].1, |sd| sd[su_col[*u]]);
-                let e = a - Vector3::from(measured[su_col[*u]]);
-                push(&mut out[*u].dynamics, e, sd);
-            }
-        }
-    }
-    Ok(out)
+            (residuals, noise)
+        })
+        .collect();
+    compare_readings(&predictor, set, source, |c| {
+        let (r, (static_sd, dynamic_sd)) = &mut out[c.su];
+        let (into, sd) = if c.dynamic {
+            (&mut r.dynamics, c.sd.unwrap_or(*dynamic_sd))
+        } else {
+            (&mut r.statics, c.sd.unwrap_or(*static_sd))
+        };
+        into.extend(c.error.iter().map(|e| e / sd));
+    })?;
+    Ok(out.into_iter().map(|(r, _)| r).collect())
 }
 
 /// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
@@ -533,12 +566,8 @@ pub fn validate(
     source: &str,
 ) -> Result<Validation, PredictError> {
     let predictor = Predictor::new(model)?;
-    let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
-    let (dofs, sus) = (predictor.dofs(), predictor.sus());
-    let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
+    let sus = predictor.sus();
     let n = sus.len();
-    // The readings' own noise: a component's variance, summed over the 3 components.
-    let assumed = 3.0 * model.noise_sd * model.noise_sd;
     let (mut s_noise, mut d_noise, mut own_sd) = (0.0, 0.0, true);
     let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) = (
         vec![0.0; n],
@@ -547,41 +576,25 @@ pub fn validate(
         vec![0.0f64; n],
         vec![0usize; n],
     );
-    for pose in &training.poses {
-        let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
-        let r = predictor.readings(&q, &training.pattern);
-        for u in 0..n {
-            let e = (r.statics[u] - Vector3::from(pose.static_readings[su_col[u]])).norm();
-            s_noise += match &pose.static_sd {
-                Some(sd) => 3.0 * sd[su_col[u]].powi(2),
-                None => {
-                    own_sd = false;
-                    assumed
-                }
-            };
+    let poses = compare_readings(&predictor, set, source, |c| {
+        let e = c.error.norm();
+        // The reading's own noise: a component's variance, summed over the 3 components.
+        let sd = c.sd.unwrap_or_else(|| {
+            own_sd = false;
+            model.noise_sd
+        });
+        let u = c.su;
+        if c.dynamic {
+            d_noise += 3.0 * sd * sd;
+            d_sum[u] += e * e;
+            d_max[u] = d_max[u].max(e);
+            d_count[u] += 1;
+        } else {
+            s_noise += 3.0 * sd * sd;
             s_sum[u] += e * e;
             s_max[u] = s_max[u].max(e);
         }
-        for (d, moved) in r.dynamic.iter().enumerate() {
-            let Some(measured) = pose.dynamic.get(&dofs[d]) else {
-                continue;
-            };
-            for (u, a) in moved {
-                let e = (a - Vector3::from(measured[su_col[*u]])).norm();
-                d_noise += match pose.dynamic_sd.get(&dofs[d]) {
-                    Some(sd) => 3.0 * sd[su_col[*u]].powi(2),
-                    None => {
-                        own_sd = false;
-                        assumed
-                    }
-                };
-                d_sum[*u] += e * e;
-                d_max[*u] = d_max[*u].max(e);
-                d_count[*u] += 1;
-            }
-        }
-    }
-    let poses = training.poses.len();
+    })?;
     let per_su = (0..n)
         .map(|u| SuError {
             su: sus[u].clone(),
