@@ -108,7 +108,7 @@ pub fn cramer_rao_bound(
     let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);
     let columns = spec.columns();
     let n = columns.len();
-    let (covariance, _, _) = covariance(
+    let (covariance, _) = covariance(
         &normal,
         &map,
         1.0,

@@ -1558,7 +1558,7 @@ fn final_fit(
         }
         None => (normal, residual_ratio),
     };
-    let (cov, unobservable, _) = covariance(
+    let (cov, unobservable) = covariance(
         &normal,
         &map,
         scale.max(1.0),
@@ -2308,7 +2308,7 @@ fn free_directions(
     let map = ColumnMap::new(&open);
     let normal = normal_system(state, layout, &readings, &open, &map, sigma);
     let names = vec![String::new(); open.columns().len()];
-    let (_, _, free) = covariance(&normal, &map, 1.0, &names, f64::INFINITY);
+    let free = problem::eliminate(&normal, &map, &names, f64::INFINITY).free;
     (open, free)
 }
 

@@ -1240,19 +1240,29 @@ fn pseudo_inverse(m: &DMatrix<f64>, floor: f64) -> (DMatrix<f64>, Vec<(f64, DVec
     (inverse, pairs)
 }
 
-/// Parameter covariance `scale²·(JᵀJ)⁺` (columns in `spec.columns()` order) from the normal
-/// equations at the solution, by the Schur complement with symmetric eigen-decompositions of the
-/// small SU blocks and of the reduced shared system. Directions with no information at all (a
-/// gauge the data leave free: eigenvalue below 1e-12 of the largest diagonal entry) get no
-/// variance, and are returned as unit vectors over the columns; directions the data determine only
-/// to worse than `limit` (m or rad) are reported by the parameters that make them up.
-pub(super) fn covariance(
+/// The normal system's pseudo-inverse by the Schur complement, in parts: symmetric
+/// eigen-decompositions of the small SU blocks and of the reduced shared system. Directions with
+/// no information at all (a gauge the data leave free: eigenvalue below 1e-12 of the largest
+/// diagonal entry) get no variance and are returned as unit vectors over the columns (`free`);
+/// directions the data determine only to worse than `limit` (m or rad) are named by the parameters
+/// that make them up (`unobservable`).
+pub(super) struct Eliminated {
+    n: usize,
+    own_index: Vec<Vec<usize>>,
+    shared_index: Vec<usize>,
+    a_inverse: Vec<DMatrix<f64>>,
+    k: Vec<DMatrix<f64>>,
+    s_inverse: DMatrix<f64>,
+    pub unobservable: Vec<Unobservable>,
+    pub free: Vec<DVector<f64>>,
+}
+
+pub(super) fn eliminate(
     normal: &Normal,
     map: &ColumnMap,
-    scale: f64,
     names: &[String],
     limit: f64,
-) -> (DMatrix<f64>, Vec<Unobservable>, Vec<DVector<f64>>) {
+) -> Eliminated {
     let n = map.slots.len();
     let largest = normal
         .sus
@@ -1341,6 +1351,37 @@ pub(super) fn covariance(
             });
         }
     }
+    Eliminated {
+        n,
+        own_index,
+        shared_index,
+        a_inverse,
+        k,
+        s_inverse,
+        unobservable,
+        free,
+    }
+}
+
+/// Parameter covariance `scale²·(JᵀJ)⁺` (columns in `spec.columns()` order) from the normal
+/// equations at the solution ([`eliminate`]), and the directions it names as unobservable.
+pub(super) fn covariance(
+    normal: &Normal,
+    map: &ColumnMap,
+    scale: f64,
+    names: &[String],
+    limit: f64,
+) -> (DMatrix<f64>, Vec<Unobservable>) {
+    let Eliminated {
+        n,
+        own_index,
+        shared_index,
+        a_inverse,
+        k,
+        s_inverse,
+        unobservable,
+        ..
+    } = eliminate(normal, map, names, limit);
     let mut cov = DMatrix::zeros(n, n);
     let put = |cov: &mut DMatrix<f64>, rows: &[usize], cols: &[usize], block: &DMatrix<f64>| {
         for (a, &r) in rows.iter().enumerate() {
@@ -1363,5 +1404,5 @@ pub(super) fn covariance(
             put(&mut cov, &own_index[i], &own_index[j], &block);
         }
     }
-    (cov, unobservable, free)
+    (cov, unobservable)
 }
