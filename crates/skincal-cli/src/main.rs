@@ -3,10 +3,12 @@
 //! A thin layer over the `skincal` library: parse the command line, call the library, print.
 
 mod bench_body;
+mod bench_check;
 mod bench_limbs;
 mod bench_motion;
 mod bench_report;
 mod bench_sensors;
+mod check;
 mod logs;
 mod out;
 mod render;
@@ -90,6 +92,12 @@ enum Command {
     /// Check a calibrated model against a second measurement set: prediction error per SU.
     #[command(after_help = EXIT_CODES)]
     Validate(ValidateArgs),
+    /// Check that every SU still reads what a calibrated model predicts, from a log of any motion
+    /// of the robot: per SU unchanged, moved (how far), bias changed, swapped, on another segment,
+    /// broken, or not enough motion to tell; --recalibrate writes a model with what changed
+    /// calibrated again (exit 3 when something changed).
+    #[command(after_help = EXIT_CODES)]
+    Check(check::CheckArgs),
     /// Measure speed on generated data and print a table (build with --release).
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -212,6 +220,9 @@ enum BenchCommand {
     Limbs(bench_limbs::BenchLimbsArgs),
     /// The HTML report of a random tree (calibrated first, untimed): time and size of the page.
     Report(bench_report::BenchReportArgs),
+    /// `check` on ordinary motion after random changes of the skin: how often each is named,
+    /// false alarms, and the check's speed on many SUs.
+    Check(bench_check::BenchCheckArgs),
 }
 
 #[derive(Debug, Args)]
@@ -508,6 +519,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Report(args) => report_page(args),
         Command::Predict(args) => predict(args),
         Command::Validate(args) => validate(args),
+        Command::Check(args) => check::check(args),
+        Command::Bench(BenchCommand::Check(args)) => bench_check::bench_check(args),
         Command::Bench(BenchCommand::Body(args)) => bench_body::bench_body(args),
         Command::Bench(BenchCommand::Sensors(args)) => bench_sensors::bench_sensors(args),
         Command::Bench(BenchCommand::Limbs(args)) => bench_limbs::bench_limbs(args),

@@ -1889,6 +1889,22 @@ fn a_continuous_program_runs_from_plan_to_validation() {
         v["validation"]["dynamic_rms"].as_f64().unwrap(),
     );
     assert!(s < 0.01 && dy < 0.01, "{check}");
+    // The calibration's own log is motion like any other: nothing changed since.
+    let checked = succeeds(&["check", "run/model.json", "up.mcap", "--json"], d);
+    let v: serde_json::Value = serde_json::from_str(&checked).unwrap();
+    let sus = v["report"]["sus"].as_array().unwrap();
+    assert_eq!(sus.len(), 7, "{checked}");
+    for su in sus {
+        let kind = su["verdict"]["kind"].as_str().unwrap();
+        assert!(kind == "unchanged" || kind == "not-enough-motion", "{su}");
+    }
+    let text = succeeds(&["check", "run/model.json", "run/motion.json"], d);
+    assert!(text.contains("s of motion checked"), "{text}");
+    fails_with(
+        &["check", "run/model.json", "absent.mcap"],
+        d,
+        &["absent.mcap"],
+    );
 }
 
 /// Every chart of a report page: its JSON (`data-chart`), in page order.

@@ -21,6 +21,7 @@
 //! - [`estimate`]: kinematic estimation (the paper's estimator, maximum likelihood, the body);
 //! - [`predict`]: what a calibrated model predicts, checked against a measurement set;
 //! - [`design`]: what a plan can be expected to reach; [`align`]: the model on the robot's URDF;
+//! - [`check`]: whether the skin still reads what a model predicts in any motion, and what changed;
 //! - [`report`] and [`html`]: text and the report page; [`io`]: every file read and written.
 //!
 //! Units are SI throughout: m, rad, s, m/s².
@@ -36,6 +37,7 @@
 #![warn(missing_docs)]
 
 pub mod align;
+pub mod check;
 pub mod collision;
 pub mod design;
 pub mod estimate;

@@ -221,6 +221,11 @@ impl Predictor {
         self
     }
 
+    /// The robot, and per SU of it gravity (body frame) and the accelerometer's intrinsics.
+    pub fn parts(&self) -> (&Robot, &[Vector3<f64>], &[Intrinsics]) {
+        (&self.robot, &self.gravity, &self.intrinsics)
+    }
+
     /// The model's DoF names.
     pub fn dofs(&self) -> Vec<String> {
         self.robot.model.dof_names()

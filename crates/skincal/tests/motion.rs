@@ -328,7 +328,7 @@ fn the_motion_rows_jacobian_matches_central_differences() {
 /// log give the tree; ingest finds no training pose (every DoF moves at once, nothing is still),
 /// and the limbs are calibrated from the motion record alone. Returns the set, the tree and the
 /// record.
-fn continuous(
+pub(crate) fn continuous(
     robot: &Robot,
     dir: &Path,
 ) -> (

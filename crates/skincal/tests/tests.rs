@@ -4,6 +4,7 @@
 
 mod bags;
 mod body;
+mod check;
 mod collision;
 mod common;
 mod descriptions;

@@ -130,6 +130,9 @@ pub struct BodyModel {
     /// angles do not enter, and a pose may give any value for such a DoF.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub not_calibrated: Vec<NotCalibrated>,
+    /// What `skincal check --recalibrate` changed since the calibration, oldest first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub changes: Vec<crate::check::ModelChange>,
 }
 
 impl BodyModel {
@@ -956,5 +959,6 @@ fn assemble(
         static_sus,
         broken: Vec::new(),
         not_calibrated: Vec::new(),
+        changes: Vec::new(),
     }
 }

@@ -42,6 +42,7 @@ use crate::model::sensor::{
 };
 use crate::model::{forward_kinematics, Robot};
 
+pub mod changes;
 mod robot_like;
 pub mod timeseries;
 

@@ -1,0 +1,348 @@
+//! `skincal bench check`: how often `check` names each kind of change in ordinary motion, how often
+//! it cries wolf, and how fast it runs.
+//!
+//! Detection: the paper's arm calibrated by its continuous program (structure part, 20 s sweep,
+//! every sample), then per trial a sweep of ordinary motion from a fresh seed recorded from the
+//! skin changed at random — one SU shifted by `--position` in a random direction, turned by
+//! `--orientation` about a random axis, its bias stepped by `--bias`, two SUs swapped, one silent —
+//! and an unchanged skin, whose SU-checks count the false alarms. Speed: the check alone on a
+//! record of `--sus` SUs (random places on the same arm, calibrated from a simulated set) at 1 kHz.
+
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use clap::Args;
+use rand::{Rng, SeedableRng};
+use skincal::check::{check_skin, CheckConfig, Verdict};
+use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
+use skincal::estimate::ml::MlConfig;
+use skincal::explore::{explore, ExploreConfig};
+use skincal::ingest::{ingest, motion::motion_record, IngestConfig};
+use skincal::log::csv::CsvSink;
+use skincal::model::sensor::STANDARD_GRAVITY;
+use skincal::model::Robot;
+use skincal::motion::MotionRecord;
+use skincal::plan::{Plan, PlanConfig, PlanDof};
+use skincal::sim::changes::SkinChange;
+use skincal::sim::timeseries::{record, LogConfig};
+use skincal::sim::{simulate, BaseOrientation, SimulationConfig};
+
+use crate::logs::Scratch;
+use crate::out::{self, outln};
+
+#[derive(Debug, Args)]
+pub(crate) struct BenchCheckArgs {
+    /// The robot (built-in name, TOML or URDF), calibrated by its continuous program.
+    #[arg(long, default_value = "paper-7dof")]
+    robot: String,
+    /// Trials per kind of change.
+    #[arg(long, default_value_t = 20)]
+    trials: usize,
+    /// Seconds of ordinary motion per trial.
+    #[arg(long, default_value_t = 60.0)]
+    seconds: f64,
+    /// SUs of the speed measurement.
+    #[arg(long, default_value_t = 1000)]
+    sus: usize,
+    /// Print the table as JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+const KINDS: [&str; 7] = [
+    "shift",
+    "turn",
+    "bias",
+    "swap",
+    "silent",
+    "noisy",
+    "unchanged",
+];
+
+pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
+    if args.trials == 0 || args.sus == 0 || !(args.seconds.is_finite() && args.seconds >= 5.0) {
+        bail!("--trials and --sus must be positive, --seconds at least 5");
+    }
+    let scratch = Scratch::create()?;
+    let robot = skincal::io::load_robot(&args.robot, Default::default())?;
+    let model = calibrated(&robot, &scratch.0)?;
+    let config = CheckConfig::default();
+    let mut rows = Vec::new();
+    let bar = out::progress_bar((KINDS.len() * args.trials) as u64, "bench check: trials");
+    for (k, kind) in KINDS.iter().enumerate() {
+        let (mut hits, mut alarms, mut checks, mut seconds) = (0, 0, 0, 0.0);
+        for trial in 0..args.trials {
+            bar.inc(1);
+            let seed = 1000 * (k as u64 + 1) + trial as u64;
+            let change = random_change(kind, &robot, seed);
+            let changed = change
+                .as_ref()
+                .map_or(Ok(robot.clone()), |c| c.robot(&robot))?;
+            let mut record = ordinary(&changed, &model, args.seconds, seed, &scratch.0)?;
+            if let Some(c) = &change {
+                c.apply_to_record(&mut record);
+            }
+            let started = Instant::now();
+            let report = check_skin(&model, &record, &config)?;
+            seconds += started.elapsed().as_secs_f64();
+            let target = targets(change.as_ref());
+            for s in &report.sus {
+                if target.iter().any(|(su, _)| su == &s.su) {
+                    continue;
+                }
+                checks += 1;
+                alarms += usize::from(!s.verdict.is_quiet());
+            }
+            hits += usize::from(
+                target
+                    .iter()
+                    .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v)),
+            );
+        }
+        rows.push(serde_json::json!({
+            "change": kind, "trials": args.trials, "named": hits,
+            "false_alarms": alarms, "su_checks": checks,
+            "check_seconds": seconds / args.trials as f64,
+        }));
+    }
+    bar.finish_and_clear();
+    let speed = speed(args.sus, &scratch.0)?;
+    outln!(
+        "{} calibrated by its continuous program; {} trials of {} s of ordinary motion per change, ±0.01 g\n",
+        args.robot, args.trials, args.seconds
+    );
+    outln!(
+        "{:<10} {:>7} {:>13} {:>22} {:>12}",
+        "change",
+        "named",
+        "rate",
+        "false alarms / checks",
+        "check s"
+    );
+    for r in &rows {
+        outln!(
+            "{:<10} {:>7} {:>12.1}% {:>22} {:>12.3}",
+            r["change"].as_str().unwrap_or(""),
+            r["named"],
+            100.0 * r["named"].as_f64().unwrap_or(0.0) / args.trials as f64,
+            format!("{} / {}", r["false_alarms"], r["su_checks"]),
+            r["check_seconds"].as_f64().unwrap_or(0.0)
+        );
+    }
+    outln!(
+        "\nspeed on 1 thread: {} SUs, {:.0} s of 1 kHz CSV log ({} blocks): reading its motion record {:.2} s, check {:.2} s = {:.1}× real time ({:.1}× with the reading)",
+        speed.0,
+        speed.1,
+        speed.2,
+        speed.3,
+        speed.4,
+        speed.1 / speed.4,
+        speed.1 / (speed.3 + speed.4)
+    );
+    out::json(&serde_json::json!({
+        "command": "bench check", "rows": rows,
+        "speed": {"sus": speed.0, "seconds": speed.1, "blocks": speed.2, "read_seconds": speed.3, "check_seconds": speed.4},
+    }));
+    Ok(())
+}
+
+/// The SUs a change touches and the verdict each should get.
+fn targets(change: Option<&SkinChange>) -> Vec<(String, Verdict)> {
+    match change {
+        Some(SkinChange::Move { su, .. }) => vec![(su.clone(), Verdict::Moved)],
+        Some(SkinChange::Bias { su, .. }) => vec![(su.clone(), Verdict::BiasChanged)],
+        Some(SkinChange::Swap { a, b }) => vec![
+            (a.clone(), Verdict::Swapped { with: b.clone() }),
+            (b.clone(), Verdict::Swapped { with: a.clone() }),
+        ],
+        Some(SkinChange::Silent { su }) => vec![(
+            su.clone(),
+            Verdict::Broken {
+                how: "silent".into(),
+            },
+        )],
+        Some(SkinChange::Railed { su }) => vec![(
+            su.clone(),
+            Verdict::Broken {
+                how: "erratic".into(),
+            },
+        )],
+        Some(SkinChange::Noisy { su, .. }) => vec![(
+            su.clone(),
+            Verdict::Broken {
+                how: "noisy".into(),
+            },
+        )],
+        None => Vec::new(),
+    }
+}
+
+/// A change of `kind` at random: an SU, a unit direction.
+fn random_change(kind: &str, robot: &Robot, seed: u64) -> Option<SkinChange> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let names = robot.model.su_names();
+    let su = names[rng.random_range(0..names.len())].clone();
+    let mut unit = || {
+        let v: nalgebra::Vector3<f64> = nalgebra::Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let v = v / v.norm().max(1e-9);
+        [v.x, v.y, v.z]
+    };
+    let d = CheckConfig::default();
+    let scaled = |v: [f64; 3], s: f64| v.map(|x| x * s);
+    Some(match kind {
+        "shift" => SkinChange::Move {
+            su,
+            shift: scaled(unit(), d.detect_position),
+            turn: [0.0; 3],
+        },
+        "turn" => SkinChange::Move {
+            su,
+            shift: [0.0; 3],
+            turn: scaled(unit(), d.detect_orientation),
+        },
+        "bias" => SkinChange::Bias {
+            su,
+            bias: scaled(unit(), 0.03 * STANDARD_GRAVITY),
+        },
+        "swap" => {
+            let other = names
+                .iter()
+                .filter(|n| **n != su)
+                .nth(seed as usize % (names.len() - 1))?;
+            SkinChange::Swap {
+                a: su,
+                b: other.clone(),
+            }
+        }
+        "silent" => SkinChange::Silent { su },
+        "noisy" => SkinChange::Noisy {
+            su,
+            factor: 4.0,
+            seed,
+        },
+        _ => return None,
+    })
+}
+
+/// The arm calibrated by the continuous program (upright log and tilted structure part).
+fn calibrated(robot: &Robot, dir: &std::path::Path) -> Result<BodyModel> {
+    let plan = Plan::new(
+        PlanDof::from_robot(robot),
+        &PlanConfig {
+            seed: 2,
+            ..PlanConfig::continuous()
+        },
+    )?;
+    let upright = dir.join("calibration-upright");
+    let tilted = dir.join("calibration-tilted");
+    record(
+        robot,
+        &plan,
+        &LogConfig {
+            seed: 5,
+            ..LogConfig::default()
+        },
+        &mut CsvSink::new(&upright, true),
+        &mut |_| {},
+    )?;
+    let tilt = LogConfig {
+        part: Some(skincal::plan::Part::Structure),
+        orientation: BaseOrientation::tilted(),
+        seed: 6,
+        ..LogConfig::default()
+    };
+    record(
+        robot,
+        &plan,
+        &tilt,
+        &mut CsvSink::new(&tilted, true),
+        &mut |_| {},
+    )?;
+    let config = IngestConfig::default();
+    let set = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {})?.measurements;
+    let structure = explore(&set, &ExploreConfig::default())?;
+    let motion = motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {})?;
+    Ok(calibrate_body_on_motion(
+        &set,
+        &motion,
+        Some(&structure),
+        &MlConfig::default(),
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )?)
+}
+
+/// `seconds` of ordinary motion (a sweep from plan seed `seed`) as `model`'s motion record.
+fn ordinary(
+    robot: &Robot,
+    model: &BodyModel,
+    seconds: f64,
+    seed: u64,
+    dir: &std::path::Path,
+) -> Result<MotionRecord> {
+    let plan = Plan::new(
+        PlanDof::from_robot(robot),
+        &PlanConfig {
+            structure: false,
+            sweep: seconds,
+            seed,
+            ..PlanConfig::continuous()
+        },
+    )?;
+    let log = dir.join(format!("ordinary-{seed}"));
+    record(
+        robot,
+        &plan,
+        &LogConfig {
+            seed: seed + 100,
+            ..LogConfig::default()
+        },
+        &mut CsvSink::new(&log, true),
+        &mut |_| {},
+    )?;
+    read(log, model)
+}
+
+/// The motion record of `log` for `model`'s DoFs and SUs.
+fn read(log: std::path::PathBuf, model: &BodyModel) -> Result<MotionRecord> {
+    let m = model.check().map_err(anyhow::Error::msg)?.model;
+    Ok(motion_record(
+        &[log],
+        &m.dof_names(),
+        &m.su_names(),
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )?)
+}
+
+/// The check on `sus` SUs: (SUs, seconds of log, blocks, seconds to read the log's motion record,
+/// seconds of the check), on one thread.
+fn speed(sus: usize, dir: &std::path::Path) -> Result<(usize, f64, usize, f64, f64)> {
+    let (robot, _) = crate::logs::bench_program(sus, 30.0)?;
+    let set = simulate(&robot, &SimulationConfig::default())?.measurements;
+    let structure = explore(&set, &ExploreConfig::default())?;
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None)?;
+    ordinary(&robot, &model, 30.0, 7, dir)?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let started = Instant::now();
+    let record = pool.install(|| read(dir.join("ordinary-7"), &model))?;
+    let reading = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    pool.install(|| check_skin(&model, &record, &CheckConfig::default()))?;
+    let blocks = record.runs.iter().map(|r| r.len()).sum::<usize>();
+    Ok((
+        model.robot.sus.len(),
+        blocks as f64 * record.period,
+        blocks,
+        reading,
+        started.elapsed().as_secs_f64(),
+    ))
+}

@@ -1,0 +1,208 @@
+//! `check`: whether the skin still reads what a calibrated model predicts in a log of any motion,
+//! and, with `--recalibrate`, a new model with what changed calibrated again.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, SuCheck};
+use skincal::ingest::IngestConfig;
+use skincal::io;
+use skincal::motion::MotionRecord;
+
+use crate::out::{self, out, outln};
+use crate::Incomplete;
+
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    /// A calibrated model (model.json).
+    model: PathBuf,
+    /// Logs of the robot's motion, any motion (MCAP, rosbag2, ROS 1 bag, CSV directory), or a
+    /// motion record (motion.json) that `ingest` wrote.
+    #[arg(required = true)]
+    logs: Vec<PathBuf>,
+    /// Write a new model with the SUs that moved, changed bias or were swapped calibrated again
+    /// from the same logs (everything else kept, the changes listed in its `changes`).
+    #[arg(long, value_name = "MODEL")]
+    recalibrate: Option<PathBuf>,
+    /// The smallest shift to see, m.
+    #[arg(long, default_value_t = CheckConfig::default().detect_position)]
+    position: f64,
+    /// The smallest turn to see, degrees.
+    #[arg(long, default_value_t = CheckConfig::default().detect_orientation.to_degrees())]
+    orientation: f64,
+    /// The smallest bias change to see, g.
+    #[arg(long, default_value_t = 0.03)]
+    bias: f64,
+    /// Probability of calling an unchanged SU changed, per SU.
+    #[arg(long, default_value_t = CheckConfig::default().false_alarm)]
+    false_alarm: f64,
+    /// Overwrite an existing --recalibrate output.
+    #[arg(long)]
+    force: bool,
+    /// Print one JSON document (every SU's verdict and figures) instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+impl CheckArgs {
+    fn config(&self) -> Result<CheckConfig> {
+        let positive = |name: &str, v: f64| {
+            anyhow::ensure!(
+                v.is_finite() && v > 0.0,
+                "--{name} {v}: give a positive number"
+            );
+            Ok(())
+        };
+        positive("position", self.position)?;
+        positive("orientation", self.orientation)?;
+        positive("bias", self.bias)?;
+        anyhow::ensure!(
+            self.false_alarm > 0.0 && self.false_alarm < 0.5,
+            "--false-alarm {}: give a probability in (0, 0.5)",
+            self.false_alarm
+        );
+        Ok(CheckConfig {
+            detect_position: self.position,
+            detect_orientation: self.orientation.to_radians(),
+            detect_bias: self.bias * skincal::model::sensor::STANDARD_GRAVITY,
+            false_alarm: self.false_alarm,
+            ..CheckConfig::default()
+        })
+    }
+}
+
+pub fn check(args: CheckArgs) -> Result<()> {
+    if args.json {
+        out::json_mode();
+    }
+    let config = args.config()?;
+    let model = io::read_model(&args.model)?;
+    let record = motion_of(&args, &model)?;
+    let report = check_skin(&model, &record, &config)
+        .with_context(|| format!("checking {}", args.model.display()))?;
+    out!("{}", table(&report));
+    let mut written = None;
+    if let Some(path) = &args.recalibrate {
+        let (new, changes) = recalibrate(&model, &record, &report, &config)?;
+        let text = serde_json::to_string_pretty(&new)?;
+        io::write_all(&[(path.clone(), text)], args.force)?;
+        outln!(
+            "\n{}: {} SU(s) calibrated again from the log, everything else as in {}",
+            path.display(),
+            changes.len(),
+            args.model.display()
+        );
+        written =
+            Some(serde_json::json!({ "model": path.display().to_string(), "changes": changes }));
+    }
+    out::json(&serde_json::json!({
+        "command": "check",
+        "model": args.model.display().to_string(),
+        "report": report,
+        "recalibrated": written,
+    }));
+    let changed: Vec<&SuCheck> = report.changed().collect();
+    if changed.is_empty() {
+        return Ok(());
+    }
+    Err(Incomplete(format!(
+        "{} SU(s) do not read what {} predicts: {}",
+        changed.len(),
+        args.model.display(),
+        changed
+            .iter()
+            .map(|s| format!("{} {}", s.su, s.verdict.word()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    ))
+    .into())
+}
+
+/// The motion record of the arguments: a motion.json as it is, or the logs read for the model's
+/// DoFs and SUs.
+fn motion_of(args: &CheckArgs, model: &skincal::estimate::body::BodyModel) -> Result<MotionRecord> {
+    if let [one] = args.logs.as_slice() {
+        if one.extension().is_some_and(|e| e == "json") {
+            return Ok(io::read_motion(one)?);
+        }
+    }
+    let robot = model
+        .check()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+    let bar = out::spinner("reading the logs");
+    let record = skincal::ingest::motion::motion_record(
+        &args.logs,
+        &robot.model.dof_names(),
+        &robot.model.su_names(),
+        &IngestConfig::default(),
+        &mut |_, _, _| bar.tick(),
+    )?;
+    bar.finish_and_clear();
+    Ok(record)
+}
+
+/// One line per SU: its verdict, the change found with its deviation, the test, what the log does
+/// not tell.
+fn table(report: &CheckReport) -> String {
+    let mut s = format!(
+        "{:.1} s of motion checked; changes to see: {:.0} mm, {:.1}°, {:.3} g, false alarms ≤ {} per SU\n\n",
+        report.seconds,
+        report.config.detect_position * 1e3,
+        report.config.detect_orientation.to_degrees(),
+        report.config.detect_bias / skincal::model::sensor::STANDARD_GRAVITY,
+        report.config.false_alarm
+    );
+    s += &format!(
+        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9} {:>7}\n",
+        "SU", "verdict", "blocks", "shift mm", "turn °", "bias mg", "p", "resid"
+    );
+    for su in &report.sus {
+        let (shift, turn, bias) = su.change.map_or(
+            ("—".to_string(), "—".to_string(), "—".to_string()),
+            |c| {
+                let norm = |v: [f64; 3]| nalgebra::Vector3::from(v).norm();
+                let sd = |v: Option<[f64; 3]>| {
+                    v.map_or(String::new(), |v| {
+                        format!("±{:.1}", norm(v) * 1e3 / 3f64.sqrt())
+                    })
+                };
+                (
+                    format!("{:.1}{}", norm(c.shift) * 1e3, sd(c.shift_sd)),
+                    format!("{:.2}", norm(c.turn).to_degrees()),
+                    format!(
+                        "{:.1}",
+                        norm(c.bias) / skincal::model::sensor::STANDARD_GRAVITY * 1e3
+                    ),
+                )
+            },
+        );
+        s += &format!(
+            "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9.1e} {:>7.2}\n",
+            su.su,
+            su.verdict.word(),
+            su.blocks,
+            shift,
+            turn,
+            bias,
+            su.p_value,
+            su.residual_ratio
+        );
+        if !su.untold.is_empty() && !su.verdict.is_quiet()
+            || su.verdict == skincal::check::Verdict::NotEnoughMotion
+        {
+            s += &format!("{:<14} {}\n", "", su.untold);
+        }
+    }
+    let todo: Vec<&SuCheck> = report.sus.iter().filter(|s| !s.advice.is_empty()).collect();
+    if !todo.is_empty() {
+        s += "\nwhat to do:\n";
+        for su in todo {
+            s += &format!("  {}: {}\n", su.su, su.advice);
+        }
+    }
+    for note in &report.notes {
+        s += &format!("\nnote: {note}\n");
+    }
+    s
+}

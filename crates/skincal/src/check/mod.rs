@@ -1,0 +1,710 @@
+//! Keeping a robot calibrated: whether each SU still reads what the calibrated model predicts
+//! from the joint states of any motion (a motion record of ordinary work, no protocol), and if not,
+//! what changed.
+//!
+//! For every block of the record the model gives each SU's reading and how that reading would
+//! change if the SU had shifted or turned on its segment or its bias had changed (a change of 9
+//! numbers, [`kin::CHANGE`]). The blocks' normal equations are summed per SU ([`Tally`], bounded
+//! memory, fed a run at a time, so a live stream can be checked as it comes); their solution is
+//! the change the log estimates, tested by a Wald test against what the noise and the model's
+//! own uncertainty allow ([`test::change_test`]). An SU that no small change explains is then
+//! matched against every other SU's place (swapped, or reading another's), fitted anew on its
+//! segment (moved far) and on the others (the tree changed), or named broken
+//! ([`refit`]). [`recalibrate`] writes the changes into a new model.
+
+mod kin;
+mod reach;
+mod recalibrate;
+mod refit;
+mod test;
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, Vector3};
+use serde::{Deserialize, Serialize};
+
+pub use kin::{BlockKinematics, SuPlace, CHANGE};
+pub use recalibrate::{recalibrate, ModelChange, RecalibrateError};
+pub use test::{critical, non_centrality, Tally};
+
+use crate::estimate::body::BodyModel;
+use crate::model::sensor::STANDARD_GRAVITY;
+use crate::model::Robot;
+use crate::motion::{MotionRecord, MotionRun};
+use crate::predict::Predictor;
+
+/// What the check must see and how often it may cry wolf.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct CheckConfig {
+    /// Probability that an unchanged SU is reported changed, per SU and log.
+    pub false_alarm: f64,
+    /// Probability with which a change of the sizes below is seen, where the log tells it.
+    pub power: f64,
+    /// The shift the check must see, m.
+    pub detect_position: f64,
+    /// The turn the check must see, rad.
+    pub detect_orientation: f64,
+    /// The bias change the check must see, m/s².
+    pub detect_bias: f64,
+    /// The model's own error of an SU's position that is never taken for a change (added to the
+    /// calibration's deviation), m.
+    pub position_floor: f64,
+    /// The same for its orientation, rad.
+    pub orientation_floor: f64,
+    /// The same for its bias, m/s².
+    pub bias_floor: f64,
+    /// A block whose whitened residual is larger than this counts less (Huber).
+    pub huber: f64,
+    /// An SU whose RMS whitened residual stays above this after the best small change is not
+    /// explained by one: it is matched with other places, fitted anew, or broken.
+    pub misfit: f64,
+    /// An SU noisier than this many times the skin's median is broken (noisy).
+    pub noisy: f64,
+}
+
+impl Default for CheckConfig {
+    fn default() -> Self {
+        Self {
+            false_alarm: 1e-3,
+            power: 0.99,
+            detect_position: 0.010,
+            detect_orientation: 3f64.to_radians(),
+            detect_bias: 0.03 * STANDARD_GRAVITY,
+            position_floor: 0.001,
+            orientation_floor: 0.2f64.to_radians(),
+            bias_floor: 0.002 * STANDARD_GRAVITY,
+            huber: 4.0,
+            misfit: 2.0,
+            noisy: 3.0,
+        }
+    }
+}
+
+/// What the check found for one SU.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum Verdict {
+    /// It reads what the model predicts.
+    Unchanged,
+    /// It shifted or turned on its segment (see [`SuCheck::change`]).
+    Moved,
+    /// Its bias changed (see [`SuCheck::change`]).
+    BiasChanged,
+    /// It and `with` exchanged identities (re-plugged into each other's ports).
+    Swapped {
+        /// The other SU.
+        with: String,
+    },
+    /// It reads what SU `su` should, which itself still reads right: its identity is another's.
+    ReadsAs {
+        /// The SU it reads like.
+        su: String,
+    },
+    /// It now sits on another segment: the tree changed there.
+    OtherSegment {
+        /// The segment on which it fits.
+        segment: String,
+    },
+    /// It is broken.
+    Broken {
+        /// `silent`, `dead` or `noisy`, or `erratic` (no place explains it).
+        how: String,
+    },
+    /// The log's motion does not tell whether it changed.
+    NotEnoughMotion,
+}
+
+impl Verdict {
+    /// A short word for tables.
+    pub fn word(&self) -> String {
+        match self {
+            Verdict::Unchanged => "unchanged".into(),
+            Verdict::Moved => "MOVED".into(),
+            Verdict::BiasChanged => "BIAS CHANGED".into(),
+            Verdict::Swapped { with } => format!("SWAPPED with {with}"),
+            Verdict::ReadsAs { su } => format!("READS AS {su}"),
+            Verdict::OtherSegment { segment } => format!("ON SEGMENT {segment}"),
+            Verdict::Broken { how } => format!("BROKEN ({how})"),
+            Verdict::NotEnoughMotion => "not enough motion".into(),
+        }
+    }
+
+    /// Whether the SU reads what the model predicts (or the log cannot tell).
+    pub fn is_quiet(&self) -> bool {
+        matches!(self, Verdict::Unchanged | Verdict::NotEnoughMotion)
+    }
+}
+
+/// A change of an SU's pose and bias with its standard deviations.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SuChange {
+    /// Shift in the SU's frame (as the model has it), m.
+    pub shift: [f64; 3],
+    /// Its standard deviation per axis, m (none after a fit anew, judged by its residual).
+    pub shift_sd: Option<[f64; 3]>,
+    /// Turn (rotation vector) in the SU's frame, rad.
+    pub turn: [f64; 3],
+    /// Its standard deviation per axis, rad.
+    pub turn_sd: Option<[f64; 3]>,
+    /// Change of the bias, m/s².
+    pub bias: [f64; 3],
+    /// Its standard deviation per axis, m/s².
+    pub bias_sd: Option<[f64; 3]>,
+}
+
+/// The check of one SU.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuCheck {
+    /// The SU.
+    pub su: String,
+    /// What was found.
+    pub verdict: Verdict,
+    /// Blocks of the log in which it sent a fresh sample and the joint states are known.
+    pub blocks: usize,
+    /// The standard deviation of one component of its block mean, m/s².
+    pub noise_sd: f64,
+    /// The Wald statistic of its change over the directions the log tells, and their number.
+    pub statistic: f64,
+    /// Degrees of freedom of [`Self::statistic`].
+    pub dof: usize,
+    /// `P(χ² ≥ statistic)` if it is unchanged.
+    pub p_value: f64,
+    /// RMS whitened residual after the best small change (≈ 1: explained).
+    pub residual_ratio: f64,
+    /// The change the log estimates (for `moved`, `bias-changed`, and after a refit the whole
+    /// change from the model's place on the same segment).
+    pub change: Option<SuChange>,
+    /// What of its place this log does not tell (`position`, `orientation`, `bias`), with the
+    /// DoFs whose motion would.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub untold: String,
+    /// Its place as found anew, on its segment or another (`moved` far, `other-segment`), in the
+    /// segment's frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refit: Option<Refit>,
+    /// What to do about it (empty when nothing needs doing).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub advice: String,
+}
+
+/// An SU fitted anew on a segment.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Refit {
+    /// Its frame on the segment: translation, m.
+    pub xyz: [f64; 3],
+    /// Rotation, rad (roll, pitch, yaw).
+    pub rpy: [f64; 3],
+    /// Its bias, m/s².
+    pub bias: [f64; 3],
+    /// RMS whitened residual of the fit.
+    pub residual_ratio: f64,
+}
+
+/// The check of a whole skin against one log.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckReport {
+    /// Seconds of the log checked (blocks with joint states).
+    pub seconds: f64,
+    /// Per SU of the model, in its order.
+    pub sus: Vec<SuCheck>,
+    /// The smallest changes the check promised to see and its false-alarm rate.
+    pub config: CheckConfig,
+    /// Remarks about the log as a whole.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<String>,
+}
+
+impl CheckReport {
+    /// The SUs that changed or broke.
+    pub fn changed(&self) -> impl Iterator<Item = &SuCheck> {
+        self.sus.iter().filter(|s| !s.verdict.is_quiet())
+    }
+}
+
+/// Why a check cannot run.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckError {
+    /// The model is not a calibrated model.
+    #[error("the model: {0}")]
+    Model(String),
+    /// The motion record does not fit the model.
+    #[error("the motion record: {0}")]
+    Record(String),
+}
+
+/// The calibrated skin as the check sees it.
+#[derive(Debug, Clone)]
+pub struct Skin {
+    robot: Robot,
+    places: Vec<SuPlace>,
+    /// Per segment: the DoFs between it and the reference.
+    chains: Vec<Vec<usize>>,
+    /// Per SU: the variance of the model's own error of each change component.
+    prior: Vec<test::Change>,
+    /// Per SU: how late the skin runs behind the joint states, s.
+    delay: Vec<f64>,
+    /// The change components' scales: the change the check must see.
+    scale: test::Change,
+    /// What any motion could tell of each SU, and each DoF's share.
+    reach: reach::Reach,
+}
+
+impl Skin {
+    /// The skin of a calibrated model.
+    pub fn new(model: &BodyModel, config: &CheckConfig) -> Result<Self, CheckError> {
+        let predictor = Predictor::new(model).map_err(|e| CheckError::Model(e.to_string()))?;
+        let (robot, gravity, intrinsics) = predictor.parts();
+        let robot = robot.clone();
+        let m = &robot.model;
+        let places: Vec<SuPlace> = m
+            .sus()
+            .iter()
+            .enumerate()
+            .map(|(u, su)| SuPlace {
+                segment: su.segment,
+                placement: su.placement.transform(&robot.parameters),
+                intrinsics: intrinsics[u],
+                gravity: gravity[u],
+            })
+            .collect();
+        let chains: Vec<Vec<usize>> = (0..m.segments().len()).map(|s| m.chain_to(s)).collect();
+        let deviations = su_deviations(model);
+        let delays = su_delays(model);
+        let prior = m
+            .su_names()
+            .iter()
+            .map(|name| {
+                let (p, o) = deviations.get(name).copied().unwrap_or((0.0, 0.0));
+                let position = config.position_floor.powi(2) + p * p / 3.0;
+                let orientation = config.orientation_floor.powi(2) + o * o / 3.0;
+                let bias = config.bias_floor.powi(2);
+                test::Change::from_iterator(
+                    [position; 3]
+                        .into_iter()
+                        .chain([orientation; 3])
+                        .chain([bias; 3]),
+                )
+            })
+            .collect();
+        let delay = m
+            .su_names()
+            .iter()
+            .map(|n| delays.get(n).copied().unwrap_or(0.0))
+            .collect();
+        let scale = test::Change::from_iterator(
+            [config.detect_position; 3]
+                .into_iter()
+                .chain([config.detect_orientation; 3])
+                .chain([config.detect_bias; 3]),
+        );
+        let reach = reach::Reach::new(&robot, &places, &chains, &scale);
+        Ok(Self {
+            robot,
+            places,
+            chains,
+            prior,
+            delay,
+            scale,
+            reach,
+        })
+    }
+
+    /// The robot of the model.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+
+    /// Each SU's place, in the model's SU order.
+    pub fn places(&self) -> &[SuPlace] {
+        &self.places
+    }
+}
+
+/// Per SU: its position and orientation standard deviations from the calibration.
+fn su_deviations(model: &BodyModel) -> BTreeMap<String, (f64, f64)> {
+    model
+        .limbs
+        .iter()
+        .flat_map(|l| &l.estimate.uncertainty)
+        .map(|u| {
+            let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+            (
+                u.su.clone(),
+                (finite(u.position_sd), finite(u.orientation_sd)),
+            )
+        })
+        .collect()
+}
+
+/// Per SU: the skin delay its limb's time-domain fit found.
+fn su_delays(model: &BodyModel) -> BTreeMap<String, f64> {
+    model
+        .limbs
+        .iter()
+        .flat_map(|l| {
+            let delay = l.estimate.motion.as_ref().map_or(0.0, |m| m.skin_delay);
+            l.sus.iter().map(move |s| (s.clone(), delay))
+        })
+        .collect()
+}
+
+/// A skin's model matched to the columns of a motion record.
+#[derive(Debug, Clone)]
+pub struct Columns {
+    /// Per model DoF: its column in the record.
+    pub dofs: Vec<usize>,
+    /// Per model SU: its column in the record (`None`: the log has no samples of it).
+    pub sus: Vec<Option<usize>>,
+}
+
+impl Columns {
+    /// The columns of `dofs`/`sus` (a record's names) for `skin`; every model DoF must be there.
+    pub fn new(skin: &Skin, dofs: &[String], sus: &[String]) -> Result<Self, CheckError> {
+        let m = &skin.robot.model;
+        let missing: Vec<String> = m
+            .dof_names()
+            .into_iter()
+            .filter(|d| !dofs.contains(d))
+            .collect();
+        if !missing.is_empty() {
+            return Err(CheckError::Record(format!(
+                "no joint states for the model's DoF(s) {}: record a log with every calibrated joint",
+                missing.join(", ")
+            )));
+        }
+        let column = |names: &[String], n: &String| names.iter().position(|x| x == n);
+        Ok(Self {
+            dofs: m
+                .dof_names()
+                .iter()
+                .map(|d| column(dofs, d).expect("checked above"))
+                .collect(),
+            sus: m.su_names().iter().map(|s| column(sus, s)).collect(),
+        })
+    }
+}
+
+/// One block of a run in the model's order: joint states and each SU's reading at its delay.
+pub struct Block {
+    /// Frames and motions.
+    pub kinematics: BlockKinematics,
+    /// Joint acceleration deviations, model DoF order.
+    pub qdd_sd: Vec<f64>,
+    /// Per model SU: its reading (`None`: no fresh sample there).
+    pub readings: Vec<Option<Vector3<f64>>>,
+}
+
+/// Block `b` of `run` (block length `period`).
+pub fn block(skin: &Skin, columns: &Columns, run: &MotionRun, b: usize, period: f64) -> Block {
+    let pick = |row: &[f64]| columns.dofs.iter().map(|&c| row[c]).collect::<Vec<_>>();
+    let kinematics = BlockKinematics::new(
+        &skin.robot,
+        &pick(&run.q[b]),
+        &pick(&run.qd[b]),
+        &pick(&run.qdd[b]),
+    );
+    let readings = columns
+        .sus
+        .iter()
+        .zip(&skin.delay)
+        .map(|(c, &delay)| c.and_then(|c| skin_at(run, c, b as f64 + delay / period)))
+        .collect();
+    Block {
+        kinematics,
+        qdd_sd: pick(&run.qdd_sd[b]),
+        readings,
+    }
+}
+
+/// SU column `c`'s reading at fractional block `t`, linear between the blocks around it.
+fn skin_at(run: &MotionRun, c: usize, t: f64) -> Option<Vector3<f64>> {
+    if t < 0.0 || t > (run.len() - 1) as f64 {
+        return None;
+    }
+    let lo = t.floor() as usize;
+    let frac = t - lo as f64;
+    let at = |b: usize| run.skin.get(b).and_then(|row| row[c]).map(Vector3::from);
+    if frac < 1e-9 {
+        return at(lo);
+    }
+    Some(at(lo)? * (1.0 - frac) + at(lo + 1)? * frac)
+}
+
+/// The residual, Jacobian and variance of SU `u` placed as `place` in `block` with block noise
+/// `noise_sd`; `None` where it has no reading.
+pub fn su_term(
+    skin: &Skin,
+    block: &Block,
+    u: usize,
+    place: &SuPlace,
+    noise_sd: f64,
+) -> Option<(Vector3<f64>, kin::Jacobian, f64)> {
+    let y = block.readings[u]?;
+    let (predicted, jac) = kin::reading(place, &block.kinematics);
+    let lever = kin::lever_variance(
+        place,
+        &block.kinematics,
+        &skin.chains[place.segment],
+        &block.qdd_sd,
+    );
+    Some((y - predicted, jac, noise_sd * noise_sd + lever))
+}
+
+/// A check in progress: the skin, and every SU's sums over the blocks fed so far.
+pub struct SkinCheck {
+    skin: Skin,
+    columns: Columns,
+    config: CheckConfig,
+    noise: Vec<f64>,
+    tallies: Vec<Tally>,
+    blocks: usize,
+    period: f64,
+}
+
+impl SkinCheck {
+    /// A check of `skin` on records with the columns `columns`, each SU's block noise `noise`
+    /// (model SU order, m/s²).
+    pub fn new(skin: Skin, columns: Columns, noise: Vec<f64>, config: CheckConfig) -> Self {
+        let n = skin.places.len();
+        Self {
+            skin,
+            columns,
+            config,
+            noise,
+            tallies: vec![Tally::default(); n],
+            blocks: 0,
+            period: 0.0,
+        }
+    }
+
+    /// Adds every block of `run` (block length `period`, s).
+    pub fn feed(&mut self, run: &MotionRun, period: f64) {
+        self.period = period;
+        for b in 0..run.len() {
+            let block = block(&self.skin, &self.columns, run, b, period);
+            self.blocks += 1;
+            for (u, tally) in self.tallies.iter_mut().enumerate() {
+                let place = &self.skin.places[u];
+                if let Some((r, jac, var)) = su_term(&self.skin, &block, u, place, self.noise[u]) {
+                    tally.add(&r, &jac, var, self.config.huber);
+                    tally.norm_sum += block.readings[u].map_or(0.0, |y| y.norm());
+                }
+            }
+        }
+    }
+
+    /// Each SU's verdict from the sums alone (what a small change explains; an SU it does not
+    /// is `Broken { how: "erratic" }` until [`refit::explain`] finds better).
+    pub fn verdicts(&self) -> CheckReport {
+        let lambda = non_centrality(self.config.false_alarm, self.config.power, CHANGE);
+        let skin = &self.skin;
+        let median_noise = median(self.noise.clone());
+        let names = self.skin.robot.model.su_names();
+        let sus = (0..names.len())
+            .map(|u| {
+                let tally = &self.tallies[u];
+                let t = test::change_test(
+                    tally,
+                    &skin.scale,
+                    &skin.prior[u],
+                    lambda,
+                    &skin.reach.tellable(u, self.noise[u].max(1e-6), lambda),
+                );
+                self.verdict(&names[u], u, tally, &t, median_noise)
+            })
+            .collect();
+        CheckReport {
+            seconds: self.blocks as f64 * self.period,
+            sus,
+            config: self.config,
+            notes: Vec::new(),
+        }
+    }
+
+    fn verdict(
+        &self,
+        name: &str,
+        u: usize,
+        tally: &Tally,
+        t: &test::ChangeTest,
+        median_noise: f64,
+    ) -> SuCheck {
+        let alpha = self.config.false_alarm;
+        let residual_ratio = tally.residual_ratio(&t.change);
+        let significant = |(stat, dof): (f64, usize)| test::survival(stat, dof) < alpha;
+        let verdict = if tally.blocks == 0 {
+            Verdict::Broken {
+                how: "silent".into(),
+            }
+        } else if tally.norm_sum / (tally.blocks as f64) < 0.3 * STANDARD_GRAVITY {
+            Verdict::Broken { how: "dead".into() }
+        } else if self.noise[u] > self.config.noisy * median_noise {
+            Verdict::Broken {
+                how: "noisy".into(),
+            }
+        } else if residual_ratio > self.config.misfit {
+            Verdict::Broken {
+                how: "erratic".into(),
+            }
+        } else if t.p_value < alpha {
+            if significant(t.parts[0]) || significant(t.parts[1]) {
+                Verdict::Moved
+            } else if significant(t.parts[2]) {
+                Verdict::BiasChanged
+            } else {
+                Verdict::Moved
+            }
+        } else if t.untold.iter().any(|&x| x) {
+            Verdict::NotEnoughMotion
+        } else {
+            Verdict::Unchanged
+        };
+        let untold = self.untold(u, t);
+        let sd = |k: usize| t.covariance[(k, k)].sqrt();
+        let change = SuChange {
+            shift: [t.change[0], t.change[1], t.change[2]],
+            shift_sd: Some([sd(0), sd(1), sd(2)]),
+            turn: [t.change[3], t.change[4], t.change[5]],
+            turn_sd: Some([sd(3), sd(4), sd(5)]),
+            bias: [t.change[6], t.change[7], t.change[8]],
+            bias_sd: Some([sd(6), sd(7), sd(8)]),
+        };
+        SuCheck {
+            su: name.to_string(),
+            verdict,
+            blocks: tally.blocks,
+            noise_sd: self.noise[u],
+            statistic: t.statistic,
+            dof: t.dof,
+            p_value: t.p_value,
+            residual_ratio,
+            change: (tally.blocks > 0).then_some(change),
+            untold,
+            refit: None,
+            advice: String::new(),
+        }
+    }
+
+    /// What of SU `u`'s place the log does not tell, and the DoFs whose motion would (those
+    /// whose motion alone gives at least a tenth of the most any one gives in those directions).
+    fn untold(&self, u: usize, t: &test::ChangeTest) -> String {
+        let parts: Vec<&str> = ["position", "orientation", "bias"]
+            .iter()
+            .zip(&t.untold)
+            .filter(|(_, &x)| x)
+            .map(|(n, _)| *n)
+            .collect();
+        if parts.is_empty() {
+            return String::new();
+        }
+        let score: Vec<(usize, f64)> = self.skin.reach.by_dof[u]
+            .iter()
+            .map(|(d, info)| {
+                let s = t.untold_directions.iter().map(|e| e.dot(&(info * e))).sum();
+                (*d, s)
+            })
+            .collect();
+        let top = score.iter().map(|x| x.1).fold(0.0, f64::max);
+        let dofs = self.skin.robot.model.dof_names();
+        let names: Vec<&str> = score
+            .iter()
+            .filter(|(_, s)| *s >= 0.1 * top && *s > 0.0)
+            .map(|(d, _)| dofs[*d].as_str())
+            .collect();
+        format!(
+            "{} not told by this log: motion of {} would tell",
+            parts.join(", "),
+            names.join(", ")
+        )
+    }
+}
+
+/// The median of `x` (0 for none).
+fn median(mut x: Vec<f64>) -> f64 {
+    x.retain(|v| v.is_finite());
+    if x.is_empty() {
+        return 0.0;
+    }
+    x.sort_by(f64::total_cmp);
+    x[x.len() / 2]
+}
+
+/// Checks a calibrated model against a motion record of any motion of the robot: each SU's
+/// noise (the record's, or from its residuals' differences), every block summed, small changes
+/// tested, and the SUs no small change explains matched and fitted anew ([`refit::explain`]).
+pub fn check_skin(
+    model: &BodyModel,
+    record: &MotionRecord,
+    config: &CheckConfig,
+) -> Result<CheckReport, CheckError> {
+    record.check().map_err(CheckError::Record)?;
+    let skin = Skin::new(model, config)?;
+    let columns = Columns::new(&skin, &record.dofs, &record.sus)?;
+    let noise = refit::block_noise(&skin, &columns, record);
+    let mut check = SkinCheck::new(skin, columns, noise, *config);
+    for run in &record.runs {
+        check.feed(run, record.period);
+    }
+    let mut report = check.verdicts();
+    refit::explain(&check, record, &mut report);
+    for su in &mut report.sus {
+        su.advice = advice(&check.skin, &su.verdict);
+    }
+    if report.sus.len() >= 4 && report.changed().count() * 2 > report.sus.len() {
+        report.notes.push(
+            "more than half the SUs disagree with the model: the base may be mounted otherwise, \
+             the joints' zero positions may have changed, or the log belongs to another robot"
+                .into(),
+        );
+    }
+    Ok(report)
+}
+
+/// An SU's frame on its segment as a [`Refit`]'s numbers.
+fn refit_of(placement: &Isometry3<f64>, bias: [f64; 3], residual_ratio: f64) -> Refit {
+    let (r, p, y) = placement.rotation.euler_angles();
+    Refit {
+        xyz: placement.translation.vector.into(),
+        rpy: [r, p, y],
+        bias,
+        residual_ratio,
+    }
+}
+
+/// What to do about an SU with `verdict`.
+fn advice(skin: &Skin, verdict: &Verdict) -> String {
+    match verdict {
+        Verdict::Unchanged | Verdict::NotEnoughMotion => String::new(),
+        Verdict::Moved | Verdict::BiasChanged | Verdict::Swapped { .. } => {
+            "`check --recalibrate` fits it anew from this log".into()
+        }
+        Verdict::ReadsAs { su } => format!(
+            "its samples carry another board's id: map its port again (it reads what {su} should)"
+        ),
+        Verdict::OtherSegment { segment } => {
+            let m = &skin.robot.model;
+            let dofs = m
+                .segment_index(segment)
+                .map(|s| m.chain_to(s))
+                .unwrap_or_default()
+                .into_iter()
+                .map(|d| m.dofs()[d].name.clone())
+                .collect::<Vec<_>>();
+            format!(
+                "the tree changed: record the structure experiment for {} and calibrate that limb again",
+                dofs.join(", ")
+            )
+        }
+        Verdict::Broken { how } => match how.as_str() {
+            "silent" => {
+                "no fresh sample: a dead, frozen or unplugged board; check its cable".into()
+            }
+            "dead" => "it reads near zero: replace the board".into(),
+            "noisy" => {
+                "it is far noisier than the rest of the skin: check its mounting and cable".into()
+            }
+            _ => "no place on the body explains its readings: replace or re-seat the board".into(),
+        },
+    }
+}

@@ -1,0 +1,245 @@
+//! Keeping a robot calibrated: a model calibrated once by skincal's own continuous program, checked
+//! against logs of ordinary motion (a sweep drawn from another seed) recorded by the simulator
+//! from a skin changed on purpose — its SU accelerations are central differences of positions,
+//! not the check's kinematics. Truth: the change made.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use nalgebra::Vector3;
+use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, Verdict};
+use skincal::estimate::body::{calibrate_body_on_motion, BodyModel};
+use skincal::estimate::ml::MlConfig;
+use skincal::ingest::motion::motion_record;
+use skincal::ingest::IngestConfig;
+use skincal::log::csv::CsvSink;
+use skincal::model::sensor::STANDARD_GRAVITY;
+use skincal::model::{presets, Robot};
+use skincal::motion::MotionRecord;
+use skincal::plan::{Plan, PlanConfig, PlanDof};
+use skincal::predict::validate;
+use skincal::sim::changes::SkinChange;
+use skincal::sim::timeseries::{record, LogConfig};
+
+/// `seconds` of ordinary motion of `robot` (a sweep of every DoF from plan seed `seed`), recorded
+/// at 1 kHz with ±0.01 g noise into `dir`, as the motion record of `model`'s DoFs and SUs.
+fn ordinary_motion(
+    robot: &Robot,
+    model: &BodyModel,
+    seconds: f64,
+    seed: u64,
+    dir: &Path,
+) -> MotionRecord {
+    let config = PlanConfig {
+        structure: false,
+        sweep: seconds,
+        seed,
+        ..PlanConfig::continuous()
+    };
+    let plan = Plan::new(PlanDof::from_robot(robot), &config).unwrap();
+    let log = dir.join(format!("ordinary-{seed}"));
+    let mut sink = CsvSink::new(&log, true);
+    let log_config = LogConfig {
+        seed: seed + 100,
+        ..LogConfig::default()
+    };
+    record(robot, &plan, &log_config, &mut sink, &mut |_| {}).unwrap();
+    let robot = model.check().unwrap();
+    let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
+    motion_record(
+        &[log],
+        &dofs,
+        &sus,
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap()
+}
+
+/// `robot` calibrated as skincal's own program does it: a continuous program (structure part and
+/// a 20 s sweep), fitted on every sample of its log.
+fn calibrated(robot: &Robot) -> BodyModel {
+    let dir = tempfile::tempdir().unwrap();
+    let (set, structure, record) = crate::motion::continuous(robot, dir.path());
+    calibrate_body_on_motion(
+        &set,
+        &record,
+        Some(&structure),
+        &MlConfig::default(),
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .unwrap()
+}
+
+fn paper_arm() -> &'static (Robot, BodyModel) {
+    static ARM: OnceLock<(Robot, BodyModel)> = OnceLock::new();
+    ARM.get_or_init(|| {
+        let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+        let model = calibrated(&robot);
+        (robot, model)
+    })
+}
+
+/// The check of 60 s of ordinary motion (plan seed `seed`) after `change`.
+fn checked(change: Option<&SkinChange>, seed: u64) -> (CheckReport, MotionRecord) {
+    let (robot, model) = paper_arm();
+    let dir = tempfile::tempdir().unwrap();
+    let changed = change.map_or(robot.clone(), |c| c.robot(robot).unwrap());
+    let mut record = ordinary_motion(&changed, model, 60.0, seed, dir.path());
+    if let Some(c) = change {
+        c.apply_to_record(&mut record);
+    }
+    let report = check_skin(model, &record, &CheckConfig::default()).unwrap();
+    for s in &report.sus {
+        eprintln!(
+            "{:>4} {:<22} p {:.1e} resid {:.2} {}",
+            s.su,
+            s.verdict.word(),
+            s.p_value,
+            s.residual_ratio,
+            s.untold
+        );
+    }
+    (report, record)
+}
+
+fn verdict<'a>(report: &'a CheckReport, su: &str) -> &'a Verdict {
+    &report.sus.iter().find(|s| s.su == su).unwrap().verdict
+}
+
+/// Every SU but `changed` is unchanged (or the log cannot tell).
+fn others_quiet(report: &CheckReport, changed: &[&str]) {
+    for s in report
+        .sus
+        .iter()
+        .filter(|s| !changed.contains(&s.su.as_str()))
+    {
+        assert!(s.verdict.is_quiet(), "{} {:?}", s.su, s.verdict);
+    }
+}
+
+/// An unchanged skin raises no alarm; a shift of 10 mm and a turn of 3° on one SU are each
+/// named, measured within 2 mm and 0.3°, and nothing else is.
+#[test]
+fn a_moved_su_is_named_and_measured_and_nothing_else_is() {
+    let (same, _) = checked(None, 11);
+    others_quiet(&same, &[]);
+    let shift = SkinChange::Move {
+        su: "su4".into(),
+        shift: [0.006, -0.008, 0.0],
+        turn: [0.0; 3],
+    };
+    let (report, _) = checked(Some(&shift), 12);
+    assert_eq!(verdict(&report, "su4"), &Verdict::Moved);
+    others_quiet(&report, &["su4"]);
+    let found = report.sus[3].change.unwrap();
+    let error = Vector3::from(found.shift) - Vector3::new(0.006, -0.008, 0.0);
+    assert!(error.norm() < 0.002, "shift found {:?}", found.shift);
+    let turn = SkinChange::Move {
+        su: "su6".into(),
+        shift: [0.0; 3],
+        turn: [0.0, 3f64.to_radians(), 0.0],
+    };
+    let (report, _) = checked(Some(&turn), 13);
+    assert_eq!(verdict(&report, "su6"), &Verdict::Moved);
+    others_quiet(&report, &["su6"]);
+    let found = Vector3::from(report.sus[5].change.unwrap().turn);
+    let error = found - Vector3::new(0.0, 3f64.to_radians(), 0.0);
+    assert!(error.norm().to_degrees() < 0.3, "turn found {found:?}");
+}
+
+/// Two SUs re-plugged into each other's ports are named as swapped; a bias step of 0.03 g is a
+/// bias change, measured within 0.005 g; a board that went silent and one railed are broken.
+#[test]
+fn swaps_bias_steps_and_broken_boards_are_told_apart() {
+    let swap = SkinChange::Swap {
+        a: "su3".into(),
+        b: "su7".into(),
+    };
+    let (report, record) = checked(Some(&swap), 14);
+    assert_eq!(
+        verdict(&report, "su3"),
+        &Verdict::Swapped { with: "su7".into() }
+    );
+    assert_eq!(
+        verdict(&report, "su7"),
+        &Verdict::Swapped { with: "su3".into() }
+    );
+    others_quiet(&report, &["su3", "su7"]);
+    // Given back their places, they read what the swapped robot reads.
+    let (robot, model) = paper_arm();
+    let (new, changes) = recalibrate(model, &record, &report, &CheckConfig::default()).unwrap();
+    assert_eq!(changes.len(), 2);
+    let held_out = crate::common::held_out(&swap.robot(robot).unwrap(), 99);
+    let before = validate(model, &held_out, "held-out").unwrap();
+    let after = validate(&new, &held_out, "held-out").unwrap();
+    eprintln!(
+        "swap: held-out static {:.4} → {:.4}",
+        before.static_rms, after.static_rms
+    );
+    assert!(after.static_rms < 0.01 && before.static_rms > 1.0);
+
+    let step = [0.0, 0.03 * STANDARD_GRAVITY, 0.0];
+    let bias = SkinChange::Bias {
+        su: "su5".into(),
+        bias: step,
+    };
+    let (report, _) = checked(Some(&bias), 15);
+    assert_eq!(verdict(&report, "su5"), &Verdict::BiasChanged);
+    others_quiet(&report, &["su5"]);
+    let found = Vector3::from(report.sus[4].change.unwrap().bias);
+    assert!(
+        (found - Vector3::from(step)).norm() < 0.005 * STANDARD_GRAVITY,
+        "{found:?}"
+    );
+
+    for (change, su, how) in [
+        (SkinChange::Silent { su: "su2".into() }, "su2", "silent"),
+        (SkinChange::Railed { su: "su6".into() }, "su6", "erratic"),
+    ] {
+        let (report, _) = checked(Some(&change), 16);
+        assert_eq!(verdict(&report, su), &Verdict::Broken { how: how.into() });
+        others_quiet(&report, &[su]);
+    }
+}
+
+/// Recalibrating only what moved, from the same 60 s of ordinary motion, predicts the changed
+/// robot within 1.2× of calibrating it all again with the dedicated program.
+#[test]
+fn recalibrating_what_moved_is_as_good_as_calibrating_everything_again() {
+    let (robot, model) = paper_arm();
+    let change = SkinChange::Move {
+        su: "su5".into(),
+        shift: [0.0, 0.015, 0.01],
+        turn: [0.05, 0.0, -0.04],
+    };
+    let changed = change.robot(robot).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let record = ordinary_motion(&changed, model, 60.0, 21, dir.path());
+    let config = CheckConfig::default();
+    let report = check_skin(model, &record, &config).unwrap();
+    assert_eq!(verdict(&report, "su5"), &Verdict::Moved);
+    let (new, changes) = recalibrate(model, &record, &report, &config).unwrap();
+    assert_eq!(changes.len(), 1);
+    assert_eq!(new.changes, changes);
+    let full = calibrated(&changed);
+    let held_out = crate::common::held_out(&changed, 99);
+    let su5 = |m: &BodyModel| {
+        let v = validate(m, &held_out, "held-out").unwrap();
+        let s = v.sus.iter().find(|s| s.su == "su5").unwrap().clone();
+        (s.static_rms, s.dynamic_rms)
+    };
+    let (old, again, everything) = (su5(model), su5(&new), su5(&full));
+    eprintln!("su5 held-out static/dynamic: old model {old:?}, recalibrated {again:?}, full {everything:?}");
+    assert!(old.0 > 0.1);
+    assert!(
+        again.0 <= 1.2 * everything.0.max(0.003),
+        "{again:?} vs {everything:?}"
+    );
+    assert!(
+        again.1 <= 1.2 * everything.1.max(0.003),
+        "{again:?} vs {everything:?}"
+    );
+}
