@@ -7,12 +7,15 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
-use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, Verdict};
+use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, LiveCheck, Verdict};
 use skincal::estimate::body::{calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::ingest::motion::motion_record;
+use skincal::ingest::stream::MotionStream;
 use skincal::ingest::IngestConfig;
 use skincal::log::csv::CsvSink;
+use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::{read_log, Stream, Topics};
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::model::{presets, Robot};
 use skincal::motion::MotionRecord;
@@ -241,5 +244,126 @@ fn recalibrating_what_moved_is_as_good_as_calibrating_everything_again() {
     assert!(
         again.1 <= 1.2 * everything.1.max(0.003),
         "{again:?} vs {everything:?}"
+    );
+}
+
+/// The same 60 s log of a turned SU fed sample by sample to a live check: its blocks are the whole
+/// log's record's, it names the same SU with the same change, and what it holds stays bounded
+/// while the log runs.
+#[test]
+fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_memory() {
+    let (robot, model) = paper_arm();
+    let turn = SkinChange::Move {
+        su: "su6".into(),
+        shift: [0.0; 3],
+        turn: [0.04, 0.0, 0.03],
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // MCAP, whose samples come in time order as a live stream's do (a CSV log's joint states
+    // come all before its skin).
+    let log = dir.path().join("ordinary.mcap");
+    let plan = Plan::new(
+        PlanDof::from_robot(robot),
+        &PlanConfig {
+            structure: false,
+            sweep: 60.0,
+            seed: 31,
+            ..PlanConfig::continuous()
+        },
+    )
+    .unwrap();
+    let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
+    let log_config = LogConfig {
+        seed: 131,
+        ..LogConfig::default()
+    };
+    record(
+        &turn.robot(robot).unwrap(),
+        &plan,
+        &log_config,
+        &mut sink,
+        &mut |_| {},
+    )
+    .unwrap();
+    let m = model.check().unwrap().model;
+    let (dofs, sus) = (m.dof_names(), m.su_names());
+    let whole = motion_record(
+        std::slice::from_ref(&log),
+        &dofs,
+        &sus,
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let batch = check_skin(model, &whole, &CheckConfig::default()).unwrap();
+
+    // The blocks: the stream's, read by itself, against the whole log's record.
+    let mut stream = MotionStream::new(&dofs, &sus, &IngestConfig::default(), "live");
+    let mut live = LiveCheck::new(model, &CheckConfig::default()).unwrap();
+    let (mut most, mut samples) = ((0, 0, 0), 0usize);
+    read_log(
+        &log,
+        Stream::Both,
+        &Topics::default(),
+        &mut |sample| {
+            stream.push(&sample);
+            live.push(&sample);
+            samples += 1;
+            if samples % 20_000 == 0 {
+                let held = live.held();
+                most = (most.0.max(held.0), most.1.max(held.1), most.2.max(held.2));
+            }
+            Ok(())
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    let runs = stream.finish();
+    let whole_blocks: usize = whole.runs.iter().map(|r| r.len()).sum();
+    let stream_blocks: usize = runs.iter().map(|r| r.len()).sum();
+    eprintln!("blocks: whole log {whole_blocks}, stream {stream_blocks}; held at most {most:?}");
+    assert_eq!(stream_blocks, whole_blocks);
+    let (a, b) = (&whole.runs[0], &runs[0]);
+    let offset = ((b.start - a.start) / whole.period).round() as usize;
+    let mut worst = (0.0f64, 0.0f64);
+    for i in 1..b.len().min(a.len() - offset) - 1 {
+        let j = i + offset;
+        for d in 0..dofs.len() {
+            worst.0 = worst.0.max((a.qdd[j][d] - b.qdd[i][d]).abs());
+        }
+        for u in 0..sus.len() {
+            if let (Some(x), Some(y)) = (a.skin[j][u], b.skin[i][u]) {
+                worst.1 = worst
+                    .1
+                    .max((0..3).map(|k| (x[k] - y[k]).abs()).fold(0.0, f64::max));
+            }
+        }
+    }
+    eprintln!(
+        "largest difference: q̈ {:.2e} rad/s², skin {:.2e} m/s²",
+        worst.0, worst.1
+    );
+    assert!(worst.0 < 1e-9 && worst.1 < 1e-9, "{worst:?}");
+
+    // The verdicts.
+    let report = live.report().expect("more than the warm-up came");
+    for (l, w) in report.sus.iter().zip(&batch.sus) {
+        eprintln!(
+            "{}: live {} (T {:.1}), whole log {} (T {:.1})",
+            l.su,
+            l.verdict.word(),
+            l.statistic,
+            w.verdict.word(),
+            w.statistic
+        );
+        assert_eq!(l.verdict, w.verdict, "{}", l.su);
+    }
+    assert_eq!(verdict(&report, "su6"), &Verdict::Moved);
+    // Bounded: the stream holds well under a second of joint states (7 DoFs at 1 kHz) and a few
+    // skin blocks; the kept blocks are the warm-up's and the last 30 s.
+    assert!(most.0 < 7 * 400 && most.1 < 200, "{most:?}");
+    assert!(
+        most.2 as f64 * 0.01 <= skincal::check::WARM_UP + skincal::check::RECENT + 2.0,
+        "{most:?}"
     );
 }

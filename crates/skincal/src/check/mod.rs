@@ -13,6 +13,7 @@
 //! ([`refit`]). [`recalibrate`] writes the changes into a new model.
 
 mod kin;
+mod live;
 mod reach;
 mod recalibrate;
 mod refit;
@@ -24,6 +25,7 @@ use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub use kin::{BlockKinematics, SuPlace, CHANGE};
+pub use live::{LiveCheck, RECENT, WARM_UP};
 pub use recalibrate::{recalibrate, ModelChange, RecalibrateError};
 pub use test::{critical, non_centrality, Tally};
 

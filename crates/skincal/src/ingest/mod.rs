@@ -47,6 +47,7 @@ mod pass;
 mod queue;
 mod segment;
 mod skin;
+pub mod stream;
 mod timeline;
 
 use std::collections::BTreeMap;

@@ -277,7 +277,7 @@ fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<Motio
 /// `(stamp, position)` series) leaves its acceleration within [`ACCELERATION_NOISE`]: the
 /// variance of the polynomial's second coefficient on a window of evenly spaced states at the
 /// series' median rate.
-fn half_width(series: &[(f64, f64)]) -> f64 {
+pub(super) fn half_width(series: &[(f64, f64)]) -> f64 {
     let rounding = encoder_rounding(series);
     let mut steps: Vec<f64> = series.windows(2).map(|w| w[1].0 - w[0].0).collect();
     if rounding == 0.0 || steps.is_empty() {
@@ -317,7 +317,7 @@ fn powers(x: f64) -> SVector<f64, { DEGREE + 1 }> {
 /// encoder's); `None` where too few lie on either side or a gap
 /// longer than `max_gap` lies among them. `cursor`: the first state not before the window of the
 /// previous (earlier) centre.
-fn local_polynomial(
+pub(super) fn local_polynomial(
     series: &[(f64, f64)],
     cursor: &mut usize,
     centre: f64,
@@ -376,23 +376,34 @@ fn local_polynomial(
 fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
     let means = skin.to_vec();
     for b in 1..means.len().saturating_sub(1) {
-        for (u, cell) in skin[b].iter_mut().enumerate() {
-            if let (Some(m), Some(before), Some(after)) =
-                (means[b][u], means[b - 1][u], means[b + 1][u])
-            {
-                *cell = Some(std::array::from_fn(|i| {
-                    m[i] - (after[i] - 2.0 * m[i] + before[i]) / 24.0
-                }));
-            }
-        }
+        skin[b] = correct_block(&means[b - 1], &means[b], &means[b + 1]);
     }
+}
+
+/// One block's means corrected from its own and its neighbours' raw means (see
+/// [`undo_block_averaging`]); an SU missing from any of the three keeps its mean.
+pub(super) fn correct_block(
+    before: &[Option<[f64; 3]>],
+    means: &[Option<[f64; 3]>],
+    after: &[Option<[f64; 3]>],
+) -> Vec<Option<[f64; 3]>> {
+    means
+        .iter()
+        .enumerate()
+        .map(|(u, &m)| match (m, before[u], after[u]) {
+            (Some(m), Some(before), Some(after)) => Some(std::array::from_fn(|i| {
+                m[i] - (after[i] - 2.0 * m[i] + before[i]) / 24.0
+            })),
+            _ => m,
+        })
+        .collect()
 }
 
 /// The standard deviation of one component of SU `u`'s corrected block means, from consecutive
 /// blocks in which every DoF was still (the median of their squared differences, robust to a
 /// glitch; at least [`NOISE_FLOOR`]), or `None` when fewer than [`FEWEST_STILL_PAIRS`] such pairs
 /// exist.
-fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
+pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
     let still =
         |run: &MotionRun, b: usize| run.qd[b].iter().all(|v| v.abs() < config.still_velocity);
     let mut squares = Vec::new();

@@ -1,0 +1,317 @@
+//! The motion record built as the samples come (a live stream, or a log read in chunks): the same
+//! blocks as [`super::motion::motion_record`] — joint states by the same local polynomials, the
+//! skin's fresh samples averaged per block and corrected for the averaging — each given out as
+//! soon as the joint states beyond its polynomial's window and the next block's skin have arrived.
+//! Memory is bounded by that latency, not by the stream's length.
+
+use std::collections::{HashMap, VecDeque};
+
+use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WIDTHS};
+use super::timeline::encoder_rounding;
+use super::IngestConfig;
+use crate::log::Sample;
+use crate::motion::MotionRun;
+
+/// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
+/// rounding are judged before any block is given out.
+const LEARN: f64 = 2.0;
+/// How long after a block's end the skin may still deliver samples stamped in it, s.
+const SKIN_LATENCY: f64 = 0.05;
+
+/// Joint states and skin samples in, blocks of the motion record out.
+#[derive(Debug)]
+pub struct MotionStream {
+    dofs: HashMap<String, usize>,
+    sus: HashMap<String, usize>,
+    su_count: usize,
+    config: IngestConfig,
+    label: String,
+    /// The stamp of block 0's start (the first sample's).
+    origin: Option<f64>,
+    /// Per DoF: its recent joint states, oldest first.
+    joints: Vec<VecDeque<(f64, f64)>>,
+    /// Per DoF: the polynomial's half-width and the encoder's rounding, once learnt.
+    widths: Vec<Option<(f64, f64)>>,
+    /// Per DoF: its first states, until the widths are learnt.
+    learning: Vec<Vec<(f64, f64)>>,
+    /// Per block from `base`: per SU `[Σx, Σy, Σz, n]` of its fresh samples.
+    skin: VecDeque<Vec<[f64; 4]>>,
+    base: usize,
+    /// Per SU: its last sample (a repeat is a slower board's value held by its port).
+    last: Vec<Option<[f64; 3]>>,
+    latest_skin: f64,
+    /// The next block to compute.
+    next: usize,
+    /// Blocks computed, their skin means not yet corrected (the last waits for its successor).
+    open: Option<MotionRun>,
+    /// The raw skin means of the block before `open`'s first (its correction's neighbour).
+    before: Option<Vec<Option<[f64; 3]>>>,
+    done: Vec<MotionRun>,
+    /// Skin samples stamped in a block already given out.
+    pub late_samples: usize,
+}
+
+impl MotionStream {
+    /// A stream of the DoFs and SUs named (others are ignored), its runs labelled `label`.
+    pub fn new(dofs: &[String], sus: &[String], config: &IngestConfig, label: &str) -> Self {
+        let index = |names: &[String]| {
+            names
+                .iter()
+                .enumerate()
+                .map(|(i, n)| (n.clone(), i))
+                .collect::<HashMap<_, _>>()
+        };
+        Self {
+            dofs: index(dofs),
+            sus: index(sus),
+            su_count: sus.len(),
+            config: config.clone(),
+            label: label.to_string(),
+            origin: None,
+            joints: vec![VecDeque::new(); dofs.len()],
+            widths: vec![None; dofs.len()],
+            learning: vec![Vec::new(); dofs.len()],
+            skin: VecDeque::new(),
+            base: 0,
+            last: vec![None; sus.len()],
+            latest_skin: f64::NEG_INFINITY,
+            next: 0,
+            open: None,
+            before: None,
+            done: Vec::new(),
+            late_samples: 0,
+        }
+    }
+
+    /// Takes one sample.
+    pub fn push(&mut self, sample: &Sample<'_>) {
+        match *sample {
+            Sample::Joints {
+                stamp,
+                names,
+                positions,
+            } => {
+                self.origin.get_or_insert(stamp);
+                for (name, &q) in names.iter().zip(positions) {
+                    if let (Some(&d), true) = (self.dofs.get(name), q.is_finite()) {
+                        self.joint(d, stamp, q);
+                    }
+                }
+            }
+            Sample::Imu {
+                stamp,
+                frame_id,
+                acceleration,
+            } => {
+                let origin = *self.origin.get_or_insert(stamp);
+                self.latest_skin = self.latest_skin.max(stamp);
+                let a = acceleration.map(|x| x * self.config.skin_scale);
+                let usable = a.iter().all(|x| x.is_finite()) && !self.config.saturated(&a);
+                let Some(&u) = self.sus.get(frame_id) else {
+                    return;
+                };
+                if !usable || stamp < origin || self.last[u] == Some(a) {
+                    return;
+                }
+                self.last[u] = Some(a);
+                let block = ((stamp - origin) / BLOCK) as usize;
+                if block < self.base.max(self.next) {
+                    self.late_samples += 1;
+                    return;
+                }
+                while self.base + self.skin.len() <= block {
+                    self.skin.push_back(vec![[0.0; 4]; self.su_count]);
+                }
+                let cell = &mut self.skin[block - self.base][u];
+                for i in 0..3 {
+                    cell[i] += a[i];
+                }
+                cell[3] += 1.0;
+            }
+        }
+        self.advance();
+    }
+
+    fn joint(&mut self, d: usize, stamp: f64, q: f64) {
+        if self.joints[d].back().is_some_and(|&(t, _)| t >= stamp) {
+            return;
+        }
+        self.joints[d].push_back((stamp, q));
+        if self.widths[d].is_none() {
+            let learning = &mut self.learning[d];
+            learning.push((stamp, q));
+            if stamp - learning[0].0 >= LEARN {
+                self.widths[d] = Some((half_width(learning), encoder_rounding(learning)));
+                *learning = Vec::new();
+            }
+        }
+    }
+
+    /// Computes every block whose joint states and skin are complete.
+    fn advance(&mut self) {
+        let Some(origin) = self.origin else { return };
+        loop {
+            let centre = origin + (self.next as f64 + 0.5) * BLOCK;
+            let joints_in = self.joints.iter().zip(&self.widths).all(|(j, w)| {
+                w.is_some_and(|(h, _)| j.back().is_some_and(|&(t, _)| t > centre + h))
+            });
+            // The block after this one holds the skin its correction needs.
+            let skin_in = self.latest_skin > centre + 1.5 * BLOCK + SKIN_LATENCY;
+            if !(joints_in && skin_in) {
+                return;
+            }
+            self.compute(centre);
+            self.next += 1;
+            self.trim(centre);
+        }
+    }
+
+    /// Block `self.next` at `centre`.
+    fn compute(&mut self, centre: f64) {
+        let fitted: Option<Vec<[f64; 4]>> = self
+            .joints
+            .iter()
+            .zip(&self.widths)
+            .map(|(series, w)| {
+                let (h, rounding) = w.expect("widths learnt before any block");
+                let series: Vec<(f64, f64)> = series.iter().copied().collect();
+                local_polynomial(&series, &mut 0, centre, h, rounding, self.config.max_gap)
+            })
+            .collect();
+        let raw = self.raw_means(self.next);
+        let Some(fitted) = fitted else {
+            // A run's first block keeps its mean, as in the record of a whole log.
+            self.close();
+            return;
+        };
+        let run = self.open.get_or_insert_with(|| MotionRun {
+            log: self.label.clone(),
+            start: centre,
+            q: Vec::new(),
+            qd: Vec::new(),
+            qdd: Vec::new(),
+            qdd_sd: Vec::new(),
+            skin: Vec::new(),
+        });
+        run.q.push(fitted.iter().map(|x| x[0]).collect());
+        run.qd.push(fitted.iter().map(|x| x[1]).collect());
+        run.qdd.push(fitted.iter().map(|x| x[2]).collect());
+        run.qdd_sd.push(fitted.iter().map(|x| x[3]).collect());
+        run.skin.push(raw);
+    }
+
+    /// Block `b`'s raw skin means.
+    fn raw_means(&self, b: usize) -> Vec<Option<[f64; 3]>> {
+        let Some(row) = b.checked_sub(self.base).and_then(|i| self.skin.get(i)) else {
+            return vec![None; self.su_count];
+        };
+        row.iter()
+            .map(|c| (c[3] > 0.0).then(|| [c[0] / c[3], c[1] / c[3], c[2] / c[3]]))
+            .collect()
+    }
+
+    /// Drops what no later block needs.
+    fn trim(&mut self, centre: f64) {
+        let keep_from = centre - HALF_WIDTHS[HALF_WIDTHS.len() - 1] - BLOCK;
+        for series in &mut self.joints {
+            while series.len() > 1 && series[0].0 < keep_from {
+                series.pop_front();
+            }
+        }
+        // The block just computed stays: the next one's correction needs it.
+        while self.base + 1 < self.next && !self.skin.is_empty() {
+            self.skin.pop_front();
+            self.base += 1;
+        }
+    }
+
+    /// Ends the open run: every block of it corrected, the last against no successor.
+    fn close(&mut self) {
+        if let Some(run) = self.open.take() {
+            self.done.push(finished(run, self.before.take(), None));
+        }
+    }
+
+    /// Every block given out so far, as runs; the last block computed stays behind until its
+    /// successor's skin has come.
+    pub fn take(&mut self) -> Vec<MotionRun> {
+        if let Some(run) = self.open.as_mut().filter(|r| r.len() >= 2) {
+            let n = run.len() - 1;
+            let keep = MotionRun {
+                log: run.log.clone(),
+                start: run.start + n as f64 * BLOCK,
+                q: run.q.split_off(n),
+                qd: run.qd.split_off(n),
+                qdd: run.qdd.split_off(n),
+                qdd_sd: run.qdd_sd.split_off(n),
+                skin: run.skin.split_off(n),
+            };
+            let given = std::mem::replace(run, keep);
+            let after = run.skin.first().cloned();
+            let before = given.skin.last().cloned();
+            let old = std::mem::replace(&mut self.before, before);
+            self.done.push(finished(given, old, after));
+        }
+        std::mem::take(&mut self.done)
+    }
+
+    /// Ends the stream: the blocks up to the last joint state's are computed as the whole log's
+    /// record computes them (where the polynomial has its states), and every block is given out.
+    pub fn finish(mut self) -> Vec<MotionRun> {
+        if let (Some(origin), Some(last)) = (
+            self.origin,
+            self.joints
+                .iter()
+                .map(|j| j.back().map_or(f64::NEG_INFINITY, |x| x.0))
+                .reduce(f64::min),
+        ) {
+            self.latest_skin = f64::INFINITY;
+            self.advance();
+            let blocks = ((last - origin) / BLOCK).floor().max(0.0) as usize;
+            if self.widths.iter().all(Option::is_some) {
+                while self.next < blocks {
+                    self.compute(origin + (self.next as f64 + 0.5) * BLOCK);
+                    self.next += 1;
+                }
+            }
+        }
+        self.close();
+        self.done.retain(|r| r.len() >= 3);
+        self.done
+    }
+
+    /// Joint states and skin blocks held now (what the stream's memory grows with).
+    pub fn held(&self) -> (usize, usize) {
+        (
+            self.joints.iter().map(VecDeque::len).sum(),
+            self.skin.len() + self.open.as_ref().map_or(0, MotionRun::len),
+        )
+    }
+}
+
+/// `run` with its skin means corrected for the block's averaging, `before`/`after` the raw means
+/// of the blocks around it (where they are).
+fn finished(
+    mut run: MotionRun,
+    before: Option<Vec<Option<[f64; 3]>>>,
+    after: Option<Vec<Option<[f64; 3]>>>,
+) -> MotionRun {
+    let raw = run.skin.clone();
+    let n = raw.len();
+    for b in 0..n {
+        let prev = if b == 0 {
+            before.as_ref()
+        } else {
+            raw.get(b - 1)
+        };
+        let next = if b + 1 == n {
+            after.as_ref()
+        } else {
+            raw.get(b + 1)
+        };
+        if let (Some(prev), Some(next)) = (prev, next) {
+            run.skin[b] = correct_block(prev, &raw[b], next);
+        }
+    }
+    run
+}
