@@ -71,6 +71,7 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
     let model = calibrated(&robot, &scratch.0)?;
     let config = CheckConfig::default();
     let mut rows = Vec::new();
+    let mut misses = Vec::new();
     let bar = out::progress_bar((KINDS.len() * args.trials) as u64, "bench check: trials");
     for (k, kind) in KINDS.iter().enumerate() {
         let (mut hits, mut alarms, mut checks, mut seconds) = (0, 0, 0, 0.0);
@@ -96,11 +97,18 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
                 checks += 1;
                 alarms += usize::from(!s.verdict.is_quiet());
             }
-            hits += usize::from(
-                target
+            let named = target
+                .iter()
+                .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v));
+            hits += usize::from(named);
+            if !named {
+                let found: Vec<String> = target
                     .iter()
-                    .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v)),
-            );
+                    .filter_map(|(su, _)| report.sus.iter().find(|s| &s.su == su))
+                    .map(|s| format!("{} {} (p {:.1e})", s.su, s.verdict.word(), s.p_value))
+                    .collect();
+                misses.push(format!("{kind} {change:?}: found {}", found.join(", ")));
+            }
         }
         rows.push(serde_json::json!({
             "change": kind, "trials": args.trials, "named": hits,
@@ -132,6 +140,9 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
             r["check_seconds"].as_f64().unwrap_or(0.0)
         );
     }
+    for miss in &misses {
+        outln!("missed: {miss}");
+    }
     outln!(
         "\nspeed on 1 thread: {} SUs, {:.0} s of 1 kHz CSV log ({} blocks): reading its motion record {:.2} s, check {:.2} s = {:.1}× real time ({:.1}× with the reading)",
         speed.0,
@@ -143,7 +154,7 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
         speed.1 / (speed.3 + speed.4)
     );
     out::json(&serde_json::json!({
-        "command": "bench check", "rows": rows,
+        "command": "bench check", "rows": rows, "missed": misses,
         "speed": {"sus": speed.0, "seconds": speed.1, "blocks": speed.2, "read_seconds": speed.3, "check_seconds": speed.4},
     }));
     Ok(())

@@ -29,7 +29,7 @@ pub struct CheckArgs {
     #[arg(long, default_value_t = CheckConfig::default().detect_position)]
     position: f64,
     /// The smallest turn to see, degrees.
-    #[arg(long, default_value_t = CheckConfig::default().detect_orientation.to_degrees())]
+    #[arg(long, default_value_t = 3.0)]
     orientation: f64,
     /// The smallest bias change to see, g.
     #[arg(long, default_value_t = 0.03)]

@@ -15,9 +15,11 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
+use skincal::check::CheckConfig;
 use skincal::estimate::body::{calibrate_body, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{ExploreConfig, Structure as LibStructure};
+use skincal::log::Sample;
 use skincal::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use skincal::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use skincal::plan::{Plan, PlanConfig, PlanDof};
@@ -750,6 +752,105 @@ fn bench_calibrate(
     Ok(times[times.len() / 2])
 }
 
+/// Checks `model` against logs of any motion (or a `motion.json`): the report's JSON, as
+/// `skincal check --json` gives it under `report`.
+#[pyfunction]
+fn check(py: Python<'_>, model: &NativeModel, logs: Vec<PathBuf>) -> PyResult<String> {
+    let report = py
+        .detach(|| -> Result<_, String> {
+            let record = match logs.as_slice() {
+                [one] if one.extension().is_some_and(|e| e == "json") => {
+                    skincal::io::read_motion(one).map_err(|e| e.to_string())?
+                }
+                _ => {
+                    let robot = model.inner.check()?;
+                    skincal::ingest::motion::motion_record(
+                        &logs,
+                        &robot.model.dof_names(),
+                        &robot.model.su_names(),
+                        &skincal::ingest::IngestConfig::default(),
+                        &mut |_, _, _| {},
+                    )
+                    .map_err(|e| e.to_string())?
+                }
+            };
+            skincal::check::check_skin(&model.inner, &record, &CheckConfig::default())
+                .map_err(|e| e.to_string())
+        })
+        .map_err(error)?;
+    json(&report)
+}
+
+/// A check fed joint states and skin samples as they come.
+#[pyclass(module = "skincal._skincal", name = "NativeLiveCheck")]
+struct NativeLiveCheck {
+    inner: skincal::check::LiveCheck,
+}
+
+#[pymethods]
+impl NativeLiveCheck {
+    #[new]
+    fn new(model: &NativeModel) -> PyResult<Self> {
+        let inner =
+            skincal::check::LiveCheck::new(&model.inner, &CheckConfig::default()).map_err(error)?;
+        Ok(Self { inner })
+    }
+
+    /// One joint state: stamp (s), names and positions (rad).
+    fn joints(&mut self, stamp: f64, names: Vec<String>, positions: Vec<f64>) -> PyResult<()> {
+        if names.len() != positions.len() {
+            return Err(error(format!(
+                "joint state at {stamp} s: {} names but {} positions",
+                names.len(),
+                positions.len()
+            )));
+        }
+        self.inner.push(&Sample::Joints {
+            stamp,
+            names: &names,
+            positions: &positions,
+        });
+        Ok(())
+    }
+
+    /// Skin samples: stamps (N, s), the SUs' names (N) and their specific forces (N×3, m/s²).
+    fn imu(
+        &mut self,
+        stamps: Vec<f64>,
+        sus: Vec<String>,
+        accelerations: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let a = accelerations.as_array();
+        if a.shape() != [stamps.len(), 3] || sus.len() != stamps.len() {
+            return Err(error(format!(
+                "skin samples: {} stamps, {} SU names and accelerations of shape {:?}; give N, N and N×3",
+                stamps.len(),
+                sus.len(),
+                a.shape()
+            )));
+        }
+        for (i, (stamp, su)) in stamps.iter().zip(&sus).enumerate() {
+            self.inner.push(&Sample::Imu {
+                stamp: *stamp,
+                frame_id: su,
+                acceleration: [a[[i, 0]], a[[i, 1]], a[[i, 2]]],
+            });
+        }
+        Ok(())
+    }
+
+    /// The report so far as JSON (`None` before the warm-up's seconds of motion have come).
+    fn report(&mut self, py: Python<'_>) -> PyResult<Option<String>> {
+        let inner = &mut self.inner;
+        py.detach(|| inner.report()).map(|r| json(&r)).transpose()
+    }
+
+    /// What it holds now: joint states and skin blocks of the stream, blocks kept.
+    fn held(&mut self) -> (usize, usize, usize) {
+        self.inner.held()
+    }
+}
+
 /// The built-in robots: name → their description (TOML).
 #[pyfunction]
 fn robots() -> BTreeMap<String, String> {
@@ -767,6 +868,8 @@ fn _skincal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<NativeStructure>()?;
     m.add_class::<NativeModel>()?;
     m.add_class::<NativePaperModel>()?;
+    m.add_class::<NativeLiveCheck>()?;
+    m.add_function(wrap_pyfunction!(check, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(explore, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;

@@ -254,3 +254,71 @@ def test_calibration_releases_the_interpreter_and_reports_each_limb():
     limbs = [limb.end for limb in structure.limbs]
     assert sorted(name for name, _, _ in calls) == sorted(limbs)
     assert [(done, total) for _, done, total in calls] == [(k + 1, 5) for k in range(5)]
+
+
+def same(a, b, rel=1e-9):
+    """Equal JSON, numbers within `rel` (the extension and the CLI are built apart: the last bits
+    of a sum may differ)."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same(a[k], b[k], rel) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(same(x, y, rel) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return abs(a - b) <= rel * max(abs(a), abs(b), 1e-300)
+    return a == b
+
+
+def test_check_and_live_check_name_two_boards_swapped_in_their_ports(tmp_path):
+    """A calibration by the CLI's continuous program, then 40 s of other motion whose skin log has
+    two boards' ids exchanged (re-plugged into each other's ports): `check` names both, as the CLI
+    does; a live check fed the same samples in time order says the same, holding little."""
+    run = lambda *a: cli(*a, cwd=tmp_path)
+    run("plan", "--robot", "paper-7dof", "--protocol", "continuous", "--out", "plan", "--no-forecast")
+    run("record", "--robot", "paper-7dof", "--plan", "plan/plan.json", "--out", "up.mcap")
+    run("record", "--robot", "paper-7dof", "--plan", "plan/plan.json", "--out", "tilt.mcap",
+        "--part", "structure", "--tilted")
+    run("ingest", "up.mcap", "tilt.mcap", "--out", "cal")
+    run("explore", "cal")
+    run("calibrate", "cal")
+    run("plan", "--robot", "paper-7dof", "--protocol", "continuous", "--sweep", "40", "--seed", "9",
+        "--out", "work", "--no-forecast")
+    run("record", "--robot", "paper-7dof", "--plan", "work/plan.json", "--out", "work",
+        "--part", "training", "--seed", "4", "--format", "csv")
+    imu = tmp_path / "work" / "imu.csv"
+    text = imu.read_text().replace(",su3,", ",tmp,").replace(",su7,", ",su3,").replace(",tmp,", ",su7,")
+    imu.write_text(text)
+
+    report = skincal.check(tmp_path / "cal" / "model.json", [tmp_path / "work"])
+    verdicts = {s.su: (s.verdict, s.detail) for s in report.sus}
+    assert verdicts["su3"] == ("swapped", {"with": "su7"}), verdicts
+    assert verdicts["su7"] == ("swapped", {"with": "su3"}), verdicts
+    assert {s.su for s in report.changed()} == {"su3", "su7"}
+    binary = os.environ.get("SKINCAL_BIN") or str(ROOT / "target" / "release" / "skincal")
+    done = subprocess.run([binary, "check", "cal/model.json", "work", "--json"], cwd=tmp_path,
+                          capture_output=True, text=True)
+    assert done.returncode == 3, done.stderr
+    native = json.loads(skincal._skincal.check(
+        skincal.Model.load(tmp_path / "cal" / "model.json")._native, [str(tmp_path / "work")]))
+    assert same(json.loads(done.stdout)["report"], native)
+
+    joints = np.loadtxt(tmp_path / "work" / "joint_states.csv", delimiter=",", skiprows=1)
+    names = (tmp_path / "work" / "joint_states.csv").read_text().split("\n", 1)[0].split(",")[1:]
+    rows = [line.split(",") for line in text.splitlines()[1:]]
+    stamps = np.array([float(r[0]) for r in rows])
+    sus = [r[1] for r in rows]
+    acc = np.array([[float(x) for x in r[2:5]] for r in rows])
+    live = skincal.LiveCheck(tmp_path / "cal" / "model.json")
+    start, most, j, i = joints[0, 0], (0, 0, 0), 0, 0
+    for k, edge in enumerate(np.arange(start + 0.01, joints[-1, 0] + 0.02, 0.01)):
+        while j < len(joints) and joints[j, 0] < edge:
+            live.joints(joints[j, 0], names, joints[j, 1:])
+            j += 1
+        n = np.searchsorted(stamps, edge)
+        live.imu(stamps[i:n], sus[i:n], acc[i:n])
+        i = n
+        if k % 500 == 0:
+            most = tuple(max(a, b) for a, b in zip(most, live.held()))
+    streamed = live.report()
+    assert streamed is not None
+    assert {s.su: (s.verdict, s.detail) for s in streamed.sus} == verdicts
+    assert most[0] < 7 * 400 and most[1] < 200, most

@@ -78,6 +78,10 @@ def _throttled(progress, interval: float = 0.2):
 
 __all__ = [
     "SkincalError",
+    "check",
+    "CheckReport",
+    "LiveCheck",
+    "SuCheck",
     "MeasurementSet",
     "Training",
     "Structure",
@@ -511,6 +515,102 @@ class Model:
     def __repr__(self) -> str:
         converged = sum(l["estimate"]["converged"] for l in self._data["limbs"])
         return f"<Model: {len(self._data['limbs'])} limbs ({converged} converged), {len(self._names[1])} SUs>"
+
+
+@dataclass
+class SuCheck:
+    """One SU's check: ``verdict`` is ``unchanged``, ``moved``, ``bias-changed``, ``swapped``,
+    ``reads-as``, ``other-segment``, ``broken`` or ``not-enough-motion``; ``detail`` its other
+    fields (``with``, ``su``, ``segment``, ``how``); ``change`` the shift (m), turn (rad) and bias
+    change (m/s²) the log estimates, with their deviations."""
+
+    su: str
+    verdict: str
+    detail: Dict[str, str]
+    blocks: int
+    p_value: float
+    residual_ratio: float
+    change: Optional[dict]
+    untold: str
+    advice: str
+
+
+@dataclass
+class CheckReport:
+    """A skin checked against motion: one :class:`SuCheck` per SU of the model."""
+
+    seconds: float
+    sus: List[SuCheck]
+    notes: List[str]
+
+    def changed(self) -> List[SuCheck]:
+        """The SUs that do not read what the model predicts."""
+        return [s for s in self.sus if s.verdict not in ("unchanged", "not-enough-motion")]
+
+
+def _check_report(text: str) -> CheckReport:
+    data = json.loads(text)
+    sus = []
+    for s in data["sus"]:
+        verdict = dict(s["verdict"])
+        kind = verdict.pop("kind")
+        sus.append(
+            SuCheck(
+                su=s["su"],
+                verdict=kind,
+                detail=verdict,
+                blocks=s["blocks"],
+                p_value=s["p_value"],
+                residual_ratio=s["residual_ratio"],
+                change=s.get("change"),
+                untold=s.get("untold", ""),
+                advice=s.get("advice", ""),
+            )
+        )
+    return CheckReport(seconds=data["seconds"], sus=sus, notes=data.get("notes", []))
+
+
+def _model(model: "Union[Model, Path]") -> "Model":
+    return model if isinstance(model, Model) else Model.load(model)
+
+
+def check(model: "Union[Model, Path]", logs: Sequence[Path]) -> CheckReport:
+    """Whether every SU still reads what ``model`` predicts in logs of any motion of the robot
+    (MCAP, rosbag2, ROS 1, CSV directories) or a ``motion.json``: as ``skincal check``."""
+    paths = [_existing(p, "log") for p in logs]
+    return _check_report(_skincal.check(_model(model)._native, paths))
+
+
+class LiveCheck:
+    """The check fed as the robot moves: joint states and skin samples pushed as they come (a ROS 2
+    node's callbacks), a report at any moment, memory bounded however long it runs.
+
+        >>> live = skincal.LiveCheck(model)
+        >>> live.joints(stamp, names, positions)          # each JointState
+        >>> live.imu(stamps, su_names, accelerations)      # skin samples, N×3 m/s²
+        >>> report = live.report()                          # None during the first 10 s
+    """
+
+    def __init__(self, model: "Union[Model, Path]"):
+        self._native = _skincal.NativeLiveCheck(_model(model)._native)
+
+    def joints(self, stamp: float, names: Sequence[str], positions: Sequence[float]) -> None:
+        """One joint state: stamp (s), joint names, positions (rad)."""
+        self._native.joints(float(stamp), list(names), [float(x) for x in positions])
+
+    def imu(self, stamps: Sequence[float], sus: Sequence[str], accelerations: np.ndarray) -> None:
+        """Skin samples: N stamps (s), N SU names, N×3 specific forces (m/s²)."""
+        a = np.ascontiguousarray(accelerations, dtype=np.float64).reshape(-1, 3)
+        self._native.imu([float(t) for t in stamps], list(sus), a)
+
+    def report(self) -> Optional[CheckReport]:
+        """The check so far, or ``None`` before enough motion has come to judge the noise."""
+        text = self._native.report()
+        return None if text is None else _check_report(text)
+
+    def held(self) -> Tuple[int, int, int]:
+        """Joint states and skin blocks held by the stream, and blocks kept for the refit."""
+        return self._native.held()
 
 
 def simulate(

@@ -89,7 +89,7 @@ impl LiveCheck {
         let warm_up = std::mem::take(&mut self.warm_up);
         let record = self.record(warm_up);
         let skin = self.skin.take().expect("the skin is kept until the start");
-        let noise = block_noise(&skin, &self.columns, &record);
+        let noise = block_noise(&self.columns, &record);
         let mut check = SkinCheck::new(skin, self.columns.clone(), noise, self.config);
         for run in &record.runs {
             check.feed(run, BLOCK);

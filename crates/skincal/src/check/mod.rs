@@ -643,7 +643,7 @@ pub fn check_skin(
     record.check().map_err(CheckError::Record)?;
     let skin = Skin::new(model, config)?;
     let columns = Columns::new(&skin, &record.dofs, &record.sus)?;
-    let noise = refit::block_noise(&skin, &columns, record);
+    let noise = refit::block_noise(&columns, record);
     let mut check = SkinCheck::new(skin, columns, noise, *config);
     for run in &record.runs {
         check.feed(run, record.period);

@@ -20,45 +20,27 @@ const START_ROUNDS: usize = 8;
 /// The noise of a block mean when no SU's can be told, m/s².
 const FALLBACK_NOISE: f64 = 0.03;
 
-/// Each SU's block noise (model SU order): the record's from still blocks, else from the
-/// differences of its successive residuals (the model's slow errors cancel there), else the
-/// skin's median.
-pub fn block_noise(skin: &Skin, columns: &Columns, record: &MotionRecord) -> Vec<f64> {
+/// Each SU's block noise (model SU order): the record's from still blocks, else from the second
+/// differences of its own block means (the motion's share is small there, and no model enters,
+/// so a board that reads another's place is not taken for a noisy one), else the skin's median.
+pub fn block_noise(columns: &Columns, record: &MotionRecord) -> Vec<f64> {
     let given: Vec<Option<f64>> = columns
         .sus
         .iter()
         .map(|c| c.and_then(|c| record.noise_sd[c]))
         .collect();
-    let needed: Vec<usize> = (0..given.len()).filter(|&u| given[u].is_none()).collect();
-    let mut from_residuals = vec![None; given.len()];
-    if !needed.is_empty() {
-        let mut diffs: Vec<Vec<f64>> = vec![Vec::new(); given.len()];
-        for run in &record.runs {
-            let mut last: Vec<Option<Vector3<f64>>> = vec![None; given.len()];
-            for b in 0..run.len() {
-                let block = block(skin, columns, run, b, record.period);
-                for &u in &needed {
-                    let r = su_term(skin, &block, u, &skin.places[u], 0.0).map(|t| t.0);
-                    if let (Some(r), Some(prev)) = (r, last[u]) {
-                        if diffs[u].len() < 3 * FIT_BLOCKS {
-                            diffs[u].extend((r - prev).iter().map(|x| x.abs()));
-                        }
-                    }
-                    last[u] = r;
-                }
-            }
-        }
-        for &u in &needed {
-            if diffs[u].len() >= 30 {
-                // |N(0, 2σ²)|'s median is 0.6745·√2·σ.
-                from_residuals[u] =
-                    Some(median(std::mem::take(&mut diffs[u])) / (0.6745 * 2f64.sqrt()));
-            }
-        }
-    }
+    let from_means: Vec<Option<f64>> = columns
+        .sus
+        .iter()
+        .zip(&given)
+        .map(|(c, g)| match (c, g) {
+            (Some(c), None) => second_difference_noise(record, *c),
+            _ => None,
+        })
+        .collect();
     let known: Vec<f64> = given
         .iter()
-        .zip(&from_residuals)
+        .zip(&from_means)
         .filter_map(|(a, b)| a.or(*b))
         .collect();
     let fallback = if known.is_empty() {
@@ -68,9 +50,33 @@ pub fn block_noise(skin: &Skin, columns: &Columns, record: &MotionRecord) -> Vec
     };
     given
         .iter()
-        .zip(&from_residuals)
+        .zip(&from_means)
         .map(|(a, b)| a.or(*b).unwrap_or(fallback))
         .collect()
+}
+
+/// The standard deviation of one component of SU column `c`'s corrected block means from the
+/// median of their second differences: a corrected mean is `(−m₋₁ + 26 m₀ − m₁)/24` of raw
+/// means, so its second difference weighs five raw means by `(−1, 28, −54, 28, −1)/24`, a
+/// variance of 4486/576 of one raw mean's against 678/576 for the corrected mean itself.
+fn second_difference_noise(record: &MotionRecord, c: usize) -> Option<f64> {
+    let mut values = Vec::new();
+    for run in &record.runs {
+        for b in 1..run.len().saturating_sub(1) {
+            if let (Some(x), Some(y), Some(z)) =
+                (run.skin[b - 1][c], run.skin[b][c], run.skin[b + 1][c])
+            {
+                values.extend((0..3).map(|i| (x[i] - 2.0 * y[i] + z[i]).abs()));
+            }
+            if values.len() >= 3 * FIT_BLOCKS {
+                break;
+            }
+        }
+    }
+    if values.len() < 90 {
+        return None;
+    }
+    Some(median(values) / 0.6745 * (678.0f64 / 4486.0).sqrt())
 }
 
 /// Thinned blocks of a record, computed once for every fit anew.
