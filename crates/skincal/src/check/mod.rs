@@ -534,7 +534,6 @@ impl SkinCheck {
     ) -> SuCheck {
         let alpha = self.config.false_alarm;
         let residual_ratio = tally.residual_ratio(&t.change);
-        let significant = |(stat, dof): (f64, usize)| test::survival(stat, dof) < alpha;
         let verdict = if tally.blocks == 0 {
             Verdict::Broken {
                 how: "silent".into(),
@@ -550,9 +549,10 @@ impl SkinCheck {
                 how: "erratic".into(),
             }
         } else if t.p_value < alpha {
-            if significant(t.parts[0]) || significant(t.parts[1]) {
-                Verdict::Moved
-            } else if significant(t.parts[2]) {
+            // Which change explains it: a move alone, a bias change alone (where both do, as a
+            // tilt and a bias may on an SU whose gravity never turns, the one that leaves less).
+            let [moved, biased] = t.left_by.map(|(stat, dof)| test::survival(stat, dof));
+            if biased >= alpha && biased >= moved {
                 Verdict::BiasChanged
             } else {
                 Verdict::Moved

@@ -79,8 +79,9 @@ pub struct ChangeTest {
     pub dof: usize,
     /// `P(χ²_dof ≥ statistic)`.
     pub p_value: f64,
-    /// Per block (position, orientation, bias): its own statistic and degrees of freedom.
-    pub parts: [(f64, usize); 3],
+    /// What is left of the change when a move alone (shift and turn) or a bias change alone
+    /// explains as much of it as it can: the statistic of the rest and its degrees of freedom.
+    pub left_by: [(f64, usize); 2],
     /// Per block: whether some direction of it that motion can tell is not told by this log (a
     /// change of the size to see would be missed there).
     pub untold: [bool; 3],
@@ -119,7 +120,7 @@ pub fn change_test(
         ChangeMatrix::from_diagonal(&prior.component_div(&scale.component_mul(scale)));
     let covariance_scaled = noise + projector * prior_scaled * projector;
     let (statistic, dof) = wald(&change_scaled, &covariance_scaled, 0..CHANGE);
-    let parts = [0, 3, 6].map(|k| wald(&change_scaled, &covariance_scaled, k..k + 3));
+    let left_by = [0..6, 6..9].map(|keep| left(&change_scaled, &covariance_scaled, keep));
     let untold_directions: Vec<Change> = (0..CHANGE)
         .filter(|i| !told.contains(i))
         .map(|i| eigen.eigenvectors.column(i).into_owned())
@@ -136,7 +137,7 @@ pub fn change_test(
         statistic,
         dof,
         p_value: survival(statistic, dof),
-        parts,
+        left_by,
         untold,
         untold_directions,
     }
@@ -161,6 +162,40 @@ fn wald(x: &Change, c: &ChangeMatrix, range: std::ops::Range<usize>) -> (f64, us
         }
     }
     (t, rank)
+}
+
+/// The Wald statistic of `x` (covariance `c`) after the components `keep` take up as much of it
+/// as they can: `min_y (x − S y)ᵀ C⁺ (x − S y)`, with `S` those components' columns, and its
+/// degrees of freedom (the rank of `C` less what `S` spans of it).
+fn left(x: &Change, c: &ChangeMatrix, keep: std::ops::Range<usize>) -> (f64, usize) {
+    let eigen = nalgebra::SymmetricEigen::new(*c);
+    let top = eigen.eigenvalues.iter().copied().fold(0.0, f64::max);
+    let mut w = ChangeMatrix::zeros();
+    let mut rank: usize = 0;
+    for i in 0..CHANGE {
+        let l = eigen.eigenvalues[i];
+        if l > top * 1e-9 && l > 0.0 {
+            let e = eigen.eigenvectors.column(i);
+            w += e * e.transpose() / l;
+            rank += 1;
+        }
+    }
+    let n = keep.len();
+    let s = ChangeMatrix::identity().columns(keep.start, n).clone_owned();
+    let sws = s.transpose() * w * &s;
+    let sw_eigen = nalgebra::SymmetricEigen::new(sws.clone());
+    let sw_top = sw_eigen.eigenvalues.iter().copied().fold(0.0, f64::max);
+    let spanned = sw_eigen
+        .eigenvalues
+        .iter()
+        .filter(|&&l| l > sw_top * 1e-9 && l > 0.0)
+        .count();
+    let y = sws
+        .pseudo_inverse(sw_top * 1e-9)
+        .map(|inv| inv * s.transpose() * w * x)
+        .unwrap_or_else(|_| nalgebra::DVector::zeros(n));
+    let rest = x - &s * y;
+    (rest.dot(&(w * rest)), rank.saturating_sub(spanned))
 }
 
 /// `P(χ²_dof ≥ t)` (1 for no degree of freedom).
