@@ -13,12 +13,14 @@ use std::time::Instant;
 use anyhow::{bail, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
-use skincal::check::{check_skin, CheckConfig, Verdict};
+use skincal::check::{check_skin, CheckConfig, LiveCheck, Verdict};
 use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
 use skincal::ingest::{ingest, motion::motion_record, IngestConfig};
 use skincal::log::csv::CsvSink;
+use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::{read_log, Stream, Topics};
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::model::Robot;
 use skincal::motion::MotionRecord;
@@ -144,18 +146,21 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
         outln!("missed: {miss}");
     }
     outln!(
-        "\nspeed on 1 thread: {} SUs, {:.0} s of 1 kHz CSV log ({} blocks): reading its motion record {:.2} s, check {:.2} s = {:.1}× real time ({:.1}× with the reading)",
-        speed.0,
-        speed.1,
-        speed.2,
-        speed.3,
-        speed.4,
-        speed.1 / speed.4,
-        speed.1 / (speed.3 + speed.4)
+        "\nspeed on 1 thread: {} SUs, {:.0} s of 1 kHz MCAP log ({} blocks): reading its motion record {:.2} s, \
+         check {:.2} s ({:.1}× real time; {:.1}× with the reading); live, every sample pushed as read: {:.2} s ({:.1}× real time)",
+        speed.sus,
+        speed.seconds,
+        speed.blocks,
+        speed.read,
+        speed.check,
+        speed.seconds / speed.check,
+        speed.seconds / (speed.read + speed.check),
+        speed.live,
+        speed.seconds / speed.live
     );
     out::json(&serde_json::json!({
         "command": "bench check", "rows": rows, "missed": misses,
-        "speed": {"sus": speed.0, "seconds": speed.1, "blocks": speed.2, "read_seconds": speed.3, "check_seconds": speed.4},
+        "speed": {"sus": speed.sus, "seconds": speed.seconds, "blocks": speed.blocks, "read_seconds": speed.read, "check_seconds": speed.check, "live_seconds": speed.live},
     }));
     Ok(())
 }
@@ -334,26 +339,76 @@ fn read(log: std::path::PathBuf, model: &BodyModel) -> Result<MotionRecord> {
     )?)
 }
 
-/// The check on `sus` SUs: (SUs, seconds of log, blocks, seconds to read the log's motion record,
-/// seconds of the check), on one thread.
-fn speed(sus: usize, dir: &std::path::Path) -> Result<(usize, f64, usize, f64, f64)> {
+/// The check's speed on many SUs, one thread.
+struct Speed {
+    sus: usize,
+    seconds: f64,
+    blocks: usize,
+    /// Reading the log's motion record.
+    read: f64,
+    /// The check of the record.
+    check: f64,
+    /// The live check: every sample of the log pushed as it is read, and a report at the end.
+    live: f64,
+}
+
+/// The check on `sus` SUs (random places on the paper's arm, calibrated from a simulated set)
+/// against 30 s of ordinary motion in an MCAP log, on one thread.
+fn speed(sus: usize, dir: &std::path::Path) -> Result<Speed> {
     let (robot, _) = crate::logs::bench_program(sus, 30.0)?;
     let set = simulate(&robot, &SimulationConfig::default())?.measurements;
     let structure = explore(&set, &ExploreConfig::default())?;
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None)?;
-    ordinary(&robot, &model, 30.0, 7, dir)?;
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            structure: false,
+            sweep: 30.0,
+            seed: 7,
+            ..PlanConfig::continuous()
+        },
+    )?;
+    let log = dir.join("speed.mcap");
+    let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, true);
+    record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {})?;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
-    let started = Instant::now();
-    let record = pool.install(|| read(dir.join("ordinary-7"), &model))?;
-    let reading = started.elapsed().as_secs_f64();
-    let started = Instant::now();
-    pool.install(|| check_skin(&model, &record, &CheckConfig::default()))?;
-    let blocks = record.runs.iter().map(|r| r.len()).sum::<usize>();
-    Ok((
-        model.robot.sus.len(),
-        blocks as f64 * record.period,
+    let timed = |f: &mut (dyn FnMut() -> Result<()> + Send)| -> Result<f64> {
+        let started = Instant::now();
+        pool.install(&mut *f)?;
+        Ok(started.elapsed().as_secs_f64())
+    };
+    let mut motion = None;
+    let read_s = timed(&mut || {
+        motion = Some(read(log.clone(), &model)?);
+        Ok(())
+    })?;
+    let motion = motion.expect("read above");
+    let check_s = timed(&mut || {
+        check_skin(&model, &motion, &CheckConfig::default())?;
+        Ok(())
+    })?;
+    let live_s = timed(&mut || {
+        let mut live = LiveCheck::new(&model, &CheckConfig::default())?;
+        read_log(
+            &log,
+            Stream::Both,
+            &Topics::default(),
+            &mut |sample| {
+                live.push(&sample);
+                Ok(())
+            },
+            &mut |_| {},
+        )?;
+        live.report();
+        Ok(())
+    })?;
+    let blocks = motion.runs.iter().map(|r| r.len()).sum::<usize>();
+    Ok(Speed {
+        sus: model.robot.sus.len(),
+        seconds: blocks as f64 * motion.period,
         blocks,
-        reading,
-        started.elapsed().as_secs_f64(),
-    ))
+        read: read_s,
+        check: check_s,
+        live: live_s,
+    })
 }

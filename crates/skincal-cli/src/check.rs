@@ -188,10 +188,11 @@ fn table(report: &CheckReport) -> String {
             su.p_value,
             su.residual_ratio
         );
-        if !su.untold.is_empty() && !su.verdict.is_quiet()
-            || su.verdict == skincal::check::Verdict::NotEnoughMotion
-        {
+        if su.verdict == skincal::check::Verdict::NotEnoughMotion {
             s += &format!("{:<14} {}\n", "", su.untold);
+        }
+        if !su.never_told.is_empty() {
+            s += &format!("{:<14} {}\n", "", su.never_told);
         }
     }
     let todo: Vec<&SuCheck> = report.sus.iter().filter(|s| !s.advice.is_empty()).collect();

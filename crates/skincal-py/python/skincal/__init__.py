@@ -532,6 +532,7 @@ class SuCheck:
     residual_ratio: float
     change: Optional[dict]
     untold: str
+    never_told: str
     advice: str
 
 
@@ -564,6 +565,7 @@ def _check_report(text: str) -> CheckReport:
                 residual_ratio=s["residual_ratio"],
                 change=s.get("change"),
                 untold=s.get("untold", ""),
+                never_told=s.get("never_told", ""),
                 advice=s.get("advice", ""),
             )
         )

@@ -181,6 +181,10 @@ pub struct SuCheck {
     /// DoFs whose motion would.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub untold: String,
+    /// What of its place no motion of the robot tells (a shift along a vertical first axis that
+    /// alone carries it; a tilt that a bias mimics): a change there is never seen.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub never_told: String,
     /// Its place as found anew, on its segment or another (`moved` far, `other-segment`), in the
     /// segment's frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -513,7 +517,7 @@ impl SkinCheck {
                     lambda,
                     &skin.reach.tellable(u, self.noise[u].max(1e-6), lambda),
                 );
-                self.verdict(&names[u], u, tally, &t, median_noise)
+                self.verdict(&names[u], u, tally, &t, median_noise, lambda)
             })
             .collect();
         CheckReport {
@@ -531,6 +535,7 @@ impl SkinCheck {
         tally: &Tally,
         t: &test::ChangeTest,
         median_noise: f64,
+        lambda: f64,
     ) -> SuCheck {
         let alpha = self.config.false_alarm;
         let residual_ratio = tally.residual_ratio(&t.change);
@@ -583,9 +588,29 @@ impl SkinCheck {
             residual_ratio,
             change: (tally.blocks > 0).then_some(change),
             untold,
+            never_told: self.never_told(u, lambda),
             refit: None,
             advice: String::new(),
         }
+    }
+
+    /// What of SU `u`'s place no motion tells: the components with a share of the directions a
+    /// minute of rich motion leaves untold.
+    fn never_told(&self, u: usize, lambda: f64) -> String {
+        let tellable = self.skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
+        let blind = test::ChangeMatrix::identity() - tellable;
+        let parts: Vec<&str> = [(0, "position"), (3, "orientation"), (6, "bias")]
+            .into_iter()
+            .filter(|&(k, _)| (k..k + 3).any(|c| blind[(c, c)] > 0.1))
+            .map(|(_, n)| n)
+            .collect();
+        if parts.is_empty() {
+            return String::new();
+        }
+        format!(
+            "{}: in part, no motion of this robot tells",
+            parts.join(", ")
+        )
     }
 
     /// What of SU `u`'s place the log does not tell, and the DoFs whose motion would (those

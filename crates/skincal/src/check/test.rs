@@ -181,7 +181,9 @@ fn left(x: &Change, c: &ChangeMatrix, keep: std::ops::Range<usize>) -> (f64, usi
         }
     }
     let n = keep.len();
-    let s = ChangeMatrix::identity().columns(keep.start, n).clone_owned();
+    let s = ChangeMatrix::identity()
+        .columns(keep.start, n)
+        .clone_owned();
     let sws = s.transpose() * w * &s;
     let sw_eigen = nalgebra::SymmetricEigen::new(sws.clone());
     let sw_top = sw_eigen.eigenvalues.iter().copied().fold(0.0, f64::max);
