@@ -51,13 +51,14 @@ pub(crate) struct BenchCheckArgs {
     json: bool,
 }
 
-const KINDS: [&str; 7] = [
+const KINDS: [&str; 8] = [
     "shift",
     "turn",
     "bias",
     "swap",
     "silent",
     "noisy",
+    "zero",
     "unchanged",
 ];
 
@@ -99,9 +100,21 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
                 checks += 1;
                 alarms += usize::from(!s.verdict.is_quiet());
             }
-            let named = target
-                .iter()
-                .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v));
+            // A DoF's zero: named when the report names that DoF; anywhere else it is a false alarm.
+            let zero_named = match &change {
+                Some(SkinChange::Zero { dof, .. }) => {
+                    report.zero.as_ref().is_some_and(|z| &z.dof == dof)
+                }
+                _ => {
+                    checks += 1;
+                    alarms += usize::from(report.zero.is_some());
+                    true
+                }
+            };
+            let named = zero_named
+                && target
+                    .iter()
+                    .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v));
             hits += usize::from(named);
             if !named {
                 let found: Vec<String> = target
@@ -192,7 +205,7 @@ fn targets(change: Option<&SkinChange>) -> Vec<(String, Verdict)> {
                 how: "noisy".into(),
             },
         )],
-        None => Vec::new(),
+        Some(SkinChange::Zero { .. }) | None => Vec::new(),
     }
 }
 
@@ -238,6 +251,15 @@ fn random_change(kind: &str, robot: &Robot, seed: u64) -> Option<SkinChange> {
             }
         }
         "silent" => SkinChange::Silent { su },
+        "zero" => {
+            let dofs = robot.model.dof_names();
+            let sign = if seed % 2 == 0 { 1.0 } else { -1.0 };
+            SkinChange::Zero {
+                // Not the first: about a vertical first axis its zero is the gauge, told by nothing.
+                dof: dofs[1 + (seed as usize / 2) % (dofs.len() - 1).max(1)].clone(),
+                offset: sign * 2f64.to_radians(),
+            }
+        }
         "noisy" => SkinChange::Noisy {
             su,
             factor: 4.0,

@@ -102,19 +102,20 @@ pub fn check(args: CheckArgs) -> Result<()> {
         "report": report,
         "recalibrated": written,
     }));
-    let changed: Vec<&SuCheck> = report.changed().collect();
-    if changed.is_empty() {
+    if !report.any_change() {
         return Ok(());
     }
+    let mut what: Vec<String> = report
+        .changed()
+        .map(|s| format!("{} {}", s.su, s.verdict.word()))
+        .collect();
+    if let Some(zero) = &report.zero {
+        what.insert(0, format!("the zero of {}", zero.dof));
+    }
     Err(Incomplete(format!(
-        "{} SU(s) do not read what {} predicts: {}",
-        changed.len(),
+        "the skin does not read what {} predicts: {}",
         args.model.display(),
-        changed
-            .iter()
-            .map(|s| format!("{} {}", s.su, s.verdict.word()))
-            .collect::<Vec<_>>()
-            .join(", ")
+        what.join(", ")
     ))
     .into())
 }
@@ -195,9 +196,24 @@ fn table(report: &CheckReport) -> String {
             s += &format!("{:<14} {}\n", "", su.never_told);
         }
     }
+    if let Some(zero) = &report.zero {
+        s += &format!(
+            "\nthe zero of {} moved: it stands {:.3}° ± {:.3}° from what its encoder says (every SU beyond it, {}, tells the same; they are judged above with it taken out)\n",
+            zero.dof,
+            zero.offset.to_degrees(),
+            zero.offset_sd.to_degrees(),
+            zero.sus.join(", ")
+        );
+    }
     let todo: Vec<&SuCheck> = report.sus.iter().filter(|s| !s.advice.is_empty()).collect();
-    if !todo.is_empty() {
+    if !todo.is_empty() || report.zero.is_some() {
         s += "\nwhat to do:\n";
+        if let Some(zero) = &report.zero {
+            s += &format!(
+                "  {}: its encoder was homed anew; `check --recalibrate` sets its zero again\n",
+                zero.dof
+            );
+        }
         for su in todo {
             s += &format!("  {}: {}\n", su.su, su.advice);
         }

@@ -367,3 +367,43 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
         "{most:?}"
     );
 }
+
+/// An encoder homed anew after a hard reset: dof3 now reads 2° less in the same posture. The
+/// check names the DoF and its angle (every SU beyond it tells the same), calls no SU changed,
+/// and the recalibrated model predicts the re-homed robot as the old one predicted it before.
+#[test]
+fn a_dof_whose_zero_moved_is_named_with_its_angle_and_set_again() {
+    let (robot, model) = paper_arm();
+    let change = SkinChange::Zero {
+        dof: "dof3".into(),
+        offset: 2f64.to_radians(),
+    };
+    let (report, record) = checked(Some(&change), 41);
+    let zero = report.zero.as_ref().expect("the zero of dof3 is named");
+    eprintln!(
+        "zero of {}: {:.3}° ± {:.3}°, told by {:?}",
+        zero.dof,
+        zero.offset.to_degrees(),
+        zero.offset_sd.to_degrees(),
+        zero.sus
+    );
+    assert_eq!(zero.dof, "dof3");
+    assert!((zero.offset.to_degrees() - 2.0).abs() < 0.1);
+    others_quiet(&report, &[]);
+    let (new, changes) = recalibrate(model, &record, &report, &CheckConfig::default()).unwrap();
+    assert_eq!(changes.len(), 1);
+    let rehomed = crate::common::held_out(&change.robot(robot).unwrap(), 99);
+    let as_before = crate::common::held_out(robot, 99);
+    let [stale, fixed, before] = [(model, &rehomed), (&new, &rehomed), (model, &as_before)]
+        .map(|(m, set)| validate(m, set, "held-out").unwrap().static_rms);
+    eprintln!(
+        "held-out static: old model {stale:.4}, set again {fixed:.4}, before the reset {before:.4}"
+    );
+    assert!(
+        stale > 0.1 && fixed < 1.5 * before.max(0.003),
+        "{stale} {fixed} {before}"
+    );
+    // Checked again on the same log, the new model reads right.
+    let again = check_skin(&new, &record, &CheckConfig::default()).unwrap();
+    assert!(!again.any_change(), "{:?}", again.zero);
+}

@@ -543,6 +543,8 @@ class CheckReport:
     seconds: float
     sus: List[SuCheck]
     notes: List[str]
+    zero: Optional[dict] = None
+    """A DoF whose zero moved: ``dof``, ``offset`` and ``offset_sd`` (rad), ``sus``."""
 
     def changed(self) -> List[SuCheck]:
         """The SUs that do not read what the model predicts."""
@@ -569,7 +571,9 @@ def _check_report(text: str) -> CheckReport:
                 advice=s.get("advice", ""),
             )
         )
-    return CheckReport(seconds=data["seconds"], sus=sus, notes=data.get("notes", []))
+    return CheckReport(
+        seconds=data["seconds"], sus=sus, notes=data.get("notes", []), zero=data.get("zero")
+    )
 
 
 def _model(model: "Union[Model, Path]") -> "Model":

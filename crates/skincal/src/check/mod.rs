@@ -18,6 +18,7 @@ mod reach;
 mod recalibrate;
 mod refit;
 mod test;
+mod zero;
 
 use std::collections::BTreeMap;
 
@@ -26,8 +27,9 @@ use serde::{Deserialize, Serialize};
 
 pub use kin::{BlockKinematics, SuPlace, CHANGE};
 pub use live::{LiveCheck, RECENT, WARM_UP};
-pub use recalibrate::{recalibrate, ModelChange, RecalibrateError};
+pub use recalibrate::{recalibrate, ModelChange, RecalibrateError, SuModelChange};
 pub use test::{critical, non_centrality, Tally};
+pub use zero::ZeroChange;
 
 use crate::estimate::body::BodyModel;
 use crate::model::sensor::STANDARD_GRAVITY;
@@ -212,8 +214,11 @@ pub struct Refit {
 pub struct CheckReport {
     /// Seconds of the log checked (blocks with joint states).
     pub seconds: f64,
-    /// Per SU of the model, in its order.
+    /// Per SU of the model, in its order (judged with a moved zero taken out).
     pub sus: Vec<SuCheck>,
+    /// A DoF whose zero moved (its encoder homed anew), every SU beyond it telling the same angle.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zero: Option<ZeroChange>,
     /// The smallest changes the check promised to see and its false-alarm rate.
     pub config: CheckConfig,
     /// Remarks about the log as a whole.
@@ -222,6 +227,11 @@ pub struct CheckReport {
 }
 
 impl CheckReport {
+    /// Whether anything changed: an SU, or a DoF's zero.
+    pub fn any_change(&self) -> bool {
+        self.zero.is_some() || self.changed().next().is_some()
+    }
+
     /// The SUs that changed or broke.
     pub fn changed(&self) -> impl Iterator<Item = &SuCheck> {
         self.sus.iter().filter(|s| !s.verdict.is_quiet())
@@ -393,6 +403,8 @@ impl Columns {
 
 /// One block of a run in the model's order: joint states and each SU's reading at its delay.
 pub struct Block {
+    /// Joint positions, velocities and accelerations, model DoF order.
+    pub q: [Vec<f64>; 3],
     /// Frames and motions.
     pub kinematics: BlockKinematics,
     /// Joint acceleration deviations, model DoF order.
@@ -404,12 +416,8 @@ pub struct Block {
 /// Block `b` of `run` (block length `period`).
 pub fn block(skin: &Skin, columns: &Columns, run: &MotionRun, b: usize, period: f64) -> Block {
     let pick = |row: &[f64]| columns.dofs.iter().map(|&c| row[c]).collect::<Vec<_>>();
-    let kinematics = BlockKinematics::new(
-        &skin.robot,
-        &pick(&run.q[b]),
-        &pick(&run.qd[b]),
-        &pick(&run.qdd[b]),
-    );
+    let q = [pick(&run.q[b]), pick(&run.qd[b]), pick(&run.qdd[b])];
+    let kinematics = BlockKinematics::new(&skin.robot, &q[0], &q[1], &q[2]);
     let readings = columns
         .sus
         .iter()
@@ -417,6 +425,7 @@ pub fn block(skin: &Skin, columns: &Columns, run: &MotionRun, b: usize, period: 
         .map(|(c, &delay)| c.and_then(|c| skin_at(run, c, b as f64 + delay / period)))
         .collect();
     Block {
+        q,
         kinematics,
         qdd_sd: pick(&run.qdd_sd[b]),
         readings,
@@ -464,6 +473,8 @@ pub struct SkinCheck {
     config: CheckConfig,
     noise: Vec<f64>,
     tallies: Vec<Tally>,
+    /// Per SU: its sums for each DoF of its chain (a DoF's zero).
+    zero: Vec<Vec<zero::ZeroSums>>,
     blocks: usize,
     period: f64,
 }
@@ -479,6 +490,7 @@ impl SkinCheck {
             config,
             noise,
             tallies: vec![Tally::default(); n],
+            zero: vec![Vec::new(); n],
             blocks: 0,
             period: 0.0,
         }
@@ -489,12 +501,16 @@ impl SkinCheck {
         self.period = period;
         for b in 0..run.len() {
             let block = block(&self.skin, &self.columns, run, b, period);
+            let [q, qd, qdd] = &block.q;
+            let rates = zero::Rates::new(&self.skin.robot, &block.kinematics, q, qd, qdd);
             self.blocks += 1;
             for (u, tally) in self.tallies.iter_mut().enumerate() {
                 let place = &self.skin.places[u];
                 if let Some((r, jac, var)) = su_term(&self.skin, &block, u, place, self.noise[u]) {
-                    tally.add(&r, &jac, var, self.config.huber);
+                    let w = tally.add(&r, &jac, var, self.config.huber);
                     tally.norm_sum += block.readings[u].map_or(0.0, |y| y.norm());
+                    let chain = &self.skin.chains[place.segment];
+                    zero::add(&mut self.zero[u], &rates, chain, place, &r, &jac, w);
                 }
             }
         }
@@ -507,9 +523,24 @@ impl SkinCheck {
         let skin = &self.skin;
         let median_noise = median(self.noise.clone());
         let names = self.skin.robot.model.su_names();
+        // A DoF whose zero moved is taken out of its SUs' sums before they are judged.
+        let mut tallies = self.tallies.clone();
+        let usable: Vec<bool> = tallies
+            .iter()
+            .map(|t| {
+                t.blocks > 0 && t.residual_ratio(&test::Change::zeros()) < 10.0 * self.config.misfit
+            })
+            .collect();
+        let zero = zero::moved_zero(
+            &skin.robot,
+            &mut tallies,
+            &self.zero,
+            &usable,
+            self.config.false_alarm,
+        );
         let sus = (0..names.len())
             .map(|u| {
-                let tally = &self.tallies[u];
+                let tally = &tallies[u];
                 let t = test::change_test(
                     tally,
                     &skin.scale,
@@ -523,6 +554,7 @@ impl SkinCheck {
         CheckReport {
             seconds: self.blocks as f64 * self.period,
             sus,
+            zero,
             config: self.config,
             notes: Vec::new(),
         }

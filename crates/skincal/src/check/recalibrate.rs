@@ -14,7 +14,24 @@ use crate::motion::MotionRecord;
 
 /// One change a recalibration made to a model (kept in `model.json`'s `changes`, oldest first).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ModelChange {
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum ModelChange {
+    /// An SU given a new place or bias.
+    Su(SuModelChange),
+    /// A DoF given a new zero.
+    Zero {
+        /// The DoF.
+        dof: String,
+        /// The angle added to its encoder's reading, rad.
+        offset: f64,
+        /// The log(s) it was found in.
+        logs: Vec<String>,
+    },
+}
+
+/// An SU given a new place or bias.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuModelChange {
     /// The SU.
     pub su: String,
     /// What was found (the check's verdict).
@@ -54,11 +71,20 @@ pub fn recalibrate(
     report: &CheckReport,
     config: &CheckConfig,
 ) -> Result<(BodyModel, Vec<ModelChange>), RecalibrateError> {
-    let skin = Skin::new(model, config)?;
-    let columns = Columns::new(&skin, &record.dofs, &record.sus)?;
     let mut out = model.clone();
     let logs = logs_of(record);
     let mut changes = Vec::new();
+    if let Some(zero) = &report.zero {
+        set_zero(&mut out, &zero.dof, zero.offset);
+        changes.push(ModelChange::Zero {
+            dof: zero.dof.clone(),
+            offset: zero.offset,
+            logs: logs.clone(),
+        });
+    }
+    // The SUs are fitted anew on the model with the DoF's new zero.
+    let skin = Skin::new(&out, config)?;
+    let columns = Columns::new(&skin, &record.dofs, &record.sus)?;
     let refitted: Vec<usize> = (0..report.sus.len())
         .filter(|&u| matches!(report.sus[u].verdict, Verdict::Moved | Verdict::BiasChanged))
         .collect();
@@ -71,7 +97,7 @@ pub fn recalibrate(
             let (new, ratio) = cache.fit(&skin, u, start, check.noise_sd, config.huber);
             let tally = cache.tally(&skin, u, &new, check.noise_sd, config.huber);
             set_place(&mut out, &check.su, &new, &tally);
-            changes.push(ModelChange {
+            changes.push(ModelChange::Su(SuModelChange {
                 su: check.su.clone(),
                 verdict: check.verdict.clone(),
                 logs: logs.clone(),
@@ -80,7 +106,7 @@ pub fn recalibrate(
                 bias_before: old.intrinsics.bias,
                 bias_after: new.intrinsics.bias,
                 residual_ratio: ratio,
-            });
+            }));
         }
     }
     for (u, check) in report.sus.iter().enumerate() {
@@ -97,7 +123,7 @@ pub fn recalibrate(
         swap_names(&mut out, &check.su, with)?;
         for (a, b) in [(u, v), (v, u)] {
             let name = &report.sus[a].su;
-            changes.push(ModelChange {
+            changes.push(ModelChange::Su(SuModelChange {
                 su: name.clone(),
                 verdict: report.sus[a].verdict.clone(),
                 logs: logs.clone(),
@@ -106,7 +132,7 @@ pub fn recalibrate(
                 bias_before: skin.places[a].intrinsics.bias,
                 bias_after: skin.places[b].intrinsics.bias,
                 residual_ratio: report.sus[a].residual_ratio,
-            });
+            }));
         }
     }
     out.changes.extend(changes.iter().cloned());
@@ -215,5 +241,41 @@ fn rename(value: &mut serde_json::Value, a: &str, b: &str) {
         serde_json::Value::Array(items) => items.iter_mut().for_each(|v| rename(v, a, b)),
         serde_json::Value::Object(map) => map.values_mut().for_each(|v| rename(v, a, b)),
         _ => {}
+    }
+}
+
+/// DoF `dof`'s zero moved by `offset`: its origin turned about its axis by that much, in the
+/// body's robot and in its limb's (a DH row becomes an origin).
+fn set_zero(model: &mut BodyModel, dof: &str, offset: f64) {
+    let robots = std::iter::once(&mut model.robot)
+        .chain(model.limbs.iter_mut().map(|l| &mut l.estimate.robot));
+    for robot in robots {
+        for entry in robot.dofs.iter_mut().filter(|e| e.name == dof) {
+            let origin = match (&entry.origin, &entry.dh) {
+                (Some(o), _) => Frame {
+                    xyz: o.xyz,
+                    rpy: o.rpy,
+                }
+                .to_isometry(),
+                (None, Some(dh)) => {
+                    crate::model::PlacementSpec::dh(dh.theta0, dh.d, dh.a, dh.alpha)
+                        .kind
+                        .transform(&[dh.theta0, dh.d, dh.a, dh.alpha])
+                }
+                (None, None) => nalgebra::Isometry3::identity(),
+            };
+            let axis =
+                nalgebra::Unit::new_normalize(Vector3::from(entry.axis.unwrap_or([0.0, 0.0, 1.0])));
+            let turned = origin * nalgebra::UnitQuaternion::from_axis_angle(&axis, offset);
+            let frame = Frame::from_isometry(&turned);
+            entry.origin = Some(crate::model::description::OriginEntry {
+                xyz: frame.xyz,
+                rpy: frame.rpy,
+            });
+            entry.dh = None;
+            if entry.axis.is_none() {
+                entry.axis = Some([0.0, 0.0, 1.0]);
+            }
+        }
     }
 }

@@ -31,8 +31,9 @@ pub struct Tally {
 
 impl Tally {
     /// Adds one block: residual `r` (measured − predicted), Jacobian `jac`, variance of one
-    /// component `var`, Huber threshold `huber` on the whitened residual's norm.
-    pub fn add(&mut self, r: &nalgebra::Vector3<f64>, jac: &Jacobian, var: f64, huber: f64) {
+    /// component `var`, Huber threshold `huber` on the whitened residual's norm; returns the
+    /// block's weight.
+    pub fn add(&mut self, r: &nalgebra::Vector3<f64>, jac: &Jacobian, var: f64, huber: f64) -> f64 {
         let whitened = r.norm() / var.sqrt();
         let w = if whitened > huber {
             self.down_weighted += 1;
@@ -45,6 +46,7 @@ impl Tally {
         self.gradient += jt * r * w;
         self.chi2 += r.norm_squared() * w;
         self.blocks += 1;
+        w
     }
 
     /// Another tally's sums added to these.

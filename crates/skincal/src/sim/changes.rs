@@ -39,6 +39,14 @@ pub enum SkinChange {
         /// The step, m/s².
         bias: [f64; 3],
     },
+    /// DoF `dof`'s encoder homed anew: it now reads `offset` (rad) less than before in the same
+    /// posture (made on the robot: its joint frame turned about its axis by `offset`).
+    Zero {
+        /// The DoF.
+        dof: String,
+        /// The angle, rad.
+        offset: f64,
+    },
     /// SU `su` stopped sending fresh samples (dead, frozen or unplugged).
     Silent {
         /// The SU.
@@ -85,6 +93,14 @@ impl SkinChange {
                     } else if &spec.name == b {
                         spec.name.clone_from(a);
                     }
+                }
+            }
+            SkinChange::Zero { dof, offset } => {
+                if let Some(spec) = builder.dofs.iter_mut().find(|d| &d.name == dof) {
+                    let origin = spec.origin.kind.transform(&spec.origin.values);
+                    let axis = nalgebra::Unit::new_normalize(spec.axis);
+                    let turned = origin * nalgebra::UnitQuaternion::from_axis_angle(&axis, *offset);
+                    spec.origin = PlacementSpec::from_isometry(&turned);
                 }
             }
             _ => return Ok(robot.clone()),
