@@ -72,67 +72,101 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
     let scratch = Scratch::create()?;
     let robot = skincal::io::load_robot(&args.robot, Default::default())?;
     let model = calibrated(&robot, &scratch.0)?;
-    let config = CheckConfig::default();
     let mut rows = Vec::new();
-    let mut misses = Vec::new();
     let bar = out::progress_bar((KINDS.len() * args.trials) as u64, "bench check: trials");
     for (k, kind) in KINDS.iter().enumerate() {
-        let (mut hits, mut alarms, mut checks, mut seconds) = (0, 0, 0, 0.0);
+        let mut row = Row::default();
         for trial in 0..args.trials {
             bar.inc(1);
             let seed = 1000 * (k as u64 + 1) + trial as u64;
             let change = random_change(kind, &robot, seed);
-            let changed = change
-                .as_ref()
-                .map_or(Ok(robot.clone()), |c| c.robot(&robot))?;
-            let mut record = ordinary(&changed, &model, args.seconds, seed, &scratch.0)?;
-            if let Some(c) = &change {
-                c.apply_to_record(&mut record);
-            }
-            let started = Instant::now();
-            let report = check_skin(&model, &record, &config)?;
-            seconds += started.elapsed().as_secs_f64();
-            let target = targets(change.as_ref());
-            for s in &report.sus {
-                if target.iter().any(|(su, _)| su == &s.su) {
-                    continue;
-                }
-                checks += 1;
-                alarms += usize::from(!s.verdict.is_quiet());
-            }
-            // A DoF's zero: named when the report names that DoF; anywhere else it is a false alarm.
-            let zero_named = match &change {
-                Some(SkinChange::Zero { dof, .. }) => {
-                    report.zero.as_ref().is_some_and(|z| &z.dof == dof)
-                }
-                _ => {
-                    checks += 1;
-                    alarms += usize::from(report.zero.is_some());
-                    true
-                }
-            };
-            let named = zero_named
-                && target
-                    .iter()
-                    .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v));
-            hits += usize::from(named);
-            if !named {
-                let found: Vec<String> = target
-                    .iter()
-                    .filter_map(|(su, _)| report.sus.iter().find(|s| &s.su == su))
-                    .map(|s| format!("{} {} (p {:.1e})", s.su, s.verdict.word(), s.p_value))
-                    .collect();
-                misses.push(format!("{kind} {change:?}: found {}", found.join(", ")));
-            }
+            trial_of(
+                &robot,
+                &model,
+                change,
+                args.seconds,
+                seed,
+                &scratch.0,
+                &mut row,
+            )?;
         }
-        rows.push(serde_json::json!({
-            "change": kind, "trials": args.trials, "named": hits,
-            "false_alarms": alarms, "su_checks": checks,
-            "check_seconds": seconds / args.trials as f64,
-        }));
+        rows.push((kind, row));
     }
     bar.finish_and_clear();
     let speed = speed(args.sus, &scratch.0)?;
+    print_table(&args, &rows, &speed);
+    Ok(())
+}
+
+/// One kind of change over its trials.
+#[derive(Default)]
+struct Row {
+    named: usize,
+    alarms: usize,
+    checks: usize,
+    seconds: f64,
+    misses: Vec<String>,
+}
+
+/// One trial: `seconds` of ordinary motion of `robot` after `change`, checked against `model`.
+fn trial_of(
+    robot: &Robot,
+    model: &BodyModel,
+    change: Option<SkinChange>,
+    seconds: f64,
+    seed: u64,
+    dir: &std::path::Path,
+    row: &mut Row,
+) -> Result<()> {
+    let changed = change
+        .as_ref()
+        .map_or(Ok(robot.clone()), |c| c.robot(robot))?;
+    let mut record = ordinary(&changed, model, seconds, seed, dir)?;
+    if let Some(c) = &change {
+        c.apply_to_record(&mut record);
+    }
+    let started = Instant::now();
+    let report = check_skin(model, &record, &CheckConfig::default())?;
+    row.seconds += started.elapsed().as_secs_f64();
+    let target = targets(change.as_ref());
+    for s in report
+        .sus
+        .iter()
+        .filter(|s| !target.iter().any(|(su, _)| su == &s.su))
+    {
+        row.checks += 1;
+        row.alarms += usize::from(!s.verdict.is_quiet());
+    }
+    // A DoF's zero: named when the report names that DoF; anywhere else it is a false alarm.
+    let zero_named = match &change {
+        Some(SkinChange::Zero { dof, .. }) => report.zero.as_ref().is_some_and(|z| &z.dof == dof),
+        _ => {
+            row.checks += 1;
+            row.alarms += usize::from(report.zero.is_some());
+            true
+        }
+    };
+    let named = zero_named
+        && target
+            .iter()
+            .all(|(su, v)| report.sus.iter().any(|s| &s.su == su && &s.verdict == v));
+    row.named += usize::from(named);
+    if !named {
+        let found: Vec<String> = target
+            .iter()
+            .filter_map(|(su, _)| report.sus.iter().find(|s| &s.su == su))
+            .map(|s| format!("{} {} (p {:.1e})", s.su, s.verdict.word(), s.p_value))
+            .collect();
+        row.misses.push(format!(
+            "{change:?}: found {} {:?}",
+            found.join(", "),
+            report.zero
+        ));
+    }
+    Ok(())
+}
+
+fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
     outln!(
         "{} calibrated by its continuous program; {} trials of {} s of ordinary motion per change, ±0.01 g\n",
         args.robot, args.trials, args.seconds
@@ -145,18 +179,20 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
         "false alarms / checks",
         "check s"
     );
-    for r in &rows {
+    for (kind, r) in rows {
         outln!(
             "{:<10} {:>7} {:>12.1}% {:>22} {:>12.3}",
-            r["change"].as_str().unwrap_or(""),
-            r["named"],
-            100.0 * r["named"].as_f64().unwrap_or(0.0) / args.trials as f64,
-            format!("{} / {}", r["false_alarms"], r["su_checks"]),
-            r["check_seconds"].as_f64().unwrap_or(0.0)
+            kind,
+            r.named,
+            100.0 * r.named as f64 / args.trials as f64,
+            format!("{} / {}", r.alarms, r.checks),
+            r.seconds / args.trials as f64
         );
     }
-    for miss in &misses {
-        outln!("missed: {miss}");
+    for (kind, r) in rows {
+        for miss in &r.misses {
+            outln!("missed ({kind}): {miss}");
+        }
     }
     outln!(
         "\nspeed on 1 thread: {} SUs, {:.0} s of 1 kHz MCAP log ({} blocks): reading its motion record {:.2} s, \
@@ -171,11 +207,20 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
         speed.live,
         speed.seconds / speed.live
     );
+    let json_rows: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|(kind, r)| {
+            serde_json::json!({
+                "change": kind, "trials": args.trials, "named": r.named,
+                "false_alarms": r.alarms, "checks": r.checks,
+                "check_seconds": r.seconds / args.trials as f64, "missed": r.misses,
+            })
+        })
+        .collect();
     out::json(&serde_json::json!({
-        "command": "bench check", "rows": rows, "missed": misses,
+        "command": "bench check", "rows": json_rows,
         "speed": {"sus": speed.sus, "seconds": speed.seconds, "blocks": speed.blocks, "read_seconds": speed.read, "check_seconds": speed.check, "live_seconds": speed.live},
     }));
-    Ok(())
 }
 
 /// The SUs a change touches and the verdict each should get.

@@ -60,6 +60,29 @@ pub struct MotionRun {
 }
 
 impl MotionRun {
+    /// A run of no block yet, its first block's centre at `start`.
+    pub fn new(log: &str, start: f64) -> Self {
+        Self {
+            log: log.to_string(),
+            start,
+            q: Vec::new(),
+            qd: Vec::new(),
+            qdd: Vec::new(),
+            qdd_sd: Vec::new(),
+            skin: Vec::new(),
+        }
+    }
+
+    /// Adds a block: per DoF `[q, q̇, q̈, q̈'s deviation]`, and each SU's block mean.
+    pub fn push(&mut self, joints: &[[f64; 4]], skin: Vec<Option<[f64; 3]>>) {
+        let column = |k: usize| joints.iter().map(|x| x[k]).collect::<Vec<f64>>();
+        self.q.push(column(0));
+        self.qd.push(column(1));
+        self.qdd.push(column(2));
+        self.qdd_sd.push(column(3));
+        self.skin.push(skin);
+    }
+
     /// The number of blocks.
     pub fn len(&self) -> usize {
         self.q.len()

@@ -247,24 +247,11 @@ fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<Motio
             continue;
         };
         if !open {
-            runs.push(MotionRun {
-                log: path.display().to_string(),
-                start: centre,
-                q: Vec::new(),
-                qd: Vec::new(),
-                qdd: Vec::new(),
-                qdd_sd: Vec::new(),
-                skin: Vec::new(),
-            });
+            runs.push(MotionRun::new(&path.display().to_string(), centre));
             open = true;
         }
         let run = runs.last_mut().expect("a run was opened");
-        run.q.push(fitted.iter().map(|x| x[0]).collect());
-        run.qd.push(fitted.iter().map(|x| x[1]).collect());
-        run.qdd.push(fitted.iter().map(|x| x[2]).collect());
-        run.qdd_sd.push(fitted.iter().map(|x| x[3]).collect());
-        run.skin
-            .push(gathered.skin.iter().map(|s| s.mean(b)).collect());
+        run.push(&fitted, gathered.skin.iter().map(|s| s.mean(b)).collect());
     }
     runs.retain(|r| r.len() >= 3);
     for run in &mut runs {

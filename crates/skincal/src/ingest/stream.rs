@@ -184,20 +184,11 @@ impl MotionStream {
             self.close();
             return;
         };
-        let run = self.open.get_or_insert_with(|| MotionRun {
-            log: self.label.clone(),
-            start: centre,
-            q: Vec::new(),
-            qd: Vec::new(),
-            qdd: Vec::new(),
-            qdd_sd: Vec::new(),
-            skin: Vec::new(),
-        });
-        run.q.push(fitted.iter().map(|x| x[0]).collect());
-        run.qd.push(fitted.iter().map(|x| x[1]).collect());
-        run.qdd.push(fitted.iter().map(|x| x[2]).collect());
-        run.qdd_sd.push(fitted.iter().map(|x| x[3]).collect());
-        run.skin.push(raw);
+        let label = &self.label;
+        let run = self
+            .open
+            .get_or_insert_with(|| MotionRun::new(label, centre));
+        run.push(&fitted, raw);
     }
 
     /// Block `b`'s raw skin means.
