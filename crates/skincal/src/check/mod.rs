@@ -7,10 +7,10 @@
 //! numbers, [`kin::CHANGE`]). The blocks' normal equations are summed per SU ([`Tally`], bounded
 //! memory, fed a run at a time, so a live stream can be checked as it comes); their solution is
 //! the change the log estimates, tested by a Wald test against what the noise and the model's
-//! own uncertainty allow ([`test::change_test`]). An SU that no small change explains is then
+//! own uncertainty allow (`test::change_test`). An SU that no small change explains is then
 //! matched against every other SU's place (swapped, or reading another's), fitted anew on its
 //! segment (moved far) and on the others (the tree changed), or named broken
-//! ([`refit`]). [`recalibrate`] writes the changes into a new model.
+//! (`refit`). [`recalibrate`] writes the changes into a new model.
 
 mod kin;
 mod live;
@@ -517,7 +517,7 @@ impl SkinCheck {
     }
 
     /// Each SU's verdict from the sums alone (what a small change explains; an SU it does not
-    /// is `Broken { how: "erratic" }` until [`refit::explain`] finds better).
+    /// is `Broken { how: "erratic" }` until the refit finds better).
     pub fn verdicts(&self) -> CheckReport {
         let lambda = non_centrality(self.config.false_alarm, self.config.power, CHANGE);
         let skin = &self.skin;
@@ -691,7 +691,7 @@ fn median(mut x: Vec<f64>) -> f64 {
 
 /// Checks a calibrated model against a motion record of any motion of the robot: each SU's
 /// noise (the record's, or from its residuals' differences), every block summed, small changes
-/// tested, and the SUs no small change explains matched and fitted anew ([`refit::explain`]).
+/// tested, and the SUs no small change explains matched and fitted anew (`refit::explain`).
 pub fn check_skin(
     model: &BodyModel,
     record: &MotionRecord,
