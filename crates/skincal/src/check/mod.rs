@@ -541,14 +541,11 @@ impl SkinCheck {
         let sus = (0..names.len())
             .map(|u| {
                 let tally = &tallies[u];
-                let t = test::change_test(
-                    tally,
-                    &skin.scale,
-                    &skin.prior[u],
-                    lambda,
-                    &skin.reach.tellable(u, self.noise[u].max(1e-6), lambda),
-                );
-                self.verdict(&names[u], u, tally, &t, median_noise, lambda)
+                let tellable = skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
+                let t = test::change_test(tally, &skin.scale, &skin.prior[u], lambda, &tellable);
+                let mut check = self.verdict(&names[u], u, tally, &t, median_noise);
+                check.never_told = never_told(&tellable);
+                check
             })
             .collect();
         CheckReport {
@@ -567,7 +564,6 @@ impl SkinCheck {
         tally: &Tally,
         t: &test::ChangeTest,
         median_noise: f64,
-        lambda: f64,
     ) -> SuCheck {
         let alpha = self.config.false_alarm;
         let residual_ratio = tally.residual_ratio(&t.change);
@@ -620,29 +616,10 @@ impl SkinCheck {
             residual_ratio,
             change: (tally.blocks > 0).then_some(change),
             untold,
-            never_told: self.never_told(u, lambda),
+            never_told: String::new(),
             refit: None,
             advice: String::new(),
         }
-    }
-
-    /// What of SU `u`'s place no motion tells: the components with a share of the directions a
-    /// minute of rich motion leaves untold.
-    fn never_told(&self, u: usize, lambda: f64) -> String {
-        let tellable = self.skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
-        let blind = test::ChangeMatrix::identity() - tellable;
-        let parts: Vec<&str> = [(0, "position"), (3, "orientation"), (6, "bias")]
-            .into_iter()
-            .filter(|&(k, _)| (k..k + 3).any(|c| blind[(c, c)] > 0.1))
-            .map(|(_, n)| n)
-            .collect();
-        if parts.is_empty() {
-            return String::new();
-        }
-        format!(
-            "{}: in part, no motion of this robot tells",
-            parts.join(", ")
-        )
     }
 
     /// What of SU `u`'s place the log does not tell, and the DoFs whose motion would (those
@@ -766,4 +743,22 @@ fn advice(skin: &Skin, verdict: &Verdict) -> String {
             _ => "no place on the body explains its readings: replace or re-seat the board".into(),
         },
     }
+}
+
+/// What of an SU's place no motion tells, from the projector onto what a minute of rich motion
+/// tells: the components with a share of the directions left out.
+fn never_told(tellable: &test::ChangeMatrix) -> String {
+    let blind = test::ChangeMatrix::identity() - tellable;
+    let parts: Vec<&str> = [(0, "position"), (3, "orientation"), (6, "bias")]
+        .into_iter()
+        .filter(|&(k, _)| (k..k + 3).any(|c| blind[(c, c)] > 0.1))
+        .map(|(_, n)| n)
+        .collect();
+    if parts.is_empty() {
+        return String::new();
+    }
+    format!(
+        "{}: in part, no motion of this robot tells",
+        parts.join(", ")
+    )
 }

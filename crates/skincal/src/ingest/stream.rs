@@ -168,14 +168,21 @@ impl MotionStream {
 
     /// Block `self.next` at `centre`.
     fn compute(&mut self, centre: f64) {
+        let max_gap = self.config.max_gap;
         let fitted: Option<Vec<[f64; 4]>> = self
             .joints
-            .iter()
+            .iter_mut()
             .zip(&self.widths)
             .map(|(series, w)| {
                 let (h, rounding) = w.expect("widths learnt before any block");
-                let series: Vec<(f64, f64)> = series.iter().copied().collect();
-                local_polynomial(&series, &mut 0, centre, h, rounding, self.config.max_gap)
+                local_polynomial(
+                    series.make_contiguous(),
+                    &mut 0,
+                    centre,
+                    h,
+                    rounding,
+                    max_gap,
+                )
             })
             .collect();
         let raw = self.raw_means(self.next);
