@@ -105,7 +105,12 @@ def load(urdf, descriptions):
     ).replace('filename="file://', 'filename="')
     # Visual geometry is not collided; Collada collision meshes become STL files.
     text = re.sub(r"<visual>.*?</visual>", "", text, flags=re.S)
-    scratch = tempfile.mkdtemp(prefix="collision_check_")
+    # The STL files are read when the model is built and removed with the scratch folder.
+    with tempfile.TemporaryDirectory(prefix="collision_check_") as scratch:
+        return build(text, scratch)
+
+
+def build(text, scratch):
     def converted(match):
         dae = match.group(1)
         stl = os.path.join(scratch, f"{len(os.listdir(scratch))}.stl")

@@ -66,6 +66,7 @@ pub fn bench_report(args: BenchReportArgs) -> Result<()> {
         validation: Some((check, "held-out".into())),
         urdf_check: None,
         urdf_su_frames: Default::default(),
+        check: None,
         ingest: None,
         truth: Some(robot),
         paper: Vec::new(),

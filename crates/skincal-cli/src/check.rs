@@ -1,7 +1,7 @@
 //! `check`: whether the skin still reads what a calibrated model predicts in a log of any motion,
 //! and, with `--recalibrate`, a new model with what changed calibrated again.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -78,7 +78,7 @@ pub fn check(args: CheckArgs) -> Result<()> {
     }
     let config = args.config()?;
     let model = io::read_model(&args.model)?;
-    let record = motion_of(&args, &model)?;
+    let record = motion_of(&args.logs, &args.model, &model)?;
     let report = check_skin(&model, &record, &config)
         .with_context(|| format!("checking {}", args.model.display()))?;
     out!("{}", table(&report));
@@ -120,20 +120,24 @@ pub fn check(args: CheckArgs) -> Result<()> {
     .into())
 }
 
-/// The motion record of the arguments: a motion.json as it is, or the logs read for the model's
-/// DoFs and SUs.
-fn motion_of(args: &CheckArgs, model: &skincal::estimate::body::BodyModel) -> Result<MotionRecord> {
-    if let [one] = args.logs.as_slice() {
+/// The motion record of `logs`: a motion.json as it is, or the logs read for the DoFs and SUs of
+/// `model` (read from `model_path`).
+pub(crate) fn motion_of(
+    logs: &[PathBuf],
+    model_path: &Path,
+    model: &skincal::estimate::body::BodyModel,
+) -> Result<MotionRecord> {
+    if let [one] = logs {
         if one.extension().is_some_and(|e| e == "json") {
             return Ok(io::read_motion(one)?);
         }
     }
     let robot = model
         .check()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model_path.display()))?;
     let bar = out::spinner("reading the logs");
     let record = skincal::ingest::motion::motion_record(
-        &args.logs,
+        logs,
         &robot.model.dof_names(),
         &robot.model.su_names(),
         &IngestConfig::default(),
@@ -194,6 +198,12 @@ fn table(report: &CheckReport) -> String {
         }
         if !su.never_told.is_empty() {
             s += &format!("{:<14} {}\n", "", su.never_told);
+        }
+        if let (skincal::check::Verdict::Broken { .. }, Some(c)) = (&su.verdict, su.samples) {
+            s += &format!(
+                "{:<14} {} samples: {} repeats of the one before (one value for {:.1} s at most), {} unusable ({:.1} s at most)\n",
+                "", c.sent, c.repeated, c.longest_repeat, c.unusable, c.longest_unusable
+            );
         }
     }
     if let Some(zero) = &report.zero {

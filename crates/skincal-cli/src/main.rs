@@ -268,6 +268,10 @@ struct ReportArgs {
     /// Also check the robot's own URDF against the model (see `check-urdf`).
     #[arg(long, value_name = "URDF")]
     urdf: Option<PathBuf>,
+    /// Also check the skin against the robot's ordinary motion in these logs (or a motion.json),
+    /// with `check`'s defaults (repeat for several logs).
+    #[arg(long = "check", value_name = "LOG")]
+    check: Vec<PathBuf>,
     /// Where to write the page (default DIR/report.html).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -963,26 +967,61 @@ fn report_page(args: ReportArgs) -> Result<()> {
     if args.json {
         out::json_mode();
     }
-    let inputs = io::read_report_inputs(&args.dir, args.validate.as_deref(), args.urdf.as_deref())?;
+    let mut inputs =
+        io::read_report_inputs(&args.dir, args.validate.as_deref(), args.urdf.as_deref())?;
     if inputs.measurements.is_none() && inputs.structure.is_none() && inputs.model.is_none() {
         anyhow::bail!(
             "{} holds no measurements.json, structure.json or model.json to report on",
             args.dir.display()
         );
     }
+    if !args.check.is_empty() {
+        let model_path = args.dir.join("model.json");
+        let Some(model) = &inputs.model else {
+            anyhow::bail!(
+                "--check needs a calibrated model: {} has no model.json",
+                args.dir.display()
+            );
+        };
+        let record = check::motion_of(&args.check, &model_path, model)?;
+        let report = skincal::check::check_skin(model, &record, &Default::default())
+            .with_context(|| format!("checking {}", model_path.display()))?;
+        let names: Vec<String> = args.check.iter().map(|p| p.display().to_string()).collect();
+        inputs.check = Some((report, names.join(", ")));
+    }
     let out = args.out.unwrap_or_else(|| args.dir.join("report.html"));
     let page = skincal::html::render(&inputs);
     io::write_all(&[(out.clone(), &page)], args.force)?;
     outln!("wrote {}", out.display());
     out::json(&serde_json::json!({"wrote": out.display().to_string(), "bytes": page.len()}));
-    // One rule for every check: a joint that disagrees is exit code 3, here as in check-urdf.
-    match &inputs.urdf_check {
-        Some((check, _)) if !check.disagree.is_empty() => Err(Incomplete(format!(
-            "the page is written; {} with the calibration beyond 3σ",
+    // One rule for every check: a joint that disagrees, a skin that changed, is exit code 3, here
+    // as in check-urdf and check.
+    let mut found = Vec::new();
+    if let Some((check, _)) = inputs
+        .urdf_check
+        .as_ref()
+        .filter(|c| !c.0.disagree.is_empty())
+    {
+        found.push(format!(
+            "{} with the calibration beyond 3σ",
             urdf::disagreement(&check.disagree)
-        ))
-        .into()),
-        _ => Ok(()),
+        ));
+    }
+    if let Some((report, _)) = inputs.check.as_ref().filter(|c| c.0.any_change()) {
+        let changed: Vec<&str> = report.changed().map(|s| s.su.as_str()).collect();
+        found.push(format!(
+            "the skin changed ({}{})",
+            changed.join(", "),
+            report
+                .zero
+                .as_ref()
+                .map_or(String::new(), |z| format!("; the zero of {}", z.dof))
+        ));
+    }
+    if found.is_empty() {
+        Ok(())
+    } else {
+        Err(Incomplete(format!("the page is written; {}", found.join("; "))).into())
     }
 }
 

@@ -1900,6 +1900,40 @@ fn a_continuous_program_runs_from_plan_to_validation() {
     }
     let text = succeeds(&["check", "run/model.json", "run/motion.json"], d);
     assert!(text.contains("s of motion checked"), "{text}");
+    // The report with the check: a section whose chart keeps every SU under the false-alarm line.
+    succeeds(&["report", "run", "--check", "up.mcap", "--force"], d);
+    let page = std::fs::read_to_string(d.join("run/report.html")).unwrap();
+    assert!(page.contains("<section id=\"skin-check\"") && page.contains("Nothing changed."));
+    let chart = charts_of(&page)
+        .into_iter()
+        .find(|c| c["series"][0]["name"] == "evidence of a change")
+        .expect("the check's chart");
+    let line = chart["series"][1]["values"][0].as_f64().unwrap();
+    let bars = chart["series"][0]["values"].as_array().unwrap();
+    assert_eq!(bars.len(), 7);
+    assert!(bars.iter().all(|b| b.as_f64().unwrap() < line), "{chart}");
+    // A model that places su4 20 mm from where it is: the report names it and exits 3.
+    let mut model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("run/model.json")).unwrap()).unwrap();
+    let su4 = model["robot"]["sus"]
+        .as_array_mut()
+        .unwrap()
+        .iter_mut()
+        .find(|s| s["name"] == "su4")
+        .unwrap();
+    let x = su4["xyz"][0].as_f64().expect("an SU's xyz in model.json");
+    su4["xyz"][0] = serde_json::json!(x + 0.02);
+    std::fs::create_dir_all(d.join("moved")).unwrap();
+    std::fs::write(d.join("moved/model.json"), model.to_string()).unwrap();
+    let out = skincal(&["report", "moved", "--check", "up.mcap"], d);
+    assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("the skin changed (su4)"),
+        "{}",
+        stderr(&out)
+    );
+    let page = std::fs::read_to_string(d.join("moved/report.html")).unwrap();
+    assert!(page.contains("MOVED") && page.contains("1 SU(s) changed"));
     fails_with(
         &["check", "run/model.json", "absent.mcap"],
         d,

@@ -36,6 +36,74 @@ pub struct MotionRecord {
     /// Stretches of consecutive blocks (a log, or the part of one between gaps in the joint
     /// states).
     pub runs: Vec<MotionRun>,
+    /// Per SU: how many samples the logs held and why some were not used (empty: not counted, a
+    /// record written before this was kept).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub samples: Vec<SampleCount>,
+}
+
+/// How many samples of one SU a log held, and why some of them are in no block.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+pub struct SampleCount {
+    /// Samples the log held for it.
+    pub sent: u64,
+    /// Of those, exactly the one before: a port repeating the last value of a board slower than
+    /// it, or of a board that stopped measuring.
+    pub repeated: u64,
+    /// Of those, not finite or at the accelerometer's range (saturated).
+    pub unusable: u64,
+    /// The longest time it sent one value over and over, s (from the value's first sample to its
+    /// last repeat).
+    pub longest_repeat: f64,
+    /// The longest time all its samples were unusable, s.
+    pub longest_unusable: f64,
+    /// The stamp of the last fresh sample and of the first of the current unusable ones.
+    #[serde(skip)]
+    since: [Option<f64>; 2],
+}
+
+/// Counts are equal when what they counted is (not where counting stands).
+impl PartialEq for SampleCount {
+    fn eq(&self, other: &Self) -> bool {
+        (self.sent, self.repeated, self.unusable) == (other.sent, other.repeated, other.unusable)
+            && self.longest_repeat == other.longest_repeat
+            && self.longest_unusable == other.longest_unusable
+    }
+}
+
+impl SampleCount {
+    /// Counts one sample stamped `stamp` (s): `usable` (finite, within range), `repeat` (exactly
+    /// the usable one before).
+    pub fn count(&mut self, stamp: f64, usable: bool, repeat: bool) {
+        self.sent += 1;
+        let [fresh, bad] = &mut self.since;
+        if usable {
+            *bad = None;
+            if repeat {
+                self.repeated += 1;
+                let from = *fresh.get_or_insert(stamp);
+                self.longest_repeat = self.longest_repeat.max(stamp - from);
+            } else {
+                *fresh = Some(stamp);
+            }
+        } else {
+            self.unusable += 1;
+            let from = *bad.get_or_insert(stamp);
+            self.longest_unusable = self.longest_unusable.max(stamp - from);
+        }
+    }
+
+    /// The sum of two counts (one SU over two logs).
+    pub fn plus(self, other: SampleCount) -> SampleCount {
+        SampleCount {
+            sent: self.sent + other.sent,
+            repeated: self.repeated + other.repeated,
+            unusable: self.unusable + other.unusable,
+            longest_repeat: self.longest_repeat.max(other.longest_repeat),
+            longest_unusable: self.longest_unusable.max(other.longest_unusable),
+            since: [None; 2],
+        }
+    }
 }
 
 /// Consecutive blocks.
@@ -113,6 +181,13 @@ impl MotionRecord {
             return Err(format!(
                 "`noise_sd` has {} entries for {} SUs",
                 self.noise_sd.len(),
+                self.sus.len()
+            ));
+        }
+        if !self.samples.is_empty() && self.samples.len() != self.sus.len() {
+            return Err(format!(
+                "`samples` has {} entries for {} SUs",
+                self.samples.len(),
                 self.sus.len()
             ));
         }

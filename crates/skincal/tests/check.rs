@@ -15,7 +15,7 @@ use skincal::ingest::stream::MotionStream;
 use skincal::ingest::IngestConfig;
 use skincal::log::csv::CsvSink;
 use skincal::log::mcap::{Compression, McapSink};
-use skincal::log::{read_log, Stream, Topics};
+use skincal::log::{read_log, LogSink, Stream, Topics};
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::model::{presets, Robot};
 use skincal::motion::MotionRecord;
@@ -25,10 +25,12 @@ use skincal::sim::changes::SkinChange;
 use skincal::sim::timeseries::{record, LogConfig};
 
 /// `seconds` of ordinary motion of `robot` (a sweep of every DoF from plan seed `seed`), recorded
-/// at 1 kHz with ±0.01 g noise into `dir`, as the motion record of `model`'s DoFs and SUs.
+/// at 1 kHz with ±0.01 g noise into `dir` as the boards send it after `change`, as the motion
+/// record of `model`'s DoFs and SUs.
 fn ordinary_motion(
     robot: &Robot,
     model: &BodyModel,
+    change: Option<&SkinChange>,
     seconds: f64,
     seed: u64,
     dir: &Path,
@@ -41,12 +43,20 @@ fn ordinary_motion(
     };
     let plan = Plan::new(PlanDof::from_robot(robot), &config).unwrap();
     let log = dir.join(format!("ordinary-{seed}"));
-    let mut sink = CsvSink::new(&log, true);
+    let mut csv = CsvSink::new(&log, true);
+    let mut changed;
+    let sink: &mut dyn LogSink = match change {
+        Some(c) => {
+            changed = c.on_log(&mut csv);
+            &mut changed
+        }
+        None => &mut csv,
+    };
     let log_config = LogConfig {
         seed: seed + 100,
         ..LogConfig::default()
     };
-    record(robot, &plan, &log_config, &mut sink, &mut |_| {}).unwrap();
+    record(robot, &plan, &log_config, sink, &mut |_| {}).unwrap();
     let robot = model.check().unwrap();
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
     motion_record(
@@ -90,10 +100,7 @@ fn checked(change: Option<&SkinChange>, seed: u64) -> (CheckReport, MotionRecord
     let (robot, model) = paper_arm();
     let dir = tempfile::tempdir().unwrap();
     let changed = change.map_or(robot.clone(), |c| c.robot(robot).unwrap());
-    let mut record = ordinary_motion(&changed, model, 60.0, seed, dir.path());
-    if let Some(c) = change {
-        c.apply_to_record(&mut record);
-    }
+    let record = ordinary_motion(&changed, model, change, 60.0, seed, dir.path());
     let report = check_skin(model, &record, &CheckConfig::default()).unwrap();
     for s in &report.sus {
         eprintln!(
@@ -198,9 +205,19 @@ fn swaps_bias_steps_and_broken_boards_are_told_apart() {
         "{found:?}"
     );
 
+    // Broken boards, made on the samples as a port would send them: su2 unplugged, su4 frozen
+    // 25 s into the minute (its port repeating its last value), su6's z axis at the +2 g rail.
     for (change, su, how) in [
         (SkinChange::Silent { su: "su2".into() }, "su2", "silent"),
-        (SkinChange::Railed { su: "su6".into() }, "su6", "erratic"),
+        (
+            SkinChange::Frozen {
+                su: "su4".into(),
+                after: 25.0,
+            },
+            "su4",
+            "frozen",
+        ),
+        (SkinChange::Railed { su: "su6".into() }, "su6", "railed"),
     ] {
         let (report, _) = checked(Some(&change), 16);
         assert_eq!(verdict(&report, su), &Verdict::Broken { how: how.into() });
@@ -220,7 +237,7 @@ fn recalibrating_what_moved_is_as_good_as_calibrating_everything_again() {
     };
     let changed = change.robot(robot).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let record = ordinary_motion(&changed, model, 60.0, 21, dir.path());
+    let record = ordinary_motion(&changed, model, None, 60.0, 21, dir.path());
     let config = CheckConfig::default();
     let report = check_skin(model, &record, &config).unwrap();
     assert_eq!(verdict(&report, "su5"), &Verdict::Moved);
@@ -318,6 +335,13 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
         &mut |_| {},
     )
     .unwrap();
+    // Every SU's samples counted alike: sent, repeated, unusable, the longest repeat.
+    assert_eq!(stream.samples(), &whole.samples[..]);
+    assert!(
+        whole.samples.iter().all(|c| c.sent > 50_000),
+        "{:?}",
+        whole.samples[0]
+    );
     let runs = stream.finish();
     let whole_blocks: usize = whole.runs.iter().map(|r| r.len()).sum();
     let stream_blocks: usize = runs.iter().map(|r| r.len()).sum();

@@ -14,7 +14,7 @@ use skincal::ingest::{ingest, IngestConfig};
 use skincal::log::csv::CsvSink;
 use skincal::log::mcap::{Compression, McapSink};
 use skincal::log::ros::{decode, Imu, Time};
-use skincal::log::{LogSink, Topics};
+use skincal::log::{read_log, LogSink, Stream, Topics};
 use skincal::measurements::MeasurementSet;
 use skincal::model::sensor::{peak_dynamic_accelerations, static_readings};
 use skincal::model::{presets, Robot};
@@ -1100,4 +1100,54 @@ fn the_forecast_follows_the_laws_of_noise_and_poses() {
     let p = Plan::new(PlanDof::from_robot(&bare), &PlanConfig::short()).unwrap();
     let err = reading_noise(&bare, &p, None).unwrap_err().to_string();
     assert!(err.contains("places no SU"), "{err}");
+}
+
+/// Logs read from every worker of rayon's global pool at once (a caller's parallel loop over
+/// logs), CSV and MCAP: every read ends, with the samples a read on one thread gives.
+#[test]
+fn logs_read_inside_a_parallel_loop_over_them_give_every_sample() {
+    use rayon::prelude::*;
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 1,
+            seed: 3,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("log-csv");
+    let mcap = dir.path().join("log.mcap");
+    record_to(&robot, &plan, &LogConfig::default(), &csv, false);
+    record_to(&robot, &plan, &LogConfig::default(), &mcap, true);
+    let count = |path: &Path| {
+        let mut n = 0usize;
+        read_log(
+            path,
+            Stream::Both,
+            &Topics::default(),
+            &mut |_| {
+                n += 1;
+                Ok(())
+            },
+            &mut |_| {},
+        )
+        .unwrap();
+        n
+    };
+    let alone = [count(&csv), count(&mcap)];
+    assert!(alone[0] > 10_000 && alone[0] == alone[1], "{alone:?}");
+    let paths: Vec<&Path> = (0..4 * rayon::current_num_threads())
+        .map(|i| {
+            if i % 2 == 0 {
+                csv.as_path()
+            } else {
+                mcap.as_path()
+            }
+        })
+        .collect();
+    let together: Vec<usize> = paths.par_iter().map(|p| count(p)).collect();
+    assert!(together.iter().all(|&n| n == alone[0]), "{together:?}");
 }

@@ -521,7 +521,8 @@ class Model:
 class SuCheck:
     """One SU's check: ``verdict`` is ``unchanged``, ``moved``, ``bias-changed``, ``swapped``,
     ``reads-as``, ``other-segment``, ``broken`` or ``not-enough-motion``; ``detail`` its other
-    fields (``with``, ``su``, ``segment``, ``how``); ``change`` the shift (m), turn (rad) and bias
+    fields (``with``, ``su``, ``segment``, ``how``: ``silent``, ``frozen``, ``railed``, ``dead``,
+    ``noisy`` or ``erratic``); ``change`` the shift (m), turn (rad) and bias
     change (m/s²) the log estimates, with their deviations."""
 
     su: str
@@ -534,6 +535,10 @@ class SuCheck:
     untold: str
     never_told: str
     advice: str
+    samples: Optional[dict] = None
+    """How many samples the log held of it (``sent``, ``repeated``, ``unusable``) and the longest
+    stretches of one repeated value and of unusable samples (``longest_repeat``,
+    ``longest_unusable``, s)."""
 
 
 @dataclass
@@ -569,6 +574,7 @@ def _check_report(text: str) -> CheckReport:
                 untold=s.get("untold", ""),
                 never_told=s.get("never_told", ""),
                 advice=s.get("advice", ""),
+                samples=s.get("samples"),
             )
         )
     return CheckReport(

@@ -109,6 +109,7 @@ impl LiveCheck {
             sus: self.sus.clone(),
             noise_sd,
             runs,
+            samples: self.stream.samples().to_vec(),
         }
     }
 
@@ -118,7 +119,7 @@ impl LiveCheck {
     pub fn report(&mut self) -> Option<CheckReport> {
         self.feed();
         let check = self.check.as_ref()?;
-        let mut report = check.verdicts();
+        let mut report = check.verdicts(self.stream.samples());
         let recent = self.record(self.recent.iter().cloned().collect());
         explain(check, &recent, &mut report);
         Some(report)

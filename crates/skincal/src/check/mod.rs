@@ -34,7 +34,7 @@ pub use zero::ZeroChange;
 use crate::estimate::body::BodyModel;
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::Robot;
-use crate::motion::{MotionRecord, MotionRun};
+use crate::motion::{MotionRecord, MotionRun, SampleCount};
 use crate::predict::Predictor;
 
 /// What the check must see and how often it may cry wolf.
@@ -112,7 +112,9 @@ pub enum Verdict {
     },
     /// It is broken.
     Broken {
-        /// `silent`, `dead` or `noisy`, or `erratic` (no place explains it).
+        /// `silent` (no samples, or fresh ones in almost no block), `frozen` (one value sent
+        /// over and over), `railed` (at the accelerometer's range), `dead` (reads near zero),
+        /// `noisy`, or `erratic` (no place explains it).
         how: String,
     },
     /// The log's motion does not tell whether it changed.
@@ -166,6 +168,9 @@ pub struct SuCheck {
     pub verdict: Verdict,
     /// Blocks of the log in which it sent a fresh sample and the joint states are known.
     pub blocks: usize,
+    /// How many samples the log held of it, and why some are in no block (none: not counted).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<SampleCount>,
     /// The standard deviation of one component of its block mean, m/s².
     pub noise_sd: f64,
     /// The Wald statistic of its change over the directions the log tells, and their number.
@@ -475,6 +480,8 @@ pub struct SkinCheck {
     tallies: Vec<Tally>,
     /// Per SU: its sums for each DoF of its chain (a DoF's zero).
     zero: Vec<Vec<zero::ZeroSums>>,
+    /// Per SU: blocks since its last fresh reading, and the most there were.
+    quiet: Vec<(usize, usize)>,
     blocks: usize,
     period: f64,
 }
@@ -491,6 +498,7 @@ impl SkinCheck {
             noise,
             tallies: vec![Tally::default(); n],
             zero: vec![Vec::new(); n],
+            quiet: vec![(0, 0); n],
             blocks: 0,
             period: 0.0,
         }
@@ -506,6 +514,13 @@ impl SkinCheck {
             self.blocks += 1;
             for (u, tally) in self.tallies.iter_mut().enumerate() {
                 let place = &self.skin.places[u];
+                let quiet = &mut self.quiet[u];
+                quiet.0 = if block.readings[u].is_some() {
+                    0
+                } else {
+                    quiet.0 + 1
+                };
+                quiet.1 = quiet.1.max(quiet.0);
                 if let Some((r, jac, var)) = su_term(&self.skin, &block, u, place, self.noise[u]) {
                     let w = tally.add(&r, &jac, var, self.config.huber);
                     tally.norm_sum += block.readings[u].map_or(0.0, |y| y.norm());
@@ -517,11 +532,15 @@ impl SkinCheck {
     }
 
     /// Each SU's verdict from the sums alone (what a small change explains; an SU it does not
-    /// is `Broken { how: "erratic" }` until the refit finds better).
-    pub fn verdicts(&self) -> CheckReport {
+    /// is `Broken { how: "erratic" }` until the refit finds better); `samples` is the record's
+    /// count of each SU's samples (record SU order; empty: not counted).
+    pub fn verdicts(&self, samples: &[SampleCount]) -> CheckReport {
         let lambda = non_centrality(self.config.false_alarm, self.config.power, CHANGE);
         let skin = &self.skin;
-        let median_noise = median(self.noise.clone());
+        let typical = Typical {
+            noise: median(self.noise.clone()),
+            quiet: median(self.quiet.iter().map(|q| q.1 as f64).collect()) * self.period,
+        };
         let names = self.skin.robot.model.su_names();
         // A DoF whose zero moved is taken out of its SUs' sums before they are judged.
         let mut tallies = self.tallies.clone();
@@ -543,7 +562,8 @@ impl SkinCheck {
                 let tally = &tallies[u];
                 let tellable = skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
                 let t = test::change_test(tally, &skin.scale, &skin.prior[u], lambda, &tellable);
-                let mut check = self.verdict(&names[u], u, tally, &t, median_noise);
+                let count = self.skin_count(samples, u);
+                let mut check = self.verdict(&names[u], u, tally, &t, &typical, count);
                 check.never_told = never_told(&tellable);
                 check
             })
@@ -557,23 +577,35 @@ impl SkinCheck {
         }
     }
 
+    /// Model SU `u`'s count in `samples` (record SU order).
+    fn skin_count(&self, samples: &[SampleCount], u: usize) -> Option<SampleCount> {
+        self.columns.sus[u].and_then(|c| samples.get(c).copied())
+    }
+
     fn verdict(
         &self,
         name: &str,
         u: usize,
         tally: &Tally,
         t: &test::ChangeTest,
-        median_noise: f64,
+        typical: &Typical,
+        samples: Option<SampleCount>,
     ) -> SuCheck {
         let alpha = self.config.false_alarm;
         let residual_ratio = tally.residual_ratio(&t.change);
-        let verdict = if tally.blocks == 0 {
-            Verdict::Broken {
-                how: "silent".into(),
-            }
-        } else if tally.norm_sum / (tally.blocks as f64) < 0.3 * STANDARD_GRAVITY {
+        let reads_near_zero =
+            tally.blocks > 0 && tally.norm_sum / (tally.blocks as f64) < 0.3 * STANDARD_GRAVITY;
+        let quiet = self.quiet[u].1 as f64 * self.period;
+        let verdict = if let Some(how) = starved(samples, tally.blocks, quiet, typical.quiet) {
+            let how = if how == "frozen" && reads_near_zero {
+                "dead"
+            } else {
+                how
+            };
+            Verdict::Broken { how: how.into() }
+        } else if reads_near_zero {
             Verdict::Broken { how: "dead".into() }
-        } else if self.noise[u] > self.config.noisy * median_noise {
+        } else if self.noise[u] > self.config.noisy * typical.noise {
             Verdict::Broken {
                 how: "noisy".into(),
             }
@@ -609,6 +641,7 @@ impl SkinCheck {
             su: name.to_string(),
             verdict,
             blocks: tally.blocks,
+            samples,
             noise_sd: self.noise[u],
             statistic: t.statistic,
             dof: t.dof,
@@ -656,6 +689,44 @@ impl SkinCheck {
     }
 }
 
+/// What the skin's SUs typically show, against which one SU is judged broken.
+struct Typical {
+    /// The median block noise, m/s².
+    noise: f64,
+    /// The median of each SU's longest stretch without a fresh reading, s.
+    quiet: f64,
+}
+
+/// How long an SU may go without a fresh reading, while the rest of the skin sends, before it is
+/// taken for broken, s.
+const STARVED: f64 = 5.0;
+
+/// Why an SU gave no fresh reading for `quiet` seconds (`fresh`: blocks in which it gave one),
+/// when the typical SU's longest such stretch is `typical`: `frozen` when it sent one value over
+/// and over for most of that time (a board that stopped measuring, its port sending its last
+/// value), `railed` when its samples were at the accelerometer's range, `silent` otherwise (no
+/// samples, or not counted). `None` for an SU that gave enough.
+fn starved(
+    samples: Option<SampleCount>,
+    fresh: usize,
+    quiet: f64,
+    typical: f64,
+) -> Option<&'static str> {
+    if fresh > 0 && (quiet < STARVED || quiet < 10.0 * typical) {
+        return None;
+    }
+    let Some(c) = samples.filter(|c| c.sent > 0) else {
+        return Some("silent");
+    };
+    Some(if c.longest_unusable >= 0.5 * quiet {
+        "railed"
+    } else if c.longest_repeat >= 0.5 * quiet {
+        "frozen"
+    } else {
+        "silent"
+    })
+}
+
 /// The median of `x` (0 for none).
 fn median(mut x: Vec<f64>) -> f64 {
     x.retain(|v| v.is_finite());
@@ -682,7 +753,7 @@ pub fn check_skin(
     for run in &record.runs {
         check.feed(run, record.period);
     }
-    let mut report = check.verdicts();
+    let mut report = check.verdicts(&record.samples);
     refit::explain(&check, record, &mut report);
     for su in &mut report.sus {
         su.advice = advice(&check.skin, &su.verdict);
@@ -733,8 +804,16 @@ fn advice(skin: &Skin, verdict: &Verdict) -> String {
             )
         }
         Verdict::Broken { how } => match how.as_str() {
-            "silent" => {
-                "no fresh sample: a dead, frozen or unplugged board; check its cable".into()
+            "silent" => "the log holds (almost) no sample of it: an unplugged board or a port \
+                         not mapped; check its cable and its id"
+                .into(),
+            "frozen" => "it sends one value over and over: its accelerometer stopped measuring; \
+                         power-cycle or replace the board"
+                .into(),
+            "railed" => {
+                "its samples are at the accelerometer's range: an axis failed or the board \
+                         is loose; re-seat or replace it"
+                    .into()
             }
             "dead" => "it reads near zero: replace the board".into(),
             "noisy" => {

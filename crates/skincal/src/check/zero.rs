@@ -54,13 +54,11 @@ impl Rates {
         Self(rates)
     }
 
-    /// How SU `place`'s reading changes with DoF `d`'s angle.
-    fn of(&self, d: usize, place: &SuPlace) -> Option<Vector3<f64>> {
+    /// How SU `place`'s reading changes with DoF `d`'s angle; `kr` is the SU's `K Rᵀ`.
+    fn of(&self, d: usize, place: &SuPlace, kr: &Matrix3<f64>) -> Option<Vector3<f64>> {
         let rate = self.0[d][place.segment]?;
-        let r = place.placement.rotation.to_rotation_matrix().into_inner();
         let p = place.placement.translation.vector;
-        let v = rate.c - rate.rt * place.gravity + rate.n * p;
-        Some(place.intrinsics.matrix() * r.transpose() * v)
+        Some(kr * (rate.c - rate.rt * place.gravity + rate.n * p))
     }
 }
 
@@ -106,8 +104,10 @@ pub fn add(
             ..ZeroSums::default()
         }));
     }
+    let turn = place.placement.rotation.to_rotation_matrix().into_inner();
+    let kr = place.intrinsics.matrix() * turn.transpose();
     for s in sums.iter_mut() {
-        if let Some(j) = rates.of(s.dof, place) {
+        if let Some(j) = rates.of(s.dof, place, &kr) {
             s.information += j.norm_squared() * w;
             s.gradient += j.dot(r) * w;
             s.cross += jac.transpose() * j * w;

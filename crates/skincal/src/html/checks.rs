@@ -1,11 +1,14 @@
 //! The calibration checked: against a held-out measurement set (per SU, with the noise floor),
-//! and the robot's own URDF joint by joint.
+//! the robot's own URDF joint by joint, and the skin against ordinary motion (`check`), with what
+//! recalibrations changed since.
 
 use maud::{html, Markup};
 
 use super::charts::{Chart, Mark, Series};
+use crate::check::{CheckReport, ModelChange, SuCheck, Verdict};
 use crate::estimate::body::BodyModel;
 use crate::explore::{Diagnostic, Severity, Structure};
+use crate::model::sensor::STANDARD_GRAVITY;
 use crate::predict::Validation;
 
 /// The held-out check: per SU the static and dynamic error against the floor the readings' own
@@ -164,6 +167,107 @@ pub(super) fn set_aside(s: Option<&Structure>, m: Option<&BodyModel>) -> Markup 
                 ul {
                     @for d in &findings {
                         li class=(if d.severity == Severity::Error { "bad" } else { "" }) { (d.message) }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The skin checked against ordinary motion: how strongly each SU's readings call for a change,
+/// the SUs that changed with what was found and what to do, a DoF whose zero moved.
+pub(super) fn skin_check(r: &CheckReport, name: &str) -> Markup {
+    let labels: Vec<String> = r.sus.iter().map(|s| s.su.clone()).collect();
+    let n = labels.len();
+    // −log₁₀ p, capped where the χ² tail underflows.
+    let evidence = |p: f64| (-p.max(1e-300).log10()).max(0.0);
+    let chart = Chart::categories(labels, "SU", "−log₁₀ p")
+        .with(Series::new(
+            "evidence of a change",
+            Mark::Bars,
+            "#4a78a8",
+            r.sus.iter().map(|s| evidence(s.p_value)).collect(),
+        ))
+        .with(Series::level(
+            "false-alarm level",
+            evidence(r.config.false_alarm),
+            n,
+        ));
+    let changed: Vec<&SuCheck> = r.changed().collect();
+    let untold: Vec<&SuCheck> = r
+        .sus
+        .iter()
+        .filter(|s| s.verdict == Verdict::NotEnoughMotion)
+        .collect();
+    let norm = |v: [f64; 3]| nalgebra::Vector3::from(v).norm();
+    html! {
+        section id="skin-check" {
+            h2 { "The skin checked against " (name) }
+            p { (format!("{:.1}", r.seconds)) " s of motion; changes looked for: "
+                (format!("{:.0} mm, {:.1}°, {:.3} g", r.config.detect_position * 1e3,
+                    r.config.detect_orientation.to_degrees(), r.config.detect_bias / STANDARD_GRAVITY))
+                ", at most " (r.config.false_alarm) " false alarms per SU. "
+                (r.sus.len() - changed.len() - untold.len()) " SUs read what the model predicts, "
+                (untold.len()) " the motion does not tell. "
+                @if changed.is_empty() && r.zero.is_none() { "Nothing changed." }
+                @else { span.bad { (changed.len()) " SU(s) changed" @if r.zero.is_some() { ", a DoF's zero moved" } "." } } }
+            @if let Some(z) = &r.zero {
+                p.bad { "The zero of " (z.dof) " moved: it stands " (format!("{:.3}° ± {:.3}°", z.offset.to_degrees(), z.offset_sd.to_degrees()))
+                    " from what its encoder says; every SU beyond it (" (z.sus.join(", ")) ") tells the same. `check --recalibrate` sets it again." }
+            }
+            (chart.figure(html! { "Per SU, how strongly its readings call for a change of its place or bias (the Wald test over the directions the motion tells); above the dashed line it changed." }))
+            @if !changed.is_empty() {
+                table {
+                    tr { th.name { "SU" } th.name { "verdict" } th { "shift (mm)" } th { "turn (°)" } th { "bias (mg)" } th { "residual" } th.name { "what to do" } }
+                    @for s in &changed {
+                        tr {
+                            td.name { (s.su) }
+                            td.name { span.bad { (s.verdict.word()) } }
+                            @if let Some(c) = &s.change {
+                                td { (format!("{:.1}", norm(c.shift) * 1e3)) }
+                                td { (format!("{:.2}", norm(c.turn).to_degrees())) }
+                                td { (format!("{:.1}", norm(c.bias) / STANDARD_GRAVITY * 1e3)) }
+                            } @else { td {} td {} td {} }
+                            td { (format!("{:.2}", s.residual_ratio)) }
+                            td.name { (s.advice) }
+                        }
+                    }
+                }
+            }
+            @if !untold.is_empty() {
+                p.note { "Not told by this motion: " @for (i, s) in untold.iter().enumerate() { @if i > 0 { "; " } (s.su) " — " (s.untold) } "." }
+            }
+        }
+    }
+}
+
+/// What recalibrations changed in the model since it was calibrated, oldest first.
+pub(super) fn model_changes(changes: &[ModelChange]) -> Markup {
+    let distance =
+        |a: [f64; 3], b: [f64; 3]| (nalgebra::Vector3::from(a) - nalgebra::Vector3::from(b)).norm();
+    html! {
+        section id="model-changes" {
+            h2 { "Changes since the calibration" }
+            p { "What `check --recalibrate` changed, oldest first; everything else is as calibrated." }
+            table {
+                tr { th.name { "what" } th.name { "found" } th { "moved (mm)" } th { "bias change (mg)" } th.name { "from the log(s)" } }
+                @for c in changes {
+                    tr {
+                        @match c {
+                            ModelChange::Su(s) => {
+                                td.name { (s.su) }
+                                td.name { (s.verdict.word()) }
+                                td { (format!("{:.1}", distance(s.after.xyz, s.before.xyz) * 1e3)) }
+                                td { (format!("{:.1}", distance(s.bias_after, s.bias_before) / STANDARD_GRAVITY * 1e3)) }
+                                td.name { (s.logs.join(", ")) }
+                            }
+                            ModelChange::Zero { dof, offset, logs } => {
+                                td.name { (dof) }
+                                td.name { "zero set again by " (format!("{:.3}°", offset.to_degrees())) }
+                                td {} td {}
+                                td.name { (logs.join(", ")) }
+                            }
+                        }
                     }
                 }
             }

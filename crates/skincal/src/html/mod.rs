@@ -61,6 +61,8 @@ pub struct ReportInputs {
     /// Where the URDF alignment puts every SU at the zero pose, in the URDF's root frame: the 3D
     /// view places the limbs on the reference segment by it.
     pub urdf_su_frames: BTreeMap<String, Isometry3<f64>>,
+    /// The skin checked against ordinary motion, and the logs' names.
+    pub check: Option<(crate::check::CheckReport, String)>,
 }
 
 /// Colours of the limbs, in order.
@@ -156,6 +158,12 @@ pub fn render(inputs: &ReportInputs) -> String {
                 @if let Some((c, name)) = &inputs.urdf_check {
                     (checks::urdf_check(c, name))
                 }
+                @if let Some((r, name)) = &inputs.check {
+                    (checks::skin_check(r, name))
+                }
+                @if let Some(m) = inputs.model.as_ref().filter(|m| !m.changes.is_empty()) {
+                    (checks::model_changes(&m.changes))
+                }
                 @if inputs.structure.is_some() || inputs.model.is_some() {
                     (checks::set_aside(inputs.structure.as_ref(), inputs.model.as_ref()))
                 }
@@ -216,6 +224,14 @@ fn summary(inputs: &ReportInputs) -> Markup {
                 @if let Some((v, name)) = &inputs.validation {
                     li { "Checked against " (name) ": static " (format!("{:.4}", v.static_rms))
                         ", dynamic " (format!("{:.4}", v.dynamic_rms)) " m/s² RMS." }
+                }
+                @if let Some((r, name)) = &inputs.check {
+                    li { "Skin checked against " (name) " (" (format!("{:.1}", r.seconds)) " s of motion): "
+                        (r.changed().count()) " SU(s) changed"
+                        @if let Some(z) = &r.zero { ", the zero of " (z.dof) " moved" } "." }
+                }
+                @if let Some(m) = inputs.model.as_ref().filter(|m| !m.changes.is_empty()) {
+                    li { (m.changes.len()) " change(s) made by recalibration since the calibration." }
                 }
             }
         }

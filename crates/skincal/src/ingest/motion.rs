@@ -15,7 +15,7 @@ use nalgebra::{SMatrix, SVector};
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{self, Sample, Stream};
-use crate::motion::{MotionRecord, MotionRun, MOTION_FORMAT, MOTION_VERSION};
+use crate::motion::{MotionRecord, MotionRun, SampleCount, MOTION_FORMAT, MOTION_VERSION};
 
 /// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
 /// of any excitation a servo follows).
@@ -46,12 +46,16 @@ pub const NOISE_FLOOR: f64 = 1e-4;
 struct SkinBlocks {
     sums: Vec<[f64; 4]>,
     last: Option<[f64; 3]>,
+    count: SampleCount,
 }
 
 impl SkinBlocks {
-    fn add(&mut self, block: usize, a: [f64; 3]) {
-        if self.last == Some(a) {
-            // Exactly the sample before: a slower board's value held by its port.
+    /// Takes sample `a` stamped `stamp` (`usable`: finite and within range) of block `block`.
+    fn add(&mut self, block: usize, stamp: f64, a: [f64; 3], usable: bool) {
+        let repeat = self.last == Some(a);
+        self.count.count(stamp, usable, repeat);
+        if !usable || repeat {
+            // A repeat is exactly the sample before: a slower board's value held by its port.
             return;
         }
         self.last = Some(a);
@@ -111,9 +115,13 @@ pub fn motion_record(
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
     let mut runs = Vec::new();
+    let mut samples = vec![SampleCount::default(); sus.len()];
     for path in logs {
         let gathered = gather(path, dofs, sus, config, progress)?;
         runs.extend(runs_of(path, &gathered, config));
+        for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
+            *total = total.plus(skin.count);
+        }
     }
     if runs.is_empty() {
         return Err(IngestError::Empty(format!(
@@ -136,6 +144,7 @@ pub fn motion_record(
         sus: sus.to_vec(),
         noise_sd,
         runs,
+        samples,
     };
     Ok(record)
 }
@@ -195,8 +204,8 @@ fn gather(
                     let a = acceleration.map(|x| x * config.skin_scale);
                     let block = (stamp - gathered.origin) / BLOCK;
                     let usable = a.iter().all(|x| x.is_finite()) && !config.saturated(&a);
-                    if let (Some(&u), true, true) = (su_index.get(frame_id), usable, block >= 0.0) {
-                        gathered.skin[u].add(block as usize, a);
+                    if let (Some(&u), true) = (su_index.get(frame_id), block >= 0.0) {
+                        gathered.skin[u].add(block as usize, stamp, a, usable);
                     }
                 }
             }

@@ -10,7 +10,7 @@ use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WID
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
-use crate::motion::MotionRun;
+use crate::motion::{MotionRun, SampleCount};
 
 /// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
 /// rounding are judged before any block is given out.
@@ -39,6 +39,8 @@ pub struct MotionStream {
     base: usize,
     /// Per SU: its last sample (a repeat is a slower board's value held by its port).
     last: Vec<Option<[f64; 3]>>,
+    /// Per SU: its samples so far.
+    samples: Vec<SampleCount>,
     latest_skin: f64,
     /// The next block to compute.
     next: usize,
@@ -74,6 +76,7 @@ impl MotionStream {
             skin: VecDeque::new(),
             base: 0,
             last: vec![None; sus.len()],
+            samples: vec![SampleCount::default(); sus.len()],
             latest_skin: f64::NEG_INFINITY,
             next: 0,
             open: None,
@@ -110,7 +113,12 @@ impl MotionStream {
                 let Some(&u) = self.sus.get(frame_id) else {
                     return;
                 };
-                if !usable || stamp < origin || self.last[u] == Some(a) {
+                if stamp < origin {
+                    return;
+                }
+                let repeat = self.last[u] == Some(a);
+                self.samples[u].count(stamp, usable, repeat);
+                if !usable || repeat {
                     return;
                 }
                 self.last[u] = Some(a);
@@ -276,6 +284,11 @@ impl MotionStream {
         self.close();
         self.done.retain(|r| r.len() >= 3);
         self.done
+    }
+
+    /// Per SU: how many samples came so far, and why some are in no block.
+    pub fn samples(&self) -> &[SampleCount] {
+        &self.samples
     }
 
     /// Joint states and skin blocks held now (what the stream's memory grows with).

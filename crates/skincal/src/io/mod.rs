@@ -415,6 +415,7 @@ pub fn read_report_inputs(
     Ok(crate::html::ReportInputs {
         urdf_check,
         urdf_su_frames,
+        check: None,
         title: dir.file_name().map_or_else(
             || dir.display().to_string(),
             |n| n.to_string_lossy().into_owned(),

@@ -1,8 +1,9 @@
-//! Work handed to the thread pool as it comes and taken back in the order it was given: what the
+//! Work handed to a thread pool as it comes and taken back in the order it was given: what the
 //! readers use to decompress or parse a log's blocks while they read the next ones.
 
 use std::collections::VecDeque;
 use std::sync::mpsc::{sync_channel, Receiver};
+use std::sync::OnceLock;
 
 /// Results of work on the thread pool, oldest first.
 pub(crate) struct InOrder<T> {
@@ -25,10 +26,10 @@ impl<T: Send + 'static> InOrder<T> {
         self.pending.is_empty()
     }
 
-    /// Runs `work` on the thread pool (rayon's), after the work given before it.
+    /// Runs `work` on the readers' thread pool, after the work given before it.
     pub(crate) fn spawn(&mut self, work: impl FnOnce() -> T + Send + 'static) {
         let (done, result) = sync_channel(1);
-        rayon::spawn_fifo(move || {
+        pool().spawn_fifo(move || {
             // A panic is this work's outcome, not the end of the process.
             let _ = done.send(std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
         });
@@ -46,6 +47,19 @@ impl<T: Send + 'static> InOrder<T> {
                 .and_then(|r| r.map_err(|_| Panicked)),
         )
     }
+}
+
+/// The readers' own pool, one thread per core. Its work never waits for anything, so a log can be
+/// read from any thread: a reader on a worker of rayon's global pool (a caller's parallel loop
+/// over logs) would otherwise wait for work that no free worker is left to run.
+fn pool() -> &'static rayon::ThreadPool {
+    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .thread_name(|i| format!("skincal-log-{i}"))
+            .build()
+            .expect("threads for reading logs")
+    })
 }
 
 /// Work on the thread pool that stopped with a panic.

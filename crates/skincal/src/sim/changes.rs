@@ -1,15 +1,19 @@
 //! Changes of a skin after its calibration, for checking `check`: an SU shifted or turned on its
-//! segment, two SUs' identities exchanged (made on the robot, before recording), a bias step or a
-//! broken board (made on the motion record, as the board's samples would arrive).
+//! segment, two SUs' identities exchanged, a DoF's zero moved (made on the robot, before
+//! recording), a bias step or a broken board (made on the log's samples as the board sends them,
+//! [`SkinChange::on_log`]).
+
+use std::path::PathBuf;
 
 use nalgebra::{Isometry3, Vector3};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
+use crate::log::ros::Time;
+use crate::log::{LogError, LogSink};
+use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{ModelError, PlacementSpec, Robot};
-use crate::motion::MotionRecord;
-
-/// What a change does to one block mean of an SU.
-type Edit = dyn Fn(&mut Option<[f64; 3]>);
 
 /// One change of a skin.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -47,18 +51,25 @@ pub enum SkinChange {
         /// The angle, rad.
         offset: f64,
     },
-    /// SU `su` stopped sending fresh samples (dead, frozen or unplugged).
+    /// SU `su` sends nothing (unplugged, or its port not mapped).
     Silent {
         /// The SU.
         su: String,
     },
-    /// SU `su`'s z axis stuck at +2 g.
+    /// SU `su`'s accelerometer stopped measuring `after` seconds into the log; its port sends
+    /// the last value over and over.
+    Frozen {
+        /// The SU.
+        su: String,
+        /// When it froze, s from the log's first sample.
+        after: f64,
+    },
+    /// SU `su`'s z axis stuck at +2 g, its range.
     Railed {
         /// The SU.
         su: String,
     },
-    /// SU `su` became `factor` times noisier (white noise added to its block means, and to the
-    /// noise its still blocks show).
+    /// SU `su` became `factor` times noisier (white noise added to each of its samples).
     Noisy {
         /// The SU.
         su: String,
@@ -70,7 +81,7 @@ pub enum SkinChange {
 }
 
 impl SkinChange {
-    /// The robot as it is after the change (changes made on the record leave it as it is).
+    /// The robot as it is after the change (changes made on the samples leave it as it is).
     pub fn robot(&self, robot: &Robot) -> Result<Robot, ModelError> {
         let mut builder = robot.to_builder();
         match self {
@@ -108,58 +119,115 @@ impl SkinChange {
         builder.build()
     }
 
-    /// The record as its boards would have sent it after the change (changes made on the robot
-    /// leave it as it is).
-    pub fn apply_to_record(&self, record: &mut MotionRecord) {
-        let column = |su: &str| record.sus.iter().position(|s| s == su);
-        let (su, edit): (&str, Box<Edit>) = match self {
-            SkinChange::Bias { su, bias } => {
-                let bias = *bias;
-                (
-                    su,
-                    Box::new(move |v| {
-                        if let Some(v) = v {
-                            for (x, b) in v.iter_mut().zip(bias) {
-                                *x += b;
-                            }
-                        }
-                    }),
-                )
+    /// `sink` fed what the boards send after the change: a bias step, no samples, a frozen
+    /// board's repeated value, a railed axis, added noise (changes made on the robot pass every
+    /// sample through).
+    pub fn on_log<'a>(&'a self, sink: &'a mut dyn LogSink) -> ChangedLog<'a> {
+        ChangedLog {
+            change: self,
+            sink,
+            su: None,
+            noise: None,
+            first: None,
+            held: None,
+        }
+    }
+
+    /// The SU whose samples the change edits.
+    fn sensor(&self) -> Option<&str> {
+        match self {
+            SkinChange::Bias { su, .. }
+            | SkinChange::Silent { su }
+            | SkinChange::Frozen { su, .. }
+            | SkinChange::Railed { su }
+            | SkinChange::Noisy { su, .. } => Some(su),
+            SkinChange::Move { .. } | SkinChange::Swap { .. } | SkinChange::Zero { .. } => None,
+        }
+    }
+}
+
+/// A log sink behind which one board sends what a [`SkinChange`] makes of its samples.
+pub struct ChangedLog<'a> {
+    change: &'a SkinChange,
+    sink: &'a mut dyn LogSink,
+    /// The changed SU's index among the sink's SUs.
+    su: Option<usize>,
+    /// The added noise's generator and distribution.
+    noise: Option<(ChaCha8Rng, Normal<f64>)>,
+    /// The first sample's stamp, s.
+    first: Option<f64>,
+    /// A frozen board's last value.
+    held: Option<[f64; 3]>,
+}
+
+impl LogSink for ChangedLog<'_> {
+    fn start(
+        &mut self,
+        dofs: &[String],
+        sus: &[String],
+        acceleration_variance: f64,
+    ) -> Result<(), LogError> {
+        self.su = self
+            .change
+            .sensor()
+            .and_then(|name| sus.iter().position(|s| s == name));
+        if let SkinChange::Noisy { factor, seed, .. } = self.change {
+            // A skin of unknown noise is taken at ±0.01 g.
+            let sd = if acceleration_variance > 0.0 {
+                acceleration_variance.sqrt()
+            } else {
+                0.01 * STANDARD_GRAVITY
+            };
+            let added = sd * (factor * factor - 1.0).max(0.0).sqrt();
+            let normal = Normal::new(0.0, added).map_err(|e| LogError::Stopped(e.to_string()))?;
+            self.noise = Some((super::stream(*seed, 77), normal));
+        }
+        self.sink.start(dofs, sus, acceleration_variance)
+    }
+
+    fn joint_state(
+        &mut self,
+        stamp: Time,
+        receive: Time,
+        positions: &[f64],
+        velocities: &[f64],
+    ) -> Result<(), LogError> {
+        self.first.get_or_insert(stamp.seconds());
+        self.sink.joint_state(stamp, receive, positions, velocities)
+    }
+
+    fn imu(&mut self, stamp: Time, receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError> {
+        let first = *self.first.get_or_insert(stamp.seconds());
+        if Some(su) != self.su {
+            return self.sink.imu(stamp, receive, su, a);
+        }
+        let mut a = a;
+        match self.change {
+            SkinChange::Bias { bias, .. } => {
+                for (x, b) in a.iter_mut().zip(bias) {
+                    *x += b;
+                }
             }
-            SkinChange::Silent { su } => (su, Box::new(|v| *v = None)),
-            SkinChange::Railed { su } => (
-                su,
-                Box::new(|v| {
-                    if let Some(v) = v {
-                        v[2] = 2.0 * crate::model::sensor::STANDARD_GRAVITY;
-                    }
-                }),
-            ),
-            SkinChange::Noisy { su, factor, seed } => {
-                let Some(c) = column(su) else { return };
-                let old = record.noise_sd[c].unwrap_or(0.02);
-                let added = old * (factor * factor - 1.0).max(0.0).sqrt();
-                record.noise_sd[c] = Some(old * factor);
-                let mut rng = super::stream(*seed, 77);
-                let normal = rand_distr::Normal::new(0.0, added).expect("a finite deviation");
-                for run in &mut record.runs {
-                    for row in &mut run.skin {
-                        if let Some(v) = &mut row[c] {
-                            for x in v.iter_mut() {
-                                *x += rand_distr::Distribution::sample(&normal, &mut rng);
-                            }
-                        }
+            SkinChange::Silent { .. } => return Ok(()),
+            SkinChange::Frozen { after, .. } => {
+                if stamp.seconds() - first >= *after {
+                    a = *self.held.get_or_insert(a);
+                }
+            }
+            SkinChange::Railed { .. } => a[2] = 2.0 * STANDARD_GRAVITY,
+            SkinChange::Noisy { .. } => {
+                if let Some((rng, normal)) = &mut self.noise {
+                    for x in &mut a {
+                        *x += normal.sample(rng);
                     }
                 }
-                return;
             }
-            _ => return,
-        };
-        let Some(c) = column(su) else { return };
-        for run in &mut record.runs {
-            for row in &mut run.skin {
-                edit(&mut row[c]);
-            }
+            SkinChange::Move { .. } | SkinChange::Swap { .. } | SkinChange::Zero { .. } => {}
         }
+        self.sink.imu(stamp, receive, su, a)
+    }
+
+    fn finish(&mut self) -> Result<Vec<PathBuf>, LogError> {
+        self.sink.finish()
     }
 }
