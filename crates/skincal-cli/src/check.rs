@@ -5,9 +5,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, SuCheck};
+use std::time::Duration;
+
+use skincal::check::{check_skin, recalibrate, CheckConfig, CheckReport, LiveCheck, SuCheck};
+use skincal::estimate::body::BodyModel;
 use skincal::ingest::IngestConfig;
 use skincal::io;
+use skincal::log::{Sample, Stream, Topics};
 use skincal::motion::MotionRecord;
 
 use crate::out::{self, out, outln};
@@ -37,6 +41,17 @@ pub struct CheckArgs {
     /// Probability of calling an unchanged SU changed, per SU.
     #[arg(long, default_value_t = CheckConfig::default().false_alarm)]
     false_alarm: f64,
+    /// Read one MCAP log while it is being written (a rosbag2 recorder's .mcap file): a line
+    /// every --every seconds of motion, the whole check when the file is complete or has not grown
+    /// for --idle seconds.
+    #[arg(long)]
+    follow: bool,
+    /// With --follow: seconds of motion between two lines.
+    #[arg(long, default_value_t = 10.0, requires = "follow")]
+    every: f64,
+    /// With --follow: seconds without a new byte after which the log is taken as ended.
+    #[arg(long, default_value_t = 30.0, requires = "follow")]
+    idle: f64,
     /// Overwrite an existing --recalibrate output.
     #[arg(long)]
     force: bool,
@@ -78,6 +93,9 @@ pub fn check(args: CheckArgs) -> Result<()> {
     }
     let config = args.config()?;
     let model = io::read_model(&args.model)?;
+    if args.follow {
+        return follow(&args, &model, &config);
+    }
     let record = motion_of(&args.logs, &args.model, &model)?;
     let report = check_skin(&model, &record, &config)
         .with_context(|| format!("checking {}", args.model.display()))?;
@@ -96,6 +114,15 @@ pub fn check(args: CheckArgs) -> Result<()> {
         written =
             Some(serde_json::json!({ "model": path.display().to_string(), "changes": changes }));
     }
+    finish(&args, &report, written)
+}
+
+/// The JSON document, and exit code 3 naming what changed.
+fn finish(
+    args: &CheckArgs,
+    report: &CheckReport,
+    written: Option<serde_json::Value>,
+) -> Result<()> {
     out::json(&serde_json::json!({
         "command": "check",
         "model": args.model.display().to_string(),
@@ -120,12 +147,92 @@ pub fn check(args: CheckArgs) -> Result<()> {
     .into())
 }
 
+/// `check --follow`: the live check of one MCAP log as it is written, a line every `--every`
+/// seconds of motion, the whole table at its end.
+fn follow(args: &CheckArgs, model: &BodyModel, config: &CheckConfig) -> Result<()> {
+    let [log] = args.logs.as_slice() else {
+        anyhow::bail!("--follow reads one MCAP log as it is written; give one");
+    };
+    anyhow::ensure!(
+        args.recalibrate.is_none(),
+        "--recalibrate needs the whole log: run `check` on {} once it is written",
+        log.display()
+    );
+    for (name, v) in [("every", args.every), ("idle", args.idle)] {
+        anyhow::ensure!(
+            v.is_finite() && v > 0.0,
+            "--{name} {v}: give a positive number of seconds"
+        );
+    }
+    let mut live = LiveCheck::new(model, config)?;
+    let mut next: Option<f64> = None;
+    skincal::log::follow_log(
+        log,
+        Duration::from_secs_f64(args.idle),
+        Stream::Both,
+        &Topics::default(),
+        &mut |sample| {
+            live.push(&sample);
+            let stamp = match sample {
+                Sample::Joints { stamp, .. } | Sample::Imu { stamp, .. } => stamp,
+            };
+            let due = next.get_or_insert(stamp + args.every);
+            if stamp >= *due {
+                *due = stamp + args.every;
+                if let Some(report) = live.report() {
+                    outln!("{}", status(&report));
+                }
+            }
+            Ok(())
+        },
+        &mut |_| {},
+    )?;
+    let report = live.report().ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: less than {} s of motion with every DoF's joint states: nothing to check",
+            log.display(),
+            skincal::check::WARM_UP
+        )
+    })?;
+    out!("\n{}", table(&report));
+    finish(args, &report, None)
+}
+
+/// One line of a followed check: how long, how many SUs are fine, which changed.
+fn status(report: &CheckReport) -> String {
+    let changed: Vec<String> = report
+        .changed()
+        .map(|s| format!("{} {}", s.su, s.verdict.word()))
+        .collect();
+    let untold = report
+        .sus
+        .iter()
+        .filter(|s| s.verdict == skincal::check::Verdict::NotEnoughMotion)
+        .count();
+    let zero = report
+        .zero
+        .as_ref()
+        .map_or(String::new(), |z| format!("; the zero of {} moved", z.dof));
+    format!(
+        "{:.0} s: {} unchanged, {} not told yet{}{}",
+        report.seconds,
+        report.sus.len() - changed.len() - untold,
+        untold,
+        if changed.is_empty() {
+            String::new()
+        } else {
+            format!("; CHANGED: {}", changed.join(", "))
+        },
+        zero
+    )
+}
+
 /// The motion record of `logs`: a motion.json as it is, or the logs read for the DoFs and SUs of
 /// `model` (read from `model_path`).
 pub(crate) fn motion_of(
     logs: &[PathBuf],
     model_path: &Path,
-    model: &skincal::estimate::body::BodyModel,
+    model: &BodyModel,
 ) -> Result<MotionRecord> {
     if let [one] = logs {
         if one.extension().is_some_and(|e| e == "json") {

@@ -1900,6 +1900,28 @@ fn a_continuous_program_runs_from_plan_to_validation() {
     }
     let text = succeeds(&["check", "run/model.json", "run/motion.json"], d);
     assert!(text.contains("s of motion checked"), "{text}");
+    // Followed as if it were being written: a line per 10 s of motion, then the whole table.
+    let followed = succeeds(
+        &[
+            "check",
+            "run/model.json",
+            "up.mcap",
+            "--follow",
+            "--idle",
+            "2",
+        ],
+        d,
+    );
+    assert!(
+        followed.contains("s: 7 unchanged") || followed.contains(" not told yet"),
+        "{followed}"
+    );
+    assert!(followed.contains("s of motion checked"), "{followed}");
+    fails_with(
+        &["check", "run/model.json", "run/motion.json", "--follow"],
+        d,
+        &["only an MCAP file can be followed"],
+    );
     // The report with the check: a section whose chart keeps every SU under the false-alarm line.
     succeeds(&["report", "run", "--check", "up.mcap", "--force"], d);
     let page = std::fs::read_to_string(d.join("run/report.html")).unwrap();

@@ -156,6 +156,36 @@ impl MotionRun {
         self.q.len()
     }
 
+    /// The blocks from `at` on, taken off this run (which keeps the first `at`); blocks are
+    /// `period` long.
+    pub fn split_off(&mut self, at: usize, period: f64) -> MotionRun {
+        let at = at.min(self.len());
+        MotionRun {
+            log: self.log.clone(),
+            start: self.start + at as f64 * period,
+            q: self.q.split_off(at),
+            qd: self.qd.split_off(at),
+            qdd: self.qdd.split_off(at),
+            qdd_sd: self.qdd_sd.split_off(at),
+            skin: self.skin.split_off(at),
+        }
+    }
+
+    /// Appends `next` when it continues this run (same log, its first block the one after this
+    /// run's last, blocks `period` long); else gives it back.
+    pub fn extend_with(&mut self, mut next: MotionRun, period: f64) -> Option<MotionRun> {
+        let end = self.start + self.len() as f64 * period;
+        if next.log != self.log || (next.start - end).abs() > 1e-3 * period {
+            return Some(next);
+        }
+        self.q.append(&mut next.q);
+        self.qd.append(&mut next.qd);
+        self.qdd.append(&mut next.qdd);
+        self.qdd_sd.append(&mut next.qdd_sd);
+        self.skin.append(&mut next.skin);
+        None
+    }
+
     /// Whether the run has no block.
     pub fn is_empty(&self) -> bool {
         self.q.is_empty()

@@ -390,6 +390,50 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
         most.2 as f64 * 0.01 <= skincal::check::WARM_UP + skincal::check::RECENT + 2.0,
         "{most:?}"
     );
+
+    // The same log followed while it is written: its bytes appended in pieces that end anywhere
+    // (mid-record, mid-chunk) with pauses, read to the end of the writer's last piece.
+    let growing = dir.path().join("growing.mcap");
+    let bytes = std::fs::read(&log).unwrap();
+    let writer = {
+        let growing = growing.clone();
+        std::thread::spawn(move || {
+            use std::io::Write;
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            let mut file = std::fs::File::create(&growing).unwrap();
+            for piece in bytes.chunks(100_003) {
+                file.write_all(piece).unwrap();
+                file.flush().unwrap();
+                std::thread::sleep(std::time::Duration::from_millis(3));
+            }
+        })
+    };
+    let mut followed = LiveCheck::new(model, &CheckConfig::default()).unwrap();
+    let mut count = 0usize;
+    skincal::log::follow_log(
+        &growing,
+        std::time::Duration::from_secs(5),
+        Stream::Both,
+        &Topics::default(),
+        &mut |sample| {
+            followed.push(&sample);
+            count += 1;
+            Ok(())
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    writer.join().unwrap();
+    assert_eq!(count, samples);
+    // Whenever its blocks were summed, the same verdicts and statistics (to rounding).
+    let again = followed.report().unwrap();
+    for (a, b) in again.sus.iter().zip(&report.sus) {
+        assert_eq!(
+            (&a.verdict, a.blocks, a.samples),
+            (&b.verdict, b.blocks, b.samples)
+        );
+        assert!((a.statistic - b.statistic).abs() <= 1e-9 * b.statistic.max(1.0));
+    }
 }
 
 /// An encoder homed anew after a hard reset: dof3 now reads 2° less in the same posture. The

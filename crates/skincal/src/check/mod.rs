@@ -472,6 +472,7 @@ pub fn su_term(
 }
 
 /// A check in progress: the skin, and every SU's sums over the blocks fed so far.
+#[derive(Clone)]
 pub struct SkinCheck {
     skin: Skin,
     columns: Columns,
@@ -506,8 +507,14 @@ impl SkinCheck {
 
     /// Adds every block of `run` (block length `period`, s).
     pub fn feed(&mut self, run: &MotionRun, period: f64) {
+        self.feed_range(run, 0..run.len(), period);
+    }
+
+    /// Adds blocks `range` of `run` (the others are their context: an SU's reading at its delay
+    /// lies between two blocks).
+    pub fn feed_range(&mut self, run: &MotionRun, range: std::ops::Range<usize>, period: f64) {
         self.period = period;
-        for b in 0..run.len() {
+        for b in range {
             let block = block(&self.skin, &self.columns, run, b, period);
             let [q, qd, qdd] = &block.q;
             let rates = zero::Rates::new(&self.skin.robot, &block.kinematics, q, qd, qdd);

@@ -619,6 +619,36 @@ pub fn read_log(
     }
 }
 
+/// Streams the samples of `stream` from the MCAP log at `path` while it is being written (a
+/// rosbag2 recorder's MCAP storage, or any MCAP writer that appends chunks): at its end, waits for
+/// more until the file is complete or has not grown for `idle` (see [`mcap::follow`]). Other
+/// formats are refused: they cannot be read before they are whole.
+pub fn follow_log(
+    path: &Path,
+    idle: std::time::Duration,
+    stream: Stream,
+    topics: &Topics,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<PassStats, LogError> {
+    // Named as MCAP, or starting as MCAP does (a file just created may hold nothing yet).
+    let mut start = [0u8; 8];
+    let mcap = path.extension().is_some_and(|e| e == "mcap")
+        || std::fs::File::open(path)
+            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut start))
+            .is_ok_and(|()| start == *::mcap::MAGIC);
+    if !mcap {
+        return Err(LogError::Unrecognised {
+            path: path.to_path_buf(),
+            reason:
+                "only an MCAP file can be followed while it is written (a rosbag2 \
+                     directory's .mcap file, or one MCAP log); check other logs once they are whole"
+                    .into(),
+        });
+    }
+    mcap::follow(path, idle, stream, topics, visit, progress)
+}
+
 /// The least any reader must do with the log at `path`: read (and decompress) everything and walk
 /// every message (MCAP) or row (CSV), decoding nothing; returns their number. A yardstick for
 /// the readers' speed; rosbag2 directories, SQLite files and ROS 1 bags are not measured (`None`).

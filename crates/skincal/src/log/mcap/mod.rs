@@ -2,7 +2,7 @@
 
 mod read;
 
-pub use read::{bare_pass, read};
+pub use read::{bare_pass, follow, read};
 
 use std::collections::BTreeMap;
 use std::fs::File;

@@ -12,6 +12,7 @@ use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 use std::sync::mpsc::{channel, sync_channel, Receiver, SyncSender};
+use std::time::{Duration, Instant};
 
 use mcap::records::{op, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -52,12 +53,45 @@ pub fn read(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<PassStats, LogError> {
+    samples(path, None, stream, topics, visit, progress)
+}
+
+/// Streams the samples of `stream` from the MCAP file at `path` while it is being written: at its
+/// end, waits for more, until the file is complete (its footer read) or has not grown for `idle`
+/// (a record cut off there is not read). A file not there yet is waited for as long.
+pub fn follow(
+    path: &Path,
+    idle: Duration,
+    stream: Stream,
+    topics: &Topics,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<PassStats, LogError> {
+    let started = Instant::now();
+    while !path.exists() && started.elapsed() < idle {
+        std::thread::sleep(POLL);
+    }
+    samples(path, Some(idle), stream, topics, visit, progress)
+}
+
+/// How often a followed file is looked at for more bytes.
+const POLL: Duration = Duration::from_millis(50);
+
+/// [`read`], or [`follow`] with `follow` the idle time.
+fn samples(
+    path: &Path,
+    follow: Option<Duration>,
+    stream: Stream,
+    topics: &Topics,
+    visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+    progress: &mut dyn FnMut(u64),
+) -> Result<PassStats, LogError> {
     let mut schemas: HashMap<u16, String> = HashMap::new();
     // By channel id: a lookup per message without hashing.
     let mut channels: Vec<Option<ChannelKind>> = Vec::new();
     let mut stats = PassStats::default();
     let mut frames = FrameNames::default();
-    let size = blocks(path, progress, &mut |opcode, data| match opcode {
+    let size = blocks(path, follow, progress, &mut |opcode, data| match opcode {
         op::MESSAGE => {
             let Some((channel, body)) = message_body(data) else {
                 stats
@@ -111,7 +145,7 @@ pub fn read(
 /// (the least a reader must do); returns the number of messages.
 pub fn bare_pass(path: &Path) -> Result<u64, LogError> {
     let mut messages = 0u64;
-    blocks(path, &mut |_| {}, &mut |opcode, _| {
+    blocks(path, None, &mut |_| {}, &mut |opcode, _| {
         messages += u64::from(opcode == op::MESSAGE);
         Ok(())
     })?;
@@ -135,10 +169,11 @@ impl From<LogError> for RecordError {
     }
 }
 
-/// Hands every record of the file at `path` to `record`, chunks decompressed, in file order;
-/// returns the file size.
+/// Hands every record of the file at `path` to `record`, chunks decompressed, in file order
+/// (following the file as it grows for `follow`'s idle time); returns the file size.
 fn blocks(
     path: &Path,
+    follow: Option<Duration>,
     progress: &mut dyn FnMut(u64),
     record: &mut RecordVisitor<'_>,
 ) -> Result<u64, LogError> {
@@ -155,7 +190,7 @@ fn blocks(
     std::thread::scope(|scope| {
         let (blocks, received) = sync_channel(IN_FLIGHT);
         let (recycle, recycled) = channel();
-        let producer = scope.spawn(move || produce(file, size, &blocks, &recycled));
+        let producer = scope.spawn(move || produce(file, size, follow, &blocks, &recycled));
         let mut outcome = Ok(());
         for (block, read_bytes) in &received {
             let handled = match &block {
@@ -189,19 +224,24 @@ fn blocks(
 
 /// The producer: reads the file, decompresses its chunks a batch at a time in parallel, and
 /// sends every block in file order with the bytes read so far. Stops at the first error (returned)
-/// or when the receiver is gone.
+/// or when the receiver is gone; a followed file (`follow`: the idle time) is read as it grows.
 fn produce(
     mut file: File,
     size: u64,
+    follow: Option<Duration>,
     blocks: &SyncSender<(Block, u64)>,
     recycled: &Receiver<Vec<u8>>,
 ) -> Result<(), mcap::McapError> {
     // Lengths come from the file: a damaged one may claim exabytes. No record can be longer than
     // the file, nor a chunk decompress to more than MAX_INFLATION times its size (zstd's best
     // ratio on skin logs is far below).
-    let limit = usize::try_from(size.saturating_mul(MAX_INFLATION))
-        .unwrap_or(usize::MAX)
-        .clamp(1 << 20, MAX_RECORD);
+    let limit = match follow {
+        // A file being written is no longer than what is written next.
+        Some(_) => MAX_RECORD,
+        None => usize::try_from(size.saturating_mul(MAX_INFLATION))
+            .unwrap_or(usize::MAX)
+            .clamp(1 << 20, MAX_RECORD),
+    };
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_emit_chunks(true)
@@ -209,10 +249,10 @@ fn produce(
     );
     // Chunks being decompressed, in file order: each on the thread pool as soon as it is read,
     // so reading overlaps decompressing.
-    let mut pending: InOrder<Result<Vec<u8>, mcap::McapError>> = InOrder::new();
+    let mut pending: Decompressing = InOrder::new();
     let mut read_bytes = 0u64;
     // Sends the oldest chunk on once it is decompressed; false when the receiver is gone.
-    let forward = |pending: &mut InOrder<_>, read_bytes: u64| -> Result<bool, mcap::McapError> {
+    let forward = |pending: &mut Decompressing, read_bytes: u64| -> Result<bool, mcap::McapError> {
         let Some(decompressed) = pending.next() else {
             return Ok(true);
         };
@@ -226,7 +266,19 @@ fn produce(
     while let Some(event) = reader.next_event() {
         match event? {
             LinearReadEvent::ReadRequest(need) => {
-                let n = file.read(reader.insert(need.max(1 << 20)))?;
+                let buffer = reader.insert(need.max(1 << 20));
+                let mut n = file.read(buffer)?;
+                if let Some(idle) = follow {
+                    let since = Instant::now();
+                    while n == 0 {
+                        if since.elapsed() >= idle {
+                            // The writer stopped: what it wrote whole has been read.
+                            return drain(&mut pending, &forward, read_bytes);
+                        }
+                        std::thread::sleep(POLL);
+                        n = file.read(buffer)?;
+                    }
+                }
                 reader.notify_read(n);
                 read_bytes += n as u64;
             }
@@ -269,8 +321,20 @@ fn produce(
             },
         }
     }
+    drain(&mut pending, &forward, read_bytes)
+}
+
+/// Chunks being decompressed, in file order.
+type Decompressing = InOrder<Result<Vec<u8>, mcap::McapError>>;
+
+/// Sends every chunk still being decompressed on, in order.
+fn drain(
+    pending: &mut Decompressing,
+    forward: &dyn Fn(&mut Decompressing, u64) -> Result<bool, mcap::McapError>,
+    read_bytes: u64,
+) -> Result<(), mcap::McapError> {
     while !pending.is_empty() {
-        if !forward(&mut pending, read_bytes)? {
+        if !forward(pending, read_bytes)? {
             return Ok(());
         }
     }
