@@ -15,13 +15,13 @@ use skincal::ingest::stream::MotionStream;
 use skincal::ingest::IngestConfig;
 use skincal::log::csv::CsvSink;
 use skincal::log::mcap::{Compression, McapSink};
-use skincal::log::{read_log, LogSink, Stream, Topics};
+use skincal::log::{read_log, Stream, Topics};
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::model::{presets, Robot};
 use skincal::motion::MotionRecord;
 use skincal::plan::{Plan, PlanConfig, PlanDof};
 use skincal::predict::validate;
-use skincal::sim::changes::SkinChange;
+use skincal::sim::changes::{ChangedLog, SkinChange};
 use skincal::sim::timeseries::{record, LogConfig};
 
 /// `seconds` of ordinary motion of `robot` (a sweep of every DoF from plan seed `seed`), recorded
@@ -35,28 +35,19 @@ fn ordinary_motion(
     seed: u64,
     dir: &Path,
 ) -> MotionRecord {
-    let config = PlanConfig {
-        structure: false,
-        sweep: seconds,
-        seed,
-        ..PlanConfig::continuous()
-    };
-    let plan = Plan::new(PlanDof::from_robot(robot), &config).unwrap();
+    let plan = Plan::new(
+        PlanDof::from_robot(robot),
+        &PlanConfig::ordinary(seconds, seed),
+    )
+    .unwrap();
     let log = dir.join(format!("ordinary-{seed}"));
     let mut csv = CsvSink::new(&log, true);
-    let mut changed;
-    let sink: &mut dyn LogSink = match change {
-        Some(c) => {
-            changed = c.on_log(&mut csv);
-            &mut changed
-        }
-        None => &mut csv,
-    };
+    let mut sink = ChangedLog::new(change, &mut csv);
     let log_config = LogConfig {
         seed: seed + 100,
         ..LogConfig::default()
     };
-    record(robot, &plan, &log_config, sink, &mut |_| {}).unwrap();
+    record(robot, &plan, &log_config, &mut sink, &mut |_| {}).unwrap();
     let robot = model.check().unwrap();
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
     motion_record(
@@ -279,16 +270,7 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
     // MCAP, whose samples come in time order as a live stream's do (a CSV log's joint states
     // come all before its skin).
     let log = dir.path().join("ordinary.mcap");
-    let plan = Plan::new(
-        PlanDof::from_robot(robot),
-        &PlanConfig {
-            structure: false,
-            sweep: 60.0,
-            seed: 31,
-            ..PlanConfig::continuous()
-        },
-    )
-    .unwrap();
+    let plan = Plan::new(PlanDof::from_robot(robot), &PlanConfig::ordinary(60.0, 31)).unwrap();
     let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
     let log_config = LogConfig {
         seed: 131,

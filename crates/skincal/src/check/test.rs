@@ -59,6 +59,13 @@ impl Tally {
         self.norm_sum += other.norm_sum;
     }
 
+    /// The change that fits the sums best by least squares (none in directions they do not tell).
+    pub fn best_change(&self) -> Change {
+        self.information
+            .pseudo_inverse(1e-12)
+            .map_or(Change::zeros(), |inv| inv * self.gradient)
+    }
+
     /// The RMS whitened residual per component after the best change is taken out (≈ 1 when a
     /// small change of pose and bias explains the readings).
     pub fn residual_ratio(&self, change: &Change) -> f64 {

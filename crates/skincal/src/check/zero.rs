@@ -178,10 +178,7 @@ fn judge(
         a += s.information;
         g += s.gradient;
         let t = &tallies[u];
-        own += t
-            .information
-            .pseudo_inverse(1e-12)
-            .map_or(0.0, |inv| t.gradient.dot(&(inv * t.gradient)));
+        own += t.gradient.dot(&t.best_change());
         count += 1;
         blocks += t.blocks;
     }

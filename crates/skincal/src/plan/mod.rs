@@ -263,6 +263,17 @@ impl PlanConfig {
         }
     }
 
+    /// `sweep` seconds of the continuous program's sweep from seed `seed`, without its structure
+    /// part: ordinary work as `check` sees it (every DoF moving at once, no protocol).
+    pub fn ordinary(sweep: f64, seed: u64) -> Self {
+        Self {
+            structure: false,
+            sweep,
+            seed,
+            ..Self::continuous()
+        }
+    }
+
     fn validate(&self) -> Result<(), PlanError> {
         let positive = |field: &'static str, v: f64| {
             if v.is_finite() && v > 0.0 {

@@ -123,14 +123,7 @@ impl SkinChange {
     /// board's repeated value, a railed axis, added noise (changes made on the robot pass every
     /// sample through).
     pub fn on_log<'a>(&'a self, sink: &'a mut dyn LogSink) -> ChangedLog<'a> {
-        ChangedLog {
-            change: self,
-            sink,
-            su: None,
-            noise: None,
-            first: None,
-            held: None,
-        }
+        ChangedLog::new(Some(self), sink)
     }
 
     /// The SU whose samples the change edits.
@@ -148,7 +141,7 @@ impl SkinChange {
 
 /// A log sink behind which one board sends what a [`SkinChange`] makes of its samples.
 pub struct ChangedLog<'a> {
-    change: &'a SkinChange,
+    change: Option<&'a SkinChange>,
     sink: &'a mut dyn LogSink,
     /// The changed SU's index among the sink's SUs.
     su: Option<usize>,
@@ -160,6 +153,20 @@ pub struct ChangedLog<'a> {
     held: Option<[f64; 3]>,
 }
 
+impl<'a> ChangedLog<'a> {
+    /// `sink` fed what the boards send after `change` (all of it as it is for none).
+    pub fn new(change: Option<&'a SkinChange>, sink: &'a mut dyn LogSink) -> Self {
+        Self {
+            change,
+            sink,
+            su: None,
+            noise: None,
+            first: None,
+            held: None,
+        }
+    }
+}
+
 impl LogSink for ChangedLog<'_> {
     fn start(
         &mut self,
@@ -169,9 +176,9 @@ impl LogSink for ChangedLog<'_> {
     ) -> Result<(), LogError> {
         self.su = self
             .change
-            .sensor()
+            .and_then(SkinChange::sensor)
             .and_then(|name| sus.iter().position(|s| s == name));
-        if let SkinChange::Noisy { factor, seed, .. } = self.change {
+        if let Some(SkinChange::Noisy { factor, seed, .. }) = self.change {
             // A skin of unknown noise is taken at ±0.01 g.
             let sd = if acceleration_variance > 0.0 {
                 acceleration_variance.sqrt()
@@ -198,11 +205,11 @@ impl LogSink for ChangedLog<'_> {
 
     fn imu(&mut self, stamp: Time, receive: Time, su: usize, a: [f64; 3]) -> Result<(), LogError> {
         let first = *self.first.get_or_insert(stamp.seconds());
-        if Some(su) != self.su {
+        let Some(change) = self.change.filter(|_| Some(su) == self.su) else {
             return self.sink.imu(stamp, receive, su, a);
-        }
+        };
         let mut a = a;
-        match self.change {
+        match change {
             SkinChange::Bias { bias, .. } => {
                 for (x, b) in a.iter_mut().zip(bias) {
                     *x += b;
