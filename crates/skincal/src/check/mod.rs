@@ -551,13 +551,12 @@ impl SkinCheck {
         let names = self.skin.robot.model.su_names();
         // A DoF whose zero moved is taken out of its SUs' sums before they are judged.
         let mut tallies = self.tallies.clone();
-        // SUs that a change of their own explains roughly tell a zero (not swapped, dead or
-        // wild ones); beyond a DoF after the zeroed one no constant change explains them
-        // exactly (it turns with that DoF), and near a zeroed last DoF the model's place misses
-        // them far.
+        // SUs the model's place roughly explains tell a zero (not swapped, dead or wild ones).
         let usable: Vec<bool> = tallies
             .iter()
-            .map(|t| t.blocks > 0 && t.residual_ratio(&t.best_change()) < 10.0 * self.config.misfit)
+            .map(|t| {
+                t.blocks > 0 && t.residual_ratio(&test::Change::zeros()) < 10.0 * self.config.misfit
+            })
             .collect();
         let zero = zero::moved_zero(
             &skin.robot,
