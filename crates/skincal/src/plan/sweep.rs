@@ -57,13 +57,19 @@ impl Sweep {
         if w == 0.0 && dw == 0.0 && ddw == 0.0 {
             return [0.0; 3];
         }
+        // The harmonics' phases by turning the fundamental's: sin and cos of `kθ` from those of
+        // `(k−1)θ` by the angle-sum identities, one `sin_cos` per call instead of one per
+        // harmonic (the error grows by an ulp or so per step: 1e-13 at a thousand harmonics).
+        let fundamental = 2.0 * PI * self.frequency;
+        let (sin1, cos1) = (fundamental * tau).sin_cos();
+        let (mut sin, mut cos) = (sin1, cos1);
         let (mut s, mut ds, mut dds) = (0.0, 0.0, 0.0);
         for (k, [a, b]) in series.iter().enumerate() {
-            let omega = 2.0 * PI * self.frequency * (k + 1) as f64;
-            let (sin, cos) = (omega * tau).sin_cos();
+            let omega = fundamental * (k + 1) as f64;
             s += a * sin + b * cos;
             ds += omega * (a * cos - b * sin);
             dds -= omega * omega * (a * sin + b * cos);
+            (sin, cos) = (sin * cos1 + cos * sin1, cos * cos1 - sin * sin1);
         }
         [w * s, dw * s + w * ds, ddw * s + 2.0 * dw * ds + w * dds]
     }
@@ -253,6 +259,44 @@ mod tests {
         }
         for t in [0.0, 12.0] {
             assert_eq!(sweep.at(0, 12.0, t), [0.0; 3]);
+        }
+    }
+
+    /// The series summed by turning the fundamental's phase equals the formula in the module's
+    /// doc evaluated term by term, at a thousand harmonics and late in a long sweep.
+    #[test]
+    fn turned_phases_equal_the_series_term_by_term() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let series: Vec<[f64; 2]> = (0..1000)
+            .map(|_| [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)])
+            .collect();
+        let sweep = Sweep {
+            frequency: 1.0 / 600.0,
+            ramp: 0.0,
+            harmonics: vec![series.clone()],
+        };
+        for tau in [0.37, 123.4, 599.9] {
+            let (mut s, mut ds, mut dds) = (0.0, 0.0, 0.0);
+            for (k, [a, b]) in series.iter().enumerate() {
+                let omega = 2.0 * PI * (k + 1) as f64 / 600.0;
+                let (sin, cos) = (omega * tau).sin_cos();
+                s += a * sin + b * cos;
+                ds += omega * (a * cos - b * sin);
+                dds -= omega * omega * (a * sin + b * cos);
+            }
+            let [q, v, a] = sweep.at(0, 600.0, tau);
+            assert!(
+                (q - s).abs() < 1e-10 * s.abs().max(1.0),
+                "{tau}: {q} vs {s}"
+            );
+            assert!(
+                (v - ds).abs() < 1e-10 * ds.abs().max(1.0),
+                "{tau}: {v} vs {ds}"
+            );
+            assert!(
+                (a - dds).abs() < 1e-10 * dds.abs().max(1.0),
+                "{tau}: {a} vs {dds}"
+            );
         }
     }
 
