@@ -7,7 +7,8 @@
 //! about a random axis, two SUs swapped, a DoF's zero moved by 2°) or on the samples as its board
 //! would send them (a 0.03 g bias step, silent, frozen within the first half, railed, 4× noisier)
 //! — and an unchanged skin; every SU-check of an SU the change did not touch counts towards the
-//! false alarms. Trials run on every core. Speed: the check alone on a record of `--sus` SUs
+//! false alarms. A zero of a DoF that moves one SU alone counts as named when that SU is called
+//! moved with the zero as what else it could be (`or_zero`): nothing on the robot tells more. Trials run on every core. Speed: the check alone on a record of `--sus` SUs
 //! (random places on the paper's arm, calibrated from a simulated set) at 1 kHz, on one thread.
 
 use std::time::Instant;
@@ -142,17 +143,28 @@ fn trial_of(
     let report = check_skin(model, &record, &CheckConfig::default())?;
     row.seconds += started.elapsed().as_secs_f64();
     let target = targets(change.as_ref());
+    // A DoF's zero that one SU alone tells: named by that SU's move, read as the zero.
+    let lone_zero = match &change {
+        Some(SkinChange::Zero { dof, .. }) => report
+            .sus
+            .iter()
+            .find(|s| s.or_zero.as_ref().is_some_and(|z| &z.dof == dof))
+            .map(|s| s.su.clone()),
+        _ => None,
+    };
     for s in report
         .sus
         .iter()
-        .filter(|s| !target.iter().any(|(su, _)| su == &s.su))
+        .filter(|s| !target.iter().any(|(su, _)| su == &s.su) && lone_zero.as_ref() != Some(&s.su))
     {
         row.checks += 1;
         row.alarms += usize::from(!s.verdict.is_quiet());
     }
     // A DoF's zero: named when the report names that DoF; anywhere else it is a false alarm.
     let zero_named = match &change {
-        Some(SkinChange::Zero { dof, .. }) => report.zero.as_ref().is_some_and(|z| &z.dof == dof),
+        Some(SkinChange::Zero { dof, .. }) => {
+            report.zero.as_ref().is_some_and(|z| &z.dof == dof) || lone_zero.is_some()
+        }
         _ => {
             row.checks += 1;
             row.alarms += usize::from(report.zero.is_some());

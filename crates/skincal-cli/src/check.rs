@@ -306,6 +306,15 @@ fn table(report: &CheckReport) -> String {
         if !su.never_told.is_empty() {
             s += &format!("{:<14} {}\n", "", su.never_told);
         }
+        if let Some(zero) = &su.or_zero {
+            s += &format!(
+                "{:<14} or the zero of {} moved by {:.2}° ± {:.2}°: this one SU cannot tell the two apart\n",
+                "",
+                zero.dof,
+                zero.offset.to_degrees(),
+                zero.offset_sd.to_degrees()
+            );
+        }
         if let (skincal::check::Verdict::Broken { .. }, Some(c)) = (&su.verdict, su.samples) {
             s += &format!(
                 "{:<14} {} samples: {} repeats of the one before (one value for {:.1} s at most), {} unusable ({:.1} s at most)\n",

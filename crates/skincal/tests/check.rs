@@ -420,9 +420,10 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
 
 /// An encoder homed anew after a hard reset: dof3 now reads 2° less in the same posture. The
 /// check names the DoF and its angle (every SU beyond it tells the same), calls no SU changed,
-/// and the recalibrated model predicts the re-homed robot as the old one predicted it before.
+/// and the recalibrated model predicts the re-homed robot as the old one predicted it before. The
+/// zero of a DoF that moves one SU alone is offered beside that SU's move.
 #[test]
-fn a_dof_whose_zero_moved_is_named_with_its_angle_and_set_again() {
+fn a_dof_whose_zero_moved_is_named_and_set_again_or_offered_beside_its_lone_sus_move() {
     let (robot, model) = paper_arm();
     let change = SkinChange::Zero {
         dof: "dof3".into(),
@@ -456,4 +457,30 @@ fn a_dof_whose_zero_moved_is_named_with_its_angle_and_set_again() {
     // Checked again on the same log, the new model reads right.
     let again = check_skin(&new, &record, &CheckConfig::default()).unwrap();
     assert!(!again.any_change(), "{:?}", again.zero);
+    // dof7 moves one SU alone, which cannot tell its own turn about dof7's axis from dof7's
+    // zero: it is called moved, with the zero (and its angle) as what else it could be.
+    let last = SkinChange::Zero {
+        dof: "dof7".into(),
+        offset: -2f64.to_radians(),
+    };
+    let (report, _) = checked(Some(&last), 43);
+    assert!(report.zero.is_none(), "{:?}", report.zero);
+    let moved: Vec<&skincal::check::SuCheck> = report
+        .sus
+        .iter()
+        .filter(|s| !s.verdict.is_quiet())
+        .collect();
+    assert_eq!(moved.len(), 1, "{moved:?}");
+    let zero = moved[0].or_zero.as_ref().expect("the zero it could be");
+    eprintln!(
+        "{} moved, or the zero of {}: {:.3}° ± {:.3}°",
+        moved[0].su,
+        zero.dof,
+        zero.offset.to_degrees(),
+        zero.offset_sd.to_degrees()
+    );
+    assert_eq!(moved[0].verdict, Verdict::Moved);
+    assert_eq!(zero.dof, "dof7");
+    assert!((zero.offset.to_degrees() + 2.0).abs() < 0.1);
+    assert!(moved[0].advice.contains("home dof7 again"));
 }

@@ -539,6 +539,9 @@ class SuCheck:
     """How many samples the log held of it (``sent``, ``repeated``, ``unusable``) and the longest
     stretches of one repeated value and of unusable samples (``longest_repeat``,
     ``longest_unusable``, s)."""
+    or_zero: Optional[dict] = None
+    """For a moved SU that alone tells a DoF's zero: that zero (``dof``, ``offset``,
+    ``offset_sd`` in rad), which reads the same as the move on this one SU."""
 
 
 @dataclass
@@ -575,6 +578,7 @@ def _check_report(text: str) -> CheckReport:
                 never_told=s.get("never_told", ""),
                 advice=s.get("advice", ""),
                 samples=s.get("samples"),
+                or_zero=s.get("or_zero"),
             )
         )
     return CheckReport(

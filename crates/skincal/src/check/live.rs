@@ -6,8 +6,8 @@
 
 use std::collections::VecDeque;
 
-use super::refit::{block_noise, explain};
-use super::{CheckConfig, CheckError, CheckReport, Columns, Skin, SkinCheck};
+use super::refit::block_noise;
+use super::{conclude, CheckConfig, CheckError, CheckReport, Columns, Skin, SkinCheck};
 use crate::estimate::body::BodyModel;
 use crate::ingest::motion::BLOCK;
 use crate::ingest::stream::MotionStream;
@@ -214,7 +214,7 @@ impl LiveCheck {
         }
         let mut report = check.verdicts(self.stream.samples());
         let recent = self.record(self.recent.iter().cloned().collect());
-        explain(&check, &recent, &mut report);
+        conclude(&check, &recent, &mut report);
         Some(report)
     }
 

@@ -192,6 +192,11 @@ pub struct SuCheck {
     /// alone carries it; a tilt that a bias mimics): a change there is never seen.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub never_told: String,
+    /// For a `moved` SU that alone tells a DoF's zero: that zero, moved by the angle that reads
+    /// as this move (an encoder homed anew looks the same; only another SU beyond the DoF could
+    /// tell them apart).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub or_zero: Option<ZeroChange>,
     /// Its place as found anew, on its segment or another (`moved` far, `other-segment`), in the
     /// segment's frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -573,6 +578,15 @@ impl SkinCheck {
                 let count = self.skin_count(samples, u);
                 let mut check = self.verdict(&names[u], u, tally, &t, &typical, count);
                 check.never_told = never_told(&tellable);
+                if check.verdict == Verdict::Moved && zero.is_none() {
+                    check.or_zero = zero::alike(
+                        &skin.robot,
+                        &tallies,
+                        &self.zero,
+                        u,
+                        self.config.false_alarm,
+                    );
+                }
                 check
             })
             .collect();
@@ -658,6 +672,7 @@ impl SkinCheck {
             change: (tally.blocks > 0).then_some(change),
             untold,
             never_told: String::new(),
+            or_zero: None,
             refit: None,
             advice: String::new(),
         }
@@ -762,9 +777,28 @@ pub fn check_skin(
         check.feed(run, record.period);
     }
     let mut report = check.verdicts(&record.samples);
-    refit::explain(&check, record, &mut report);
+    conclude(&check, record, &mut report);
+    Ok(report)
+}
+
+/// The verdicts of `check` finished: the SUs no small change explains matched and fitted anew on
+/// `record` (its recent blocks), what to do about each, remarks on the whole.
+fn conclude(check: &SkinCheck, record: &MotionRecord, report: &mut CheckReport) {
+    refit::explain(check, record, report);
     for su in &mut report.sus {
         su.advice = advice(&check.skin, &su.verdict);
+        if su.verdict != Verdict::Moved {
+            su.or_zero = None;
+        }
+        if let Some(zero) = &su.or_zero {
+            su.advice += &format!(
+                "; or the zero of {} moved by {:.2}° (an encoder homed anew reads the same on this \
+                 one SU): if the robot was reset, home {} again instead",
+                zero.dof,
+                zero.offset.to_degrees(),
+                zero.dof
+            );
+        }
     }
     if report.sus.len() >= 4 && report.changed().count() * 2 > report.sus.len() {
         report.notes.push(
@@ -773,7 +807,6 @@ pub fn check_skin(
                 .into(),
         );
     }
-    Ok(report)
 }
 
 /// An SU's frame on its segment as a [`Refit`]'s numbers.

@@ -197,7 +197,8 @@ pub fn moved_zero(
 ) -> Option<ZeroChange> {
     let n = robot.model.dofs().len();
     let best = (0..n)
-        .filter_map(|d| judge(tallies, zero, usable, d, alpha / n as f64))
+        // One SU alone cannot tell its own turn about the DoF's axis from the DoF's zero.
+        .filter_map(|d| judge(tallies, zero, usable, d, alpha / n as f64, 2))
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
     let (d, _, offset, sd) = best;
     let mut sus = Vec::new();
@@ -219,14 +220,47 @@ pub fn moved_zero(
     })
 }
 
-/// DoF `d`: `(d, χ² it explains, angle, its deviation)` when its angle is significant at `alpha`
-/// and explains its SUs' readings about as well as their own changes do.
+/// The zero that reads exactly as SU `u`'s move: a DoF that moves no other SU the log saw, whose
+/// angle (significant at `alpha`) explains the SU's readings about as well as its own change.
+/// One SU alone cannot tell them apart (on the last segment, its turn about the DoF's axis is
+/// the zero).
+pub fn alike(
+    robot: &Robot,
+    tallies: &[Tally],
+    zero: &[Vec<ZeroSums>],
+    u: usize,
+    alpha: f64,
+) -> Option<ZeroChange> {
+    let n = robot.model.dofs().len();
+    let alone = |d: usize| {
+        zero.iter()
+            .enumerate()
+            .all(|(v, sums)| v == u || tallies[v].blocks == 0 || sums.iter().all(|s| s.dof != d))
+    };
+    let only: Vec<bool> = (0..zero.len()).map(|v| v == u).collect();
+    let (d, _, offset, sd) = zero[u]
+        .iter()
+        .filter(|s| alone(s.dof))
+        .filter_map(|s| judge(tallies, zero, &only, s.dof, alpha / n as f64, 1))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    Some(ZeroChange {
+        dof: robot.model.dofs()[d].name.clone(),
+        offset,
+        offset_sd: sd,
+        sus: vec![robot.model.su_names()[u].clone()],
+    })
+}
+
+/// DoF `d`: `(d, χ² it explains, angle, its deviation)` when at least `least` SUs tell it, its
+/// angle is significant at `alpha` and explains its SUs' readings about as well as their own
+/// changes do.
 fn judge(
     tallies: &[Tally],
     zero: &[Vec<ZeroSums>],
     usable: &[bool],
     d: usize,
     alpha: f64,
+    least: usize,
 ) -> Option<(usize, f64, f64, f64)> {
     let told: Vec<(&ZeroSums, &Tally)> = zero
         .iter()
@@ -243,8 +277,7 @@ fn judge(
         }
     }
     let (a, count) = (total.information, told.len());
-    // One SU alone cannot tell its own turn about the DoF's axis from the DoF's zero.
-    if count < 2 || a <= 0.0 {
+    if count < least || a <= 0.0 {
         return None;
     }
     let offset = best_angle(&total);
