@@ -43,7 +43,7 @@ pub struct MotionRecord {
 }
 
 /// How many samples of one SU a log held, and why some of them are in no block.
-#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct SampleCount {
     /// Samples the log held for it.
     pub sent: u64,
@@ -57,42 +57,9 @@ pub struct SampleCount {
     pub longest_repeat: f64,
     /// The longest time all its samples were unusable, s.
     pub longest_unusable: f64,
-    /// The stamp of the last fresh sample and of the first of the current unusable ones.
-    #[serde(skip)]
-    since: [Option<f64>; 2],
-}
-
-/// Counts are equal when what they counted is (not where counting stands).
-impl PartialEq for SampleCount {
-    fn eq(&self, other: &Self) -> bool {
-        (self.sent, self.repeated, self.unusable) == (other.sent, other.repeated, other.unusable)
-            && self.longest_repeat == other.longest_repeat
-            && self.longest_unusable == other.longest_unusable
-    }
 }
 
 impl SampleCount {
-    /// Counts one sample stamped `stamp` (s): `usable` (finite, within range), `repeat` (exactly
-    /// the usable one before).
-    pub fn count(&mut self, stamp: f64, usable: bool, repeat: bool) {
-        self.sent += 1;
-        let [fresh, bad] = &mut self.since;
-        if usable {
-            *bad = None;
-            if repeat {
-                self.repeated += 1;
-                let from = *fresh.get_or_insert(stamp);
-                self.longest_repeat = self.longest_repeat.max(stamp - from);
-            } else {
-                *fresh = Some(stamp);
-            }
-        } else {
-            self.unusable += 1;
-            let from = *bad.get_or_insert(stamp);
-            self.longest_unusable = self.longest_unusable.max(stamp - from);
-        }
-    }
-
     /// The sum of two counts (one SU over two logs).
     pub fn plus(self, other: SampleCount) -> SampleCount {
         SampleCount {
@@ -101,7 +68,40 @@ impl SampleCount {
             unusable: self.unusable + other.unusable,
             longest_repeat: self.longest_repeat.max(other.longest_repeat),
             longest_unusable: self.longest_unusable.max(other.longest_unusable),
-            since: [None; 2],
+        }
+    }
+}
+
+/// Counts one SU's samples as they come, in order.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SampleCounter {
+    /// What it counted so far.
+    pub count: SampleCount,
+    /// The stamp of the last fresh sample.
+    fresh: Option<f64>,
+    /// The stamp of the first of the current unusable samples.
+    bad: Option<f64>,
+}
+
+impl SampleCounter {
+    /// Counts one sample stamped `stamp` (s): `usable` (finite, within range), `repeat` (exactly
+    /// the usable one before).
+    pub fn add(&mut self, stamp: f64, usable: bool, repeat: bool) {
+        let c = &mut self.count;
+        c.sent += 1;
+        if usable {
+            self.bad = None;
+            if repeat {
+                c.repeated += 1;
+                let from = *self.fresh.get_or_insert(stamp);
+                c.longest_repeat = c.longest_repeat.max(stamp - from);
+            } else {
+                self.fresh = Some(stamp);
+            }
+        } else {
+            c.unusable += 1;
+            let from = *self.bad.get_or_insert(stamp);
+            c.longest_unusable = c.longest_unusable.max(stamp - from);
         }
     }
 }

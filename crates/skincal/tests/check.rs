@@ -260,30 +260,9 @@ fn recalibrating_what_moved_is_as_good_as_calibrating_everything_again() {
 /// while the log runs.
 #[test]
 fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_memory() {
-    let (robot, model) = paper_arm();
-    let turn = SkinChange::Move {
-        su: "su6".into(),
-        shift: [0.0; 3],
-        turn: [0.04, 0.0, 0.03],
-    };
+    let (_, model) = paper_arm();
     let dir = tempfile::tempdir().unwrap();
-    // MCAP, whose samples come in time order as a live stream's do (a CSV log's joint states
-    // come all before its skin).
-    let log = dir.path().join("ordinary.mcap");
-    let plan = Plan::new(PlanDof::from_robot(robot), &PlanConfig::ordinary(60.0, 31)).unwrap();
-    let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
-    let log_config = LogConfig {
-        seed: 131,
-        ..LogConfig::default()
-    };
-    record(
-        &turn.robot(robot).unwrap(),
-        &plan,
-        &log_config,
-        &mut sink,
-        &mut |_| {},
-    )
-    .unwrap();
+    let log = turned_su6_log(dir.path());
     let m = model.check().unwrap().model;
     let (dofs, sus) = (m.dof_names(), m.su_names());
     let whole = motion_record(
@@ -318,7 +297,7 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
     )
     .unwrap();
     // Every SU's samples counted alike: sent, repeated, unusable, the longest repeat.
-    assert_eq!(stream.samples(), &whole.samples[..]);
+    assert_eq!(stream.samples(), whole.samples);
     assert!(
         whole.samples.iter().all(|c| c.sent > 50_000),
         "{:?}",
@@ -372,9 +351,65 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
         most.2 as f64 * 0.01 <= skincal::check::WARM_UP + skincal::check::RECENT + 2.0,
         "{most:?}"
     );
+}
 
-    // The same log followed while it is written: its bytes appended in pieces that end anywhere
-    // (mid-record, mid-chunk) with pauses, read to the end of the writer's last piece.
+/// 60 s of ordinary motion of the paper's arm with su6 turned by 2.9°, as MCAP (whose samples come
+/// in time order as a live stream's do; a CSV log's joint states come all before its skin).
+fn turned_su6_log(dir: &std::path::Path) -> std::path::PathBuf {
+    let (robot, _) = paper_arm();
+    let turn = SkinChange::Move {
+        su: "su6".into(),
+        shift: [0.0; 3],
+        turn: [0.04, 0.0, 0.03],
+    };
+    let log = dir.join("ordinary.mcap");
+    let plan = Plan::new(PlanDof::from_robot(robot), &PlanConfig::ordinary(60.0, 31)).unwrap();
+    let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
+    let log_config = LogConfig {
+        seed: 131,
+        ..LogConfig::default()
+    };
+    record(
+        &turn.robot(robot).unwrap(),
+        &plan,
+        &log_config,
+        &mut sink,
+        &mut |_| {},
+    )
+    .unwrap();
+    log
+}
+
+/// The log of a turned SU followed while it is written — its bytes appended in pieces that end
+/// anywhere (mid-record, mid-chunk) with pauses — gives every sample the finished file holds, and
+/// a live check fed from it the same verdicts, blocks, counts and statistics as one fed from the
+/// finished file, however its blocks fell into the reads.
+#[test]
+fn a_log_followed_while_it_is_written_gives_every_sample_and_the_same_check() {
+    let (_, model) = paper_arm();
+    let dir = tempfile::tempdir().unwrap();
+    let log = turned_su6_log(dir.path());
+    let mut live = LiveCheck::new(model, &CheckConfig::default()).unwrap();
+    let mut samples = 0usize;
+    read_log(
+        &log,
+        Stream::Both,
+        &Topics::default(),
+        &mut |sample| {
+            live.push(&sample);
+            samples += 1;
+            // Blocks summed at other moments than the followed file's.
+            if samples % 20_000 == 0 {
+                live.held();
+            }
+            Ok(())
+        },
+        &mut |_| {},
+    )
+    .unwrap();
+    let report = live.report().expect("more than the warm-up came");
+    assert_eq!(verdict(&report, "su6"), &Verdict::Moved);
+
     let growing = dir.path().join("growing.mcap");
     let bytes = std::fs::read(&log).unwrap();
     let writer = {

@@ -198,7 +198,7 @@ impl LiveCheck {
             sus: self.sus.clone(),
             noise_sd,
             runs,
-            samples: self.stream.samples().to_vec(),
+            samples: self.stream.samples(),
         }
     }
 
@@ -212,7 +212,7 @@ impl LiveCheck {
         if let Some(tail) = &self.tail {
             check.feed_range(tail, self.fed..tail.len(), BLOCK);
         }
-        let mut report = check.verdicts(self.stream.samples());
+        let mut report = check.verdicts(&self.stream.samples());
         let recent = self.record(self.recent.iter().cloned().collect());
         conclude(&check, &recent, &mut report);
         Some(report)

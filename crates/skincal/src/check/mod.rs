@@ -476,10 +476,11 @@ pub fn su_term(
     Some((y - predicted, jac, noise_sd * noise_sd + lever))
 }
 
-/// A check in progress: the skin, and every SU's sums over the blocks fed so far.
+/// A check in progress: the skin, and every SU's sums over the blocks fed so far. A clone shares
+/// the skin and copies the sums (a live report sums the open run's last blocks on a clone).
 #[derive(Clone)]
 pub struct SkinCheck {
-    skin: Skin,
+    skin: std::sync::Arc<Skin>,
     columns: Columns,
     config: CheckConfig,
     noise: Vec<f64>,
@@ -498,7 +499,7 @@ impl SkinCheck {
     pub fn new(skin: Skin, columns: Columns, noise: Vec<f64>, config: CheckConfig) -> Self {
         let n = skin.places.len();
         Self {
-            skin,
+            skin: std::sync::Arc::new(skin),
             columns,
             config,
             noise,

@@ -15,7 +15,9 @@ use nalgebra::{SMatrix, SVector};
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{self, Sample, Stream};
-use crate::motion::{MotionRecord, MotionRun, SampleCount, MOTION_FORMAT, MOTION_VERSION};
+use crate::motion::{
+    MotionRecord, MotionRun, SampleCount, SampleCounter, MOTION_FORMAT, MOTION_VERSION,
+};
 
 /// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
 /// of any excitation a servo follows).
@@ -46,14 +48,14 @@ pub const NOISE_FLOOR: f64 = 1e-4;
 struct SkinBlocks {
     sums: Vec<[f64; 4]>,
     last: Option<[f64; 3]>,
-    count: SampleCount,
+    count: SampleCounter,
 }
 
 impl SkinBlocks {
     /// Takes sample `a` stamped `stamp` (`usable`: finite and within range) of block `block`.
     fn add(&mut self, block: usize, stamp: f64, a: [f64; 3], usable: bool) {
         let repeat = self.last == Some(a);
-        self.count.count(stamp, usable, repeat);
+        self.count.add(stamp, usable, repeat);
         if !usable || repeat {
             // A repeat is exactly the sample before: a slower board's value held by its port.
             return;
@@ -120,7 +122,7 @@ pub fn motion_record(
         let gathered = gather(path, dofs, sus, config, progress)?;
         runs.extend(runs_of(path, &gathered, config));
         for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
-            *total = total.plus(skin.count);
+            *total = total.plus(skin.count.count);
         }
     }
     if runs.is_empty() {

@@ -10,7 +10,7 @@ use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WID
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
-use crate::motion::{MotionRun, SampleCount};
+use crate::motion::{MotionRun, SampleCount, SampleCounter};
 
 /// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
 /// rounding are judged before any block is given out.
@@ -40,7 +40,7 @@ pub struct MotionStream {
     /// Per SU: its last sample (a repeat is a slower board's value held by its port).
     last: Vec<Option<[f64; 3]>>,
     /// Per SU: its samples so far.
-    samples: Vec<SampleCount>,
+    samples: Vec<SampleCounter>,
     latest_skin: f64,
     /// The next block to compute.
     next: usize,
@@ -76,7 +76,7 @@ impl MotionStream {
             skin: VecDeque::new(),
             base: 0,
             last: vec![None; sus.len()],
-            samples: vec![SampleCount::default(); sus.len()],
+            samples: vec![SampleCounter::default(); sus.len()],
             latest_skin: f64::NEG_INFINITY,
             next: 0,
             open: None,
@@ -117,7 +117,7 @@ impl MotionStream {
                     return;
                 }
                 let repeat = self.last[u] == Some(a);
-                self.samples[u].count(stamp, usable, repeat);
+                self.samples[u].add(stamp, usable, repeat);
                 if !usable || repeat {
                     return;
                 }
@@ -287,8 +287,8 @@ impl MotionStream {
     }
 
     /// Per SU: how many samples came so far, and why some are in no block.
-    pub fn samples(&self) -> &[SampleCount] {
-        &self.samples
+    pub fn samples(&self) -> Vec<SampleCount> {
+        self.samples.iter().map(|c| c.count).collect()
     }
 
     /// Joint states and skin blocks held now (what the stream's memory grows with).
