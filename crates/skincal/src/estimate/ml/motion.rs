@@ -272,10 +272,13 @@ impl LimbMotion {
 pub(super) struct SegmentTerms {
     pub c: Vec<Vector3<f64>>,
     pub n: Vec<Matrix3<f64>>,
-    /// `dc[s − 1][column]`.
-    pub dc: Vec<Vec<Vector3<f64>>>,
-    pub dn: Vec<Vec<Matrix3<f64>>>,
+    /// Per segment `s − 1`: `(column, ∂c_s, ∂N_s)` of the shared columns that move it (gravity,
+    /// and the lines of joints up to `s`; every other column's are zero).
+    pub d: Vec<Vec<ColumnRate>>,
 }
+
+/// A shared column and the rates `(∂c_s, ∂N_s)` of one segment's terms along it.
+pub(super) type ColumnRate = (usize, Vector3<f64>, Matrix3<f64>);
 
 /// `(c_s, N_s, R_s)` of segments `1..=last` of a chain whose joint frames (each on the segment
 /// before it, as in [`ChainState::joints`]) are `joints`, at one sample, under `gravity`; with
@@ -373,10 +376,10 @@ pub(super) fn segment_terms(
             let mut out = SegmentTerms {
                 c: values.iter().map(|v| v.0).collect(),
                 n: values.iter().map(|v| v.1).collect(),
-                dc: vec![Vec::new(); last],
-                dn: vec![Vec::new(); last],
+                d: vec![Vec::new(); last],
             };
-            for (&(block, c), step) in columns.unwrap_or(&[]).iter().zip(&steps) {
+            for (col, (&(block, c), step)) in columns.unwrap_or(&[]).iter().zip(&steps).enumerate()
+            {
                 let gravity = match block {
                     Block::Gravity => Some(Vector3::ith(c, 1.0)),
                     Block::GravityDirection => Some(directions[c]),
@@ -386,13 +389,15 @@ pub(super) fn segment_terms(
                     .as_ref()
                     .map(|(k, local)| terms(&lifted, Some((*k, local)), sample, &g_dual, last));
                 for (s, (_, _, r)) in values.iter().enumerate() {
-                    let (dc, dn) = match (&along, gravity) {
-                        (Some(d), _) => (d[s].0.map(|x| x.eps), d[s].1.map(|x| x.eps)),
-                        (None, Some(dir)) => (-(r.transpose() * dir), Matrix3::zeros()),
-                        (None, None) => (Vector3::zeros(), Matrix3::zeros()),
+                    let (dc, dn) = match (&along, gravity, step) {
+                        // Joint k's line moves segments k + 1 on (terms' entries k on).
+                        (Some(d), _, Some((k, _))) if s >= *k => {
+                            (d[s].0.map(|x| x.eps), d[s].1.map(|x| x.eps))
+                        }
+                        (None, Some(dir), _) => (-(r.transpose() * dir), Matrix3::zeros()),
+                        _ => continue,
                     };
-                    out.dc[s].push(dc);
-                    out.dn[s].push(dn);
+                    out.d[s].push((col, dc, dn));
                 }
             }
             out

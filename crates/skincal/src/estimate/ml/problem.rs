@@ -459,12 +459,13 @@ impl MotionRows<'_> {
         let bias = Vector3::from(intrinsics.bias);
         let rl = state.sus[u].rotation.to_rotation_matrix().into_inner();
         let rlt = rl.transpose();
+        let krt = k * rlt;
         let p = state.sus[u].translation.vector;
         let (mut cost, mut count) = (0.0, 0);
         let predicted: Vec<Vector3<f64>> = self
             .terms
             .iter()
-            .map(|t| k * (rlt * (t.c[s] + t.n[s] * p)) + bias)
+            .map(|t| krt * (t.c[s] + t.n[s] * p) + bias)
             .collect();
         let delay_column = self
             .map
@@ -491,17 +492,17 @@ impl MotionRows<'_> {
             let partials = intrinsics.partials(&ideal, true);
             for (col, &(b, c)) in self.map.own[self.i].iter().enumerate() {
                 let d = match self.spec.blocks[b] {
-                    Block::Su(_) if c < 3 => k * (rlt * v.cross(&Vector3::ith(c, 1.0))),
-                    Block::Su(_) => k * (rlt * terms.n[s].column(c - 3)),
+                    Block::Su(_) if c < 3 => krt * v.cross(&Vector3::ith(c, 1.0)),
+                    Block::Su(_) => krt * terms.n[s].column(c - 3),
                     Block::Intrinsics(_) => partials[c],
                     _ => continue,
                 };
                 own.fixed_view_mut::<3, 1>(row, col).copy_from(&(d * scale));
             }
-            for (col, (dc, dn)) in terms.dc[s].iter().zip(&terms.dn[s]).enumerate() {
-                let d = k * (rlt * (dc + dn * p));
+            for (col, dc, dn) in &terms.d[s] {
+                let d = krt * (dc + dn * p);
                 shared
-                    .fixed_view_mut::<3, 1>(row, col)
+                    .fixed_view_mut::<3, 1>(row, *col)
                     .copy_from(&(d * scale));
             }
             if let Some(col) = delay_column {
@@ -791,14 +792,17 @@ pub(super) fn normal_system(
                 sigma,
                 true,
             );
+            // Products of the transposes: nalgebra multiplies those by a blocked kernel
+            // (`matrixmultiply`), `tr_mul` by one dot product per entry.
+            let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
             (
                 SuNormal {
-                    a: block.own.tr_mul(&block.own),
-                    b: block.own.tr_mul(&block.shared),
-                    go: block.own.tr_mul(&block.r),
+                    a: &own_t * &block.own,
+                    b: &own_t * &block.shared,
+                    go: &own_t * &block.r,
                 },
-                block.shared.tr_mul(&block.shared),
-                block.shared.tr_mul(&block.r),
+                &shared_t * &block.shared,
+                &shared_t * &block.r,
                 block.cost,
                 block.count,
             )
