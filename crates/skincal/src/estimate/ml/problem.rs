@@ -529,8 +529,9 @@ impl MotionRows<'_> {
 }
 
 /// One SU's residuals (whitened; rows: pose by pose, the static reading then the dynamic
-/// acceleration of every DoF before it) and, when asked, the Jacobian columns of its own block and
-/// of the shared parameters.
+/// acceleration of every DoF before it; then the motion record's samples; then the priors of its
+/// free intrinsics) and, when asked, the Jacobian columns of its own block and of the shared
+/// parameters.
 struct SuBlock {
     r: DVector<f64>,
     own: DMatrix<f64>,
@@ -541,105 +542,219 @@ struct SuBlock {
     count: usize,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn su_block(
-    state: &ChainState,
-    layout: &Layout,
-    data: &Readings,
-    spec: &Spec,
-    map: &ColumnMap,
-    frames: &[Frames],
-    terms: Option<&[SegmentTerms]>,
-    i: usize,
+impl SuBlock {
+    /// Adds one reading's cost to the block's and weighs its 3 rows from `at`: by its own
+    /// deviation where it has one, and by the robust weight of its whitened norm. Returns the
+    /// factor its Jacobian rows must take (0 for a rejected reading).
+    fn weigh(
+        &mut self,
+        data: &Readings,
+        sigma: f64,
+        (p, u, j): (usize, usize, usize),
+        at: usize,
+    ) -> f64 {
+        let mut rows = self.r.fixed_rows_mut::<3>(at);
+        if data.is_rejected(p, u, j) {
+            rows.fill(0.0);
+            return 0.0;
+        }
+        let mut scale = 1.0;
+        if let Some(sd) = &data.sd {
+            scale = sigma / sd[p][u][j];
+            rows.scale_mut(scale);
+        }
+        let (w, c) = data.robust(rows.norm());
+        self.cost += c;
+        self.count += 3;
+        if w < 1.0 {
+            scale *= w.sqrt();
+            rows.scale_mut(w.sqrt());
+        }
+        scale
+    }
+}
+
+/// What every SU block of a problem at one state shares: the data, the poses' frames and the
+/// motion rows' segment terms (with their derivatives when the blocks carry Jacobians).
+struct Blocks<'a> {
+    state: &'a ChainState,
+    layout: &'a Layout,
+    data: &'a Readings,
+    spec: &'a Spec,
+    map: &'a ColumnMap,
     sigma: f64,
     jacobian: bool,
-) -> SuBlock {
-    let u = spec.sus[i];
-    let s = layout.su_segment[u];
-    let per_pose = 3 * (1 + s);
-    // Free intrinsics of this SU: (own column, component); each has a prior row after the readings.
-    // Prior rows: (column, block, component).
-    let priors: Vec<(usize, Block, usize)> = map.own[i]
-        .iter()
-        .enumerate()
-        .filter(|(_, &(b, c))| match spec.blocks[b] {
-            Block::Intrinsics(_) => true,
-            Block::Su(_) => data.gauge_prior.is_some() && c >= 3,
-            _ => false,
-        })
-        .map(|(col, &(b, c))| (col, spec.blocks[b], c))
-        .collect();
-    let pose_rows = per_pose * data.q.len();
-    let motion_rows = data.motion.as_ref().map_or(0, |m| 3 * m.len());
-    let readings_rows = pose_rows + motion_rows;
-    let rows = readings_rows + priors.len();
-    let mut r = DVector::zeros(rows);
-    let (mut own, mut shared) = if jacobian {
-        (
-            DMatrix::zeros(rows, map.own[i].len()),
-            DMatrix::zeros(rows, map.shared.len()),
-        )
-    } else {
-        (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
-    };
-    let g = state.gravity;
-    let gravity = gravity_directions(&g);
-    let alpha = data.alpha;
-    let intrinsics = &state.intrinsics[u];
-    let k = intrinsics.matrix();
-    let bias = Vector3::from(intrinsics.bias);
-    let (mut cost, mut count) = (0.0, 0);
-    // √weight of the static reading and of each dynamic one, this pose.
-    let mut scales = vec![1.0; 1 + s];
-    for (p, f) in frames.iter().enumerate() {
-        let row = p * per_pose;
-        let ru = f.sus[u].rotation.to_rotation_matrix().into_inner();
-        let rut = ru.transpose();
+    frames: Vec<Frames>,
+    terms: Option<Vec<SegmentTerms>>,
+}
+
+/// One pose of one SU: where its rows start, its frame and the readings the model predicts.
+struct PoseRows {
+    row: usize,
+    rut: nalgebra::Matrix3<f64>,
+    pu: Vector3<f64>,
+    /// Each DoF before the SU: its axis and a point on it (world).
+    axes: Vec<(Vector3<f64>, Vector3<f64>)>,
+    ideal_static: Vector3<f64>,
+    ideal_dynamic: Vec<Vector3<f64>>,
+    /// √weight of the static reading and of each dynamic one.
+    scales: Vec<f64>,
+}
+
+impl<'a> Blocks<'a> {
+    fn new(
+        state: &'a ChainState,
+        layout: &'a Layout,
+        data: &'a Readings,
+        spec: &'a Spec,
+        map: &'a ColumnMap,
+        sigma: f64,
+        jacobian: bool,
+    ) -> Self {
+        Self {
+            state,
+            layout,
+            data,
+            spec,
+            map,
+            sigma,
+            jacobian,
+            frames: pose_frames(state, layout, data, spec),
+            terms: motion_terms(state, layout, data, spec, map, jacobian),
+        }
+    }
+
+    /// The block of SU `spec.sus[i]`: its pose rows, its motion rows, its priors.
+    fn block(&self, i: usize) -> SuBlock {
+        let u = self.spec.sus[i];
+        let s = self.layout.su_segment[u];
+        let priors = self.prior_columns(i);
+        let pose_rows = 3 * (1 + s) * self.data.q.len();
+        let motion_rows = self.data.motion.as_ref().map_or(0, |m| 3 * m.len());
+        let rows = pose_rows + motion_rows + priors.len();
+        let (own, shared) = if self.jacobian {
+            (
+                DMatrix::zeros(rows, self.map.own[i].len()),
+                DMatrix::zeros(rows, self.map.shared.len()),
+            )
+        } else {
+            (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
+        };
+        let mut block = SuBlock {
+            r: DVector::zeros(rows),
+            own,
+            shared,
+            cost: 0.0,
+            count: 0,
+        };
+        for p in 0..self.frames.len() {
+            let pose = self.pose_residuals(i, p, &mut block);
+            if self.jacobian {
+                self.pose_jacobian(i, p, &pose, &mut block);
+            }
+        }
+        if let (Some(motion), Some(terms)) = (&self.data.motion, &self.terms) {
+            let rows = MotionRows {
+                spec: self.spec,
+                map: self.map,
+                motion,
+                terms,
+                u,
+                i,
+                segment: s - 1,
+                at: pose_rows,
+            };
+            let SuBlock { r, own, shared, .. } = &mut block;
+            let (c, n) = rows.fill(
+                self.state,
+                self.data,
+                r,
+                self.jacobian.then_some((own, shared)),
+            );
+            block.cost += c;
+            block.count += n;
+        }
+        self.prior_rows(i, &priors, pose_rows + motion_rows, &mut block);
+        block
+    }
+
+    /// The free intrinsics of SU `spec.sus[i]` (and its position's components under a gauge
+    /// prior), each with a prior row after the readings: (own column, block, component).
+    fn prior_columns(&self, i: usize) -> Vec<(usize, Block, usize)> {
+        self.map.own[i]
+            .iter()
+            .enumerate()
+            .filter(|(_, &(b, c))| match self.spec.blocks[b] {
+                Block::Intrinsics(_) => true,
+                Block::Su(_) => self.data.gauge_prior.is_some() && c >= 3,
+                _ => false,
+            })
+            .map(|(col, &(b, c))| (col, self.spec.blocks[b], c))
+            .collect()
+    }
+
+    /// Pose `p`'s rows of SU `spec.sus[i]`: the static reading and the dynamic one of each DoF
+    /// before it, whitened and weighed.
+    fn pose_residuals(&self, i: usize, p: usize, block: &mut SuBlock) -> PoseRows {
+        let u = self.spec.sus[i];
+        let s = self.layout.su_segment[u];
+        let f = &self.frames[p];
+        let (sigma, data) = (self.sigma, self.data);
+        let intrinsics = &self.state.intrinsics[u];
+        let (k, bias) = (intrinsics.matrix(), Vector3::from(intrinsics.bias));
+        let row = p * 3 * (1 + s);
+        let rut = f.sus[u]
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose();
         let pu = f.sus[u].translation.vector;
-        let ideal_static = rut * (-g);
-        r.fixed_rows_mut::<3>(row)
+        let ideal_static = rut * (-self.state.gravity);
+        block
+            .r
+            .fixed_rows_mut::<3>(row)
             .copy_from(&((k * ideal_static + bias - data.statics[p][u]) / sigma));
         let axes: Vec<(Vector3<f64>, Vector3<f64>)> = (0..s)
             .map(|d| {
-                (
-                    f.joints[d].rotation * Vector3::z(),
-                    f.joints[d].translation.vector,
-                )
+                let joint = &f.joints[d];
+                (joint.rotation * Vector3::z(), joint.translation.vector)
             })
             .collect();
         let ideal_dynamic: Vec<Vector3<f64>> = axes
             .iter()
-            .map(|(z, o)| rut * (z.cross(&(pu - o)) * alpha))
+            .map(|(z, o)| rut * (z.cross(&(pu - o)) * data.alpha))
             .collect();
         for (d, a) in ideal_dynamic.iter().enumerate() {
-            r.fixed_rows_mut::<3>(row + 3 * (1 + d))
+            block
+                .r
+                .fixed_rows_mut::<3>(row + 3 * (1 + d))
                 .copy_from(&((k * a - data.dynamics[p][u][d]) / sigma));
         }
-        // Each reading's weight (its rows and Jacobian rows scaled by √w) and cost.
-        scales.fill(1.0);
-        for (j, scale) in scales.iter_mut().enumerate() {
-            let at = row + 3 * j;
-            if data.is_rejected(p, u, j) {
-                *scale = 0.0;
-                r.fixed_rows_mut::<3>(at).fill(0.0);
-                continue;
-            }
-            // Whitened by the reading's own deviation where it has one.
-            if let Some(sd) = &data.sd {
-                *scale = sigma / sd[p][u][j];
-                r.fixed_rows_mut::<3>(at).scale_mut(*scale);
-            }
-            let (w, c) = data.robust(r.fixed_rows::<3>(at).norm());
-            cost += c;
-            count += 3;
-            if w < 1.0 {
-                *scale *= w.sqrt();
-                r.fixed_rows_mut::<3>(at).scale_mut(w.sqrt());
-            }
+        let scales = (0..=s)
+            .map(|j| block.weigh(data, sigma, (p, u, j), row + 3 * j))
+            .collect();
+        PoseRows {
+            row,
+            rut,
+            pu,
+            axes,
+            ideal_static,
+            ideal_dynamic,
+            scales,
         }
-        if !jacobian {
-            continue;
-        }
+    }
+
+    /// Pose `p`'s Jacobian rows of SU `spec.sus[i]`, own and shared columns, weighed as its
+    /// residuals were.
+    fn pose_jacobian(&self, i: usize, p: usize, pose: &PoseRows, block: &mut SuBlock) {
+        let u = self.spec.sus[i];
+        let s = self.layout.su_segment[u];
+        let f = &self.frames[p];
+        let (sigma, g, alpha) = (self.sigma, self.state.gravity, self.data.alpha);
+        let gravity = gravity_directions(&g);
+        let intrinsics = &self.state.intrinsics[u];
+        let k = intrinsics.matrix();
+        let PoseRows { row, rut, pu, .. } = *pose;
         let fill = |target: &mut DMatrix<f64>, col: usize, e: Effect| match e {
             Effect::Gravity(dir) => target
                 .fixed_view_mut::<3, 1>(row, col)
@@ -653,7 +768,7 @@ fn su_block(
                     .fixed_view_mut::<3, 1>(row, col)
                     .copy_from(&(k * (rut * omega.cross(&g)) / sigma));
                 // Axes from `moved_from` on move with the SU: their accelerations do not change.
-                for (d, (z, o)) in axes.iter().enumerate().take(moved_from.min(s)) {
+                for (d, (z, o)) in pose.axes.iter().enumerate().take(moved_from.min(s)) {
                     let w = z.cross(&(pu - o));
                     let delta = rut * (w.cross(&omega) + z.cross(&dp)) * alpha;
                     target
@@ -662,83 +777,73 @@ fn su_block(
                 }
             }
         };
-        let static_partials = intrinsics.partials(&ideal_static, true);
-        let dynamic_partials: Vec<[Vector3<f64>; 9]> = ideal_dynamic
+        let static_partials = intrinsics.partials(&pose.ideal_static, true);
+        let dynamic_partials: Vec<[Vector3<f64>; 9]> = pose
+            .ideal_dynamic
             .iter()
             .map(|a| intrinsics.partials(a, false))
             .collect();
-        for (col, &(b, c)) in map.own[i].iter().enumerate() {
-            if let Block::Intrinsics(_) = spec.blocks[b] {
-                own.fixed_view_mut::<3, 1>(row, col)
+        for (col, &(b, c)) in self.map.own[i].iter().enumerate() {
+            if let Block::Intrinsics(_) = self.spec.blocks[b] {
+                block
+                    .own
+                    .fixed_view_mut::<3, 1>(row, col)
                     .copy_from(&(static_partials[c] / sigma));
                 for (d, partials) in dynamic_partials.iter().enumerate() {
-                    own.fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
+                    block
+                        .own
+                        .fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
                         .copy_from(&(partials[c] / sigma));
                 }
-            } else if let Some(e) = effect(spec.blocks[b], c, f, s, &pu, &gravity) {
-                fill(&mut own, col, e);
+            } else if let Some(e) = effect(self.spec.blocks[b], c, f, s, &pu, &gravity) {
+                fill(&mut block.own, col, e);
             }
         }
-        for (col, &(b, c)) in map.shared.iter().enumerate() {
-            if let Block::Su(v) | Block::Intrinsics(v) = spec.blocks[b] {
+        for (col, &(b, c)) in self.map.shared.iter().enumerate() {
+            if let Block::Su(v) | Block::Intrinsics(v) = self.spec.blocks[b] {
                 if v != u {
                     continue;
                 }
             }
-            if let Some(e) = effect(spec.blocks[b], c, f, s, &pu, &gravity) {
-                fill(&mut shared, col, e);
+            if let Some(e) = effect(self.spec.blocks[b], c, f, s, &pu, &gravity) {
+                fill(&mut block.shared, col, e);
             }
         }
-        for (j, &scale) in scales.iter().enumerate() {
+        for (j, &scale) in pose.scales.iter().enumerate() {
             if scale != 1.0 {
-                own.rows_mut(row + 3 * j, 3).scale_mut(scale);
-                shared.rows_mut(row + 3 * j, 3).scale_mut(scale);
+                block.own.rows_mut(row + 3 * j, 3).scale_mut(scale);
+                block.shared.rows_mut(row + 3 * j, 3).scale_mut(scale);
             }
         }
     }
-    if let (Some(motion), Some(terms)) = (&data.motion, terms) {
-        let rows = MotionRows {
-            spec,
-            map,
-            motion,
-            terms,
-            u,
-            i,
-            segment: s - 1,
-            at: pose_rows,
-        };
-        let (c, n) = rows.fill(
-            state,
-            data,
-            &mut r,
-            jacobian.then_some((&mut own, &mut shared)),
-        );
-        cost += c;
-        count += n;
-    }
-    let values = intrinsics.to_array();
-    for (n, &(col, block, c)) in priors.iter().enumerate() {
-        let (value, sd) = match block {
-            Block::Su(v) => (
-                state.sus[v].translation.vector[c - 3],
-                data.gauge_prior.unwrap_or(f64::INFINITY),
-            ),
-            _ => (values[c], INTRINSIC_PRIOR_SD[c]),
-        };
-        let x = value / sd;
-        r[readings_rows + n] = x;
-        cost += x * x;
-        count += 1;
-        if jacobian {
-            own[(readings_rows + n, col)] = 1.0 / sd;
+
+    /// The prior rows of SU `spec.sus[i]` from `at`: each free intrinsic over its prior's
+    /// deviation, and its position's components under a gauge prior.
+    fn prior_rows(
+        &self,
+        i: usize,
+        priors: &[(usize, Block, usize)],
+        at: usize,
+        block: &mut SuBlock,
+    ) {
+        let u = self.spec.sus[i];
+        let values = self.state.intrinsics[u].to_array();
+        for (n, &(col, b, c)) in priors.iter().enumerate() {
+            let (value, sd) = match b {
+                Block::Su(v) => (
+                    self.state.sus[v].translation.vector[c - 3],
+                    self.data.gauge_prior.unwrap_or(f64::INFINITY),
+                ),
+                _ => (values[c], INTRINSIC_PRIOR_SD[c]),
+            };
+            let x = value / sd;
+            block.r[at + n] = x;
+            block.cost += x * x;
+            block.count += 1;
+            if self.jacobian {
+                block.own[(at + n, col)] = 1.0 / sd;
+            }
         }
-    }
-    SuBlock {
-        r,
-        own,
-        shared,
-        cost,
-        count,
     }
 }
 
@@ -772,26 +877,14 @@ pub(super) fn normal_system(
     map: &ColumnMap,
     sigma: f64,
 ) -> Normal {
-    let frames = pose_frames(state, layout, data, spec);
-    let terms = motion_terms(state, layout, data, spec, map, true);
+    let blocks = Blocks::new(state, layout, data, spec, map, sigma, true);
     let m = map.shared.len();
     // Per SU: its own pieces, J_sᵀJ_s, J_sᵀr, |r|² and the number of residuals.
     type Part = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
     let parts: Vec<Part> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
-            let block = su_block(
-                state,
-                layout,
-                data,
-                spec,
-                map,
-                &frames,
-                terms.as_deref(),
-                i,
-                sigma,
-                true,
-            );
+            let block = blocks.block(i);
             // Products of the transposes: nalgebra multiplies those by a blocked kernel
             // (`matrixmultiply`), `tr_mul` by one dot product per entry.
             let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
@@ -865,8 +958,7 @@ pub(super) fn cost_of(
     map: &ColumnMap,
     sigma: f64,
 ) -> f64 {
-    let frames = pose_frames(state, layout, data, spec);
-    let terms = motion_terms(state, layout, data, spec, map, false);
+    let blocks = Blocks::new(state, layout, data, spec, map, sigma, false);
     let priors: f64 = joint_priors(state, data, spec, map)
         .iter()
         .map(|(_, _, r)| r.norm_squared())
@@ -874,13 +966,7 @@ pub(super) fn cost_of(
     priors
         + (0..spec.sus.len())
             .into_par_iter()
-            .map(|i| {
-                let terms = terms.as_deref();
-                su_block(
-                    state, layout, data, spec, map, &frames, terms, i, sigma, false,
-                )
-                .cost
-            })
+            .map(|i| blocks.block(i).cost)
             .sum::<f64>()
 }
 
@@ -946,19 +1032,10 @@ pub(super) fn reading_norms(
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let frames = pose_frames(state, layout, &plain, spec);
-    let terms = motion_terms(state, layout, &plain, spec, &map, false);
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false);
     let blocks: Vec<(usize, SuBlock)> = (0..spec.sus.len())
         .into_par_iter()
-        .map(|i| {
-            let terms = terms.as_deref();
-            (
-                spec.sus[i],
-                su_block(
-                    state, layout, &plain, spec, &map, &frames, terms, i, sigma, false,
-                ),
-            )
-        })
+        .map(|i| (spec.sus[i], inputs.block(i)))
         .collect();
     let mut out = vec![vec![Vec::new(); layout.su_segment.len()]; data.q.len()];
     for (u, block) in blocks {
@@ -990,24 +1067,12 @@ pub(super) fn motion_sums(
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let frames = pose_frames(state, layout, &plain, spec);
-    let terms = motion_terms(state, layout, &plain, spec, &map, false);
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false);
     let sums: Vec<(usize, (f64, usize))> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
             let u = spec.sus[i];
-            let block = su_block(
-                state,
-                layout,
-                &plain,
-                spec,
-                &map,
-                &frames,
-                terms.as_deref(),
-                i,
-                sigma,
-                false,
-            );
+            let block = inputs.block(i);
             let at = (1 + layout.su_segment[u]) * 3 * data.q.len();
             let rows = block.r.rows(at, 3 * motion.len());
             let count = (0..motion.len())
@@ -1031,16 +1096,8 @@ pub(super) fn dense_problem(
     sigma: f64,
 ) -> (DVector<f64>, DMatrix<f64>) {
     let map = ColumnMap::new(spec);
-    let frames = pose_frames(state, layout, data, spec);
-    let terms = motion_terms(state, layout, data, spec, &map, true);
-    let blocks: Vec<SuBlock> = (0..spec.sus.len())
-        .map(|i| {
-            let terms = terms.as_deref();
-            su_block(
-                state, layout, data, spec, &map, &frames, terms, i, sigma, true,
-            )
-        })
-        .collect();
+    let inputs = Blocks::new(state, layout, data, spec, &map, sigma, true);
+    let blocks: Vec<SuBlock> = (0..spec.sus.len()).map(|i| inputs.block(i)).collect();
     let rows: usize = blocks.iter().map(|b| b.r.len()).sum();
     let mut r = DVector::zeros(rows);
     let mut jac = DMatrix::zeros(rows, map.slots.len());
