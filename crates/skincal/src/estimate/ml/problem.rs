@@ -508,23 +508,29 @@ impl MotionRows<'_> {
             if let Some(col) = delay_column {
                 // The residual's rate with the delay: minus the rate of what is measured, which
                 // the prediction's own rate stands for (smooth where the samples are noisy).
-                let rate = |a: usize, b: usize| {
-                    (predicted[b] - predicted[a]) / (motion.period() * (b - a) as f64)
-                };
-                let before = (j > 0 && motion.adjacent(j - 1, j)).then(|| j - 1);
-                let after = (j + 1 < self.terms.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
-                let d = match (before, after) {
-                    (Some(a), Some(b)) => rate(a, b),
-                    (Some(a), None) => rate(a, j),
-                    (None, Some(b)) => rate(j, b),
-                    (None, None) => Vector3::zeros(),
-                };
+                let d = self.rate(&predicted, j);
                 shared
                     .fixed_view_mut::<3, 1>(row, col)
                     .copy_from(&(-d * scale));
             }
         }
         (cost, count)
+    }
+
+    /// The rate of `predicted` at sample `j`: a central difference where both neighbouring
+    /// blocks are in its run, one-sided at a run's end, zero for a run of one block.
+    fn rate(&self, predicted: &[Vector3<f64>], j: usize) -> Vector3<f64> {
+        let motion = self.motion;
+        let rate =
+            |a: usize, b: usize| (predicted[b] - predicted[a]) / (motion.period() * (b - a) as f64);
+        let before = (j > 0 && motion.adjacent(j - 1, j)).then(|| j - 1);
+        let after = (j + 1 < predicted.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
+        match (before, after) {
+            (Some(a), Some(b)) => rate(a, b),
+            (Some(a), None) => rate(a, j),
+            (None, Some(b)) => rate(j, b),
+            (None, None) => Vector3::zeros(),
+        }
     }
 }
 
