@@ -1025,6 +1025,10 @@ pub(crate) struct IngestArgs {
     /// driver that publishes those.
     #[arg(long, value_enum, default_value_t = SkinUnit::Ms2)]
     skin_unit: SkinUnit,
+    /// The threshold `explore` will be run with, in g: ingest finds the structure part's tree
+    /// with it where several DoFs were excited together (to tell which moved an SU).
+    #[arg(long, value_name = "G", default_value_t = skincal::explore::ExploreConfig::default().threshold)]
+    explore_threshold: f64,
     /// Print one JSON document (what was written and the result's figures) instead of text.
     #[arg(long)]
     json: bool,
@@ -1071,6 +1075,10 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         max_gap: args.max_gap,
         saturation: args.saturation * STANDARD_GRAVITY,
         skin_scale: args.skin_unit.scale(),
+        explore: skincal::explore::ExploreConfig {
+            threshold: args.explore_threshold,
+            ..Default::default()
+        },
         ..IngestConfig::default()
     };
     if let Some(spec) = &args.robot {

@@ -630,8 +630,8 @@ fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
     out
 }
 
-/// Per SU, which DoFs move it, by the tree that exploration finds in the structure part (default
-/// settings); `None` for an SU it does not place.
+/// Per SU, which DoFs move it, by the tree that exploration finds in the structure part (with the
+/// configuration's settings); `None` for an SU it does not place.
 fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec<bool>>> {
     let nu = passes.sus.names.len();
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
@@ -639,8 +639,7 @@ fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec
         orientations: orientations.to_vec(),
         extra: Map::new(),
     });
-    let Ok(structure) = crate::explore::explore(&set, &crate::explore::ExploreConfig::default())
-    else {
+    let Ok(structure) = crate::explore::explore(&set, &passes.config.explore) else {
         return vec![None; nu];
     };
     let dof = |name: &String| passes.dofs.iter().position(|d| d == name);

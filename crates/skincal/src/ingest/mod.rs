@@ -135,6 +135,9 @@ pub struct IngestConfig {
     pub dofs: Option<Vec<String>>,
     /// The SUs expected (in this order); other frame ids are reported as unknown.
     pub sus: Option<Vec<String>>,
+    /// How the structure part's tree is found where ingest needs it (to tell which DoF of
+    /// several excited together moved an SU): the settings `explore` will be run with.
+    pub explore: crate::explore::ExploreConfig,
 }
 
 impl IngestConfig {
@@ -177,6 +180,7 @@ impl Default for IngestConfig {
             pattern: None,
             dofs: None,
             sus: None,
+            explore: crate::explore::ExploreConfig::default(),
         }
     }
 }
@@ -193,6 +197,7 @@ impl IngestConfig {
             ("max_gap", self.max_gap),
             ("saturation", self.saturation),
             ("skin_scale", self.skin_scale),
+            ("explore.threshold", self.explore.threshold),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(IngestError::InvalidSetting {
