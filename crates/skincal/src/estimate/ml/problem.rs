@@ -969,11 +969,13 @@ pub(super) fn cost_of(
         .iter()
         .map(|(_, _, r)| r.norm_squared())
         .sum();
-    priors
-        + (0..spec.sus.len())
-            .into_par_iter()
-            .map(|i| blocks.block(i).cost)
-            .sum::<f64>()
+    // Summed in SU order: a parallel sum adds in the order its threads happened to split the
+    // work, and a step the fit takes or refuses on a last bit of the cost would vary run to run.
+    let costs: Vec<f64> = (0..spec.sus.len())
+        .into_par_iter()
+        .map(|i| blocks.block(i).cost)
+        .collect();
+    priors + costs.iter().sum::<f64>()
 }
 
 /// The prior rows of every free joint's position on its parent ([`Readings::gauge_prior`], for
