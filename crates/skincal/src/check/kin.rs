@@ -5,7 +5,7 @@ use nalgebra::{Isometry3, Matrix3, SMatrix, Vector3};
 
 use crate::model::intrinsics::Intrinsics;
 use crate::model::Robot;
-use crate::model::{forward_kinematics, segment_motion, BodyMotion};
+use crate::model::{segment_frames, segment_motion, BodyMotion};
 
 /// The parameters of a change of one SU: its shift (3, m) and turn (3, rad), both in its own frame
 /// as the model has it, and the change of its bias (3, m/s²).
@@ -23,21 +23,41 @@ pub struct BlockKinematics {
     pub motion: Vec<BodyMotion<f64>>,
     /// Per DoF: its unit axis and a point on it, reference frame.
     pub axes: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// Per segment: its specific-force field in its own axes.
+    pub fields: Vec<Field>,
 }
+
+/// A segment's specific-force field in its own axes, `(c, Rᵀ, N)`: a point `p` of the segment
+/// (segment frame) reads `c − Rᵀ g + N p` under gravity `g`, where `R` is the segment's turn,
+/// `c = Rᵀ (a₀ + M t)` the acceleration of its origin and `N = Rᵀ M R` its point matrix, both
+/// in its axes (a derivative of a field is a field of the same shape).
+pub type Field = (Vector3<f64>, Matrix3<f64>, Matrix3<f64>);
 
 impl BlockKinematics {
     /// The frames and motions at joint positions `q`, velocities `qd`, accelerations `qdd` (model
     /// DoF order).
     pub fn new(robot: &Robot, q: &[f64], qd: &[f64], qdd: &[f64]) -> Self {
-        let frames = forward_kinematics(&robot.model, &robot.parameters, q);
+        let frames = segment_frames(&robot.model, &robot.parameters, q);
         let motion = segment_motion(&robot.model, &frames, qd, qdd);
         let axes = (0..robot.model.dofs().len())
             .map(|d| (frames.axis(&robot.model, d), frames.axis_point(d)))
+            .collect();
+        let fields = frames
+            .segments
+            .iter()
+            .zip(&motion)
+            .map(|(frame, motion)| {
+                let rt = frame.rotation.to_rotation_matrix().into_inner().transpose();
+                let m = motion.point_matrix();
+                let c = rt * (motion.accel + m * frame.translation.vector);
+                (c, rt, rt * m * rt.transpose())
+            })
             .collect();
         Self {
             segments: frames.segments,
             motion,
             axes,
+            fields,
         }
     }
 }
@@ -55,21 +75,21 @@ pub struct SuPlace {
     pub gravity: Vector3<f64>,
 }
 
-/// The reading `y = K Rᵀ (a(p) − g) + b` of an SU placed as `place` in `block`, and its Jacobian
-/// in the change parameters ([`CHANGE`]): a shift `δx` and turn `δφ` in the SU's frame move it to
-/// `p + R δx`, `R Exp(δφ)`, so `∂y/∂δx = K Rᵀ M R`, `∂y/∂δφ = K [f]×`, `∂y/∂δb = I`.
+/// The reading `y = K Tᵀ (c − Rᵀ g + N p) + b` of an SU placed as `place` (turn `T`, position `p`
+/// on its segment) in `block` (its segment's [`Field`]), and its Jacobian in the change
+/// parameters ([`CHANGE`]): a shift `δx` and turn `δφ` in the SU's frame move it to `p + T δx`,
+/// `T Exp(δφ)`, so `∂y/∂δx = K Tᵀ N T`, `∂y/∂δφ = K [f]×` with `f` the specific force in the
+/// SU's axes, `∂y/∂δb = I`.
 pub fn reading(place: &SuPlace, block: &BlockKinematics) -> (Vector3<f64>, Jacobian) {
-    let frame = block.segments[place.segment] * place.placement;
-    let motion = &block.motion[place.segment];
-    let r = frame.rotation.to_rotation_matrix().into_inner();
-    let p = frame.translation.vector;
-    let m = motion.point_matrix();
-    let f = r.transpose() * (motion.accel + m * p - place.gravity);
+    let (c, rt, n) = &block.fields[place.segment];
+    let turn = place.placement.rotation.to_rotation_matrix().into_inner();
+    let v = c - rt * place.gravity + n * place.placement.translation.vector;
+    let f = turn.tr_mul(&v);
     let k = place.intrinsics.matrix();
     let y = k * f + Vector3::from(place.intrinsics.bias);
     let mut jac = Jacobian::zeros();
     jac.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(k * r.transpose() * m * r));
+        .copy_from(&(k * turn.tr_mul(&(n * turn))));
     jac.fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&(k * f.cross_matrix()));
     jac.fixed_view_mut::<3, 3>(0, 6)
@@ -86,14 +106,14 @@ pub fn lever_variance(
     chain: &[usize],
     qdd_sd: &[f64],
 ) -> f64 {
-    let p = (block.segments[place.segment] * place.placement)
-        .translation
-        .vector;
+    let p = block.segments[place.segment]
+        .transform_point(&place.placement.translation.vector.into())
+        .coords;
     chain
         .iter()
         .map(|&d| {
             let (axis, point) = &block.axes[d];
-            (axis.cross(&(p - point)).norm() * qdd_sd[d]).powi(2)
+            axis.cross(&(p - point)).norm_squared() * qdd_sd[d] * qdd_sd[d]
         })
         .sum::<f64>()
         / 3.0

@@ -41,9 +41,8 @@ impl Tally {
         } else {
             1.0
         } / var;
-        let jt = jac.transpose();
-        self.information += jt * jac * w;
-        self.gradient += jt * r * w;
+        self.information.gemm_tr(w, jac, jac, 1.0);
+        self.gradient.gemv_tr(w, jac, r, 1.0);
         self.chi2 += r.norm_squared() * w;
         self.blocks += 1;
         w

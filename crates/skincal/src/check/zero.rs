@@ -10,10 +10,12 @@
 //! model misses the square of that angle's share — on two head SUs, a few hundred of a χ² of
 //! 10⁶, more than the criterion's price of their eighteen numbers.
 
-use nalgebra::{Matrix3, Vector3};
+use std::ops::AddAssign;
+
+use nalgebra::{Matrix3, Matrix3x2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::kin::{BlockKinematics, Jacobian, SuPlace};
+use super::kin::{BlockKinematics, Field, Jacobian, SuPlace};
 use super::test::{self, Change, Tally};
 use crate::model::Robot;
 
@@ -31,9 +33,6 @@ struct FieldRate {
     second: Field,
 }
 
-/// A segment's `(c₀, Rᵀ, N)`, or a derivative of it.
-type Field = (Vector3<f64>, Matrix3<f64>, Matrix3<f64>);
-
 /// Per DoF, per segment beyond it: the rate of its field (`None` for segments it does not move).
 pub struct Rates(Vec<Vec<Option<FieldRate>>>);
 
@@ -42,11 +41,11 @@ impl Rates {
     /// kinematics there.
     pub fn new(robot: &Robot, block: &BlockKinematics, q: &[f64], qd: &[f64], qdd: &[f64]) -> Self {
         let m = &robot.model;
-        let here = fields(block);
+        let here = &block.fields;
         let at = |d: usize, step: f64| {
             let mut moved = q.to_vec();
             moved[d] += step;
-            fields(&BlockKinematics::new(robot, &moved, qd, qdd))
+            BlockKinematics::new(robot, &moved, qd, qdd).fields
         };
         let rates = (0..m.dofs().len())
             .map(|d| {
@@ -75,34 +74,17 @@ impl Rates {
         Self(rates)
     }
 
-    /// The first and second derivatives of SU `place`'s reading with DoF `d`'s angle; `kr` is
-    /// the SU's `K Rᵀ`.
-    fn of(
-        &self,
-        d: usize,
-        place: &SuPlace,
-        kr: &Matrix3<f64>,
-    ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-        let rate = self.0[d][place.segment]?;
-        let p = place.placement.translation.vector;
+    /// The first and second derivatives of SU `place`'s reading with DoF `d`'s angle, side by
+    /// side; `kr` is the SU's `K Rᵀ`.
+    fn of(&self, d: usize, place: &SuPlace, kr: &Matrix3<f64>) -> Option<Matrix3x2<f64>> {
+        let rate = self.0[d][place.segment].as_ref()?;
+        let p = &place.placement.translation.vector;
         let reading = |f: &Field| kr * (f.0 - f.1 * place.gravity + f.2 * p);
-        Some((reading(&rate.first), reading(&rate.second)))
+        Some(Matrix3x2::from_columns(&[
+            reading(&rate.first),
+            reading(&rate.second),
+        ]))
     }
-}
-
-/// Per segment `(c₀, Rᵀ, N)`.
-fn fields(block: &BlockKinematics) -> Vec<Field> {
-    block
-        .segments
-        .iter()
-        .zip(&block.motion)
-        .map(|(frame, motion)| {
-            let rt = frame.rotation.to_rotation_matrix().into_inner().transpose();
-            let m = motion.point_matrix();
-            let c = rt * (motion.accel + m * frame.translation.vector);
-            (c, rt, rt * m * rt.transpose())
-        })
-        .collect()
 }
 
 /// One SU's sums for one DoF of its chain, whose angle `δ` moves the reading by `jδ + ½kδ²`:
@@ -140,8 +122,8 @@ impl ZeroSums {
     }
 }
 
-/// Adds one block of SU `place` (residual `r`, Jacobian `jac`, weight `w`) to its sums for every
-/// DoF of `chain`.
+/// Adds one block of SU `place` (residual `r`, Jacobian `jac` of [`super::kin::reading`], whose
+/// bias block is the identity, weight `w`) to its sums for every DoF of `chain`.
 pub fn add(
     sums: &mut Vec<ZeroSums>,
     rates: &Rates,
@@ -159,16 +141,21 @@ pub fn add(
     }
     let turn = place.placement.rotation.to_rotation_matrix().into_inner();
     let kr = place.intrinsics.matrix() * turn.transpose();
-    let jt = jac.transpose();
     for s in sums.iter_mut() {
-        if let Some((j, k)) = rates.of(s.dof, place, &kr) {
-            s.information += j.norm_squared() * w;
-            s.gradient += j.dot(r) * w;
-            s.cross += jt * j * w;
-            s.curvature[0] += k.norm_squared() * w;
-            s.curvature[1] += j.dot(&k) * w;
-            s.curvature[2] += k.dot(r) * w;
-            s.cross_curvature += jt * k * w;
+        if let Some(jk) = rates.of(s.dof, place, &kr) {
+            let (j, k) = (jk.column(0), jk.column(1));
+            // `Jᵀ W [j k]`: the bias block of `J` is the identity.
+            let jkw = jk * w;
+            let pose = jac.fixed_columns::<6>(0).tr_mul(&jkw);
+            s.information += j.dot(&jkw.column(0));
+            s.gradient += r.dot(&jkw.column(0));
+            s.curvature[0] += k.dot(&jkw.column(1));
+            s.curvature[1] += j.dot(&jkw.column(1));
+            s.curvature[2] += r.dot(&jkw.column(1));
+            for (sum, c) in [(&mut s.cross, 0), (&mut s.cross_curvature, 1)] {
+                sum.fixed_rows_mut::<6>(0).add_assign(&pose.column(c));
+                sum.fixed_rows_mut::<3>(6).add_assign(&jkw.column(c));
+            }
         }
     }
 }

@@ -48,6 +48,26 @@ pub fn forward_kinematics<T: RealField>(
     parameters: &[T],
     q: &[T],
 ) -> Kinematics<T> {
+    let mut k = segment_frames(model, parameters, q);
+    k.sus = model
+        .sus()
+        .iter()
+        .map(|su| k.segments[su.segment].clone() * su.placement.transform(parameters))
+        .collect();
+    k
+}
+
+/// The frames of every joint and segment at pose `q`, as [`forward_kinematics`], with no SU
+/// frames (`sus` is empty): for callers that place the SUs on the segments themselves, where the
+/// SU frames would cost more than the chain (a thousand SUs on seven segments).
+///
+/// # Panics
+/// As [`forward_kinematics`].
+pub fn segment_frames<T: RealField>(
+    model: &RobotModel,
+    parameters: &[T],
+    q: &[T],
+) -> Kinematics<T> {
     assert_eq!(
         parameters.len(),
         model.parameter_count(),
@@ -65,15 +85,10 @@ pub fn forward_kinematics<T: RealField>(
         segments[s] = joint.clone() * rotation_about(&dof.axis, q[d].clone());
         joints[d] = joint;
     }
-    let sus = model
-        .sus()
-        .iter()
-        .map(|su| segments[su.segment].clone() * su.placement.transform(parameters))
-        .collect();
     Kinematics {
         joints,
         segments,
-        sus,
+        sus: Vec::new(),
     }
 }
 

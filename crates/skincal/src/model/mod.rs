@@ -32,7 +32,9 @@ pub mod transform;
 pub mod urdf;
 
 pub use builder::{DofSpec, PlacementSpec, RobotBuilder, SuSpec};
-pub use kinematics::{forward_kinematics, segment_motion, specific_force, BodyMotion, Kinematics};
+pub use kinematics::{
+    forward_kinematics, segment_frames, segment_motion, specific_force, BodyMotion, Kinematics,
+};
 
 use nalgebra::{Isometry3, RealField, Unit, Vector3};
 use serde::{Deserialize, Serialize};
