@@ -107,6 +107,8 @@ struct Row {
     named: usize,
     /// Of those, moves called a bias change on an SU whose tilt a bias mimics.
     mimicked: usize,
+    /// Zeros the report said no motion tells (not named, and no miss).
+    never_told: usize,
     alarms: usize,
     checks: usize,
     seconds: f64,
@@ -117,6 +119,7 @@ impl Row {
     fn plus(mut self, other: Row) -> Row {
         self.named += other.named;
         self.mimicked += other.mimicked;
+        self.never_told += other.never_told;
         self.alarms += other.alarms;
         self.checks += other.checks;
         self.seconds += other.seconds;
@@ -186,7 +189,10 @@ fn trial_of(
         });
     row.named += usize::from(named);
     row.mimicked += usize::from(named && mimicked);
-    if !named {
+    let never_told = matches!(&change, Some(SkinChange::Zero { dof, .. })
+        if !named && report.zeros_never_told.contains(dof));
+    row.never_told += usize::from(never_told);
+    if !named && !never_told {
         let found: Vec<String> = target
             .iter()
             .filter_map(|(su, _)| report.sus.iter().find(|s| &s.su == su))
@@ -230,6 +236,13 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
             r.mimicked
         );
     }
+    for (kind, r) in rows.iter().filter(|r| r.1.never_told > 0) {
+        outln!(
+            "{kind}: {} trials moved a zero the report said no motion tells (rate of the others {:.1}%)",
+            r.never_told,
+            100.0 * r.named as f64 / (args.trials - r.never_told).max(1) as f64
+        );
+    }
     for (kind, r) in rows {
         for miss in &r.misses {
             outln!("missed ({kind}): {miss}");
@@ -252,7 +265,7 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
         .iter()
         .map(|(kind, r)| {
             serde_json::json!({
-                "change": kind, "trials": args.trials, "named": r.named, "named_as_bias": r.mimicked,
+                "change": kind, "trials": args.trials, "named": r.named, "named_as_bias": r.mimicked, "never_told": r.never_told,
                 "false_alarms": r.alarms, "checks": r.checks,
                 "check_seconds": r.seconds / args.trials as f64, "missed": r.misses,
             })

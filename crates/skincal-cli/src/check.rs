@@ -331,6 +331,19 @@ fn table(report: &CheckReport) -> String {
             zero.sus.join(", ")
         );
     }
+    if !report.zeros_untold.is_empty() {
+        s += &format!(
+            "\nthe zeros of {} are not told by this log (a {:.1}° change would not be seen): a minute of their own motion would tell them\n",
+            report.zeros_untold.join(", "),
+            report.config.detect_orientation.to_degrees()
+        );
+    }
+    if !report.zeros_never_told.is_empty() {
+        s += &format!(
+            "\nthe zeros of {} are told by no motion: each turns what it carries about gravity on the still reference segment, so no reading depends on it\n",
+            report.zeros_never_told.join(", ")
+        );
+    }
     let todo: Vec<&SuCheck> = report.sus.iter().filter(|s| !s.advice.is_empty()).collect();
     if !todo.is_empty() || report.zero.is_some() {
         s += "\nwhat to do:\n";

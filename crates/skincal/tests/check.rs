@@ -519,3 +519,19 @@ fn a_dof_whose_zero_moved_is_named_and_set_again_or_offered_beside_its_lone_sus_
     assert!((zero.offset.to_degrees() + 2.0).abs() < 0.1);
     assert!(moved[0].advice.contains("home dof7 again"));
 }
+
+/// The arm's first axis is vertical on its still base: a zero moved there turns the whole arm
+/// about gravity, and no SU's reading changes. The check says no motion tells that zero, and
+/// raises no alarm; every other zero an ordinary minute tells.
+#[test]
+fn a_zero_no_motion_tells_is_said_so_and_raises_no_alarm() {
+    let change = SkinChange::Zero {
+        dof: "dof1".into(),
+        offset: 2f64.to_radians(),
+    };
+    let (report, _) = checked(Some(&change), 47);
+    assert!(report.zero.is_none(), "{:?}", report.zero);
+    others_quiet(&report, &[]);
+    assert_eq!(report.zeros_never_told, vec!["dof1".to_string()]);
+    assert!(report.zeros_untold.is_empty(), "{:?}", report.zeros_untold);
+}

@@ -229,6 +229,15 @@ pub struct CheckReport {
     /// A DoF whose zero moved (its encoder homed anew), every SU beyond it telling the same angle.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub zero: Option<ZeroChange>,
+    /// DoFs whose zero this log does not tell to within the turn the check promised to see
+    /// (`detect_orientation`), though a minute of their own motion would: move them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub zeros_untold: Vec<String>,
+    /// DoFs whose zero no motion tells: a vertical axis on the still reference segment turns
+    /// what it carries about gravity, and no reading changes (a zero moved there is never seen
+    /// and changes no prediction).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub zeros_never_told: Vec<String>,
     /// The smallest changes the check promised to see and its false-alarm rate.
     pub config: CheckConfig,
     /// Remarks about the log as a whole.
@@ -564,6 +573,7 @@ impl SkinCheck {
                 t.blocks > 0 && t.residual_ratio(&test::Change::zeros()) < 10.0 * self.config.misfit
             })
             .collect();
+        let (zeros_untold, zeros_never_told) = self.untold_zeros(&usable, typical.noise);
         let zero = zero::moved_zero(
             &skin.robot,
             &mut tallies,
@@ -595,9 +605,36 @@ impl SkinCheck {
             seconds: self.blocks as f64 * self.period,
             sus,
             zero,
+            zeros_untold,
+            zeros_never_told,
             config: self.config,
             notes: Vec::new(),
         }
+    }
+
+    /// The DoFs whose zero this log does not tell to
+    /// within `detect_orientation` from the SUs `usable`, and of those the ones no motion tells
+    /// (judged at block noise `noise`).
+    fn untold_zeros(&self, usable: &[bool], noise: f64) -> (Vec<String>, Vec<String>) {
+        let m = &self.skin.robot.model;
+        let n = m.dofs().len();
+        let lambda = non_centrality(self.config.false_alarm / n as f64, self.config.power, 1);
+        let angle = self.config.detect_orientation;
+        let info = zero::information(&self.zero, usable, n);
+        let (mut untold, mut never) = (Vec::new(), Vec::new());
+        for d in (0..n).filter(|&d| info[d] * angle * angle < lambda) {
+            let name = m.dofs()[d].name.clone();
+            if self
+                .skin
+                .reach
+                .zero_tellable(d, angle, noise.max(1e-6), lambda)
+            {
+                untold.push(name);
+            } else {
+                never.push(name);
+            }
+        }
+        (untold, never)
     }
 
     /// Model SU `u`'s count in `samples` (record SU order).

@@ -10,6 +10,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::kin::{self, BlockKinematics, SuPlace, CHANGE};
 use super::test::{Change, ChangeMatrix};
+use super::zero::Rates;
 use crate::model::Robot;
 
 /// Synthetic blocks of rich motion.
@@ -30,6 +31,10 @@ pub struct Reach {
     pub rich: Vec<ChangeMatrix>,
     /// Per SU: `(DoF, information)`.
     pub by_dof: Vec<Vec<(usize, ChangeMatrix)>>,
+    /// Per DoF: the information on its zero per block of rich motion, every SU it carries at
+    /// unit noise, rad⁻² (none: no motion tells it — a vertical axis on the still reference
+    /// segment turns what it carries about gravity, and no reading changes).
+    pub zero: Vec<f64>,
 }
 
 impl Reach {
@@ -39,9 +44,16 @@ impl Reach {
         let n = robot.model.dofs().len();
         let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
         let mut rich = vec![ChangeMatrix::zeros(); places.len()];
+        let mut zero = vec![0.0; n];
         for _ in 0..RICH_BLOCKS {
-            let block = random_block(robot, &mut rng, &|_| true);
+            let (q, block) = random_block(robot, &mut rng, &|_| true);
             add_information(&mut rich, places, &block, &d);
+            let rates = Rates::new(robot, &block, &q[0], &q[1], &q[2]);
+            for (place, chain) in places.iter().map(|p| (p, &chains[p.segment])) {
+                for &dof in chain {
+                    zero[dof] += rates.first(dof, place).norm_squared() / RICH_BLOCKS as f64;
+                }
+            }
         }
         let mut by_dof: Vec<Vec<(usize, ChangeMatrix)>> = vec![Vec::new(); places.len()];
         for dof in 0..n {
@@ -53,7 +65,7 @@ impl Reach {
             }
             let mut info = vec![ChangeMatrix::zeros(); places.len()];
             for _ in 0..DOF_BLOCKS {
-                let block = random_block(robot, &mut rng, &|k| k == dof);
+                let (_, block) = random_block(robot, &mut rng, &|k| k == dof);
                 add_information(&mut info, places, &block, &d);
             }
             for u in carried {
@@ -63,7 +75,13 @@ impl Reach {
         for info in &mut rich {
             *info /= RICH_BLOCKS as f64;
         }
-        Self { rich, by_dof }
+        Self { rich, by_dof, zero }
+    }
+
+    /// Whether a minute of rich motion tells DoF `dof`'s zero to within `angle` (rad) at block
+    /// noise `noise` with non-centrality `lambda`.
+    pub fn zero_tellable(&self, dof: usize, angle: f64, noise: f64, lambda: f64) -> bool {
+        self.zero[dof] * MINUTE / (noise * noise) * angle * angle >= lambda
     }
 
     /// The projector onto the change directions (scaled units) of SU `u` that a minute of rich
@@ -82,12 +100,13 @@ impl Reach {
 }
 
 /// One block at a random pose within the limits, the DoFs `moving` turning and accelerating at
-/// random, the others still.
+/// random, the others still: its joint positions, velocities and accelerations, and its
+/// kinematics.
 fn random_block(
     robot: &Robot,
     rng: &mut ChaCha8Rng,
     moving: &dyn Fn(usize) -> bool,
-) -> BlockKinematics {
+) -> ([Vec<f64>; 3], BlockKinematics) {
     let dofs = robot.model.dofs();
     let q: Vec<f64> = dofs
         .iter()
@@ -109,7 +128,8 @@ fn random_block(
     };
     let qd: Vec<f64> = (0..dofs.len()).map(|k| signed(RATE, k)).collect();
     let qdd: Vec<f64> = (0..dofs.len()).map(|k| signed(ACCELERATION, k)).collect();
-    BlockKinematics::new(robot, &q, &qd, &qdd)
+    let block = BlockKinematics::new(robot, &q, &qd, &qdd);
+    ([q, qd, qdd], block)
 }
 
 fn add_information(

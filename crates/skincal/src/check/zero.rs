@@ -74,6 +74,15 @@ impl Rates {
         Self(rates)
     }
 
+    /// The first derivative of SU `place`'s reading with DoF `d`'s angle (zero where `d` does
+    /// not move it).
+    pub fn first(&self, d: usize, place: &SuPlace) -> Vector3<f64> {
+        let turn = place.placement.rotation.to_rotation_matrix().into_inner();
+        let kr = place.intrinsics.matrix() * turn.transpose();
+        self.of(d, place, &kr)
+            .map_or(Vector3::zeros(), |jk| jk.column(0).into_owned())
+    }
+
     /// The first and second derivatives of SU `place`'s reading with DoF `d`'s angle, side by
     /// side; `kr` is the SU's `K Rᵀ`.
     fn of(&self, d: usize, place: &SuPlace, kr: &Matrix3<f64>) -> Option<Matrix3x2<f64>> {
@@ -236,6 +245,17 @@ pub fn alike(
         offset_sd: sd,
         sus: vec![robot.model.su_names()[u].clone()],
     })
+}
+
+/// Per DoF, the information on its zero `Σ jᵀWj` of the SUs `usable`, rad⁻².
+pub fn information(zero: &[Vec<ZeroSums>], usable: &[bool], dofs: usize) -> Vec<f64> {
+    let mut info = vec![0.0; dofs];
+    for sums in zero.iter().zip(usable).filter(|(_, &u)| u).map(|(s, _)| s) {
+        for s in sums {
+            info[s.dof] += s.information;
+        }
+    }
+    info
 }
 
 /// DoF `d`: `(d, χ² it explains, angle, its deviation)` when at least `least` SUs tell it, its
