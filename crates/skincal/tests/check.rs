@@ -535,3 +535,48 @@ fn a_zero_no_motion_tells_is_said_so_and_raises_no_alarm() {
     assert_eq!(report.zeros_never_told, vec!["dof1".to_string()]);
     assert!(report.zeros_untold.is_empty(), "{:?}", report.zeros_untold);
 }
+
+/// The humanoid's hand SU is the only one past a wrist's yaw and pitch: a zero of the yaw turns
+/// the pitch's axis under it, which no small change of its own place reads as. Its readings
+/// name the zero (or, where its move reads as well, offer it beside the move), with the angle,
+/// and nothing else is called changed.
+#[test]
+fn a_zero_one_su_alone_tells_past_another_dof_is_named_by_it() {
+    let robot = skincal::model::presets::find("humanoid")
+        .unwrap()
+        .robot()
+        .unwrap();
+    let model = calibrated(&robot);
+    for (offset, seed) in [(2f64, 61), (-2f64, 62)] {
+        let change = SkinChange::Zero {
+            dof: "r_wrist_yaw".into(),
+            offset: offset.to_radians(),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let changed = change.robot(&robot).unwrap();
+        let record = ordinary_motion(&changed, &model, Some(&change), 60.0, seed, dir.path());
+        let report = check_skin(&model, &record, &CheckConfig::default()).unwrap();
+        let hand = report.sus.iter().find(|s| s.su == "r_hand_back").unwrap();
+        let zero = report
+            .zero
+            .as_ref()
+            .or(hand.or_zero.as_ref())
+            .unwrap_or_else(|| panic!("the zero is named: {hand:?}"));
+        eprintln!(
+            "zero of {}: {:.3}° ± {:.3}°, told by {:?}; the hand's SU {}",
+            zero.dof,
+            zero.offset.to_degrees(),
+            zero.offset_sd.to_degrees(),
+            zero.sus,
+            hand.verdict.word()
+        );
+        assert_eq!(zero.dof, "r_wrist_yaw");
+        assert!((zero.offset.to_degrees() - offset).abs() < 0.2);
+        let changed: &[&str] = if report.zero.is_some() {
+            &[]
+        } else {
+            &["r_hand_back"]
+        };
+        others_quiet(&report, changed);
+    }
+}

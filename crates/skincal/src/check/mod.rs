@@ -574,21 +574,24 @@ impl SkinCheck {
             })
             .collect();
         let (zeros_untold, zeros_never_told) = self.untold_zeros(&usable, typical.noise);
-        let zero = zero::moved_zero(
+        let mut zero = zero::moved_zero(
             &skin.robot,
             &mut tallies,
             &self.zero,
             &usable,
             self.config.false_alarm,
         );
-        let sus = (0..names.len())
+        let judged = |u: usize, tally: &Tally| {
+            let tellable = skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
+            let t = test::change_test(tally, &skin.scale, &skin.prior[u], lambda, &tellable);
+            let count = self.skin_count(samples, u);
+            let mut check = self.verdict(&names[u], u, tally, &t, &typical, count);
+            check.never_told = never_told(&tellable);
+            check
+        };
+        let mut sus: Vec<SuCheck> = (0..names.len())
             .map(|u| {
-                let tally = &tallies[u];
-                let tellable = skin.reach.tellable(u, self.noise[u].max(1e-6), lambda);
-                let t = test::change_test(tally, &skin.scale, &skin.prior[u], lambda, &tellable);
-                let count = self.skin_count(samples, u);
-                let mut check = self.verdict(&names[u], u, tally, &t, &typical, count);
-                check.never_told = never_told(&tellable);
+                let mut check = judged(u, &tallies[u]);
                 if check.verdict == Verdict::Moved && zero.is_none() {
                     check.or_zero = zero::alike(
                         &skin.robot,
@@ -601,6 +604,9 @@ impl SkinCheck {
                 check
             })
             .collect();
+        if zero.is_none() {
+            zero = self.lone_zero(&mut sus, &tallies, &judged);
+        }
         CheckReport {
             seconds: self.blocks as f64 * self.period,
             sus,
@@ -610,6 +616,40 @@ impl SkinCheck {
             config: self.config,
             notes: Vec::new(),
         }
+    }
+
+    /// A zero one SU alone tells because no small change of its own explains its readings (a
+    /// DoF that moves it alone, with another DoF between them: the hand's SU past a wrist's yaw
+    /// and pitch), where that zero does: the zero, and the SU judged again with it taken out.
+    fn lone_zero(
+        &self,
+        sus: &mut [SuCheck],
+        tallies: &[Tally],
+        judged: &dyn Fn(usize, &Tally) -> SuCheck,
+    ) -> Option<ZeroChange> {
+        let robot = &self.skin.robot;
+        let erratic = |c: &SuCheck| {
+            c.verdict
+                == Verdict::Broken {
+                    how: "erratic".into(),
+                }
+        };
+        let (u, found, check) = (0..sus.len())
+            .filter(|&u| erratic(&sus[u]))
+            .filter_map(|u| {
+                let z = zero::alike(robot, tallies, &self.zero, u, self.config.false_alarm)?;
+                let mut tally = tallies[u].clone();
+                zero::take_out(
+                    &mut tally,
+                    zero::sums_of(&self.zero, u, &z.dof, robot)?,
+                    z.offset,
+                );
+                let check = judged(u, &tally);
+                (!erratic(&check)).then_some((u, z, check))
+            })
+            .min_by(|a, b| a.2.residual_ratio.total_cmp(&b.2.residual_ratio))?;
+        sus[u] = check;
+        Some(found)
     }
 
     /// The DoFs whose zero this log does not tell to

@@ -203,9 +203,7 @@ pub fn moved_zero(
         let Some(s) = sums.iter().find(|s| s.dof == d).filter(|_| usable[u]) else {
             continue;
         };
-        let t = &mut tallies[u];
-        t.chi2 -= s.explained(offset);
-        t.gradient -= s.gradient_taken(offset);
+        take_out(&mut tallies[u], s, offset);
         sus.push(names[u].clone());
     }
     Some(ZeroChange {
@@ -214,6 +212,23 @@ pub fn moved_zero(
         offset_sd: sd,
         sus,
     })
+}
+
+/// Takes a zero's angle `offset` out of an SU's `tally` through its sums `s` for that DoF.
+pub fn take_out(tally: &mut Tally, s: &ZeroSums, offset: f64) {
+    tally.chi2 -= s.explained(offset);
+    tally.gradient -= s.gradient_taken(offset);
+}
+
+/// SU `u`'s sums for DoF `dof`.
+pub fn sums_of<'a>(
+    zero: &'a [Vec<ZeroSums>],
+    u: usize,
+    dof: &str,
+    robot: &Robot,
+) -> Option<&'a ZeroSums> {
+    let d = robot.model.dofs().iter().position(|x| x.name == dof)?;
+    zero[u].iter().find(|s| s.dof == d)
 }
 
 /// The zero that reads exactly as SU `u`'s move: a DoF that moves no other SU the log saw, whose
