@@ -553,6 +553,10 @@ class CheckReport:
     notes: List[str]
     zero: Optional[dict] = None
     """A DoF whose zero moved: ``dof``, ``offset`` and ``offset_sd`` (rad), ``sus``."""
+    zeros_untold: List[str] = field(default_factory=list)
+    """DoFs whose zero this log does not tell (a minute of their own motion would)."""
+    zeros_never_told: List[str] = field(default_factory=list)
+    """DoFs whose zero no motion tells (a vertical axis on the still reference segment)."""
 
     def changed(self) -> List[SuCheck]:
         """The SUs that do not read what the model predicts."""
@@ -582,7 +586,12 @@ def _check_report(text: str) -> CheckReport:
             )
         )
     return CheckReport(
-        seconds=data["seconds"], sus=sus, notes=data.get("notes", []), zero=data.get("zero")
+        seconds=data["seconds"],
+        sus=sus,
+        notes=data.get("notes", []),
+        zero=data.get("zero"),
+        zeros_untold=data.get("zeros_untold", []),
+        zeros_never_told=data.get("zeros_never_told", []),
     )
 
 
