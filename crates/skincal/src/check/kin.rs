@@ -81,11 +81,19 @@ pub struct SuPlace {
 /// `T Exp(δφ)`, so `∂y/∂δx = K Tᵀ N T`, `∂y/∂δφ = K [f]×` with `f` the specific force in the
 /// SU's axes, `∂y/∂δb = I`.
 pub fn reading(place: &SuPlace, block: &BlockKinematics) -> (Vector3<f64>, Jacobian) {
+    reading_with(place, &place.sensor(), block)
+}
+
+/// [`reading`] with the SU's [`Sensor`] matrices already made.
+pub fn reading_with(
+    place: &SuPlace,
+    sensor: &Sensor,
+    block: &BlockKinematics,
+) -> (Vector3<f64>, Jacobian) {
     let (c, rt, n) = &block.fields[place.segment];
-    let turn = place.placement.rotation.to_rotation_matrix().into_inner();
+    let Sensor { turn, k, .. } = sensor;
     let v = c - rt * place.gravity + n * place.placement.translation.vector;
     let f = turn.tr_mul(&v);
-    let k = place.intrinsics.matrix();
     let y = k * f + Vector3::from(place.intrinsics.bias);
     let mut jac = Jacobian::zeros();
     jac.fixed_view_mut::<3, 3>(0, 0)
@@ -117,6 +125,31 @@ pub fn lever_variance(
         })
         .sum::<f64>()
         / 3.0
+}
+
+/// The matrices an SU reads through: its turn `T` on its segment, its intrinsics `K` and `K Tᵀ`
+/// (which maps its segment's field onto its reading).
+#[derive(Debug, Clone, Copy)]
+pub struct Sensor {
+    /// `T`.
+    pub turn: Matrix3<f64>,
+    /// `K`.
+    pub k: Matrix3<f64>,
+    /// `K Tᵀ`.
+    pub kt: Matrix3<f64>,
+}
+
+impl SuPlace {
+    /// The matrices it reads through.
+    pub fn sensor(&self) -> Sensor {
+        let turn = self.placement.rotation.to_rotation_matrix().into_inner();
+        let k = self.intrinsics.matrix();
+        Sensor {
+            turn,
+            k,
+            kt: k * turn.transpose(),
+        }
+    }
 }
 
 /// `place` moved by the change `delta` ([`CHANGE`] numbers).

@@ -273,6 +273,8 @@ pub enum CheckError {
 pub struct Skin {
     robot: Robot,
     places: Vec<SuPlace>,
+    /// Per SU: the matrices it reads through at its place.
+    sensors: Vec<kin::Sensor>,
     /// Per segment: the DoFs between it and the reference.
     chains: Vec<Vec<usize>>,
     /// Per SU: the variance of the model's own error of each change component.
@@ -336,6 +338,7 @@ impl Skin {
         let reach = reach::Reach::new(&robot, &places, &chains, &scale);
         Ok(Self {
             robot,
+            sensors: places.iter().map(SuPlace::sensor).collect(),
             places,
             chains,
             prior,
@@ -474,8 +477,20 @@ pub fn su_term(
     place: &SuPlace,
     noise_sd: f64,
 ) -> Option<(Vector3<f64>, kin::Jacobian, f64)> {
+    su_term_with(skin, block, u, place, &place.sensor(), noise_sd)
+}
+
+/// [`su_term`] with the place's [`kin::Sensor`] already made.
+fn su_term_with(
+    skin: &Skin,
+    block: &Block,
+    u: usize,
+    place: &SuPlace,
+    sensor: &kin::Sensor,
+    noise_sd: f64,
+) -> Option<(Vector3<f64>, kin::Jacobian, f64)> {
     let y = block.readings[u]?;
-    let (predicted, jac) = kin::reading(place, &block.kinematics);
+    let (predicted, jac) = kin::reading_with(place, sensor, &block.kinematics);
     let lever = kin::lever_variance(
         place,
         &block.kinematics,
@@ -543,11 +558,22 @@ impl SkinCheck {
                     quiet.0 + 1
                 };
                 quiet.1 = quiet.1.max(quiet.0);
-                if let Some((r, jac, var)) = su_term(&self.skin, &block, u, place, self.noise[u]) {
+                let sensor = &self.skin.sensors[u];
+                let term = su_term_with(&self.skin, &block, u, place, sensor, self.noise[u]);
+                if let Some((r, jac, var)) = term {
                     let w = tally.add(&r, &jac, var, self.config.huber);
                     tally.norm_sum += block.readings[u].map_or(0.0, |y| y.norm());
                     let chain = &self.skin.chains[place.segment];
-                    zero::add(&mut self.zero[u], &rates, chain, place, &r, &jac, w);
+                    zero::add(
+                        &mut self.zero[u],
+                        &rates,
+                        chain,
+                        place,
+                        &sensor.kt,
+                        &r,
+                        &jac,
+                        w,
+                    );
                 }
             }
         }

@@ -77,18 +77,16 @@ impl Rates {
     /// The first derivative of SU `place`'s reading with DoF `d`'s angle (zero where `d` does
     /// not move it).
     pub fn first(&self, d: usize, place: &SuPlace) -> Vector3<f64> {
-        let turn = place.placement.rotation.to_rotation_matrix().into_inner();
-        let kr = place.intrinsics.matrix() * turn.transpose();
-        self.of(d, place, &kr)
+        self.of(d, place, &place.sensor().kt)
             .map_or(Vector3::zeros(), |jk| jk.column(0).into_owned())
     }
 
     /// The first and second derivatives of SU `place`'s reading with DoF `d`'s angle, side by
-    /// side; `kr` is the SU's `K Rᵀ`.
-    fn of(&self, d: usize, place: &SuPlace, kr: &Matrix3<f64>) -> Option<Matrix3x2<f64>> {
+    /// side; `kt` is the SU's `K Tᵀ`.
+    fn of(&self, d: usize, place: &SuPlace, kt: &Matrix3<f64>) -> Option<Matrix3x2<f64>> {
         let rate = self.0[d][place.segment].as_ref()?;
         let p = &place.placement.translation.vector;
-        let reading = |f: &Field| kr * (f.0 - f.1 * place.gravity + f.2 * p);
+        let reading = |f: &Field| kt * (f.0 - f.1 * place.gravity + f.2 * p);
         Some(Matrix3x2::from_columns(&[
             reading(&rate.first),
             reading(&rate.second),
@@ -131,13 +129,16 @@ impl ZeroSums {
     }
 }
 
-/// Adds one block of SU `place` (residual `r`, Jacobian `jac` of [`super::kin::reading`], whose
-/// bias block is the identity, weight `w`) to its sums for every DoF of `chain`.
+/// Adds one block of SU `place` (its `K Tᵀ` `kt`, residual `r`, Jacobian `jac` of
+/// [`super::kin::reading`], whose bias block is the identity, weight `w`) to its sums for every
+/// DoF of `chain`.
+#[allow(clippy::too_many_arguments)]
 pub fn add(
     sums: &mut Vec<ZeroSums>,
     rates: &Rates,
     chain: &[usize],
     place: &SuPlace,
+    kt: &Matrix3<f64>,
     r: &Vector3<f64>,
     jac: &Jacobian,
     w: f64,
@@ -148,10 +149,8 @@ pub fn add(
             ..ZeroSums::default()
         }));
     }
-    let turn = place.placement.rotation.to_rotation_matrix().into_inner();
-    let kr = place.intrinsics.matrix() * turn.transpose();
     for s in sums.iter_mut() {
-        if let Some(jk) = rates.of(s.dof, place, &kr) {
+        if let Some(jk) = rates.of(s.dof, place, kt) {
             let (j, k) = (jk.column(0), jk.column(1));
             // `Jᵀ W [j k]`: the bias block of `J` is the identity.
             let jkw = jk * w;

@@ -48,8 +48,9 @@ impl Intrinsics {
     /// `K = diag(1 + s)·(I + L(m))`.
     pub fn matrix(&self) -> Matrix3<f64> {
         let [m0, m1, m2] = self.misalignment;
-        let l = Matrix3::new(1.0, 0.0, 0.0, m0, 1.0, 0.0, m1, m2, 1.0);
-        Matrix3::from_diagonal(&(Vector3::from(self.scale).add_scalar(1.0))) * l
+        let [s0, s1, s2] = self.scale.map(|s| 1.0 + s);
+        // The rows of the lower-triangular `I + L` scaled.
+        Matrix3::new(s0, 0.0, 0.0, s1 * m0, s1, 0.0, s2 * m1, s2 * m2, s2)
     }
 
     /// The static reading of specific force `f`: `K·f + b`.
