@@ -77,6 +77,19 @@ fn calibrated(robot: &Robot) -> BodyModel {
     .unwrap()
 }
 
+/// The humanoid calibrated by its continuous program, once for every test.
+fn humanoid() -> &'static (Robot, BodyModel) {
+    static ONCE: OnceLock<(Robot, BodyModel)> = OnceLock::new();
+    ONCE.get_or_init(|| {
+        let robot = skincal::model::presets::find("humanoid")
+            .unwrap()
+            .robot()
+            .unwrap();
+        let model = calibrated(&robot);
+        (robot, model)
+    })
+}
+
 fn paper_arm() -> &'static (Robot, BodyModel) {
     static ARM: OnceLock<(Robot, BodyModel)> = OnceLock::new();
     ARM.get_or_init(|| {
@@ -542,20 +555,16 @@ fn a_zero_no_motion_tells_is_said_so_and_raises_no_alarm() {
 /// and nothing else is called changed.
 #[test]
 fn a_zero_one_su_alone_tells_past_another_dof_is_named_by_it() {
-    let robot = skincal::model::presets::find("humanoid")
-        .unwrap()
-        .robot()
-        .unwrap();
-    let model = calibrated(&robot);
+    let (robot, model) = humanoid();
     for (offset, seed) in [(2f64, 61), (-2f64, 62)] {
         let change = SkinChange::Zero {
             dof: "r_wrist_yaw".into(),
             offset: offset.to_radians(),
         };
         let dir = tempfile::tempdir().unwrap();
-        let changed = change.robot(&robot).unwrap();
-        let record = ordinary_motion(&changed, &model, Some(&change), 60.0, seed, dir.path());
-        let report = check_skin(&model, &record, &CheckConfig::default()).unwrap();
+        let changed = change.robot(robot).unwrap();
+        let record = ordinary_motion(&changed, model, Some(&change), 60.0, seed, dir.path());
+        let report = check_skin(model, &record, &CheckConfig::default()).unwrap();
         let hand = report.sus.iter().find(|s| s.su == "r_hand_back").unwrap();
         let zero = report
             .zero
@@ -579,4 +588,33 @@ fn a_zero_one_su_alone_tells_past_another_dof_is_named_by_it() {
         };
         others_quiet(&report, changed);
     }
+}
+
+/// Two SUs on the humanoid's still torso sit turned alike and read the same gravity: a hand SU
+/// plugged into one's port reads as either's place. The one whose port it took reads as the
+/// hand's place, so the two are named swapped with each other, not with the look-alike.
+#[test]
+fn a_swap_with_an_su_that_has_a_look_alike_names_the_true_partner() {
+    let (robot, model) = humanoid();
+    let change = SkinChange::Swap {
+        a: "torso_chest".into(),
+        b: "l_hand_back".into(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let changed = change.robot(robot).unwrap();
+    let record = ordinary_motion(&changed, model, Some(&change), 60.0, 63, dir.path());
+    let report = check_skin(model, &record, &CheckConfig::default()).unwrap();
+    assert_eq!(
+        verdict(&report, "torso_chest"),
+        &Verdict::Swapped {
+            with: "l_hand_back".into()
+        }
+    );
+    assert_eq!(
+        verdict(&report, "l_hand_back"),
+        &Verdict::Swapped {
+            with: "torso_chest".into()
+        }
+    );
+    others_quiet(&report, &["torso_chest", "l_hand_back"]);
 }

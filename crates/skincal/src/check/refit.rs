@@ -220,28 +220,35 @@ pub fn explain(check: &SkinCheck, record: &MotionRecord, report: &mut CheckRepor
     let huber = check.config.huber;
     let misfit = check.config.misfit;
     let names = skin.robot.model.su_names();
-    let reads_as: Vec<Option<usize>> = erratic
+    // Per erratic SU, the other SUs' places it reads as, best first.
+    let candidates: Vec<Vec<usize>> = erratic
         .iter()
         .map(|&u| {
-            (0..names.len())
+            let mut fits: Vec<(usize, f64)> = (0..names.len())
                 .filter(|&v| v != u)
                 .map(|v| {
                     let t = cache.tally(skin, u, &skin.places[v], check.noise[u], huber);
                     (v, t.residual_ratio(&Change::zeros()))
                 })
                 .filter(|&(_, ratio)| ratio < misfit)
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .map(|(v, _)| v)
+                .collect();
+            fits.sort_by(|a, b| a.1.total_cmp(&b.1));
+            fits.into_iter().map(|(v, _)| v).collect()
         })
         .collect();
+    let reads = |w: usize, v: usize| {
+        erratic
+            .iter()
+            .position(|&x| x == w)
+            .is_some_and(|j| candidates[j].contains(&v))
+    };
     for (i, &u) in erratic.iter().enumerate() {
-        if let Some(v) = reads_as[i] {
-            let back = erratic
-                .iter()
-                .position(|&w| w == v)
-                .is_some_and(|j| reads_as[j] == Some(u));
+        // A partner that reads as this one's place is a swap, ahead of a better fit that does
+        // not: two SUs that read alike (on one still segment, turned alike) fit equally well.
+        let partner = candidates[i].iter().copied().find(|&v| reads(v, u));
+        if let Some(v) = partner.or(candidates[i].first().copied()) {
             report.sus[u].untold.clear();
-            report.sus[u].verdict = if back {
+            report.sus[u].verdict = if partner.is_some() {
                 Verdict::Swapped {
                     with: names[v].clone(),
                 }
