@@ -333,7 +333,7 @@ fn table(report: &CheckReport) -> String {
     }
     if !report.zeros_untold.is_empty() {
         s += &format!(
-            "\nthe zeros of {} are not told by this log (a {:.1}° change would not be seen): a minute of their own motion would tell them\n",
+            "\nthe zeros of {} are not told by this log (a {:.1}° change would not be seen): too little of their motion, or no SU beyond them that the model still explains\n",
             report.zeros_untold.join(", "),
             report.config.detect_orientation.to_degrees()
         );

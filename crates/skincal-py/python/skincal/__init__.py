@@ -554,7 +554,8 @@ class CheckReport:
     zero: Optional[dict] = None
     """A DoF whose zero moved: ``dof``, ``offset`` and ``offset_sd`` (rad), ``sus``."""
     zeros_untold: List[str] = field(default_factory=list)
-    """DoFs whose zero this log does not tell (a minute of their own motion would)."""
+    """DoFs whose zero this log does not tell (too little of their motion, or no SU beyond them
+    that the model still explains)."""
     zeros_never_told: List[str] = field(default_factory=list)
     """DoFs whose zero no motion tells (a vertical axis on the still reference segment)."""
 

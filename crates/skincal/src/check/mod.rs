@@ -230,7 +230,8 @@ pub struct CheckReport {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub zero: Option<ZeroChange>,
     /// DoFs whose zero this log does not tell to within the turn the check promised to see
-    /// (`detect_orientation`), though a minute of their own motion would: move them.
+    /// (`detect_orientation`), though a minute of rich motion would: too little of their motion,
+    /// or no SU beyond them that the model still explains (all broken, swapped or moved far).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub zeros_untold: Vec<String>,
     /// DoFs whose zero no motion tells: a vertical axis on the still reference segment turns
