@@ -34,7 +34,8 @@ usage: cargo xtask <task>
 tasks:
   test [ARGS...]   install what the tests need (once), then cargo test --workspace [ARGS...];
                    without ARGS also the Python package's tests and example
-  test-env         only install what the tests need; prints the test environment's Python";
+  test-env         only install what the tests need (the Python environment and the robot
+                   descriptions in target/); prints the test environment's Python";
 
 fn main() -> ExitCode {
     let mut args = env::args_os().skip(1);
@@ -50,9 +51,10 @@ fn main() -> ExitCode {
             }
             python_package(&python)
         }),
-        Some("test-env") => test_env().map(|python| {
+        Some("test-env") => test_env().and_then(|python| {
+            robot_descriptions(&python)?;
             println!("{}", python.display());
-            ExitCode::SUCCESS
+            Ok(ExitCode::SUCCESS)
         }),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
