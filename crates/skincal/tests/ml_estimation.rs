@@ -103,7 +103,7 @@ fn random_chain(seed: u64) -> skincal::model::Robot {
 }
 
 #[test]
-fn the_analytic_jacobian_matches_central_differences_on_random_chains() {
+fn the_readings_jacobian_matches_central_differences_on_random_chains() {
     for seed in 0..4 {
         let truth = random_chain(seed);
         let sim = simulate(

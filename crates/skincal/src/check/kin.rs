@@ -48,9 +48,8 @@ impl BlockKinematics {
             .zip(&motion)
             .map(|(frame, motion)| {
                 let rt = frame.rotation.to_rotation_matrix().into_inner().transpose();
-                let m = motion.point_matrix();
-                let c = rt * (motion.accel + m * frame.translation.vector);
-                (c, rt, rt * m * rt.transpose())
+                let (c, n) = motion.field_in(frame, &Vector3::zeros());
+                (c, rt, n)
             })
             .collect();
         Self {

@@ -212,10 +212,11 @@ pub fn calibrate_body_reporting(
 /// motion record of the logs `set` was ingested from; see [`refine_on_motion`]), with the skin's
 /// delay behind the joint states.
 ///
-/// A set without training poses (a continuous program, a log of ordinary work: ingest finds no
-/// reading in it) starts from [`QUIET_POSES`] of the record's quietest moments
-/// ([`MotionRecord::quiet_poses`], weighted by what the motion there could add to gravity): the
-/// tree must then come from an earlier structure experiment.
+/// A set with fewer than [`MIN_POSES`] training poses (a continuous program, a log of ordinary
+/// work, servos that never came to rest at the poses: ingest finds too few readings) starts from
+/// [`QUIET_POSES`] of the record's quietest moments instead ([`MotionRecord::quiet_poses`],
+/// weighted by what the motion there could add to gravity); the poses it has are in the record.
+/// Without a structure part, the tree must come from an earlier structure experiment.
 pub fn calibrate_body_on_motion(
     set: &MeasurementSet,
     motion: &MotionRecord,
@@ -226,7 +227,7 @@ pub fn calibrate_body_on_motion(
     progress: &mut dyn FnMut(&str, usize, usize),
 ) -> Result<BodyModel, EstimateError> {
     motion.check().map_err(EstimateError::InvalidStructure)?;
-    if set.training.as_ref().is_some_and(|t| !t.poses.is_empty()) {
+    if !starts_from_quiet(set) {
         return calibrate_body_on(set, Some(motion), structure, config, only, keep, progress);
     }
     if motion.dofs != set.dofs || motion.sus != set.sus {
@@ -261,6 +262,21 @@ pub fn calibrate_body_on_motion(
 
 /// Quiet moments of a motion record that start a fit without training poses.
 pub const QUIET_POSES: usize = 40;
+
+/// The fewest training poses the readings' fit starts from: a DoF's axis and its joint's place
+/// take three poses whatever the number of SUs.
+pub const MIN_POSES: usize = 3;
+
+/// The number of training poses of `set`.
+pub fn training_poses(set: &MeasurementSet) -> usize {
+    set.training.as_ref().map_or(0, |t| t.poses.len())
+}
+
+/// Whether a fit on a motion record starts from the record's quiet moments rather than from the
+/// set's training poses: the set has fewer than [`MIN_POSES`].
+pub fn starts_from_quiet(set: &MeasurementSet) -> bool {
+    training_poses(set) < MIN_POSES
+}
 
 fn calibrate_body_on(
     set: &MeasurementSet,

@@ -127,6 +127,27 @@ impl<T: RealField> BodyMotion<T> {
         self.alpha.cross_matrix() + &w * &w
     }
 
+    /// The specific-force field of the body seen in `frame`, a frame fixed to it (reference ←
+    /// frame): `(c, N)` such that an ideal accelerometer aligned with `frame` at `p` (frame
+    /// coordinates) reads `c + N p` under `gravity`. With `R` and `x` the frame's rotation and
+    /// origin and `ω_f = Rᵀω`, `α_f = Rᵀα`, `x_f = Rᵀx`: `N = [α_f]× + [ω_f]×²` (and
+    /// `[ω]×² = ω ωᵀ − |ω|² I`) and `c = Rᵀ(accel − g) + N x_f`: rotated vectors, no product of
+    /// matrices.
+    pub fn field_in(&self, frame: &Isometry3<T>, gravity: &Vector3<T>) -> (Vector3<T>, Matrix3<T>) {
+        let rt = frame
+            .rotation
+            .clone()
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose();
+        let w = &rt * &self.omega;
+        let spin = &w * w.transpose() - Matrix3::identity() * w.norm_squared();
+        let n = (&rt * &self.alpha).cross_matrix() + spin;
+        let x = &rt * &frame.translation.vector;
+        let c = &rt * (self.accel.clone() - gravity.clone()) + &n * x;
+        (c, n)
+    }
+
     /// The motion of a body that turns relative to this one about the line through `point` along
     /// the unit `axis` (both fixed in this body, in the reference frame now) at rate `rate` and
     /// acceleration `accel` (rad/s, rad/s²).

@@ -17,8 +17,9 @@
 //! translation, both in its segment's frame). Turning everything about, or sliding it along, the
 //! first axis changes no reading: the rotation about and translation along `z` of the first SU on
 //! segment 1 are held fixed. Updates are applied on the manifold (`J ← J·T(δ)·R(δ)`,
-//! `R ← exp(ω)·R`), so there are no Euler-angle or DH singularities; the Jacobian is analytic at
-//! the point of linearisation and checked against central differences in the tests.
+//! `R ← exp(ω)·R`), so there are no Euler-angle or DH singularities. Every reading is computed
+//! by one kinematics (`terms.rs`), whose rates along the joint lines come from dual numbers; the
+//! Jacobian is checked against central differences in the tests.
 //!
 //! **Solver.** Levenberg–Marquardt on the normal equations, block by block (`problem.rs`): every
 //! SU's rows depend on its own parameters and on the shared ones (gravity, the joint lines) only,
@@ -52,6 +53,7 @@ mod bound;
 mod init;
 mod motion;
 mod problem;
+mod terms;
 
 pub use motion::{LimbMotion, MAX_DELAY};
 
@@ -923,7 +925,9 @@ fn fit_ordered(
     let free_dofs = dofs - base_dofs;
     let parameters = 3 + 4 * free_dofs + 6 * sus;
     let per_pose: usize = data.su_depth.iter().map(|&d| 3 * (1 + d)).sum();
-    let needed = parameters.div_ceil(per_pose.max(1)).max(3);
+    let needed = parameters
+        .div_ceil(per_pose.max(1))
+        .max(super::body::MIN_POSES);
     if data.poses() < needed {
         return Err(EstimateError::TooFewPoses {
             poses: data.poses(),
@@ -2471,13 +2475,13 @@ fn serial_layout(dofs: usize) -> Layout {
     }
 }
 
-/// Test access to the internals: the analytic Jacobian and the residuals through the chart, for a
+/// Test access to the internals: the Jacobian and the residuals through the chart, for a
 /// chain state built from a robot.
 #[doc(hidden)]
 pub mod internals {
     use super::*;
 
-    /// Residuals and analytic Jacobian of the full problem at `state`.
+    /// Residuals and Jacobian of the full problem at `state`.
     pub fn full_problem(
         data: &ChainData,
         state: &ChainState,
@@ -2495,7 +2499,7 @@ pub mod internals {
     }
 
     /// The full problem of the motion rows alone (every block of `record`, the skin's delay a
-    /// column after the others): residuals, analytic Jacobian, and the residuals after a step
+    /// column after the others): residuals, Jacobian, and the residuals after a step
     /// `delta` of its columns for each step given.
     pub fn motion_problem(
         data: &ChainData,

@@ -3,21 +3,17 @@
 //! gravity, tangential, centripetal and Coriolis terms of every DoF before it, several DoFs moving
 //! at once — with the delay of the skin's clock behind the joint states' as a parameter.
 //!
-//! For a segment `s` at one instant, an SU at `p` (segment frame) with rotation `R` reads
-//! `Rᵀ (c_s + N_s p)`: `c_s = R_sᵀ (a_s + M_s x_s − g)` and `N_s = R_sᵀ M_s R_s` from the segment's
-//! motion ([`crate::model::BodyMotion`]: `a(p) = a + M p`). These 12 numbers per segment and
-//! sample are shared by every SU on the segment; their derivatives with respect to the joint
-//! lines and gravity come from dual numbers through the same kinematics, one pass per column.
+//! Each sample is one instant of the chain's motion: its segments' terms and their derivatives
+//! come from the limb's one kinematics ([`super::terms`]), as the readings' do.
 
-use nalgebra::{Isometry3, Matrix3, Quaternion, RealField, Translation3, UnitQuaternion, Vector3};
-use num_dual::Dual64;
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::problem::{gravity_directions, Block};
+use super::problem::Block;
+use super::terms::{link, Chain, Instant, SegmentTerms};
 use super::ChainState;
 use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
-use crate::model::BodyMotion;
 use crate::motion::{MotionRecord, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
@@ -36,7 +32,8 @@ pub const SUDDEN: f64 = 3.0;
 pub(super) struct MotionSample {
     run: usize,
     block: usize,
-    q: Vec<f64>,
+    /// `Rz(q)` of every DoF.
+    turns: Vec<UnitQuaternion<f64>>,
     qd: Vec<f64>,
     qdd: Vec<f64>,
     qdd_sd: Vec<f64>,
@@ -122,7 +119,7 @@ impl LimbMotion {
                 samples.push(MotionSample {
                     run: r,
                     block: b,
-                    q: pick(&run.q[b]),
+                    turns: super::problem::turns_of(&pick(&run.q[b])),
                     qd: pick(&run.qd[b]),
                     qdd: pick(&run.qdd[b]),
                     qdd_sd: pick(&run.qdd_sd[b]),
@@ -174,11 +171,10 @@ impl LimbMotion {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
                 let mut axes = Vec::with_capacity(state.joints.len());
-                for (k, joint) in state.joints.iter().enumerate() {
-                    let frame = segment * joint;
+                for (joint, turn) in state.joints.iter().zip(&sample.turns) {
+                    let (frame, next) = link(&segment, joint, turn);
                     axes.push((frame.rotation * Vector3::z(), frame.translation.vector));
-                    segment =
-                        frame * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), sample.q[k]);
+                    segment = next;
                     segments.push(segment);
                 }
                 su_segment
@@ -267,140 +263,22 @@ impl LimbMotion {
     }
 }
 
-/// Segment `s`'s `(c_s, N_s)` at one sample (index `s − 1`) and, per shared column, their
-/// derivatives.
-pub(super) struct SegmentTerms {
-    pub c: Vec<Vector3<f64>>,
-    pub n: Vec<Matrix3<f64>>,
-    /// Per segment `s − 1`: `(column, ∂c_s, ∂N_s)` of the shared columns that move it (gravity,
-    /// and the lines of joints up to `s`; every other column's are zero).
-    pub d: Vec<Vec<ColumnRate>>,
-}
-
-/// A shared column and the rates `(∂c_s, ∂N_s)` of one segment's terms along it.
-pub(super) type ColumnRate = (usize, Vector3<f64>, Matrix3<f64>);
-
-/// `(c_s, N_s, R_s)` of segments `1..=last` of a chain whose joint frames (each on the segment
-/// before it, as in [`ChainState::joints`]) are `joints`, at one sample, under `gravity`; with
-/// `step`, joint `k`'s frame is followed by the local motion given.
-fn terms<T: RealField + Copy>(
-    joints: &[Isometry3<T>],
-    step: Option<(usize, &Isometry3<T>)>,
-    sample: &MotionSample,
-    gravity: &Vector3<T>,
-    last: usize,
-) -> Vec<(Vector3<T>, Matrix3<T>, Matrix3<T>)> {
-    let mut segment = Isometry3::<T>::identity();
-    let mut motion = BodyMotion::<T>::still();
-    let mut out = Vec::with_capacity(last);
-    for (k, joint) in joints.iter().enumerate().take(last) {
-        let mut frame = segment * joint;
-        if let Some((_, local)) = step.filter(|(at, _)| *at == k) {
-            frame *= local;
-        }
-        let axis = frame.rotation * Vector3::z();
-        let point = frame.translation.vector;
-        motion = motion.through(
-            &axis,
-            &point,
-            T::from_subset(&sample.qd[k]),
-            T::from_subset(&sample.qdd[k]),
-        );
-        segment = frame
-            * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), T::from_subset(&sample.q[k]));
-        let r = segment.rotation.to_rotation_matrix().into_inner();
-        let m = motion.point_matrix();
-        let c = r.transpose() * (motion.accel + m * segment.translation.vector - gravity);
-        out.push((c, r.transpose() * m * r, r));
-    }
-    out
-}
-
-/// An `f64` isometry as one of dual numbers (no derivative).
-fn lift(iso: &Isometry3<f64>) -> Isometry3<Dual64> {
-    let q = iso.rotation.coords.map(Dual64::from);
-    Isometry3::from_parts(
-        Translation3::from(iso.translation.vector.map(Dual64::from)),
-        UnitQuaternion::new_unchecked(Quaternion::from(q)),
-    )
-}
-
-/// The first-order local motion of component `c` of a joint block (as [`super::problem`]'s
-/// retraction applies it) with the dual unit in that component: rotations as `(1, ε/2)`
-/// quaternions, exact to first order (a rotation vector's norm has no derivative at zero).
-fn joint_step(full: bool, c: usize) -> Isometry3<Dual64> {
-    let mut x = [Dual64::from(0.0); 6];
-    // Joint: (rx, ry, x, y); full: (rx, ry, rz, x, y, z).
-    let slot = if full { c } else { [0, 1, 3, 4][c] };
-    x[slot] = Dual64::new(0.0, 1.0);
-    let half = Dual64::from(0.5);
-    Isometry3::from_parts(
-        Translation3::new(x[3], x[4], x[5]),
-        UnitQuaternion::new_unchecked(Quaternion::new(
-            Dual64::from(1.0),
-            x[0] * half,
-            x[1] * half,
-            x[2] * half,
-        )),
-    )
-}
-
 /// The segment terms of every sample at `state`, for segments `1..=last`; with `columns` (the
-/// shared columns of the problem: block and component), their derivatives too: along gravity
-/// `∂c_s = −R_sᵀ δg` (`N_s` does not see it), along a joint line by dual numbers through
-/// [`terms`], one pass per column.
+/// shared columns of the problem: block and component), their derivatives too.
 pub(super) fn segment_terms(
     state: &ChainState,
     motion: &LimbMotion,
     last: usize,
     columns: Option<&[(Block, usize)]>,
 ) -> Vec<SegmentTerms> {
-    let directions = gravity_directions(&state.gravity);
-    let lifted: Vec<Isometry3<Dual64>> = state.joints.iter().map(lift).collect();
-    let g_dual = state.gravity.map(Dual64::from);
-    let steps: Vec<Option<(usize, Isometry3<Dual64>)>> = columns
-        .unwrap_or(&[])
-        .iter()
-        .map(|&(block, c)| match block {
-            Block::Joint(k) | Block::JointFull(k) if k < last => {
-                Some((k, joint_step(matches!(block, Block::JointFull(_)), c)))
-            }
-            _ => None,
-        })
-        .collect();
+    let chain = Chain::new(state, columns);
     motion
         .samples
         .par_iter()
         .map(|sample| {
-            let values = terms(&state.joints, None, sample, &state.gravity, last);
-            let mut out = SegmentTerms {
-                c: values.iter().map(|v| v.0).collect(),
-                n: values.iter().map(|v| v.1).collect(),
-                d: vec![Vec::new(); last],
-            };
-            for (col, (&(block, c), step)) in columns.unwrap_or(&[]).iter().zip(&steps).enumerate()
-            {
-                let gravity = match block {
-                    Block::Gravity => Some(Vector3::ith(c, 1.0)),
-                    Block::GravityDirection => Some(directions[c]),
-                    _ => None,
-                };
-                let along = step
-                    .as_ref()
-                    .map(|(k, local)| terms(&lifted, Some((*k, local)), sample, &g_dual, last));
-                for (s, (_, _, r)) in values.iter().enumerate() {
-                    let (dc, dn) = match (&along, gravity, step) {
-                        // Joint k's line moves segments k + 1 on (terms' entries k on).
-                        (Some(d), _, Some((k, _))) if s >= *k => {
-                            (d[s].0.map(|x| x.eps), d[s].1.map(|x| x.eps))
-                        }
-                        (None, Some(dir), _) => (-(r.transpose() * dir), Matrix3::zeros()),
-                        _ => continue,
-                    };
-                    out.d[s].push((col, dc, dn));
-                }
-            }
-            out
+            let instant = [Instant::new(&sample.qd, &sample.qdd, true)];
+            let mut terms = chain.terms(&sample.turns, None, &instant, last);
+            terms.swap_remove(0)
         })
         .collect()
 }

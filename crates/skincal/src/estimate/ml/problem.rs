@@ -1,6 +1,8 @@
-//! The least-squares problem of a limb: frames, residuals and analytic Jacobian per SU, the
-//! Levenberg–Marquardt solver with the SU blocks eliminated (Schur complement), and the parameter
-//! covariance.
+//! The least-squares problem of a limb: residuals and Jacobian per SU — each reading
+//! `K Rᵀ (c + N p) (+ b)` of its segment's terms ([`super::terms`], which also give their rates
+//! along the shared columns), so that this module holds only the chain rule through the SU's own
+//! frame and intrinsics —, the Levenberg–Marquardt solver with the SU blocks eliminated (Schur
+//! complement), and the parameter covariance.
 //!
 //! Every SU's readings depend on its own 6 parameters and on the shared ones (gravity and the joint
 //! lines before it), never on another SU's: the normal matrix is block-arrow shaped. Each SU block is
@@ -10,11 +12,13 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector, Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::motion::{segment_terms, LimbMotion, SegmentTerms, MAX_DELAY};
+use super::motion::{segment_terms, LimbMotion, MAX_DELAY};
+use super::terms::{link, Chain, ReadingInstants, SegmentTerms};
 use super::{ChainState, Unobservable};
+use crate::model::intrinsics::Intrinsics;
 use crate::model::sensor::STANDARD_GRAVITY;
 
 /// The prior standard deviation of each intrinsic component (bias 0.1 g, scale 5 %,
@@ -215,8 +219,8 @@ pub(super) struct Frames {
 /// Joint frames `0…k−1` and the frame of segment `k` of one pose, in the reference frame.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Prefix {
-    joints: Vec<Isometry3<f64>>,
-    segment: Isometry3<f64>,
+    pub joints: Vec<Isometry3<f64>>,
+    pub segment: Isometry3<f64>,
 }
 
 /// The prefixes up to joint `k` of every pose.
@@ -265,9 +269,9 @@ pub(super) fn frames(
         None => (Vec::with_capacity(layout.dofs), vec![Isometry3::identity()]),
     };
     for k in joints.len()..last.min(layout.dofs) {
-        let j = segments[k] * state.joints[k];
-        joints.push(j);
-        segments.push(j * turns[k]);
+        let (joint, segment) = link(&segments[k], &state.joints[k], &turns[k]);
+        joints.push(joint);
+        segments.push(segment);
     }
     let sus = state
         .sus
@@ -305,78 +309,6 @@ fn turn_gravity(g: &Vector3<f64>, x0: f64, x1: f64) -> Vector3<f64> {
     UnitQuaternion::from_scaled_axis(e1 * x0 + e2 * x1) * g
 }
 
-/// The local motion of component `c` of a joint block, as a world twist `(ω, v)` such that a point
-/// `p` downstream moves by `ω × p + v` and a direction rotates by `ω`.
-fn joint_twist(joint: &Isometry3<f64>, c: usize) -> (Vector3<f64>, Vector3<f64>) {
-    let axis = |i: usize| joint.rotation * Vector3::ith(i, 1.0);
-    let o = joint.translation.vector;
-    match c {
-        // Rotations about the joint's own x, y (and z for the full block) through its origin.
-        0 | 1 | 4 => {
-            let w = axis(if c == 4 { 2 } else { c });
-            (w, -w.cross(&o))
-        }
-        // Shifts along x, y (and z).
-        2 | 3 => (Vector3::zeros(), axis(c - 2)),
-        _ => (Vector3::zeros(), axis(2)),
-    }
-}
-
-/// How one column moves an SU on segment `s` at `pu`: a world twist `(ω, δp)`, the first DoF whose
-/// axis moves with the SU, or a gravity direction. `None`: the column does not touch the SU.
-enum Effect {
-    Gravity(Vector3<f64>),
-    Motion {
-        omega: Vector3<f64>,
-        dp: Vector3<f64>,
-        moved_from: usize,
-    },
-}
-
-fn effect(
-    block: Block,
-    c: usize,
-    f: &Frames,
-    s: usize,
-    pu: &Vector3<f64>,
-    gravity: &[Vector3<f64>; 3],
-) -> Option<Effect> {
-    match block {
-        Block::Gravity => Some(Effect::Gravity(Vector3::ith(c, 1.0))),
-        Block::GravityDirection => Some(Effect::Gravity(gravity[c])),
-        Block::Intrinsics(_) | Block::SkinDelay => None,
-        Block::Joint(k) | Block::JointFull(k) => {
-            if k >= s {
-                return None;
-            }
-            let c = if matches!(block, Block::Joint(_)) {
-                c
-            } else {
-                [0, 1, 4, 2, 3, 5][c]
-            };
-            let (w, v) = joint_twist(&f.joints[k], c);
-            Some(Effect::Motion {
-                omega: w,
-                dp: w.cross(pu) + v,
-                moved_from: k,
-            })
-        }
-        Block::Su(_) => {
-            let rs = f.segments[s].rotation;
-            let (omega, dp) = if c < 3 {
-                (rs * Vector3::ith(c, 1.0), Vector3::zeros())
-            } else {
-                (Vector3::zeros(), rs * Vector3::ith(c - 3, 1.0))
-            };
-            Some(Effect::Motion {
-                omega,
-                dp,
-                moved_from: usize::MAX,
-            })
-        }
-    }
-}
-
 /// The outermost segment that carries an SU of `spec`.
 fn last_segment(layout: &Layout, spec: &Spec) -> usize {
     spec.sus
@@ -386,18 +318,36 @@ fn last_segment(layout: &Layout, spec: &Spec) -> usize {
         .unwrap_or(0)
 }
 
-/// Frames of every pose for the SUs of `spec`.
-fn pose_frames(state: &ChainState, layout: &Layout, data: &Readings, spec: &Spec) -> Vec<Frames> {
+/// The shared columns of `spec` as blocks and components (what the segment terms are
+/// differentiated along).
+fn shared_columns(spec: &Spec, map: &ColumnMap) -> Vec<(Block, usize)> {
+    map.shared
+        .iter()
+        .map(|&(b, c)| (spec.blocks[b], c))
+        .collect()
+}
+
+/// The segment terms of every pose's readings for the SUs of `spec` (`[p][0]` the static
+/// reading's instant, `[p][1 + d]` DoF `d`'s dynamic one), with their derivatives along the
+/// shared columns when `jacobian`.
+fn pose_terms(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    jacobian: bool,
+) -> Vec<Vec<SegmentTerms>> {
     let last = last_segment(layout, spec);
+    let columns = shared_columns(spec, map);
+    let chain = Chain::new(state, jacobian.then_some(columns.as_slice()));
+    let readings = ReadingInstants::new(layout.dofs, last, data.alpha);
+    let instants = readings.instants();
     (0..data.q.len())
+        .into_par_iter()
         .map(|p| {
-            frames(
-                state,
-                layout,
-                &data.turns[p],
-                spec.prefix.as_ref().map(|v| &v[p]),
-                last,
-            )
+            let prefix = spec.prefix.as_ref().map(|v| &v[p]);
+            chain.terms(&data.turns[p], prefix, &instants, last)
         })
         .collect()
 }
@@ -414,17 +364,116 @@ fn motion_terms(
 ) -> Option<Vec<SegmentTerms>> {
     let motion = data.motion.as_ref()?;
     let last = last_segment(layout, spec);
-    let columns: Vec<(Block, usize)> = map
-        .shared
-        .iter()
-        .map(|&(b, c)| (spec.blocks[b], c))
-        .collect();
+    let columns = shared_columns(spec, map);
     Some(segment_terms(
         state,
         motion,
         last,
         jacobian.then_some(columns.as_slice()),
     ))
+}
+
+/// What an SU's rows need of its state: its intrinsics, `Rᵀ` and `K Rᵀ` of its rotation on its
+/// segment, its position there, and whether any of its intrinsics are free.
+struct SuFrame<'a> {
+    intrinsics: &'a Intrinsics,
+    bias: Vector3<f64>,
+    rt: Matrix3<f64>,
+    krt: Matrix3<f64>,
+    p: Vector3<f64>,
+}
+
+impl<'a> SuFrame<'a> {
+    fn new(state: &'a ChainState, u: usize) -> Self {
+        let intrinsics = &state.intrinsics[u];
+        let rt = state.sus[u]
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose();
+        Self {
+            intrinsics,
+            bias: Vector3::from(intrinsics.bias),
+            rt,
+            krt: intrinsics.matrix() * rt,
+            p: state.sus[u].translation.vector,
+        }
+    }
+
+    /// The specific force at the SU of segment entry `s` of `terms` (segment frame): `c + N p`.
+    fn field(&self, terms: &SegmentTerms, s: usize) -> Vector3<f64> {
+        terms.c[s] + terms.n[s] * self.p
+    }
+
+    /// What the SU reads of the field `v`: `K Rᵀ v`, plus its bias when `bias` (a reading, not
+    /// the difference of two).
+    fn reading(&self, v: &Vector3<f64>, bias: bool) -> Vector3<f64> {
+        let read = self.krt * v;
+        if bias {
+            read + self.bias
+        } else {
+            read
+        }
+    }
+}
+
+/// Where the Jacobian rows of one reading go: the SU's own and the shared columns of its block,
+/// from row `row`, each rate multiplied by `scale`.
+struct JacobianRows<'a> {
+    spec: &'a Spec,
+    map: &'a ColumnMap,
+    /// The SU and its place in `spec.sus`.
+    u: usize,
+    i: usize,
+    row: usize,
+    scale: f64,
+}
+
+impl JacobianRows<'_> {
+    /// Fills the rows of the reading of SU `su` from segment entry `s` of `terms` (with its
+    /// bias when `bias`): along the SU's own frame (`R ← exp(ω) R`: `K Rᵀ (v × e_c)`; a shift
+    /// `K Rᵀ N e_c`) and intrinsics, and along the shared columns that move its segment.
+    fn fill(
+        &self,
+        su: &SuFrame,
+        terms: &SegmentTerms,
+        s: usize,
+        bias: bool,
+        own: &mut DMatrix<f64>,
+        shared: &mut DMatrix<f64>,
+    ) {
+        let v = su.field(terms, s);
+        let n = &terms.n[s];
+        let mut partials = None;
+        let mut rate = |block: Block, c: usize| match block {
+            Block::Su(v_) if v_ == self.u && c < 3 => Some(su.krt * v.cross(&Vector3::ith(c, 1.0))),
+            Block::Su(v_) if v_ == self.u => Some(su.krt * n.column(c - 3)),
+            Block::Intrinsics(v_) if v_ == self.u => {
+                let p = partials.get_or_insert_with(|| su.intrinsics.partials(&(su.rt * v), bias));
+                Some(p[c])
+            }
+            _ => None,
+        };
+        for (col, &(b, c)) in self.map.own[self.i].iter().enumerate() {
+            if let Some(d) = rate(self.spec.blocks[b], c) {
+                own.fixed_view_mut::<3, 1>(self.row, col)
+                    .copy_from(&(d * self.scale));
+            }
+        }
+        for (col, &(b, c)) in self.map.shared.iter().enumerate() {
+            if let Some(d) = rate(self.spec.blocks[b], c) {
+                shared
+                    .fixed_view_mut::<3, 1>(self.row, col)
+                    .copy_from(&(d * self.scale));
+            }
+        }
+        for (col, dc, dn) in &terms.d[s] {
+            let d = su.krt * (dc + dn * su.p);
+            shared
+                .fixed_view_mut::<3, 1>(self.row, *col)
+                .copy_from(&(d * self.scale));
+        }
+    }
 }
 
 /// The motion rows of one SU: where they start in its block, and what they need.
@@ -452,20 +501,13 @@ impl MotionRows<'_> {
         r: &mut DVector<f64>,
         mut jacobian: Option<(&mut DMatrix<f64>, &mut DMatrix<f64>)>,
     ) -> (f64, usize) {
-        let (u, motion) = (self.u, self.motion);
-        let s = self.segment;
-        let intrinsics = &state.intrinsics[u];
-        let k = intrinsics.matrix();
-        let bias = Vector3::from(intrinsics.bias);
-        let rl = state.sus[u].rotation.to_rotation_matrix().into_inner();
-        let rlt = rl.transpose();
-        let krt = k * rlt;
-        let p = state.sus[u].translation.vector;
+        let (u, motion, s) = (self.u, self.motion, self.segment);
+        let su = SuFrame::new(state, u);
         let (mut cost, mut count) = (0.0, 0);
         let predicted: Vec<Vector3<f64>> = self
             .terms
             .iter()
-            .map(|t| krt * (t.c[s] + t.n[s] * p) + bias)
+            .map(|t| su.reading(&su.field(t, s), true))
             .collect();
         let delay_column = self
             .map
@@ -487,24 +529,15 @@ impl MotionRows<'_> {
             let Some((own, shared)) = jacobian.as_mut() else {
                 continue;
             };
-            let v = terms.c[s] + terms.n[s] * p;
-            let ideal = rlt * v;
-            let partials = intrinsics.partials(&ideal, true);
-            for (col, &(b, c)) in self.map.own[self.i].iter().enumerate() {
-                let d = match self.spec.blocks[b] {
-                    Block::Su(_) if c < 3 => krt * v.cross(&Vector3::ith(c, 1.0)),
-                    Block::Su(_) => krt * terms.n[s].column(c - 3),
-                    Block::Intrinsics(_) => partials[c],
-                    _ => continue,
-                };
-                own.fixed_view_mut::<3, 1>(row, col).copy_from(&(d * scale));
-            }
-            for (col, dc, dn) in &terms.d[s] {
-                let d = krt * (dc + dn * p);
-                shared
-                    .fixed_view_mut::<3, 1>(row, *col)
-                    .copy_from(&(d * scale));
-            }
+            let rows = JacobianRows {
+                spec: self.spec,
+                map: self.map,
+                u,
+                i: self.i,
+                row,
+                scale,
+            };
+            rows.fill(&su, terms, s, true, own, shared);
             if let Some(col) = delay_column {
                 // The residual's rate with the delay: minus the rate of what is measured, which
                 // the prediction's own rate stands for (smooth where the samples are noisy).
@@ -580,8 +613,9 @@ impl SuBlock {
     }
 }
 
-/// What every SU block of a problem at one state shares: the data, the poses' frames and the
-/// motion rows' segment terms (with their derivatives when the blocks carry Jacobians).
+/// What every SU block of a problem at one state shares: the data, and the segment terms of the
+/// poses' readings and of the motion rows (with their derivatives when the blocks carry
+/// Jacobians).
 struct Blocks<'a> {
     state: &'a ChainState,
     layout: &'a Layout,
@@ -590,21 +624,8 @@ struct Blocks<'a> {
     map: &'a ColumnMap,
     sigma: f64,
     jacobian: bool,
-    frames: Vec<Frames>,
+    poses: Vec<Vec<SegmentTerms>>,
     terms: Option<Vec<SegmentTerms>>,
-}
-
-/// One pose of one SU: where its rows start, its frame and the readings the model predicts.
-struct PoseRows {
-    row: usize,
-    rut: nalgebra::Matrix3<f64>,
-    pu: Vector3<f64>,
-    /// Each DoF before the SU: its axis and a point on it (world).
-    axes: Vec<(Vector3<f64>, Vector3<f64>)>,
-    ideal_static: Vector3<f64>,
-    ideal_dynamic: Vec<Vector3<f64>>,
-    /// √weight of the static reading and of each dynamic one.
-    scales: Vec<f64>,
 }
 
 impl<'a> Blocks<'a> {
@@ -625,7 +646,7 @@ impl<'a> Blocks<'a> {
             map,
             sigma,
             jacobian,
-            frames: pose_frames(state, layout, data, spec),
+            poses: pose_terms(state, layout, data, spec, map, jacobian),
             terms: motion_terms(state, layout, data, spec, map, jacobian),
         }
     }
@@ -653,11 +674,9 @@ impl<'a> Blocks<'a> {
             cost: 0.0,
             count: 0,
         };
-        for p in 0..self.frames.len() {
-            let pose = self.pose_residuals(i, p, &mut block);
-            if self.jacobian {
-                self.pose_jacobian(i, p, &pose, &mut block);
-            }
+        let su = SuFrame::new(self.state, u);
+        for p in 0..self.poses.len() {
+            self.pose_rows(i, p, &su, &mut block);
         }
         if let (Some(motion), Some(terms)) = (&self.data.motion, &self.terms) {
             let rows = MotionRows {
@@ -699,126 +718,35 @@ impl<'a> Blocks<'a> {
             .collect()
     }
 
-    /// Pose `p`'s rows of SU `spec.sus[i]`: the static reading and the dynamic one of each DoF
-    /// before it, whitened and weighed.
-    fn pose_residuals(&self, i: usize, p: usize, block: &mut SuBlock) -> PoseRows {
+    /// Pose `p`'s rows of SU `spec.sus[i]` (and their Jacobian when the blocks carry one): the
+    /// static reading and the dynamic one of each DoF before it, whitened and weighed.
+    fn pose_rows(&self, i: usize, p: usize, su: &SuFrame, block: &mut SuBlock) {
         let u = self.spec.sus[i];
         let s = self.layout.su_segment[u];
-        let f = &self.frames[p];
-        let (sigma, data) = (self.sigma, self.data);
-        let intrinsics = &self.state.intrinsics[u];
-        let (k, bias) = (intrinsics.matrix(), Vector3::from(intrinsics.bias));
         let row = p * 3 * (1 + s);
-        let rut = f.sus[u]
-            .rotation
-            .to_rotation_matrix()
-            .into_inner()
-            .transpose();
-        let pu = f.sus[u].translation.vector;
-        let ideal_static = rut * (-self.state.gravity);
-        block
-            .r
-            .fixed_rows_mut::<3>(row)
-            .copy_from(&((k * ideal_static + bias - data.statics[p][u]) / sigma));
-        let axes: Vec<(Vector3<f64>, Vector3<f64>)> = (0..s)
-            .map(|d| {
-                let joint = &f.joints[d];
-                (joint.rotation * Vector3::z(), joint.translation.vector)
-            })
-            .collect();
-        let ideal_dynamic: Vec<Vector3<f64>> = axes
-            .iter()
-            .map(|(z, o)| rut * (z.cross(&(pu - o)) * data.alpha))
-            .collect();
-        for (d, a) in ideal_dynamic.iter().enumerate() {
+        let (sigma, data) = (self.sigma, self.data);
+        for (j, terms) in self.poses[p].iter().take(1 + s).enumerate() {
+            let (measured, bias) = match j {
+                0 => (&data.statics[p][u], true),
+                _ => (&data.dynamics[p][u][j - 1], false),
+            };
+            let at = row + 3 * j;
+            let predicted = su.reading(&su.field(terms, s - 1), bias);
             block
                 .r
-                .fixed_rows_mut::<3>(row + 3 * (1 + d))
-                .copy_from(&((k * a - data.dynamics[p][u][d]) / sigma));
-        }
-        let scales = (0..=s)
-            .map(|j| block.weigh(data, sigma, (p, u, j), row + 3 * j))
-            .collect();
-        PoseRows {
-            row,
-            rut,
-            pu,
-            axes,
-            ideal_static,
-            ideal_dynamic,
-            scales,
-        }
-    }
-
-    /// Pose `p`'s Jacobian rows of SU `spec.sus[i]`, own and shared columns, weighed as its
-    /// residuals were.
-    fn pose_jacobian(&self, i: usize, p: usize, pose: &PoseRows, block: &mut SuBlock) {
-        let u = self.spec.sus[i];
-        let s = self.layout.su_segment[u];
-        let f = &self.frames[p];
-        let (sigma, g, alpha) = (self.sigma, self.state.gravity, self.data.alpha);
-        let gravity = gravity_directions(&g);
-        let intrinsics = &self.state.intrinsics[u];
-        let k = intrinsics.matrix();
-        let PoseRows { row, rut, pu, .. } = *pose;
-        let fill = |target: &mut DMatrix<f64>, col: usize, e: Effect| match e {
-            Effect::Gravity(dir) => target
-                .fixed_view_mut::<3, 1>(row, col)
-                .copy_from(&(-(k * (rut * dir)) / sigma)),
-            Effect::Motion {
-                omega,
-                dp,
-                moved_from,
-            } => {
-                target
-                    .fixed_view_mut::<3, 1>(row, col)
-                    .copy_from(&(k * (rut * omega.cross(&g)) / sigma));
-                // Axes from `moved_from` on move with the SU: their accelerations do not change.
-                for (d, (z, o)) in pose.axes.iter().enumerate().take(moved_from.min(s)) {
-                    let w = z.cross(&(pu - o));
-                    let delta = rut * (w.cross(&omega) + z.cross(&dp)) * alpha;
-                    target
-                        .fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
-                        .copy_from(&(k * delta / sigma));
-                }
-            }
-        };
-        let static_partials = intrinsics.partials(&pose.ideal_static, true);
-        let dynamic_partials: Vec<[Vector3<f64>; 9]> = pose
-            .ideal_dynamic
-            .iter()
-            .map(|a| intrinsics.partials(a, false))
-            .collect();
-        for (col, &(b, c)) in self.map.own[i].iter().enumerate() {
-            if let Block::Intrinsics(_) = self.spec.blocks[b] {
-                block
-                    .own
-                    .fixed_view_mut::<3, 1>(row, col)
-                    .copy_from(&(static_partials[c] / sigma));
-                for (d, partials) in dynamic_partials.iter().enumerate() {
-                    block
-                        .own
-                        .fixed_view_mut::<3, 1>(row + 3 * (1 + d), col)
-                        .copy_from(&(partials[c] / sigma));
-                }
-            } else if let Some(e) = effect(self.spec.blocks[b], c, f, s, &pu, &gravity) {
-                fill(&mut block.own, col, e);
-            }
-        }
-        for (col, &(b, c)) in self.map.shared.iter().enumerate() {
-            if let Block::Su(v) | Block::Intrinsics(v) = self.spec.blocks[b] {
-                if v != u {
-                    continue;
-                }
-            }
-            if let Some(e) = effect(self.spec.blocks[b], c, f, s, &pu, &gravity) {
-                fill(&mut block.shared, col, e);
-            }
-        }
-        for (j, &scale) in pose.scales.iter().enumerate() {
-            if scale != 1.0 {
-                block.own.rows_mut(row + 3 * j, 3).scale_mut(scale);
-                block.shared.rows_mut(row + 3 * j, 3).scale_mut(scale);
+                .fixed_rows_mut::<3>(at)
+                .copy_from(&((predicted - measured) / sigma));
+            let scale = block.weigh(data, sigma, (p, u, j), at);
+            if self.jacobian && scale != 0.0 {
+                let rows = JacobianRows {
+                    spec: self.spec,
+                    map: self.map,
+                    u,
+                    i,
+                    row: at,
+                    scale: scale / sigma,
+                };
+                rows.fill(su, terms, s - 1, bias, &mut block.own, &mut block.shared);
             }
         }
     }

@@ -1,0 +1,390 @@
+//! The one kinematics of a limb's chain, and what every row of its problem reads of it.
+//!
+//! A [`ChainState`] places joint `k`'s frame on segment `k` and turns DoF `k` about that frame's
+//! `z`: `S_{k+1} = S_k · J_k · Rz(q_k)` ([`link`]). At one **instant** of motion — a pose with
+//! every DoF's rate and acceleration, gravity on or off — every SU on segment `s` at `p` (segment
+//! frame) with rotation `R` reads `Rᵀ (c_s + N_s p)`: `c_s = R_sᵀ (a_s + M_s x_s − g)` and
+//! `N_s = R_sᵀ M_s R_s` from the segment's motion ([`BodyMotion`]: `a(p) = a + M p`). These 12
+//! numbers per segment and instant are shared by every SU on the segment.
+//!
+//! The instants are a motion record's samples (gravity on), a pose's static reading (rates zero,
+//! gravity on) and the paper's dynamic reading of DoF `d` at a pose (its acceleration `α` alone,
+//! gravity off: the difference of two samples at one pose). The terms' derivatives along a joint
+//! line's columns come from dual numbers through the same code, each pass starting at its joint
+//! from the real pass's state; along gravity they are `∂c_s = −R_sᵀ δg` (`N_s` does not see it).
+
+use nalgebra::{Isometry3, Matrix3, Quaternion, RealField, Translation3, UnitQuaternion, Vector3};
+use num_dual::Dual64;
+
+use super::problem::{gravity_directions, Block, Prefix};
+use super::ChainState;
+use crate::model::BodyMotion;
+
+/// Joint `k`'s frame and the frame of the segment its DoF turns, from the frame `segment` of the
+/// segment it sits on, its frame `joint` there and its turn `Rz(q_k)`: `(S·J, S·J·Rz(q))`.
+pub(super) fn link<T: RealField + Copy>(
+    segment: &Isometry3<T>,
+    joint: &Isometry3<T>,
+    turn: &UnitQuaternion<T>,
+) -> (Isometry3<T>, Isometry3<T>) {
+    let frame = segment * joint;
+    (frame, frame * turn)
+}
+
+/// One instant of a chain's motion at a pose: every DoF's rate and acceleration (rad/s, rad/s²),
+/// and whether gravity acts.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Instant<'a> {
+    qd: &'a [f64],
+    qdd: &'a [f64],
+    gravity: bool,
+    /// The first DoF that moves: the segments before it are still.
+    moving_from: usize,
+}
+
+impl<'a> Instant<'a> {
+    pub fn new(qd: &'a [f64], qdd: &'a [f64], gravity: bool) -> Self {
+        let moving_from = qd
+            .iter()
+            .zip(qdd)
+            .position(|(v, a)| *v != 0.0 || *a != 0.0)
+            .unwrap_or(qd.len());
+        Self {
+            qd,
+            qdd,
+            gravity,
+            moving_from,
+        }
+    }
+
+    /// Whether segment `s` (turned by DoF `s − 1`) is still at this instant.
+    fn still(&self, s: usize) -> bool {
+        s <= self.moving_from
+    }
+}
+
+/// The instants of a pose's readings: the static one, then the dynamic one of each DoF (its
+/// acceleration `alpha` alone, gravity off).
+pub(super) struct ReadingInstants {
+    zeros: Vec<f64>,
+    kicks: Vec<Vec<f64>>,
+}
+
+impl ReadingInstants {
+    /// For a chain of `dofs` DoFs whose dynamic readings are those of DoFs `0…dynamic−1`.
+    pub fn new(dofs: usize, dynamic: usize, alpha: f64) -> Self {
+        let kicks = (0..dynamic.min(dofs))
+            .map(|d| {
+                let mut a = vec![0.0; dofs];
+                a[d] = alpha;
+                a
+            })
+            .collect();
+        Self {
+            zeros: vec![0.0; dofs],
+            kicks,
+        }
+    }
+
+    /// Entry 0 the static reading's instant, entry `1 + d` DoF `d`'s dynamic one.
+    pub fn instants(&self) -> Vec<Instant<'_>> {
+        std::iter::once(Instant::new(&self.zeros, &self.zeros, true))
+            .chain(
+                self.kicks
+                    .iter()
+                    .map(|a| Instant::new(&self.zeros, a, false)),
+            )
+            .collect()
+    }
+}
+
+/// Segment `s`'s `(c_s, N_s)` at one instant (index `s − 1`) and, per shared column, their
+/// derivatives.
+pub(super) struct SegmentTerms {
+    pub c: Vec<Vector3<f64>>,
+    pub n: Vec<Matrix3<f64>>,
+    /// Per segment `s − 1`: `(column, ∂c_s, ∂N_s)` of the shared columns that move it (gravity,
+    /// and the lines of joints up to `s`; every other column's are zero).
+    pub d: Vec<Vec<ColumnRate>>,
+}
+
+/// A shared column and the rates `(∂c_s, ∂N_s)` of one segment's terms along it.
+pub(super) type ColumnRate = (usize, Vector3<f64>, Matrix3<f64>);
+
+/// Where a pass down the chain stands at segment `s`: its frame, and its motion at each instant.
+#[derive(Clone)]
+struct Stage<T: RealField> {
+    s: usize,
+    segment: Isometry3<T>,
+    motions: Vec<BodyMotion<T>>,
+}
+
+impl<T: RealField + Copy> Stage<T> {
+    /// The segment's terms at each instant, under `gravity` where the instant has it, each
+    /// passed to `emit` with the instant's index.
+    fn terms(
+        &self,
+        instants: &[Instant],
+        gravity: &Vector3<T>,
+        mut emit: impl FnMut(usize, Vector3<T>, Matrix3<T>),
+    ) {
+        let down = |g: &Vector3<T>| self.segment.rotation.inverse_transform_vector(&-g);
+        let zero = Vector3::zeros();
+        for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
+            let g = if instant.gravity { gravity } else { &zero };
+            if instant.still(self.s) {
+                // A still segment with no gravity has no field, nor any rate of it.
+                if instant.gravity {
+                    emit(i, down(g), Matrix3::zeros());
+                }
+            } else {
+                let (c, n) = motion.field_in(&self.segment, g);
+                emit(i, c, n);
+            }
+        }
+    }
+
+    /// Moves the stage on to the segment DoF `k` turns by `turn`, its joint frame `joint` on
+    /// this segment (followed by the local motion `step` when given).
+    fn advance(
+        &mut self,
+        k: usize,
+        joint: &Isometry3<T>,
+        step: Option<&Isometry3<T>>,
+        turn: &UnitQuaternion<T>,
+        instants: &[Instant],
+    ) {
+        let joint = step.map_or(*joint, |s| joint * s);
+        let (frame, segment) = link(&self.segment, &joint, turn);
+        let axis = frame.rotation * Vector3::z();
+        let point = frame.translation.vector;
+        for (motion, i) in self.motions.iter_mut().zip(instants) {
+            if !i.still(k + 1) {
+                *motion = motion.through(
+                    &axis,
+                    &point,
+                    T::from_subset(&i.qd[k]),
+                    T::from_subset(&i.qdd[k]),
+                );
+            }
+        }
+        self.s = k + 1;
+        self.segment = segment;
+    }
+}
+
+/// A shared column of the problem as the terms see it.
+enum Column {
+    /// Gravity moved along this direction.
+    Gravity(Vector3<f64>),
+    /// Joint `k`'s frame followed by this local motion (the dual unit in one component).
+    Joint(usize, Isometry3<Dual64>),
+    /// A column the terms do not depend on.
+    Other,
+}
+
+/// A chain at one state, ready to give the terms of any instant: its joint frames as dual numbers,
+/// and the shared columns the derivatives are wanted along.
+pub(super) struct Chain<'a> {
+    state: &'a ChainState,
+    lifted: Vec<Isometry3<Dual64>>,
+    gravity: Vector3<Dual64>,
+    columns: Vec<Column>,
+}
+
+impl<'a> Chain<'a> {
+    /// `columns`: the problem's shared columns (block and component) to differentiate along;
+    /// `None` for the terms alone.
+    pub fn new(state: &'a ChainState, columns: Option<&[(Block, usize)]>) -> Self {
+        let directions = gravity_directions(&state.gravity);
+        let columns = columns
+            .unwrap_or(&[])
+            .iter()
+            .map(|&(block, c)| match block {
+                Block::Gravity => Column::Gravity(Vector3::ith(c, 1.0)),
+                Block::GravityDirection => Column::Gravity(directions[c]),
+                Block::Joint(k) => Column::Joint(k, joint_step(false, c)),
+                Block::JointFull(k) => Column::Joint(k, joint_step(true, c)),
+                _ => Column::Other,
+            })
+            .collect();
+        Self {
+            state,
+            lifted: state.joints.iter().map(lift).collect(),
+            gravity: state.gravity.map(Dual64::from),
+            columns,
+        }
+    }
+
+    /// The terms of segments `1..=last` at each instant of a pose whose DoFs turn by `turns`
+    /// (`Rz(q)` per DoF), and their derivatives along the chain's columns. From `prefix`, the
+    /// frames before its segment are taken from it, and the segments before it get zero terms.
+    pub fn terms(
+        &self,
+        turns: &[UnitQuaternion<f64>],
+        prefix: Option<&Prefix>,
+        instants: &[Instant],
+        last: usize,
+    ) -> Vec<SegmentTerms> {
+        let (first, start) = self.start(prefix, instants);
+        let mut stages = Vec::with_capacity(last + 1 - first);
+        stages.push(start);
+        for k in first..last {
+            let mut next = stages[k - first].clone();
+            next.advance(k, &self.state.joints[k], None, &turns[k], instants);
+            stages.push(next);
+        }
+        // The columns that move segment `s`: gravity, and the joints before it.
+        let moving = |s: usize| {
+            let moves = |c: &Column| match c {
+                Column::Gravity(_) => true,
+                Column::Joint(k, _) => *k < s,
+                Column::Other => false,
+            };
+            self.columns.iter().filter(|c| moves(c)).count()
+        };
+        let capacity: Vec<usize> = (1..=last).map(moving).collect();
+        let mut out: Vec<SegmentTerms> = instants
+            .iter()
+            .map(|_| SegmentTerms {
+                c: vec![Vector3::zeros(); last],
+                n: vec![Matrix3::zeros(); last],
+                d: capacity.iter().map(|&n| Vec::with_capacity(n)).collect(),
+            })
+            .collect();
+        for stage in stages.iter().filter(|t| t.s > 0) {
+            let s = stage.s;
+            stage.terms(instants, &self.state.gravity, |i, c, n| {
+                out[i].c[s - 1] = c;
+                out[i].n[s - 1] = n;
+            });
+        }
+        for (col, column) in self.columns.iter().enumerate() {
+            match column {
+                Column::Gravity(dir) => {
+                    for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
+                        for stage in stages.iter().filter(|t| t.s > 0) {
+                            let dc = -stage.segment.rotation.inverse_transform_vector(dir);
+                            o.d[stage.s - 1].push((col, dc, Matrix3::zeros()));
+                        }
+                    }
+                }
+                Column::Joint(k, step) if (first..last).contains(k) => {
+                    let stage = &stages[k - first];
+                    self.along(col, step, stage, turns, instants, last, &mut out);
+                }
+                _ => {}
+            }
+        }
+        out
+    }
+
+    /// The first segment of a pass and its stage: the reference segment, still, or `prefix`'s
+    /// segment with the motion its joints give it.
+    fn start(&self, prefix: Option<&Prefix>, instants: &[Instant]) -> (usize, Stage<f64>) {
+        let still = vec![BodyMotion::still(); instants.len()];
+        let Some(prefix) = prefix else {
+            return (
+                0,
+                Stage {
+                    s: 0,
+                    segment: Isometry3::identity(),
+                    motions: still,
+                },
+            );
+        };
+        let motions = prefix
+            .joints
+            .iter()
+            .enumerate()
+            .fold(still, |motions, (k, frame)| {
+                let axis = frame.rotation * Vector3::z();
+                let point = frame.translation.vector;
+                motions
+                    .iter()
+                    .zip(instants)
+                    .map(|(m, i)| m.through(&axis, &point, i.qd[k], i.qdd[k]))
+                    .collect()
+            });
+        let first = prefix.joints.len();
+        (
+            first,
+            Stage {
+                s: first,
+                segment: prefix.segment,
+                motions,
+            },
+        )
+    }
+
+    /// Adds to `out` the derivatives along column `col` — joint `k`'s frame followed by `step`,
+    /// `k` the segment of the real pass's `stage` — of the terms of segments `k+1..=last`.
+    #[allow(clippy::too_many_arguments)]
+    fn along(
+        &self,
+        col: usize,
+        step: &Isometry3<Dual64>,
+        stage: &Stage<f64>,
+        turns: &[UnitQuaternion<f64>],
+        instants: &[Instant],
+        last: usize,
+        out: &mut [SegmentTerms],
+    ) {
+        let k = stage.s;
+        let mut stage = Stage {
+            s: k,
+            segment: lift(&stage.segment),
+            motions: stage.motions.iter().map(lift_motion).collect(),
+        };
+        let links = self.lifted.iter().zip(turns).enumerate().take(last);
+        for (j, (joint, turn)) in links.skip(k) {
+            let step = (j == k).then_some(step);
+            stage.advance(j, joint, step, &lift_turn(turn), instants);
+            stage.terms(instants, &self.gravity, |i, c, n| {
+                out[i].d[j].push((col, c.map(|x| x.eps), n.map(|x| x.eps)));
+            });
+        }
+    }
+}
+
+/// An `f64` isometry as one of dual numbers (no derivative).
+fn lift(iso: &Isometry3<f64>) -> Isometry3<Dual64> {
+    Isometry3::from_parts(
+        Translation3::from(iso.translation.vector.map(Dual64::from)),
+        lift_turn(&iso.rotation),
+    )
+}
+
+/// An `f64` rotation as one of dual numbers (no derivative).
+fn lift_turn(q: &UnitQuaternion<f64>) -> UnitQuaternion<Dual64> {
+    UnitQuaternion::new_unchecked(Quaternion::from(q.coords.map(Dual64::from)))
+}
+
+/// An `f64` body motion as one of dual numbers (no derivative).
+fn lift_motion(m: &BodyMotion<f64>) -> BodyMotion<Dual64> {
+    BodyMotion {
+        omega: m.omega.map(Dual64::from),
+        alpha: m.alpha.map(Dual64::from),
+        accel: m.accel.map(Dual64::from),
+    }
+}
+
+/// The first-order local motion of component `c` of a joint block (as [`super::problem`]'s
+/// retraction applies it) with the dual unit in that component: rotations as `(1, ε/2)`
+/// quaternions, exact to first order (a rotation vector's norm has no derivative at zero).
+fn joint_step(full: bool, c: usize) -> Isometry3<Dual64> {
+    let mut x = [Dual64::from(0.0); 6];
+    // Joint: (rx, ry, x, y); full: (rx, ry, rz, x, y, z).
+    let slot = if full { c } else { [0, 1, 3, 4][c] };
+    x[slot] = Dual64::new(0.0, 1.0);
+    let half = Dual64::from(0.5);
+    Isometry3::from_parts(
+        Translation3::new(x[3], x[4], x[5]),
+        UnitQuaternion::new_unchecked(Quaternion::new(
+            Dual64::from(1.0),
+            x[0] * half,
+            x[1] * half,
+            x[2] * half,
+        )),
+    )
+}
