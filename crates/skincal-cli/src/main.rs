@@ -644,19 +644,27 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     let (file, dir) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
     let (structure, source) = structure_of(&set, &dir)?;
-    let no_readings = set.training.as_ref().is_none_or(|t| t.poses.is_empty());
-    if no_readings && dir.join("motion.json").exists() {
+    let poses = skincal::estimate::body::training_poses(&set);
+    if skincal::estimate::body::starts_from_quiet(&set) && dir.join("motion.json").exists() {
+        let has = if poses == 0 {
+            "no readings".to_string()
+        } else {
+            format!(
+                "{poses} training pose(s), too few to fit readings on (it takes {}),",
+                skincal::estimate::body::MIN_POSES
+            )
+        };
         if args.method != Method::Ml {
             anyhow::bail!(
-                "{} has no readings, only the motion record motion.json: the paper's method fits \
+                "{} has {has} and the motion record motion.json: the paper's method fits \
                  readings; use --method ml (the default), which fits the motion",
                 file.display()
             );
         }
         if args.readings_only {
             anyhow::bail!(
-                "{} has no readings, only the motion record motion.json: leave out \
-                 --readings-only to calibrate from the motion",
+                "{} has {has} and the motion record motion.json: leave out --readings-only to \
+                 calibrate from the motion",
                 file.display()
             );
         }
@@ -794,7 +802,8 @@ fn calibrate_ml(
     let motion_path = dir.join("motion.json");
     let motion = if motion_path.exists() && !args.readings_only {
         let record = io::read_motion(&motion_path)?;
-        if set.training.as_ref().is_some_and(|t| !t.poses.is_empty()) {
+        let poses = skincal::estimate::body::training_poses(set);
+        if !skincal::estimate::body::starts_from_quiet(set) {
             outln!(
                 "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
                 motion_path.display(),
@@ -802,8 +811,17 @@ fn calibrate_ml(
                 record.period * 1e3
             );
         } else {
+            let readings = if poses == 0 {
+                "no readings in the set".to_string()
+            } else {
+                format!(
+                    "{poses} training pose(s) in the set, too few for a start from readings (it \
+                     takes {})",
+                    skincal::estimate::body::MIN_POSES
+                )
+            };
             outln!(
-                "no readings in the set: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
+                "{readings}: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
                  and is fitted on every sample of it",
                 skincal::estimate::body::QUIET_POSES,
                 motion_path.display(),

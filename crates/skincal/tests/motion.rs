@@ -246,10 +246,10 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
     }
 }
 
-/// The motion rows' analytic Jacobian (SU blocks by hand, joint lines by dual numbers, gravity
-/// in closed form) against central differences of the residuals through the retraction, at the
-/// truth of a noise-free log with a skin 3 ms late (plain least squares); the delay's column (the
-/// prediction's rate standing for the measured one's) within 10 % RMS.
+/// The motion rows' Jacobian (the SU's own frame and intrinsics by the chain rule, joint lines
+/// by dual numbers, gravity in closed form) against central differences of the residuals through
+/// the retraction, at the truth of a noise-free log with a skin 3 ms late (plain least squares);
+/// the delay's column (the prediction's rate standing for the measured one's) within 10 % RMS.
 #[test]
 fn the_motion_rows_jacobian_matches_central_differences() {
     use skincal::estimate::ml::{internals, state_of};
@@ -483,4 +483,63 @@ fn a_continuous_programs_forecast_is_what_its_recording_reaches() {
         (0.001..0.006).contains(&f.static_rms) && (0.001..0.006).contains(&f.dynamic_rms),
         "{f:?}"
     );
+}
+
+/// A log with fewer training poses than the readings' fit starts from (servos that never came to
+/// rest at the other poses, a protocol cut short): the fit starts from the record's quiet moments
+/// instead and is fitted on every sample, at the noise level; before, the set was refused ("2
+/// training poses cannot determine 3 parameters per step").
+#[test]
+fn too_few_training_poses_start_from_the_motions_quiet_moments() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 2,
+            seed: 3,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let upright = LogConfig {
+        seed: 5,
+        ..LogConfig::default()
+    };
+    let [upright, tilted] = logs(&robot, &plan, dir.path(), &upright);
+    let config = IngestConfig::default();
+    let set = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {})
+        .unwrap()
+        .measurements;
+    assert_eq!(skincal::estimate::body::training_poses(&set), 2);
+    assert!(skincal::estimate::body::starts_from_quiet(&set));
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let record =
+        motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
+    let model = calibrate_body_on_motion(
+        &set,
+        &record,
+        Some(&structure),
+        &MlConfig::default(),
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    for limb in &model.limbs {
+        let e = &limb.estimate;
+        assert!(
+            e.converged && e.residual_ratio < 1.2,
+            "{}",
+            e.residual_ratio
+        );
+    }
+    let held_out = crate::common::held_out(&robot, 99);
+    let v = validate(&model, &held_out, "held-out").unwrap();
+    eprintln!(
+        "2 poses, from quiet moments: held-out static {:.4}, dynamic {:.4} m/s²",
+        v.static_rms, v.dynamic_rms
+    );
+    assert!(v.static_rms < 0.01 && v.dynamic_rms < 0.01, "{v:?}");
 }
