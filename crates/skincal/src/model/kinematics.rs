@@ -129,10 +129,7 @@ impl<T: RealField> BodyMotion<T> {
 
     /// The specific-force field of the body seen in `frame`, a frame fixed to it (reference ←
     /// frame): `(c, N)` such that an ideal accelerometer aligned with `frame` at `p` (frame
-    /// coordinates) reads `c + N p` under `gravity`. With `R` and `x` the frame's rotation and
-    /// origin and `ω_f = Rᵀω`, `α_f = Rᵀα`, `x_f = Rᵀx`: `N = [α_f]× + [ω_f]×²` (and
-    /// `[ω]×² = ω ωᵀ − |ω|² I`) and `c = Rᵀ(accel − g) + N x_f`: rotated vectors, no product of
-    /// matrices.
+    /// coordinates) reads `c + N p` under `gravity`.
     pub fn field_in(&self, frame: &Isometry3<T>, gravity: &Vector3<T>) -> (Vector3<T>, Matrix3<T>) {
         let rt = frame
             .rotation
@@ -140,11 +137,24 @@ impl<T: RealField> BodyMotion<T> {
             .to_rotation_matrix()
             .into_inner()
             .transpose();
-        let w = &rt * &self.omega;
-        let spin = &w * w.transpose() - Matrix3::identity() * w.norm_squared();
-        let n = (&rt * &self.alpha).cross_matrix() + spin;
         let x = &rt * &frame.translation.vector;
-        let c = &rt * (self.accel.clone() - gravity.clone()) + &n * x;
+        self.field_seen(&rt, &x, gravity)
+    }
+
+    /// [`BodyMotion::field_in`] with the frame given as `Rᵀ` and its origin in its own axes,
+    /// `x_f = Rᵀx` (for many motions seen in one frame). With `ω_f = Rᵀω` and `α_f = Rᵀα`:
+    /// `N = [α_f]× + [ω_f]×²` (`[ω]×² = ω ωᵀ − |ω|² I`) and `c = Rᵀ(accel − g) + N x_f` —
+    /// rotated vectors, no product of matrices.
+    pub fn field_seen(
+        &self,
+        rt: &Matrix3<T>,
+        x: &Vector3<T>,
+        gravity: &Vector3<T>,
+    ) -> (Vector3<T>, Matrix3<T>) {
+        let w = rt * &self.omega;
+        let spin = &w * w.transpose() - Matrix3::identity() * w.norm_squared();
+        let n = (rt * &self.alpha).cross_matrix() + spin;
+        let c = rt * (self.accel.clone() - gravity.clone()) + &n * x;
         (c, n)
     }
 

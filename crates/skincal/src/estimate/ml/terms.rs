@@ -128,17 +128,23 @@ impl<T: RealField + Copy> Stage<T> {
         gravity: &Vector3<T>,
         mut emit: impl FnMut(usize, Vector3<T>, Matrix3<T>),
     ) {
-        let down = |g: &Vector3<T>| self.segment.rotation.inverse_transform_vector(&-g);
+        let rt = self
+            .segment
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose();
+        let x = rt * self.segment.translation.vector;
         let zero = Vector3::zeros();
         for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
             let g = if instant.gravity { gravity } else { &zero };
             if instant.still(self.s) {
                 // A still segment with no gravity has no field, nor any rate of it.
                 if instant.gravity {
-                    emit(i, down(g), Matrix3::zeros());
+                    emit(i, -(rt * g), Matrix3::zeros());
                 }
             } else {
-                let (c, n) = motion.field_in(&self.segment, g);
+                let (c, n) = motion.field_seen(&rt, &x, g);
                 emit(i, c, n);
             }
         }
@@ -159,7 +165,9 @@ impl<T: RealField + Copy> Stage<T> {
         let axis = frame.rotation * Vector3::z();
         let point = frame.translation.vector;
         for (motion, i) in self.motions.iter_mut().zip(instants) {
-            if !i.still(k + 1) {
+            // A DoF at rest adds nothing to the motion it carries on (exactly: every term of
+            // `through` is a multiple of its rate or acceleration).
+            if i.qd[k] != 0.0 || i.qdd[k] != 0.0 {
                 *motion = motion.through(
                     &axis,
                     &point,
