@@ -467,7 +467,7 @@ impl JacobianRows<'_> {
                     .copy_from(&(d * self.scale));
             }
         }
-        for (col, dc, dn) in &terms.d[s] {
+        for (col, dc, dn) in terms.rates(s) {
             let d = su.krt * (dc + dn * su.p);
             shared
                 .fixed_view_mut::<3, 1>(self.row, *col)

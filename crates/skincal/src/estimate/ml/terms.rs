@@ -98,14 +98,22 @@ impl ReadingInstants {
     }
 }
 
-/// Segment `s`'s `(c_s, N_s)` at one instant (index `s − 1`) and, per shared column, their
-/// derivatives.
+/// Segment `s`'s `(c_s, N_s)` at one instant (index `s − 1`) and, per shared column that moves
+/// it (gravity, and the lines of joints up to `s`; every other column's are zero), their rates.
 pub(super) struct SegmentTerms {
     pub c: Vec<Vector3<f64>>,
     pub n: Vec<Matrix3<f64>>,
-    /// Per segment `s − 1`: `(column, ∂c_s, ∂N_s)` of the shared columns that move it (gravity,
-    /// and the lines of joints up to `s`; every other column's are zero).
-    pub d: Vec<Vec<ColumnRate>>,
+    /// Every segment's rates, segment after segment.
+    rates: Vec<ColumnRate>,
+    /// Segment entry `e`'s rates are `rates[starts[e]..starts[e + 1]]`.
+    starts: Vec<usize>,
+}
+
+impl SegmentTerms {
+    /// The rates `(column, ∂c_s, ∂N_s)` of segment entry `e` (segment `e + 1`).
+    pub fn rates(&self, e: usize) -> &[ColumnRate] {
+        &self.rates[self.starts[e]..self.starts[e + 1]]
+    }
 }
 
 /// A shared column and the rates `(∂c_s, ∂N_s)` of one segment's terms along it.
@@ -225,8 +233,11 @@ impl<'a> Chain<'a> {
     }
 
     /// The terms of segments `1..=last` at each instant of a pose whose DoFs turn by `turns`
-    /// (`Rz(q)` per DoF), and their derivatives along the chain's columns. From `prefix`, the
-    /// frames before its segment are taken from it, and the segments before it get zero terms.
+    /// (`Rz(q)` per DoF), and their rates along the chain's columns. From `prefix`, the frames
+    /// before its segment are taken from it, and the segments before it get zero terms.
+    ///
+    /// One pass down the chain: at each joint, the passes of the columns of its line start from
+    /// the real stage (lifted to dual numbers), and every pass moves on with the real one.
     pub fn terms(
         &self,
         turns: &[UnitQuaternion<f64>],
@@ -234,57 +245,80 @@ impl<'a> Chain<'a> {
         instants: &[Instant],
         last: usize,
     ) -> Vec<SegmentTerms> {
-        let (first, start) = self.start(prefix, instants);
-        let mut stages = Vec::with_capacity(last + 1 - first);
-        stages.push(start);
-        for k in first..last {
-            let mut next = stages[k - first].clone();
-            next.advance(k, &self.state.joints[k], None, &turns[k], instants);
-            stages.push(next);
-        }
-        // The columns that move segment `s`: gravity, and the joints before it.
-        let moving = |s: usize| {
-            let moves = |c: &Column| match c {
-                Column::Gravity(_) => true,
-                Column::Joint(k, _) => *k < s,
-                Column::Other => false,
-            };
-            self.columns.iter().filter(|c| moves(c)).count()
-        };
-        let capacity: Vec<usize> = (1..=last).map(moving).collect();
+        let (first, mut stage) = self.start(prefix, instants);
         let mut out: Vec<SegmentTerms> = instants
             .iter()
-            .map(|_| SegmentTerms {
+            .map(|i| SegmentTerms {
                 c: vec![Vector3::zeros(); last],
                 n: vec![Matrix3::zeros(); last],
-                d: capacity.iter().map(|&n| Vec::with_capacity(n)).collect(),
+                rates: Vec::with_capacity(self.rate_count(first, last, i.gravity)),
+                starts: vec![0; last + 1],
             })
             .collect();
-        for stage in stages.iter().filter(|t| t.s > 0) {
-            let s = stage.s;
+        let mut passes: Vec<(usize, usize, Stage<Dual64>)> = Vec::new();
+        for s in first.max(1)..=last {
+            if s > first {
+                let k = s - 1;
+                for (col, column) in self.columns.iter().enumerate() {
+                    if matches!(column, Column::Joint(j, _) if *j == k) {
+                        passes.push((col, k, lift_stage(&stage)));
+                    }
+                }
+                stage.advance(k, &self.state.joints[k], None, &turns[k], instants);
+                let turn = lift_turn(&turns[k]);
+                for (col, from, pass) in &mut passes {
+                    let step = match &self.columns[*col] {
+                        Column::Joint(_, step) if *from == k => Some(step),
+                        _ => None,
+                    };
+                    pass.advance(k, &self.lifted[k], step, &turn, instants);
+                }
+            }
+            for o in &mut out {
+                o.starts[s - 1] = o.rates.len();
+            }
             stage.terms(instants, &self.state.gravity, |i, c, n| {
                 out[i].c[s - 1] = c;
                 out[i].n[s - 1] = n;
             });
-        }
-        for (col, column) in self.columns.iter().enumerate() {
-            match column {
-                Column::Gravity(dir) => {
-                    for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
-                        for stage in stages.iter().filter(|t| t.s > 0) {
-                            let dc = -stage.segment.rotation.inverse_transform_vector(dir);
-                            o.d[stage.s - 1].push((col, dc, Matrix3::zeros()));
-                        }
-                    }
+            for (col, column) in self.columns.iter().enumerate() {
+                let Column::Gravity(dir) = column else {
+                    continue;
+                };
+                let dc = -stage.segment.rotation.inverse_transform_vector(dir);
+                for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
+                    o.rates.push((col, dc, Matrix3::zeros()));
                 }
-                Column::Joint(k, step) if (first..last).contains(k) => {
-                    let stage = &stages[k - first];
-                    self.along(col, step, stage, turns, instants, last, &mut out);
-                }
-                _ => {}
+            }
+            for (col, _, pass) in &passes {
+                pass.terms(instants, &self.gravity, |i, c, n| {
+                    out[i]
+                        .rates
+                        .push((*col, c.map(|x| x.eps), n.map(|x| x.eps)));
+                });
+            }
+            for o in &mut out {
+                o.starts[s] = o.rates.len();
             }
         }
         out
+    }
+
+    /// The most rates one instant's terms of segments `first..=last` hold: per segment, the
+    /// gravity columns (when the instant has gravity) and the columns of the joints before it.
+    fn rate_count(&self, first: usize, last: usize, gravity: bool) -> usize {
+        (first.max(1)..=last)
+            .map(|s| {
+                self.columns
+                    .iter()
+                    .filter(|c| match c {
+                        Column::Gravity(_) => gravity,
+                        Column::Joint(k, _) => (first..s).contains(k),
+                        Column::Other => false,
+                    })
+                    .count()
+            })
+            .sum()
     }
 
     /// The first segment of a pass and its stage: the reference segment, still, or `prefix`'s
@@ -324,35 +358,6 @@ impl<'a> Chain<'a> {
             },
         )
     }
-
-    /// Adds to `out` the derivatives along column `col` — joint `k`'s frame followed by `step`,
-    /// `k` the segment of the real pass's `stage` — of the terms of segments `k+1..=last`.
-    #[allow(clippy::too_many_arguments)]
-    fn along(
-        &self,
-        col: usize,
-        step: &Isometry3<Dual64>,
-        stage: &Stage<f64>,
-        turns: &[UnitQuaternion<f64>],
-        instants: &[Instant],
-        last: usize,
-        out: &mut [SegmentTerms],
-    ) {
-        let k = stage.s;
-        let mut stage = Stage {
-            s: k,
-            segment: lift(&stage.segment),
-            motions: stage.motions.iter().map(lift_motion).collect(),
-        };
-        let links = self.lifted.iter().zip(turns).enumerate().take(last);
-        for (j, (joint, turn)) in links.skip(k) {
-            let step = (j == k).then_some(step);
-            stage.advance(j, joint, step, &lift_turn(turn), instants);
-            stage.terms(instants, &self.gravity, |i, c, n| {
-                out[i].d[j].push((col, c.map(|x| x.eps), n.map(|x| x.eps)));
-            });
-        }
-    }
 }
 
 /// An `f64` isometry as one of dual numbers (no derivative).
@@ -366,6 +371,15 @@ fn lift(iso: &Isometry3<f64>) -> Isometry3<Dual64> {
 /// An `f64` rotation as one of dual numbers (no derivative).
 fn lift_turn(q: &UnitQuaternion<f64>) -> UnitQuaternion<Dual64> {
     UnitQuaternion::new_unchecked(Quaternion::from(q.coords.map(Dual64::from)))
+}
+
+/// A real pass's stage as one of dual numbers (no derivative).
+fn lift_stage(stage: &Stage<f64>) -> Stage<Dual64> {
+    Stage {
+        s: stage.s,
+        segment: lift(&stage.segment),
+        motions: stage.motions.iter().map(lift_motion).collect(),
+    }
 }
 
 /// An `f64` body motion as one of dual numbers (no derivative).
