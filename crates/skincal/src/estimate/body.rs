@@ -605,33 +605,10 @@ fn set_aside_misfits(
     broken: &mut Vec<BrokenSu>,
 ) -> Result<MlChainEstimate, EstimateError> {
     for _ in 0..MAX_SET_ASIDE {
-        let sus = estimate.chain.sus();
-        let ratios = &estimate.su_residual_ratio;
-        let mut sorted = ratios.clone();
-        sorted.sort_by(f64::total_cmp);
-        let Some(&median) = sorted.get(sorted.len() / 2) else {
+        let Some(misfit) = Misfit::worst(&estimate, keep) else {
             break;
         };
-        // A sensitivity far from 1 is no calibration error: a negative one is an axis that
-        // reads mirrored (an improper frame the scale absorbed).
-        let scale = |u: usize| {
-            estimate
-                .intrinsics
-                .iter()
-                .find(|i| i.su == sus[u])
-                .map_or([0.0; 3], |i| i.value.scale)
-        };
-        let odd_scale = |u: usize| scale(u).iter().any(|s| s.abs() > MAX_SCALE_ERROR);
-        let worst = (0..sus.len())
-            .filter(|&u| odd_scale(u) || (ratios[u] > MISFIT_RATIO && ratios[u] > 2.0 * median))
-            .filter(|&u| !keep.contains(&sus[u]))
-            .max_by(|&a, &b| {
-                (odd_scale(a), ratios[a])
-                    .partial_cmp(&(odd_scale(b), ratios[b]))
-                    .unwrap_or(std::cmp::Ordering::Equal)
-            });
-        let Some(u) = worst else { break };
-        let su = sus[u].clone();
+        let su = estimate.chain.sus()[misfit.u].clone();
         // The only SU of its segment carries the segment: it stays.
         let Some(joint) = chain.joints.iter().position(|j| j.sus.contains(&su)) else {
             break;
@@ -639,63 +616,13 @@ fn set_aside_misfits(
         if chain.joints[joint].sus.len() < 2 {
             break;
         }
-        let negated: Vec<&str> = (0..3)
-            .filter(|&k| 1.0 + scale(u)[k] < 0.0)
-            .map(|k| ["x", "y", "z"][k])
-            .collect();
-        let sensitivities = scale(u)
-            .iter()
-            .map(|s| format!("{:+.2}", 1.0 + s))
-            .collect::<Vec<_>>()
-            .join(", ");
-        // Does a reflection explain it? Its readings with z negated, fitted again (only asked
-        // when the fitted sensitivities do not already tell).
-        let reflected = || {
-            LimbData::new(&mirror_su(set, &su), &chain)
-                .and_then(|data| estimate_limb(&data, base, config))
-                .ok()
-                .and_then(|e| e.su_residual_ratio.get(u).copied())
+        let fit = LimbFit {
+            set,
+            chain: &chain,
+            base,
+            config,
         };
-        let (kind, detail) = if !negated.is_empty() {
-            (
-                "improper frame",
-                format!(
-                    "its {} axis reads mirrored (fitted sensitivity {sensitivities}): its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; a rotation of the frame absorbs which)",
-                    negated.join(" and "),
-                ),
-            )
-        } else if odd_scale(u) {
-            (
-                "scale",
-                format!(
-                    "its fitted sensitivities ({sensitivities}) are far from 1: a wrong range setting or a faulty part"
-                ),
-            )
-        } else if let Some((segment, r)) = fits_elsewhere(set, &chain, joint, &su, base, config) {
-            (
-                "misplaced",
-                format!(
-                    "its readings fit {:.1}× the noise on segment {} where the structure puts it, but {r:.2}× on segment {segment}: the tree is wrong for this SU (check its row of the activity matrix, or record its structure moves again and explore)",
-                    ratios[u], chain.joints[joint].segment
-                ),
-            )
-        } else if let Some(r) = reflected().filter(|&r| r < config.converged_ratio) {
-            (
-                "improper frame",
-                format!(
-                    "its readings fit {:.1}× the noise, but {r:.2}× with one axis negated: its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; which ones no reading can tell, a rotation of the frame absorbs the rest)",
-                    ratios[u]
-                ),
-            )
-        } else {
-            (
-                "noisy",
-                format!(
-                    "its readings fit {:.1}× the noise while its limb's SUs fit {median:.1}× (a noisy, loose or intermittent sensor)",
-                    ratios[u]
-                ),
-            )
-        };
+        let (kind, detail) = misfit.diagnose(&fit, joint, &su);
         broken.push(BrokenSu {
             su: su.clone(),
             kind: kind.into(),
@@ -705,6 +632,131 @@ fn set_aside_misfits(
         estimate = estimate_limb(&LimbData::new(set, &chain)?, base, config)?;
     }
     Ok(estimate)
+}
+
+/// A limb's fit as the misfit tests run it again: its set, chain, base and settings.
+struct LimbFit<'a> {
+    set: &'a MeasurementSet,
+    chain: &'a LimbChain,
+    base: Option<&'a LimbBase>,
+    config: &'a MlConfig,
+}
+
+/// The SU of a limb's estimate whose readings the fit explains worst, with what tells why.
+struct Misfit {
+    /// Its index in the estimate's SUs.
+    u: usize,
+    /// Its residual over the noise, and the limb's median SU's.
+    ratio: f64,
+    median: f64,
+    /// Its fitted sensitivities less 1 (zero without fitted scales).
+    scale: [f64; 3],
+}
+
+impl Misfit {
+    /// The worst SU of `estimate` not in `keep` whose residual is more than [`MISFIT_RATIO`]
+    /// times the noise and twice its limb's median SU's, or whose sensitivity is far from 1 (a
+    /// negative one is an axis that reads mirrored: an improper frame the scale absorbed).
+    fn worst(estimate: &MlChainEstimate, keep: &[String]) -> Option<Self> {
+        let sus = estimate.chain.sus();
+        let ratios = &estimate.su_residual_ratio;
+        let mut sorted = ratios.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = *sorted.get(sorted.len() / 2)?;
+        let scale = |u: usize| {
+            estimate
+                .intrinsics
+                .iter()
+                .find(|i| i.su == sus[u])
+                .map_or([0.0; 3], |i| i.value.scale)
+        };
+        let odd_scale = |u: usize| scale(u).iter().any(|s| s.abs() > MAX_SCALE_ERROR);
+        let u = (0..sus.len())
+            .filter(|&u| odd_scale(u) || (ratios[u] > MISFIT_RATIO && ratios[u] > 2.0 * median))
+            .filter(|&u| !keep.contains(&sus[u]))
+            .max_by(|&a, &b| {
+                (odd_scale(a), ratios[a])
+                    .partial_cmp(&(odd_scale(b), ratios[b]))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            })?;
+        Some(Self {
+            u,
+            ratio: ratios[u],
+            median,
+            scale: scale(u),
+        })
+    }
+
+    /// What is wrong with the SU `su` of joint `joint` of `fit`'s chain, and the words that say
+    /// it: an improper frame (a sensitivity negative, or its readings with one axis negated
+    /// fitting at the noise level), a scale far from 1, a segment of the limb other than the
+    /// structure's on which it fits at the noise level, else noise.
+    fn diagnose(&self, fit: &LimbFit, joint: usize, su: &str) -> (&'static str, String) {
+        let LimbFit {
+            set,
+            chain,
+            base,
+            config,
+        } = *fit;
+        let ratio = self.ratio;
+        let negated: Vec<&str> = (0..3)
+            .filter(|&k| 1.0 + self.scale[k] < 0.0)
+            .map(|k| ["x", "y", "z"][k])
+            .collect();
+        let sensitivities = self
+            .scale
+            .iter()
+            .map(|s| format!("{:+.2}", 1.0 + s))
+            .collect::<Vec<_>>()
+            .join(", ");
+        // Does a reflection explain it? Its readings with z negated, fitted again (only asked
+        // when the fitted sensitivities do not already tell).
+        let reflected = || {
+            LimbData::new(&mirror_su(set, su), chain)
+                .and_then(|data| estimate_limb(&data, base, config))
+                .ok()
+                .and_then(|e| e.su_residual_ratio.get(self.u).copied())
+        };
+        if !negated.is_empty() {
+            (
+                "improper frame",
+                format!(
+                    "its {} axis reads mirrored (fitted sensitivity {sensitivities}): its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; a rotation of the frame absorbs which)",
+                    negated.join(" and "),
+                ),
+            )
+        } else if self.scale.iter().any(|s| s.abs() > MAX_SCALE_ERROR) {
+            (
+                "scale",
+                format!(
+                    "its fitted sensitivities ({sensitivities}) are far from 1: a wrong range setting or a faulty part"
+                ),
+            )
+        } else if let Some((segment, r)) = fits_elsewhere(set, chain, joint, su, base, config) {
+            (
+                "misplaced",
+                format!(
+                    "its readings fit {ratio:.1}× the noise on segment {} where the structure puts it, but {r:.2}× on segment {segment}: the tree is wrong for this SU (check its row of the activity matrix, or record its structure moves again and explore)",
+                    chain.joints[joint].segment
+                ),
+            )
+        } else if let Some(r) = reflected().filter(|&r| r < config.converged_ratio) {
+            (
+                "improper frame",
+                format!(
+                    "its readings fit {ratio:.1}× the noise, but {r:.2}× with one axis negated: its axes form a left-handed frame (two axes swapped or one negated by wiring or mounting; which ones no reading can tell, a rotation of the frame absorbs the rest)"
+                ),
+            )
+        } else {
+            (
+                "noisy",
+                format!(
+                    "its readings fit {ratio:.1}× the noise while its limb's SUs fit {:.1}× (a noisy, loose or intermittent sensor)",
+                    self.median
+                ),
+            )
+        }
+    }
 }
 
 /// The segment of `chain` (other than its joint `joint`'s) on which SU `su` fits at the noise

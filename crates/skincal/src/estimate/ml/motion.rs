@@ -88,22 +88,7 @@ impl LimbMotion {
             .map(|s| find("SU", &record.sus, s))
             .collect::<Result<_, _>>()?;
         let margin = (MAX_DELAY / record.period).ceil() as usize + 2;
-        let limits: Vec<f64> = dofs
-            .iter()
-            .map(|&d| {
-                let mut sds: Vec<f64> = record
-                    .runs
-                    .iter()
-                    .flat_map(|run| run.qdd_sd.iter().map(move |row| row[d]))
-                    .collect();
-                if sds.is_empty() {
-                    return MAX_ACCELERATION_SD;
-                }
-                let mid = sds.len() / 2;
-                let median = *sds.select_nth_unstable_by(mid, f64::total_cmp).1;
-                MAX_ACCELERATION_SD.max(SUDDEN * median)
-            })
-            .collect();
+        let limits = sudden_limits(record, &dofs);
         let mut samples = Vec::new();
         let mut skin = Vec::new();
         for (r, run) in record.runs.iter().enumerate() {
@@ -261,6 +246,27 @@ impl LimbMotion {
     pub(super) fn period(&self) -> f64 {
         self.period
     }
+}
+
+/// Per DoF of `dofs` (record indices), the uncertainty of its acceleration above which a block
+/// is too sudden to fit: [`MAX_ACCELERATION_SD`], or [`SUDDEN`] times the DoF's median where its
+/// encoder leaves every block less certain.
+fn sudden_limits(record: &MotionRecord, dofs: &[usize]) -> Vec<f64> {
+    dofs.iter()
+        .map(|&d| {
+            let mut sds: Vec<f64> = record
+                .runs
+                .iter()
+                .flat_map(|run| run.qdd_sd.iter().map(move |row| row[d]))
+                .collect();
+            if sds.is_empty() {
+                return MAX_ACCELERATION_SD;
+            }
+            let mid = sds.len() / 2;
+            let median = *sds.select_nth_unstable_by(mid, f64::total_cmp).1;
+            MAX_ACCELERATION_SD.max(SUDDEN * median)
+        })
+        .collect()
 }
 
 /// The segment terms of every sample at `state`, for segments `1..=last`; with `columns` (the
