@@ -80,6 +80,38 @@ pub fn calibrated(
     .unwrap()
 }
 
+/// `set` explored (the tree must be complete) and calibrated on every sample of `record` with
+/// the default settings; every limb must converge below `max_ratio` times its noise.
+pub fn calibrated_on_motion(
+    set: &skincal::measurements::MeasurementSet,
+    record: &skincal::motion::MotionRecord,
+    max_ratio: f64,
+) -> skincal::estimate::body::BodyModel {
+    use skincal::explore::{explore, ExploreConfig};
+    let structure = explore(set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let model = skincal::estimate::body::calibrate_body_on_motion(
+        set,
+        record,
+        Some(&structure),
+        &skincal::estimate::ml::MlConfig::default(),
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    for limb in &model.limbs {
+        let e = &limb.estimate;
+        assert!(
+            e.converged && e.residual_ratio < max_ratio,
+            "{}: {}",
+            limb.name,
+            e.residual_ratio
+        );
+    }
+    model
+}
+
 /// The Python that runs the scripts of `tests/python` (`cargo xtask test` makes it and sets
 /// `SKINCAL_TEST_PYTHON`).
 pub fn test_python() -> std::ffi::OsString {

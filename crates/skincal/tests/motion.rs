@@ -513,28 +513,9 @@ fn too_few_training_poses_start_from_the_motions_quiet_moments() {
         .measurements;
     assert_eq!(skincal::estimate::body::training_poses(&set), 2);
     assert!(skincal::estimate::body::starts_from_quiet(&set));
-    let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete, "{:?}", structure.diagnostics);
     let record =
         motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
-    let model = calibrate_body_on_motion(
-        &set,
-        &record,
-        Some(&structure),
-        &MlConfig::default(),
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
-    for limb in &model.limbs {
-        let e = &limb.estimate;
-        assert!(
-            e.converged && e.residual_ratio < 1.2,
-            "{}",
-            e.residual_ratio
-        );
-    }
+    let model = crate::common::calibrated_on_motion(&set, &record, 1.2);
     let held_out = crate::common::held_out(&robot, 99);
     let v = validate(&model, &held_out, "held-out").unwrap();
     eprintln!(

@@ -584,28 +584,9 @@ fn servos_too_slow_for_the_programs_pauses_calibrate_from_the_motion() {
         "{} training poses",
         skincal::estimate::body::training_poses(set)
     );
-    let structure = explore(set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete, "{:?}", structure.diagnostics);
     let record =
         motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
-    let model = calibrate_body_on_motion(
-        set,
-        &record,
-        Some(&structure),
-        &MlConfig::default(),
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
-    for limb in &model.limbs {
-        let e = &limb.estimate;
-        assert!(
-            e.converged && e.residual_ratio < 1.2,
-            "{}",
-            e.residual_ratio
-        );
-    }
+    let model = crate::common::calibrated_on_motion(set, &record, 1.2);
     // 0.0076 / 0.0057 m/s² (0.0070 / 0.0056 through the CLI, its SUs placed by `simulate`).
     let v = held_out_rms(&model, &robot, "3 Hz servos, 0.3 s pauses, every sample: ");
     assert!(v.static_rms < 0.01 && v.dynamic_rms < 0.01, "{v:?}");
