@@ -36,6 +36,36 @@ mod sweep;
 pub mod trajectory;
 pub use sweep::Sweep;
 
+/// How far each DoF moves in the structure experiment by default, rad: the plan's and the
+/// simulator's.
+pub const STRUCTURE_ANGLE: f64 = 0.3;
+
+/// The random stream of the training poses of an experiment with `seed`: a plan and a simulation
+/// with one seed draw the same poses.
+pub(crate) fn pose_stream(seed: u64) -> rand_chacha::ChaCha8Rng {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(POSE_STREAM);
+    rng
+}
+
+/// The stream id of the training poses (the simulator's other draws use others).
+pub(crate) const POSE_STREAM: u64 = 1;
+
+/// The position of a DoF moved by `angle` from `rest` in the structure experiment: forwards if
+/// the limits allow, else backwards, else as far as the limits allow.
+pub fn structure_move(limits: &crate::model::Limits, rest: f64, angle: f64) -> f64 {
+    if rest + angle <= limits.upper {
+        rest + angle
+    } else if rest - angle >= limits.lower {
+        rest - angle
+    } else if limits.upper - rest >= rest - limits.lower {
+        limits.upper
+    } else {
+        limits.lower
+    }
+}
+
 /// `format` of a plan file.
 pub const FORMAT: &str = "skincal-plan";
 /// Plan file version.
@@ -215,7 +245,7 @@ impl Default for PlanConfig {
             training: true,
             poses: 20,
             pose_range: PI / 2.0,
-            structure_angle: crate::sim::SimulationConfig::default().structure_angle,
+            structure_angle: STRUCTURE_ANGLE,
             still: 1.0,
             settle: 0.5,
             ramp_cycles: 1.0,
@@ -827,7 +857,7 @@ impl Plan {
                     velocity: None,
                     acceleration: None,
                 };
-                let target = crate::sim::structure_move(&limits, rest[d], config.structure_angle);
+                let target = structure_move(&limits, rest[d], config.structure_angle);
                 let mut moved = rest.clone();
                 moved[d] = target;
                 // A move that touches goes the other way if that way is clear and in range.
@@ -849,7 +879,7 @@ impl Plan {
         }
         let structure_duration = builder.t;
         if config.training && config.sweep > 0.0 {
-            let mut rng = crate::sim::pose_stream(config.seed);
+            let mut rng = pose_stream(config.seed);
             let mut centre = sweep::centre(&dofs, config.pose_range);
             let start = builder.pose.clone();
             let path = guard.clear_sweep(&start, &mut centre, config, |centre| {
@@ -879,7 +909,7 @@ impl Plan {
             // samples' derivatives.
             builder.still(Part::Training, config.still, None);
         } else if config.training {
-            let mut rng = crate::sim::pose_stream(config.seed);
+            let mut rng = pose_stream(config.seed);
             let excursion = pattern.excursion() * 1.01;
             let slots = if config.parallel {
                 slots(&dofs)

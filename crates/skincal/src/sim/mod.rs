@@ -41,6 +41,8 @@ use crate::model::sensor::{
     STANDARD_GRAVITY,
 };
 use crate::model::{forward_kinematics, Robot};
+use crate::plan::pose_stream;
+pub use crate::plan::structure_move;
 
 pub mod changes;
 mod robot_like;
@@ -300,7 +302,7 @@ impl Default for SimulationConfig {
             training: true,
             poses: 20,
             pose_range: 2.62,
-            structure_angle: 0.3,
+            structure_angle: crate::plan::STRUCTURE_ANGLE,
             tilted_orientation: true,
             pattern: ExcitationPattern::default(),
             imperfections: Imperfections::default(),
@@ -401,7 +403,7 @@ pub struct Simulation {
     pub truth: Truth,
 }
 
-const POSE_STREAM: u64 = 1;
+// Stream 1 is the training poses' (`plan::POSE_STREAM`).
 const NOISE_STREAM: u64 = 2;
 const BIAS_STREAM: u64 = 3;
 const SCALE_STREAM: u64 = 4;
@@ -422,11 +424,6 @@ pub(crate) struct Sensors<'a> {
     gaussian: Option<Normal<f64>>,
     /// Per SU: how it is broken, and (frozen) the value it repeats.
     faults: Vec<Option<(Fault, Option<Vector3<f64>>)>>,
-}
-
-/// The random stream of the training poses for `seed`.
-pub(crate) fn pose_stream(seed: u64) -> ChaCha8Rng {
-    stream(seed, POSE_STREAM)
 }
 
 /// `n` values uniform in ±`half` (zeros without drawing when `half` is 0).
@@ -598,7 +595,7 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
             })?;
         sensors.faults[u] = Some((f.fault, None));
     }
-    let mut pose_rng = stream(data_seed, POSE_STREAM);
+    let mut pose_rng = pose_stream(data_seed);
 
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
     let mut orientations = vec![BaseOrientation::upright()];
@@ -731,20 +728,6 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
         measurements: set,
         truth,
     })
-}
-
-/// The position of a DoF moved by `angle` from `rest`: forwards if the limits allow, else
-/// backwards, else as far as the limits allow.
-pub fn structure_move(limits: &crate::model::Limits, rest: f64, angle: f64) -> f64 {
-    if rest + angle <= limits.upper {
-        rest + angle
-    } else if rest - angle >= limits.lower {
-        rest - angle
-    } else if limits.upper - rest >= rest - limits.lower {
-        limits.upper
-    } else {
-        limits.lower
-    }
 }
 
 /// Settings of [`random_tree`].
