@@ -6,8 +6,13 @@
 //! the joint positions, velocities and accelerations at its centre from a local polynomial fitted
 //! to the joint states around it. The skin's block means are corrected for the block's own
 //! averaging (the mean of a signal over a block is its value at the centre plus `Δ²/24` of its
-//! second derivative), so that both sides describe the same instant; nothing else is smoothed.
+//! second derivative), so that both sides describe the same instant.
+//!
+//! A coarse encoder needs a wide polynomial, which sees the joint's acceleration through a
+//! kernel of its half-width ([`SkinFilter`]); the time-domain fit then reads the skin through the
+//! same kernel, so that neither side is smoothed alone.
 
+use nalgebra::{SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::model::sensor::MAX_READING;
@@ -33,6 +38,10 @@ pub struct MotionRecord {
     /// Each SU's standard deviation of one component of a block mean, m/s², from the blocks in
     /// which the robot was still (`null`: never still long enough to tell).
     pub noise_sd: Vec<Option<f64>>,
+    /// The half-width of the local polynomial every DoF's joint states were read through, s
+    /// (`null`: a record written before this was kept, read as narrow).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub half_width: Option<f64>,
     /// Stretches of consecutive blocks (a log, or the part of one between gaps in the joint
     /// states).
     pub runs: Vec<MotionRun>,
@@ -282,6 +291,133 @@ impl MotionRecord {
     /// The number of blocks over every run.
     pub fn blocks(&self) -> usize {
         self.runs.iter().map(MotionRun::len).sum()
+    }
+
+    /// The kernel through which the record's joint accelerations see the motion, where it spans
+    /// enough blocks to read the skin through ([`SkinFilter::new`]).
+    pub fn skin_filter(&self) -> Option<SkinFilter> {
+        SkinFilter::new(self.half_width?, self.period)
+    }
+}
+
+/// Degree of the local polynomial through which a record's joint states are read: 4 leaves a
+/// bias of 0.03 % of the acceleration of a 2 Hz motion at 40 ms half-width (2: 1 %).
+pub const DEGREE: usize = 4;
+/// The fewest blocks on each side of its centre over which [`SkinFilter`] reads the skin: a
+/// narrower polynomial follows a servo's motion so closely that the block means fit better than
+/// filtered ones (physics logs of a Kinova arm, 17-bit encoders, 50 ms: held-out dynamic error
+/// 0.0020 m/s² from the block means, 0.0032 filtered; exact encoders read at 80 ms: 0.0092 from
+/// the block means, 0.0020 filtered).
+pub const SKIN_FILTER_BLOCKS: usize = 8;
+
+/// The kernel `K` through which a local polynomial of degree [`DEGREE`] and half-width `h`,
+/// least-squares fitted to evenly spaced joint states, sees the joint's acceleration: its
+/// second coefficient is `∫ K(t/h)/h · q̈(t) dt`, exactly, whatever the motion did (`K'' ` is the
+/// polynomial's second-coefficient weight, `K` and `K'` vanish at ±h; `∫K = 1` and, degree 4
+/// fitting `t⁴` exactly, `∫K t² = 0`). Reading the skin through the same kernel puts both sides
+/// of the fit through one filter: a servo's jerk or its ringing, which a wide polynomial smooths,
+/// is smoothed alike in what the skin read, and what stays unmatched is of fourth order in `h`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkinFilter {
+    /// `K(j·period/h)` for the blocks `j = −n..=n` about the centre.
+    weights: Vec<f64>,
+}
+
+impl SkinFilter {
+    /// The kernel of half-width `half_width` on blocks of `period`; `None` when it spans fewer
+    /// than [`SKIN_FILTER_BLOCKS`] blocks on each side.
+    pub fn new(half_width: f64, period: f64) -> Option<Self> {
+        let n = (half_width / period).floor();
+        if !(n.is_finite() && n >= SKIN_FILTER_BLOCKS as f64) {
+            return None;
+        }
+        let n = n as i64;
+        let k = kernel();
+        Some(Self {
+            weights: (-n..=n)
+                .map(|j| k(j as f64 * period / half_width))
+                .collect(),
+        })
+    }
+
+    /// Blocks on each side of the centre.
+    fn reach(&self) -> usize {
+        self.weights.len() / 2
+    }
+
+    /// Blocks between two values the fit takes: a quarter of the kernel's half-width (what lies
+    /// between adds little the kernel has not averaged already; a 13-bit arm at 160 ms predicts
+    /// as well from every fourth block as from all, and better than from every eighth).
+    pub fn stride(&self) -> usize {
+        (self.reach() / 4).max(1)
+    }
+
+    /// The standard deviation of a filtered value over that of one block mean (independent
+    /// block means, every block present).
+    pub fn noise_factor(&self) -> f64 {
+        let sum: f64 = self.weights.iter().sum();
+        self.weights.iter().map(|w| w * w).sum::<f64>().sqrt() / sum
+    }
+
+    /// `series` read through the kernel at block `b`: the weighted mean of the blocks present,
+    /// `None` where fewer than [`FEWEST_FILTERED`] blocks on either side are, or the present
+    /// ones carry less than half the kernel's weight.
+    pub fn smooth(&self, series: &[Option<Vector3<f64>>], b: usize) -> Option<Vector3<f64>> {
+        let n = self.reach();
+        let (start, end) = (b.checked_sub(n)?, b + n);
+        if end >= series.len() {
+            return None;
+        }
+        let mut sum = Vector3::zeros();
+        let (mut weight, mut total) = (0.0, 0.0);
+        let (mut before, mut after) = (0, 0);
+        for (j, w) in (start..=end).zip(&self.weights) {
+            total += w;
+            if let Some(x) = series[j] {
+                sum += x * *w;
+                weight += w;
+                before += usize::from(j < b);
+                after += usize::from(j > b);
+            }
+        }
+        (before >= FEWEST_FILTERED && after >= FEWEST_FILTERED && weight >= 0.5 * total)
+            .then(|| sum / weight)
+    }
+}
+
+/// The fewest blocks with samples on each side of a block [`SkinFilter::smooth`] reads.
+const FEWEST_FILTERED: usize = 2;
+
+/// `K` on `[−1, 1]` (zero outside): `K'' = 2 e₂ᵀ M⁻¹ φ(x)` with `M = ∫φφᵀ` the Gram matrix of
+/// the monomials `φ = (1, x, …, x^DEGREE)` on `[−1, 1]`, integrated twice from `K(−1) = K'(−1) = 0`.
+fn kernel() -> impl Fn(f64) -> f64 {
+    const N: usize = DEGREE + 1;
+    let gram = SMatrix::<f64, N, N>::from_fn(|i, j| {
+        if (i + j) % 2 == 0 {
+            2.0 / (i + j + 1) as f64
+        } else {
+            0.0
+        }
+    });
+    let second: SVector<f64, N> = gram
+        .try_inverse()
+        .expect("the monomials' Gram matrix is positive definite")
+        .column(2)
+        * 2.0;
+    let mut c = [0.0; N + 2];
+    for (k, a) in second.iter().enumerate() {
+        c[k + 2] = a / ((k + 1) * (k + 2)) as f64;
+    }
+    let value = |c: &[f64; N + 2], x: f64| c.iter().rev().fold(0.0, |acc, c| acc * x + c);
+    let slope = (1..N + 2).rev().fold(0.0, |acc, k| -acc + k as f64 * c[k]);
+    c[1] -= slope;
+    c[0] -= value(&c, -1.0);
+    move |x: f64| {
+        if x.abs() < 1.0 {
+            value(&c, x)
+        } else {
+            0.0
+        }
     }
 }
 

@@ -197,6 +197,7 @@ impl LiveCheck {
             dofs: self.dofs.clone(),
             sus: self.sus.clone(),
             noise_sd,
+            half_width: self.stream.half_width(),
             runs,
             samples: self.stream.samples(),
         }

@@ -3,8 +3,9 @@
 //!
 //! Joint positions, velocities and accelerations at each block's centre come from a polynomial of
 //! degree [`DEGREE`] fitted by least squares to the joint states within a half-width of it (jitter
-//! and lost messages need no resampling first; an encoder's rounding is averaged over a window as wide as
-//! its rounding needs, [`HALF_WIDTHS`]);
+//! and lost messages need no resampling first; an encoder's rounding is averaged over a window as
+//! wide as the coarsest encoder needs, [`HALF_WIDTHS`], one for every DoF so that the skin can be
+//! read through the same kernel, [`crate::motion::SkinFilter`]);
 //! the skin's fresh samples are averaged per block and corrected for the block's averaging.
 
 use std::collections::HashMap;
@@ -22,14 +23,13 @@ use crate::motion::{
 /// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
 /// of any excitation a servo follows).
 pub const BLOCK: f64 = 0.01;
-/// Degree of the local polynomial of the joint states: 4 leaves a bias of 0.03 % of the
-/// acceleration of a 2 Hz motion at 40 ms half-width (2: 1 %).
-pub const DEGREE: usize = 4;
-/// Half-widths of the joint states' local polynomial, s, narrowest first: each DoF takes the
-/// narrowest at which its encoder's rounding leaves the acceleration a standard deviation of at
-/// most [`ACCELERATION_NOISE`]. Narrow follows every change of the motion (a servo's jerk is
-/// no smoother than its commands); wide averages a coarse encoder.
-pub const HALF_WIDTHS: [f64; 6] = [0.02, 0.03, 0.04, 0.05, 0.065, 0.08];
+pub use crate::motion::DEGREE;
+/// Half-widths of the joint states' local polynomial, s, narrowest first: a record takes the
+/// narrowest at which every DoF's encoder rounding leaves its acceleration a standard deviation
+/// of at most [`ACCELERATION_NOISE`]. Narrow follows every change of the motion (a servo's jerk
+/// is no smoother than its commands); wide averages a coarse encoder (a 13-bit one: 0.16 s at
+/// 1 kHz), and the skin is read through the same kernel.
+pub const HALF_WIDTHS: [f64; 10] = [0.02, 0.03, 0.04, 0.05, 0.065, 0.08, 0.1, 0.125, 0.16, 0.2];
 /// The largest standard deviation of a DoF's acceleration that its encoder's rounding may leave,
 /// rad/s² (0.01 m/s² at half a metre, half a block mean's noise).
 pub const ACCELERATION_NOISE: f64 = 0.02;
@@ -116,11 +116,18 @@ pub fn motion_record(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
+    let gathered: Vec<Gathered> = logs
+        .iter()
+        .map(|path| gather(path, dofs, sus, config, progress))
+        .collect::<Result<_, _>>()?;
+    let h = gathered
+        .iter()
+        .flat_map(|g| g.joints.iter().map(|s| half_width(s)))
+        .fold(HALF_WIDTHS[0], f64::max);
     let mut runs = Vec::new();
     let mut samples = vec![SampleCount::default(); sus.len()];
-    for path in logs {
-        let gathered = gather(path, dofs, sus, config, progress)?;
-        runs.extend(runs_of(path, &gathered, config));
+    for (path, gathered) in logs.iter().zip(&gathered) {
+        runs.extend(runs_of(path, gathered, h, config));
         for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
             *total = total.plus(skin.count.count);
         }
@@ -145,6 +152,7 @@ pub fn motion_record(
         dofs: dofs.to_vec(),
         sus: sus.to_vec(),
         noise_sd,
+        half_width: Some(h),
         runs,
         samples,
     };
@@ -222,8 +230,9 @@ fn gather(
     Ok(gathered)
 }
 
-/// The runs of consecutive blocks at whose centres every DoF's local polynomial can be fitted.
-fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<MotionRun> {
+/// The runs of consecutive blocks at whose centres every DoF's local polynomial of half-width `h`
+/// can be fitted.
+fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> Vec<MotionRun> {
     let Some(last) = gathered
         .joints
         .iter()
@@ -237,10 +246,10 @@ fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<Motio
     let mut runs: Vec<MotionRun> = Vec::new();
     let mut open = false;
     let mut cursors = vec![0usize; gathered.joints.len()];
-    let widths: Vec<(f64, f64)> = gathered
+    let roundings: Vec<f64> = gathered
         .joints
         .iter()
-        .map(|s| (half_width(s), encoder_rounding(s)))
+        .map(|s| encoder_rounding(s))
         .collect();
     for b in 0..blocks {
         let centre = gathered.origin + (b as f64 + 0.5) * BLOCK;
@@ -248,8 +257,8 @@ fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<Motio
             .joints
             .iter()
             .zip(&mut cursors)
-            .zip(&widths)
-            .map(|((series, cursor), &(h, rounding))| {
+            .zip(&roundings)
+            .map(|((series, cursor), &rounding)| {
                 local_polynomial(series, cursor, centre, h, rounding, config.max_gap)
             })
             .collect();
@@ -272,7 +281,8 @@ fn runs_of(path: &Path, gathered: &Gathered, config: &IngestConfig) -> Vec<Motio
 }
 
 /// The narrowest of [`HALF_WIDTHS`] at which the rounding of the DoF's encoder (from its
-/// `(stamp, position)` series) leaves its acceleration within [`ACCELERATION_NOISE`]: the
+/// `(stamp, position)` series) leaves its acceleration within [`ACCELERATION_NOISE`] (the widest
+/// where none does): the
 /// variance of the polynomial's second coefficient on a window of evenly spaced states at the
 /// series' median rate.
 pub(super) fn half_width(series: &[(f64, f64)]) -> f64 {
@@ -424,4 +434,66 @@ pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -
     // means, a variance of 1460/576 of one mean's; one corrected mean has 678/576 of it.
     let sd = (median / CHI2_1_MEDIAN * 678.0 / 1460.0).sqrt();
     Some(sd.max(NOISE_FLOOR))
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::motion::SkinFilter;
+
+    /// The kernel keeps a cubic's value at the centre: `∫K = 1`, `∫K t = 0`, `∫K t² = 0`.
+    #[test]
+    fn the_skin_filter_keeps_a_cubic() {
+        let (h, period) = (0.1, 0.001);
+        let filter = SkinFilter::new(h, period).unwrap();
+        let cubic = |t: f64| 0.3 - 2.0 * t + 40.0 * t * t + 900.0 * t * t * t;
+        let series: Vec<Option<Vector3<f64>>> = (0..401)
+            .map(|b| Some(Vector3::repeat(cubic(b as f64 * period))))
+            .collect();
+        let at = filter.smooth(&series, 200).unwrap();
+        assert!(
+            (at.x - cubic(0.2)).abs() < 1e-6,
+            "{} vs {}",
+            at.x,
+            cubic(0.2)
+        );
+    }
+
+    /// What the local polynomial makes of a joint whose acceleration steps (a servo's pattern
+    /// starting without a window) is the true acceleration read through the kernel, wherever the
+    /// step falls in the window: a least-squares fit on one side, a closed-form kernel on the other.
+    #[test]
+    fn the_polynomial_sees_the_acceleration_through_the_skin_filter() {
+        let (h, period, rate) = (0.12, 0.001, 1000.0);
+        let filter = SkinFilter::new(h, period).unwrap();
+        let step_at = 0.5005;
+        let q = |t: f64| 3.0 * 0.5 * (t - step_at).max(0.0).powi(2) + 0.1 * t;
+        let series: Vec<(f64, f64)> = (0..1000)
+            .map(|i| (i as f64 / rate, q(i as f64 / rate)))
+            .collect();
+        let qdd: Vec<Option<Vector3<f64>>> = (0..1000)
+            .map(|i| {
+                Some(Vector3::repeat(if i as f64 / rate >= step_at {
+                    3.0
+                } else {
+                    0.0
+                }))
+            })
+            .collect();
+        for centre in [0.40, 0.45, 0.47, 0.50, 0.53, 0.58, 0.65] {
+            let b = (centre * rate) as usize;
+            let fitted = local_polynomial(&series, &mut 0, b as f64 / rate, h, 0.0, 0.01).unwrap();
+            let filtered = filter.smooth(&qdd, b).unwrap().x;
+            assert!(
+                (fitted[2] - filtered).abs() < 0.02,
+                "at {centre} s: polynomial {} vs kernel {filtered}",
+                fitted[2]
+            );
+        }
+        // Away from the step both are the acceleration itself.
+        let far = local_polynomial(&series, &mut 0, 0.8, h, 0.0, 0.01).unwrap();
+        assert!((far[2] - 3.0).abs() < 1e-6);
+    }
 }

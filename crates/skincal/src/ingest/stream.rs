@@ -160,8 +160,10 @@ impl MotionStream {
         let Some(origin) = self.origin else { return };
         loop {
             let centre = origin + (self.next as f64 + 0.5) * BLOCK;
-            let joints_in = self.joints.iter().zip(&self.widths).all(|(j, w)| {
-                w.is_some_and(|(h, _)| j.back().is_some_and(|&(t, _)| t > centre + h))
+            let joints_in = self.half_width().is_some_and(|h| {
+                self.joints
+                    .iter()
+                    .all(|j| j.back().is_some_and(|&(t, _)| t > centre + h))
             });
             // The block after this one holds the skin its correction needs.
             let skin_in = self.latest_skin > centre + 1.5 * BLOCK + SKIN_LATENCY;
@@ -177,12 +179,13 @@ impl MotionStream {
     /// Block `self.next` at `centre`.
     fn compute(&mut self, centre: f64) {
         let max_gap = self.config.max_gap;
+        let h = self.half_width().expect("widths learnt before any block");
         let fitted: Option<Vec<[f64; 4]>> = self
             .joints
             .iter_mut()
             .zip(&self.widths)
             .map(|(series, w)| {
-                let (h, rounding) = w.expect("widths learnt before any block");
+                let (_, rounding) = w.expect("widths learnt before any block");
                 local_polynomial(
                     series.make_contiguous(),
                     &mut 0,
@@ -284,6 +287,15 @@ impl MotionStream {
         self.close();
         self.done.retain(|r| r.len() >= 3);
         self.done
+    }
+
+    /// The half-width of every DoF's polynomial: the widest any DoF's encoder needs, once every
+    /// DoF's is learnt.
+    pub fn half_width(&self) -> Option<f64> {
+        self.widths
+            .iter()
+            .map(|w| w.map(|(h, _)| h))
+            .try_fold(HALF_WIDTHS[0], |a, h| h.map(|h| a.max(h)))
     }
 
     /// Per SU: how many samples came so far, and why some are in no block.

@@ -14,7 +14,7 @@ use super::terms::{link, Chain, Instant, SegmentTerms};
 use super::ChainState;
 use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
-use crate::motion::{MotionRecord, QUIET_REACH};
+use crate::motion::{MotionRecord, SkinFilter, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
 /// latency; more is another clock, which ingest refuses).
@@ -43,10 +43,13 @@ pub(super) struct MotionSample {
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
     period: f64,
+    /// Blocks between two samples the fit takes in a run.
+    stride: usize,
     pub(super) samples: Vec<MotionSample>,
-    /// `skin[run][u][block]` for the limb's SUs.
+    /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
+    /// [`SkinFilter`] where it has one.
     skin: Vec<Vec<Vec<Option<Vector3<f64>>>>>,
-    /// Each SU's standard deviation of one component of a block mean, m/s².
+    /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
     /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
     /// prediction at sample `i`, (m/s²)² (empty until [`LimbMotion::weigh`]).
@@ -55,7 +58,10 @@ pub struct LimbMotion {
 
 impl LimbMotion {
     /// The blocks of `record` for the limb of `data` (every block at least [`MAX_DELAY`] and two
-    /// blocks from its run's ends, so that any delay reads the same blocks). An SU the record
+    /// blocks from its run's ends, so that any delay reads the same blocks). Where the record's
+    /// joint states were read through a wide polynomial, the skin is read through the same
+    /// kernel ([`SkinFilter`]) and every [`SkinFilter::stride`]-th block is taken (what lies
+    /// between adds little the kernel has not averaged already). An SU the record
     /// cannot tell its noise for gets `fallback_sd` over the square root of the skin samples a
     /// block holds at the record's period and 1 kHz.
     pub fn new(
@@ -89,11 +95,13 @@ impl LimbMotion {
             .collect::<Result<_, _>>()?;
         let margin = (MAX_DELAY / record.period).ceil() as usize + 2;
         let limits = sudden_limits(record, &dofs);
+        let filter = record.skin_filter();
+        let stride = filter.as_ref().map_or(1, SkinFilter::stride);
         let mut samples = Vec::new();
         let mut skin = Vec::new();
         for (r, run) in record.runs.iter().enumerate() {
             let pick = |row: &Vec<f64>| dofs.iter().map(|&d| row[d]).collect::<Vec<f64>>();
-            for b in margin..run.len().saturating_sub(margin) {
+            for b in (margin..run.len().saturating_sub(margin)).step_by(stride) {
                 let sudden = dofs.iter().zip(&limits);
                 if sudden
                     .into_iter()
@@ -113,21 +121,28 @@ impl LimbMotion {
             skin.push(
                 sus.iter()
                     .map(|&u| {
-                        run.skin
+                        let means: Vec<Option<Vector3<f64>>> = run
+                            .skin
                             .iter()
                             .map(|row| row[u].map(Vector3::from))
-                            .collect()
+                            .collect();
+                        match &filter {
+                            Some(f) => (0..means.len()).map(|b| f.smooth(&means, b)).collect(),
+                            None => means,
+                        }
                     })
                     .collect(),
             );
         }
         let per_block = (record.period * 1000.0).max(1.0);
+        let factor = filter.as_ref().map_or(1.0, SkinFilter::noise_factor);
         let sd = sus
             .iter()
-            .map(|&u| record.noise_sd[u].unwrap_or(fallback_sd / per_block.sqrt()))
+            .map(|&u| factor * record.noise_sd[u].unwrap_or(fallback_sd / per_block.sqrt()))
             .collect();
         Ok(Self {
             period: record.period,
+            stride,
             samples,
             skin,
             sd,
@@ -236,15 +251,15 @@ impl LimbMotion {
         )
     }
 
-    /// Whether samples `i` and `j` are neighbouring blocks of one run.
+    /// Whether samples `i` and `j` are neighbouring samples of one run, a stride apart.
     pub(super) fn adjacent(&self, i: usize, j: usize) -> bool {
         let (a, b) = (&self.samples[i], &self.samples[j]);
-        a.run == b.run && a.block.abs_diff(b.block) == 1
+        a.run == b.run && a.block.abs_diff(b.block) == self.stride
     }
 
-    /// The length of a block, s.
-    pub(super) fn period(&self) -> f64 {
-        self.period
+    /// The time between two adjacent samples ([`LimbMotion::adjacent`]), s.
+    pub(super) fn spacing(&self) -> f64 {
+        self.period * self.stride as f64
     }
 }
 

@@ -554,8 +554,9 @@ impl MotionRows<'_> {
     /// blocks are in its run, one-sided at a run's end, zero for a run of one block.
     fn rate(&self, predicted: &[Vector3<f64>], j: usize) -> Vector3<f64> {
         let motion = self.motion;
-        let rate =
-            |a: usize, b: usize| (predicted[b] - predicted[a]) / (motion.period() * (b - a) as f64);
+        let rate = |a: usize, b: usize| {
+            (predicted[b] - predicted[a]) / (motion.spacing() * (b - a) as f64)
+        };
         let before = (j > 0 && motion.adjacent(j - 1, j)).then(|| j - 1);
         let after = (j + 1 < predicted.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
         match (before, after) {
