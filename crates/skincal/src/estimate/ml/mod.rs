@@ -75,7 +75,7 @@ use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
     covariance, frames, normal_system, prefixes, retract, retract_columns, solve, turns_of, Block,
-    ColumnMap, Layout, Readings, Solved, Spec,
+    ColumnMap, Layout, Prefix, Readings, Solved, Spec,
 };
 
 /// Settings of the maximum-likelihood estimator.
@@ -911,7 +911,9 @@ fn order_joints(
     Ok((orders, joint_orders))
 }
 
-/// The search and the final fit of a limb whose joints' DoFs are in their order.
+/// The search and the final fit of a limb whose joints' DoFs are in their order: the paper's
+/// Algorithm 2 as steps — the first joint from gravity, each later joint searched from every state
+/// of the beam, the SUs of each segment added, then the whole limb at once.
 fn fit_ordered(
     data: &LimbData,
     base: Option<&LimbBase>,
@@ -919,11 +921,40 @@ fn fit_ordered(
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
     let started = Instant::now();
-    let chain = &data.chain;
+    enough_poses(data, base_dofs)?;
+    let search = Search::new(data, config);
+    let first = data.chain.base_joints;
+    let (mut beam, vertical, mut iterations) = match base {
+        Some(b) => (vec![(search.on_base(b), 0.0)], false, 0),
+        None => search.first_joint(first),
+    };
+    let after = if base.is_some() { first } else { first + 1 };
+    for span in &search.spans[after..] {
+        let (next, its) = search.next_joint(&beam, span);
+        beam = next;
+        iterations += its;
+    }
+    let mut state = beam.swap_remove(0).0;
+    if vertical {
+        // Held along the first axis in the final fit (below).
+        state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
+    }
+    final_fit(
+        data,
+        base,
+        search.readings,
+        state,
+        vertical,
+        iterations,
+        started,
+        config,
+    )
+}
+
+/// Refuses a limb with fewer poses than its parameters need (at least [`super::body::MIN_POSES`]).
+fn enough_poses(data: &LimbData, base_dofs: usize) -> Result<(), EstimateError> {
     let dofs = data.q.first().map_or(0, |q| q.len());
-    let sus = data.su_depth.len();
-    let free_dofs = dofs - base_dofs;
-    let parameters = 3 + 4 * free_dofs + 6 * sus;
+    let parameters = 3 + 4 * (dofs - base_dofs) + 6 * data.su_depth.len();
     let per_pose: usize = data.su_depth.iter().map(|&d| 3 * (1 + d)).sum();
     let needed = parameters
         .div_ceil(per_pose.max(1))
@@ -934,64 +965,104 @@ fn fit_ordered(
             parameters: needed,
         });
     }
-    let layout = Layout {
-        dofs,
-        su_segment: data.su_depth.clone(),
-    };
-    let mut readings = readings(data);
-    readings.rejected = screen(&readings, config.noise_sd);
-    let readings = readings;
-    let spans = spans(data);
-    let sigma = config.noise_sd;
-    let mut iterations = 0;
-    let empty = ChainState {
-        gravity: Vector3::zeros(),
-        joints: vec![Isometry3::identity(); dofs],
-        sus: vec![Isometry3::identity(); sus],
-        intrinsics: vec![Intrinsics::default(); sus],
-        skin_delay: 0.0,
-    };
-    let solve_init = |state: ChainState, spec: &Spec, max: usize| {
-        solve(state, &layout, &readings, spec, sigma, max, INIT_TOLERANCE)
-    };
+    Ok(())
+}
 
-    // The first joint: its tail in closed form, gravity from the static readings. With a single DoF
-    // both senses of the axis are kept (mirror images fit the first segment equally well).
-    let mut beam: Vec<(ChainState, f64)> = Vec::new();
-    let mut vertical = false;
-    let first = chain.base_joints;
-    if let Some(b) = base {
-        let mut state = empty.clone();
-        state.joints[..base_dofs].copy_from_slice(&b.joints);
-        state.gravity = b.gravity;
-        beam.push((state, 0.0));
-    } else {
-        let span = &spans[first];
-        let u = span.sus[0];
-        let mut starts = Vec::new();
-        if span.k0 == span.k1 {
-            for sign in [1.0, -1.0] {
-                let mut s = empty.clone();
-                s.sus[u] = init::su_from_axis(&s, &layout, &readings, u, 0, sign);
-                starts.push(s);
-            }
-        } else {
-            let dofs: Vec<usize> = (span.k0..=span.k1).collect();
-            for lines in init::joint_line_starts(&readings, u, &dofs, LINE_STARTS) {
-                let mut s = empty.clone();
-                init::place_joint_lines(&mut s, 0, u, &lines.lines);
-                starts.push(s);
-            }
+/// What the search of a limb works on: its layout, its readings (screened) and the span of every
+/// joint.
+struct Search<'a> {
+    data: &'a LimbData,
+    config: &'a MlConfig,
+    layout: Layout,
+    readings: Readings,
+    spans: Vec<Span>,
+    /// Every joint at the identity, every SU at its segment's origin, no gravity.
+    empty: ChainState,
+}
+
+impl<'a> Search<'a> {
+    fn new(data: &'a LimbData, config: &'a MlConfig) -> Self {
+        let dofs = data.q.first().map_or(0, |q| q.len());
+        let sus = data.su_depth.len();
+        let mut readings = readings(data);
+        readings.rejected = screen(&readings, config.noise_sd);
+        Self {
+            data,
+            config,
+            layout: Layout {
+                dofs,
+                su_segment: data.su_depth.clone(),
+            },
+            readings,
+            spans: spans(data),
+            empty: ChainState {
+                gravity: Vector3::zeros(),
+                joints: vec![Isometry3::identity(); dofs],
+                sus: vec![Isometry3::identity(); sus],
+                intrinsics: vec![Intrinsics::default(); sus],
+                skin_delay: 0.0,
+            },
         }
-        let mut votes = 0;
+    }
+
+    /// A sub-limb's start: its base path and gravity as the parent limb estimated them.
+    fn on_base(&self, base: &LimbBase) -> ChainState {
+        let mut state = self.empty.clone();
+        state.joints[..base.joints.len()].copy_from_slice(&base.joints);
+        state.gravity = base.gravity;
+        state
+    }
+
+    /// Starts of `state` with the SU `u` of a joint's segment placed from its DoFs `k0..=k1`:
+    /// for a single DoF, both senses of its axis (mirror images fit the segment equally well);
+    /// for several, the joint's lines searched from gravity.
+    fn su_starts(&self, state: &ChainState, k0: usize, k1: usize, u: usize) -> Vec<ChainState> {
+        if k0 == k1 {
+            return [1.0, -1.0]
+                .into_iter()
+                .map(|sign| {
+                    let mut s = state.clone();
+                    s.sus[u] = init::su_from_axis(&s, &self.layout, &self.readings, u, k0, sign);
+                    s
+                })
+                .collect();
+        }
+        let dofs: Vec<usize> = (k0..=k1).collect();
+        init::joint_line_starts(&self.readings, u, &dofs, LINE_STARTS)
+            .into_iter()
+            .map(|lines| {
+                let mut s = state.clone();
+                init::place_joint_lines(&mut s, k0, u, &lines.lines);
+                s
+            })
+            .collect()
+    }
+
+    fn solve(&self, state: ChainState, spec: &Spec, max: usize) -> Solved {
+        solve(
+            state,
+            &self.layout,
+            &self.readings,
+            spec,
+            self.config.noise_sd,
+            max,
+            INIT_TOLERANCE,
+        )
+    }
+
+    /// The first joint (`first`): its tail in closed form, gravity from the static readings,
+    /// each start refined; then its segment's SUs. Returns the beam, whether the first axis is
+    /// vertical (every start's likelihood-ratio test of gravity along it says so) and the LM
+    /// iterations.
+    fn first_joint(&self, first: usize) -> (Vec<(ChainState, f64)>, bool, usize) {
+        let span = &self.spans[first];
+        let u = span.sus[0];
+        let starts = self.su_starts(&self.empty, span.k0, span.k1, u);
         let count = starts.len();
+        let mut beam = Vec::with_capacity(count);
+        let (mut votes, mut iterations) = (0, 0);
         for mut s in starts {
-            let tail = init::tails(&s, &readings, 0, span.k1, u);
-            let minus_g: Vector3<f64> = (0..data.poses())
-                .map(|p| readings.turns[p][0] * (tail[p].rotation * readings.statics[p][u]))
-                .sum::<Vector3<f64>>()
-                / data.poses() as f64;
-            s.gravity = -minus_g;
+            s.gravity = self.gravity_from_statics(&s, span.k1, u);
             let mut blocks = vec![Block::Gravity];
             blocks.extend((1..=span.k1).map(Block::Joint));
             blocks.push(Block::Su(u));
@@ -1006,147 +1077,137 @@ fn fit_ordered(
                 sus: vec![u],
                 prefix: None,
             };
-            let free = solve_init(s, &spec, config.max_iterations);
-            // Is the first axis vertical? A likelihood-ratio test of gravity along it.
-            let mut upright = free.state.clone();
-            upright.gravity = Vector3::new(
-                0.0,
-                0.0,
-                upright.gravity.z.signum() * upright.gravity.norm(),
-            );
-            let mut held = spec.held.clone();
-            held.extend([(0, 0), (0, 1)]);
-            let spec_upright = Spec { held, ..spec };
-            let fixed = solve_init(upright, &spec_upright, config.max_iterations);
-            iterations += free.iterations + fixed.iterations;
-            if fixed.cost - free.cost < config.vertical_test {
-                votes += 1;
-            }
+            let (free, upright, its) = self.vertical_test(s, spec);
+            iterations += its;
+            votes += usize::from(upright);
             // The search goes on with gravity free even so: held exactly along the first axis,
             // it leaves the turn of the next joint about that axis exactly free, and the searches
             // of the joints after it settle in degenerate minima (on robot-like limbs with a
             // vertical first axis, about a quarter did). Gravity is put on the axis for the final fit.
             beam.push((free.state, free.cost));
         }
-        vertical = votes == count;
         // Mirror images have the same cost here: keep them all (no merging of equal costs).
         beam.sort_by(|a, b| a.1.total_cmp(&b.1));
-        beam.truncate(config.beam.max(2));
-        let (next, its) = add_segment_sus(beam, &layout, &readings, &spans[first], config);
-        beam = next;
-        iterations += its;
+        beam.truncate(self.config.beam.max(2));
+        let (beam, its) = add_segment_sus(beam, &self.layout, &self.readings, span, self.config);
+        (beam, votes == count, iterations + its)
     }
 
-    // The joints after: tail in closed form, joint rotation from gravity (or searched), position
-    // from upstream accelerations; every candidate refined (in parallel), the best few kept.
-    let after = if base.is_some() { first } else { first + 1 };
-    for span in &spans[after..] {
+    /// Gravity in the reference frame as the static readings of SU `u` on the segment after DoF
+    /// `k1` give it at `state`: minus their mean turned into the reference frame.
+    fn gravity_from_statics(&self, state: &ChainState, k1: usize, u: usize) -> Vector3<f64> {
+        let tail = init::tails(state, &self.readings, 0, k1, u);
+        let poses = self.data.poses();
+        let minus_g: Vector3<f64> = (0..poses)
+            .map(|p| self.readings.turns[p][0] * (tail[p].rotation * self.readings.statics[p][u]))
+            .sum::<Vector3<f64>>()
+            / poses as f64;
+        -minus_g
+    }
+
+    /// `start` refined under `spec` with gravity free, and again with gravity held along the
+    /// first axis: the free fit, whether the first axis is vertical (the likelihood ratio of the
+    /// two below the configured test) and the iterations of both.
+    fn vertical_test(&self, start: ChainState, spec: Spec) -> (Solved, bool, usize) {
+        let max = self.config.max_iterations;
+        let free = self.solve(start, &spec, max);
+        let mut upright = free.state.clone();
+        upright.gravity = Vector3::new(
+            0.0,
+            0.0,
+            upright.gravity.z.signum() * upright.gravity.norm(),
+        );
+        let mut held = spec.held.clone();
+        held.extend([(0, 0), (0, 1)]);
+        let fixed = self.solve(upright, &Spec { held, ..spec }, max);
+        let vertical = fixed.cost - free.cost < self.config.vertical_test;
+        let iterations = free.iterations + fixed.iterations;
+        (free, vertical, iterations)
+    }
+
+    /// The joint of `span` after the beam's: its tail in closed form, its rotation from gravity
+    /// (or searched), its position from upstream accelerations, every candidate refined in
+    /// parallel ([`Search::joint_then_lines`]), the best few kept and its segment's SUs added.
+    fn next_joint(
+        &self,
+        beam: &[(ChainState, f64)],
+        span: &Span,
+    ) -> (Vec<(ChainState, f64)>, usize) {
         let (k0, k1, u) = (span.k0, span.k1, span.sus[0]);
         let caches: Vec<_> = beam
             .iter()
-            .map(|(state, _)| prefixes(state, &layout, &readings, k0))
+            .map(|(state, _)| prefixes(state, &self.layout, &self.readings, k0))
             .collect();
         let mut candidates = Vec::new();
         for (b, (state, cost)) in beam.iter().enumerate() {
-            let mut tails_of = Vec::new();
-            if k0 == k1 {
-                for sign in [1.0, -1.0] {
-                    let mut s = state.clone();
-                    s.sus[u] = init::su_from_axis(&s, &layout, &readings, u, k0, sign);
-                    tails_of.push(s);
-                }
-            } else {
-                let dofs: Vec<usize> = (k0..=k1).collect();
-                for lines in init::joint_line_starts(&readings, u, &dofs, LINE_STARTS) {
-                    let mut s = state.clone();
-                    init::place_joint_lines(&mut s, k0, u, &lines.lines);
-                    tails_of.push(s);
-                }
-            }
-            for s in tails_of {
-                let tail = init::tails(&s, &readings, k0, k1, u);
-                for start in
-                    init::joint_starts(&s, &layout, &readings, k0, u, &tail, config.angle_starts)
-                {
-                    let mut c = s.clone();
-                    c.joints[k0] = start;
+            for s in self.su_starts(state, k0, k1, u) {
+                let tail = init::tails(&s, &self.readings, k0, k1, u);
+                let starts = init::joint_starts(
+                    &s,
+                    &self.layout,
+                    &self.readings,
+                    k0,
+                    u,
+                    &tail,
+                    self.config.angle_starts,
+                );
+                for start in starts {
+                    let mut state = s.clone();
+                    state.joints[k0] = start;
                     candidates.push(Candidate {
-                        state: c,
+                        state,
                         cost: *cost,
                         beam: b,
                     });
                 }
             }
         }
-        // Phase 1: the joint frame alone from every start; phase 2: the joint's lines and the SU.
         let solved: Vec<(Solved, f64, usize)> = candidates
             .into_par_iter()
-            .map(
-                |Candidate {
-                     state,
-                     cost,
-                     beam: b,
-                 }| {
-                    let spec = Spec {
-                        blocks: vec![Block::JointFull(k0)],
-                        held: vec![],
-                        sus: vec![u],
-                        prefix: Some(caches[b].clone()),
-                    };
-                    let first = solve(
-                        state,
-                        &layout,
-                        &readings,
-                        &spec,
-                        sigma,
-                        config.max_iterations.min(10),
-                        INIT_TOLERANCE,
-                    );
-                    let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
-                    blocks.push(Block::Su(u));
-                    let spec = Spec {
-                        blocks,
-                        held: vec![],
-                        sus: vec![u],
-                        prefix: Some(caches[b].clone()),
-                    };
-                    let second = solve(
-                        first.state,
-                        &layout,
-                        &readings,
-                        &spec,
-                        sigma,
-                        config.max_iterations,
-                        INIT_TOLERANCE,
-                    );
-                    let its = first.iterations + second.iterations;
-                    (second, cost, its)
-                },
-            )
+            .map(|c| {
+                let (solved, its) = self.joint_then_lines(c.state, span, &caches[c.beam]);
+                (solved, c.cost, its)
+            })
             .collect();
-        iterations += solved.iter().map(|s| s.2).sum::<usize>();
+        let mut iterations: usize = solved.iter().map(|s| s.2).sum();
         let ranked = solved
             .into_iter()
             .map(|(s, cost, _)| (s.state, cost + s.cost))
             .collect();
-        let (next, its) = add_segment_sus(
-            keep_best(ranked, config.beam),
-            &layout,
-            &readings,
-            span,
-            config,
-        );
-        beam = next;
+        let kept = keep_best(ranked, self.config.beam);
+        let (beam, its) = add_segment_sus(kept, &self.layout, &self.readings, span, self.config);
         iterations += its;
+        (beam, iterations)
     }
-    let mut state = beam.swap_remove(0).0;
-    if vertical {
-        // Held along the first axis in the final fit (below).
-        state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
+
+    /// One candidate of the joint of `span`: first its frame alone (a few iterations), then the
+    /// joint's lines with its segment's first SU. Returns the solution and the iterations.
+    fn joint_then_lines(
+        &self,
+        state: ChainState,
+        span: &Span,
+        cache: &std::sync::Arc<Vec<Prefix>>,
+    ) -> (Solved, usize) {
+        let (k0, k1, u) = (span.k0, span.k1, span.sus[0]);
+        let frame = Spec {
+            blocks: vec![Block::JointFull(k0)],
+            held: vec![],
+            sus: vec![u],
+            prefix: Some(cache.clone()),
+        };
+        let first = self.solve(state, &frame, self.config.max_iterations.min(10));
+        let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
+        blocks.push(Block::Su(u));
+        let lines = Spec {
+            blocks,
+            held: vec![],
+            sus: vec![u],
+            prefix: Some(cache.clone()),
+        };
+        let second = self.solve(first.state, &lines, self.config.max_iterations);
+        let iterations = first.iterations + second.iterations;
+        (second, iterations)
     }
-    final_fit(
-        data, base, readings, state, vertical, iterations, started, config,
-    )
 }
 
 /// Refits a limb from `start`, a state of its layout (DoFs in `data`'s order), without the
