@@ -1542,39 +1542,27 @@ fn final_fit(
     started: Instant,
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
-    let chain = &data.chain;
-    let base_dofs = chain.base_dofs();
     let layout = Layout {
         dofs: data.q.first().map_or(0, |q| q.len()),
         su_segment: data.su_depth.clone(),
     };
-    let sigma = config.noise_sd;
-    // The whole limb at once: the kinematics, then with the accelerometer intrinsics.
+    // The whole limb at once: the kinematics, then with the accelerometer intrinsics; glitches
+    // left out; the static and dynamic noise weighed apart.
     let gauge_su = gauge_su(data, base);
     let final_spec = |intrinsics: IntrinsicsModel| {
-        let mut spec = full_spec(
+        let gauge = Gauge {
+            base_dofs: data.chain.base_dofs(),
+            base: base.is_some(),
+            su: gauge_su,
+            vertical,
+        };
+        final_spec(
             &layout,
-            base_dofs.max(1),
-            base.is_none(),
-            gauge_su,
+            &gauge,
+            readings.motion.is_some(),
             intrinsics,
-        );
-        if vertical {
-            // Gravity along the first axis: its direction is held, which leaves the turn of
-            // everything after segment 1 about that axis exactly free (reported below).
-            spec.held.extend([(0, 0), (0, 1)]);
-        }
-        if readings.motion.is_some() {
-            spec.blocks.push(Block::SkinDelay);
-        }
-        if base.is_none() && (intrinsics.components() > 3 || config.select_intrinsics) {
-            // A common scale error of every SU and a gravity as much weaker read the same: the
-            // magnitude of gravity is what scales are measured against. When the data choose
-            // the model, every model holds it there, so that each is nested in the next and a
-            // limb with few SUs (a trunk) does not hand the limbs on it a magnitude of its own.
-            spec.blocks[0] = Block::GravityDirection;
-        }
-        spec
+            config,
+        )
     };
     let (solved, spec, intrinsics_model, intrinsics_tests, its) =
         fit_with_intrinsics(state, &layout, &readings, final_spec, config);
@@ -1585,61 +1573,202 @@ fn final_fit(
     let (solved, weighted, its, noise_components) =
         weigh_by_noise_components(solved, &layout, readings, &spec, config);
     iterations += its;
-    // What is reported about the fit comes from the readings alone, not the gauge priors; the
-    // residual against the noise configured (or the set's own deviations), the covariance from
-    // the readings weighed as the fit weighed them.
-    let weighted = Readings {
-        gauge_prior: None,
-        ..weighted
-    };
-    let (readings, weighted) = match noise_components {
-        Some(_) => (
-            Readings {
-                sd: None,
-                ..weighted.clone()
-            },
-            Some(weighted),
-        ),
-        None => (weighted, None),
-    };
-    let su_residual_ratio = su_residual_ratios(&solved.state, &layout, &readings, &spec, sigma);
     let state = solved.state;
-    let dof_count = spec.columns().len();
+    let precision = Precision::of(
+        &state,
+        &layout,
+        weighted,
+        noise_components.is_some(),
+        &spec,
+        data,
+        config,
+    );
+    let readings = &precision.readings;
+    let residual_ratio = precision.residual_ratio;
+    if !residual_ratio.is_finite() {
+        return Err(EstimateError::NotFinite {
+            limb: data.chain.name.clone(),
+            reason: format!("residual / noise = {residual_ratio}"),
+        });
+    }
     let flat_dofs = data.chain.dofs();
     let flat_sus = data.chain.sus();
-    let names = column_names(&flat_dofs, &flat_sus, &spec);
-    let map = ColumnMap::new(&spec);
-    let ratio_of = |normal: &problem::Normal| {
-        (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
-    };
-    let normal = normal_system(&state, &layout, &readings, &spec, &map, sigma);
-    let residual_ratio = ratio_of(&normal);
-    let noise_sd_estimate = sigma * residual_ratio;
-    let (normal, scale) = match &weighted {
-        Some(weighted) => {
-            let normal = normal_system(&state, &layout, weighted, &spec, &map, sigma);
-            let ratio = ratio_of(&normal);
-            (normal, ratio)
-        }
-        None => (normal, residual_ratio),
-    };
-    let (cov, unobservable) = covariance(
-        &normal,
-        &map,
-        scale.max(1.0),
-        &names,
-        config.observable_limit,
+    let cov = &precision.cov;
+    let open = free_directions(&state, &layout, readings, &spec, config.noise_sd);
+    let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
+    Ok(MlChainEstimate {
+        robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
+        dh: dh_table(&limb, &state, &spec, cov, data),
+        chain: data.chain.clone(),
+        joint_orders: Vec::new(),
+        retries: Vec::new(),
+        gravity: state.gravity.into(),
+        residual_ratio,
+        noise_sd_estimate: config.noise_sd * residual_ratio,
+        reading_sd: readings.sd.is_some(),
+        converged: residual_ratio <= config.converged_ratio,
+        fixed: gauge_statement(data, base, gauge_su, vertical, &spec),
+        uncertainty: su_uncertainty(&state, &layout, &spec, &flat_sus, cov, &open),
+        joint_covariance: joint_covariance(&spec, &flat_dofs, cov),
+        intrinsics: su_intrinsics(&state, &spec, &flat_sus, cov, intrinsics_model),
+        intrinsics_model: Some(intrinsics_model),
+        intrinsics_tests,
+        noise_components,
+        rejected,
+        missing_excitations: if readings.motion.is_some() {
+            Vec::new()
+        } else {
+            data.missing_excitations()
+        },
+        motion: readings.motion.as_ref().map(|m| {
+            let at = precision.names.iter().position(|n| n == "skin.delay");
+            MotionFit {
+                blocks: m.len(),
+                skin_delay: state.skin_delay,
+                skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
+            }
+        }),
+        su_residual_ratio: su_residual_ratios(&state, &layout, readings, &spec, config.noise_sd),
+        unobservable: precision.unobservable,
+        iterations,
+        seconds: started.elapsed().as_secs_f64(),
+        state: Some(state),
+    })
+}
+
+/// How a limb's final fit fixes what the readings cannot tell.
+struct Gauge {
+    /// DoFs of the base path (a sub-limb's, held at the parent's estimate).
+    base_dofs: usize,
+    /// Whether the limb has a base path from a parent limb.
+    base: bool,
+    /// The SU whose turn about and shift along the first axis are held.
+    su: Option<usize>,
+    /// Whether gravity is held along the first axis.
+    vertical: bool,
+}
+
+/// The final fit's problem: every block of the limb (the base path held), its intrinsics as
+/// `intrinsics` says, the skin's delay where there is a motion record, and gravity's direction
+/// alone where scales are fitted or chosen.
+fn final_spec(
+    layout: &Layout,
+    gauge: &Gauge,
+    motion: bool,
+    intrinsics: IntrinsicsModel,
+    config: &MlConfig,
+) -> Spec {
+    let mut spec = full_spec(
+        layout,
+        gauge.base_dofs.max(1),
+        !gauge.base,
+        gauge.su,
+        intrinsics,
     );
-    let unobservable = positions_in_one(unobservable, data, &readings);
-    let open = free_directions(&state, &layout, &readings, &spec, sigma);
-    let uncertainty = su_uncertainty(&state, &layout, &spec, &flat_sus, &cov, &open);
-    let joint_covariance = joint_covariance(&spec, &flat_dofs, &cov);
-    let intrinsics = su_intrinsics(&state, &spec, &flat_sus, &cov, intrinsics_model);
+    if gauge.vertical {
+        // Gravity along the first axis: its direction is held, which leaves the turn of
+        // everything after segment 1 about that axis exactly free (reported below).
+        spec.held.extend([(0, 0), (0, 1)]);
+    }
+    if motion {
+        spec.blocks.push(Block::SkinDelay);
+    }
+    if !gauge.base && (intrinsics.components() > 3 || config.select_intrinsics) {
+        // A common scale error of every SU and a gravity as much weaker read the same: the
+        // magnitude of gravity is what scales are measured against. When the data choose
+        // the model, every model holds it there, so that each is nested in the next and a
+        // limb with few SUs (a trunk) does not hand the limbs on it a magnitude of its own.
+        spec.blocks[0] = Block::GravityDirection;
+    }
+    spec
+}
+
+/// What a final fit reports of its precision: from the readings alone (not the gauge priors),
+/// the residual against the noise configured (or the set's own deviations), the covariance
+/// from the readings weighed as the fit weighed them.
+struct Precision {
+    /// The readings the residual is measured on.
+    readings: Readings,
+    residual_ratio: f64,
+    cov: DMatrix<f64>,
+    /// The parameters' names, in the covariance's order.
+    names: Vec<String>,
+    unobservable: Vec<Unobservable>,
+}
+
+impl Precision {
+    /// `weighted`: the fit's readings, weighed by the noise components when `components`.
+    fn of(
+        state: &ChainState,
+        layout: &Layout,
+        weighted: Readings,
+        components: bool,
+        spec: &Spec,
+        data: &LimbData,
+        config: &MlConfig,
+    ) -> Self {
+        let sigma = config.noise_sd;
+        let weighted = Readings {
+            gauge_prior: None,
+            ..weighted
+        };
+        let (readings, weighted) = if components {
+            let plain = Readings {
+                sd: None,
+                ..weighted.clone()
+            };
+            (plain, Some(weighted))
+        } else {
+            (weighted, None)
+        };
+        let dof_count = spec.columns().len();
+        let names = column_names(&data.chain.dofs(), &data.chain.sus(), spec);
+        let map = ColumnMap::new(spec);
+        let ratio_of = |normal: &problem::Normal| {
+            (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
+        };
+        let normal = normal_system(state, layout, &readings, spec, &map, sigma);
+        let residual_ratio = ratio_of(&normal);
+        let (normal, scale) = match &weighted {
+            Some(weighted) => {
+                let normal = normal_system(state, layout, weighted, spec, &map, sigma);
+                let ratio = ratio_of(&normal);
+                (normal, ratio)
+            }
+            None => (normal, residual_ratio),
+        };
+        let (cov, unobservable) = covariance(
+            &normal,
+            &map,
+            scale.max(1.0),
+            &names,
+            config.observable_limit,
+        );
+        let unobservable = positions_in_one(unobservable, data, &readings);
+        Self {
+            readings,
+            residual_ratio,
+            cov,
+            names,
+            unobservable,
+        }
+    }
+}
+
+/// What the final fit held to fix the gauge, in words.
+fn gauge_statement(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    gauge_su: Option<usize>,
+    vertical: bool,
+    spec: &Spec,
+) -> Vec<String> {
+    let (flat_dofs, flat_sus) = (data.chain.dofs(), data.chain.sus());
     let mut fixed = Vec::new();
     match (base, gauge_su) {
         (Some(_), _) => fixed.push(format!(
             "the base path ({} DoFs) and gravity, as the parent limb estimated them",
-            base_dofs
+            data.chain.base_dofs()
         )),
         (None, Some(u)) => fixed.extend([
             format!("{}.rotation_z", flat_sus[u]),
@@ -1658,61 +1787,25 @@ fn final_fit(
             "gravity.magnitude ({STANDARD_GRAVITY} m/s²: what the sensors are measured against)"
         ));
     }
-    if !residual_ratio.is_finite() {
-        return Err(EstimateError::NotFinite {
-            limb: data.chain.name.clone(),
-            reason: format!("residual / noise = {residual_ratio}"),
-        });
-    }
-    let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
-    let dh = data.chain.as_serial().and_then(|serial| {
-        let (dof_dof, dof_su) = super::dh_form(&limb, &serial)?;
-        let (dof_dof_sd, dof_su_sd) =
-            dh_sd(&state, &spec, &cov, data, &serial, (&dof_dof, &dof_su));
-        Some(DhTable {
-            dof_dof,
-            dof_su,
-            dof_dof_sd,
-            dof_su_sd,
-        })
-    });
-    Ok(MlChainEstimate {
-        robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
-        dh,
-        chain: data.chain.clone(),
-        joint_orders: Vec::new(),
-        retries: Vec::new(),
-        gravity: state.gravity.into(),
-        residual_ratio,
-        noise_sd_estimate,
-        reading_sd: readings.sd.is_some(),
-        converged: residual_ratio <= config.converged_ratio,
-        fixed,
-        unobservable,
-        uncertainty,
-        joint_covariance,
-        intrinsics,
-        intrinsics_model: Some(intrinsics_model),
-        intrinsics_tests,
-        noise_components,
-        rejected,
-        missing_excitations: if readings.motion.is_some() {
-            Vec::new()
-        } else {
-            data.missing_excitations()
-        },
-        motion: readings.motion.as_ref().map(|m| {
-            let at = names.iter().position(|n| n == "skin.delay");
-            MotionFit {
-                blocks: m.len(),
-                skin_delay: state.skin_delay,
-                skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
-            }
-        }),
-        su_residual_ratio,
-        iterations,
-        seconds: started.elapsed().as_secs_f64(),
-        state: Some(state),
+    fixed
+}
+
+/// The limb's DH table with its standard deviations, for a serial chain.
+fn dh_table(
+    limb: &Robot,
+    state: &ChainState,
+    spec: &Spec,
+    cov: &DMatrix<f64>,
+    data: &LimbData,
+) -> Option<DhTable> {
+    let serial = data.chain.as_serial()?;
+    let (dof_dof, dof_su) = super::dh_form(limb, &serial)?;
+    let (dof_dof_sd, dof_su_sd) = dh_sd(state, spec, cov, data, &serial, (&dof_dof, &dof_su));
+    Some(DhTable {
+        dof_dof,
+        dof_su,
+        dof_dof_sd,
+        dof_su_sd,
     })
 }
 
