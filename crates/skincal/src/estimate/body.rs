@@ -323,7 +323,10 @@ fn calibrate_body_on(
 }
 
 /// Every limb of the body in parent-first order with `config` as it is (see
-/// [`calibrate_body_on`]).
+/// [`calibrate_body_on`]): each limb searched and fitted on its parent's base path, rescued
+/// where it does not converge (with its parent, or with its path free; a parent with its
+/// children), its misfit SUs set aside, fitted on every sample of `motion`; then the reference
+/// segment's SUs and the model.
 fn calibrate_limbs(
     set: &MeasurementSet,
     motion: Option<&MotionRecord>,
@@ -340,7 +343,78 @@ fn calibrate_limbs(
         plain = set.without_uncertainties();
         &plain
     };
-    let mut broken: Vec<BrokenSu> = Vec::new();
+    let chains = limbs_to_calibrate(set, structure, only)?;
+    let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
+    let mut fitted = Fitted::default();
+    for chain in &chains {
+        let mut chain = chain.clone();
+        // SUs set aside in a parent limb stay out of its sub-limbs' base path.
+        for j in &mut chain.joints {
+            j.sus
+                .retain(|su| !fitted.broken.iter().any(|b| b.su == *su));
+        }
+        let parent = fitted.parent_of(&mut chain)?;
+        let base_dofs = chain.base_dofs();
+        let mut base = parent.and_then(|p| LimbBase::of(&fitted.estimates[p], base_dofs));
+        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
+        if let (false, Some(p)) = (first.converged, parent) {
+            match fitted.rescue_with_parent(set, &chain, &mut first, p, config)? {
+                Rescue::None => {}
+                Rescue::PathFree => chain = first.chain.clone(),
+                Rescue::ParentReplaced => {
+                    chain = first.chain.clone();
+                    base = LimbBase::of(&fitted.estimates[p], base_dofs);
+                }
+            }
+        }
+        let broken = &mut fitted.broken;
+        let estimate = set_aside_misfits(set, chain, base.as_ref(), config, first, keep, broken)?;
+        let on = parent.map(|p| &fitted.estimates[p]);
+        let mut estimate = rescue_with_children(set, estimate, on, &chains, config)?;
+        if let Some(record) = motion {
+            estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
+        }
+        progress(
+            &estimate.chain.name,
+            fitted.estimates.len() + 1,
+            chains.len(),
+        );
+        fitted.estimates.push(estimate);
+        fitted.parents.push(parent);
+    }
+    let static_sus = structure.map_or_else(Vec::new, |s| reference_sus(set, s, training, config));
+    let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
+    let Fitted {
+        estimates,
+        parents,
+        broken,
+    } = fitted;
+    let parents = parents
+        .iter()
+        .map(|p| p.map(|p| estimates[p].chain.name.clone()))
+        .collect();
+    let not_calibrated = left_out(set, structure, &estimates, &static_sus, only, &broken);
+    let mut model = assemble(
+        set,
+        &reference,
+        estimates,
+        parents,
+        static_sus,
+        config,
+        training.pattern,
+    );
+    model.not_calibrated = not_calibrated;
+    model.broken = broken;
+    Ok(model)
+}
+
+/// The limbs to calibrate, parent first: the structure's (or the set's listed chain), with
+/// `only` those on the way to the limb it names.
+fn limbs_to_calibrate(
+    set: &MeasurementSet,
+    structure: Option<&Structure>,
+    only: Option<&str>,
+) -> Result<Vec<LimbChain>, EstimateError> {
     let mut chains = match structure {
         Some(s) => limb_chains(s)?,
         None => vec![LimbChain::from(&chain_in_listed_order(set)?)],
@@ -371,127 +445,139 @@ fn calibrate_limbs(
             "it has no limbs: there is nothing to calibrate".into(),
         ));
     }
-    let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
-    let mut estimates: Vec<MlChainEstimate> = Vec::new();
-    let mut parent_of: Vec<Option<usize>> = Vec::new();
-    for chain in &chains {
-        let mut chain = chain.clone();
-        // SUs set aside in a parent limb stay out of its sub-limbs' base path.
-        for j in &mut chain.joints {
-            j.sus.retain(|su| !broken.iter().any(|b| b.su == *su));
+    Ok(chains)
+}
+
+/// The limbs fitted so far, parent first: their estimates, each one's parent limb, and the SUs
+/// set aside.
+#[derive(Default)]
+struct Fitted {
+    estimates: Vec<MlChainEstimate>,
+    parents: Vec<Option<usize>>,
+    broken: Vec<BrokenSu>,
+}
+
+impl Fitted {
+    /// The limb `chain` hangs on (none for a limb from the reference), its base path given the
+    /// DoF order the parent's estimate found.
+    fn parent_of(&self, chain: &mut LimbChain) -> Result<Option<usize>, EstimateError> {
+        if chain.base_joints == 0 {
+            return Ok(None);
         }
-        let mut parent = None;
-        if chain.base_joints > 0 {
-            let found = estimates.iter().position(|e| {
-                e.chain.joints.len() == chain.base_joints
-                    && e.chain
-                        .joints
-                        .iter()
-                        .zip(&chain.joints)
-                        .all(|(a, b)| a.id == b.id)
-            });
-            let Some(p) = found else {
-                return Err(EstimateError::UnsupportedLimb {
-                    limb: chain.name.clone(),
-                    reason: "no limb ends at its base segment".into(),
-                });
-            };
-            // The base path with the DoF order its own estimate found.
-            for j in 0..chain.base_joints {
-                chain.joints[j].dofs = estimates[p].chain.joints[j].dofs.clone();
-            }
-            parent = Some(p);
-        }
-        let base_dofs = chain.base_dofs();
-        let mut base = parent.and_then(|p| LimbBase::of(&estimates[p], base_dofs));
-        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
-        if let (false, Some(p)) = (first.converged, parent) {
-            let grandparent = parent_of[p].map(|g| &estimates[g]);
-            let refitted =
-                sublimb::with_parent_refitted(set, &chain, &estimates[p], grandparent, config)?;
-            if let Some((new_parent, again, note)) = refitted {
-                let mut new_parent = new_parent;
-                new_parent.retries.push(format!(
-                    "fitted again from limb {}'s readings searched together with it",
-                    chain.name
-                ));
-                replace_parent(set, &mut estimates, p, new_parent, config)?;
-                first = better_of(first, again, note);
-                chain = first.chain.clone();
-                base = LimbBase::of(&estimates[p], base_dofs);
-            } else if let Some((again, note)) =
-                sublimb::with_path_free(set, &chain, &estimates[p], config)?
-            {
-                first = better_of(first, again, note);
-                chain = first.chain.clone();
-            }
-        }
-        let mut estimate =
-            set_aside_misfits(set, chain, base.as_ref(), config, first, keep, &mut broken)?;
-        // A limb that did not converge would take the limbs hanging on it down with it: fitted
-        // again from each of theirs searched together with it, until it converges.
-        let children: Vec<&LimbChain> = chains
-            .iter()
-            .filter(|c| hangs_on(c, &estimate.chain))
-            .collect();
-        for child in children {
-            if estimate.converged {
-                break;
-            }
-            let on = parent.map(|p| &estimates[p]);
-            let tried = sublimb::parent_from_child(set, &estimate.chain, on, child, config)?;
-            if let Some((again, note)) = tried {
-                estimate = better_of(estimate, again, note);
-            }
-        }
-        if let Some(record) = motion {
-            estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
-        }
-        progress(&estimate.chain.name, estimates.len() + 1, chains.len());
-        estimates.push(estimate);
-        parent_of.push(parent);
-    }
-    let static_sus = match structure {
-        Some(s) => s
-            .segment(&s.root)
-            .map(|root| {
-                root.sus
+        let found = self.estimates.iter().position(|e| {
+            e.chain.joints.len() == chain.base_joints
+                && e.chain
+                    .joints
                     .iter()
-                    .filter_map(|su| {
-                        let u = set.sus.iter().position(|n| n == su)?;
-                        let readings: Vec<Vector3<f64>> = training
-                            .poses
-                            .iter()
-                            .map(|p| Vector3::from(p.static_readings[u]))
-                            .collect();
-                        Some(StaticSu {
-                            su: su.clone(),
-                            reading: robust_mean(&readings, 6.0 * config.noise_sd).into(),
-                        })
-                    })
-                    .collect()
-            })
-            .unwrap_or_default(),
-        None => Vec::new(),
-    };
-    let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
-    let parents = parent_of
+                    .zip(&chain.joints)
+                    .all(|(a, b)| a.id == b.id)
+        });
+        let Some(p) = found else {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: "no limb ends at its base segment".into(),
+            });
+        };
+        for j in 0..chain.base_joints {
+            chain.joints[j].dofs = self.estimates[p].chain.joints[j].dofs.clone();
+        }
+        Ok(Some(p))
+    }
+
+    /// A sub-limb `chain` whose fit `first` did not converge on its parent `p`'s path: the
+    /// parent fitted again from both limbs' readings searched together (and replaced, its other
+    /// sub-limbs fitted again on it), or else the sub-limb with its path free; `first` becomes
+    /// the better of its fits.
+    fn rescue_with_parent(
+        &mut self,
+        set: &MeasurementSet,
+        chain: &LimbChain,
+        first: &mut MlChainEstimate,
+        p: usize,
+        config: &MlConfig,
+    ) -> Result<Rescue, EstimateError> {
+        let grandparent = self.parents[p].map(|g| &self.estimates[g]);
+        let refitted =
+            sublimb::with_parent_refitted(set, chain, &self.estimates[p], grandparent, config)?;
+        if let Some((mut new_parent, again, note)) = refitted {
+            new_parent.retries.push(format!(
+                "fitted again from limb {}'s readings searched together with it",
+                chain.name
+            ));
+            replace_parent(set, &mut self.estimates, p, new_parent, config)?;
+            *first = better_of(first.clone(), again, note);
+            return Ok(Rescue::ParentReplaced);
+        }
+        if let Some((again, note)) =
+            sublimb::with_path_free(set, chain, &self.estimates[p], config)?
+        {
+            *first = better_of(first.clone(), again, note);
+            return Ok(Rescue::PathFree);
+        }
+        Ok(Rescue::None)
+    }
+}
+
+/// What rescuing a sub-limb did ([`Fitted::rescue_with_parent`]).
+enum Rescue {
+    /// Nothing fitted better or differently.
+    None,
+    /// The sub-limb was fitted with its path free.
+    PathFree,
+    /// The parent was fitted again with it and replaced.
+    ParentReplaced,
+}
+
+/// A limb that did not converge would take the limbs hanging on it down with it: fitted again
+/// from each of theirs (of `chains`) searched together with it, until it converges.
+fn rescue_with_children(
+    set: &MeasurementSet,
+    mut estimate: MlChainEstimate,
+    on: Option<&MlChainEstimate>,
+    chains: &[LimbChain],
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let children: Vec<&LimbChain> = chains
         .iter()
-        .map(|p| p.map(|p| estimates[p].chain.name.clone()))
+        .filter(|c| hangs_on(c, &estimate.chain))
         .collect();
-    let not_calibrated = left_out(set, structure, &estimates, &static_sus, only, &broken);
-    let mut model = assemble(
-        set,
-        &reference,
-        estimates,
-        parents,
-        static_sus,
-        config,
-        training.pattern,
-    );
-    model.not_calibrated = not_calibrated;
-    model.broken = broken;
-    Ok(model)
+    for child in children {
+        if estimate.converged {
+            break;
+        }
+        let tried = sublimb::parent_from_child(set, &estimate.chain, on, child, config)?;
+        if let Some((again, note)) = tried {
+            estimate = better_of(estimate, again, note);
+        }
+    }
+    Ok(estimate)
+}
+
+/// The SUs on the reference segment of `structure`: each one's robust mean static reading.
+fn reference_sus(
+    set: &MeasurementSet,
+    structure: &Structure,
+    training: &TrainingExperiment,
+    config: &MlConfig,
+) -> Vec<StaticSu> {
+    let Some(root) = structure.segment(&structure.root) else {
+        return Vec::new();
+    };
+    root.sus
+        .iter()
+        .filter_map(|su| {
+            let u = set.sus.iter().position(|n| n == su)?;
+            let readings: Vec<Vector3<f64>> = training
+                .poses
+                .iter()
+                .map(|p| Vector3::from(p.static_readings[u]))
+                .collect();
+            Some(StaticSu {
+                su: su.clone(),
+                reading: robust_mean(&readings, 6.0 * config.noise_sd).into(),
+            })
+        })
+        .collect()
 }
 
 /// A limb's estimate fitted again on every sample of `record`, from where the readings' fit
