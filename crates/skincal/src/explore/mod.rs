@@ -528,63 +528,85 @@ enum Outcome {
 
 /// Merges, sorts and connects an activity matrix into a tree; see the module documentation.
 pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> Structure {
-    let (nu, nd) = (a.sus.len(), a.dofs.len());
-    let mut diagnostics = Vec::new();
-    let dof_names = |ds: &[usize]| ds.iter().map(|&d| a.dofs[d].clone()).collect::<Vec<_>>();
-    let su_names = |us: &[usize]| us.iter().map(|&u| a.sus[u].clone()).collect::<Vec<_>>();
+    let nu = a.sus.len();
+    let mut diagnostics = unexplored_dofs(a);
+    diagnostics.extend(misread_readings(a));
+    let moving = moving_dofs(a, &mut diagnostics);
+    let dof_rows: Vec<FixedBitSet> = (0..nu).map(|u| activity_row(a, u, &moving)).collect();
+    let mut excluded = vec![false; nu];
+    set_aside_broken(a, &mut excluded, &mut diagnostics);
+    set_aside_undecided(a, &mut excluded, &mut diagnostics);
+    diagnostics.extend(null_rows(a, config, &dof_rows, &moving, &mut excluded));
+    let attempt = sort_into_tree(a, &dof_rows, &moving, &mut excluded, &mut diagnostics);
+    finish(a, attempt, diagnostics, &excluded, &moving, &dof_rows)
+}
 
-    for d in (0..nd).filter(|&d| !a.explored[d]) {
-        diagnostics.push(Diagnostic {
+/// An error for every DoF the structure experiment never moved.
+fn unexplored_dofs(a: &ActivityMatrix) -> Vec<Diagnostic> {
+    (0..a.dofs.len())
+        .filter(|&d| !a.explored[d])
+        .map(|d| Diagnostic {
             kind: DiagnosticKind::DofNotExplored,
             severity: Severity::Error,
             message: format!("DoF `{}` was never moved in the structure experiment, so nothing is known about it: add a move of it from the rest pose", a.dofs[d]),
             sus: vec![],
             dofs: vec![a.dofs[d].clone()],
-        });
+        })
+        .collect()
+}
+
+/// The readings left out as misread (glitches), and the entries then decided by the SUs whose
+/// rows agree.
+fn misread_readings(a: &ActivityMatrix) -> Option<Diagnostic> {
+    if a.misread.is_empty() {
+        return None;
     }
-    if !a.misread.is_empty() {
-        let list: Vec<String> = a
-            .misread
-            .iter()
-            .map(|m| {
+    let list: Vec<String> = a
+        .misread
+        .iter()
+        .map(|m| {
+            format!(
+                "{} ({}, orientation {}: |r| = {:.2} g, usually {:.2} g)",
+                m.su,
+                m.dof
+                    .as_deref()
+                    .map_or("rest".to_string(), |d| format!("move of {d}")),
+                m.orientation,
+                m.norm_g,
+                m.expected_g
+            )
+        })
+        .collect();
+    let mut sus: Vec<String> = a.misread.iter().map(|m| m.su.clone()).collect();
+    sus.dedup();
+    Some(Diagnostic {
+        kind: DiagnosticKind::MisreadReading,
+        severity: Severity::Warning,
+        message: format!(
+            "{} reading(s) are not what an accelerometer at rest reads (a norm far from the SU's |g|, a turn further than the DoF travelled or unlike that of every other SU the same move turned, or a change where the other orientation, which sees the DoF turn other SUs, saw this one still): glitches, left out; the entries they would decide come from the other base orientation: {}{}",
+            a.misread.len(),
+            list.join("; "),
+            if a.inferred.is_empty() {
+                String::new()
+            } else {
                 format!(
-                    "{} ({}, orientation {}: |r| = {:.2} g, usually {:.2} g)",
-                    m.su,
-                    m.dof
-                        .as_deref()
-                        .map_or("rest".to_string(), |d| format!("move of {d}")),
-                    m.orientation,
-                    m.norm_g,
-                    m.expected_g
+                    ". Entries no orientation could read then, decided by the SUs whose rows agree: {}",
+                    a.inferred
+                        .iter()
+                        .map(|i| format!("{} × {} ({})", i.su, i.dof, if i.active { "moves" } else { "still" }))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 )
-            })
-            .collect();
-        let mut sus: Vec<String> = a.misread.iter().map(|m| m.su.clone()).collect();
-        sus.dedup();
-        diagnostics.push(Diagnostic {
-            kind: DiagnosticKind::MisreadReading,
-            severity: Severity::Warning,
-            message: format!(
-                "{} reading(s) are not what an accelerometer at rest reads (a norm far from the SU's |g|, a turn further than the DoF travelled or unlike that of every other SU the same move turned, or a change where the other orientation, which sees the DoF turn other SUs, saw this one still): glitches, left out; the entries they would decide come from the other base orientation: {}{}",
-                a.misread.len(),
-                list.join("; "),
-                if a.inferred.is_empty() {
-                    String::new()
-                } else {
-                    format!(
-                        ". Entries no orientation could read then, decided by the SUs whose rows agree: {}",
-                        a.inferred
-                            .iter()
-                            .map(|i| format!("{} × {} ({})", i.su, i.dof, if i.active { "moves" } else { "still" }))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    )
-                }
-            ),
-            sus,
-            dofs: Vec::new(),
-        });
-    }
+            }
+        ),
+        sus,
+        dofs: Vec::new(),
+    })
+}
+
+/// The explored DoFs that move some SU; each other one is named with why it moves none.
+fn moving_dofs(a: &ActivityMatrix, diagnostics: &mut Vec<Diagnostic>) -> Vec<usize> {
+    let (nu, nd) = (a.sus.len(), a.dofs.len());
     let mut moving: Vec<usize> = Vec::new();
     for d in (0..nd).filter(|&d| a.explored[d]) {
         if (0..nu).any(|u| a.is_active(u, d)) {
@@ -617,21 +639,22 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             dofs: vec![a.dofs[d].clone()],
         });
     }
+    moving
+}
 
-    let row_of = |u: usize| -> FixedBitSet {
-        let mut b = FixedBitSet::with_capacity(nd);
-        for &d in &moving {
-            if a.is_active(u, d) {
-                b.insert(d);
-            }
+/// SU `u`'s row of the activity matrix over the `moving` DoFs.
+fn activity_row(a: &ActivityMatrix, u: usize, moving: &[usize]) -> FixedBitSet {
+    let mut b = FixedBitSet::with_capacity(a.dofs.len());
+    for &d in moving {
+        if a.is_active(u, d) {
+            b.insert(d);
         }
-        b
-    };
-    let dof_rows: Vec<FixedBitSet> = (0..nu).map(row_of).collect();
-    let uncertain: Vec<usize> = (0..nu)
-        .map(|u| moving.iter().filter(|&&d| a.is_uncertain(u, d)).count())
-        .collect();
-    let mut excluded = vec![false; nu];
+    }
+    b
+}
+
+/// Broken SUs are left out of the tree, each named with its failure.
+fn set_aside_broken(a: &ActivityMatrix, excluded: &mut [bool], diagnostics: &mut Vec<Diagnostic>) {
     for b in &a.broken {
         if let Some(u) = a.sus.iter().position(|x| *x == b.su) {
             excluded[u] = true;
@@ -647,31 +670,51 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             dofs: vec![],
         });
     }
-    if !a.undecided.is_empty() {
-        let mut sus: Vec<String> = a.undecided.iter().map(|(s, _)| s.clone()).collect();
-        sus.dedup();
-        for s in &sus {
-            if let Some(u) = a.sus.iter().position(|x| x == s) {
-                excluded[u] = true;
-            }
-        }
-        diagnostics.push(Diagnostic {
-            kind: DiagnosticKind::MisreadReading,
-            severity: Severity::Warning,
-            message: format!(
-                "whether these DoFs move these SUs cannot be told: the reading that would tell was misread, the other orientation turned the DoF about gravity, and neither the SUs with the same row nor the tree decide it: {}; the SUs are left out of the tree and not calibrated (record the move again to place them)",
-                a.undecided
-                    .iter()
-                    .map(|(s, d)| format!("{s} × {d}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            sus,
-            dofs: a.undecided.iter().map(|(_, d)| d.clone()).collect(),
-        });
-    }
+}
 
-    // Null-row SUs must turn together with the reference segment when the base is re-oriented.
+/// SUs with an entry nothing decides are left out of the tree.
+fn set_aside_undecided(
+    a: &ActivityMatrix,
+    excluded: &mut [bool],
+    diagnostics: &mut Vec<Diagnostic>,
+) {
+    if a.undecided.is_empty() {
+        return;
+    }
+    let mut sus: Vec<String> = a.undecided.iter().map(|(s, _)| s.clone()).collect();
+    sus.dedup();
+    for s in &sus {
+        if let Some(u) = a.sus.iter().position(|x| x == s) {
+            excluded[u] = true;
+        }
+    }
+    diagnostics.push(Diagnostic {
+        kind: DiagnosticKind::MisreadReading,
+        severity: Severity::Warning,
+        message: format!(
+            "whether these DoFs move these SUs cannot be told: the reading that would tell was misread, the other orientation turned the DoF about gravity, and neither the SUs with the same row nor the tree decide it: {}; the SUs are left out of the tree and not calibrated (record the move again to place them)",
+            a.undecided
+                .iter()
+                .map(|(s, d)| format!("{s} × {d}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        sus,
+        dofs: a.undecided.iter().map(|(_, d)| d.clone()).collect(),
+    });
+}
+
+/// The null-row SUs (still in every move): none says the reference segment carries no SU; those
+/// whose gravity reading turned unlike the rest's when the base was re-oriented are not on the
+/// reference segment and are left out.
+fn null_rows(
+    a: &ActivityMatrix,
+    config: &ExploreConfig,
+    dof_rows: &[FixedBitSet],
+    moving: &[usize],
+    excluded: &mut [bool],
+) -> Option<Diagnostic> {
+    let nu = a.sus.len();
     let still: Vec<usize> = (0..nu)
         .filter(|&u| dof_rows[u].is_clear() && !excluded[u])
         .collect();
@@ -681,67 +724,84 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
             .copied()
             .filter(|&d| (0..nu).all(|u| a.is_active(u, d)))
             .collect();
+        let names: Vec<String> = everything.iter().map(|&d| a.dofs[d].clone()).collect();
         let message = if everything.is_empty() {
             "no SU stayed still in every move (no null row): the reference segment carries no SU; the tree is rooted at an assumed reference segment without SU".to_string()
         } else {
-            format!("no SU stayed still in every move (no null row), and DoF(s) {} moved every SU: either the reference segment carries no SU (normal for an arm whose base has no skin: its first joint moves everything), or the reference segment itself moved with them — then hold it still. The tree is rooted at an assumed reference segment without SU", dof_names(&everything).join(", "))
+            format!("no SU stayed still in every move (no null row), and DoF(s) {} moved every SU: either the reference segment carries no SU (normal for an arm whose base has no skin: its first joint moves everything), or the reference segment itself moved with them — then hold it still. The tree is rooted at an assumed reference segment without SU", names.join(", "))
         };
-        diagnostics.push(Diagnostic {
+        return Some(Diagnostic {
             kind: DiagnosticKind::NoStaticSegment,
             severity: Severity::Info,
             message,
             sus: vec![],
-            dofs: dof_names(&everything),
+            dofs: names,
         });
-    } else if let Some(turns) = still
+    }
+    // Null-row SUs must turn together with the reference segment when the base is re-oriented.
+    let turns = still
         .iter()
         .map(|&u| a.rest_turn[u])
-        .collect::<Option<Vec<f64>>>()
-    {
-        let mut sorted = turns.clone();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted[sorted.len() / 2];
-        let odd: Vec<usize> = still
-            .iter()
-            .zip(&turns)
-            .filter(|(_, t)| (**t - median).abs() > config.static_turn_tolerance)
-            .map(|(&u, _)| u)
-            .collect();
-        if !odd.is_empty() {
-            for &u in &odd {
-                excluded[u] = true;
-            }
-            diagnostics.push(Diagnostic {
-                kind: DiagnosticKind::SeveralStaticGroups,
-                severity: Severity::Warning,
-                message: format!(
-                    "more than one null row: these SUs stayed still in every move, but their gravity reading turned by a different angle than the reference segment's ({:.0}°) when the base was re-oriented, so they are not on the reference segment: loose SUs, SUs on another static body, or SUs on a segment whose DoFs were not moved; left out of the tree",
-                    median.to_degrees()
-                ),
-                sus: su_names(&odd),
-                dofs: vec![],
-            });
-        }
+        .collect::<Option<Vec<f64>>>()?;
+    let mut sorted = turns.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let odd: Vec<usize> = still
+        .iter()
+        .zip(&turns)
+        .filter(|(_, t)| (**t - median).abs() > config.static_turn_tolerance)
+        .map(|(&u, _)| u)
+        .collect();
+    if odd.is_empty() {
+        return None;
     }
+    for &u in &odd {
+        excluded[u] = true;
+    }
+    Some(Diagnostic {
+        kind: DiagnosticKind::SeveralStaticGroups,
+        severity: Severity::Warning,
+        message: format!(
+            "more than one null row: these SUs stayed still in every move, but their gravity reading turned by a different angle than the reference segment's ({:.0}°) when the base was re-oriented, so they are not on the reference segment: loose SUs, SUs on another static body, or SUs on a segment whose DoFs were not moved; left out of the tree",
+            median.to_degrees()
+        ),
+        sus: odd.iter().map(|&u| a.sus[u].clone()).collect(),
+        dofs: vec![],
+    })
+}
 
+/// The rows of the SUs not `excluded` sorted into a tree ([`attempt_tree`]): a conflict leaves
+/// out the SUs of the segment it names (or the segments assumed so far, or, when nothing
+/// explains it, every SU), a missing segment row is assumed, until a tree stands.
+fn sort_into_tree(
+    a: &ActivityMatrix,
+    dof_rows: &[FixedBitSet],
+    moving: &[usize],
+    excluded: &mut [bool],
+    diagnostics: &mut Vec<Diagnostic>,
+) -> Attempt {
+    let (nu, nd) = (a.sus.len(), a.dofs.len());
+    let uncertain: Vec<usize> = (0..nu)
+        .map(|u| moving.iter().filter(|&&d| a.is_uncertain(u, d)).count())
+        .collect();
     // Every round either leaves out at least one SU or assumes a segment row that did not exist;
     // past a generous bound no more segments are assumed, so the loop always ends.
     let mut extra_rows: Vec<FixedBitSet> = Vec::new();
     let limit = 4 * (nu + nd) + 8;
     let mut rounds = 0;
-    let attempt = loop {
+    loop {
         rounds += 1;
         let active: Vec<usize> = (0..nu).filter(|&u| !excluded[u]).collect();
         match attempt_tree(
-            &dof_rows,
+            dof_rows,
             &active,
-            &moving,
+            moving,
             &extra_rows,
             nd,
             rounds < limit,
             &uncertain,
         ) {
-            Outcome::Tree(t) => break t,
+            Outcome::Tree(t) => return t,
             Outcome::AddSegment(row) => extra_rows.push(row),
             Outcome::Conflict {
                 segment,
@@ -749,9 +809,9 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
                 reason,
                 attempt,
             } => {
-                let dofs: Vec<usize> = joints
+                let dofs: Vec<String> = joints
                     .iter()
-                    .flat_map(|&j| attempt.joints[j].clone())
+                    .flat_map(|&j| attempt.joints[j].iter().map(|&d| a.dofs[d].clone()))
                     .collect();
                 if !segment.is_empty() {
                     for &u in &segment {
@@ -768,14 +828,12 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
                     kind: DiagnosticKind::Unsortable,
                     severity: if segment.is_empty() { Severity::Error } else { Severity::Warning },
                     message: format!("the activity matrix cannot be sorted into a tree: {reason}. Likely causes: a closed kinematic loop, a reference segment that moved, a segment without SU in mid-chain, or a misread entry; these SUs are left out of the tree and not calibrated"),
-                    sus: su_names(&segment),
-                    dofs: dof_names(&dofs),
+                    sus: segment.iter().map(|&u| a.sus[u].clone()).collect(),
+                    dofs,
                 });
             }
         }
-    };
-
-    finish(a, attempt, diagnostics, &excluded, &moving, &dof_rows)
+    }
 }
 
 /// Merges the active SUs' rows into joints and segments and connects them, or reports the first
