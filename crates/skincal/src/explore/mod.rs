@@ -1025,184 +1025,34 @@ fn finish(
     moving: &[usize],
     dof_rows: &[FixedBitSet],
 ) -> Structure {
-    let n = t.segments.len();
-    let mut children: Vec<Vec<(usize, usize)>> = vec![vec![]; n];
-    for (s, p) in t.parent.iter().enumerate() {
-        if let Some((p, j)) = p {
-            children[*p].push((t.joints[*j][0], s));
-        }
-    }
-    for c in &mut children {
-        c.sort();
-    }
-    // Depth-first order: S0 = root, and joint Jk is the parent joint of Sk.
-    let mut order = Vec::with_capacity(n);
-    let mut stack = vec![t.root];
-    while let Some(s) = stack.pop() {
-        order.push(s);
-        stack.extend(children[s].iter().rev().map(|&(_, c)| c));
-    }
-    let mut id = vec![String::new(); n];
-    for (k, &s) in order.iter().enumerate() {
-        id[s] = format!("S{k}");
-    }
-    let joint_id = |s: usize| format!("J{}", order.iter().position(|&x| x == s).unwrap_or(0));
-    let segments: Vec<SegmentNode> = order
+    let numbered = Numbered::new(&t);
+    let segments: Vec<SegmentNode> = numbered
+        .order
         .iter()
         .map(|&s| SegmentNode {
-            id: id[s].clone(),
+            id: numbered.id[s].clone(),
             sus: t.segments[s].1.iter().map(|&u| a.sus[u].clone()).collect(),
-            parent_joint: t.parent[s].map(|_| joint_id(s)),
+            parent_joint: t.parent[s].map(|_| numbered.joint_id(s)),
             without_su: t.segments[s].1.is_empty(),
         })
         .collect();
-    let joints: Vec<JointNode> = order
+    let joints: Vec<JointNode> = numbered
+        .order
         .iter()
         .filter_map(|&s| {
             t.parent[s].map(|(p, j)| JointNode {
-                id: joint_id(s),
+                id: numbered.joint_id(s),
                 dofs: t.joints[j].iter().map(|&d| a.dofs[d].clone()).collect(),
-                parent: id[p].clone(),
-                child: id[s].clone(),
+                parent: numbered.id[p].clone(),
+                child: numbered.id[s].clone(),
             })
         })
         .collect();
-    // Joints of the attempt that connect nothing (all their SUs were left out).
-    let used: Vec<usize> = t.parent.iter().flatten().map(|&(_, j)| j).collect();
-    let mut unplaced_dofs: Vec<usize> = (0..a.dofs.len()).filter(|d| !moving.contains(d)).collect();
-    for (j, ds) in t.joints.iter().enumerate() {
-        if !used.contains(&j) {
-            unplaced_dofs.extend(ds);
-        }
-    }
-    unplaced_dofs.extend(
-        moving
-            .iter()
-            .copied()
-            .filter(|&d| !t.joints.iter().any(|j| j.contains(&d))),
-    );
-    unplaced_dofs.sort();
-    unplaced_dofs.dedup();
-
-    for j in &joints {
-        if j.dofs.len() > 1 {
-            diagnostics.push(Diagnostic {
-                kind: DiagnosticKind::MultiDofJoint,
-                severity: Severity::Info,
-                message: format!("{} combines {} DoFs with no SU between them; their order along the chain cannot be seen in the activity matrix (identical columns) and is listed in input order — kinematic estimation determines it", j.id, j.dofs.len()),
-                sus: vec![],
-                dofs: j.dofs.clone(),
-            });
-        }
-    }
-    for s in segments.iter().filter(|s| s.without_su && s.id != "S0") {
-        let out: Vec<&JointNode> = joints.iter().filter(|j| j.parent == s.id).collect();
-        diagnostics.push(Diagnostic {
-            kind: DiagnosticKind::SegmentWithoutSu,
-            severity: Severity::Warning,
-            message: format!("joints {} start from a segment that carries no SU; it was assumed as {} to connect the tree. Cover it with at least one SU so that it can be calibrated", out.iter().map(|j| j.id.as_str()).collect::<Vec<_>>().join(", "), s.id),
-            sus: vec![],
-            dofs: out.iter().flat_map(|j| j.dofs.clone()).collect(),
-        });
-    }
-
-    // Uncertain entries, and flips that would make a left-out SU fit a placed segment.
-    let mut uncertain = Vec::new();
-    for u in 0..a.sus.len() {
-        for d in 0..a.dofs.len() {
-            if a.is_uncertain(u, d) {
-                uncertain.push(UncertainEntry {
-                    su: a.sus[u].clone(),
-                    dof: a.dofs[d].clone(),
-                    change_g: a.change[u][d] / STANDARD_GRAVITY,
-                    active: a.is_active(u, d),
-                });
-            }
-        }
-    }
-    let placed_rows: HashMap<FixedBitSet, usize> = (0..n)
-        .map(|s| (dof_row_of_segment(&t, s, a.dofs.len()), s))
-        .collect();
-    for u in (0..a.sus.len()).filter(|&u| excluded[u]) {
-        for &d in moving {
-            if !a.is_uncertain(u, d) {
-                continue;
-            }
-            let mut flipped = dof_rows[u].clone();
-            flipped.toggle(d);
-            let flipped = expand_to_joints(&t, &flipped);
-            if let Some(&s) = placed_rows.get(&flipped) {
-                diagnostics.push(Diagnostic {
-                    kind: DiagnosticKind::UncertainEntry,
-                    severity: Severity::Warning,
-                    message: format!(
-                        "SU `{}` would sit on {} if its entry for DoF `{}` were {} (measured change {:.3} g against a threshold of {:.3} g): check that SU and that move, or re-run with another --threshold",
-                        a.sus[u], id[s], a.dofs[d], if a.is_active(u, d) { 0 } else { 1 }, a.change[u][d] / STANDARD_GRAVITY, a.threshold / STANDARD_GRAVITY
-                    ),
-                    sus: vec![a.sus[u].clone()],
-                    dofs: vec![a.dofs[d].clone()],
-                });
-            }
-        }
-    }
-
-    // Anatomy.
-    let degree = |s: usize| children[s].len() + usize::from(t.parent[s].is_some());
-    let end_effectors: Vec<String> = order
-        .iter()
-        .filter(|&&s| s != t.root && degree(s) == 1)
-        .map(|&s| id[s].clone())
-        .collect();
-    let branching: Vec<String> = order
-        .iter()
-        .filter(|&&s| s != t.root && degree(s) > 2)
-        .map(|&s| id[s].clone())
-        .collect();
-    let mut limbs = Vec::new();
-    for &reference in order.iter().filter(|&&s| s == t.root || degree(s) > 2) {
-        for &(_, first) in &children[reference] {
-            let mut limb = Limb {
-                from: id[reference].clone(),
-                to: String::new(),
-                joints: vec![],
-                segments: vec![],
-                dofs: vec![],
-                sus: vec![],
-            };
-            let mut s = first;
-            loop {
-                let (_, j) = t.parent[s].expect("children have parents");
-                limb.joints.push(joint_id(s));
-                limb.dofs
-                    .extend(t.joints[j].iter().map(|&d| a.dofs[d].clone()));
-                limb.segments.push(id[s].clone());
-                limb.sus
-                    .extend(t.segments[s].1.iter().map(|&u| a.sus[u].clone()));
-                if children[s].len() == 1 {
-                    s = children[s][0].1;
-                } else {
-                    break;
-                }
-            }
-            limb.to = id[s].clone();
-            limbs.push(limb);
-        }
-    }
-
-    let matrix = SortedMatrix {
-        segments: order.iter().map(|&s| id[s].clone()).collect(),
-        joints: order.iter().skip(1).map(|&s| joint_id(s)).collect(),
-        entries: order
-            .iter()
-            .map(|&s| {
-                order
-                    .iter()
-                    .skip(1)
-                    .map(|&c| t.parent[c].is_some_and(|(_, j)| t.segments[s].0.contains(j)))
-                    .collect()
-            })
-            .collect(),
-    };
+    diagnostics.extend(shape_notes(&segments, &joints));
+    diagnostics.extend(flips_that_place(
+        a, &t, &numbered, excluded, moving, dof_rows,
+    ));
+    let (end_effectors, branching, limbs) = anatomy(a, &t, &numbered);
     diagnostics.sort_by_key(|d| std::cmp::Reverse(d.severity));
     let complete = diagnostics.iter().all(|d| d.severity != Severity::Error);
     Structure {
@@ -1218,12 +1068,252 @@ fn finish(
             .filter(|&u| excluded[u])
             .map(|u| a.sus[u].clone())
             .collect(),
-        unplaced_dofs: unplaced_dofs.iter().map(|&d| a.dofs[d].clone()).collect(),
+        unplaced_dofs: unplaced_dofs(&t, moving, a.dofs.len())
+            .iter()
+            .map(|&d| a.dofs[d].clone())
+            .collect(),
         broken: a.broken.clone(),
-        matrix,
-        uncertain,
+        matrix: sorted_matrix(&t, &numbered),
+        uncertain: uncertain_entries(a),
         threshold_g: a.threshold / STANDARD_GRAVITY,
         orientations: a.orientations,
+    }
+}
+
+/// An attempt's segments numbered depth-first from the root (`S0`; joint `Jk` is the parent
+/// joint of `Sk`), each one's children by their first DoF.
+struct Numbered {
+    /// Per segment: `(first DoF of the joint, child segment)`, sorted.
+    children: Vec<Vec<(usize, usize)>>,
+    /// The segments in depth-first order.
+    order: Vec<usize>,
+    /// Per segment: its id.
+    id: Vec<String>,
+}
+
+impl Numbered {
+    fn new(t: &Attempt) -> Self {
+        let n = t.segments.len();
+        let mut children: Vec<Vec<(usize, usize)>> = vec![vec![]; n];
+        for (s, p) in t.parent.iter().enumerate() {
+            if let Some((p, j)) = p {
+                children[*p].push((t.joints[*j][0], s));
+            }
+        }
+        for c in &mut children {
+            c.sort();
+        }
+        let mut order = Vec::with_capacity(n);
+        let mut stack = vec![t.root];
+        while let Some(s) = stack.pop() {
+            order.push(s);
+            stack.extend(children[s].iter().rev().map(|&(_, c)| c));
+        }
+        let mut id = vec![String::new(); n];
+        for (k, &s) in order.iter().enumerate() {
+            id[s] = format!("S{k}");
+        }
+        Self {
+            children,
+            order,
+            id,
+        }
+    }
+
+    /// The id of segment `s`'s parent joint.
+    fn joint_id(&self, s: usize) -> String {
+        format!("J{}", self.order.iter().position(|&x| x == s).unwrap_or(0))
+    }
+
+    /// How many joints segment `s` of `t` has.
+    fn degree(&self, t: &Attempt, s: usize) -> usize {
+        self.children[s].len() + usize::from(t.parent[s].is_some())
+    }
+}
+
+/// The DoFs the tree does not place: those that move no SU, and those of joints that connect
+/// nothing (all their SUs were left out).
+fn unplaced_dofs(t: &Attempt, moving: &[usize], nd: usize) -> Vec<usize> {
+    let used: Vec<usize> = t.parent.iter().flatten().map(|&(_, j)| j).collect();
+    let mut unplaced: Vec<usize> = (0..nd).filter(|d| !moving.contains(d)).collect();
+    for (j, ds) in t.joints.iter().enumerate() {
+        if !used.contains(&j) {
+            unplaced.extend(ds);
+        }
+    }
+    unplaced.extend(
+        moving
+            .iter()
+            .copied()
+            .filter(|&d| !t.joints.iter().any(|j| j.contains(&d))),
+    );
+    unplaced.sort();
+    unplaced.dedup();
+    unplaced
+}
+
+/// Notes on the tree's shape: joints of several DoFs (their order is the estimator's to find),
+/// segments assumed without SU.
+fn shape_notes(segments: &[SegmentNode], joints: &[JointNode]) -> Vec<Diagnostic> {
+    let mut notes = Vec::new();
+    for j in joints.iter().filter(|j| j.dofs.len() > 1) {
+        notes.push(Diagnostic {
+            kind: DiagnosticKind::MultiDofJoint,
+            severity: Severity::Info,
+            message: format!("{} combines {} DoFs with no SU between them; their order along the chain cannot be seen in the activity matrix (identical columns) and is listed in input order — kinematic estimation determines it", j.id, j.dofs.len()),
+            sus: vec![],
+            dofs: j.dofs.clone(),
+        });
+    }
+    for s in segments.iter().filter(|s| s.without_su && s.id != "S0") {
+        let out: Vec<&JointNode> = joints.iter().filter(|j| j.parent == s.id).collect();
+        notes.push(Diagnostic {
+            kind: DiagnosticKind::SegmentWithoutSu,
+            severity: Severity::Warning,
+            message: format!("joints {} start from a segment that carries no SU; it was assumed as {} to connect the tree. Cover it with at least one SU so that it can be calibrated", out.iter().map(|j| j.id.as_str()).collect::<Vec<_>>().join(", "), s.id),
+            sus: vec![],
+            dofs: out.iter().flat_map(|j| j.dofs.clone()).collect(),
+        });
+    }
+    notes
+}
+
+/// Every entry of the activity matrix near its threshold.
+fn uncertain_entries(a: &ActivityMatrix) -> Vec<UncertainEntry> {
+    let mut uncertain = Vec::new();
+    for u in 0..a.sus.len() {
+        for d in 0..a.dofs.len() {
+            if a.is_uncertain(u, d) {
+                uncertain.push(UncertainEntry {
+                    su: a.sus[u].clone(),
+                    dof: a.dofs[d].clone(),
+                    change_g: a.change[u][d] / STANDARD_GRAVITY,
+                    active: a.is_active(u, d),
+                });
+            }
+        }
+    }
+    uncertain
+}
+
+/// The uncertain entries of left-out SUs whose flip would make the SU fit a placed segment,
+/// each named with that segment.
+fn flips_that_place(
+    a: &ActivityMatrix,
+    t: &Attempt,
+    numbered: &Numbered,
+    excluded: &[bool],
+    moving: &[usize],
+    dof_rows: &[FixedBitSet],
+) -> Vec<Diagnostic> {
+    let placed_rows: HashMap<FixedBitSet, usize> = (0..t.segments.len())
+        .map(|s| (dof_row_of_segment(t, s, a.dofs.len()), s))
+        .collect();
+    let mut flips = Vec::new();
+    for u in (0..a.sus.len()).filter(|&u| excluded[u]) {
+        for &d in moving {
+            if !a.is_uncertain(u, d) {
+                continue;
+            }
+            let mut flipped = dof_rows[u].clone();
+            flipped.toggle(d);
+            let flipped = expand_to_joints(t, &flipped);
+            if let Some(&s) = placed_rows.get(&flipped) {
+                flips.push(Diagnostic {
+                    kind: DiagnosticKind::UncertainEntry,
+                    severity: Severity::Warning,
+                    message: format!(
+                        "SU `{}` would sit on {} if its entry for DoF `{}` were {} (measured change {:.3} g against a threshold of {:.3} g): check that SU and that move, or re-run with another --threshold",
+                        a.sus[u], numbered.id[s], a.dofs[d], if a.is_active(u, d) { 0 } else { 1 }, a.change[u][d] / STANDARD_GRAVITY, a.threshold / STANDARD_GRAVITY
+                    ),
+                    sus: vec![a.sus[u].clone()],
+                    dofs: vec![a.dofs[d].clone()],
+                });
+            }
+        }
+    }
+    flips
+}
+
+/// The tree's anatomy: its end effectors, its branching segments and its limbs (from the root
+/// or a branching segment to an end effector or the next branching segment).
+fn anatomy(
+    a: &ActivityMatrix,
+    t: &Attempt,
+    numbered: &Numbered,
+) -> (Vec<String>, Vec<String>, Vec<Limb>) {
+    let Numbered {
+        children,
+        order,
+        id,
+    } = numbered;
+    let end_effectors: Vec<String> = order
+        .iter()
+        .filter(|&&s| s != t.root && numbered.degree(t, s) == 1)
+        .map(|&s| id[s].clone())
+        .collect();
+    let branching: Vec<String> = order
+        .iter()
+        .filter(|&&s| s != t.root && numbered.degree(t, s) > 2)
+        .map(|&s| id[s].clone())
+        .collect();
+    let mut limbs = Vec::new();
+    for &reference in order
+        .iter()
+        .filter(|&&s| s == t.root || numbered.degree(t, s) > 2)
+    {
+        for &(_, first) in &children[reference] {
+            let mut limb = Limb {
+                from: id[reference].clone(),
+                to: String::new(),
+                joints: vec![],
+                segments: vec![],
+                dofs: vec![],
+                sus: vec![],
+            };
+            let mut s = first;
+            loop {
+                let (_, j) = t.parent[s].expect("children have parents");
+                limb.joints.push(numbered.joint_id(s));
+                limb.dofs
+                    .extend(t.joints[j].iter().map(|&d| a.dofs[d].clone()));
+                limb.segments.push(id[s].clone());
+                limb.sus
+                    .extend(t.segments[s].1.iter().map(|&u| a.sus[u].clone()));
+                if children[s].len() == 1 {
+                    s = children[s][0].1;
+                } else {
+                    break;
+                }
+            }
+            limb.to = id[s].clone();
+            limbs.push(limb);
+        }
+    }
+    (end_effectors, branching, limbs)
+}
+
+/// The activity matrix sorted into the tree's lower-triangular form: per segment, which joints
+/// move it.
+fn sorted_matrix(t: &Attempt, numbered: &Numbered) -> SortedMatrix {
+    let order = &numbered.order;
+    SortedMatrix {
+        segments: order.iter().map(|&s| numbered.id[s].clone()).collect(),
+        joints: order
+            .iter()
+            .skip(1)
+            .map(|&s| numbered.joint_id(s))
+            .collect(),
+        entries: order
+            .iter()
+            .map(|&s| {
+                order
+                    .iter()
+                    .skip(1)
+                    .map(|&c| t.parent[c].is_some_and(|(_, j)| t.segments[s].0.contains(j)))
+                    .collect()
+            })
+            .collect(),
     }
 }
 
