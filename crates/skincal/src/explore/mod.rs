@@ -847,7 +847,50 @@ fn attempt_tree(
     may_assume_segments: bool,
     uncertain: &[usize],
 ) -> Outcome {
-    // Columns over active SUs; DoFs with identical non-empty columns form a joint.
+    let joints = merge_columns(dof_rows, active, moving, extra_rows);
+    let (segments, root) = merge_rows(dof_rows, active, extra_rows, &joints, nd);
+    let (parent, orphans, conflict) = connect(&segments, root, &joints, uncertain);
+    let attempt = Attempt {
+        joints,
+        segments,
+        root,
+        parent,
+    };
+    if let Some((s, joints, reason)) = conflict {
+        let segment = attempt.segments[s].1.clone();
+        return Outcome::Conflict {
+            segment,
+            joints,
+            reason,
+            attempt,
+        };
+    }
+    let Some(&orphan) = orphans.first() else {
+        return Outcome::Tree(attempt);
+    };
+    if may_assume_segments {
+        if let Some(row) = shared_parent_row(&attempt, &orphans, nd) {
+            return Outcome::AddSegment(row);
+        }
+    }
+    let segment = attempt.segments[orphan].1.clone();
+    let joints: Vec<usize> = attempt.segments[orphan].0.ones().collect();
+    Outcome::Conflict {
+        segment,
+        joints,
+        reason: "no other segment's row equals this segment's row less one joint, so it hangs from nothing".into(),
+        attempt,
+    }
+}
+
+/// The joints: DoFs with identical non-empty columns over the active SUs (and the assumed
+/// segments' rows), each joint its DoFs, ordered by its first.
+fn merge_columns(
+    dof_rows: &[FixedBitSet],
+    active: &[usize],
+    moving: &[usize],
+    extra_rows: &[FixedBitSet],
+) -> Vec<Vec<usize>> {
     let mut columns: BTreeMap<Vec<usize>, Vec<usize>> = BTreeMap::new();
     for &d in moving {
         let column: Vec<usize> = active
@@ -868,6 +911,19 @@ fn attempt_tree(
     }
     let mut joints: Vec<Vec<usize>> = columns.into_values().collect();
     joints.sort_by_key(|j| j[0]);
+    joints
+}
+
+/// The segments: the active SUs with identical rows over `joints` (and the assumed segments,
+/// without SU), sorted by how many joints move them; with the root (the row no joint moves,
+/// assumed without SU where none is) and its index.
+fn merge_rows(
+    dof_rows: &[FixedBitSet],
+    active: &[usize],
+    extra_rows: &[FixedBitSet],
+    joints: &[Vec<usize>],
+    nd: usize,
+) -> (Vec<(FixedBitSet, Vec<usize>)>, usize) {
     let mut joint_of = vec![usize::MAX; nd];
     for (j, ds) in joints.iter().enumerate() {
         for &d in ds {
@@ -906,10 +962,25 @@ fn attempt_tree(
             0
         }
     };
+    (segments, root)
+}
+
+/// A conflict found while connecting: the segment to leave out, the joints involved, why.
+type Conflict = (usize, Vec<usize>, String);
+
+/// Connects each segment to the placed one whose row is its own less one joint: per segment its
+/// `(parent, joint)`, the segments that hang from nothing, and the first conflict (a joint two
+/// segments claim, or several possible parents) with the segment to leave out — of the parties,
+/// the one whose SUs have the most uncertain entries, then the one with the fewest SUs, then the
+/// segment being placed.
+#[allow(clippy::type_complexity)]
+fn connect(
+    segments: &[(FixedBitSet, Vec<usize>)],
+    root: usize,
+    joints: &[Vec<usize>],
+    uncertain: &[usize],
+) -> (Vec<Option<(usize, usize)>>, Vec<usize>, Option<Conflict>) {
     let n = segments.len();
-    // Of several segments in conflict, the one to leave out: the one whose SUs have the most
-    // uncertain entries, then the one with the fewest SUs, then the first named (the segment
-    // being placed).
     let suspect = |parties: &[usize]| -> usize {
         *parties
             .iter()
@@ -924,11 +995,7 @@ fn attempt_tree(
     let mut placed = vec![false; n];
     placed[root] = true;
     let mut orphans: Vec<usize> = Vec::new();
-    let mut conflict: Option<(usize, Vec<usize>, String)> = None;
-    for s in 0..n {
-        if s == root {
-            continue;
-        }
+    for s in (0..n).filter(|&s| s != root) {
         let row = &segments[s].0;
         let size = row.count_ones(..);
         let candidates: Vec<usize> = (0..n)
@@ -946,8 +1013,11 @@ fn attempt_tree(
                     .expect("rows differ by one joint");
                 if let Some(other) = claimed[j] {
                     let guilty = suspect(&[s, other]);
-                    conflict = Some((guilty, vec![j], format!("two segments claim to be the one that joint of DoF(s) {:?} moves directly", joints[j])));
-                    break;
+                    let reason = format!(
+                        "two segments claim to be the one that joint of DoF(s) {:?} moves directly",
+                        joints[j]
+                    );
+                    return (parent, orphans, Some((guilty, vec![j], reason)));
                 }
                 claimed[j] = Some(s);
                 parent[s] = Some((*p, j));
@@ -955,44 +1025,25 @@ fn attempt_tree(
             }
             [] => orphans.push(s),
             many => {
-                conflict = Some((
-                    suspect(&[&[s][..], many].concat()),
-                    row.ones().collect(),
-                    format!(
-                        "a segment could hang from {} different segments",
-                        many.len()
-                    ),
-                ));
-                break;
+                let guilty = suspect(&[&[s][..], many].concat());
+                let reason = format!(
+                    "a segment could hang from {} different segments",
+                    many.len()
+                );
+                return (
+                    parent,
+                    orphans,
+                    Some((guilty, row.ones().collect(), reason)),
+                );
             }
         }
     }
-    let attempt = Attempt {
-        joints,
-        segments,
-        root,
-        parent,
-    };
-    if let Some((s, joints, reason)) = conflict {
-        let segment = attempt.segments[s].1.clone();
-        return Outcome::Conflict {
-            segment,
-            joints,
-            reason,
-            attempt,
-        };
-    }
-    if orphans.is_empty() {
-        return Outcome::Tree(attempt);
-    }
-    if !may_assume_segments {
-        let s = orphans[0];
-        let segment = attempt.segments[s].1.clone();
-        let joints: Vec<usize> = attempt.segments[s].0.ones().collect();
-        return Outcome::Conflict { segment, joints, reason: "no other segment's row equals this segment's row less one joint, so it hangs from nothing".into(), attempt };
-    }
-    // An orphan whose row shares all but one joint with another orphan's row points at a segment
-    // without SU from which both branch off.
+    (parent, orphans, None)
+}
+
+/// The DoF row of a segment without SU to assume: two orphans whose rows share all but one
+/// joint branch off a segment with the shared row, where none has it.
+fn shared_parent_row(attempt: &Attempt, orphans: &[usize], nd: usize) -> Option<FixedBitSet> {
     for (i, &s) in orphans.iter().enumerate() {
         for &t in &orphans[i + 1..] {
             let (rs, rt) = (&attempt.segments[s].0, &attempt.segments[t].0);
@@ -1005,15 +1056,12 @@ fn attempt_tree(
                     for j in common.ones() {
                         dof_row.extend(attempt.joints[j].iter().copied());
                     }
-                    return Outcome::AddSegment(dof_row);
+                    return Some(dof_row);
                 }
             }
         }
     }
-    let s = orphans[0];
-    let segment = attempt.segments[s].1.clone();
-    let joints: Vec<usize> = attempt.segments[s].0.ones().collect();
-    Outcome::Conflict { segment, joints, reason: "no other segment's row equals this segment's row less one joint, so it hangs from nothing".into(), attempt }
+    None
 }
 
 /// Numbers the tree depth-first, derives its anatomy and suggests flips for left-out SUs.
