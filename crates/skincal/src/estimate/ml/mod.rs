@@ -740,75 +740,125 @@ pub fn estimate_limb(
 ) -> Result<MlChainEstimate, EstimateError> {
     validate(config)?;
     let started = Instant::now();
-    let chain = &data.chain;
-    let base_dofs = chain.base_dofs();
-    if let Some(b) = base {
-        if b.joints.len() != base_dofs {
-            return Err(EstimateError::UnsupportedLimb {
-                limb: chain.name.clone(),
-                reason: format!(
-                    "its base path has {base_dofs} DoFs but the base estimate {}",
-                    b.joints.len()
-                ),
-            });
-        }
-    } else if chain.base_joints > 0 {
-        return Err(EstimateError::UnsupportedLimb {
-            limb: chain.name.clone(),
-            reason: "it hangs on a branching segment: estimate the limb that leads there first"
-                .into(),
-        });
-    }
-
+    let base_dofs = data.chain.base_dofs();
+    check_base(data, base)?;
     let (orders, joint_orders) = order_joints(data, config)?;
-    let ordered = |choice: &[usize]| {
-        orders
+    let fit = |choice: &[usize], config: &MlConfig| {
+        let ordered = orders
             .iter()
             .zip(choice)
             .fold(data.clone(), |d, ((j, tried), &c)| {
                 d.with_joint_order(*j, &tried[c].0)
-            })
+            });
+        fit_ordered(&ordered, base, base_dofs, config)
     };
-    let first_choice = vec![0; orders.len()];
-    let mut best = fit_ordered(&ordered(&first_choice), base, base_dofs, config)?;
-    let mut iterations = best.iterations;
-    // Not at the noise level: the closed-form order of a joint's DoFs may be wrong (joint limits
-    // narrow what its axes show). Try the next orders of each joint in turn, within a budget.
-    let mut retries = Vec::new();
-    'retry: for (n, (j, tried)) in orders.iter().enumerate() {
-        for (c, (order, _)) in tried.iter().enumerate().skip(1).take(ORDER_RETRIES) {
-            if best.converged {
-                break 'retry;
+    let mut best = fit(&vec![0; orders.len()], config)?;
+    let mut retries = Retries {
+        iterations: best.iterations,
+        notes: Vec::new(),
+    };
+    retries.other_orders(&mut best, data, &orders, |c| fit(c, config))?;
+    retries.wider_search(&mut best, data, &orders, config, fit)?;
+    best.joint_orders = joint_orders
+        .into_iter()
+        .map(|mut o| {
+            if let Some(j) = best.chain.joints.iter().find(|j| j.id == o.joint) {
+                o.dofs = j.dofs.clone();
             }
-            let mut choice = first_choice.clone();
-            choice[n] = c;
-            let names: Vec<String> = order
-                .iter()
-                .map(|&i| data.chain.joints[*j].dofs[i].clone())
-                .collect();
-            let alternative = fit_ordered(&ordered(&choice), base, base_dofs, config)?;
-            iterations += alternative.iterations;
-            retries.push(format!(
-                "joint {} in the order {}: residual {:.2} σ (was {:.2} σ)",
-                data.chain.joints[*j].id,
-                names.join(", "),
-                alternative.residual_ratio,
-                best.residual_ratio
-            ));
-            if alternative.residual_ratio < best.residual_ratio {
-                best = alternative;
+            o
+        })
+        .collect();
+    best.retries = retries.notes;
+    best.iterations = retries.iterations;
+    best.seconds = started.elapsed().as_secs_f64();
+    Ok(best)
+}
+
+/// Refuses a base estimate that is not the limb's base path, and a sub-limb without one.
+fn check_base(data: &LimbData, base: Option<&LimbBase>) -> Result<(), EstimateError> {
+    let chain = &data.chain;
+    let base_dofs = chain.base_dofs();
+    match base {
+        Some(b) if b.joints.len() != base_dofs => Err(EstimateError::UnsupportedLimb {
+            limb: chain.name.clone(),
+            reason: format!(
+                "its base path has {base_dofs} DoFs but the base estimate {}",
+                b.joints.len()
+            ),
+        }),
+        None if chain.base_joints > 0 => Err(EstimateError::UnsupportedLimb {
+            limb: chain.name.clone(),
+            reason: "it hangs on a branching segment: estimate the limb that leads there first"
+                .into(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// The order of every multi-DoF joint's DoFs as [`order_joints`] gives them: per joint its index
+/// and every order with its misfit, best first.
+type JointOrders = Vec<(usize, Vec<(Vec<usize>, f64)>)>;
+
+/// The retry policy of a limb's fit that is not at the noise level: what was tried and the LM
+/// iterations of every fit.
+struct Retries {
+    iterations: usize,
+    notes: Vec<String>,
+}
+
+impl Retries {
+    /// The closed-form order of a joint's DoFs may be wrong (joint limits narrow what its axes
+    /// show): the next orders of each joint in turn ([`ORDER_RETRIES`]), each fitted by `fit`
+    /// from the choice of orders, until one converges; `best` the best of them.
+    fn other_orders(
+        &mut self,
+        best: &mut MlChainEstimate,
+        data: &LimbData,
+        orders: &JointOrders,
+        fit: impl Fn(&[usize]) -> Result<MlChainEstimate, EstimateError>,
+    ) -> Result<(), EstimateError> {
+        for (n, (j, tried)) in orders.iter().enumerate() {
+            for (c, (order, _)) in tried.iter().enumerate().skip(1).take(ORDER_RETRIES) {
+                if best.converged {
+                    return Ok(());
+                }
+                let mut choice = vec![0; orders.len()];
+                choice[n] = c;
+                let names: Vec<String> = order
+                    .iter()
+                    .map(|&i| data.chain.joints[*j].dofs[i].clone())
+                    .collect();
+                let alternative = fit(&choice)?;
+                let what = format!(
+                    "joint {} in the order {}",
+                    data.chain.joints[*j].id,
+                    names.join(", ")
+                );
+                self.keep_better(best, alternative, what);
             }
         }
+        Ok(())
     }
-    // Still not at the noise level: a wider search (more candidates kept per joint, more
-    // rotation starts), with the order that fitted best.
-    if !best.converged {
+
+    /// Still not at the noise level: a wider search (more candidates kept per joint, more
+    /// rotation starts), with the orders that fitted best.
+    fn wider_search(
+        &mut self,
+        best: &mut MlChainEstimate,
+        data: &LimbData,
+        orders: &JointOrders,
+        config: &MlConfig,
+        fit: impl Fn(&[usize], &MlConfig) -> Result<MlChainEstimate, EstimateError>,
+    ) -> Result<(), EstimateError> {
+        if best.converged {
+            return Ok(());
+        }
         let wider = MlConfig {
             beam: config.beam * WIDER_BEAM,
             angle_starts: config.angle_starts * WIDER_ANGLES,
             ..*config
         };
-        let order: Vec<usize> = orders
+        let choice: Vec<usize> = orders
             .iter()
             .map(|(j, tried)| {
                 tried
@@ -821,29 +871,31 @@ pub fn estimate_limb(
                     .unwrap_or(0)
             })
             .collect();
-        let alternative = fit_ordered(&ordered(&order), base, base_dofs, &wider)?;
-        iterations += alternative.iterations;
-        retries.push(format!(
-            "a wider search (beam {}, {} rotation starts): residual {:.2} σ (was {:.2} σ)",
-            wider.beam, wider.angle_starts, alternative.residual_ratio, best.residual_ratio
+        let alternative = fit(&choice, &wider)?;
+        let what = format!(
+            "a wider search (beam {}, {} rotation starts)",
+            wider.beam, wider.angle_starts
+        );
+        self.keep_better(best, alternative, what);
+        Ok(())
+    }
+
+    /// Notes what was tried (`what`) with its residual and keeps the better of the two.
+    fn keep_better(
+        &mut self,
+        best: &mut MlChainEstimate,
+        alternative: MlChainEstimate,
+        what: String,
+    ) {
+        self.iterations += alternative.iterations;
+        self.notes.push(format!(
+            "{what}: residual {:.2} σ (was {:.2} σ)",
+            alternative.residual_ratio, best.residual_ratio
         ));
         if alternative.residual_ratio < best.residual_ratio {
-            best = alternative;
+            *best = alternative;
         }
     }
-    best.joint_orders = joint_orders
-        .into_iter()
-        .map(|mut o| {
-            if let Some(j) = best.chain.joints.iter().find(|j| j.id == o.joint) {
-                o.dofs = j.dofs.clone();
-            }
-            o
-        })
-        .collect();
-    best.retries = retries;
-    best.iterations = iterations;
-    best.seconds = started.elapsed().as_secs_f64();
-    Ok(best)
 }
 
 /// How many other orders of one joint's DoFs are tried when a fit is not at the noise level: all
