@@ -312,7 +312,7 @@ pub const SKIN_FILTER_BLOCKS: usize = 8;
 
 /// The kernel `K` through which a local polynomial of degree [`DEGREE`] and half-width `h`,
 /// least-squares fitted to evenly spaced joint states, sees the joint's acceleration: its
-/// second coefficient is `∫ K(t/h)/h · q̈(t) dt`, exactly, whatever the motion did (`K'' ` is the
+/// second coefficient is `∫ K(t/h)/h · q̈(t) dt`, exactly, whatever the motion did (`K''` is the
 /// polynomial's second-coefficient weight, `K` and `K'` vanish at ±h; `∫K = 1` and, degree 4
 /// fitting `t⁴` exactly, `∫K t² = 0`). Reading the skin through the same kernel puts both sides
 /// of the fit through one filter: a servo's jerk or its ringing, which a wide polynomial smooths,
