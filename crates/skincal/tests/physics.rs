@@ -508,8 +508,6 @@ fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
     let training = skincal::ingest::motion::training_logs(report);
     assert_eq!(training, vec![upright]);
     let set = &ingested.measurements;
-    let structure = explore(set, &ExploreConfig::default()).unwrap();
-    assert!(structure.complete, "{:?}", structure.diagnostics);
     let record = motion_record(
         &training,
         &set.dofs,
@@ -518,24 +516,7 @@ fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
         &mut |_, _, _| {},
     )
     .unwrap();
-    let model = calibrate_body_on_motion(
-        set,
-        &record,
-        Some(&structure),
-        &MlConfig::default(),
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
-    for limb in &model.limbs {
-        let e = &limb.estimate;
-        assert!(
-            e.converged && e.residual_ratio < 1.1,
-            "{}",
-            e.residual_ratio
-        );
-    }
+    let model = crate::common::calibrated_on_motion(set, &record, 1.1);
     let v = held_out_rms(&model, &robot, "continuous program: ");
     assert!(v.static_rms < 0.008 && v.dynamic_rms < 0.005, "{v:?}");
 }
