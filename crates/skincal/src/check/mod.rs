@@ -25,9 +25,10 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Vector3};
 use serde::{Deserialize, Serialize};
 
+pub use crate::estimate::body::{FoundChange, ModelChange, SuModelChange};
 pub use kin::{BlockKinematics, SuPlace, CHANGE};
 pub use live::{LiveCheck, RECENT, WARM_UP};
-pub use recalibrate::{recalibrate, ModelChange, RecalibrateError, SuModelChange};
+pub use recalibrate::{recalibrate, RecalibrateError};
 pub use test::{critical, non_centrality, Tally};
 pub use zero::ZeroChange;
 

@@ -3,52 +3,13 @@
 //! what changed and from which log.
 
 use nalgebra::Vector3;
-use serde::{Deserialize, Serialize};
 
 use super::refit::Cache;
 use super::test::Tally;
 use super::{CheckConfig, CheckError, CheckReport, Columns, Skin, SuPlace, Verdict};
-use crate::estimate::body::{BodyModel, Frame};
+use crate::estimate::body::{BodyModel, FoundChange, Frame, ModelChange, SuModelChange};
 use crate::estimate::ml::SuIntrinsics;
 use crate::motion::MotionRecord;
-
-/// One change a recalibration made to a model (kept in `model.json`'s `changes`, oldest first).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case")]
-pub enum ModelChange {
-    /// An SU given a new place or bias.
-    Su(SuModelChange),
-    /// A DoF given a new zero.
-    Zero {
-        /// The DoF.
-        dof: String,
-        /// The angle added to its encoder's reading, rad.
-        offset: f64,
-        /// The log(s) it was found in.
-        logs: Vec<String>,
-    },
-}
-
-/// An SU given a new place or bias.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SuModelChange {
-    /// The SU.
-    pub su: String,
-    /// What was found (the check's verdict).
-    pub verdict: Verdict,
-    /// The log(s) it was found in and fitted from.
-    pub logs: Vec<String>,
-    /// Its frame on its segment before, and after.
-    pub before: Frame,
-    /// After.
-    pub after: Frame,
-    /// Its bias before and after, m/s².
-    pub bias_before: [f64; 3],
-    /// After.
-    pub bias_after: [f64; 3],
-    /// RMS whitened residual of its readings in the log against its new place.
-    pub residual_ratio: f64,
-}
 
 /// Why a recalibration could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -99,7 +60,11 @@ pub fn recalibrate(
             set_place(&mut out, &check.su, &new, &tally);
             changes.push(ModelChange::Su(SuModelChange {
                 su: check.su.clone(),
-                verdict: check.verdict.clone(),
+                verdict: if check.verdict == Verdict::Moved {
+                    FoundChange::Moved
+                } else {
+                    FoundChange::BiasChanged
+                },
                 logs: logs.clone(),
                 before: Frame::from_isometry(&old.placement),
                 after: Frame::from_isometry(&new.placement),
@@ -125,7 +90,9 @@ pub fn recalibrate(
             let name = &report.sus[a].su;
             changes.push(ModelChange::Su(SuModelChange {
                 su: name.clone(),
-                verdict: report.sus[a].verdict.clone(),
+                verdict: FoundChange::Swapped {
+                    with: report.sus[b].su.clone(),
+                },
                 logs: logs.clone(),
                 before: Frame::from_isometry(&skin.places[a].placement),
                 after: Frame::from_isometry(&skin.places[b].placement),

@@ -102,6 +102,70 @@ pub struct NotCalibrated {
     pub reason: String,
 }
 
+/// One change a recalibration made to a model (kept in `model.json`'s `changes`, oldest first).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum ModelChange {
+    /// An SU given a new place or bias.
+    Su(SuModelChange),
+    /// A DoF given a new zero.
+    Zero {
+        /// The DoF.
+        dof: String,
+        /// The angle added to its encoder's reading, rad.
+        offset: f64,
+        /// The log(s) it was found in.
+        logs: Vec<String>,
+    },
+}
+
+/// An SU given a new place or bias.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuModelChange {
+    /// The SU.
+    pub su: String,
+    /// What the check found.
+    pub verdict: FoundChange,
+    /// The log(s) it was found in and fitted from.
+    pub logs: Vec<String>,
+    /// Its frame on its segment before, and after.
+    pub before: Frame,
+    /// After.
+    pub after: Frame,
+    /// Its bias before and after, m/s².
+    pub bias_before: [f64; 3],
+    /// After.
+    pub bias_after: [f64; 3],
+    /// RMS whitened residual of its readings in the log against its new place.
+    pub residual_ratio: f64,
+}
+
+/// What a check found of an SU that a recalibration changed (its verdict, as `check` words it).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum FoundChange {
+    /// It shifted or turned on its segment.
+    Moved,
+    /// Its bias changed.
+    BiasChanged,
+    /// It and `with` exchanged identities.
+    Swapped {
+        /// The other SU.
+        with: String,
+    },
+}
+
+impl FoundChange {
+    /// A short word for tables.
+    pub fn word(&self) -> String {
+        match self {
+            Self::Moved => "MOVED".into(),
+            Self::BiasChanged => "BIAS CHANGED".into(),
+            Self::Swapped { with } => format!("SWAPPED with {with}"),
+        }
+    }
+}
+
 /// A calibrated body: the file `model.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BodyModel {
@@ -132,7 +196,7 @@ pub struct BodyModel {
     pub not_calibrated: Vec<NotCalibrated>,
     /// What `skincal check --recalibrate` changed since the calibration, oldest first.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub changes: Vec<crate::check::ModelChange>,
+    pub changes: Vec<ModelChange>,
 }
 
 impl BodyModel {
