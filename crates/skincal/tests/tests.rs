@@ -2,6 +2,7 @@
 //! values computed by hand, independent re-implementations of the paper's equations, or laws that
 //! must hold.
 
+mod architecture;
 mod bags;
 mod body;
 mod check;
