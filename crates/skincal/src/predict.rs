@@ -238,6 +238,36 @@ impl Predictor {
 
     /// Readings in pose `q` (model DoF order) under `pattern`: what each SU reads, with its
     /// intrinsics (see [`Predictor::ideal`]).
+    ///
+    /// ```
+    /// use nalgebra::Vector3;
+    /// use skincal::estimate::{body::calibrate_body, ml::MlConfig};
+    /// use skincal::explore::{explore, ExploreConfig};
+    /// use skincal::model::{forward_kinematics, presets};
+    /// use skincal::predict::Predictor;
+    /// use skincal::sim::{simulate, SimulationConfig};
+    ///
+    /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    /// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+    /// let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    /// let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    /// let predictor = Predictor::new(&model).unwrap();
+    ///
+    /// // A pose by DoF name, in the model's order.
+    /// let pose = [("dof1", 0.3), ("dof2", -0.2), ("dof3", 0.5), ("dof4", 0.1), ("dof5", -0.4), ("dof6", 0.2), ("dof7", 0.6)];
+    /// let angle = |name: &str| pose.iter().find(|(d, _)| *d == name).unwrap().1;
+    /// let q: Vec<f64> = predictor.dofs().iter().map(|d| angle(d)).collect();
+    /// let predicted = predictor.readings(&q, &model.pattern);
+    ///
+    /// // The truth: an ideal accelerometer at rest reads the opposite of gravity in its own frame.
+    /// let truth_q: Vec<f64> = robot.model.dof_names().iter().map(|d| angle(d)).collect();
+    /// let frames = forward_kinematics(&robot.model, &robot.parameters, &truth_q);
+    /// for (name, read) in predictor.sus().iter().zip(&predicted.statics) {
+    ///     let frame = &frames.sus[robot.model.su_index(name).unwrap()];
+    ///     let ideal = frame.rotation.inverse_transform_vector(&Vector3::new(0.0, 0.0, 9.80665));
+    ///     assert!((ideal - read).norm() < 0.05, "{name}: {read:?} against {ideal:?}");
+    /// }
+    /// ```
     pub fn readings(&self, q: &[f64], pattern: &ExcitationPattern) -> PoseReadings {
         let m = &self.robot.model;
         let k = forward_kinematics(m, &self.robot.parameters, q);
@@ -565,6 +595,30 @@ pub fn whitened_residuals(
 
 /// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
 /// Every DoF and SU of the model must be in the set.
+///
+/// ```
+/// use skincal::estimate::{body::calibrate_body, ml::MlConfig};
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::model::presets;
+/// use skincal::predict::validate;
+/// use skincal::sim::{simulate, Imperfections, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let structure = explore(&set, &ExploreConfig::default()).unwrap();
+/// let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+/// // Fresh poses of the same robot, without noise: what the calibration predicts there.
+/// let held_out = SimulationConfig {
+///     seed: 1001,
+///     structure: false,
+///     imperfections: Imperfections::none(),
+///     ..SimulationConfig::default()
+/// };
+/// let held_out = simulate(&robot, &held_out).unwrap().measurements;
+/// let check = validate(&model, &held_out, "held-out").unwrap();
+/// assert_eq!(check.poses, held_out.summary().training_poses);
+/// assert!(check.static_rms < 0.05 && check.dynamic_rms < 0.05, "{check:?}"); // m/s²
+/// ```
 pub fn validate(
     model: &BodyModel,
     set: &MeasurementSet,

@@ -33,6 +33,17 @@ pub fn activity_table(s: &Structure) -> String {
 }
 
 /// The tree, one segment a line, with the joint (and its DoFs) that leads to it.
+///
+/// ```
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig { training: false, ..SimulationConfig::default() }).unwrap().measurements;
+/// let text = skincal::report::tree(&explore(&set, &ExploreConfig::default()).unwrap());
+/// assert!(text.contains("dof7"));
+/// ```
 pub fn tree(s: &Structure) -> String {
     let mut out = String::new();
     let root = &s.segments[0];

@@ -235,6 +235,21 @@ impl BodyModel {
 /// Calibrates every limb of `structure` (or, without one, the DoFs of the set in listed order as
 /// one chain with one SU per segment). With `only`, just that limb and the limbs it hangs on.
 /// SUs whose readings the fit cannot explain are set aside (see [`calibrate_body_keeping`]).
+///
+/// ```
+/// use skincal::estimate::{body::calibrate_body, ml::MlConfig};
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let structure = explore(&set, &ExploreConfig::default()).unwrap();
+/// let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+/// assert_eq!(model.limbs.len(), 1);
+/// assert!(model.limbs[0].estimate.converged);
+/// assert_eq!(model.robot.dofs.len(), 7);
+/// ```
 pub fn calibrate_body(
     set: &MeasurementSet,
     structure: Option<&Structure>,

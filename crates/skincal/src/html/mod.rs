@@ -102,6 +102,24 @@ const ERROR_HOOK: &str = "window.addEventListener('error', function (e) {
 });";
 
 /// The report page.
+///
+/// ```
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::html::{render, ReportInputs};
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig { training: false, ..SimulationConfig::default() }).unwrap().measurements;
+/// let structure = explore(&set, &ExploreConfig::default()).unwrap();
+/// let page = render(&ReportInputs {
+///     title: "paper arm".into(),
+///     structure: Some(structure),
+///     measurements: Some(set),
+///     ..ReportInputs::default()
+/// });
+/// assert!(page.starts_with("<!DOCTYPE html>") && page.contains("paper arm"));
+/// ```
 pub fn render(inputs: &ReportInputs) -> String {
     let residuals = match (&inputs.model, &inputs.measurements) {
         (Some(m), Some(set)) => {

@@ -393,6 +393,32 @@ pub struct Ingested {
 pub type Progress<'a> = dyn FnMut(&str, u64, u64) + 'a;
 
 /// Reads `logs` and extracts the measurement set.
+///
+/// ```
+/// use skincal::ingest::{ingest, IngestConfig};
+/// use skincal::log::csv::CsvSink;
+/// use skincal::model::presets;
+/// use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
+/// use skincal::sim::timeseries::{record, LogConfig};
+/// use skincal::sim::BaseOrientation;
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let program = PlanConfig { poses: 2, ..PlanConfig::short() };
+/// let plan = Plan::new(PlanDof::from_robot(&robot), &program).unwrap();
+/// // The program as the robot runs it, logged at 1 kHz: all of it upright, then the structure
+/// // part again with the base tilted.
+/// let dir = tempfile::tempdir().unwrap();
+/// let (upright, tilted) = (dir.path().join("upright"), dir.path().join("tilted"));
+/// let log = LogConfig::default();
+/// record(&robot, &plan, &log, &mut CsvSink::new(&upright, false), &mut |_| {}).unwrap();
+/// let log = LogConfig { orientation: BaseOrientation::tilted(), part: Some(Part::Structure), ..log };
+/// record(&robot, &plan, &log, &mut CsvSink::new(&tilted, false), &mut |_| {}).unwrap();
+///
+/// let found = ingest(&[upright, tilted], &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+/// let summary = found.measurements.summary();
+/// assert_eq!((summary.orientations, summary.training_poses), (2, 2));
+/// assert_eq!((summary.dofs, summary.sus), (7, 7));
+/// ```
 pub fn ingest(
     logs: &[PathBuf],
     config: &IngestConfig,

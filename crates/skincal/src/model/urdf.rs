@@ -341,6 +341,17 @@ fn positive(v: f64) -> Option<f64> {
 /// real limits, effort and velocity are not known), and one link per SU named after it, attached
 /// to its segment by a fixed joint `<su>_mount` (origin only). No link has inertial values.
 /// Loading the text back and composing the joints gives the model's forward kinematics.
+///
+/// ```
+/// use skincal::model::presets;
+/// use skincal::model::urdf::{to_urdf, UrdfTree};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let text = to_urdf(&robot).unwrap();
+/// let tree = UrdfTree::parse(&text).unwrap();
+/// // One joint per DoF and one fixed mount per SU.
+/// assert_eq!(tree.joints.len(), 7 + 7);
+/// ```
 pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
     use crate::show::xml_escape;
     let m = &robot.model;

@@ -810,6 +810,21 @@ pub struct JointState {
 
 impl Plan {
     /// Builds the plan for DoFs with `dofs`' limits.
+    ///
+    /// ```
+    /// use skincal::model::presets;
+    /// use skincal::plan::{Plan, PlanConfig, PlanDof};
+    ///
+    /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    /// let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::short()).unwrap();
+    /// assert_eq!(plan.dofs.len(), 7);
+    /// // Every pose of the program within each DoF's limits.
+    /// let middle = plan.state(plan.duration / 2.0);
+    /// for (q, dof) in middle.q.iter().zip(&plan.dofs) {
+    ///     assert!((dof.lower..=dof.upper).contains(q));
+    /// }
+    /// assert!(plan.structure_duration < plan.duration);
+    /// ```
     pub fn new(dofs: Vec<PlanDof>, config: &PlanConfig) -> Result<Plan, PlanError> {
         Self::new_clear(dofs, config, None)
     }

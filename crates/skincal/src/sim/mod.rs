@@ -576,6 +576,19 @@ fn check_size(nd: usize, nu: usize, config: &SimulationConfig) -> Result<(), Sim
 }
 
 /// Runs the experiments of `config` on `robot`.
+///
+/// ```
+/// use skincal::model::presets;
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let sim = simulate(&robot, &SimulationConfig { poses: 5, ..SimulationConfig::default() }).unwrap();
+/// let summary = sim.measurements.summary();
+/// assert_eq!((summary.dofs, summary.sus, summary.training_poses), (7, 7, 5));
+/// // At rest every SU reads gravity, 9.81 m/s², give or take the noise (0.01 g per axis).
+/// let (mean, sd) = summary.static_norm;
+/// assert!((mean - 9.80665).abs() < 0.05 && sd < 0.2);
+/// ```
 pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, SimulationError> {
     config.validate()?;
     let model = &robot.model;
