@@ -422,60 +422,15 @@ pub fn consecutive_su_errors(
     poses: usize,
     seed: u64,
 ) -> Result<ChainAccuracy, EstimateError> {
-    let index =
-        |robot: &Robot, what: &'static str, name: &String| -> Result<usize, EstimateError> {
-            let found = if what == "DoF" {
-                robot.model.dof_index(name)
-            } else {
-                robot.model.su_index(name)
-            };
-            found.ok_or_else(|| EstimateError::Unknown {
-                what,
-                name: name.clone(),
-                limb: chain.name.clone(),
-            })
-        };
-    let t_dofs: Vec<usize> = chain
-        .dofs
-        .iter()
-        .map(|d| index(truth, "DoF", d))
-        .collect::<Result<_, _>>()?;
-    let e_dofs: Vec<usize> = chain
-        .dofs
-        .iter()
-        .map(|d| index(estimate, "DoF", d))
-        .collect::<Result<_, _>>()?;
-    let t_sus: Vec<usize> = chain
-        .sus
-        .iter()
-        .map(|s| index(truth, "SU", s))
-        .collect::<Result<_, _>>()?;
-    let e_sus: Vec<usize> = chain
-        .sus
-        .iter()
-        .map(|s| index(estimate, "SU", s))
-        .collect::<Result<_, _>>()?;
+    let (t_dofs, t_sus) = (chain_dofs(truth, chain)?, chain_sus(truth, chain)?);
+    let (e_dofs, e_sus) = (chain_dofs(estimate, chain)?, chain_sus(estimate, chain)?);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n_pairs = chain.sus.len().saturating_sub(1);
     let mut pos = vec![Vec::new(); n_pairs];
     let mut rot = vec![Vec::new(); n_pairs];
-    // First pair: (true relative pose, estimated relative pose, first axis direction and a point on
-    // it, both in the first SU's true frame).
     let mut first: Vec<FirstPair> = Vec::new();
     for _ in 0..poses {
-        let mut qt = vec![0.0; truth.model.dofs().len()];
-        let mut qe = vec![0.0; estimate.model.dofs().len()];
-        for (k, &d) in t_dofs.iter().enumerate() {
-            let l = &truth.model.dofs()[d].limits;
-            let (lo, hi) = (l.lower.max(-2.62), l.upper.min(2.62));
-            let v = if hi > lo {
-                rng.random_range(lo..=hi)
-            } else {
-                lo
-            };
-            qt[d] = v;
-            qe[e_dofs[k]] = v;
-        }
+        let (qt, qe) = held_out_pose(&mut rng, truth, estimate, &t_dofs, &e_dofs);
         let kt = forward_kinematics(&truth.model, &truth.parameters, &qt);
         let ke = forward_kinematics(&estimate.model, &estimate.parameters, &qe);
         let rel = |k: &crate::model::Kinematics<f64>, a: usize, b: usize| -> Isometry3<f64> {
@@ -505,58 +460,121 @@ pub fn consecutive_su_errors(
         }
     }
     if !first.is_empty() {
-        // The screw angle that best aligns the rotations over all poses (grid, then refinement).
-        let misfit = |phi: f64| -> f64 {
-            first
-                .iter()
-                .map(
-                    |FirstPair {
-                         truth: t,
-                         estimate: e,
-                         axis: a,
-                         ..
-                     }| {
-                        let turn = nalgebra::UnitQuaternion::from_axis_angle(
-                            &nalgebra::Unit::new_normalize(*a),
-                            phi,
-                        );
-                        (t.rotation.inverse() * turn * e.rotation).angle().powi(2)
-                    },
-                )
-                .sum()
-        };
-        let mut best = (0..720)
-            .map(|i| -std::f64::consts::PI + i as f64 * std::f64::consts::PI / 360.0)
-            .min_by(|a, b| misfit(*a).total_cmp(&misfit(*b)))
-            .unwrap_or(0.0);
-        let mut step = std::f64::consts::PI / 360.0;
-        while step > 1e-9 {
-            for candidate in [best - step, best + step] {
-                if misfit(candidate) < misfit(best) {
-                    best = candidate;
-                }
-            }
-            step *= 0.5;
-        }
-        for FirstPair {
-            truth: t,
-            estimate: e,
-            axis: a,
-            point: c,
-        } in &first
-        {
-            let turn =
-                nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(*a), best);
-            let moved = turn * (e.translation.vector - c) + c;
-            let mut error = moved - t.translation.vector;
-            error -= a * a.dot(&error);
-            pos[0].push(error.norm());
-            rot[0].push((t.rotation.inverse() * turn * e.rotation).angle());
+        let screw = best_screw(&first);
+        for pair in &first {
+            let (position, rotation) = pair.errors_after(screw);
+            pos[0].push(position);
+            rot[0].push(rotation);
         }
     }
+    Ok(chain_accuracy(chain, &pos, &rot, poses))
+}
+
+/// The index in `robot` of every DoF of `chain`.
+fn chain_dofs(robot: &Robot, chain: &SerialChain) -> Result<Vec<usize>, EstimateError> {
+    indices_in(chain, "DoF", &chain.dofs, |n| robot.model.dof_index(n))
+}
+
+/// The index in `robot` of every SU of `chain`.
+fn chain_sus(robot: &Robot, chain: &SerialChain) -> Result<Vec<usize>, EstimateError> {
+    indices_in(chain, "SU", &chain.sus, |n| robot.model.su_index(n))
+}
+
+fn indices_in(
+    chain: &SerialChain,
+    what: &'static str,
+    names: &[String],
+    index: impl Fn(&str) -> Option<usize>,
+) -> Result<Vec<usize>, EstimateError> {
+    names
+        .iter()
+        .map(|name| {
+            index(name).ok_or_else(|| EstimateError::Unknown {
+                what,
+                name: name.clone(),
+                limb: chain.name.clone(),
+            })
+        })
+        .collect()
+}
+
+/// One held-out pose for the truth and the estimate: each chain DoF uniform in `±2.62 rad ∩` its
+/// true limits, every other DoF at 0.
+fn held_out_pose(
+    rng: &mut ChaCha8Rng,
+    truth: &Robot,
+    estimate: &Robot,
+    t_dofs: &[usize],
+    e_dofs: &[usize],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut qt = vec![0.0; truth.model.dofs().len()];
+    let mut qe = vec![0.0; estimate.model.dofs().len()];
+    for (&t, &e) in t_dofs.iter().zip(e_dofs) {
+        let l = &truth.model.dofs()[t].limits;
+        let (lo, hi) = (l.lower.max(-2.62), l.upper.min(2.62));
+        let v = if hi > lo {
+            rng.random_range(lo..=hi)
+        } else {
+            lo
+        };
+        qt[t] = v;
+        qe[e] = v;
+    }
+    (qt, qe)
+}
+
+/// The screw angle about the first axis that best aligns the first pair's rotations over all
+/// poses (a grid of 0.5°, then halving steps).
+fn best_screw(first: &[FirstPair]) -> f64 {
+    let misfit = |phi: f64| -> f64 { first.iter().map(|p| p.turn_error(phi).powi(2)).sum() };
+    let mut best = (0..720)
+        .map(|i| -std::f64::consts::PI + i as f64 * std::f64::consts::PI / 360.0)
+        .min_by(|a, b| misfit(*a).total_cmp(&misfit(*b)))
+        .unwrap_or(0.0);
+    let mut step = std::f64::consts::PI / 360.0;
+    while step > 1e-9 {
+        for candidate in [best - step, best + step] {
+            if misfit(candidate) < misfit(best) {
+                best = candidate;
+            }
+        }
+        step *= 0.5;
+    }
+    best
+}
+
+impl FirstPair {
+    /// The estimate turned by `phi` about the first axis.
+    fn turn(&self, phi: f64) -> nalgebra::UnitQuaternion<f64> {
+        nalgebra::UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(self.axis), phi)
+    }
+
+    /// The rotation error after a turn of `phi` about the first axis, rad.
+    fn turn_error(&self, phi: f64) -> f64 {
+        (self.truth.rotation.inverse() * self.turn(phi) * self.estimate.rotation).angle()
+    }
+
+    /// Position (m, any shift along the axis left out) and rotation error (rad) after the screw
+    /// of `phi` about the first axis.
+    fn errors_after(&self, phi: f64) -> (f64, f64) {
+        let (a, c) = (&self.axis, &self.point);
+        let moved = self.turn(phi) * (self.estimate.translation.vector - c) + c;
+        let mut error = moved - self.truth.translation.vector;
+        error -= a * a.dot(&error);
+        (error.norm(), self.turn_error(phi))
+    }
+}
+
+/// Per pair and over the pairs after the first: RMS and largest errors.
+fn chain_accuracy(
+    chain: &SerialChain,
+    pos: &[Vec<f64>],
+    rot: &[Vec<f64>],
+    poses: usize,
+) -> ChainAccuracy {
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
-    let pairs = (0..n_pairs)
+    let pairs = (0..pos.len())
         .map(|i| PairError {
             from: chain.sus[i].clone(),
             to: chain.sus[i + 1].clone(),
@@ -568,14 +586,14 @@ pub fn consecutive_su_errors(
         .collect();
     let later_pos: Vec<f64> = pos.iter().skip(1).flatten().copied().collect();
     let later_rot: Vec<f64> = rot.iter().skip(1).flatten().copied().collect();
-    Ok(ChainAccuracy {
+    ChainAccuracy {
         pairs,
         position_rms: rms(&later_pos),
         position_max: max(&later_pos),
         rotation_rms: rms(&later_rot),
         rotation_max: max(&later_rot),
         poses,
-    })
+    }
 }
 
 /// The true DH table of `chain`, when the truth is written in the paper's DH form (DoFs placed by

@@ -278,7 +278,37 @@ pub fn estimate_chain(
     let mut dof_su: Vec<SuRow> = Vec::new();
     let mut steps = Vec::new();
     for n in 0..n_dofs {
-        // Which entries of (new DoF-to-DoF row, SU row) are free in this step.
+        let (report, v) = Step::new(chain, n).run(data, &dof_dof, config)?;
+        if n > 0 {
+            dof_dof.push(DhRow::from_values(&v[4 * (n - 1)..]));
+        }
+        dof_su.push(SuRow::from_values(&v[v.len() - 6..]));
+        steps.push(report);
+    }
+    Ok(PaperChainEstimate {
+        chain: chain.clone(),
+        dof_dof,
+        dof_su,
+        fixed: gauge_of(chain),
+        steps,
+        config: *config,
+    })
+}
+
+/// Step `n + 1` of the progressive estimation (Fig. 4): which entries of the new DoF-to-DoF row
+/// and of SU `n`'s row are free, their names and bounds.
+struct Step<'a> {
+    chain: &'a SerialChain,
+    n: usize,
+    row_free: &'static [&'static str],
+    su_free: &'static [&'static str],
+    names: Vec<String>,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+}
+
+impl<'a> Step<'a> {
+    fn new(chain: &'a SerialChain, n: usize) -> Self {
         let row_free: &[&str] = match n {
             0 => &[],
             1 => &["a", "alpha"],
@@ -309,6 +339,50 @@ pub fn estimate_chain(
                 upper.push(hi);
             }
         }
+        Self {
+            chain,
+            n,
+            row_free,
+            su_free,
+            names,
+            lower,
+            upper,
+        }
+    }
+
+    /// The chain's parameters up to SU `n`: the rows found before, then this step's rows with the
+    /// free entries from `x` and the others 0.
+    fn assemble(&self, before: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut v = before.to_vec();
+        let mut it = x.iter().copied();
+        if self.n > 0 {
+            for p in ROW {
+                v.push(if self.row_free.contains(&p) {
+                    it.next().expect("free")
+                } else {
+                    0.0
+                });
+            }
+        }
+        for p in SU_ROW {
+            v.push(if self.su_free.contains(&p) {
+                it.next().expect("free")
+            } else {
+                0.0
+            });
+        }
+        v
+    }
+
+    /// Minimises the step's error from the middle of its bounds, with the rows of `dof_dof`
+    /// fixed: the report and the chain's parameters up to SU `n`.
+    fn run(
+        self,
+        data: &ChainData,
+        dof_dof: &[DhRow],
+        config: &PaperConfig,
+    ) -> Result<(StepReport, Vec<f64>), EstimateError> {
+        let (chain, n) = (self.chain, self.n);
         let excited = n + 1 - config.excited_dofs.min(n + 1)..n + 1;
         let placeholder = SuRow {
             theta0: 0.0,
@@ -318,7 +392,7 @@ pub fn estimate_chain(
             theta_acc: 0.0,
             d_acc: 0.0,
         };
-        let mut rows = dof_dof.clone();
+        let mut rows = dof_dof.to_vec();
         if n > 0 {
             rows.push(DhRow {
                 theta0: 0.0,
@@ -333,31 +407,11 @@ pub fn estimate_chain(
             n,
             excited: excited.clone(),
         };
-        let fixed_prefix: Vec<f64> = dof_dof.iter().flat_map(|r| r.values()).collect();
-        let assemble = |x: &[f64]| -> Vec<f64> {
-            let mut v = fixed_prefix.clone();
-            let mut it = x.iter().copied();
-            if n > 0 {
-                for p in ROW {
-                    v.push(if row_free.contains(&p) {
-                        it.next().expect("free")
-                    } else {
-                        0.0
-                    });
-                }
-            }
-            for p in SU_ROW {
-                v.push(if su_free.contains(&p) {
-                    it.next().expect("free")
-                } else {
-                    0.0
-                });
-            }
-            v
-        };
-        let mut x: Vec<f64> = lower
+        let before: Vec<f64> = dof_dof.iter().flat_map(|r| r.values()).collect();
+        let mut x: Vec<f64> = self
+            .lower
             .iter()
-            .zip(&upper)
+            .zip(&self.upper)
             .map(|(lo, hi)| 0.5 * (lo + hi))
             .collect();
         let started = Instant::now();
@@ -365,15 +419,15 @@ pub fn estimate_chain(
         let stop = minimize_step(
             config,
             config.seed.wrapping_add(n as u64),
-            (&lower, &upper),
+            (&self.lower, &self.upper),
             &mut x,
             |x| {
                 evaluations += 1;
-                problem.error(&assemble(x))
+                problem.error(&self.assemble(&before, x))
             },
         )?;
         let seconds = started.elapsed().as_secs_f64();
-        let v = assemble(&x);
+        let v = self.assemble(&before, &x);
         let e_t = problem.error(&v);
         if !e_t.is_finite() || v.iter().any(|p| !p.is_finite()) {
             return Err(EstimateError::NotFinite {
@@ -381,40 +435,35 @@ pub fn estimate_chain(
                 reason: format!("step {} (SU {}): e_T = {}", n + 1, chain.sus[n], e_t),
             });
         }
-        if n > 0 {
-            dof_dof.push(DhRow::from_values(&v[4 * (n - 1)..]));
-        }
-        dof_su.push(SuRow::from_values(&v[v.len() - 6..]));
-        steps.push(StepReport {
+        let report = StepReport {
             step: n + 1,
             su: chain.sus[n].clone(),
             excited: excited.map(|d| chain.dofs[d].clone()).collect(),
-            parameters: names,
+            parameters: self.names,
             evaluations,
             seconds,
             e_t,
             converged: e_t <= config.e_stop,
             stop,
-        });
+        };
+        Ok((report, v))
     }
+}
+
+/// The entries fixed at 0 because no reading tells them: the first SU row's and the first
+/// DoF-to-DoF row's `θ0` and `d`.
+fn gauge_of(chain: &SerialChain) -> Vec<String> {
     let mut fixed = vec![
         format!("{}-{}.theta0", chain.dofs[0], chain.sus[0]),
         format!("{}-{}.d", chain.dofs[0], chain.sus[0]),
     ];
-    if n_dofs > 1 {
+    if chain.dofs.len() > 1 {
         fixed.extend([
             format!("{}-{}.theta0", chain.dofs[0], chain.dofs[1]),
             format!("{}-{}.d", chain.dofs[0], chain.dofs[1]),
         ]);
     }
-    Ok(PaperChainEstimate {
-        chain: chain.clone(),
-        dof_dof,
-        dof_su,
-        fixed,
-        steps,
-        config: *config,
-    })
+    fixed
 }
 
 fn validate(config: &PaperConfig) -> Result<(), EstimateError> {

@@ -123,8 +123,28 @@ impl RobotBuilder {
         }
         unique("DoF", self.dofs.iter().map(|d| d.name.as_str()))?;
         unique("SU", self.sus.iter().map(|s| s.name.as_str()))?;
+        self.check_segments()?;
+        let (segments, segment_of) = self.segments_in_order()?;
+        let mut parameters = Parameters::default();
+        let dofs = self.dofs(&segment_of, &mut parameters)?;
+        let sus = self.sus(&segment_of, &mut parameters)?;
+        let moved_by = moved_by(&segments, &dofs);
+        Ok(Robot {
+            model: RobotModel {
+                name: self.name.clone(),
+                segments,
+                dofs,
+                sus,
+                parameter_names: parameters.names,
+                moved_by,
+            },
+            parameters: parameters.values,
+        })
+    }
 
-        // Segments: the reference, then every DoF's child; a child named twice is a loop.
+    /// Every segment a child of one DoF at most (the reference of none), and every DoF and SU on a
+    /// segment that exists.
+    fn check_segments(&self) -> Result<(), ModelError> {
         let mut parents_of: HashMap<&str, Vec<usize>> = HashMap::new();
         for (i, d) in self.dofs.iter().enumerate() {
             parents_of.entry(d.child.as_str()).or_default().push(i);
@@ -140,24 +160,29 @@ impl RobotBuilder {
         let known: HashSet<&str> = std::iter::once(self.reference.as_str())
             .chain(self.dofs.iter().map(|d| d.child.as_str()))
             .collect();
-        for d in &self.dofs {
-            if !known.contains(d.parent.as_str()) {
+        let on = self
+            .dofs
+            .iter()
+            .map(|d| (format!("DoF `{}`", d.name), &d.parent))
+            .chain(
+                self.sus
+                    .iter()
+                    .map(|s| (format!("SU `{}`", s.name), &s.segment)),
+            );
+        for (what, segment) in on {
+            if !known.contains(segment.as_str()) {
                 return Err(ModelError::UnknownSegment {
-                    what: format!("DoF `{}`", d.name),
-                    segment: d.parent.clone(),
+                    what,
+                    segment: segment.clone(),
                 });
             }
         }
-        for s in &self.sus {
-            if !known.contains(s.segment.as_str()) {
-                return Err(ModelError::UnknownSegment {
-                    what: format!("SU `{}`", s.name),
-                    segment: s.segment.clone(),
-                });
-            }
-        }
+        Ok(())
+    }
 
-        // Topological order by depth-first walk from the reference, children in DoF order.
+    /// The segments in topological order (a depth-first walk from the reference, children in DoF
+    /// order), and each one's index by name.
+    fn segments_in_order(&self) -> Result<(Vec<Segment>, HashMap<&str, usize>), ModelError> {
         let mut children: HashMap<&str, Vec<usize>> = HashMap::new();
         for (i, d) in self.dofs.iter().enumerate() {
             children.entry(d.parent.as_str()).or_default().push(i);
@@ -193,35 +218,17 @@ impl RobotBuilder {
                 reference: self.reference.clone(),
             });
         }
+        Ok((segments, segment_of))
+    }
 
-        let mut parameter_names = Vec::new();
-        let mut parameters = Vec::new();
-        let mut place = |owner: &str,
-                         spec: &PlacementSpec,
-                         prefix: &str|
-         -> Result<Placement, ModelError> {
-            if spec.values.len() != spec.kind.len() || spec.values.iter().any(|v| !v.is_finite()) {
-                return Err(ModelError::NotFinite {
-                    what: owner.to_string(),
-                });
-            }
-            let offset = parameters.len();
-            parameters.extend_from_slice(&spec.values);
-            parameter_names.extend(
-                spec.kind
-                    .parameter_names()
-                    .iter()
-                    .map(|p| format!("{prefix}{p}")),
-            );
-            Ok(Placement {
-                kind: spec.kind,
-                offset,
-            })
-        };
-
+    /// The DoFs, their axes and limits checked and their origins placed in `parameters`.
+    fn dofs(
+        &self,
+        segment_of: &HashMap<&str, usize>,
+        parameters: &mut Parameters,
+    ) -> Result<Vec<Dof>, ModelError> {
         let mut dofs = Vec::with_capacity(self.dofs.len());
         for d in &self.dofs {
-            let owner = format!("DoF `{}`", d.name);
             let norm = d.axis.norm();
             if !(norm.is_finite() && norm > 1e-9) {
                 return Err(ModelError::InvalidAxis {
@@ -235,7 +242,8 @@ impl RobotBuilder {
                     dof: d.name.clone(),
                     reason,
                 })?;
-            let origin = place(&owner, &d.origin, &format!("{}.origin.", d.name))?;
+            let owner = format!("DoF `{}`", d.name);
+            let origin = parameters.place(&owner, &d.origin, &format!("{}.origin.", d.name))?;
             dofs.push(Dof {
                 name: d.name.clone(),
                 parent: segment_of[d.parent.as_str()],
@@ -245,43 +253,77 @@ impl RobotBuilder {
                 limits: d.limits,
             });
         }
-        let mut sus = Vec::with_capacity(self.sus.len());
-        for s in &self.sus {
-            let placement = place(
-                &format!("SU `{}`", s.name),
-                &s.placement,
-                &format!("{}.", s.name),
-            )?;
-            sus.push(SensorUnit {
-                name: s.name.clone(),
-                segment: segment_of[s.segment.as_str()],
-                placement,
+        Ok(dofs)
+    }
+
+    /// The SUs, their placements in `parameters` (after every DoF's).
+    fn sus(
+        &self,
+        segment_of: &HashMap<&str, usize>,
+        parameters: &mut Parameters,
+    ) -> Result<Vec<SensorUnit>, ModelError> {
+        self.sus
+            .iter()
+            .map(|s| {
+                let owner = format!("SU `{}`", s.name);
+                Ok(SensorUnit {
+                    name: s.name.clone(),
+                    segment: segment_of[s.segment.as_str()],
+                    placement: parameters.place(&owner, &s.placement, &format!("{}.", s.name))?,
+                })
+            })
+            .collect()
+    }
+}
+
+/// The parameter vector as it is filled: names and values.
+#[derive(Default)]
+struct Parameters {
+    names: Vec<String>,
+    values: Vec<f64>,
+}
+
+impl Parameters {
+    /// `spec`'s values appended under names `prefix` + parameter name; `owner` names it in errors.
+    fn place(
+        &mut self,
+        owner: &str,
+        spec: &PlacementSpec,
+        prefix: &str,
+    ) -> Result<Placement, ModelError> {
+        if spec.values.len() != spec.kind.len() || spec.values.iter().any(|v| !v.is_finite()) {
+            return Err(ModelError::NotFinite {
+                what: owner.to_string(),
             });
         }
-
-        let mut moved_by = vec![vec![false; dofs.len()]; segments.len()];
-        for s in 1..segments.len() {
-            let d = segments[s]
-                .parent_dof
-                .expect("only the reference has no parent DoF");
-            let parent = dofs[d].parent;
-            let mut row = moved_by[parent].clone();
-            row[d] = true;
-            moved_by[s] = row;
-        }
-
-        Ok(Robot {
-            model: RobotModel {
-                name: self.name.clone(),
-                segments,
-                dofs,
-                sus,
-                parameter_names,
-                moved_by,
-            },
-            parameters,
+        let offset = self.values.len();
+        self.values.extend_from_slice(&spec.values);
+        self.names.extend(
+            spec.kind
+                .parameter_names()
+                .iter()
+                .map(|p| format!("{prefix}{p}")),
+        );
+        Ok(Placement {
+            kind: spec.kind,
+            offset,
         })
     }
+}
+
+/// `moved_by[segment][dof]`: whether the DoF lies on the path from the reference to the segment
+/// (segments in topological order).
+fn moved_by(segments: &[Segment], dofs: &[Dof]) -> Vec<Vec<bool>> {
+    let mut moved_by = vec![vec![false; dofs.len()]; segments.len()];
+    for s in 1..segments.len() {
+        let d = segments[s]
+            .parent_dof
+            .expect("only the reference has no parent DoF");
+        let mut row = moved_by[dofs[d].parent].clone();
+        row[d] = true;
+        moved_by[s] = row;
+    }
+    moved_by
 }
 
 fn unique<'a>(kind: &'static str, names: impl Iterator<Item = &'a str>) -> Result<(), ModelError> {

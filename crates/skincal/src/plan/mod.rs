@@ -848,7 +848,6 @@ impl Plan {
             ramp_cycles: config.ramp_cycles,
             hold_cycles: config.hold_cycles,
         };
-        let nd = dofs.len();
         let rest: Vec<f64> = dofs.iter().map(|d| 0f64.clamp(d.lower, d.upper)).collect();
         let mut builder = Builder {
             dofs: &dofs,
@@ -864,94 +863,13 @@ impl Plan {
             redrawn_sweeps: 0,
         };
         if config.structure {
-            builder.still(Part::Structure, config.still, None);
-            for d in 0..nd {
-                let limits = crate::model::Limits {
-                    lower: dofs[d].lower,
-                    upper: dofs[d].upper,
-                    velocity: None,
-                    acceleration: None,
-                };
-                let target = structure_move(&limits, rest[d], config.structure_angle);
-                let mut moved = rest.clone();
-                moved[d] = target;
-                // A move that touches goes the other way if that way is clear and in range.
-                let other = 2.0 * rest[d] - target;
-                if guard.path_contact(&rest, &moved).is_some()
-                    && (dofs[d].lower..=dofs[d].upper).contains(&other)
-                {
-                    let mut back = rest.clone();
-                    back[d] = other;
-                    if guard.path_contact(&rest, &back).is_none() {
-                        moved = back;
-                    }
-                }
-                builder.go(Part::Structure, &moved, None);
-                builder.still(Part::Structure, config.still, None);
-                builder.go(Part::Structure, &rest, None);
-                builder.still(Part::Structure, config.still, None);
-            }
+            builder.structure_part(&mut guard, &rest, config);
         }
         let structure_duration = builder.t;
         if config.training && config.sweep > 0.0 {
-            let mut rng = pose_stream(config.seed);
-            let mut centre = sweep::centre(&dofs, config.pose_range);
-            let start = builder.pose.clone();
-            let path = guard.clear_sweep(&start, &mut centre, config, |centre| {
-                Sweep::draw(
-                    &dofs,
-                    centre,
-                    config.sweep,
-                    config.sweep_frequency,
-                    config.pose_range,
-                    config.limit_fraction,
-                    &mut rng,
-                )
-            })?;
-            if builder.t == 0.0 {
-                // A log that starts in motion has no pause before it to tell where it starts.
-                builder.still(Part::Training, config.still, None);
-            }
-            builder.go(Part::Training, &centre, None);
-            builder.push(
-                Part::Training,
-                Action::Sweep(path),
-                config.sweep,
-                centre,
-                None,
-            );
-            // The robot comes to rest at the end: a log that stops in motion loses its last
-            // samples' derivatives.
-            builder.still(Part::Training, config.still, None);
+            builder.sweep_part(&mut guard, config)?;
         } else if config.training {
-            let mut rng = pose_stream(config.seed);
-            let excursion = pattern.excursion() * 1.01;
-            let slots = if config.parallel {
-                slots(&dofs)
-            } else {
-                (0..nd).map(|d| vec![d]).collect()
-            };
-            let mut draw = || draw_pose(&dofs, config.pose_range, excursion, &mut rng);
-            let drawn = (0..config.poses)
-                .map(|p| guard.clear_pose(p, &slots, excursion, None, &mut draw))
-                .collect::<Result<Vec<_>, _>>()?;
-            for (p, q) in builder.nearest_first(drawn).into_iter().enumerate() {
-                let q = match guard.path_contact(&builder.pose, &q) {
-                    None => q,
-                    Some(_) => {
-                        let from = builder.pose.clone();
-                        guard.clear_pose(p, &slots, excursion, Some(&from), &mut draw)?
-                    }
-                };
-                builder.go(Part::Training, &q, Some(p));
-                builder.still(Part::Training, config.still, Some(p));
-                for slot in &slots {
-                    builder.excite(slot, &pattern, &window, p);
-                    if config.settle > 0.0 {
-                        builder.still(Part::Training, config.settle, Some(p));
-                    }
-                }
-            }
+            builder.pose_part(&mut guard, &pattern, &window, config)?;
         }
         let duration = builder.t;
         let phases = builder.phases;
@@ -1439,6 +1357,115 @@ struct Builder<'a> {
 }
 
 impl Builder<'_> {
+    /// The structure experiment's part: from the rest pose, each DoF moved by the structure
+    /// angle and back, with still periods between (a move that touches goes the other way if
+    /// that way is clear and in range).
+    fn structure_part(&mut self, guard: &mut Guard<'_>, rest: &[f64], config: &PlanConfig) {
+        let dofs = self.dofs;
+        self.still(Part::Structure, config.still, None);
+        for d in 0..dofs.len() {
+            let limits = crate::model::Limits {
+                lower: dofs[d].lower,
+                upper: dofs[d].upper,
+                velocity: None,
+                acceleration: None,
+            };
+            let target = structure_move(&limits, rest[d], config.structure_angle);
+            let mut moved = rest.to_vec();
+            moved[d] = target;
+            let other = 2.0 * rest[d] - target;
+            if guard.path_contact(rest, &moved).is_some()
+                && (dofs[d].lower..=dofs[d].upper).contains(&other)
+            {
+                let mut back = rest.to_vec();
+                back[d] = other;
+                if guard.path_contact(rest, &back).is_none() {
+                    moved = back;
+                }
+            }
+            self.go(Part::Structure, &moved, None);
+            self.still(Part::Structure, config.still, None);
+            self.go(Part::Structure, rest, None);
+            self.still(Part::Structure, config.still, None);
+        }
+    }
+
+    /// The continuous program's training part: one clear sweep about a centre, from rest to rest.
+    fn sweep_part(&mut self, guard: &mut Guard<'_>, config: &PlanConfig) -> Result<(), PlanError> {
+        let dofs = self.dofs;
+        let mut rng = pose_stream(config.seed);
+        let mut centre = sweep::centre(dofs, config.pose_range);
+        let start = self.pose.clone();
+        let path = guard.clear_sweep(&start, &mut centre, config, |centre| {
+            Sweep::draw(
+                dofs,
+                centre,
+                config.sweep,
+                config.sweep_frequency,
+                config.pose_range,
+                config.limit_fraction,
+                &mut rng,
+            )
+        })?;
+        if self.t == 0.0 {
+            // A log that starts in motion has no pause before it to tell where it starts.
+            self.still(Part::Training, config.still, None);
+        }
+        self.go(Part::Training, &centre, None);
+        self.push(
+            Part::Training,
+            Action::Sweep(path),
+            config.sweep,
+            centre,
+            None,
+        );
+        // The robot comes to rest at the end: a log that stops in motion loses its last
+        // samples' derivatives.
+        self.still(Part::Training, config.still, None);
+        Ok(())
+    }
+
+    /// The training poses' part: clear poses drawn, visited nearest first, each held and every
+    /// slot of DoFs excited in turn.
+    fn pose_part(
+        &mut self,
+        guard: &mut Guard<'_>,
+        pattern: &ExcitationPattern,
+        window: &Window,
+        config: &PlanConfig,
+    ) -> Result<(), PlanError> {
+        let dofs = self.dofs;
+        let mut rng = pose_stream(config.seed);
+        let excursion = pattern.excursion() * 1.01;
+        let slots = if config.parallel {
+            slots(dofs)
+        } else {
+            (0..dofs.len()).map(|d| vec![d]).collect()
+        };
+        let mut draw = || draw_pose(dofs, config.pose_range, excursion, &mut rng);
+        let drawn = (0..config.poses)
+            .map(|p| guard.clear_pose(p, &slots, excursion, None, &mut draw))
+            .collect::<Result<Vec<_>, _>>()?;
+        for (p, q) in self.nearest_first(drawn).into_iter().enumerate() {
+            let q = match guard.path_contact(&self.pose, &q) {
+                None => q,
+                Some(_) => {
+                    let from = self.pose.clone();
+                    guard.clear_pose(p, &slots, excursion, Some(&from), &mut draw)?
+                }
+            };
+            self.go(Part::Training, &q, Some(p));
+            self.still(Part::Training, config.still, Some(p));
+            for slot in &slots {
+                self.excite(slot, pattern, window, p);
+                if config.settle > 0.0 {
+                    self.still(Part::Training, config.settle, Some(p));
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn push(
         &mut self,
         part: Part,

@@ -592,134 +592,31 @@ fn check_size(nd: usize, nu: usize, config: &SimulationConfig) -> Result<(), Sim
 pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, SimulationError> {
     config.validate()?;
     let model = &robot.model;
-    let (nd, nu) = (model.dofs().len(), model.sus().len());
-    check_size(nd, nu, config)?;
-    let imperfections = &config.imperfections;
+    check_size(model.dofs().len(), model.sus().len(), config)?;
     let data_seed = config.pose_seed.unwrap_or(config.seed);
-    let mut sensors = Sensors::new(imperfections, nu, config.seed, data_seed);
-    for f in &config.faults {
-        let u = model
-            .su_names()
-            .iter()
-            .position(|n| *n == f.su)
-            .ok_or_else(|| SimulationError::InvalidSetting {
-                setting: "faults",
-                reason: format!("the robot has no SU `{}`", f.su),
-            })?;
-        sensors.faults[u] = Some((f.fault, None));
-    }
+    let mut sensors = faulty_sensors(robot, config, data_seed)?;
     let mut pose_rng = pose_stream(data_seed);
-
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
     let mut orientations = vec![BaseOrientation::upright()];
     if config.tilted_orientation {
         orientations.push(BaseOrientation::tilted());
     }
-
-    let static_all = |sensors: &mut Sensors<'_>, q: &[f64], g: &Vector3<f64>| -> Vec<Reading> {
-        let k = forward_kinematics(model, &robot.parameters, q);
-        k.sus
-            .iter()
-            .enumerate()
-            .map(|(su, frame)| {
-                sensors.static_reading(su, &specific_force(frame, &Vector3::zeros(), g))
-            })
-            .collect()
-    };
-
     if config.structure {
-        let rest_pose: Vec<f64> = model.dofs().iter().map(|d| d.limits.clamp(0.0)).collect();
-        let mut blocks = Vec::new();
-        for o in &orientations {
-            let g = Vector3::from(o.gravity);
-            let rest = static_all(&mut sensors, &rest_pose, &g);
-            let moves = (0..nd)
-                .map(|d| {
-                    let mut pose = rest_pose.clone();
-                    pose[d] = structure_move(
-                        &model.dofs()[d].limits,
-                        rest_pose[d],
-                        config.structure_angle,
-                    );
-                    let readings = static_all(&mut sensors, &pose, &g);
-                    Move {
-                        dof: model.dofs()[d].name.clone(),
-                        pose,
-                        readings,
-                        extra: Map::new(),
-                    }
-                })
-                .collect();
-            let mut extra = Map::new();
-            extra.insert("label".into(), json!(o.label));
-            blocks.push(Orientation {
-                rest_pose: rest_pose.clone(),
-                rest,
-                moves,
-                extra,
-            });
-        }
-        set.structure = Some(StructureExperiment {
-            orientations: blocks,
-            extra: Map::new(),
-        });
+        set.structure = Some(structure_experiment(
+            robot,
+            &mut sensors,
+            &orientations,
+            config,
+        ));
     }
-
     let training_gravity = gravity_upright();
     if config.training {
-        let mut poses = Vec::with_capacity(config.poses);
-        for _ in 0..config.poses {
-            let q: Vec<f64> = model
-                .dofs()
-                .iter()
-                .map(|d| {
-                    let (lo, hi) = (
-                        d.limits.lower.max(-config.pose_range),
-                        d.limits.upper.min(config.pose_range),
-                    );
-                    let (lo, hi) = if lo <= hi {
-                        (lo, hi)
-                    } else {
-                        (d.limits.lower, d.limits.upper)
-                    };
-                    if hi > lo {
-                        pose_rng.random_range(lo..=hi)
-                    } else {
-                        lo
-                    }
-                })
-                .collect();
-            let k = forward_kinematics(model, &robot.parameters, &q);
-            let forces: Vec<Vector3<f64>> = k
-                .sus
-                .iter()
-                .map(|f| specific_force(f, &Vector3::zeros(), &training_gravity))
-                .collect();
-            let static_readings = forces
-                .iter()
-                .enumerate()
-                .map(|(su, f)| sensors.static_reading(su, f))
-                .collect();
-            let dynamic = (0..nd)
-                .map(|d| {
-                    let peak = peak_dynamic_accelerations_at(model, &k, d, &config.pattern);
-                    let r = peak
-                        .iter()
-                        .enumerate()
-                        .map(|(su, a)| sensors.dynamic_reading(su, &forces[su], a))
-                        .collect();
-                    (model.dofs()[d].name.clone(), r)
-                })
-                .collect();
-            poses.push(TrainingPose {
-                q,
-                static_readings,
-                dynamic,
-                static_sd: None,
-                dynamic_sd: std::collections::BTreeMap::new(),
-                extra: Map::new(),
-            });
-        }
+        let poses = (0..config.poses)
+            .map(|_| {
+                let q = training_angles(model, &mut pose_rng, config.pose_range);
+                training_pose(robot, &mut sensors, q, &training_gravity, config)
+            })
+            .collect();
         set.training = Some(TrainingExperiment {
             from_motion: false,
             pattern: config.pattern,
@@ -727,7 +624,6 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
             extra: Map::new(),
         });
     }
-
     let truth = Truth {
         format: "skincal-truth".into(),
         version: 1,
@@ -741,6 +637,156 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
         measurements: set,
         truth,
     })
+}
+
+/// The skin's sensors with the configured imperfections and faults.
+fn faulty_sensors<'a>(
+    robot: &Robot,
+    config: &'a SimulationConfig,
+    data_seed: u64,
+) -> Result<Sensors<'a>, SimulationError> {
+    let model = &robot.model;
+    let mut sensors = Sensors::new(
+        &config.imperfections,
+        model.sus().len(),
+        config.seed,
+        data_seed,
+    );
+    for f in &config.faults {
+        let u = model
+            .su_names()
+            .iter()
+            .position(|n| *n == f.su)
+            .ok_or_else(|| SimulationError::InvalidSetting {
+                setting: "faults",
+                reason: format!("the robot has no SU `{}`", f.su),
+            })?;
+        sensors.faults[u] = Some((f.fault, None));
+    }
+    Ok(sensors)
+}
+
+/// Every SU's static reading in pose `q` under gravity `g`.
+fn static_readings(
+    robot: &Robot,
+    sensors: &mut Sensors<'_>,
+    q: &[f64],
+    g: &Vector3<f64>,
+) -> Vec<Reading> {
+    let k = forward_kinematics(&robot.model, &robot.parameters, q);
+    k.sus
+        .iter()
+        .enumerate()
+        .map(|(su, frame)| sensors.static_reading(su, &specific_force(frame, &Vector3::zeros(), g)))
+        .collect()
+}
+
+/// The structure experiment: in each base orientation, the rest pose and one move per DoF.
+fn structure_experiment(
+    robot: &Robot,
+    sensors: &mut Sensors<'_>,
+    orientations: &[BaseOrientation],
+    config: &SimulationConfig,
+) -> StructureExperiment {
+    let model = &robot.model;
+    let rest_pose: Vec<f64> = model.dofs().iter().map(|d| d.limits.clamp(0.0)).collect();
+    let mut blocks = Vec::new();
+    for o in orientations {
+        let g = Vector3::from(o.gravity);
+        let rest = static_readings(robot, sensors, &rest_pose, &g);
+        let moves = (0..model.dofs().len())
+            .map(|d| {
+                let mut pose = rest_pose.clone();
+                pose[d] = structure_move(
+                    &model.dofs()[d].limits,
+                    rest_pose[d],
+                    config.structure_angle,
+                );
+                let readings = static_readings(robot, sensors, &pose, &g);
+                Move {
+                    dof: model.dofs()[d].name.clone(),
+                    pose,
+                    readings,
+                    extra: Map::new(),
+                }
+            })
+            .collect();
+        let mut extra = Map::new();
+        extra.insert("label".into(), json!(o.label));
+        blocks.push(Orientation {
+            rest_pose: rest_pose.clone(),
+            rest,
+            moves,
+            extra,
+        });
+    }
+    StructureExperiment {
+        orientations: blocks,
+        extra: Map::new(),
+    }
+}
+
+/// A random training pose: each DoF uniform within its limits and `±range` (its limits alone
+/// where the two do not meet).
+fn training_angles(model: &crate::model::RobotModel, rng: &mut ChaCha8Rng, range: f64) -> Vec<f64> {
+    model
+        .dofs()
+        .iter()
+        .map(|d| {
+            let (lo, hi) = (d.limits.lower.max(-range), d.limits.upper.min(range));
+            let (lo, hi) = if lo <= hi {
+                (lo, hi)
+            } else {
+                (d.limits.lower, d.limits.upper)
+            };
+            if hi > lo {
+                rng.random_range(lo..=hi)
+            } else {
+                lo
+            }
+        })
+        .collect()
+}
+
+/// The training readings in pose `q`: static under `gravity`, and every DoF's pattern's peak.
+fn training_pose(
+    robot: &Robot,
+    sensors: &mut Sensors<'_>,
+    q: Vec<f64>,
+    gravity: &Vector3<f64>,
+    config: &SimulationConfig,
+) -> TrainingPose {
+    let model = &robot.model;
+    let k = forward_kinematics(model, &robot.parameters, &q);
+    let forces: Vec<Vector3<f64>> = k
+        .sus
+        .iter()
+        .map(|f| specific_force(f, &Vector3::zeros(), gravity))
+        .collect();
+    let static_readings = forces
+        .iter()
+        .enumerate()
+        .map(|(su, f)| sensors.static_reading(su, f))
+        .collect();
+    let dynamic = (0..model.dofs().len())
+        .map(|d| {
+            let peak = peak_dynamic_accelerations_at(model, &k, d, &config.pattern);
+            let r = peak
+                .iter()
+                .enumerate()
+                .map(|(su, a)| sensors.dynamic_reading(su, &forces[su], a))
+                .collect();
+            (model.dofs()[d].name.clone(), r)
+        })
+        .collect();
+    TrainingPose {
+        q,
+        static_readings,
+        dynamic,
+        static_sd: None,
+        dynamic_sd: std::collections::BTreeMap::new(),
+        extra: Map::new(),
+    }
 }
 
 /// Settings of [`random_tree`].
