@@ -305,116 +305,142 @@ impl MeasurementSet {
             }
         }
         self.units.check()?;
-        let (nd, nu) = (self.dofs.len(), self.sus.len());
-        let pose = |field: String, q: &[f64]| -> Result<(), MeasurementError> {
-            shape(&field, q.len(), nd, "one angle per DoF")?;
-            bounded(
-                q.iter().copied(),
-                MAX_ANGLE,
-                "rad",
-                "wrap the angle into ±π",
-            )
-            .map_err(|(i, reason)| MeasurementError::InvalidValue {
-                field: format!("{field}[{i}] (DoF {})", self.dofs[i]),
-                reason,
-            })
-        };
-        let readings = |field: String, r: &[Reading]| -> Result<(), MeasurementError> {
-            shape(&field, r.len(), nu, "one reading per SU")?;
-            bounded(
-                r.iter().flatten().copied(),
-                MAX_READING,
-                "m/s²",
-                "no accelerometer reads that much: is the file in another unit, or the reading corrupt?",
-            )
-            .map_err(|(i, reason)| MeasurementError::InvalidValue {
-                field: format!("{field}[{}][{}] (SU {})", i / 3, i % 3, self.sus[i / 3]),
-                reason,
-            })
-        };
         if let Some(s) = &self.structure {
-            if s.orientations.is_empty() {
-                return Err(MeasurementError::InvalidValue {
-                    field: "structure.orientations".into(),
-                    reason: "empty: a structure experiment has at least one base orientation (leave `structure` out when there is none)".into(),
-                });
-            }
-            for (o, orientation) in s.orientations.iter().enumerate() {
-                let base = format!("structure.orientations[{o}]");
-                pose(format!("{base}.rest_pose"), &orientation.rest_pose)?;
-                readings(format!("{base}.rest"), &orientation.rest)?;
-                for (m, mv) in orientation.moves.iter().enumerate() {
-                    let field = format!("{base}.moves[{m}]");
-                    if self.dof_index(&mv.dof).is_none() {
-                        return Err(MeasurementError::UnknownDof {
-                            field: format!("{field}.dof"),
-                            name: mv.dof.clone(),
-                        });
-                    }
-                    pose(format!("{field}.pose"), &mv.pose)?;
-                    readings(format!("{field}.readings"), &mv.readings)?;
-                }
-            }
+            self.check_structure(s)?;
         }
         if let Some(t) = &self.training {
-            if t.poses.is_empty() {
-                return Err(MeasurementError::InvalidValue {
-                    field: "training.poses".into(),
-                    reason: "is empty: record training poses, or leave `training` out".into(),
-                });
-            }
-            if let Err(reason) = t.pattern.check() {
-                return Err(MeasurementError::InvalidValue {
-                    field: "training.pattern".into(),
-                    reason,
-                });
-            }
-            for (p, tp) in t.poses.iter().enumerate() {
-                let base = format!("training.poses[{p}]");
-                pose(format!("{base}.q"), &tp.q)?;
-                readings(format!("{base}.static"), &tp.static_readings)?;
-                for (dof, r) in &tp.dynamic {
-                    let field = format!("{base}.dynamic[\"{dof}\"]");
-                    if self.dof_index(dof).is_none() {
-                        return Err(MeasurementError::UnknownDof {
-                            field,
-                            name: dof.clone(),
-                        });
-                    }
-                    readings(field, r)?;
-                }
-                let sds = tp
-                    .static_sd
-                    .iter()
-                    .map(|sd| (format!("{base}.static_sd"), sd));
-                let dynamic = tp
-                    .dynamic_sd
-                    .iter()
-                    .map(|(dof, sd)| (format!("{base}.dynamic_sd[\"{dof}\"]"), sd));
-                for (field, sd) in sds.chain(dynamic) {
-                    shape(&field, sd.len(), nu, "one standard deviation per SU")?;
-                    if let Some(i) = sd.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
-                        return Err(MeasurementError::InvalidValue {
-                            field: format!("{field}[{i}] (SU {})", self.sus[i]),
-                            reason: format!(
-                                "{} must be a positive number of m/s²; leave the field out \
-                                 when the uncertainty is not known",
-                                sd[i]
-                            ),
-                        });
-                    }
-                }
-                for dof in tp.dynamic_sd.keys() {
-                    if !tp.dynamic.contains_key(dof) {
-                        return Err(MeasurementError::InvalidValue {
-                            field: format!("{base}.dynamic_sd[\"{dof}\"]"),
-                            reason: "has no dynamic readings of that DoF in the pose".into(),
-                        });
-                    }
-                }
-            }
+            self.check_training(t)?;
         }
         self.check_gravity_scale()
+    }
+
+    /// `q` at `field`: one angle per DoF, each within [`MAX_ANGLE`].
+    fn check_pose(&self, field: String, q: &[f64]) -> Result<(), MeasurementError> {
+        shape(&field, q.len(), self.dofs.len(), "one angle per DoF")?;
+        bounded(
+            q.iter().copied(),
+            MAX_ANGLE,
+            "rad",
+            "wrap the angle into ±π",
+        )
+        .map_err(|(i, reason)| MeasurementError::InvalidValue {
+            field: format!("{field}[{i}] (DoF {})", self.dofs[i]),
+            reason,
+        })
+    }
+
+    /// `r` at `field`: one reading per SU, each component within [`MAX_READING`].
+    fn check_readings(&self, field: String, r: &[Reading]) -> Result<(), MeasurementError> {
+        shape(&field, r.len(), self.sus.len(), "one reading per SU")?;
+        bounded(
+            r.iter().flatten().copied(),
+            MAX_READING,
+            "m/s²",
+            "no accelerometer reads that much: is the file in another unit, or the reading corrupt?",
+        )
+        .map_err(|(i, reason)| MeasurementError::InvalidValue {
+            field: format!("{field}[{}][{}] (SU {})", i / 3, i % 3, self.sus[i / 3]),
+            reason,
+        })
+    }
+
+    /// `name` at `field` is one of the set's DoFs.
+    fn check_dof(&self, field: String, name: &str) -> Result<(), MeasurementError> {
+        match self.dof_index(name) {
+            Some(_) => Ok(()),
+            None => Err(MeasurementError::UnknownDof {
+                field,
+                name: name.to_string(),
+            }),
+        }
+    }
+
+    fn check_structure(&self, s: &StructureExperiment) -> Result<(), MeasurementError> {
+        if s.orientations.is_empty() {
+            return Err(MeasurementError::InvalidValue {
+                field: "structure.orientations".into(),
+                reason: "empty: a structure experiment has at least one base orientation (leave `structure` out when there is none)".into(),
+            });
+        }
+        for (o, orientation) in s.orientations.iter().enumerate() {
+            let base = format!("structure.orientations[{o}]");
+            self.check_pose(format!("{base}.rest_pose"), &orientation.rest_pose)?;
+            self.check_readings(format!("{base}.rest"), &orientation.rest)?;
+            for (m, mv) in orientation.moves.iter().enumerate() {
+                let field = format!("{base}.moves[{m}]");
+                self.check_dof(format!("{field}.dof"), &mv.dof)?;
+                self.check_pose(format!("{field}.pose"), &mv.pose)?;
+                self.check_readings(format!("{field}.readings"), &mv.readings)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn check_training(&self, t: &TrainingExperiment) -> Result<(), MeasurementError> {
+        if t.poses.is_empty() {
+            return Err(MeasurementError::InvalidValue {
+                field: "training.poses".into(),
+                reason: "is empty: record training poses, or leave `training` out".into(),
+            });
+        }
+        if let Err(reason) = t.pattern.check() {
+            return Err(MeasurementError::InvalidValue {
+                field: "training.pattern".into(),
+                reason,
+            });
+        }
+        for (p, tp) in t.poses.iter().enumerate() {
+            let base = format!("training.poses[{p}]");
+            self.check_pose(format!("{base}.q"), &tp.q)?;
+            self.check_readings(format!("{base}.static"), &tp.static_readings)?;
+            for (dof, r) in &tp.dynamic {
+                let field = format!("{base}.dynamic[\"{dof}\"]");
+                self.check_dof(field.clone(), dof)?;
+                self.check_readings(field, r)?;
+            }
+            self.check_deviations(&base, tp)?;
+        }
+        Ok(())
+    }
+
+    /// A training pose's standard deviations: one positive number per SU, dynamic ones only for
+    /// the DoFs the pose has readings of.
+    fn check_deviations(&self, base: &str, tp: &TrainingPose) -> Result<(), MeasurementError> {
+        let sds = tp
+            .static_sd
+            .iter()
+            .map(|sd| (format!("{base}.static_sd"), sd));
+        let dynamic = tp
+            .dynamic_sd
+            .iter()
+            .map(|(dof, sd)| (format!("{base}.dynamic_sd[\"{dof}\"]"), sd));
+        for (field, sd) in sds.chain(dynamic) {
+            shape(
+                &field,
+                sd.len(),
+                self.sus.len(),
+                "one standard deviation per SU",
+            )?;
+            if let Some(i) = sd.iter().position(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(MeasurementError::InvalidValue {
+                    field: format!("{field}[{i}] (SU {})", self.sus[i]),
+                    reason: format!(
+                        "{} must be a positive number of m/s²; leave the field out \
+                         when the uncertainty is not known",
+                        sd[i]
+                    ),
+                });
+            }
+        }
+        for dof in tp.dynamic_sd.keys() {
+            if !tp.dynamic.contains_key(dof) {
+                return Err(MeasurementError::InvalidValue {
+                    field: format!("{base}.dynamic_sd[\"{dof}\"]"),
+                    reason: "has no dynamic readings of that DoF in the pose".into(),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The median norm of every static reading, m/s² (`None` without any): |g| for accelerometers

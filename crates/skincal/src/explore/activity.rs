@@ -325,77 +325,11 @@ fn combine_orientations(
     Vec<(usize, usize, usize)>,
     Vec<(usize, usize)>,
 ) {
-    let (nu, nd) = (doubt.len(), doubt.first().map_or(0, Vec::len));
+    // SUs × DoFs.
+    let size = (doubt.len(), doubt.first().map_or(0, Vec::len));
     let clear_still = threshold / uncertainty_factor;
-    let sighted = sighted_dofs(per, threshold * uncertainty_factor);
-    let mut contradicted = Vec::new();
-    for u in 0..nu {
-        for d in 0..nd {
-            let still_where_sighted = (0..per.len())
-                .any(|o| sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still));
-            if !still_where_sighted {
-                continue;
-            }
-            for (o, p) in per.iter_mut().enumerate() {
-                if p[u][d].is_some_and(|c| c > threshold) {
-                    p[u][d] = None;
-                    contradicted.push((u, o, d));
-                }
-            }
-        }
-    }
-    let blind: Vec<Vec<bool>> = per
-        .iter()
-        .map(|o| {
-            (0..nd)
-                .map(|d| !(0..nu).any(|u| o[u][d].is_some_and(|c| c > threshold)))
-                .collect()
-        })
-        .collect();
-    let unseen: Vec<bool> = (0..nd).map(|d| blind.iter().all(|o| o[d])).collect();
-    let mut change = vec![vec![0.0; nd]; nu];
-    let turned_with = turns_say(per, turns, threshold, clear_still);
-    let mut by_turns = Vec::new();
-    // Known entries: Some(active); unknown: None.
-    let mut known = vec![vec![None; nd]; nu];
-    for u in 0..nu {
-        for d in 0..nd {
-            let readable: Vec<(usize, f64)> = per
-                .iter()
-                .enumerate()
-                .filter_map(|(o, p)| p[u][d].map(|c| (o, c)))
-                .collect();
-            change[u][d] = readable.iter().map(|r| r.1).fold(0.0, f64::max);
-            // Unknown: not seen moving, and every orientation that sees the DoF move SUs could
-            // not read this one clearly (or, for a DoF seen moving no SU, some orientation could
-            // not: that may be the one reading that would show it move).
-            let clear = |c: f64| c > threshold || c < clear_still;
-            let sighted = readable.iter().any(|&(o, c)| !blind[o][d] && clear(c));
-            let lost =
-                (0..per.len()).any(|o| (!blind[o][d] || unseen[d]) && per[o][u][d].is_none());
-            known[u][d] = if change[u][d] > threshold || sighted || !lost {
-                Some(change[u][d] > threshold)
-            } else {
-                turned_with(u, d).inspect(|&a| by_turns.push((u, d, a)))
-            };
-        }
-    }
-    // An entry the turns decided reads as the SUs it turned with.
-    for &(u, d, a) in &by_turns {
-        change[u][d] = if a {
-            typical_change(&change, u, d, threshold)
-        } else {
-            change[u][d].min(clear_still)
-        };
-    }
-    // Entries that only one orientation supports (where the other turned the DoF about gravity,
-    // or saw the SU still): a misread reading would look the same, so the tree has a say.
-    let suspicious = |u: usize, d: usize| {
-        (0..per.len())
-            .filter(|&o| per[o][u][d].is_some_and(|c| c > threshold))
-            .count()
-            == 1
-    };
+    let contradicted = leave_out_contradicted(per, size, threshold, uncertainty_factor);
+    let (mut change, known, by_turns) = known_entries(per, turns, size, threshold, clear_still);
     let measured: Vec<Vec<bool>> = change
         .iter()
         .map(|row| row.iter().map(|&c| c > threshold).collect())
@@ -405,19 +339,7 @@ fn combine_orientations(
     // two do and alike (the SU's segment mates); otherwise it is undecided unless the tree below
     // decides it. A suspicious entry stays.
     let mut undecided: Vec<(usize, usize)> = Vec::new();
-    // A suspicious entry matters only where the tree has conflicts, and a misread one gives its
-    // SU a row no other SU shares: only those are weighed (this keeps large skins fast).
-    let conflicts = orphan_rows(&active) > 0;
-    let shared: Vec<bool> = (0..nu)
-        .map(|u| (0..nu).any(|v| v != u && active[v] == active[u]))
-        .collect();
-    let questionable: Vec<(usize, usize, bool)> = (0..nu)
-        .flat_map(|u| (0..nd).map(move |d| (u, d)))
-        .filter_map(|(u, d)| {
-            let unknown = known[u][d].is_none();
-            (unknown || (conflicts && !shared[u] && suspicious(u, d))).then_some((u, d, unknown))
-        })
-        .collect();
+    let questionable = questionable_entries(per, &active, &known, threshold);
     for &(u, d, _) in questionable.iter().filter(|q| q.2) {
         match segment_mates_say(&known, u, d) {
             Some(a) => active[u][d] = a,
@@ -444,6 +366,129 @@ fn combine_orientations(
     }
     inferred.extend(by_turns);
     (change, inferred, contradicted, undecided)
+}
+
+/// A DoF turns gravity by the same angle for every SU it moves: in an orientation where it
+/// clearly moves at least two SUs, an SU it leaves clearly still is not downstream of it, and its
+/// activity in another orientation is a misread reading, left out of `per`. Returns those
+/// `(su, orientation, dof)`.
+fn leave_out_contradicted(
+    per: &mut [Vec<Vec<Option<f64>>>],
+    (nu, nd): (usize, usize),
+    threshold: f64,
+    uncertainty_factor: f64,
+) -> Vec<(usize, usize, usize)> {
+    let clear_still = threshold / uncertainty_factor;
+    let sighted = sighted_dofs(per, threshold * uncertainty_factor);
+    let mut contradicted = Vec::new();
+    for u in 0..nu {
+        for d in 0..nd {
+            let still_where_sighted = (0..per.len())
+                .any(|o| sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still));
+            if !still_where_sighted {
+                continue;
+            }
+            for (o, p) in per.iter_mut().enumerate() {
+                if p[u][d].is_some_and(|c| c > threshold) {
+                    p[u][d] = None;
+                    contradicted.push((u, o, d));
+                }
+            }
+        }
+    }
+    contradicted
+}
+
+/// Every entry's change (the largest over the orientations that read it) and whether it is
+/// known: `Some(active)`, or `None` where no orientation that sees the DoF could read the SU
+/// clearly — unless the turns decide it (returned as `(su, dof, active)`, its change then read
+/// as the SUs it turned with).
+#[allow(clippy::type_complexity)]
+fn known_entries(
+    per: &[Vec<Vec<Option<f64>>>],
+    turns: &[Vec<Vec<Option<f64>>>],
+    (nu, nd): (usize, usize),
+    threshold: f64,
+    clear_still: f64,
+) -> (
+    Vec<Vec<f64>>,
+    Vec<Vec<Option<bool>>>,
+    Vec<(usize, usize, bool)>,
+) {
+    let blind: Vec<Vec<bool>> = per
+        .iter()
+        .map(|o| {
+            (0..nd)
+                .map(|d| !(0..nu).any(|u| o[u][d].is_some_and(|c| c > threshold)))
+                .collect()
+        })
+        .collect();
+    let unseen: Vec<bool> = (0..nd).map(|d| blind.iter().all(|o| o[d])).collect();
+    let mut change = vec![vec![0.0; nd]; nu];
+    let turned_with = turns_say(per, turns, threshold, clear_still);
+    let mut by_turns = Vec::new();
+    let mut known = vec![vec![None; nd]; nu];
+    for u in 0..nu {
+        for d in 0..nd {
+            let readable: Vec<(usize, f64)> = per
+                .iter()
+                .enumerate()
+                .filter_map(|(o, p)| p[u][d].map(|c| (o, c)))
+                .collect();
+            change[u][d] = readable.iter().map(|r| r.1).fold(0.0, f64::max);
+            // Unknown: not seen moving, and every orientation that sees the DoF move SUs could
+            // not read this one clearly (or, for a DoF seen moving no SU, some orientation could
+            // not: that may be the one reading that would show it move).
+            let clear = |c: f64| c > threshold || c < clear_still;
+            let sighted = readable.iter().any(|&(o, c)| !blind[o][d] && clear(c));
+            let lost =
+                (0..per.len()).any(|o| (!blind[o][d] || unseen[d]) && per[o][u][d].is_none());
+            known[u][d] = if change[u][d] > threshold || sighted || !lost {
+                Some(change[u][d] > threshold)
+            } else {
+                turned_with(u, d).inspect(|&a| by_turns.push((u, d, a)))
+            };
+        }
+    }
+    for &(u, d, a) in &by_turns {
+        change[u][d] = if a {
+            typical_change(&change, u, d, threshold)
+        } else {
+            change[u][d].min(clear_still)
+        };
+    }
+    (change, known, by_turns)
+}
+
+/// The entries the structure must weigh, `(su, dof, unknown)`: the unknown ones, and — where the
+/// tree has conflicts — those that only one orientation supports (the other turned the DoF
+/// about gravity, or saw the SU still; a misread reading would look the same) on an SU whose row
+/// no other SU shares (a misread entry gives its SU such a row; weighing only those keeps large
+/// skins fast).
+fn questionable_entries(
+    per: &[Vec<Vec<Option<f64>>>],
+    active: &[Vec<bool>],
+    known: &[Vec<Option<bool>>],
+    threshold: f64,
+) -> Vec<(usize, usize, bool)> {
+    let (nu, nd) = (active.len(), active.first().map_or(0, Vec::len));
+    let suspicious = |u: usize, d: usize| {
+        (0..per.len())
+            .filter(|&o| per[o][u][d].is_some_and(|c| c > threshold))
+            .count()
+            == 1
+    };
+    let conflicts = orphan_rows(active) > 0;
+    let shared: Vec<bool> = (0..nu)
+        .map(|u| (0..nu).any(|v| v != u && active[v] == active[u]))
+        .collect();
+    (0..nu)
+        .flat_map(|u| (0..nd).map(move |d| (u, d)))
+        .filter_map(|(u, d)| {
+            let unknown = known[u][d].is_none();
+            (unknown || (conflicts && !shared[u] && suspicious(u, d))).then_some((u, d, unknown))
+        })
+        .collect()
 }
 
 /// The median change of the SUs other than `u` that DoF `d` moves (for an entry decided active

@@ -186,10 +186,47 @@ pub(super) fn design(
     if len < 4 * l + 4 {
         return None;
     }
-    let dt = timeline.grid.dt;
-    let kernel = triangle(l);
-    let span = (l as f64 * dt).powi(2);
-    // The excited DoFs first, then every other DoF that moved.
+    let dofs = moving_dofs(timeline, excited, start, end);
+    let mut terms = vec![Term::Offset];
+    for &e in &dofs {
+        terms.extend([Term::Cos(e), Term::Sin(e), Term::Alpha(e), Term::Omega2(e)]);
+    }
+    let nc = terms.len();
+    let regressors = Regressors::of(timeline, &dofs, start, end, l);
+    let x = &regressors.x;
+    let rows = len - 2 * l;
+    let gram = DMatrix::from_fn(nc, nc, |a, b| {
+        (0..rows)
+            .map(|r| x[r * nc + a] * x[r * nc + b])
+            .sum::<f64>()
+    });
+    if !accelerations_told_apart(&gram, excited.len()) || regressors.peak_acceleration == 0.0 {
+        return None;
+    }
+    let weights = adjoint_weights(x, &triangle(l), l, len, nc);
+    let spread = DMatrix::from_fn(nc, nc, |a, b| {
+        (0..len)
+            .map(|m| weights[m * nc + a] * weights[m * nc + b])
+            .sum()
+    });
+    let span = (l as f64 * timeline.grid.dt).powi(2);
+    let rounding = rounding_spread(x, l, len, nc, span);
+    Some(Excitation {
+        dofs: excited.to_vec(),
+        start,
+        end,
+        terms,
+        weights,
+        gram,
+        spread,
+        rounding,
+        peak_velocity: regressors.peak_velocity,
+        peak_acceleration: regressors.peak_acceleration,
+    })
+}
+
+/// The excited DoFs first, then every other DoF that moved over `[start, end)`.
+fn moving_dofs(timeline: &Timeline, excited: &[usize], start: usize, end: usize) -> Vec<usize> {
     let mut dofs = excited.to_vec();
     dofs.extend((0..timeline.theta.len()).filter(|&e| {
         let th = &timeline.theta[e][start..end];
@@ -198,64 +235,80 @@ pub(super) fn design(
             .fold((f64::MAX, f64::MIN), |(a, b), &q| (a.min(q), b.max(q)));
         !excited.contains(&e) && hi - lo > STILL_SPAN
     }));
-    let motions: Vec<Motion> = dofs
-        .iter()
-        .map(|&e| Motion::of(&timeline.theta[e][start..end], l, dt))
-        .collect();
-    let mut terms = vec![Term::Offset];
-    for &e in &dofs {
-        terms.extend([Term::Cos(e), Term::Sin(e), Term::Alpha(e), Term::Omega2(e)]);
-    }
-    let nc = terms.len();
-    let squares: Vec<Vec<f64>> = motions
-        .iter()
-        .map(|m| m.omega.iter().map(|w| w * w).collect())
-        .collect();
-    // Regressors at the valid points n ∈ [l, len − l), triangle-filtered; the measured
-    // acceleration is the long second difference (= triangle-filtered discrete acceleration).
-    let rows = len - 2 * l;
-    let mut x = vec![0.0; rows * nc];
-    let (mut peak_velocity, mut peak_acceleration) = (0.0f64, 0.0f64);
-    for (r, i) in (l..len - l).enumerate() {
-        let row = &mut x[r * nc..(r + 1) * nc];
-        row[0] = 1.0;
-        for (k, (&e, m)) in dofs.iter().zip(&motions).enumerate() {
-            let th = &timeline.theta[e][start..end];
-            let alpha = (th[i + l] - 2.0 * th[i] + th[i - l]) / span;
-            if k == 0 {
-                let omega = (th[i + l] - th[i - l]) / (2.0 * l as f64 * dt);
-                peak_velocity = peak_velocity.max(omega.abs());
-                peak_acceleration = peak_acceleration.max(alpha.abs());
+    dofs
+}
+
+/// The regressors of an excitation at the valid points `n ∈ [l, len − l)`, triangle-filtered,
+/// row after row (an offset, then per DoF `cos`, `sin`, `α`, `ω²`); the measured acceleration is
+/// the long second difference (= the triangle-filtered discrete acceleration). With the first
+/// DoF's peak speed and acceleration.
+struct Regressors {
+    x: Vec<f64>,
+    peak_velocity: f64,
+    peak_acceleration: f64,
+}
+
+impl Regressors {
+    fn of(timeline: &Timeline, dofs: &[usize], start: usize, end: usize, l: usize) -> Self {
+        let (len, nc) = (end - start, 1 + 4 * dofs.len());
+        let dt = timeline.grid.dt;
+        let kernel = triangle(l);
+        let span = (l as f64 * dt).powi(2);
+        let motions: Vec<Motion> = dofs
+            .iter()
+            .map(|&e| Motion::of(&timeline.theta[e][start..end], l, dt))
+            .collect();
+        let squares: Vec<Vec<f64>> = motions
+            .iter()
+            .map(|m| m.omega.iter().map(|w| w * w).collect())
+            .collect();
+        let mut x = vec![0.0; (len - 2 * l) * nc];
+        let (mut peak_velocity, mut peak_acceleration) = (0.0f64, 0.0f64);
+        for (r, i) in (l..len - l).enumerate() {
+            let row = &mut x[r * nc..(r + 1) * nc];
+            row[0] = 1.0;
+            for (k, (&e, m)) in dofs.iter().zip(&motions).enumerate() {
+                let th = &timeline.theta[e][start..end];
+                let alpha = (th[i + l] - 2.0 * th[i] + th[i - l]) / span;
+                if k == 0 {
+                    let omega = (th[i + l] - th[i - l]) / (2.0 * l as f64 * dt);
+                    peak_velocity = peak_velocity.max(omega.abs());
+                    peak_acceleration = peak_acceleration.max(alpha.abs());
+                }
+                let c = 1 + 4 * k;
+                row[c] = filtered(&m.cos, &kernel, i);
+                row[c + 1] = filtered(&m.sin, &kernel, i);
+                row[c + 2] = alpha;
+                row[c + 3] = filtered(&squares[k], &kernel, i);
             }
-            let c = 1 + 4 * k;
-            row[c] = filtered(&m.cos, &kernel, i);
-            row[c + 1] = filtered(&m.sin, &kernel, i);
-            row[c + 2] = alpha;
-            row[c + 3] = filtered(&squares[k], &kernel, i);
+        }
+        Self {
+            x,
+            peak_velocity,
+            peak_acceleration,
         }
     }
-    let gram = DMatrix::from_fn(nc, nc, |a, b| {
-        (0..rows)
-            .map(|r| x[r * nc + a] * x[r * nc + b])
-            .sum::<f64>()
-    });
-    // Each excited DoF's acceleration must be told apart from its own other terms in this window.
-    for k in 0..excited.len() {
+}
+
+/// Whether each of the first `excited` DoFs' acceleration can be told apart from its own other
+/// terms (and the offset) in the window's Gram matrix.
+fn accelerations_told_apart(gram: &DMatrix<f64>, excited: usize) -> bool {
+    (0..excited).all(|k| {
         let own = [0, 1 + 4 * k, 2 + 4 * k, 3 + 4 * k, 4 + 4 * k];
         let scale: Vec<f64> = own
             .iter()
             .map(|&c| 1.0 / gram[(c, c)].max(1e-300).sqrt())
             .collect();
         let scaled = DMatrix::from_fn(5, 5, |i, j| gram[(own[i], own[j])] * scale[i] * scale[j]);
-        let inverse = scaled.cholesky()?.inverse();
-        if inverse[(3, 3)] > 1e4 {
-            return None;
-        }
-    }
-    if peak_acceleration == 0.0 {
-        return None;
-    }
-    // W(m) = Σ_n X(n) w(n − m): the adjoint of the triangle applied to the regressors.
+        scaled
+            .cholesky()
+            .is_some_and(|c| c.inverse()[(3, 3)] <= 1e4)
+    })
+}
+
+/// `W(m) = Σ_n X(n) w(n − m)`: the adjoint of the triangle `kernel` applied to the regressors
+/// `x`, for every grid point `m` of the window.
+fn adjoint_weights(x: &[f64], kernel: &[f64], l: usize, len: usize, nc: usize) -> Vec<f64> {
     let half = kernel.len() / 2;
     let mut weights = vec![0.0; len * nc];
     for (r, i) in (l..len - l).enumerate() {
@@ -267,12 +320,13 @@ pub(super) fn design(
             }
         }
     }
-    let spread = DMatrix::from_fn(nc, nc, |a, b| {
-        (0..len)
-            .map(|m| weights[m * nc + a] * weights[m * nc + b])
-            .sum()
-    });
-    // An error ε at grid point m enters α at rows m − l, m, m + l with weights 1, −2, 1 over span.
+    weights
+}
+
+/// How an independent error at every grid point (an encoder's rounding) spreads into the normal
+/// equations: an error ε at point m enters α at rows m − l, m, m + l with weights 1, −2, 1 over
+/// `span`.
+fn rounding_spread(x: &[f64], l: usize, len: usize, nc: usize, span: f64) -> DMatrix<f64> {
     let row = |n: usize| (n >= l && n < len - l).then(|| &x[(n - l) * nc..(n - l + 1) * nc]);
     let mut rounding = DMatrix::<f64>::zeros(nc, nc);
     let mut v = vec![0.0; nc];
@@ -291,18 +345,7 @@ pub(super) fn design(
             }
         }
     }
-    Some(Excitation {
-        dofs: excited.to_vec(),
-        start,
-        end,
-        terms,
-        weights,
-        gram,
-        spread,
-        rounding,
-        peak_velocity,
-        peak_acceleration,
-    })
+    rounding
 }
 
 /// Regularisation of the scaled normal matrix: directions it knows less than this are held at

@@ -168,117 +168,42 @@ pub fn record(
             robot: model.dof_names(),
         });
     }
-    let nu = model.sus().len();
     let (begin, end) = match config.part {
         None => (0.0, plan.duration),
         Some(Part::Structure) => (0.0, plan.structure_duration),
         Some(Part::Training) => (plan.structure_duration, plan.duration),
     };
-    let mut sensors = Sensors::new(&config.imperfections, nu, config.seed, config.seed);
-    let mut rng = stream(config.seed, JITTER_STREAM);
-    let jitter = (config.jitter > 0.0).then(|| Normal::new(0.0, config.jitter).expect("validated"));
-    let gravity = Vector3::from(config.orientation.gravity);
-    let saturation = config
-        .imperfections
-        .saturation
-        .or(config.imperfections.quantization_bits.map(|_| 2.0))
-        .map(|g| g * crate::model::sensor::STANDARD_GRAVITY);
-
+    let mut recorder = Recorder::new(robot, config, end - begin);
     // The noise of every component, (m/s²)²: uniform ±u has variance u²/3.
     let g0 = crate::model::sensor::STANDARD_GRAVITY;
     let variance = (config.imperfections.uniform_noise * g0).powi(2) / 3.0
         + (config.imperfections.gaussian_noise * g0).powi(2);
     sink.start(&model.dof_names(), &model.su_names(), variance)?;
-    // Stamps in whole nanoseconds from the first one, exact at any epoch. The first is taken to
-    // the microsecond: an f64 of epoch seconds resolves only about 240 ns, so no finer start is
-    // meant (1767225600.123 is held as …600.12299990654).
-    let first = (config.start_stamp * 1e6).round() as i64 * 1000;
-    let period = 1e9 / config.rate;
-    let skin_late = (config.skin_delay * 1e9).round() as i64;
-    let mut summary = LogSummary {
-        duration: end - begin,
-        joint_messages: 0,
-        imu_messages: 0,
-        dropped: 0,
-        saturated: 0,
-        su_intrinsics: sensors.intrinsics.clone(),
-    };
     let n = ((end - begin) * config.rate).floor() as u64;
-    let h = 1e-4;
     let frames = |t: f64| forward_kinematics(model, &robot.parameters, &plan.state(t).q);
     // Still phases reuse the frames of their pose.
     let mut still_cache: Option<(usize, Kinematics<f64>)> = None;
-    let mut positions = vec![0.0; model.dofs().len()];
     for k in 0..=n {
         let t = begin + k as f64 / config.rate;
-        let receive_ns = first + (k as f64 * period).round() as i64;
-        let receive = Time::from_nanoseconds(receive_ns);
-        let stamp = |rng: &mut rand_chacha::ChaCha8Rng| {
-            let jitter = jitter.as_ref().map_or(0.0, |j| j.sample(rng));
-            Time::from_nanoseconds(receive_ns + (jitter * 1e9).round() as i64)
-        };
+        let receive_ns = recorder.first + (k as f64 * recorder.period).round() as i64;
         let state = plan.state(t);
         let phase = plan.phase_at(t);
         let is_still = plan
             .phases
             .get(phase)
             .is_some_and(|p| p.action == Action::Still && t > p.start);
-        let drop = |rng: &mut rand_chacha::ChaCha8Rng| {
-            config.drop_probability > 0.0 && rng.random::<f64>() < config.drop_probability
-        };
-        if drop(&mut rng) {
-            summary.dropped += 1;
-            let _ = stamp(&mut rng);
-        } else {
-            for (p, q) in positions.iter_mut().zip(&state.q) {
-                *p = if config.encoder_resolution > 0.0 {
-                    (q / config.encoder_resolution).round() * config.encoder_resolution
-                } else {
-                    *q
-                };
-            }
-            let s = stamp(&mut rng);
-            sink.joint_state(s, receive, &positions, &state.qd)?;
-            summary.joint_messages += 1;
-        }
-        let (now, accelerations): (Kinematics<f64>, Option<Vec<Vector3<f64>>>) = if is_still {
+        recorder.joints(receive_ns, &state.q, &state.qd, sink)?;
+        let (now, accelerations) = if is_still {
             let cached = match still_cache.take() {
                 Some((i, kin)) if i == phase => kin,
                 _ => frames(t),
             };
             (cached, None)
         } else {
-            let (before, now, after) = (frames(t - h), frames(t), frames(t + h));
-            let a = (0..nu)
-                .map(|su| {
-                    (after.su_position(su) + before.su_position(su) - now.su_position(su) * 2.0)
-                        / (h * h)
-                })
-                .collect();
+            let (now, a) = su_accelerations(&frames, t);
             (now, Some(a))
         };
-        for su in 0..nu {
-            let a = accelerations
-                .as_ref()
-                .map_or_else(Vector3::zeros, |a| a[su]);
-            let f = specific_force(&now.sus[su], &a, &gravity);
-            let mut v = sensors.sample(su, &f);
-            if let Some(s) = saturation {
-                // An ADC cannot report beyond its range, noise included.
-                v = v.map(|x| x.clamp(-s, s));
-            }
-            if drop(&mut rng) {
-                summary.dropped += 1;
-                let _ = stamp(&mut rng);
-                continue;
-            }
-            if saturation.is_some_and(|s| v.iter().any(|x| x.abs() >= s * (1.0 - 1e-9))) {
-                summary.saturated += 1;
-            }
-            let s = Time::from_nanoseconds(stamp(&mut rng).nanoseconds() as i64 + skin_late);
-            sink.imu(s, receive, su, v.into())?;
-            summary.imu_messages += 1;
-        }
+        recorder.skin(receive_ns, &now, accelerations.as_deref(), sink)?;
         if is_still {
             still_cache = Some((phase, now));
         }
@@ -288,5 +213,166 @@ pub fn record(
     }
     progress(1.0);
     sink.finish()?;
-    Ok(summary)
+    Ok(recorder.summary)
+}
+
+/// The frames at `t` and every SU's acceleration there: the central difference of its positions
+/// 0.1 ms either side.
+fn su_accelerations(
+    frames: &dyn Fn(f64) -> Kinematics<f64>,
+    t: f64,
+) -> (Kinematics<f64>, Vec<Vector3<f64>>) {
+    let h = 1e-4;
+    let (before, now, after) = (frames(t - h), frames(t), frames(t + h));
+    let a = (0..now.sus.len())
+        .map(|su| {
+            (after.su_position(su) + before.su_position(su) - now.su_position(su) * 2.0) / (h * h)
+        })
+        .collect();
+    (now, a)
+}
+
+/// What the recording keeps from sample to sample: the sensors, the clock's jitter and losses,
+/// and the tally.
+struct Recorder<'a> {
+    config: &'a LogConfig,
+    sensors: Sensors<'a>,
+    rng: rand_chacha::ChaCha8Rng,
+    jitter: Option<Normal<f64>>,
+    gravity: Vector3<f64>,
+    /// The ADC's range, m/s², if it has one.
+    saturation: Option<f64>,
+    /// The first stamp, ns.
+    first: i64,
+    /// The sample period, ns.
+    period: f64,
+    /// How late the skin's stamps run, ns.
+    skin_late: i64,
+    /// The joint positions as the encoders read them.
+    positions: Vec<f64>,
+    summary: LogSummary,
+}
+
+impl<'a> Recorder<'a> {
+    fn new(robot: &Robot, config: &'a LogConfig, duration: f64) -> Self {
+        let model = &robot.model;
+        let sensors = Sensors::new(
+            &config.imperfections,
+            model.sus().len(),
+            config.seed,
+            config.seed,
+        );
+        let summary = LogSummary {
+            duration,
+            joint_messages: 0,
+            imu_messages: 0,
+            dropped: 0,
+            saturated: 0,
+            su_intrinsics: sensors.intrinsics.clone(),
+        };
+        Self {
+            config,
+            sensors,
+            rng: stream(config.seed, JITTER_STREAM),
+            jitter: (config.jitter > 0.0)
+                .then(|| Normal::new(0.0, config.jitter).expect("validated")),
+            gravity: Vector3::from(config.orientation.gravity),
+            saturation: config
+                .imperfections
+                .saturation
+                .or(config.imperfections.quantization_bits.map(|_| 2.0))
+                .map(|g| g * crate::model::sensor::STANDARD_GRAVITY),
+            // Stamps in whole nanoseconds from the first one, exact at any epoch. The first is
+            // taken to the microsecond: an f64 of epoch seconds resolves only about 240 ns, so no
+            // finer start is meant (1767225600.123 is held as …600.12299990654).
+            first: (config.start_stamp * 1e6).round() as i64 * 1000,
+            period: 1e9 / config.rate,
+            skin_late: (config.skin_delay * 1e9).round() as i64,
+            positions: vec![0.0; model.dofs().len()],
+            summary,
+        }
+    }
+
+    /// The stamp of a message received at `receive_ns`: with the clock's jitter.
+    fn stamp(&mut self, receive_ns: i64) -> Time {
+        let jitter = self
+            .jitter
+            .as_ref()
+            .map_or(0.0, |j| j.sample(&mut self.rng));
+        Time::from_nanoseconds(receive_ns + (jitter * 1e9).round() as i64)
+    }
+
+    /// Whether the next message is lost (its stamp drawn all the same, so that the draws stay in
+    /// step).
+    fn dropped(&mut self, receive_ns: i64) -> bool {
+        let p = self.config.drop_probability;
+        if p > 0.0 && self.rng.random::<f64>() < p {
+            self.summary.dropped += 1;
+            let _ = self.stamp(receive_ns);
+            return true;
+        }
+        false
+    }
+
+    /// One joint-state message: positions as the encoders round them.
+    fn joints(
+        &mut self,
+        receive_ns: i64,
+        q: &[f64],
+        qd: &[f64],
+        sink: &mut dyn LogSink,
+    ) -> Result<(), RecordError> {
+        if self.dropped(receive_ns) {
+            return Ok(());
+        }
+        let resolution = self.config.encoder_resolution;
+        for (p, q) in self.positions.iter_mut().zip(q) {
+            *p = if resolution > 0.0 {
+                (q / resolution).round() * resolution
+            } else {
+                *q
+            };
+        }
+        let s = self.stamp(receive_ns);
+        sink.joint_state(s, Time::from_nanoseconds(receive_ns), &self.positions, qd)?;
+        self.summary.joint_messages += 1;
+        Ok(())
+    }
+
+    /// Every SU's sample with the frames `now` and SU accelerations (none: still).
+    fn skin(
+        &mut self,
+        receive_ns: i64,
+        now: &Kinematics<f64>,
+        accelerations: Option<&[Vector3<f64>]>,
+        sink: &mut dyn LogSink,
+    ) -> Result<(), RecordError> {
+        for su in 0..now.sus.len() {
+            let a = accelerations.map_or_else(Vector3::zeros, |a| a[su]);
+            let f = specific_force(&now.sus[su], &a, &self.gravity);
+            let mut v = self.sensors.sample(su, &f);
+            if let Some(s) = self.saturation {
+                // An ADC cannot report beyond its range, noise included.
+                v = v.map(|x| x.clamp(-s, s));
+            }
+            if self.dropped(receive_ns) {
+                continue;
+            }
+            if self
+                .saturation
+                .is_some_and(|s| v.iter().any(|x| x.abs() >= s * (1.0 - 1e-9)))
+            {
+                self.summary.saturated += 1;
+            }
+            let stamp = self.stamp(receive_ns).nanoseconds() as i64 + self.skin_late;
+            sink.imu(
+                Time::from_nanoseconds(stamp),
+                Time::from_nanoseconds(receive_ns),
+                su,
+                v.into(),
+            )?;
+            self.summary.imu_messages += 1;
+        }
+        Ok(())
+    }
 }
