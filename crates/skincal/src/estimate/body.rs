@@ -1086,27 +1086,8 @@ fn assemble(
     let mut builder = RobotBuilder::new("calibrated", reference);
     let mut limbs: Vec<BodyLimb> = Vec::new();
     for (estimate, parent) in estimates.into_iter().zip(parents) {
-        let state = estimate
-            .state
-            .clone()
-            .expect("a fresh estimate has its state");
-        let chain = &estimate.chain;
-        let dofs = chain.dofs();
-        let base_dofs = chain.base_dofs();
-        let gravity = Vector3::from(estimate.gravity);
-        // A limb on the reference segment is turned so that its gravity points down; one on a
-        // branching segment shares its parent's frame.
         let (base, body_gravity) = match &parent {
-            None => {
-                let turn = UnitQuaternion::rotation_between(&gravity, &-Vector3::z())
-                    .unwrap_or_else(|| {
-                        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
-                    });
-                (
-                    Isometry3::from_parts(Vector3::zeros().into(), turn),
-                    Vector3::new(0.0, 0.0, -gravity.norm()),
-                )
-            }
+            None => upright_base(&Vector3::from(estimate.gravity)),
             Some(p) => {
                 let parent = limbs.iter().find(|l| &l.name == p).expect("parents first");
                 (
@@ -1115,62 +1096,25 @@ fn assemble(
                 )
             }
         };
-        for (k, dof) in dofs.iter().enumerate().skip(base_dofs) {
-            let origin = if k == 0 {
-                base * state.joints[0]
-            } else {
-                state.joints[k]
-            };
-            builder.dofs.push(DofSpec {
-                name: dof.clone(),
-                parent: if k == 0 {
-                    reference.to_string()
-                } else {
-                    chain.segment_after(k - 1)
-                },
-                child: chain.segment_after(k),
-                origin: PlacementSpec::from_isometry(&origin),
-                axis: Vector3::z(),
-                limits: observed_limits(set, dof),
-            });
-        }
-        let sus = chain.sus();
-        let depth: Vec<usize> = chain.joints[chain.base_joints..]
-            .iter()
-            .scan(base_dofs, |d, j| {
-                *d += j.dofs.len();
-                Some(vec![*d; j.sus.len()])
-            })
-            .flatten()
-            .collect();
-        for (u, su) in sus.iter().enumerate() {
-            builder.sus.push(SuSpec {
-                name: su.clone(),
-                segment: chain.segment_after(depth[u] - 1),
-                placement: PlacementSpec::from_isometry(&state.sus[u]),
-            });
-        }
+        add_limb(&mut builder, set, reference, &estimate, &base);
+        let chain = &estimate.chain;
         limbs.push(BodyLimb {
             name: chain.name.clone(),
             parent,
             base_frame: Frame::from_isometry(&base),
             gravity: body_gravity.into(),
-            dofs: dofs[base_dofs..].to_vec(),
-            sus,
+            dofs: chain.dofs()[chain.base_dofs()..].to_vec(),
+            sus: chain.sus(),
             estimate,
         });
     }
     for s in &static_sus {
-        let reading = Vector3::from(s.reading);
-        let turn = UnitQuaternion::rotation_between(&reading, &Vector3::z()).unwrap_or_else(|| {
-            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
-        });
         builder.sus.push(SuSpec {
             name: s.su.clone(),
             segment: reference.to_string(),
             placement: PlacementSpec::from_isometry(&Isometry3::from_parts(
                 Vector3::zeros().into(),
-                turn,
+                turn_onto(&Vector3::from(s.reading), &Vector3::z()),
             )),
         });
     }
@@ -1193,5 +1137,72 @@ fn assemble(
         broken: Vec::new(),
         not_calibrated: Vec::new(),
         changes: Vec::new(),
+    }
+}
+
+/// The rotation that turns `from` onto `to` (half a turn about x where they are opposite).
+fn turn_onto(from: &Vector3<f64>, to: &Vector3<f64>) -> UnitQuaternion<f64> {
+    UnitQuaternion::rotation_between(from, to).unwrap_or_else(|| {
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+    })
+}
+
+/// A limb on the reference segment turned so that its `gravity` points down: its base frame in
+/// the body and gravity in the body frame.
+fn upright_base(gravity: &Vector3<f64>) -> (Isometry3<f64>, Vector3<f64>) {
+    (
+        Isometry3::from_parts(Vector3::zeros().into(), turn_onto(gravity, &-Vector3::z())),
+        Vector3::new(0.0, 0.0, -gravity.norm()),
+    )
+}
+
+/// The estimate's own DoFs (after its base path) and SUs added to the body, its first joint
+/// placed by `base` on the reference segment.
+fn add_limb(
+    builder: &mut RobotBuilder,
+    set: &MeasurementSet,
+    reference: &str,
+    estimate: &MlChainEstimate,
+    base: &Isometry3<f64>,
+) {
+    let state = estimate
+        .state
+        .as_ref()
+        .expect("a fresh estimate has its state");
+    let chain = &estimate.chain;
+    let base_dofs = chain.base_dofs();
+    for (k, dof) in chain.dofs().iter().enumerate().skip(base_dofs) {
+        let origin = if k == 0 {
+            base * state.joints[0]
+        } else {
+            state.joints[k]
+        };
+        builder.dofs.push(DofSpec {
+            name: dof.clone(),
+            parent: if k == 0 {
+                reference.to_string()
+            } else {
+                chain.segment_after(k - 1)
+            },
+            child: chain.segment_after(k),
+            origin: PlacementSpec::from_isometry(&origin),
+            axis: Vector3::z(),
+            limits: observed_limits(set, dof),
+        });
+    }
+    let depth: Vec<usize> = chain.joints[chain.base_joints..]
+        .iter()
+        .scan(base_dofs, |d, j| {
+            *d += j.dofs.len();
+            Some(vec![*d; j.sus.len()])
+        })
+        .flatten()
+        .collect();
+    for (u, su) in chain.sus().iter().enumerate() {
+        builder.sus.push(SuSpec {
+            name: su.clone(),
+            segment: chain.segment_after(depth[u] - 1),
+            placement: PlacementSpec::from_isometry(&state.sus[u]),
+        });
     }
 }

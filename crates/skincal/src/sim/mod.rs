@@ -825,9 +825,8 @@ impl Default for RandomTreeConfig {
 ///
 /// Names: DoFs `dof1…`, segments `seg0…` (the reference is `seg0`), SUs `su1…`.
 pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, SimulationError> {
-    use crate::model::description::random_su_placement;
-    use crate::model::{DofSpec, Limits, PlacementSpec, RobotBuilder, SuSpec};
-    use nalgebra::{Isometry3, UnitQuaternion};
+    use crate::model::RobotBuilder;
+    use nalgebra::UnitQuaternion;
 
     let bad = |setting, reason: String| Err(SimulationError::InvalidSetting { setting, reason });
     if config.dofs == 0 {
@@ -837,17 +836,6 @@ pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, Simula
         return bad("max_joint_dofs", "must be at least 1".into());
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let unit = |rng: &mut ChaCha8Rng| loop {
-        let v = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0));
-        let n = v.norm();
-        if n > 0.1 && n <= 1.0 {
-            break v / n;
-        }
-    };
-    let rotation = |rng: &mut ChaCha8Rng| {
-        UnitQuaternion::from_scaled_axis(unit(rng) * rng.random_range(0.0..std::f64::consts::PI))
-    };
-
     let mut builder = RobotBuilder::new(
         format!("random-{}dof-{}su-{seed}", config.dofs, config.sus),
         "seg0",
@@ -862,44 +850,18 @@ pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, Simula
         } else {
             rng.random_range(0..real.len())
         };
-        let (mut segment, mut orientation) = real[parent].clone();
         let k = rng.random_range(1..=config.max_joint_dofs.min(config.dofs - n));
+        let mut end = real[parent].clone();
         for i in 0..k {
             n += 1;
-            let length = if i == 0 {
-                rng.random_range(0.1..0.4)
-            } else {
-                rng.random_range(0.0..0.03)
-            };
-            let offset: Vector3<f64> = unit(&mut rng) * length;
-            let origin = Isometry3::from_parts(offset.into(), rotation(&mut rng));
-            let joint = orientation * origin.rotation;
-            let axis = if rng.random_bool(config.vertical_axes.clamp(0.0, 1.0)) {
-                joint.inverse_transform_vector(&Vector3::z())
-            } else {
-                unit(&mut rng)
-            };
             let child = if i + 1 == k {
                 format!("seg{}", real.len())
             } else {
                 format!("link_dof{n}")
             };
-            builder.dofs.push(DofSpec {
-                name: format!("dof{n}"),
-                parent: segment,
-                child: child.clone(),
-                origin: PlacementSpec::from_isometry(&origin),
-                axis,
-                limits: Limits {
-                    velocity: Some(2.0),
-                    acceleration: Some(10.0),
-                    ..Limits::CONTINUOUS
-                },
-            });
-            segment = child;
-            orientation = joint;
+            end = random_dof(&mut builder, &mut rng, config, end, i == 0, n, child);
         }
-        real.push((segment, orientation));
+        real.push(end);
     }
     if config.sus < real.len() {
         return bad(
@@ -911,15 +873,90 @@ pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, Simula
             ),
         );
     }
+    random_skin(&mut builder, &mut rng, &real, config.sus);
+    builder
+        .build()
+        .map_err(|e| SimulationError::InvalidSetting {
+            setting: "random tree",
+            reason: e.to_string(),
+        })
+}
+
+/// A random unit vector.
+fn random_unit(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+    loop {
+        let v = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let n = v.norm();
+        if n > 0.1 && n <= 1.0 {
+            break v / n;
+        }
+    }
+}
+
+/// DoF `dof{n}` of a random tree on `segment` (with its rest orientation in the reference frame),
+/// moving `child`: the first DoF of a joint at 0.1–0.4 m from its segment's frame, a further one
+/// within 3 cm; returns the child and its rest orientation.
+fn random_dof(
+    builder: &mut crate::model::RobotBuilder,
+    rng: &mut ChaCha8Rng,
+    config: &RandomTreeConfig,
+    (segment, orientation): (String, nalgebra::UnitQuaternion<f64>),
+    first: bool,
+    n: usize,
+    child: String,
+) -> (String, nalgebra::UnitQuaternion<f64>) {
+    use crate::model::{DofSpec, Limits, PlacementSpec};
+    use nalgebra::{Isometry3, UnitQuaternion};
+    let length = if first {
+        rng.random_range(0.1..0.4)
+    } else {
+        rng.random_range(0.0..0.03)
+    };
+    let offset: Vector3<f64> = random_unit(rng) * length;
+    let turn = UnitQuaternion::from_scaled_axis(
+        random_unit(rng) * rng.random_range(0.0..std::f64::consts::PI),
+    );
+    let origin = Isometry3::from_parts(offset.into(), turn);
+    let joint = orientation * origin.rotation;
+    let axis = if rng.random_bool(config.vertical_axes.clamp(0.0, 1.0)) {
+        joint.inverse_transform_vector(&Vector3::z())
+    } else {
+        random_unit(rng)
+    };
+    builder.dofs.push(DofSpec {
+        name: format!("dof{n}"),
+        parent: segment,
+        child: child.clone(),
+        origin: PlacementSpec::from_isometry(&origin),
+        axis,
+        limits: Limits {
+            velocity: Some(2.0),
+            acceleration: Some(10.0),
+            ..Limits::CONTINUOUS
+        },
+    });
+    (child, joint)
+}
+
+/// `sus` SUs on the `real` segments: one on each, the rest on segments drawn at random, each
+/// within 5 cm of its segment's frame and turned at random.
+fn random_skin(
+    builder: &mut crate::model::RobotBuilder,
+    rng: &mut ChaCha8Rng,
+    real: &[(String, nalgebra::UnitQuaternion<f64>)],
+    sus: usize,
+) {
+    use crate::model::description::random_su_placement;
+    use crate::model::SuSpec;
     let mut count = vec![1usize; real.len()];
-    for _ in real.len()..config.sus {
+    for _ in real.len()..sus {
         count[rng.random_range(0..real.len())] += 1;
     }
     let mut k = 0;
     for ((segment, _), &c) in real.iter().zip(&count) {
         for _ in 0..c {
             k += 1;
-            let anchor = Isometry3::translation(
+            let anchor = nalgebra::Isometry3::translation(
                 rng.random_range(-0.05..0.05),
                 rng.random_range(-0.05..0.05),
                 rng.random_range(-0.05..0.05),
@@ -927,16 +964,10 @@ pub fn random_tree(config: &RandomTreeConfig, seed: u64) -> Result<Robot, Simula
             builder.sus.push(SuSpec {
                 name: format!("su{k}"),
                 segment: segment.clone(),
-                placement: random_su_placement(&mut rng, &anchor),
+                placement: random_su_placement(rng, &anchor),
             });
         }
     }
-    builder
-        .build()
-        .map_err(|e| SimulationError::InvalidSetting {
-            setting: "random tree",
-            reason: e.to_string(),
-        })
 }
 
 /// A random serial chain in the paper's DH form: `dofs` DoFs, DoF-to-DoF rows and one DoF-to-SU row

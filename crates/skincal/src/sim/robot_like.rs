@@ -88,38 +88,17 @@ pub fn robot_like_limb(config: &RobotLikeConfig, seed: u64) -> Result<Robot, Sim
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let dofs = rng.random_range(config.min_dofs..=config.max_dofs);
-
-    // Joints: their DoF counts, 1 mostly, 2 or 3 where enough DoFs are left.
-    let mut joints: Vec<usize> = Vec::new();
-    let mut left = dofs;
-    while left > 0 {
-        let k = match rng.random_range(0..10) {
-            0..=1 if left >= 3 => 3,
-            2..=3 if left >= 2 => 2,
-            _ => 1,
-        };
-        joints.push(k);
-        left -= k;
-    }
-
+    let joints = joint_sizes(&mut rng, dofs);
     let vertical = rng.random_bool(0.5);
     let mut name = format!("like-{}", if vertical { 'V' } else { 'H' });
-    // The first DoF's frame in the base: its z is the first axis.
-    let first = Isometry3::from_parts(
-        Translation3::new(0.0, 0.0, rng.random_range(0.05..0.2)),
-        if vertical {
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-PI..PI))
-        } else {
-            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), FRAC_PI_2)
-                * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-PI..PI))
-        },
-    );
-    let mut builder = RobotBuilder::new(String::new(), "base");
-    let mut parent = "base".to_string();
-    let mut n = 0;
+    let mut limb = Limb {
+        builder: RobotBuilder::new(String::new(), "base"),
+        parent: "base".to_string(),
+        dofs: 0,
+    };
     // Per segment (base first): the link from its frame to the next joint, for the SUs.
     let mut links: Vec<(String, Vector3<f64>)> = Vec::new();
-    let mut origin = first;
+    let mut origin = first_joint(&mut rng, vertical);
     for (j, &k) in joints.iter().enumerate() {
         if j > 0 {
             let relation = match rng.random_range(0..4) {
@@ -138,43 +117,14 @@ pub fn robot_like_limb(config: &RobotLikeConfig, seed: u64) -> Result<Robot, Sim
         } else if let Some(last) = links.last_mut() {
             last.1 = origin.translation.vector;
         }
-        for i in 0..k {
-            n += 1;
-            let child = if i + 1 == k {
-                format!("link{}", j + 1)
-            } else {
-                format!("link{}_{}", j + 1, i + 1)
-            };
-            // The DoFs of one joint: perpendicular, intersecting, no link between.
-            let placement = if i == 0 {
-                origin
-            } else {
-                Isometry3::from_parts(
-                    Translation3::identity(),
-                    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), FRAC_PI_2)
-                        * UnitQuaternion::from_axis_angle(
-                            &Vector3::z_axis(),
-                            rng.random_range(-PI..PI),
-                        ),
-                )
-            };
-            builder.dofs.push(DofSpec {
-                name: format!("dof{n}"),
-                parent: parent.clone(),
-                child: child.clone(),
-                origin: PlacementSpec::from_isometry(&placement),
-                axis: Vector3::z(),
-                limits: limits(&mut rng),
-            });
-            parent = child;
-        }
+        limb.joint(&mut rng, j, k, origin);
         // Until the next joint is drawn, the link is an end effector's.
         let tip = Vector3::new(0.0, 0.0, rng.random_range(0.08..0.2));
-        links.push((parent.clone(), tip));
+        links.push((limb.parent.clone(), tip));
     }
     name.push_str(&format!("-{seed}"));
+    let mut builder = limb.builder;
     builder.name = name;
-
     let mut s = 0;
     for (segment, link) in &links {
         for _ in 0..rng.random_range(1..=config.max_sus_per_segment) {
@@ -192,6 +142,78 @@ pub fn robot_like_limb(config: &RobotLikeConfig, seed: u64) -> Result<Robot, Sim
             setting: "robot-like limb",
             reason: e.to_string(),
         })
+}
+
+/// The joints' DoF counts for `dofs` DoFs: 1 mostly, 2 or 3 where enough DoFs are left.
+fn joint_sizes(rng: &mut ChaCha8Rng, dofs: usize) -> Vec<usize> {
+    let mut joints: Vec<usize> = Vec::new();
+    let mut left = dofs;
+    while left > 0 {
+        let k = match rng.random_range(0..10) {
+            0..=1 if left >= 3 => 3,
+            2..=3 if left >= 2 => 2,
+            _ => 1,
+        };
+        joints.push(k);
+        left -= k;
+    }
+    joints
+}
+
+/// The first DoF's frame in the base: its z is the first axis, vertical or horizontal.
+fn first_joint(rng: &mut ChaCha8Rng, vertical: bool) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, rng.random_range(0.05..0.2)),
+        if vertical {
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-PI..PI))
+        } else {
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), FRAC_PI_2)
+                * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-PI..PI))
+        },
+    )
+}
+
+/// A limb as it is built: its DoFs so far and the segment the next joint hangs on.
+struct Limb {
+    builder: RobotBuilder,
+    parent: String,
+    dofs: usize,
+}
+
+impl Limb {
+    /// Joint `j` of `k` DoFs at `origin` on the current segment: perpendicular, intersecting
+    /// DoFs with no link between.
+    fn joint(&mut self, rng: &mut ChaCha8Rng, j: usize, k: usize, origin: Isometry3<f64>) {
+        for i in 0..k {
+            self.dofs += 1;
+            let child = if i + 1 == k {
+                format!("link{}", j + 1)
+            } else {
+                format!("link{}_{}", j + 1, i + 1)
+            };
+            let placement = if i == 0 {
+                origin
+            } else {
+                Isometry3::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), FRAC_PI_2)
+                        * UnitQuaternion::from_axis_angle(
+                            &Vector3::z_axis(),
+                            rng.random_range(-PI..PI),
+                        ),
+                )
+            };
+            self.builder.dofs.push(DofSpec {
+                name: format!("dof{}", self.dofs),
+                parent: self.parent.clone(),
+                child: child.clone(),
+                origin: PlacementSpec::from_isometry(&placement),
+                axis: Vector3::z(),
+                limits: limits(rng),
+            });
+            self.parent = child;
+        }
+    }
 }
 
 /// The next joint's frame (z: its first axis) in the current DoF's frame (z: its axis).

@@ -166,41 +166,119 @@ pub(super) fn joint_line_starts(
     dofs: &[usize],
     count: usize,
 ) -> Vec<JointLines> {
-    let m = dofs.len();
-    let alpha = data.alpha;
-    // Poses whose readings of these DoFs are all trusted.
-    let kept: Vec<usize> = (0..data.q.len())
-        .filter(|&p| !dofs.iter().any(|&d| data.is_rejected(p, u, 1 + d)))
+    let joint = JointAccelerations::new(data, u, dofs);
+    let evaluate = |psi: f64, reverse_first: bool| joint.lines(data, dofs, psi, reverse_first);
+    let steps = 72;
+    let step = 2.0 * std::f64::consts::PI / steps as f64;
+    let grid: Vec<f64> = (0..steps)
+        .map(|i| evaluate(i as f64 * step, false).misfit)
         .collect();
-    let poses = kept.len().max(1);
-    let scaled: Vec<Vec<Vector3<f64>>> = kept
-        .iter()
-        .map(|&p| {
-            dofs.iter()
-                .map(|&d| data.dynamics[p][u][d] / alpha)
-                .collect()
-        })
+    let mut minima: Vec<usize> = (0..steps)
+        .filter(|&i| grid[i] <= grid[(i + steps - 1) % steps] && grid[i] <= grid[(i + 1) % steps])
         .collect();
-    let v: Vector3<f64> = scaled.iter().map(|s| s[m - 1]).sum::<Vector3<f64>>() / poses as f64;
-    let base_misfit: f64 = scaled.iter().map(|s| (s[m - 1] - v).norm_squared()).sum();
-    let direction = if v.norm() > 1e-9 {
-        v.normalize()
+    minima.sort_by(|&a, &b| grid[a].total_cmp(&grid[b]));
+    minima.truncate(count.max(1));
+    let mut out = Vec::new();
+    for i in minima {
+        let psi = golden_section(
+            &|psi| evaluate(psi, false).misfit,
+            i as f64 * step,
+            step,
+            grid[i],
+        );
+        out.push(evaluate(psi, false));
+        if count > 1 {
+            out.push(evaluate(psi, true));
+        }
+    }
+    out.sort_by(|a, b| a.misfit.total_cmp(&b.misfit));
+    out
+}
+
+/// The minimum of `misfit` within `centre ± step` by golden sections; `centre` itself unless the
+/// refinement beats `at_centre`.
+fn golden_section(misfit: &dyn Fn(f64) -> f64, centre: f64, step: f64, at_centre: f64) -> f64 {
+    let ratio = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut lo, mut hi) = (centre - step, centre + step);
+    for _ in 0..30 {
+        let a = hi - ratio * (hi - lo);
+        let b = lo + ratio * (hi - lo);
+        if misfit(a) < misfit(b) {
+            hi = b;
+        } else {
+            lo = a;
+        }
+    }
+    if misfit(0.5 * (lo + hi)) < at_centre {
+        0.5 * (lo + hi)
     } else {
-        Vector3::z()
-    };
-    let e1 = direction.cross(&Vector3::x());
-    let e1 = if e1.norm() > 0.1 {
-        e1.normalize()
-    } else {
-        direction.cross(&Vector3::y()).normalize()
-    };
-    let e2 = direction.cross(&e1);
-    // `reverse_first`: take the first axis with the sense that fits worse.
-    let evaluate = |psi: f64, reverse_first: bool| -> JointLines {
-        let n = e1 * psi.cos() + e2 * psi.sin();
+        centre
+    }
+}
+
+/// One SU's accelerations from the DoFs of a joint, per trusted pose, over the pattern's
+/// acceleration; the last DoF's mean `v` and the plane perpendicular to it (`e1`, `e2`) where its
+/// axis lies.
+struct JointAccelerations {
+    /// Poses whose readings of these DoFs are all trusted.
+    kept: Vec<usize>,
+    scaled: Vec<Vec<Vector3<f64>>>,
+    v: Vector3<f64>,
+    /// The last DoF's scatter about `v`.
+    base_misfit: f64,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+}
+
+impl JointAccelerations {
+    fn new(data: &Readings, u: usize, dofs: &[usize]) -> Self {
+        let m = dofs.len();
+        let kept: Vec<usize> = (0..data.q.len())
+            .filter(|&p| !dofs.iter().any(|&d| data.is_rejected(p, u, 1 + d)))
+            .collect();
+        let poses = kept.len().max(1);
+        let scaled: Vec<Vec<Vector3<f64>>> = kept
+            .iter()
+            .map(|&p| {
+                dofs.iter()
+                    .map(|&d| data.dynamics[p][u][d] / data.alpha)
+                    .collect()
+            })
+            .collect();
+        let v: Vector3<f64> = scaled.iter().map(|s| s[m - 1]).sum::<Vector3<f64>>() / poses as f64;
+        let base_misfit: f64 = scaled.iter().map(|s| (s[m - 1] - v).norm_squared()).sum();
+        let direction = if v.norm() > 1e-9 {
+            v.normalize()
+        } else {
+            Vector3::z()
+        };
+        let e1 = direction.cross(&Vector3::x());
+        let e1 = if e1.norm() > 0.1 {
+            e1.normalize()
+        } else {
+            direction.cross(&Vector3::y()).normalize()
+        };
+        let e2 = direction.cross(&e1);
+        Self {
+            kept,
+            scaled,
+            v,
+            base_misfit,
+            e1,
+            e2,
+        }
+    }
+
+    /// The joint's lines with the last axis at angle `psi` in its plane, each earlier one from
+    /// its accelerations turned back by the later DoFs; `reverse_first` takes the first axis with
+    /// the sense that fits worse.
+    fn lines(&self, data: &Readings, dofs: &[usize], psi: f64, reverse_first: bool) -> JointLines {
+        let (m, kept, scaled) = (dofs.len(), &self.kept, &self.scaled);
+        let poses = kept.len().max(1);
+        let n = self.e1 * psi.cos() + self.e2 * psi.sin();
         let mut lines = vec![(Vector3::zeros(), Vector3::zeros()); m];
-        lines[m - 1] = (n, n.cross(&v));
-        let mut misfit = base_misfit;
+        lines[m - 1] = (n, n.cross(&self.v));
+        let mut misfit = self.base_misfit;
         for stage in (0..m - 1).rev() {
             // The SU's motion relative to the joint's zero position, caused by the later DoFs.
             let motion: Vec<Isometry3<f64>> = (0..kept.len())
@@ -232,45 +310,7 @@ pub(super) fn joint_line_starts(
             lines[stage] = fits[pick].1;
         }
         JointLines { lines, misfit }
-    };
-    let steps = 72;
-    let step = 2.0 * std::f64::consts::PI / steps as f64;
-    let grid: Vec<f64> = (0..steps)
-        .map(|i| evaluate(i as f64 * step, false).misfit)
-        .collect();
-    let mut minima: Vec<usize> = (0..steps)
-        .filter(|&i| grid[i] <= grid[(i + steps - 1) % steps] && grid[i] <= grid[(i + 1) % steps])
-        .collect();
-    minima.sort_by(|&a, &b| grid[a].total_cmp(&grid[b]));
-    minima.truncate(count.max(1));
-    let ratio = 0.5 * (5f64.sqrt() - 1.0);
-    let mut out = Vec::new();
-    for i in minima {
-        // Golden-section refinement inside the grid cell.
-        let centre = i as f64 * step;
-        let (mut lo, mut hi) = (centre - step, centre + step);
-        for _ in 0..30 {
-            let a = hi - ratio * (hi - lo);
-            let b = lo + ratio * (hi - lo);
-            if evaluate(a, false).misfit < evaluate(b, false).misfit {
-                hi = b;
-            } else {
-                lo = a;
-            }
-        }
-        let refined = evaluate(0.5 * (lo + hi), false);
-        let psi = if refined.misfit < grid[i] {
-            0.5 * (lo + hi)
-        } else {
-            centre
-        };
-        out.push(evaluate(psi, false));
-        if count > 1 {
-            out.push(evaluate(psi, true));
-        }
     }
-    out.sort_by(|a, b| a.misfit.total_cmp(&b.misfit));
-    out
 }
 
 /// All orders of `n` items.
