@@ -205,6 +205,78 @@ fn collada_up_axis(bytes: &[u8]) -> Option<char> {
     Some(axis)
 }
 
+/// Collision shapes from URDF geometry; each mesh's convex hull made once per file and scale.
+struct Hulls<'m> {
+    shapes: HashMap<(String, [u64; 3]), SharedShape>,
+    /// A mesh file's bytes by the name the URDF gives.
+    mesh: &'m mut dyn FnMut(&str) -> Result<Vec<u8>, String>,
+}
+
+impl Hulls<'_> {
+    /// The shape of `geometry` on `link`, and the turn that brings parry's axis onto the URDF's.
+    fn shape(
+        &mut self,
+        link: &str,
+        geometry: &urdf_rs::Geometry,
+    ) -> Result<(SharedShape, Option<UnitQuaternion<f64>>), CollisionError> {
+        Ok(match geometry {
+            urdf_rs::Geometry::Box { size } => (
+                SharedShape::cuboid(size[0] / 2.0, size[1] / 2.0, size[2] / 2.0),
+                None,
+            ),
+            urdf_rs::Geometry::Sphere { radius } => (SharedShape::ball(*radius), None),
+            // URDF cylinders run along z, parry's along y.
+            urdf_rs::Geometry::Cylinder { radius, length } => (
+                SharedShape::cylinder(length / 2.0, *radius),
+                Some(UnitQuaternion::from_axis_angle(
+                    &Vector3::x_axis(),
+                    std::f64::consts::FRAC_PI_2,
+                )),
+            ),
+            urdf_rs::Geometry::Capsule { radius, length } => {
+                (SharedShape::capsule_z(length / 2.0, *radius), None)
+            }
+            urdf_rs::Geometry::Mesh { filename, scale } => {
+                let scale = scale.map_or([1.0; 3], |s| s.0);
+                (self.hull(link, filename, scale)?, None)
+            }
+        })
+    }
+
+    /// The convex hull of mesh `file` scaled by `scale`.
+    fn hull(
+        &mut self,
+        link: &str,
+        file: &str,
+        scale: [f64; 3],
+    ) -> Result<SharedShape, CollisionError> {
+        let key = (file.to_string(), scale.map(f64::to_bits));
+        if let Some(shape) = self.shapes.get(&key) {
+            return Ok(shape.clone());
+        }
+        let error = |reason: String| CollisionError::Mesh {
+            link: link.to_string(),
+            file: file.to_string(),
+            reason,
+        };
+        let bytes = (self.mesh)(file).map_err(error)?;
+        let points: Vec<Point3<f64>> = mesh_vertices(&bytes, file)
+            .map_err(error)?
+            .into_iter()
+            .map(|p| Point3::new(p.x * scale[0], p.y * scale[1], p.z * scale[2]))
+            .collect();
+        let hull = SharedShape::convex_hull(&points).ok_or_else(|| {
+            error(format!(
+                "its {} vertices have no volume (a flat or empty mesh): \
+                 give the link a box or another mesh",
+                points.len()
+            ))
+        })?;
+        self.shapes.insert(key, hull.clone());
+        Ok(hull)
+    }
+}
+
 impl Body {
     /// The collision body of `robot` (loaded from the URDF `text`): `mesh` returns a mesh
     /// file's bytes by the file name the URDF gives. A link with no collision element has no
@@ -227,7 +299,10 @@ impl Body {
             .map(|(i, s)| (s.name.as_str(), i))
             .collect();
         let mut parts = Vec::new();
-        let mut hulls: HashMap<(String, [u64; 3]), SharedShape> = HashMap::new();
+        let mut hulls = Hulls {
+            shapes: HashMap::new(),
+            mesh,
+        };
         for link in &urdf.links {
             let Some((segment, link_offset)) = placement.get(&link.name) else {
                 continue;
@@ -237,56 +312,7 @@ impl Body {
             };
             for c in &link.collision {
                 let origin = crate::model::transform::xyz_rpy(c.origin.xyz.0, c.origin.rpy.0);
-                let (shape, turn) = match &c.geometry {
-                    urdf_rs::Geometry::Box { size } => (
-                        SharedShape::cuboid(size[0] / 2.0, size[1] / 2.0, size[2] / 2.0),
-                        None,
-                    ),
-                    urdf_rs::Geometry::Sphere { radius } => (SharedShape::ball(*radius), None),
-                    // URDF cylinders run along z, parry's along y.
-                    urdf_rs::Geometry::Cylinder { radius, length } => (
-                        SharedShape::cylinder(length / 2.0, *radius),
-                        Some(UnitQuaternion::from_axis_angle(
-                            &Vector3::x_axis(),
-                            std::f64::consts::FRAC_PI_2,
-                        )),
-                    ),
-                    urdf_rs::Geometry::Capsule { radius, length } => {
-                        (SharedShape::capsule_z(length / 2.0, *radius), None)
-                    }
-                    urdf_rs::Geometry::Mesh { filename, scale } => {
-                        let scale = scale.map_or([1.0; 3], |s| s.0);
-                        let key = (filename.clone(), scale.map(f64::to_bits));
-                        let shape = match hulls.get(&key) {
-                            Some(shape) => shape.clone(),
-                            None => {
-                                let error = |reason: String| CollisionError::Mesh {
-                                    link: link.name.clone(),
-                                    file: filename.clone(),
-                                    reason,
-                                };
-                                let bytes = mesh(filename).map_err(error)?;
-                                let points: Vec<Point3<f64>> = mesh_vertices(&bytes, filename)
-                                    .map_err(error)?
-                                    .into_iter()
-                                    .map(|p| {
-                                        Point3::new(p.x * scale[0], p.y * scale[1], p.z * scale[2])
-                                    })
-                                    .collect();
-                                let hull = SharedShape::convex_hull(&points).ok_or_else(|| {
-                                    error(format!(
-                                        "its {} vertices have no volume (a flat or empty mesh): \
-                                         give the link a box or another mesh",
-                                        points.len()
-                                    ))
-                                })?;
-                                hulls.insert(key, hull.clone());
-                                hull
-                            }
-                        };
-                        (shape, None)
-                    }
-                };
+                let (shape, turn) = hulls.shape(&link.name, &c.geometry)?;
                 let mut offset = link_offset * origin;
                 if let Some(turn) = turn {
                     offset *= Isometry3::from_parts(Default::default(), turn);

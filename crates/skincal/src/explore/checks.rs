@@ -58,27 +58,7 @@ fn unlike_turns(
 ) -> Option<Diagnostic> {
     let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
     let d = a.dofs.iter().position(|x| *x == mv.dof)?;
-    // The SUs it clearly moved, and the angle their gravity reading turned by.
-    // Readings whose norm is not |g| say nothing about how the move turned.
-    let misread = |u: usize| {
-        a.misread.iter().any(|m| {
-            m.orientation == oi + 1
-                && m.su == a.sus[u]
-                && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
-                && (m.norm_g - m.expected_g).abs() > super::activity::MISREAD_TOLERANCE
-        })
-    };
-    let mut turned: Vec<(f64, usize)> = (0..a.sus.len())
-        .filter(|&u| !misread(u))
-        .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
-        .filter(|&u| {
-            let c = (0..3)
-                .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
-                .fold(0.0, f64::max);
-            c > a.threshold * a.uncertainty_factor
-        })
-        .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
-        .collect();
+    let mut turned = turned_sus(a, (oi, o), mv);
     // SUs that turned further than the DoF travelled, each alone, read wrongly: the
     // activity matrix left them out already.
     let travel = (mv.pose[d] - o.rest_pose[d]).abs();
@@ -122,12 +102,6 @@ fn unlike_turns(
     if odd.is_empty() {
         return None;
     }
-    let names = |g: &[&(f64, usize)]| {
-        g.iter()
-            .map(|(angle, u)| format!("{} {:.1}°", a.sus[*u], angle.to_degrees()))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
     // Odd SUs that agree with each other turned by a second rotation: the move went wrong
     // (the base tilted). Odd SUs that agree with nobody read wrongly (glitches).
     let agreeing = odd.iter().any(|&&(x, u)| {
@@ -135,7 +109,60 @@ fn unlike_turns(
             .any(|&&(y, v)| u != v && (x - y).abs() <= relaxed)
     });
     let lone = !agreeing && (rest.len() >= 2 || odd.iter().all(|&&(_, u)| !a.is_active(u, d)));
-    Some(Diagnostic {
+    Some(unlike_turns_found(
+        a,
+        (oi, mv),
+        d,
+        lone,
+        (&odd, rest.len()),
+        median,
+    ))
+}
+
+/// The SUs a move clearly moved, with the angle their gravity reading turned by: readings whose
+/// norm is not |g| (misread) say nothing about how the move turned, nor do broken SUs.
+fn turned_sus(
+    a: &ActivityMatrix,
+    (oi, o): (usize, &crate::measurements::Orientation),
+    mv: &crate::measurements::Move,
+) -> Vec<(f64, usize)> {
+    let misread = |u: usize| {
+        a.misread.iter().any(|m| {
+            m.orientation == oi + 1
+                && m.su == a.sus[u]
+                && m.dof.as_ref().is_none_or(|x| *x == mv.dof)
+                && (m.norm_g - m.expected_g).abs() > super::activity::MISREAD_TOLERANCE
+        })
+    };
+    (0..a.sus.len())
+        .filter(|&u| !misread(u))
+        .filter(|&u| !a.broken.iter().any(|b| b.su == a.sus[u]))
+        .filter(|&u| {
+            let c = (0..3)
+                .map(|k| (mv.readings[u][k] - o.rest[u][k]).abs())
+                .fold(0.0, f64::max);
+            c > a.threshold * a.uncertainty_factor
+        })
+        .map(|u| (angle_between(&o.rest[u], &mv.readings[u]), u))
+        .collect()
+}
+
+/// The diagnostic of a move whose `odd` SUs turned otherwise than `agreeing` others by about
+/// `median`: `lone` ones read wrongly (a warning), others turned by a second rotation (an error).
+fn unlike_turns_found(
+    a: &ActivityMatrix,
+    (oi, mv): (usize, &crate::measurements::Move),
+    d: usize,
+    lone: bool,
+    (odd, agreeing): (&[&(f64, usize)], usize),
+    median: f64,
+) -> Diagnostic {
+    let names = odd
+        .iter()
+        .map(|(angle, u)| format!("{} {:.1}°", a.sus[*u], angle.to_degrees()))
+        .collect::<Vec<_>>()
+        .join(", ");
+    Diagnostic {
         kind: if lone {
             DiagnosticKind::MisreadReading
         } else {
@@ -150,13 +177,13 @@ fn unlike_turns(
             "in the move of {} (orientation {}), the SUs' gravity readings turned by different angles: {} SUs by about {:.1}°, but {}. One DoF turns everything it moves by one rotation, so something else moved during this move — most often the base (the reference segment) tilted, or another DoF slipped. Hold the base still and record this move again",
             mv.dof,
             oi + 1,
-            rest.len(),
+            agreeing,
             median.to_degrees(),
-            names(&odd)
+            names
         ),
         sus: odd.iter().map(|(_, u)| a.sus[*u].clone()).collect(),
         dofs: vec![a.dofs[d].clone()],
-    })
+    }
 }
 
 /// The noise of the static readings along gravity, m/s²: for each (SU, move), |r_move| − |r_rest|

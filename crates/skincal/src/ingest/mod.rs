@@ -455,82 +455,14 @@ fn ingest_logs(
     let mut dof_names: Option<Vec<String>> = config.dofs.clone();
     let mut sus = SuRegistry::new(config.sus.clone());
     for path in logs {
-        let format = match log::format_of(path)? {
-            LogFormat::Mcap => "mcap".into(),
-            LogFormat::Csv => "csv".into(),
-            LogFormat::Db3 => "rosbag2 sqlite3".into(),
-            LogFormat::Bag => "ros1 bag".into(),
-            LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
-        };
-        let fresh = || LogReport {
-            path: path.clone(),
-            format: format.clone(),
-            ..LogReport::default()
-        };
-        let mut report = fresh();
-        let (names_before, sus_before) = (dof_names.clone(), sus.clone());
-        let once = match step {
-            Some(step) => one_pass(
-                path,
-                step,
-                config,
-                &mut dof_names,
-                &mut sus,
-                &mut report,
-                progress,
-            )?,
-            None => None,
-        };
-        let log = match once {
-            Some(log) => {
-                report.passes = 1;
-                log
-            }
-            None => {
-                // The log breaks what one pass relies on: read it twice.
-                (dof_names, sus, report) = (names_before, sus_before, fresh());
-                report.passes = 2;
-                two_passes(
-                    path,
-                    config,
-                    &mut dof_names,
-                    &mut sus,
-                    &mut report,
-                    progress,
-                )?
-            }
-        };
-        report.joint_start = log.grid.t0;
-        one_clock(path, &report)?;
+        let (log, report) = read_log(path, config, step, &mut dof_names, &mut sus, progress)?;
         grids.push(log.grid);
         plans.push(log.seg);
         accumulators.push(log.acc);
         reports.push(report);
     }
     let dofs = dof_names.unwrap_or_default();
-
-    let (pattern, pattern_source) = match config.pattern {
-        Some(p) => (p, "given".to_string()),
-        None => {
-            let excitations: usize = plans.iter().map(|p| p.excitations.len()).sum();
-            match estimate_pattern(&plans) {
-                Some(found) => found,
-                // A structure-only log: no training pose will need the pattern.
-                None if excitations == 0 => (
-                    ExcitationPattern::default(),
-                    "none needed: the logs hold no excitation".to_string(),
-                ),
-                None => {
-                    return Err(IngestError::Empty(format!(
-                        "the {excitations} excitations found give no usable pattern (peak speed \
-                         and acceleration out of range): give the nominal one with --plan or \
-                         --pattern A,f"
-                    )))
-                }
-            }
-        }
-    };
-
+    let (pattern, pattern_source) = pattern_of(config, &plans)?;
     let silent = leave_out_silent(&mut sus, &mut accumulators, &reports, config)?;
     let passes = Passes {
         config,
@@ -547,6 +479,76 @@ fn ingest_logs(
     let ingested = assemble(passes, pattern, pattern_source)?;
     skin_unit(&ingested.measurements, config.skin_scale, logs)?;
     Ok(ingested)
+}
+
+/// One log read in one pass where it can be (segmented every `step` skin samples), else in
+/// two; the DoF names and SUs it holds added to those of the logs before.
+fn read_log(
+    path: &Path,
+    config: &IngestConfig,
+    step: Option<usize>,
+    dof_names: &mut Option<Vec<String>>,
+    sus: &mut SuRegistry,
+    progress: &mut Progress<'_>,
+) -> Result<(LogPass, LogReport), IngestError> {
+    let format = match log::format_of(path)? {
+        LogFormat::Mcap => "mcap".into(),
+        LogFormat::Csv => "csv".into(),
+        LogFormat::Db3 => "rosbag2 sqlite3".into(),
+        LogFormat::Bag => "ros1 bag".into(),
+        LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
+    };
+    let fresh = || LogReport {
+        path: path.to_path_buf(),
+        format: format.clone(),
+        ..LogReport::default()
+    };
+    let mut report = fresh();
+    let (names_before, sus_before) = (dof_names.clone(), sus.clone());
+    let once = match step {
+        Some(step) => one_pass(path, step, config, dof_names, sus, &mut report, progress)?,
+        None => None,
+    };
+    let log = match once {
+        Some(log) => {
+            report.passes = 1;
+            log
+        }
+        None => {
+            // The log breaks what one pass relies on: read it twice.
+            (*dof_names, *sus, report) = (names_before, sus_before, fresh());
+            report.passes = 2;
+            two_passes(path, config, dof_names, sus, &mut report, progress)?
+        }
+    };
+    report.joint_start = log.grid.t0;
+    one_clock(path, &report)?;
+    Ok((log, report))
+}
+
+/// The excitation pattern: the configured one, else the one the logs' excitations show (none is
+/// needed where they hold none).
+fn pattern_of(
+    config: &IngestConfig,
+    plans: &[segment::Segmentation],
+) -> Result<(ExcitationPattern, String), IngestError> {
+    if let Some(p) = config.pattern {
+        return Ok((p, "given".to_string()));
+    }
+    let excitations: usize = plans.iter().map(|p| p.excitations.len()).sum();
+    match estimate_pattern(plans) {
+        Some(found) => Ok(found),
+        // A structure-only log: no training pose will need the pattern.
+        None if excitations == 0 => Ok((
+            ExcitationPattern::default(),
+            "none needed: the logs hold no excitation".to_string(),
+        )),
+        None => Err(IngestError::Empty(format!(
+            "the {excitations} excitations found give no usable pattern (peak speed \
+             and acceleration out of range): give the nominal one with --plan or \
+             --pattern A,f"
+        ))),
+    }
 }
 
 /// An error when the static readings' median norm is far from |g|: the skin's samples are in

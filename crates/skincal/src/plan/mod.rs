@@ -620,37 +620,10 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
         ramp_cycles: config.ramp_cycles,
         hold_cycles: config.hold_cycles,
     };
-    let (cv, ca) = window.peak_factors();
-    let fraction = config.limit_fraction;
+    let peaks = window.peak_factors();
     if let Some(p) = config.pattern {
         for d in dofs {
-            let v = cv * p.amplitude;
-            let a = ca * p.peak_acceleration();
-            let reason = if v > fraction * d.velocity {
-                Some(format!(
-                    "peak velocity {v:.3} rad/s > {:.3} rad/s ({} of the limit {})",
-                    fraction * d.velocity,
-                    fraction,
-                    d.velocity
-                ))
-            } else if a > fraction * d.acceleration {
-                Some(format!(
-                    "peak acceleration {a:.3} rad/s² > {:.3} rad/s² ({} of the limit {})",
-                    fraction * d.acceleration,
-                    fraction,
-                    d.acceleration
-                ))
-            } else if p.excursion() > d.upper - d.lower {
-                Some(format!(
-                    "excursion {:.4} rad exceeds the range [{}, {}]",
-                    p.excursion(),
-                    d.lower,
-                    d.upper
-                ))
-            } else {
-                None
-            };
-            if let Some(reason) = reason {
+            if let Some(reason) = too_fast_for(&p, d, peaks, config.limit_fraction) {
                 return Err(PlanError::PatternTooFast {
                     amplitude: p.amplitude,
                     frequency: p.frequency,
@@ -675,30 +648,7 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
             reason: "the robot has no DoF".into(),
         });
     };
-    let vmax = fraction * sv.velocity / cv;
-    let amplitude_at = |f: f64| -> (f64, String) {
-        let by_acc = fraction * sa.acceleration / (ca * 2.0 * PI * f);
-        let mut best = (paper.amplitude, "the paper's A = 0.5 rad/s".to_string());
-        if vmax < best.0 {
-            best = (
-                vmax,
-                format!(
-                    "the velocity limit of `{}` ({} rad/s)",
-                    sv.name, sv.velocity
-                ),
-            );
-        }
-        if by_acc < best.0 {
-            best = (
-                by_acc,
-                format!(
-                    "the acceleration limit of `{}` ({} rad/s²)",
-                    sa.name, sa.acceleration
-                ),
-            );
-        }
-        best
-    };
+    let amplitude_at = |f: f64| largest_amplitude(f, sv, sa, peaks, config.limit_fraction);
     let mut f = paper.frequency;
     let (mut a, mut why) = amplitude_at(f);
     while a / (PI * f) > config.max_excursion && f < config.max_frequency {
@@ -725,6 +675,78 @@ pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternCh
         },
         limited_by: why,
     })
+}
+
+/// Why the windowed pattern `p` (peak factors `(cv, ca)`) is too fast or too wide for DoF `d`
+/// within `fraction` of its limits, if it is.
+fn too_fast_for(
+    p: &ExcitationPattern,
+    d: &PlanDof,
+    (cv, ca): (f64, f64),
+    fraction: f64,
+) -> Option<String> {
+    let v = cv * p.amplitude;
+    let a = ca * p.peak_acceleration();
+    if v > fraction * d.velocity {
+        Some(format!(
+            "peak velocity {v:.3} rad/s > {:.3} rad/s ({} of the limit {})",
+            fraction * d.velocity,
+            fraction,
+            d.velocity
+        ))
+    } else if a > fraction * d.acceleration {
+        Some(format!(
+            "peak acceleration {a:.3} rad/s² > {:.3} rad/s² ({} of the limit {})",
+            fraction * d.acceleration,
+            fraction,
+            d.acceleration
+        ))
+    } else if p.excursion() > d.upper - d.lower {
+        Some(format!(
+            "excursion {:.4} rad exceeds the range [{}, {}]",
+            p.excursion(),
+            d.lower,
+            d.upper
+        ))
+    } else {
+        None
+    }
+}
+
+/// The largest amplitude at frequency `f` (at most the paper's) that the slowest DoFs' velocity
+/// (`sv`) and acceleration (`sa`) limits allow, and what limits it.
+fn largest_amplitude(
+    f: f64,
+    sv: &PlanDof,
+    sa: &PlanDof,
+    (cv, ca): (f64, f64),
+    fraction: f64,
+) -> (f64, String) {
+    let vmax = fraction * sv.velocity / cv;
+    let by_acc = fraction * sa.acceleration / (ca * 2.0 * PI * f);
+    let mut best = (
+        ExcitationPattern::default().amplitude,
+        "the paper's A = 0.5 rad/s".to_string(),
+    );
+    if vmax < best.0 {
+        best = (
+            vmax,
+            format!(
+                "the velocity limit of `{}` ({} rad/s)",
+                sv.name, sv.velocity
+            ),
+        );
+    }
+    if by_acc < best.0 {
+        best = (
+            by_acc,
+            format!(
+                "the acceleration limit of `{}` ({} rad/s²)",
+                sa.name, sa.acceleration
+            ),
+        );
+    }
+    best
 }
 
 /// The noise of one reading under a plan's protocol.
