@@ -196,129 +196,175 @@ const SU_ACTIVITY: &str = r#"(function () {
   });
 })();"#;
 
+/// Where the tree's nodes go: depth-first, leaves a row apart in order, inner nodes at the mean
+/// of their children; columns by depth.
+struct TreeLayout {
+    row: BTreeMap<String, f64>,
+    depth: BTreeMap<String, usize>,
+    leaves: f64,
+}
+
+impl TreeLayout {
+    const DX: f64 = 150.0;
+    const DY: f64 = 30.0;
+    const MARGIN: f64 = 20.0;
+
+    fn of(s: &Structure) -> Self {
+        let mut layout = Self {
+            row: BTreeMap::new(),
+            depth: BTreeMap::new(),
+            leaves: 0.0,
+        };
+        layout.place(s, &s.root, 0);
+        layout
+    }
+
+    fn place(&mut self, s: &Structure, id: &str, level: usize) -> f64 {
+        self.depth.insert(id.to_string(), level);
+        let kids: Vec<&str> = s
+            .joints
+            .iter()
+            .filter(|j| j.parent == id)
+            .map(|j| j.child.as_str())
+            .collect();
+        let at = if kids.is_empty() {
+            self.leaves += 1.0;
+            self.leaves - 1.0
+        } else {
+            let rows: Vec<f64> = kids.iter().map(|k| self.place(s, k, level + 1)).collect();
+            rows.iter().sum::<f64>() / rows.len() as f64
+        };
+        self.row.insert(id.to_string(), at);
+        at
+    }
+
+    /// Width and height of the drawing, px.
+    fn size(&self) -> (f64, f64) {
+        let levels = self.depth.values().max().copied().unwrap_or(0) as f64;
+        (
+            levels * Self::DX + 2.0 * Self::MARGIN + 140.0,
+            self.leaves.max(1.0) * Self::DY + 2.0 * Self::MARGIN,
+        )
+    }
+
+    /// A node's centre, px.
+    fn at(&self, id: &str) -> (f64, f64) {
+        (
+            Self::MARGIN + self.depth.get(id).copied().unwrap_or(0) as f64 * Self::DX,
+            Self::MARGIN + Self::DY / 2.0 + self.row.get(id).copied().unwrap_or(0.0) * Self::DY,
+        )
+    }
+}
+
+/// A joint as an elbow out of its parent, down (or up) to its child's row and along it, with its
+/// DoF on the row (a multi-DoF joint's id and count; its DoFs on hover).
+fn tree_joint(
+    svg: &mut String,
+    j: &crate::explore::JointNode,
+    (x1, y1): (f64, f64),
+    (x2, y2): (f64, f64),
+    colour: &str,
+) {
+    let elbow = x1 + 0.2 * (x2 - x1);
+    let _ = write!(
+        svg,
+        "<path class=\"joint\" d=\"M{x1:.1} {y1:.1}H{elbow:.1}V{y2:.1}H{x2:.1}\" fill=\"none\" stroke=\"{colour}\" stroke-width=\"3\"><title>{} ({})</title></path>",
+        escape(&j.id),
+        escape(&j.dofs.join(", "))
+    );
+    let label = match j.dofs.as_slice() {
+        [one] => one.clone(),
+        many => format!("{} ({} DoFs)", j.id, many.len()),
+    };
+    let _ = write!(
+        svg,
+        "<text x=\"{:.1}\" y=\"{:.1}\" fill=\"#555\">{}</text>",
+        elbow + 4.0,
+        y2 - 4.0,
+        escape(&label)
+    );
+}
+
+/// A segment as a node: a square where the tree branches, a ringed circle at an end effector;
+/// its SUs on hover.
+fn tree_segment(
+    svg: &mut String,
+    s: &Structure,
+    seg: &crate::explore::SegmentNode,
+    (cx, cy): (f64, f64),
+    fill: &str,
+) {
+    let end = s.end_effectors.contains(&seg.id);
+    let shape = if s.branching.contains(&seg.id) {
+        format!(
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"16\" height=\"16\" fill=\"{fill}\"/>",
+            cx - 8.0,
+            cy - 8.0
+        )
+    } else {
+        format!(
+            "<circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"{}\" fill=\"{fill}\"{}/>",
+            if end { 9 } else { 7 },
+            if end {
+                " stroke=\"#000\" stroke-width=\"2\""
+            } else {
+                ""
+            }
+        )
+    };
+    let _ = write!(
+        svg,
+        "<g class=\"segment\"><title>{}: {}</title>{shape}<text x=\"{:.1}\" y=\"{:.1}\">{}</text></g>",
+        escape(&seg.id),
+        escape(&if seg.sus.is_empty() {
+            "no SU".to_string()
+        } else {
+            seg.sus.join(", ")
+        }),
+        cx + 9.0,
+        cy + 13.0,
+        escape(&seg.id)
+    );
+}
+
 /// The tree as SVG, root at the left: each segment a node at (depth, leaf order), each joint an
 /// elbow labelled with its DoFs, coloured by the limb it belongs to. Leaves are a row apart, so
 /// labels never overlap however many DoFs the robot has.
 pub(super) fn tree(s: &Structure) -> Markup {
-    let children = |id: &str| -> Vec<&crate::explore::JointNode> {
-        s.joints.iter().filter(|j| j.parent == id).collect()
-    };
-    // Depth-first: leaves get consecutive x, inner nodes the mean of their children.
-    let mut x: BTreeMap<String, f64> = BTreeMap::new();
-    let mut depth: BTreeMap<String, usize> = BTreeMap::new();
-    let mut next_leaf = 0.0;
-    fn place<'a>(
-        id: &str,
-        level: usize,
-        children: &dyn Fn(&str) -> Vec<&'a crate::explore::JointNode>,
-        x: &mut BTreeMap<String, f64>,
-        depth: &mut BTreeMap<String, usize>,
-        next_leaf: &mut f64,
-    ) -> f64 {
-        depth.insert(id.to_string(), level);
-        let kids = children(id);
-        let at = if kids.is_empty() {
-            *next_leaf += 1.0;
-            *next_leaf - 1.0
-        } else {
-            let xs: Vec<f64> = kids
-                .iter()
-                .map(|j| place(&j.child, level + 1, children, x, depth, next_leaf))
-                .collect();
-            xs.iter().sum::<f64>() / xs.len() as f64
-        };
-        x.insert(id.to_string(), at);
-        at
-    }
-    place(&s.root, 0, &children, &mut x, &mut depth, &mut next_leaf);
+    let layout = TreeLayout::of(s);
     let limb_of: BTreeMap<&str, usize> = s
         .limbs
         .iter()
         .enumerate()
         .flat_map(|(i, l)| l.segments.iter().map(move |seg| (seg.as_str(), i)))
         .collect();
-    let (dx, dy, margin) = (150.0, 30.0, 20.0);
-    let levels = depth.values().max().copied().unwrap_or(0) as f64;
-    let width = levels * dx + 2.0 * margin + 140.0;
-    let height = next_leaf.max(1.0) * dy + 2.0 * margin;
-    let at = |id: &str| {
-        (
-            margin + depth.get(id).copied().unwrap_or(0) as f64 * dx,
-            margin + dy / 2.0 + x.get(id).copied().unwrap_or(0.0) * dy,
-        )
+    let colour_of = |segment: &str| {
+        limb_of
+            .get(segment)
+            .map_or("#999", |&i| PALETTE[i % PALETTE.len()])
     };
+    let (width, height) = layout.size();
     let mut svg = String::new();
     let _ = write!(
         svg,
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{width:.0}\" height=\"{height:.0}\" viewBox=\"0 0 {width:.0} {height:.0}\">"
     );
     for j in &s.joints {
-        let ((x1, y1), (x2, y2)) = (at(&j.parent), at(&j.child));
-        let colour = limb_of
-            .get(j.child.as_str())
-            .map_or("#999", |&i| PALETTE[i % PALETTE.len()]);
-        // An elbow: out of the parent, down (or up) to the child's row, along it to the child.
-        let elbow = x1 + 0.2 * (x2 - x1);
-        let _ = write!(
-            svg,
-            "<path class=\"joint\" d=\"M{x1:.1} {y1:.1}H{elbow:.1}V{y2:.1}H{x2:.1}\" fill=\"none\" stroke=\"{colour}\" stroke-width=\"3\"><title>{} ({})</title></path>",
-            escape(&j.id),
-            escape(&j.dofs.join(", "))
-        );
-        // The joint's DoF on its row (a multi-DoF joint's id and count; its DoFs on hover).
-        let label = match j.dofs.as_slice() {
-            [one] => one.clone(),
-            many => format!("{} ({} DoFs)", j.id, many.len()),
-        };
-        let _ = write!(
-            svg,
-            "<text x=\"{:.1}\" y=\"{:.1}\" fill=\"#555\">{}</text>",
-            elbow + 4.0,
-            y2 - 4.0,
-            escape(&label)
+        tree_joint(
+            &mut svg,
+            j,
+            layout.at(&j.parent),
+            layout.at(&j.child),
+            colour_of(&j.child),
         );
     }
     for seg in &s.segments {
-        let (cx, cy) = at(&seg.id);
-        let end = s.end_effectors.contains(&seg.id);
-        let branching = s.branching.contains(&seg.id);
         let fill = if seg.id == s.root {
             "#000"
         } else {
-            limb_of
-                .get(seg.id.as_str())
-                .map_or("#999", |&i| PALETTE[i % PALETTE.len()])
+            colour_of(&seg.id)
         };
-        let shape = if branching {
-            format!(
-                "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"16\" height=\"16\" fill=\"{fill}\"/>",
-                cx - 8.0,
-                cy - 8.0
-            )
-        } else {
-            format!(
-                "<circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"{}\" fill=\"{fill}\"{}/>",
-                if end { 9 } else { 7 },
-                if end {
-                    " stroke=\"#000\" stroke-width=\"2\""
-                } else {
-                    ""
-                }
-            )
-        };
-        let _ = write!(
-            svg,
-            "<g class=\"segment\"><title>{}: {}</title>{shape}<text x=\"{:.1}\" y=\"{:.1}\">{}</text></g>",
-            escape(&seg.id),
-            escape(&if seg.sus.is_empty() {
-                "no SU".to_string()
-            } else {
-                seg.sus.join(", ")
-            }),
-            cx + 9.0,
-            cy + 13.0,
-            escape(&seg.id)
-        );
+        tree_segment(&mut svg, s, seg, layout.at(&seg.id), fill);
     }
     svg.push_str("</svg>");
     html! {

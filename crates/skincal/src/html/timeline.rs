@@ -28,6 +28,50 @@ pub(super) fn recording(r: &IngestReport) -> Markup {
     }
 }
 
+/// Where a stretch of the timeline is drawn and how: its row's top (the windows' row, or its
+/// DoF's), its fill and a note for its title; `None` for a kind not drawn. An excitation is the
+/// darker, the more of its signal came from other DoFs.
+fn stretch_style(
+    log: &LogReport,
+    s: &crate::ingest::Span,
+    dofs: &[&str],
+    row: f64,
+) -> Option<(f64, String, String)> {
+    let middle = (s.start + s.end) / 2.0;
+    let coupled = log
+        .fits
+        .iter()
+        .find(|f| {
+            s.dof.as_deref() == Some(f.dof.as_str())
+                && f.start <= middle
+                && middle <= f.start + f.duration
+        })
+        .map(|f| f.coupled);
+    Some(match (s.kind.as_str(), &s.dof) {
+        ("still", _) => (0.0, "#59a14f".to_string(), String::new()),
+        ("pause", _) => (0.0, "#cfe8c8".to_string(), String::new()),
+        ("transfer", _) => (0.0, "#999".to_string(), String::new()),
+        ("broken", _) => (0.0, "#c0392b".to_string(), String::new()),
+        (kind, Some(d)) => {
+            let r = (dofs.iter().position(|x| x == d).unwrap_or(0) as f64 + 1.0) * row;
+            if kind == "move" {
+                (r, "#f28e2b".to_string(), String::new())
+            } else {
+                let share = coupled.unwrap_or(0.0);
+                let light = (75.0 - 45.0 * share.min(1.0)).round();
+                (
+                    r,
+                    format!("hsl(210, 70%, {light}%)"),
+                    coupled.map_or(String::new(), |c| {
+                        format!(", {:.0} % of the signal from other DoFs", c * 100.0)
+                    }),
+                )
+            }
+        }
+        _ => return None,
+    })
+}
+
 fn timeline_svg(log: &LogReport) -> String {
     let mut dofs: Vec<&str> = Vec::new();
     for s in &log.timeline {
@@ -60,37 +104,8 @@ fn timeline_svg(log: &LogReport) -> String {
         );
     }
     for s in &log.timeline {
-        let coupled = log
-            .fits
-            .iter()
-            .find(|f| {
-                s.dof.as_deref() == Some(f.dof.as_str())
-                    && f.start <= (s.start + s.end) / 2.0
-                    && (s.start + s.end) / 2.0 <= f.start + f.duration
-            })
-            .map(|f| f.coupled);
-        let (y, fill, note) = match (s.kind.as_str(), &s.dof) {
-            ("still", _) => (0.0, "#59a14f".to_string(), String::new()),
-            ("pause", _) => (0.0, "#cfe8c8".to_string(), String::new()),
-            ("transfer", _) => (0.0, "#999".to_string(), String::new()),
-            ("broken", _) => (0.0, "#c0392b".to_string(), String::new()),
-            (kind, Some(d)) => {
-                let r = (dofs.iter().position(|x| x == d).unwrap_or(0) as f64 + 1.0) * row;
-                if kind == "move" {
-                    (r, "#f28e2b".to_string(), String::new())
-                } else {
-                    let share = coupled.unwrap_or(0.0);
-                    let light = (75.0 - 45.0 * share.min(1.0)).round();
-                    (
-                        r,
-                        format!("hsl(210, 70%, {light}%)"),
-                        coupled.map_or(String::new(), |c| {
-                            format!(", {:.0} % of the signal from other DoFs", c * 100.0)
-                        }),
-                    )
-                }
-            }
-            _ => continue,
+        let Some((y, fill, note)) = stretch_style(log, s, &dofs, row) else {
+            continue;
         };
         let _ = write!(
             svg,

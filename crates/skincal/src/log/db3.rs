@@ -17,40 +17,13 @@ pub fn read(
     visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
     progress: &mut dyn FnMut(u64),
 ) -> Result<PassStats, LogError> {
-    let error = |e: rusqlite::Error| LogError::Db3 {
-        path: path.to_path_buf(),
-        reason: match &e {
-            rusqlite::Error::SqliteFailure(f, _) if f.code == rusqlite::ErrorCode::NotADatabase => {
-                "not an SQLite file, or a damaged one: copy the bag again".into()
-            }
-            rusqlite::Error::SqliteFailure(..) | rusqlite::Error::SqlInputError { .. } => format!(
-                "{e} (a rosbag2 .db3 file has the tables `topics` and `messages`; was this \
-                 written by rosbag2?)"
-            ),
-            _ => e.to_string(),
-        },
-    };
+    let error = |e: rusqlite::Error| sql_error(path, e);
     let db = Connection::open_with_flags(
         path,
         OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
     )
     .map_err(error)?;
-    let mut kinds: HashMap<i64, ChannelKind> = HashMap::new();
-    {
-        let mut query = db
-            .prepare("SELECT id, name, type, serialization_format FROM topics")
-            .map_err(error)?;
-        let mut rows = query.query([]).map_err(error)?;
-        while let Some(row) = rows.next().map_err(error)? {
-            let id: i64 = row.get(0).map_err(error)?;
-            let (name, kind, format): (String, String, String) = (
-                row.get(1).map_err(error)?,
-                row.get(2).map_err(error)?,
-                row.get(3).map_err(error)?,
-            );
-            kinds.insert(id, ChannelKind::of(&name, &kind, &format, topics));
-        }
-    }
+    let kinds = channel_kinds(&db, topics).map_err(error)?;
     let mut stats = PassStats::default();
     let mut frames = FrameNames::default();
     // Topics not read on this pass are counted (once, on a pass of the joint states), not decoded.
@@ -64,22 +37,7 @@ pub fn read(
         .map(|(&id, _)| id)
         .collect();
     if stream.joints() {
-        let mut query = db
-            .prepare("SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id")
-            .map_err(error)?;
-        let mut rows = query.query([]).map_err(error)?;
-        while let Some(row) = rows.next().map_err(error)? {
-            let (id, count): (i64, i64) = (row.get(0).map_err(error)?, row.get(1).map_err(error)?);
-            match kinds.get(&id) {
-                Some(ChannelKind::Other(topic)) => {
-                    *stats.joints.other_topics.entry(topic.clone()).or_default() += count as u64;
-                }
-                None => stats
-                    .joints
-                    .problem(format!("{count} messages on unknown topic id {id}")),
-                Some(_) => {}
-            }
-        }
+        count_other_topics(&db, &kinds, &mut stats).map_err(error)?;
     }
     let ids = wanted
         .iter()
@@ -114,4 +72,62 @@ pub fn read(
     }
     progress(read);
     Ok(stats)
+}
+
+/// An SQLite error on the bag at `path`, with what it most likely means.
+fn sql_error(path: &Path, e: rusqlite::Error) -> LogError {
+    LogError::Db3 {
+        path: path.to_path_buf(),
+        reason: match &e {
+            rusqlite::Error::SqliteFailure(f, _) if f.code == rusqlite::ErrorCode::NotADatabase => {
+                "not an SQLite file, or a damaged one: copy the bag again".into()
+            }
+            rusqlite::Error::SqliteFailure(..) | rusqlite::Error::SqlInputError { .. } => format!(
+                "{e} (a rosbag2 .db3 file has the tables `topics` and `messages`; was this \
+                 written by rosbag2?)"
+            ),
+            _ => e.to_string(),
+        },
+    }
+}
+
+/// What each topic of the bag carries, by topic id.
+fn channel_kinds(
+    db: &Connection,
+    topics: &Topics,
+) -> Result<HashMap<i64, ChannelKind>, rusqlite::Error> {
+    let mut kinds = HashMap::new();
+    let mut query = db.prepare("SELECT id, name, type, serialization_format FROM topics")?;
+    let mut rows = query.query([])?;
+    while let Some(row) = rows.next()? {
+        let id: i64 = row.get(0)?;
+        let (name, kind, format): (String, String, String) =
+            (row.get(1)?, row.get(2)?, row.get(3)?);
+        kinds.insert(id, ChannelKind::of(&name, &kind, &format, topics));
+    }
+    Ok(kinds)
+}
+
+/// The messages on topics skincal does not read, counted per topic (and those on unknown topic
+/// ids reported).
+fn count_other_topics(
+    db: &Connection,
+    kinds: &HashMap<i64, ChannelKind>,
+    stats: &mut PassStats,
+) -> Result<(), rusqlite::Error> {
+    let mut query = db.prepare("SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id")?;
+    let mut rows = query.query([])?;
+    while let Some(row) = rows.next()? {
+        let (id, count): (i64, i64) = (row.get(0)?, row.get(1)?);
+        match kinds.get(&id) {
+            Some(ChannelKind::Other(topic)) => {
+                *stats.joints.other_topics.entry(topic.clone()).or_default() += count as u64;
+            }
+            None => stats
+                .joints
+                .problem(format!("{count} messages on unknown topic id {id}")),
+            Some(_) => {}
+        }
+    }
+    Ok(())
 }

@@ -67,44 +67,62 @@ pub struct UrdfTree {
     pub frames: HashMap<String, Isometry3<f64>>,
 }
 
+/// The one root link of a URDF whose joints name only links it defines.
+fn root_link(urdf: &urdf_rs::Robot) -> Result<&str, DescriptionError> {
+    let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
+    let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
+    for j in &urdf.joints {
+        for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
+            if !links.contains(link.as_str()) {
+                return Err(invalid(
+                    format!("joint `{}`", j.name),
+                    format!("{role} link `{link}` is not defined"),
+                ));
+            }
+        }
+    }
+    let children: HashSet<&str> = urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
+    let roots: Vec<&str> = urdf
+        .links
+        .iter()
+        .map(|l| l.name.as_str())
+        .filter(|l| !children.contains(l))
+        .collect();
+    match roots.as_slice() {
+        [root] => Ok(root),
+        [] => Err(invalid(
+            "links".into(),
+            "no root link (every link is some joint's child: a closed loop)".into(),
+        )),
+        many => Err(invalid(
+            "links".into(),
+            format!("several root links {many:?}: the URDF must be one tree"),
+        )),
+    }
+}
+
+/// A joint's unit axis (`x` for a fixed joint with none).
+fn joint_axis(j: &urdf_rs::Joint) -> Result<Vector3<f64>, DescriptionError> {
+    let axis = Vector3::from(j.axis.xyz.0);
+    match axis.try_normalize(1e-12) {
+        Some(a) if a.iter().all(|x| x.is_finite()) => Ok(a),
+        _ if matches!(j.joint_type, urdf_rs::JointType::Fixed) => Ok(Vector3::x()),
+        _ => Err(DescriptionError::Invalid {
+            field: format!("joint `{}`.axis", j.name),
+            reason: format!(
+                "{:?} is not a direction: give a non-zero axis",
+                axis.as_slice()
+            ),
+        }),
+    }
+}
+
 impl UrdfTree {
     /// Parses URDF text and checks that it is one tree.
     pub fn parse(text: &str) -> Result<Self, DescriptionError> {
         let urdf = read_urdf(text)?;
         let invalid = |field: String, reason: String| DescriptionError::Invalid { field, reason };
-        let links: HashSet<&str> = urdf.links.iter().map(|l| l.name.as_str()).collect();
-        for j in &urdf.joints {
-            for (role, link) in [("parent", &j.parent.link), ("child", &j.child.link)] {
-                if !links.contains(link.as_str()) {
-                    return Err(invalid(
-                        format!("joint `{}`", j.name),
-                        format!("{role} link `{link}` is not defined"),
-                    ));
-                }
-            }
-        }
-        let children: HashSet<&str> = urdf.joints.iter().map(|j| j.child.link.as_str()).collect();
-        let roots: Vec<&str> = urdf
-            .links
-            .iter()
-            .map(|l| l.name.as_str())
-            .filter(|l| !children.contains(l))
-            .collect();
-        let root = match roots.as_slice() {
-            [root] => *root,
-            [] => {
-                return Err(invalid(
-                    "links".into(),
-                    "no root link (every link is some joint's child: a closed loop)".into(),
-                ))
-            }
-            many => {
-                return Err(invalid(
-                    "links".into(),
-                    format!("several root links {many:?}: the URDF must be one tree"),
-                ))
-            }
-        };
+        let root = root_link(&urdf)?;
         let mut by_parent: HashMap<&str, Vec<usize>> = HashMap::new();
         for (i, j) in urdf.joints.iter().enumerate() {
             by_parent.entry(j.parent.link.as_str()).or_default().push(i);
@@ -125,20 +143,7 @@ impl UrdfTree {
                     ));
                 }
                 let origin = xyz_rpy(j.origin.xyz.0, j.origin.rpy.0);
-                let axis = Vector3::from(j.axis.xyz.0);
-                let axis = match axis.try_normalize(1e-12) {
-                    Some(a) if a.iter().all(|x| x.is_finite()) => a,
-                    _ if matches!(j.joint_type, urdf_rs::JointType::Fixed) => Vector3::x(),
-                    _ => {
-                        return Err(invalid(
-                            format!("joint `{}`.axis", j.name),
-                            format!(
-                                "{:?} is not a direction: give a non-zero axis",
-                                axis.as_slice()
-                            ),
-                        ))
-                    }
-                };
+                let axis = joint_axis(j)?;
                 frames.insert(child.to_string(), frame * origin);
                 order.push(i);
                 joints[i] = Some(UrdfJoint {

@@ -1635,57 +1635,98 @@ fn final_fit(
         data,
         config,
     );
-    let readings = &precision.readings;
-    let residual_ratio = precision.residual_ratio;
-    if !residual_ratio.is_finite() {
+    if !precision.residual_ratio.is_finite() {
         return Err(EstimateError::NotFinite {
             limb: data.chain.name.clone(),
-            reason: format!("residual / noise = {residual_ratio}"),
+            reason: format!("residual / noise = {}", precision.residual_ratio),
         });
     }
-    let flat_dofs = data.chain.dofs();
-    let flat_sus = data.chain.sus();
-    let cov = &precision.cov;
-    let open = free_directions(&state, &layout, readings, &spec, config.noise_sd);
-    let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
-    Ok(MlChainEstimate {
-        robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
-        dh: dh_table(&limb, &state, &spec, cov, data),
-        chain: data.chain.clone(),
-        joint_orders: Vec::new(),
-        retries: Vec::new(),
-        gravity: state.gravity.into(),
-        residual_ratio,
-        noise_sd_estimate: config.noise_sd * residual_ratio,
-        reading_sd: readings.sd.is_some(),
-        converged: residual_ratio <= config.converged_ratio,
-        fixed: gauge_statement(data, base, gauge_su, vertical, &spec),
-        uncertainty: su_uncertainty(&state, &layout, &spec, &flat_sus, cov, &open),
-        joint_covariance: joint_covariance(&spec, &flat_dofs, cov),
-        intrinsics: su_intrinsics(&state, &spec, &flat_sus, cov, intrinsics_model),
-        intrinsics_model: Some(intrinsics_model),
+    let fixed = gauge_statement(data, base, gauge_su, vertical, &spec);
+    let fit = FinalFit {
+        state,
+        layout,
+        spec,
+        precision,
+        intrinsics_model,
         intrinsics_tests,
         noise_components,
         rejected,
-        missing_excitations: if readings.motion.is_some() {
-            Vec::new()
-        } else {
-            data.missing_excitations()
-        },
-        motion: readings.motion.as_ref().map(|m| {
-            let at = precision.names.iter().position(|n| n == "skin.delay");
-            MotionFit {
-                blocks: m.len(),
-                skin_delay: state.skin_delay,
-                skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
-            }
-        }),
-        su_residual_ratio: su_residual_ratios(&state, &layout, readings, &spec, config.noise_sd),
-        unobservable: precision.unobservable,
-        iterations,
-        seconds: started.elapsed().as_secs_f64(),
-        state: Some(state),
-    })
+    };
+    let mut estimate = fit.estimate(data, fixed, config)?;
+    estimate.iterations = iterations;
+    estimate.seconds = started.elapsed().as_secs_f64();
+    Ok(estimate)
+}
+
+/// A limb's final fit and what is known of its precision.
+struct FinalFit {
+    state: ChainState,
+    layout: Layout,
+    spec: Spec,
+    precision: Precision,
+    intrinsics_model: IntrinsicsModel,
+    intrinsics_tests: Vec<IntrinsicsTest>,
+    noise_components: Option<NoiseComponents>,
+    rejected: Vec<SuRejected>,
+}
+
+impl FinalFit {
+    /// All that is reported of the fit (`fixed`: what its gauge holds); the iterations and time
+    /// are the caller's to fill in.
+    fn estimate(
+        self,
+        data: &LimbData,
+        fixed: Vec<String>,
+        config: &MlConfig,
+    ) -> Result<MlChainEstimate, EstimateError> {
+        let (state, layout, spec, precision) =
+            (self.state, &self.layout, &self.spec, &self.precision);
+        let readings = &precision.readings;
+        let residual_ratio = precision.residual_ratio;
+        let flat_dofs = data.chain.dofs();
+        let flat_sus = data.chain.sus();
+        let cov = &precision.cov;
+        let open = free_directions(&state, layout, readings, spec, config.noise_sd);
+        let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
+        Ok(MlChainEstimate {
+            robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
+            dh: dh_table(&limb, &state, spec, cov, data),
+            chain: data.chain.clone(),
+            joint_orders: Vec::new(),
+            retries: Vec::new(),
+            gravity: state.gravity.into(),
+            residual_ratio,
+            noise_sd_estimate: config.noise_sd * residual_ratio,
+            reading_sd: readings.sd.is_some(),
+            converged: residual_ratio <= config.converged_ratio,
+            fixed,
+            uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
+            joint_covariance: joint_covariance(spec, &flat_dofs, cov),
+            intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, self.intrinsics_model),
+            intrinsics_model: Some(self.intrinsics_model),
+            intrinsics_tests: self.intrinsics_tests,
+            noise_components: self.noise_components,
+            rejected: self.rejected,
+            missing_excitations: if readings.motion.is_some() {
+                Vec::new()
+            } else {
+                data.missing_excitations()
+            },
+            motion: readings.motion.as_ref().map(|m| {
+                let at = precision.names.iter().position(|n| n == "skin.delay");
+                MotionFit {
+                    blocks: m.len(),
+                    skin_delay: state.skin_delay,
+                    skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
+                }
+            }),
+            su_residual_ratio: su_residual_ratios(&state, layout, readings, spec, config.noise_sd),
+            unobservable: self.precision.unobservable.clone(),
+            iterations: 0,
+            seconds: 0.0,
+            state: Some(state),
+        })
+    }
 }
 
 /// How a limb's final fit fixes what the readings cannot tell.

@@ -1269,9 +1269,15 @@ pub(super) fn eliminate(
         .chain(normal.c.diagonal().iter().copied())
         .fold(0.0f64, f64::max)
         .max(1e-300);
-    let floor = largest * 1e-12;
-    let weak = 1.0 / (limit * limit);
-    let mut unobservable = Vec::new();
+    let mut found = Directions {
+        names,
+        n,
+        largest,
+        floor: largest * 1e-12,
+        weak: 1.0 / (limit * limit),
+        unobservable: Vec::new(),
+        free: Vec::new(),
+    };
     let mut own_index: Vec<Vec<usize>> = vec![Vec::new(); normal.sus.len()];
     let mut shared_index = Vec::new();
     for (col, slot) in map.slots.iter().enumerate() {
@@ -1280,74 +1286,41 @@ pub(super) fn eliminate(
             Slot::Own(i, _) => own_index[i].push(col),
         }
     }
-    let name_direction = |weights: &[(usize, f64)]| -> Vec<String> {
-        let norm = weights.iter().map(|(_, w)| w * w).sum::<f64>().sqrt();
-        let mut parts: Vec<(f64, usize)> = weights
-            .iter()
-            .map(|&(c, w)| (w.abs() / norm.max(1e-300), c))
-            .filter(|(w, _)| *w > 0.3)
-            .collect();
-        parts.sort_by(|a, b| b.0.total_cmp(&a.0));
-        parts.iter().map(|&(_, c)| names[c].clone()).collect()
-    };
-    let mut free = Vec::new();
     let mut a_inverse = Vec::with_capacity(normal.sus.len());
     let mut s = normal.c.clone();
     for (i, su) in normal.sus.iter().enumerate() {
-        let (inv, pairs) = pseudo_inverse(&su.a, floor);
+        let (inv, pairs) = pseudo_inverse(&su.a, found.floor);
         for (e, v) in pairs {
-            if e <= floor {
-                let mut direction = DVector::zeros(n);
-                for (&c, x) in own_index[i].iter().zip(v.iter()) {
-                    direction[c] = *x;
-                }
-                free.push(direction);
-            }
-            if e < weak {
-                let weights: Vec<(usize, f64)> = own_index[i]
-                    .iter()
-                    .copied()
-                    .zip(v.iter().copied())
-                    .collect();
-                unobservable.push(Unobservable {
-                    singular_value: (e.max(0.0) / largest).sqrt(),
-                    parameters: name_direction(&weights),
-                });
-            }
+            let weights: Vec<(usize, f64)> = own_index[i]
+                .iter()
+                .copied()
+                .zip(v.iter().copied())
+                .collect();
+            found.direction(e, &weights, false);
         }
         s -= su.b.transpose() * &inv * &su.b;
         a_inverse.push(inv);
     }
-    let (s_inverse, pairs) = pseudo_inverse(&s, floor);
+    let (s_inverse, pairs) = pseudo_inverse(&s, found.floor);
     let k: Vec<DMatrix<f64>> = normal
         .sus
         .iter()
         .zip(&a_inverse)
         .map(|(su, inv)| inv * &su.b)
         .collect();
-    for (e, v) in pairs {
-        if e < weak {
-            let mut weights: Vec<(usize, f64)> = shared_index
-                .iter()
-                .copied()
-                .zip(v.iter().copied())
-                .collect();
-            for (i, ki) in k.iter().enumerate() {
-                let own = -(ki * &v);
-                weights.extend(own_index[i].iter().copied().zip(own.iter().copied()));
-            }
-            if e <= floor {
-                let mut direction = DVector::zeros(n);
-                for &(c, w) in &weights {
-                    direction[c] = w;
-                }
-                free.push(direction.normalize());
-            }
-            unobservable.push(Unobservable {
-                singular_value: (e.max(0.0) / largest).sqrt(),
-                parameters: name_direction(&weights),
-            });
+    let weak = found.weak;
+    for (e, v) in pairs.into_iter().filter(|(e, _)| *e < weak) {
+        // The shared direction with every SU's own columns following it.
+        let mut weights: Vec<(usize, f64)> = shared_index
+            .iter()
+            .copied()
+            .zip(v.iter().copied())
+            .collect();
+        for (i, ki) in k.iter().enumerate() {
+            let own = -(ki * &v);
+            weights.extend(own_index[i].iter().copied().zip(own.iter().copied()));
         }
+        found.direction(e, &weights, true);
     }
     Eliminated {
         n,
@@ -1356,8 +1329,59 @@ pub(super) fn eliminate(
         a_inverse,
         k,
         s_inverse,
-        unobservable,
-        free,
+        unobservable: found.unobservable,
+        free: found.free,
+    }
+}
+
+/// The directions an elimination finds: free (no information: eigenvalue at most `floor`) and
+/// unobservable (less than `weak`).
+struct Directions<'a> {
+    names: &'a [String],
+    /// Columns.
+    n: usize,
+    /// The largest diagonal entry of the normal matrix.
+    largest: f64,
+    floor: f64,
+    weak: f64,
+    unobservable: Vec<Unobservable>,
+    free: Vec<DVector<f64>>,
+}
+
+impl Directions<'_> {
+    /// An eigenpair `e` over the columns of `weights`, recorded as free and as unobservable
+    /// where it is (`normalize` the free direction where the weights are not a unit vector).
+    fn direction(&mut self, e: f64, weights: &[(usize, f64)], normalize: bool) {
+        if e <= self.floor {
+            let mut direction = DVector::zeros(self.n);
+            for &(c, w) in weights {
+                direction[c] = w;
+            }
+            self.free.push(if normalize {
+                direction.normalize()
+            } else {
+                direction
+            });
+        }
+        if e < self.weak {
+            self.unobservable.push(Unobservable {
+                singular_value: (e.max(0.0) / self.largest).sqrt(),
+                parameters: self.named(weights),
+            });
+        }
+    }
+
+    /// The parameters that make up a direction: those with at least 0.3 of its norm, largest
+    /// first.
+    fn named(&self, weights: &[(usize, f64)]) -> Vec<String> {
+        let norm = weights.iter().map(|(_, w)| w * w).sum::<f64>().sqrt();
+        let mut parts: Vec<(f64, usize)> = weights
+            .iter()
+            .map(|&(c, w)| (w.abs() / norm.max(1e-300), c))
+            .filter(|(w, _)| *w > 0.3)
+            .collect();
+        parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+        parts.iter().map(|&(_, c)| self.names[c].clone()).collect()
     }
 }
 
