@@ -197,7 +197,57 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         out::json_mode();
     }
     let robot = io::load_robot(&args.robot, SuPlacement::default())?;
-    let mut dofs = PlanDof::from_robot(&robot);
+    let dofs = plan_dofs(&robot, &args)?;
+    let config = plan_config(&args)?;
+    let accuracy = args.accuracy.or((args.protocol == Protocol::Short
+        && config.sweep == 0.0
+        && args.poses.is_none()
+        && !args.no_forecast)
+        .then_some(skincal::design::SHORT_ACCURACY));
+    let body = collision_body(&args, &robot)?;
+    let names: Vec<String> = dofs.iter().map(|d| d.name.clone()).collect();
+    let clearance = body
+        .as_ref()
+        .map(|body| skincal::collision::PlanClearance::new(body, &robot, &names))
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("the collision check: {e}"))?;
+    let clearance = clearance
+        .as_ref()
+        .map(|c| c as &(dyn skincal::plan::Clearance + Sync));
+    let busy = out::spinner(match (&body, args.no_forecast) {
+        (Some(_), true) => "planning, clear of the robot's body",
+        (Some(_), false) => "planning, clear of the robot's body, and forecasting its accuracy",
+        (None, true) => "planning",
+        (None, false) => "planning and forecasting its accuracy",
+    });
+    let planned = planned(&robot, dofs, &config, &args, accuracy, clearance);
+    busy.finish_and_clear();
+    let (plan, forecast_note) = planned?;
+    let mut files = trajectory_files(&plan, &args)?;
+    files.extend(ros2_files(&plan, &args)?);
+    io::write_all(&files, args.force)?;
+    out!("{}", render_plan(&plan));
+    outln!("{}", render_collision(&plan, body.as_ref()));
+    outln!("{forecast_note}");
+    for (f, _) in &files {
+        outln!("wrote {}", f.display());
+    }
+    out::json(&serde_json::json!({
+        "wrote": files.iter().map(|(f, _)| f.display().to_string()).collect::<Vec<_>>(),
+        "duration": plan.duration,
+        "structure_duration": plan.structure_duration,
+        "training_poses": plan.training_poses().len(),
+        "pattern": plan.pattern,
+        "forecast": plan.forecast,
+        "collision": plan.collision,
+        "note": forecast_note,
+    }));
+    Ok(())
+}
+
+/// The robot's DoFs with the limits and ranges the options give.
+fn plan_dofs(robot: &skincal::model::Robot, args: &PlanArgs) -> Result<Vec<PlanDof>> {
+    let mut dofs = PlanDof::from_robot(robot);
     apply_limits(&mut dofs, &args.velocity, "velocity", |d, v| {
         d.velocity = positive(v, "rad/s")?;
         d.velocity_assumed = false;
@@ -226,6 +276,11 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         d.lower = lo;
         d.upper = hi;
     }
+    Ok(dofs)
+}
+
+/// The program the options ask for, on top of the chosen protocol; the output options checked.
+fn plan_config(args: &PlanArgs) -> Result<PlanConfig> {
     let protocol = match args.protocol {
         Protocol::Paper => PlanConfig::default(),
         Protocol::Short => PlanConfig::short(),
@@ -275,30 +330,11 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
             bail!("--{flag}: must be a positive number of m/s²");
         }
     }
-    let accuracy = args.accuracy.or((args.protocol == Protocol::Short
-        && config.sweep == 0.0
-        && args.poses.is_none()
-        && !args.no_forecast)
-        .then_some(skincal::design::SHORT_ACCURACY));
-    let body = collision_body(&args, &robot)?;
-    let names: Vec<String> = dofs.iter().map(|d| d.name.clone()).collect();
-    let clearance = body
-        .as_ref()
-        .map(|body| skincal::collision::PlanClearance::new(body, &robot, &names))
-        .transpose()
-        .map_err(|e| anyhow::anyhow!("the collision check: {e}"))?;
-    let clearance = clearance
-        .as_ref()
-        .map(|c| c as &(dyn skincal::plan::Clearance + Sync));
-    let busy = out::spinner(match (&body, args.no_forecast) {
-        (Some(_), true) => "planning, clear of the robot's body",
-        (Some(_), false) => "planning, clear of the robot's body, and forecasting its accuracy",
-        (None, true) => "planning",
-        (None, false) => "planning and forecasting its accuracy",
-    });
-    let planned = planned(&robot, dofs, &config, &args, accuracy, clearance);
-    busy.finish_and_clear();
-    let (plan, forecast_note) = planned?;
+    Ok(config)
+}
+
+/// The plan and its trajectory sampled at `--rate` (CSV and JSON), as files to write.
+fn trajectory_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     let samples = plan.sample(args.rate);
     let names = plan.dof_names();
     let mut csv = format!("time,{}\n", names.join(","));
@@ -317,36 +353,17 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
         "time": samples.iter().map(|(t, _)| *t).collect::<Vec<_>>(),
         "positions": samples.iter().map(|(_, q)| q).collect::<Vec<_>>(),
     });
-    let mut files = vec![
+    Ok(vec![
         (
             args.out.join("plan.json"),
-            serde_json::to_string_pretty(&plan)?.into_bytes(),
+            serde_json::to_string_pretty(plan)?.into_bytes(),
         ),
         (args.out.join("trajectory.csv"), csv.into_bytes()),
         (
             args.out.join("trajectory.json"),
             serde_json::to_string(&trajectory)?.into_bytes(),
         ),
-    ];
-    files.extend(ros2_files(&plan, &args)?);
-    io::write_all(&files, args.force)?;
-    out!("{}", render_plan(&plan));
-    outln!("{}", render_collision(&plan, body.as_ref()));
-    outln!("{forecast_note}");
-    for (f, _) in &files {
-        outln!("wrote {}", f.display());
-    }
-    out::json(&serde_json::json!({
-        "wrote": files.iter().map(|(f, _)| f.display().to_string()).collect::<Vec<_>>(),
-        "duration": plan.duration,
-        "structure_duration": plan.structure_duration,
-        "training_poses": plan.training_poses().len(),
-        "pattern": plan.pattern,
-        "forecast": plan.forecast,
-        "collision": plan.collision,
-        "note": forecast_note,
-    }));
-    Ok(())
+    ])
 }
 
 /// What a ROS 2 robot executes (`ros2/` in the output directory): the goals of the

@@ -644,31 +644,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     let (file, dir) = measurement_paths(&args.dir);
     let set = io::read_measurements(&file)?;
     let (structure, source) = structure_of(&set, &dir)?;
-    let poses = skincal::estimate::body::training_poses(&set);
-    if skincal::estimate::body::starts_from_quiet(&set) && dir.join("motion.json").exists() {
-        let has = if poses == 0 {
-            "no readings".to_string()
-        } else {
-            format!(
-                "{poses} training pose(s), too few to fit readings on (it takes {}),",
-                skincal::estimate::body::MIN_POSES
-            )
-        };
-        if args.method != Method::Ml {
-            anyhow::bail!(
-                "{} has {has} and the motion record motion.json: the paper's method fits \
-                 readings; use --method ml (the default), which fits the motion",
-                file.display()
-            );
-        }
-        if args.readings_only {
-            anyhow::bail!(
-                "{} has {has} and the motion record motion.json: leave out --readings-only to \
-                 calibrate from the motion",
-                file.display()
-            );
-        }
-    }
+    refuse_readings_without_readings(&args, &set, &file, &dir)?;
     let truth_path = dir.join("truth.json");
     let truth = if truth_path.exists() {
         truth_of_this_set(io::read_true_robot(&truth_path)?, &set, &truth_path)
@@ -685,7 +661,64 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
             &dir,
         );
     }
-    let chains = estimate::paper::chains(&set, structure.as_ref(), args.limb.as_deref())?;
+    calibrate_paper(
+        &args,
+        &set,
+        structure.as_ref(),
+        truth.as_ref(),
+        &source,
+        &dir,
+    )
+}
+
+/// A set with too few training poses is calibrated from its motion record: the paper's method
+/// and `--readings-only`, which fit readings, are refused with what to do.
+fn refuse_readings_without_readings(
+    args: &CalibrateArgs,
+    set: &skincal::measurements::MeasurementSet,
+    file: &Path,
+    dir: &Path,
+) -> Result<()> {
+    let poses = skincal::estimate::body::training_poses(set);
+    if !(skincal::estimate::body::starts_from_quiet(set) && dir.join("motion.json").exists()) {
+        return Ok(());
+    }
+    let has = if poses == 0 {
+        "no readings".to_string()
+    } else {
+        format!(
+            "{poses} training pose(s), too few to fit readings on (it takes {}),",
+            skincal::estimate::body::MIN_POSES
+        )
+    };
+    if args.method != Method::Ml {
+        anyhow::bail!(
+            "{} has {has} and the motion record motion.json: the paper's method fits \
+             readings; use --method ml (the default), which fits the motion",
+            file.display()
+        );
+    }
+    if args.readings_only {
+        anyhow::bail!(
+            "{} has {has} and the motion record motion.json: leave out --readings-only to \
+             calibrate from the motion",
+            file.display()
+        );
+    }
+    Ok(())
+}
+
+/// `calibrate --method paper`: every chain by the paper's progressive steps, each reported with
+/// its DH tables (beside the truth's where there is one) and steps.
+fn calibrate_paper(
+    args: &CalibrateArgs,
+    set: &skincal::measurements::MeasurementSet,
+    structure: Option<&skincal::explore::Structure>,
+    truth: Option<&skincal::model::Robot>,
+    source: &str,
+    dir: &Path,
+) -> Result<()> {
+    let chains = estimate::paper::chains(set, structure, args.limb.as_deref())?;
     let config = PaperConfig {
         seed: args.seed,
         e_stop: args.e_stop,
@@ -695,7 +728,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
     outln!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
     let mut estimates = Vec::new();
     for chain in &chains {
-        let data = ChainData::new(&set, chain)?;
+        let data = ChainData::new(set, chain)?;
         let busy = out::spinner(&format!(
             "limb {}: the paper's progressive steps",
             chain.name
@@ -709,9 +742,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
             chain.dofs.len(),
             data.poses()
         );
-        let true_rows = truth
-            .as_ref()
-            .and_then(|t| estimate::true_dh_table(t, chain));
+        let true_rows = truth.and_then(|t| estimate::true_dh_table(t, chain));
         out!(
             "{}",
             report::dh_tables(
@@ -723,7 +754,7 @@ fn calibrate(args: CalibrateArgs) -> Result<()> {
         );
         outln!("\nOptimization steps\n");
         out!("{}", report::optimization_steps(&estimate));
-        if let Some(t) = &truth {
+        if let Some(t) = truth {
             let accuracy = estimate::consecutive_su_errors(t, &estimate.robot(), chain, 30, 1)?;
             outln!("\nPose of each SU relative to the previous one, against the truth (30 held-out poses)\n");
             out!("{}", report::chain_accuracy(&accuracy));
@@ -799,40 +830,7 @@ fn calibrate_ml(
             config.intrinsics.name().to_string()
         }
     );
-    let motion_path = dir.join("motion.json");
-    let motion = if motion_path.exists() && !args.readings_only {
-        let record = io::read_motion(&motion_path)?;
-        let poses = skincal::estimate::body::training_poses(set);
-        if !skincal::estimate::body::starts_from_quiet(set) {
-            outln!(
-                "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
-                motion_path.display(),
-                record.blocks(),
-                record.period * 1e3
-            );
-        } else {
-            let readings = if poses == 0 {
-                "no readings in the set".to_string()
-            } else {
-                format!(
-                    "{poses} training pose(s) in the set, too few for a start from readings (it \
-                     takes {})",
-                    skincal::estimate::body::MIN_POSES
-                )
-            };
-            outln!(
-                "{readings}: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
-                 and is fitted on every sample of it",
-                skincal::estimate::body::QUIET_POSES,
-                motion_path.display(),
-                record.blocks(),
-                record.period * 1e3
-            );
-        }
-        Some(record)
-    } else {
-        None
-    };
+    let motion = motion_record(args, set, dir)?;
     outln!();
     let bar = out::progress_bar(1, "calibrating");
     let mut progress = |limb: &str, done: usize, total: usize| {
@@ -863,25 +861,7 @@ fn calibrate_ml(
     };
     bar.finish_and_clear();
     let model = model?;
-    // Each limb's SU poses against the truth (the report draws the same).
-    let accuracies = model
-        .limbs
-        .iter()
-        .map(|limb| {
-            let e = &limb.estimate;
-            truth
-                .map(|t| {
-                    estimate::consecutive_su_errors(
-                        t,
-                        &e.to_robot(),
-                        &e.chain.su_sequence(),
-                        estimate::ACCURACY_POSES,
-                        estimate::ACCURACY_SEED,
-                    )
-                })
-                .transpose()
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let accuracies = limb_accuracies(&model, truth)?;
     for (limb, accuracy) in model.limbs.iter().zip(&accuracies) {
         out!("{}", limb_report(limb, truth, accuracy.as_ref())?);
     }
@@ -898,13 +878,94 @@ fn calibrate_ml(
         args.force,
     )?;
     outln!("wrote {}", out.display());
-    out::json(&serde_json::json!({
+    out::json(&ml_json(&model, &accuracies, &out, own, config.noise_sd));
+    if model.limbs.iter().any(|l| !l.estimate.converged) {
+        eprintln!("warning: some limbs did not converge to the noise level (see above)");
+    }
+    Ok(())
+}
+
+/// The motion record beside the set, unless `--readings-only`, with a line on how it is used.
+fn motion_record(
+    args: &CalibrateArgs,
+    set: &skincal::measurements::MeasurementSet,
+    dir: &Path,
+) -> Result<Option<skincal::motion::MotionRecord>> {
+    let motion_path = dir.join("motion.json");
+    if !motion_path.exists() || args.readings_only {
+        return Ok(None);
+    }
+    let record = io::read_motion(&motion_path)?;
+    let poses = skincal::estimate::body::training_poses(set);
+    if !skincal::estimate::body::starts_from_quiet(set) {
+        outln!(
+            "then every limb fitted again on every sample of its logs: {} ({} blocks of {} ms; --readings-only to skip)",
+            motion_path.display(),
+            record.blocks(),
+            record.period * 1e3
+        );
+    } else {
+        let readings = if poses == 0 {
+            "no readings in the set".to_string()
+        } else {
+            format!(
+                "{poses} training pose(s) in the set, too few for a start from readings (it \
+                 takes {})",
+                skincal::estimate::body::MIN_POSES
+            )
+        };
+        outln!(
+            "{readings}: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
+             and is fitted on every sample of it",
+            skincal::estimate::body::QUIET_POSES,
+            motion_path.display(),
+            record.blocks(),
+            record.period * 1e3
+        );
+    }
+    Ok(Some(record))
+}
+
+/// Each limb's SU poses against the truth, where there is one (the report draws the same).
+fn limb_accuracies(
+    model: &skincal::estimate::body::BodyModel,
+    truth: Option<&skincal::model::Robot>,
+) -> Result<Vec<Option<estimate::ChainAccuracy>>> {
+    Ok(model
+        .limbs
+        .iter()
+        .map(|limb| {
+            let e = &limb.estimate;
+            truth
+                .map(|t| {
+                    estimate::consecutive_su_errors(
+                        t,
+                        &e.to_robot(),
+                        &e.chain.su_sequence(),
+                        estimate::ACCURACY_POSES,
+                        estimate::ACCURACY_SEED,
+                    )
+                })
+                .transpose()
+        })
+        .collect::<Result<Vec<_>, _>>()?)
+}
+
+/// `calibrate --json`'s summary of a maximum-likelihood calibration written to `out`.
+fn ml_json(
+    model: &skincal::estimate::body::BodyModel,
+    accuracies: &[Option<estimate::ChainAccuracy>],
+    out: &Path,
+    own: bool,
+    noise_sd: f64,
+) -> serde_json::Value {
+    serde_json::json!({
         "command": "calibrate",
         "method": "ml",
         "model": out.display().to_string(),
         "weights": if own { "each reading's own standard deviation" } else { "one noise for every reading" },
-        "noise_sd": config.noise_sd,
-        "limbs": model.limbs.iter().zip(&accuracies).map(|(l, accuracy)| serde_json::json!({
+        "noise_sd": noise_sd,
+        "limbs": model.limbs.iter().zip(accuracies).map(|(l, accuracy)| serde_json::json!({
             "name": l.name,
             "accuracy": accuracy,
             "parent": l.parent,
@@ -920,11 +981,7 @@ fn calibrate_ml(
         })).collect::<Vec<_>>(),
         "broken": model.broken,
         "not_calibrated": model.not_calibrated,
-    }));
-    if model.limbs.iter().any(|l| !l.estimate.converged) {
-        eprintln!("warning: some limbs did not converge to the noise level (see above)");
-    }
-    Ok(())
+    })
 }
 
 /// The readings' noise when neither the set nor `--noise` gives it: uniform ±0.01 g, the paper's.
@@ -1210,7 +1267,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     if args.json {
         out::json_mode();
     }
-    use skincal::estimate::ml::{self, MlConfig};
+    use skincal::estimate::ml;
     let paper = io::load_robot("paper-7dof", SuPlacement::default())?;
     let chain = SerialChain {
         name: "S7".into(),
@@ -1278,30 +1335,8 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
             }
         }
         for (method, list) in &mut rows {
-            let (robot, converged, seconds, evaluations) = match method {
-                Method::Paper => {
-                    let e = estimate::paper::estimate_chain(
-                        &data,
-                        &PaperConfig {
-                            seed,
-                            ..PaperConfig::default()
-                        },
-                    )?;
-                    (e.robot(), e.converged(), e.seconds(), e.evaluations())
-                }
-                Method::Ml => {
-                    let e = ml::estimate_chain(
-                        &data,
-                        &MlConfig {
-                            noise_sd: sd.max(1e-6),
-                            intrinsics,
-                            select_intrinsics: args.intrinsics.selects(),
-                            ..MlConfig::default()
-                        },
-                    )?;
-                    (e.to_robot(), e.converged, e.seconds, e.iterations)
-                }
-            };
+            let (robot, converged, seconds, evaluations) =
+                bench_fit(*method, &data, seed, sd, &args)?;
             let accuracy =
                 estimate::consecutive_su_errors(&truth, &robot, &chain, 30, 1000 + seed)?;
             list.push(render::BenchRow {
@@ -1336,7 +1371,59 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         "{}",
         render::calibration_bench(&rows, args.verbose, fig6_accuracy.as_ref(), &bounds)
     );
-    out::json(&serde_json::json!({
+    out::json(&calibration_bench_json(
+        &args,
+        &rows,
+        &bounds,
+        fig6_accuracy,
+    ));
+    Ok(())
+}
+
+/// One calibration of the bench: the estimated robot, whether it converged, its time and its
+/// evaluations (NLopt's for the paper's method, LM iterations for ML).
+fn bench_fit(
+    method: Method,
+    data: &ChainData,
+    seed: u64,
+    sd: f64,
+    args: &BenchCalibrateArgs,
+) -> Result<(skincal::model::Robot, bool, f64, usize)> {
+    use skincal::estimate::ml::{self, MlConfig};
+    Ok(match method {
+        Method::Paper => {
+            let e = estimate::paper::estimate_chain(
+                data,
+                &PaperConfig {
+                    seed,
+                    ..PaperConfig::default()
+                },
+            )?;
+            (e.robot(), e.converged(), e.seconds(), e.evaluations())
+        }
+        Method::Ml => {
+            let e = ml::estimate_chain(
+                data,
+                &MlConfig {
+                    noise_sd: sd.max(1e-6),
+                    intrinsics: args.intrinsics.into(),
+                    select_intrinsics: args.intrinsics.selects(),
+                    ..MlConfig::default()
+                },
+            )?;
+            (e.to_robot(), e.converged, e.seconds, e.iterations)
+        }
+    })
+}
+
+/// `bench calibrate --json`.
+fn calibration_bench_json(
+    args: &BenchCalibrateArgs,
+    rows: &[(Method, Vec<render::BenchRow>)],
+    bounds: &[(String, (f64, f64))],
+    fig6_accuracy: Option<estimate::ChainAccuracy>,
+) -> serde_json::Value {
+    serde_json::json!({
         "command": "bench calibrate",
         "chains": if args.random_chains { "random 7-DoF DH chains" } else { "paper-7dof" },
         "poses": args.poses,
@@ -1359,8 +1446,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
             "intrinsics": name, "position": p, "rotation": q,
         })).collect::<Vec<_>>(),
         "paper_table_accuracy": fig6_accuracy,
-    }));
-    Ok(())
+    })
 }
 
 /// A random tree of `dofs` DoFs and `sus` SUs (the benches' robot).
@@ -1665,6 +1751,58 @@ fn prepare_demo_dir(out: &Path, force: bool) -> Result<()> {
     Ok(())
 }
 
+/// A limb's line in the demo: its size, cost, residual and the DoF orders found.
+fn demo_limb_line(limb: &skincal::estimate::body::BodyLimb) -> String {
+    let orders: Vec<String> = limb
+        .estimate
+        .joint_orders
+        .iter()
+        .map(|o| format!("{} = {}", o.joint, o.dofs.join(" → ")))
+        .collect();
+    format!(
+        "limb {:<4} {} DoFs, {} SUs, {} LM iterations in {:.1} ms, residual {:.3}× σ{}",
+        limb.name,
+        limb.dofs.len(),
+        limb.sus.len(),
+        limb.estimate.iterations,
+        limb.estimate.seconds * 1e3,
+        limb.estimate.residual_ratio,
+        if orders.is_empty() {
+            String::new()
+        } else {
+            format!("; DoF order found: {}", orders.join(", "))
+        }
+    )
+}
+
+/// The demo's structure (JSON and Graphviz), model and model URDF, written whole.
+fn write_demo_results(
+    out: &Path,
+    structure: &skincal::explore::Structure,
+    model: &skincal::estimate::body::BodyModel,
+) -> Result<Vec<PathBuf>> {
+    let (json_path, dot_path, model_path, urdf_path) = (
+        out.join("structure.json"),
+        out.join("structure.dot"),
+        out.join("model.json"),
+        out.join("model.urdf"),
+    );
+    let robot_model = model.check().map_err(|e| anyhow::anyhow!(e))?;
+    io::write_all(
+        &[
+            (json_path.clone(), serde_json::to_string_pretty(structure)?),
+            (dot_path.clone(), report::structure_dot(structure)),
+            (model_path.clone(), serde_json::to_string_pretty(model)?),
+            (
+                urdf_path.clone(),
+                skincal::model::urdf::to_urdf(&robot_model)?,
+            ),
+        ],
+        true,
+    )?;
+    Ok(vec![json_path, dot_path, model_path, urdf_path])
+}
+
 fn demo(args: DemoArgs) -> Result<()> {
     if args.json {
         out::json_mode();
@@ -1698,26 +1836,7 @@ fn demo(args: DemoArgs) -> Result<()> {
     let ml = skincal::estimate::ml::MlConfig::default();
     let model = skincal::estimate::body::calibrate_body(&set, Some(&structure), &ml, None)?;
     for limb in &model.limbs {
-        let orders: Vec<String> = limb
-            .estimate
-            .joint_orders
-            .iter()
-            .map(|o| format!("{} = {}", o.joint, o.dofs.join(" → ")))
-            .collect();
-        outln!(
-            "limb {:<4} {} DoFs, {} SUs, {} LM iterations in {:.1} ms, residual {:.3}× σ{}",
-            limb.name,
-            limb.dofs.len(),
-            limb.sus.len(),
-            limb.estimate.iterations,
-            limb.estimate.seconds * 1e3,
-            limb.estimate.residual_ratio,
-            if orders.is_empty() {
-                String::new()
-            } else {
-                format!("; DoF order found: {}", orders.join(", "))
-            }
-        );
+        outln!("{}", demo_limb_line(limb));
     }
 
     outln!("\n4. Against the truth: each limb's SU poses (relative to the previous SU, 30 random poses) and its");
@@ -1736,26 +1855,7 @@ fn demo(args: DemoArgs) -> Result<()> {
     let rows = demo_rows(&robot, &model, &check)?;
     out!("{}", render::body_table(&rows, &check));
 
-    let (json_path, dot_path, model_path, urdf_path) = (
-        out.join("structure.json"),
-        out.join("structure.dot"),
-        out.join("model.json"),
-        out.join("model.urdf"),
-    );
-    let robot_model = model.check().map_err(|e| anyhow::anyhow!(e))?;
-    io::write_all(
-        &[
-            (json_path.clone(), serde_json::to_string_pretty(&structure)?),
-            (dot_path.clone(), report::structure_dot(&structure)),
-            (model_path.clone(), serde_json::to_string_pretty(&model)?),
-            (
-                urdf_path.clone(),
-                skincal::model::urdf::to_urdf(&robot_model)?,
-            ),
-        ],
-        true,
-    )?;
-    files.extend([json_path, dot_path, model_path, urdf_path]);
+    files.extend(write_demo_results(&out, &structure, &model)?);
     files.extend(held_files);
     outln!("\n5. The robot's own URDF: SU frames on its links, its joints checked\n");
     let urdf_files = urdf::demo_step(&robot, &model, &out)?;

@@ -336,6 +336,48 @@ fn missing_excitations(out: &mut String, e: &skincal::estimate::ml::MlChainEstim
 
 pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     let mut out = String::new();
+    fit_lines(&mut out, e);
+    let _ = writeln!(
+        out,
+        "\n{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
+        "SU",
+        "position sd mm",
+        "orientation sd °",
+        "residual/σ",
+        "bias mg (x, y, z)",
+        "scale % (x, y, z)",
+        "rejected"
+    );
+    for u in &e.uncertainty {
+        su_row(&mut out, e, u);
+    }
+    if e.intrinsics.iter().any(|i| !i.held.is_empty()) {
+        let _ = writeln!(
+            out,
+            "(* not determined by the readings: held near 0 by the prior)"
+        );
+    }
+    if !e.rejected.is_empty() {
+        let _ = writeln!(
+            out,
+            "(rejected: readings left out as glitches, more than 6σ off the fit)"
+        );
+    }
+    let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
+    for u in e.uncertainty.iter().filter(|u| u.is_partial()) {
+        let _ = writeln!(
+            out,
+            "† {}: not determined by any reading: {} (position in the frame it is relative to, turn in its own; the deviations cover the other directions)",
+            u.su,
+            u.undetermined()
+        );
+    }
+    out
+}
+
+/// A limb fit's gravity, residual against the noise, cost, retries, intrinsics tests, missing
+/// excitations and unobservable directions.
+fn fit_lines(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
     let g = e.gravity;
     let _ = writeln!(
         out,
@@ -408,7 +450,7 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
             tests.join("; ")
         );
     }
-    missing_excitations(&mut out, e);
+    missing_excitations(out, e);
     for u in &e.unobservable {
         let _ = writeln!(
             out,
@@ -417,91 +459,63 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
             u.parameters.join(", ")
         );
     }
+}
+
+/// One SU's row of a limb's table: its pose's deviations (marked † where some direction is not
+/// determined), residual, intrinsics (* where held by the prior) and rejected readings.
+fn su_row(
+    out: &mut String,
+    e: &skincal::estimate::ml::MlChainEstimate,
+    u: &skincal::estimate::ml::SuUncertainty,
+) {
+    let i = e.chain.sus().iter().position(|s| *s == u.su);
+    let ratio = i
+        .and_then(|i| e.su_residual_ratio.get(i))
+        .map_or("—".to_string(), |r| format!("{r:.2}"));
+    let intrinsics = e.intrinsics.iter().find(|x| x.su == u.su);
+    let triple = |v: [f64; 3], f: f64, held: &[&str]| {
+        v.iter()
+            .zip(held)
+            .map(|(x, h)| {
+                let mark = if intrinsics.is_some_and(|i| i.held.iter().any(|n| n == h)) {
+                    "*"
+                } else {
+                    ""
+                };
+                format!("{:.0}{mark}", x * f)
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let (bias, scale) = intrinsics.map_or(("—".to_string(), "—".to_string()), |i| {
+        (
+            triple(
+                i.value.bias,
+                1e3 / skincal::model::sensor::STANDARD_GRAVITY,
+                &["bias_x", "bias_y", "bias_z"],
+            ),
+            triple(i.value.scale, 100.0, &["scale_x", "scale_y", "scale_z"]),
+        )
+    });
+    let rejected = e
+        .rejected
+        .iter()
+        .find(|r| r.su == u.su)
+        .map_or(String::new(), |r| {
+            (r.static_readings + r.dynamic_readings).to_string()
+        });
+    let mark = if u.is_partial() { "†" } else { "" };
     let _ = writeln!(
         out,
-        "\n{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
-        "SU",
-        "position sd mm",
-        "orientation sd °",
-        "residual/σ",
-        "bias mg (x, y, z)",
-        "scale % (x, y, z)",
-        "rejected"
+        "{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
+        u.su,
+        format!("{:.2}{mark}", u.position_sd * 1e3),
+        format!("{:.3}{mark}", u.orientation_sd.to_degrees()),
+        ratio,
+        bias,
+        scale,
+        rejected
     );
-    let sus = e.chain.sus();
-    for u in &e.uncertainty {
-        let i = sus.iter().position(|s| *s == u.su);
-        let ratio = i
-            .and_then(|i| e.su_residual_ratio.get(i))
-            .map_or("—".to_string(), |r| format!("{r:.2}"));
-        let intrinsics = e.intrinsics.iter().find(|x| x.su == u.su);
-        let triple = |v: [f64; 3], f: f64, held: &[&str]| {
-            v.iter()
-                .zip(held)
-                .map(|(x, h)| {
-                    let mark = if intrinsics.is_some_and(|i| i.held.iter().any(|n| n == h)) {
-                        "*"
-                    } else {
-                        ""
-                    };
-                    format!("{:.0}{mark}", x * f)
-                })
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        let (bias, scale) = intrinsics.map_or(("—".to_string(), "—".to_string()), |i| {
-            (
-                triple(
-                    i.value.bias,
-                    1e3 / skincal::model::sensor::STANDARD_GRAVITY,
-                    &["bias_x", "bias_y", "bias_z"],
-                ),
-                triple(i.value.scale, 100.0, &["scale_x", "scale_y", "scale_z"]),
-            )
-        });
-        let rejected = e
-            .rejected
-            .iter()
-            .find(|r| r.su == u.su)
-            .map_or(String::new(), |r| {
-                (r.static_readings + r.dynamic_readings).to_string()
-            });
-        // A pose with directions no reading determines is marked: its deviations cover the rest.
-        let mark = if u.is_partial() { "†" } else { "" };
-        let _ = writeln!(
-            out,
-            "{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
-            u.su,
-            format!("{:.2}{mark}", u.position_sd * 1e3),
-            format!("{:.3}{mark}", u.orientation_sd.to_degrees()),
-            ratio,
-            bias,
-            scale,
-            rejected
-        );
-    }
-    if e.intrinsics.iter().any(|i| !i.held.is_empty()) {
-        let _ = writeln!(
-            out,
-            "(* not determined by the readings: held near 0 by the prior)"
-        );
-    }
-    if !e.rejected.is_empty() {
-        let _ = writeln!(
-            out,
-            "(rejected: readings left out as glitches, more than 6σ off the fit)"
-        );
-    }
-    let _ = writeln!(out, "(relative to the previous SU at the zero pose; the first SU relative to the reference frame)");
-    for u in e.uncertainty.iter().filter(|u| u.is_partial()) {
-        let _ = writeln!(
-            out,
-            "† {}: not determined by any reading: {} (position in the frame it is relative to, turn in its own; the deviations cover the other directions)",
-            u.su,
-            u.undetermined()
-        );
-    }
-    out
 }
 
 /// One line of the demo's per-limb table.
