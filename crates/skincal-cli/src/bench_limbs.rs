@@ -185,19 +185,7 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         match run(seed, &args) {
             Ok(o) => {
                 if args.each {
-                    outln!(
-                        "seed {seed:>4}  {:<36} {} DoFs {:>2} SUs  residual {:>6.2} σ  static {:.4}  dynamic {:.4}  SU pose {:>8.2} mm  observable {:>7.2} mm  bound {:>7.2} mm  {:.2} s",
-                        o.name,
-                        o.dofs,
-                        o.sus,
-                        o.residual,
-                        o.statics,
-                        o.dynamics,
-                        o.pose * 1000.0,
-                        o.observable * 1000.0,
-                        o.bound * 1000.0,
-                        o.seconds
-                    );
+                    outln!("seed {seed:>4}  {}", each_line(&o));
                 }
                 outcomes.push(o)
             }
@@ -207,41 +195,7 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
     bar.finish_and_clear();
     let n = outcomes.len();
     let converged = outcomes.iter().filter(|o| o.converged).count();
-    let col = |f: fn(&Outcome) -> f64| outcomes.iter().map(f).collect::<Vec<f64>>();
-    let mut table = String::new();
-    let mut summary = serde_json::Map::new();
-    let _ = writeln!(
-        table,
-        "{:<24} {:>10} {:>10} {:>10}",
-        "", "median", "95 %", "max"
-    );
-    let rows: [(&str, Vec<f64>, f64); 7] = [
-        ("residual / σ", col(|o| o.residual), 1.0),
-        ("held-out static, m/s²", col(|o| o.statics), 1.0),
-        ("held-out dynamic, m/s²", col(|o| o.dynamics), 1.0),
-        ("SU pose RMS, mm", col(|o| o.pose), 1000.0),
-        ("  observable part, mm", col(|o| o.observable), 1000.0),
-        ("  / its bound", col(|o| o.observable / o.bound), 1.0),
-        ("calibrate, s", col(|o| o.seconds), 1.0),
-    ];
-    for (name, values, scale) in rows {
-        summary.insert(
-            name.trim().to_string(),
-            serde_json::json!({
-                "median": percentile(&values, 0.5) * scale,
-                "p95": percentile(&values, 0.95) * scale,
-                "max": percentile(&values, 1.0) * scale,
-            }),
-        );
-        let _ = writeln!(
-            table,
-            "{:<24} {:>10.4} {:>10.4} {:>10.4}",
-            name,
-            percentile(&values, 0.5) * scale,
-            percentile(&values, 0.95) * scale,
-            percentile(&values, 1.0) * scale
-        );
-    }
+    let (table, summary) = summary_table(&outcomes);
     out!("{table}");
     outln!(
         "\nconverged (residual ≤ 1.5 σ): {converged} of {n} ({:.1} %)",
@@ -277,20 +231,83 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
         "summary": summary,
         "each": outcomes,
     }));
-    let failed: Vec<&Outcome> = outcomes.iter().filter(|o| !o.converged).collect();
-    if !failed.is_empty() {
-        outln!("\nnot converged (geometry: first axis Vertical/Horizontal, then per joint its relation to the previous one — Parallel, Intersecting, Offset, Along the link — and its DoF count):");
-        for o in failed {
-            outln!(
-                "  {:<36} {} DoFs {:>2} SUs  {}",
-                o.name,
-                o.dofs,
-                o.sus,
-                o.failure
-                    .clone()
-                    .unwrap_or_else(|| format!("residual {:.2} σ", o.residual))
-            );
-        }
-    }
+    not_converged(&outcomes);
     Ok(())
+}
+
+/// One limb's line (`--each`).
+fn each_line(o: &Outcome) -> String {
+    format!(
+        "{:<36} {} DoFs {:>2} SUs  residual {:>6.2} σ  static {:.4}  dynamic {:.4}  SU pose {:>8.2} mm  observable {:>7.2} mm  bound {:>7.2} mm  {:.2} s",
+        o.name,
+        o.dofs,
+        o.sus,
+        o.residual,
+        o.statics,
+        o.dynamics,
+        o.pose * 1000.0,
+        o.observable * 1000.0,
+        o.bound * 1000.0,
+        o.seconds
+    )
+}
+
+/// Median, 95th percentile and largest of each figure over the limbs, as a table and as JSON.
+fn summary_table(outcomes: &[Outcome]) -> (String, serde_json::Map<String, serde_json::Value>) {
+    let col = |f: fn(&Outcome) -> f64| outcomes.iter().map(f).collect::<Vec<f64>>();
+    let mut table = String::new();
+    let mut summary = serde_json::Map::new();
+    let _ = writeln!(
+        table,
+        "{:<24} {:>10} {:>10} {:>10}",
+        "", "median", "95 %", "max"
+    );
+    let rows: [(&str, Vec<f64>, f64); 7] = [
+        ("residual / σ", col(|o| o.residual), 1.0),
+        ("held-out static, m/s²", col(|o| o.statics), 1.0),
+        ("held-out dynamic, m/s²", col(|o| o.dynamics), 1.0),
+        ("SU pose RMS, mm", col(|o| o.pose), 1000.0),
+        ("  observable part, mm", col(|o| o.observable), 1000.0),
+        ("  / its bound", col(|o| o.observable / o.bound), 1.0),
+        ("calibrate, s", col(|o| o.seconds), 1.0),
+    ];
+    for (name, values, scale) in rows {
+        summary.insert(
+            name.trim().to_string(),
+            serde_json::json!({
+                "median": percentile(&values, 0.5) * scale,
+                "p95": percentile(&values, 0.95) * scale,
+                "max": percentile(&values, 1.0) * scale,
+            }),
+        );
+        let _ = writeln!(
+            table,
+            "{:<24} {:>10.4} {:>10.4} {:>10.4}",
+            name,
+            percentile(&values, 0.5) * scale,
+            percentile(&values, 0.95) * scale,
+            percentile(&values, 1.0) * scale
+        );
+    }
+    (table, summary)
+}
+
+/// The limbs that did not converge, with their geometry and why.
+fn not_converged(outcomes: &[Outcome]) {
+    let failed: Vec<&Outcome> = outcomes.iter().filter(|o| !o.converged).collect();
+    if failed.is_empty() {
+        return;
+    }
+    outln!("\nnot converged (geometry: first axis Vertical/Horizontal, then per joint its relation to the previous one — Parallel, Intersecting, Offset, Along the link — and its DoF count):");
+    for o in failed {
+        outln!(
+            "  {:<36} {} DoFs {:>2} SUs  {}",
+            o.name,
+            o.dofs,
+            o.sus,
+            o.failure
+                .clone()
+                .unwrap_or_else(|| format!("residual {:.2} σ", o.residual))
+        );
+    }
 }

@@ -254,6 +254,62 @@ pub(crate) fn motion_of(
     Ok(record)
 }
 
+/// An SU's line of the check's table, and the notes under it.
+fn su_lines(su: &SuCheck) -> String {
+    let (shift, turn, bias) = su.change.map_or(
+        ("—".to_string(), "—".to_string(), "—".to_string()),
+        |c| {
+            let norm = |v: [f64; 3]| nalgebra::Vector3::from(v).norm();
+            let sd = |v: Option<[f64; 3]>| {
+                v.map_or(String::new(), |v| {
+                    format!("±{:.1}", norm(v) * 1e3 / 3f64.sqrt())
+                })
+            };
+            (
+                format!("{:.1}{}", norm(c.shift) * 1e3, sd(c.shift_sd)),
+                format!("{:.2}", norm(c.turn).to_degrees()),
+                format!(
+                    "{:.1}",
+                    norm(c.bias) / skincal::model::sensor::STANDARD_GRAVITY * 1e3
+                ),
+            )
+        },
+    );
+    let mut s = format!(
+        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9.1e} {:>7.2}\n",
+        su.su,
+        su.verdict.word(),
+        su.blocks,
+        shift,
+        turn,
+        bias,
+        su.p_value,
+        su.residual_ratio
+    );
+    if su.verdict == skincal::check::Verdict::NotEnoughMotion {
+        s += &format!("{:<14} {}\n", "", su.untold);
+    }
+    if !su.never_told.is_empty() {
+        s += &format!("{:<14} {}\n", "", su.never_told);
+    }
+    if let Some(zero) = &su.or_zero {
+        s += &format!(
+            "{:<14} or the zero of {} moved by {:.2}° ± {:.2}°: this one SU cannot tell the two apart\n",
+            "",
+            zero.dof,
+            zero.offset.to_degrees(),
+            zero.offset_sd.to_degrees()
+        );
+    }
+    if let (skincal::check::Verdict::Broken { .. }, Some(c)) = (&su.verdict, su.samples) {
+        s += &format!(
+            "{:<14} {} samples: {} repeats of the one before (one value for {:.1} s at most), {} unusable ({:.1} s at most)\n",
+            "", c.sent, c.repeated, c.longest_repeat, c.unusable, c.longest_unusable
+        );
+    }
+    s
+}
+
 /// One line per SU: its verdict, the change found with its deviation, the test, what the log does
 /// not tell.
 fn table(report: &CheckReport) -> String {
@@ -270,57 +326,7 @@ fn table(report: &CheckReport) -> String {
         "SU", "verdict", "blocks", "shift mm", "turn °", "bias mg", "p", "resid"
     );
     for su in &report.sus {
-        let (shift, turn, bias) = su.change.map_or(
-            ("—".to_string(), "—".to_string(), "—".to_string()),
-            |c| {
-                let norm = |v: [f64; 3]| nalgebra::Vector3::from(v).norm();
-                let sd = |v: Option<[f64; 3]>| {
-                    v.map_or(String::new(), |v| {
-                        format!("±{:.1}", norm(v) * 1e3 / 3f64.sqrt())
-                    })
-                };
-                (
-                    format!("{:.1}{}", norm(c.shift) * 1e3, sd(c.shift_sd)),
-                    format!("{:.2}", norm(c.turn).to_degrees()),
-                    format!(
-                        "{:.1}",
-                        norm(c.bias) / skincal::model::sensor::STANDARD_GRAVITY * 1e3
-                    ),
-                )
-            },
-        );
-        s += &format!(
-            "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9.1e} {:>7.2}\n",
-            su.su,
-            su.verdict.word(),
-            su.blocks,
-            shift,
-            turn,
-            bias,
-            su.p_value,
-            su.residual_ratio
-        );
-        if su.verdict == skincal::check::Verdict::NotEnoughMotion {
-            s += &format!("{:<14} {}\n", "", su.untold);
-        }
-        if !su.never_told.is_empty() {
-            s += &format!("{:<14} {}\n", "", su.never_told);
-        }
-        if let Some(zero) = &su.or_zero {
-            s += &format!(
-                "{:<14} or the zero of {} moved by {:.2}° ± {:.2}°: this one SU cannot tell the two apart\n",
-                "",
-                zero.dof,
-                zero.offset.to_degrees(),
-                zero.offset_sd.to_degrees()
-            );
-        }
-        if let (skincal::check::Verdict::Broken { .. }, Some(c)) = (&su.verdict, su.samples) {
-            s += &format!(
-                "{:<14} {} samples: {} repeats of the one before (one value for {:.1} s at most), {} unusable ({:.1} s at most)\n",
-                "", c.sent, c.repeated, c.longest_repeat, c.unusable, c.longest_unusable
-            );
-        }
+        s += &su_lines(su);
     }
     if let Some(zero) = &report.zero {
         s += &format!(

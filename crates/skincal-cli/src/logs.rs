@@ -658,7 +658,16 @@ fn render_plan(plan: &Plan) -> String {
             }
         );
     }
-    if let (Some(f), true) = (&plan.forecast, sweep.is_some()) {
+    if let Some(f) = &plan.forecast {
+        render_forecast(&mut s, f, sweep.is_some());
+    }
+    s
+}
+
+/// What the plan's forecast expects the calibration to reach.
+fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool) {
+    use std::fmt::Write as _;
+    if sweep {
         let _ = writeln!(
             s,
             "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the sweep\n  \
@@ -667,7 +676,7 @@ fn render_plan(plan: &Plan) -> String {
              held-out poses)",
             f.static_rms, f.dynamic_rms, f.noise.sample_sd, f.noise.static_sd, f.held_out
         );
-    } else if let Some(f) = &plan.forecast {
+    } else {
         let _ = writeln!(
             s,
             "\nForecast: held-out RMS static {:.4} m/s², dynamic {:.4} m/s² from the {} training \
@@ -684,7 +693,6 @@ fn render_plan(plan: &Plan) -> String {
             f.held_out
         );
     }
-    s
 }
 
 /// The excitation pattern and its window.
@@ -862,32 +870,7 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
         },
     )?;
     let plan = skincal::io::read_plan(&args.plan)?;
-    let mut imperfections = Imperfections {
-        uniform_noise: args.noise,
-        bias: args.bias,
-        ..Imperfections::none()
-    };
-    if args.bma150 {
-        imperfections = imperfections.with_bma150();
-    }
-    let config = LogConfig {
-        rate: args.rate,
-        orientation: if args.tilted {
-            BaseOrientation::tilted()
-        } else {
-            BaseOrientation::upright()
-        },
-        part: args.part.map(|p| match p {
-            PartArg::Structure => Part::Structure,
-            PartArg::Training => Part::Training,
-        }),
-        imperfections,
-        encoder_resolution: args.encoder_resolution,
-        jitter: args.jitter,
-        drop_probability: args.drop,
-        seed: args.seed,
-        ..LogConfig::default()
-    };
+    let config = log_config(&args);
     let truth_path = truth_path(&args.out);
     if !args.force && truth_path.exists() {
         bail!(
@@ -895,21 +878,7 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
             truth_path.display()
         );
     }
-    let mut sink: Box<dyn LogSink> = match args.format {
-        LogFormatArg::Mcap if args.imu_batch => Box::new(
-            McapSink::new(
-                &args.out,
-                Topics::default(),
-                args.compression.into(),
-                args.force,
-            )
-            .batched(),
-        ),
-        LogFormatArg::Csv if args.imu_batch => {
-            anyhow::bail!("--imu-batch is an MCAP layout: leave it out with --format csv")
-        }
-        _ => sink_for(args.format, &args.out, args.compression.into(), args.force),
-    };
+    let mut sink = record_sink(&args)?;
     let started = Instant::now();
     let bar = progress_bar(1000, "simulating");
     let summary = record(&robot, &plan, &config, sink.as_mut(), &mut |f| {
@@ -961,6 +930,55 @@ pub(crate) fn record_log(args: RecordArgs) -> Result<()> {
         "saturated": summary.saturated,
     }));
     Ok(())
+}
+
+/// How `record` runs the plan and records it.
+fn log_config(args: &RecordArgs) -> LogConfig {
+    let mut imperfections = Imperfections {
+        uniform_noise: args.noise,
+        bias: args.bias,
+        ..Imperfections::none()
+    };
+    if args.bma150 {
+        imperfections = imperfections.with_bma150();
+    }
+    LogConfig {
+        rate: args.rate,
+        orientation: if args.tilted {
+            BaseOrientation::tilted()
+        } else {
+            BaseOrientation::upright()
+        },
+        part: args.part.map(|p| match p {
+            PartArg::Structure => Part::Structure,
+            PartArg::Training => Part::Training,
+        }),
+        imperfections,
+        encoder_resolution: args.encoder_resolution,
+        jitter: args.jitter,
+        drop_probability: args.drop,
+        seed: args.seed,
+        ..LogConfig::default()
+    }
+}
+
+/// The log `record` writes: its format, and for MCAP one message per SU or batches.
+fn record_sink(args: &RecordArgs) -> Result<Box<dyn LogSink>> {
+    Ok(match args.format {
+        LogFormatArg::Mcap if args.imu_batch => Box::new(
+            McapSink::new(
+                &args.out,
+                Topics::default(),
+                args.compression.into(),
+                args.force,
+            )
+            .batched(),
+        ),
+        LogFormatArg::Csv if args.imu_batch => {
+            anyhow::bail!("--imu-batch is an MCAP layout: leave it out with --format csv")
+        }
+        _ => sink_for(args.format, &args.out, args.compression.into(), args.force),
+    })
 }
 
 /// `run/upright.mcap` → `run/upright.truth.json`; a CSV directory `run/log` → `run/log.truth.json`.
@@ -1078,44 +1096,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     if args.json {
         out::json_mode();
     }
-    let mut config = IngestConfig {
-        topics: Topics {
-            joints: args.joint_topic.clone(),
-            imu: args.imu_topic.clone(),
-        },
-        still_velocity: args.still_velocity,
-        quiet_velocity: args.quiet_velocity,
-        min_pause: args.min_pause,
-        motion_threshold: args.motion_threshold,
-        coupled_fraction: args.coupled_fraction,
-        filter: args.filter,
-        max_gap: args.max_gap,
-        saturation: args.saturation * STANDARD_GRAVITY,
-        skin_scale: args.skin_unit.scale(),
-        explore: skincal::explore::ExploreConfig {
-            threshold: args.explore_threshold,
-            ..Default::default()
-        },
-        ..IngestConfig::default()
-    };
-    if let Some(spec) = &args.robot {
-        let robot = io::load_robot(spec, SuPlacement::default())?;
-        config.dofs = Some(robot.model.dof_names());
-        config.sus = Some(robot.model.su_names());
-    }
-    if let Some(path) = &args.plan {
-        let plan = skincal::io::read_plan(path)?;
-        config.pattern = Some(plan.pattern);
-        if config.dofs.is_none() {
-            config.dofs = Some(plan.dof_names());
-        }
-        config = config.for_still_periods(plan.config.still);
-    }
-    config.min_still = args.min_still.unwrap_or(config.min_still);
-    config.trim = args.trim.unwrap_or(config.trim);
-    if let Some(p) = &args.pattern {
-        config.pattern = Some(parse_pattern(p)?);
-    }
+    let config = ingest_config(&args)?;
     let measurements = args.out.join("measurements.json");
     let report_path = args.out.join("ingest-report.json");
     let motion_path = args.out.join("motion.json");
@@ -1196,6 +1177,49 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         "motion_blocks": motion.as_ref().map(|r| r.blocks()),
     }));
     Ok(())
+}
+
+/// The ingestion's settings from the options, the robot's description and the plan.
+fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
+    let mut config = IngestConfig {
+        topics: Topics {
+            joints: args.joint_topic.clone(),
+            imu: args.imu_topic.clone(),
+        },
+        still_velocity: args.still_velocity,
+        quiet_velocity: args.quiet_velocity,
+        min_pause: args.min_pause,
+        motion_threshold: args.motion_threshold,
+        coupled_fraction: args.coupled_fraction,
+        filter: args.filter,
+        max_gap: args.max_gap,
+        saturation: args.saturation * STANDARD_GRAVITY,
+        skin_scale: args.skin_unit.scale(),
+        explore: skincal::explore::ExploreConfig {
+            threshold: args.explore_threshold,
+            ..Default::default()
+        },
+        ..IngestConfig::default()
+    };
+    if let Some(spec) = &args.robot {
+        let robot = io::load_robot(spec, SuPlacement::default())?;
+        config.dofs = Some(robot.model.dof_names());
+        config.sus = Some(robot.model.su_names());
+    }
+    if let Some(path) = &args.plan {
+        let plan = skincal::io::read_plan(path)?;
+        config.pattern = Some(plan.pattern);
+        if config.dofs.is_none() {
+            config.dofs = Some(plan.dof_names());
+        }
+        config = config.for_still_periods(plan.config.still);
+    }
+    config.min_still = args.min_still.unwrap_or(config.min_still);
+    config.trim = args.trim.unwrap_or(config.trim);
+    if let Some(p) = &args.pattern {
+        config.pattern = Some(parse_pattern(p)?);
+    }
+    Ok(config)
 }
 
 fn render_report(r: &IngestReport) -> String {

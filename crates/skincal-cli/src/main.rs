@@ -1300,23 +1300,7 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     let bar = crate::out::progress_bar(args.seeds, "bench calibrate: seeds");
     for seed in args.first_seed..args.first_seed.saturating_add(args.seeds) {
         bar.inc(1);
-        let config = SimulationConfig {
-            poses: args.poses,
-            seed,
-            imperfections: Imperfections {
-                uniform_noise: args.noise,
-                bias: args.bias,
-                scale: args.scale,
-                ..Imperfections::none()
-            },
-            ..SimulationConfig::default()
-        };
-        let truth = if args.random_chains {
-            sim::random_dh_chain(7, seed)?
-        } else {
-            paper.clone()
-        };
-        let set = sim::simulate(&truth, &config)?.measurements;
+        let (truth, set) = bench_set(&args, &paper, seed)?;
         let data = ChainData::new(&set, &chain)?;
         let mut seed_bound = None;
         for (model, position, rotation) in &mut bounds {
@@ -1378,6 +1362,32 @@ fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
         fig6_accuracy,
     ));
     Ok(())
+}
+
+/// The bench's robot for `seed` (the paper's arm, or a random DH chain) and its simulated set.
+fn bench_set(
+    args: &BenchCalibrateArgs,
+    paper: &skincal::model::Robot,
+    seed: u64,
+) -> Result<(skincal::model::Robot, skincal::measurements::MeasurementSet)> {
+    let config = SimulationConfig {
+        poses: args.poses,
+        seed,
+        imperfections: Imperfections {
+            uniform_noise: args.noise,
+            bias: args.bias,
+            scale: args.scale,
+            ..Imperfections::none()
+        },
+        ..SimulationConfig::default()
+    };
+    let truth = if args.random_chains {
+        sim::random_dh_chain(7, seed)?
+    } else {
+        paper.clone()
+    };
+    let set = sim::simulate(&truth, &config)?.measurements;
+    Ok((truth, set))
 }
 
 /// One calibration of the bench: the estimated robot, whether it converged, its time and its

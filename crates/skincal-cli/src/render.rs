@@ -192,26 +192,6 @@ pub fn calibration_bench(
         "", "median s", "median iter", "pos RMS mm", "pos max mm", "rot RMS °", "rot max °"
     );
     let _ = writeln!(out, "{header}");
-    let line = |out: &mut String,
-                label: &str,
-                seconds: Option<f64>,
-                evaluations: Option<f64>,
-                a: (f64, f64, f64, f64)| {
-        let s = seconds.map_or("—".into(), |s| format!("{s:.4}"));
-        let e = evaluations.map_or("—".into(), |e| format!("{e:.0}"));
-        let _ = writeln!(
-            out,
-            "{label:<34} {s:>10} {e:>12} {:>12.2} {:>12.2} {:>11.3} {:>11.3}",
-            a.0 * 1e3,
-            a.1 * 1e3,
-            a.2.to_degrees(),
-            a.3.to_degrees()
-        );
-    };
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
     let mut medians = Vec::new();
     for (method, rows) in methods {
         let name = match method {
@@ -220,65 +200,10 @@ pub fn calibration_bench(
         };
         if verbose {
             for r in rows {
-                let a = &r.accuracy;
-                line(
-                    &mut out,
-                    &format!(
-                        "{name} seed {}{}",
-                        r.seed,
-                        if r.converged { "" } else { " (not converged)" }
-                    ),
-                    Some(r.seconds),
-                    Some(r.evaluations as f64),
-                    (
-                        a.position_rms,
-                        a.position_max,
-                        a.rotation_rms,
-                        a.rotation_max,
-                    ),
-                );
-                if let Some((p, q)) = r.bound {
-                    out.pop();
-                    let _ = writeln!(out, "   bound {:.2} mm {:.3}°", p * 1e3, q.to_degrees());
-                }
+                bench_seed_line(&mut out, name, r);
             }
         }
-        let n = rows.len() as f64;
-        let pooled =
-            |f: fn(&BenchRow) -> f64| (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / n).sqrt();
-        let worst = |f: fn(&BenchRow) -> f64| rows.iter().map(f).fold(0.0, f64::max);
-        let m = median(rows.iter().map(|r| r.seconds).collect());
-        medians.push((name, m));
-        line(
-            &mut out,
-            &format!("{name}: all {} seeds", rows.len()),
-            Some(m),
-            Some(median(rows.iter().map(|r| r.evaluations as f64).collect())),
-            (
-                pooled(|r| r.accuracy.position_rms),
-                worst(|r| r.accuracy.position_max),
-                pooled(|r| r.accuracy.rotation_rms),
-                worst(|r| r.accuracy.rotation_max),
-            ),
-        );
-        let converged = rows.iter().filter(|r| r.converged).count();
-        let failed: Vec<String> = rows
-            .iter()
-            .filter(|r| !r.converged)
-            .map(|r| r.seed.to_string())
-            .collect();
-        let _ = writeln!(
-            out,
-            "{:<34} converged {converged} of {} ({:.1} %){}",
-            "",
-            rows.len(),
-            100.0 * converged as f64 / n,
-            if failed.is_empty() {
-                String::new()
-            } else {
-                format!("; not converged: seeds {}", failed.join(", "))
-            }
-        );
+        medians.push((name, bench_method_lines(&mut out, name, rows)));
     }
     for (label, bound) in bounds {
         let _ = writeln!(
@@ -294,7 +219,7 @@ pub fn calibration_bench(
         );
     }
     if let Some(fig6) = fig6 {
-        line(
+        bench_line(
             &mut out,
             "paper's Fig. 6 estimate (its run)",
             Some(86.0),
@@ -315,6 +240,97 @@ pub fn calibration_bench(
     }
     let _ = writeln!(out, "(iterations: NLopt evaluations for paper, LM iterations for ml; the paper's own time is on a 2.26 GHz Core 2 Duo)");
     out
+}
+
+/// One line of the calibration bench: time, iterations and the position and rotation errors
+/// `(RMS, max, RMS, max)` in m and rad.
+fn bench_line(
+    out: &mut String,
+    label: &str,
+    seconds: Option<f64>,
+    evaluations: Option<f64>,
+    a: (f64, f64, f64, f64),
+) {
+    let s = seconds.map_or("—".into(), |s| format!("{s:.4}"));
+    let e = evaluations.map_or("—".into(), |e| format!("{e:.0}"));
+    let _ = writeln!(
+        out,
+        "{label:<34} {s:>10} {e:>12} {:>12.2} {:>12.2} {:>11.3} {:>11.3}",
+        a.0 * 1e3,
+        a.1 * 1e3,
+        a.2.to_degrees(),
+        a.3.to_degrees()
+    );
+}
+
+/// One seed's line (`--verbose`), with its Cramér–Rao bound.
+fn bench_seed_line(out: &mut String, name: &str, r: &BenchRow) {
+    let a = &r.accuracy;
+    bench_line(
+        out,
+        &format!(
+            "{name} seed {}{}",
+            r.seed,
+            if r.converged { "" } else { " (not converged)" }
+        ),
+        Some(r.seconds),
+        Some(r.evaluations as f64),
+        (
+            a.position_rms,
+            a.position_max,
+            a.rotation_rms,
+            a.rotation_max,
+        ),
+    );
+    if let Some((p, q)) = r.bound {
+        out.pop();
+        let _ = writeln!(out, "   bound {:.2} mm {:.3}°", p * 1e3, q.to_degrees());
+    }
+}
+
+/// A method's summary over its seeds (errors pooled, worst cases, medians) and how many
+/// converged; returns its median time.
+fn bench_method_lines(out: &mut String, name: &str, rows: &[BenchRow]) -> f64 {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let n = rows.len() as f64;
+    let pooled =
+        |f: fn(&BenchRow) -> f64| (rows.iter().map(|r| f(r).powi(2)).sum::<f64>() / n).sqrt();
+    let worst = |f: fn(&BenchRow) -> f64| rows.iter().map(f).fold(0.0, f64::max);
+    let m = median(rows.iter().map(|r| r.seconds).collect());
+    bench_line(
+        out,
+        &format!("{name}: all {} seeds", rows.len()),
+        Some(m),
+        Some(median(rows.iter().map(|r| r.evaluations as f64).collect())),
+        (
+            pooled(|r| r.accuracy.position_rms),
+            worst(|r| r.accuracy.position_max),
+            pooled(|r| r.accuracy.rotation_rms),
+            worst(|r| r.accuracy.rotation_max),
+        ),
+    );
+    let converged = rows.iter().filter(|r| r.converged).count();
+    let failed: Vec<String> = rows
+        .iter()
+        .filter(|r| !r.converged)
+        .map(|r| r.seed.to_string())
+        .collect();
+    let _ = writeln!(
+        out,
+        "{:<34} converged {converged} of {} ({:.1} %){}",
+        "",
+        rows.len(),
+        100.0 * converged as f64 / n,
+        if failed.is_empty() {
+            String::new()
+        } else {
+            format!("; not converged: seeds {}", failed.join(", "))
+        }
+    );
+    m
 }
 
 /// The line naming the DoFs whose dynamic readings the set lacks, if any.
