@@ -111,24 +111,28 @@ pub(crate) fn calibrate(args: CalibrateArgs) -> Result<()> {
     } else {
         None
     };
-    if args.method == Method::Ml {
-        return calibrate_ml(
-            &args,
-            &set,
-            structure.as_ref(),
-            truth.as_ref(),
-            &source,
-            &dir,
-        );
+    let inputs = Inputs {
+        set: &set,
+        structure: structure.as_ref(),
+        truth: truth.as_ref(),
+        source: &source,
+        dir: &dir,
+    };
+    match args.method {
+        Method::Ml => calibrate_ml(&args, &inputs),
+        Method::Paper => calibrate_paper(&args, &inputs),
     }
-    calibrate_paper(
-        &args,
-        &set,
-        structure.as_ref(),
-        truth.as_ref(),
-        &source,
-        &dir,
-    )
+}
+
+/// What a calibration starts from: the set, its structure (and where it came from), the truth
+/// where the set has one, and the set's directory (where the model is written).
+#[derive(Clone, Copy)]
+struct Inputs<'a> {
+    set: &'a skincal::measurements::MeasurementSet,
+    structure: Option<&'a skincal::explore::Structure>,
+    truth: Option<&'a skincal::model::Robot>,
+    source: &'a str,
+    dir: &'a Path,
 }
 
 /// A set with too few training poses is calibrated from its motion record: the paper's method
@@ -170,14 +174,14 @@ fn refuse_readings_without_readings(
 
 /// `calibrate --method paper`: every chain by the paper's progressive steps, each reported with
 /// its DH tables (beside the truth's where there is one) and steps.
-fn calibrate_paper(
-    args: &CalibrateArgs,
-    set: &skincal::measurements::MeasurementSet,
-    structure: Option<&skincal::explore::Structure>,
-    truth: Option<&skincal::model::Robot>,
-    source: &str,
-    dir: &Path,
-) -> Result<()> {
+fn calibrate_paper(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
+    let Inputs {
+        set,
+        structure,
+        truth,
+        source,
+        dir,
+    } = *inputs;
     let chains = estimate::paper::chains(set, structure, args.limb.as_deref())?;
     let config = PaperConfig {
         seed: args.seed,
@@ -249,14 +253,14 @@ fn calibrate_paper(
     Ok(())
 }
 
-fn calibrate_ml(
-    args: &CalibrateArgs,
-    set: &skincal::measurements::MeasurementSet,
-    structure: Option<&skincal::explore::Structure>,
-    truth: Option<&skincal::model::Robot>,
-    source: &str,
-    dir: &Path,
-) -> Result<()> {
+fn calibrate_ml(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
+    let Inputs {
+        set,
+        structure,
+        truth,
+        source,
+        dir,
+    } = *inputs;
     use skincal::estimate::ml::MlConfig;
     let uniform = args.noise.unwrap_or(DEFAULT_NOISE);
     let config = MlConfig {

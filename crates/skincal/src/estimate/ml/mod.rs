@@ -1652,10 +1652,7 @@ fn final_fit(
         noise_components,
         rejected,
     };
-    let mut estimate = fit.estimate(data, fixed, config)?;
-    estimate.iterations = iterations;
-    estimate.seconds = started.elapsed().as_secs_f64();
-    Ok(estimate)
+    fit.estimate(data, fixed, (iterations, started), config)
 }
 
 /// A limb's final fit and what is known of its precision.
@@ -1671,16 +1668,17 @@ struct FinalFit {
 }
 
 impl FinalFit {
-    /// All that is reported of the fit (`fixed`: what its gauge holds); the iterations and time
-    /// are the caller's to fill in.
+    /// All that is reported of the fit (`fixed`: what its gauge holds), which took `iterations`
+    /// from `started`.
     fn estimate(
         self,
         data: &LimbData,
         fixed: Vec<String>,
+        (iterations, started): (usize, Instant),
         config: &MlConfig,
     ) -> Result<MlChainEstimate, EstimateError> {
         let (state, layout, spec, precision) =
-            (self.state, &self.layout, &self.spec, &self.precision);
+            (self.state, &self.layout, &self.spec, self.precision);
         let readings = &precision.readings;
         let residual_ratio = precision.residual_ratio;
         let flat_dofs = data.chain.dofs();
@@ -1721,9 +1719,9 @@ impl FinalFit {
                 }
             }),
             su_residual_ratio: su_residual_ratios(&state, layout, readings, spec, config.noise_sd),
-            unobservable: self.precision.unobservable.clone(),
-            iterations: 0,
-            seconds: 0.0,
+            unobservable: precision.unobservable,
+            iterations,
+            seconds: started.elapsed().as_secs_f64(),
             state: Some(state),
         })
     }
