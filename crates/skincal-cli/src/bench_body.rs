@@ -45,6 +45,10 @@ pub struct BenchBodyArgs {
     /// Data sets (seeds 1…N).
     #[arg(long, default_value_t = 5)]
     seeds: u64,
+    /// Fit each limb on its own only (as `calibrate --limb-by-limb`), not each tree's limbs
+    /// together afterwards.
+    #[arg(long)]
+    limb_by_limb: bool,
 }
 
 /// One data set.
@@ -173,6 +177,7 @@ fn run(robot: &Robot, seed: u64, args: &BenchBodyArgs) -> Result<Result<Run, Str
     let t1 = Instant::now();
     let ml = MlConfig {
         noise_sd: args.noise * STANDARD_GRAVITY / 3f64.sqrt(),
+        whole_tree: !args.limb_by_limb,
         ..Default::default()
     };
     let model = match calibrate_body(&set, Some(&structure), &ml, None) {

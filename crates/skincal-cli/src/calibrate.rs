@@ -56,6 +56,11 @@ pub(crate) struct CalibrateArgs {
     /// (method ml).
     #[arg(long)]
     readings_only: bool,
+    /// Fit each limb on its own only: a limb on another limb's segment keeps the path and gravity
+    /// that limb's own SUs gave (by default the limbs of each tree are then fitted together, so
+    /// that a trunk's DoFs are estimated from every SU they move; method ml).
+    #[arg(long)]
+    limb_by_limb: bool,
 }
 
 /// The structure to calibrate: DIR/structure.json, else from exploring the set, else none (the
@@ -268,6 +273,7 @@ fn calibrate_ml(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
         intrinsics: args.intrinsics.into(),
         select_intrinsics: args.intrinsics.selects(),
         reading_sd: args.noise.is_none(),
+        whole_tree: !args.limb_by_limb,
         ..MlConfig::default()
     };
     let own = config.reading_sd

@@ -10,6 +10,11 @@
 //! segment hangs on the segment of its parent limb, fully determined. SUs on the reference segment
 //! read a constant: only their tilt is known (placed at the origin, turned so that their reading
 //! is gravity).
+//!
+//! **Order.** Each limb is searched and fitted on its own, parent first, a sub-limb with its base
+//! path and gravity held at its parent's estimate; then the limbs of each tree (a limb on the
+//! reference segment and every limb on it) are fitted again together ([`refine_trees`]), so that
+//! a trunk's DoFs are estimated from every SU they move (`MlConfig::whole_tree`).
 
 use std::collections::BTreeMap;
 
@@ -18,8 +23,8 @@ use serde::{Deserialize, Serialize};
 
 use super::limb::{limb_chains, LimbChain, LimbData};
 use super::ml::{
-    estimate_limb, order_on_motion, refine_on_motion, LimbBase, LimbMotion, MlChainEstimate,
-    MlConfig,
+    estimate_limb, order_on_motion, refine_on_motion, refine_trees, LimbBase, LimbMotion,
+    MlChainEstimate, MlConfig,
 };
 use super::sublimb;
 use super::{chain_in_listed_order, EstimateError};
@@ -404,8 +409,8 @@ fn calibrate_body_on(
 /// Every limb of the body in parent-first order with `config` as it is (see
 /// [`calibrate_body_on`]): each limb searched and fitted on its parent's base path, rescued
 /// where it does not converge (with its parent, or with its path free; a parent with its
-/// children), its misfit SUs set aside, fitted on every sample of `motion`; then the reference
-/// segment's SUs and the model.
+/// children), its misfit SUs set aside, fitted on every sample of `motion`; then each tree's
+/// limbs fitted together (with `whole_tree`), the reference segment's SUs and the model.
 fn calibrate_limbs(
     set: &MeasurementSet,
     motion: Option<&MotionRecord>,
@@ -464,10 +469,13 @@ fn calibrate_limbs(
     let static_sus = structure.map_or_else(Vec::new, |s| reference_sus(set, s, training, config));
     let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
     let Fitted {
-        estimates,
+        mut estimates,
         parents,
         broken,
     } = fitted;
+    if config.whole_tree {
+        refine_trees(&mut estimates, &parents, config)?;
+    }
     let parents = parents
         .iter()
         .map(|p| p.map(|p| estimates[p].chain.name.clone()))

@@ -31,6 +31,10 @@
 //! standard deviations where the set has them, with a Huber weight per reading; weak 10 m priors
 //! hold what no reading tells near the frames during the solves (never in what is reported).
 //!
+//! **Trees** (`tree.rs`). A limb on another limb's segment is fitted with its base path and
+//! gravity held; afterwards every limb of a tree is fitted again in one problem, gravity and each
+//! DoF's line shared by every SU they move, each limb's SU blocks eliminated as in its own fit.
+//!
 //! **Initialisation**, segment by segment (the physics first, search only where it is needed):
 //! 1. An SU on the segment that DoF `k` moves directly sees all its DoF-`k` accelerations
 //!    perpendicular to the axis: the axis direction in the SU frame is the right singular vector of
@@ -54,8 +58,10 @@ mod init;
 mod motion;
 mod problem;
 mod terms;
+mod tree;
 
 pub use motion::{LimbMotion, MAX_DELAY};
+pub use tree::refine_trees;
 
 pub use bound::{
     cramer_rao_bound, limb_state_of, observable_su_errors, state_of, ObservableErrors,
@@ -110,6 +116,14 @@ pub struct MlConfig {
     /// (ingested logs); `noise_sd` is then only the unit the residuals are reported in.
     #[serde(default = "weigh_by_reading_sd")]
     pub reading_sd: bool,
+    /// Fit the limbs of each tree together after the limb-by-limb fits ([`refine_trees`]): a
+    /// DoF's line from every SU it moves, not only from its own limb's.
+    #[serde(default = "fit_whole_trees")]
+    pub whole_tree: bool,
+}
+
+fn fit_whole_trees() -> bool {
+    true
 }
 
 fn weigh_by_reading_sd() -> bool {
@@ -166,6 +180,7 @@ impl Default for MlConfig {
             intrinsics: IntrinsicsModel::default(),
             select_intrinsics: true,
             reading_sd: true,
+            whole_tree: true,
         }
     }
 }
@@ -574,6 +589,30 @@ pub struct MlChainEstimate {
     /// The estimate in the estimator's own chart (not written to files).
     #[serde(skip)]
     pub state: Option<ChainState>,
+    /// What its final fit solved (not written to files; no part of the estimate's value).
+    #[serde(skip)]
+    pub(crate) problem: FitProblem,
+}
+
+/// What a limb's final fit solved, kept with its estimate for the fit of its whole tree; any two
+/// are equal (it is how the estimate was reached, not what it is).
+#[derive(Clone, Default)]
+pub(crate) struct FitProblem(Option<std::sync::Arc<FinalProblem>>);
+
+impl PartialEq for FitProblem {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for FitProblem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "FitProblem(kept)"
+        } else {
+            "FitProblem(none)"
+        })
+    }
 }
 
 impl MlChainEstimate {
@@ -1625,60 +1664,83 @@ fn final_fit(
     let (solved, weighted, its, noise_components) =
         weigh_by_noise_components(solved, &layout, readings, &spec, config);
     iterations += its;
-    let state = solved.state;
-    let precision = Precision::of(
-        &state,
-        &layout,
-        weighted,
-        noise_components.is_some(),
-        &spec,
-        data,
-        config,
-    );
-    if !precision.residual_ratio.is_finite() {
-        return Err(EstimateError::NotFinite {
-            limb: data.chain.name.clone(),
-            reason: format!("residual / noise = {}", precision.residual_ratio),
-        });
-    }
     let fixed = gauge_statement(data, base, gauge_su, vertical, &spec);
-    let fit = FinalFit {
-        state,
+    let problem = FinalProblem {
+        data: data.clone(),
         layout,
         spec,
-        precision,
+        readings: weighted,
+        fixed,
         intrinsics_model,
         intrinsics_tests,
         noise_components,
         rejected,
     };
-    fit.estimate(data, fixed, (iterations, started), config)
+    problem.report(solved.state, None, (iterations, started), config)
 }
 
-/// A limb's final fit and what is known of its precision.
-struct FinalFit {
-    state: ChainState,
+/// What a limb's final fit solved: the limb's readings as the fit weighed them, the problem and
+/// what the fit chose on the way (kept with the estimate, so that the limbs of one tree can be
+/// fitted again together: [`tree::refine_trees`]).
+#[derive(Debug, Clone)]
+struct FinalProblem {
+    data: LimbData,
     layout: Layout,
     spec: Spec,
-    precision: Precision,
+    /// The readings, weighed as the fit weighed them (by the noise components when it estimated
+    /// them).
+    readings: Readings,
+    /// What the gauge holds, in words.
+    fixed: Vec<String>,
     intrinsics_model: IntrinsicsModel,
     intrinsics_tests: Vec<IntrinsicsTest>,
     noise_components: Option<NoiseComponents>,
     rejected: Vec<SuRejected>,
 }
 
-impl FinalFit {
-    /// All that is reported of the fit (`fixed`: what its gauge holds), which took `iterations`
-    /// from `started`.
-    fn estimate(
+impl FinalProblem {
+    /// All that is reported of the fit that ended at `state` after `iterations` from `started`:
+    /// its precision, its uncertainty, the limb as a robot; `others`: what other limbs' readings
+    /// tell of its shared columns, when they were fitted together ([`Precision::of`]).
+    fn report(
         self,
-        data: &LimbData,
-        fixed: Vec<String>,
+        state: ChainState,
+        others: Option<&DMatrix<f64>>,
         (iterations, started): (usize, Instant),
         config: &MlConfig,
     ) -> Result<MlChainEstimate, EstimateError> {
-        let (state, layout, spec, precision) =
-            (self.state, &self.layout, &self.spec, self.precision);
+        let precision = Precision::of(&state, &self, others, config);
+        if !precision.residual_ratio.is_finite() {
+            return Err(EstimateError::NotFinite {
+                limb: self.data.chain.name.clone(),
+                reason: format!("residual / noise = {}", precision.residual_ratio),
+            });
+        }
+        let fit = FinalFit {
+            state,
+            precision,
+            problem: self,
+        };
+        fit.estimate((iterations, started), config)
+    }
+}
+
+/// A limb's final fit and what is known of its precision.
+struct FinalFit {
+    state: ChainState,
+    precision: Precision,
+    problem: FinalProblem,
+}
+
+impl FinalFit {
+    /// All that is reported of the fit, which took `iterations` from `started`.
+    fn estimate(
+        self,
+        (iterations, started): (usize, Instant),
+        config: &MlConfig,
+    ) -> Result<MlChainEstimate, EstimateError> {
+        let (state, precision, problem) = (self.state, self.precision, self.problem);
+        let (data, layout, spec) = (&problem.data, &problem.layout, &problem.spec);
         let readings = &precision.readings;
         let residual_ratio = precision.residual_ratio;
         let flat_dofs = data.chain.dofs();
@@ -1697,14 +1759,14 @@ impl FinalFit {
             noise_sd_estimate: config.noise_sd * residual_ratio,
             reading_sd: readings.sd.is_some(),
             converged: residual_ratio <= config.converged_ratio,
-            fixed,
+            fixed: problem.fixed.clone(),
             uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
             joint_covariance: joint_covariance(spec, &flat_dofs, cov),
-            intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, self.intrinsics_model),
-            intrinsics_model: Some(self.intrinsics_model),
-            intrinsics_tests: self.intrinsics_tests,
-            noise_components: self.noise_components,
-            rejected: self.rejected,
+            intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, problem.intrinsics_model),
+            intrinsics_model: Some(problem.intrinsics_model),
+            intrinsics_tests: problem.intrinsics_tests.clone(),
+            noise_components: problem.noise_components,
+            rejected: problem.rejected.clone(),
             missing_excitations: if readings.motion.is_some() {
                 Vec::new()
             } else {
@@ -1723,6 +1785,7 @@ impl FinalFit {
             iterations,
             seconds: started.elapsed().as_secs_f64(),
             state: Some(state),
+            problem: FitProblem(Some(std::sync::Arc::new(problem))),
         })
     }
 }
@@ -1788,16 +1851,17 @@ struct Precision {
 }
 
 impl Precision {
-    /// `weighted`: the fit's readings, weighed by the noise components when `components`.
+    /// The precision of `problem`'s fit at `state`; `others`: what other limbs' readings tell of
+    /// its shared columns (information, in their order), when they were fitted together.
     fn of(
         state: &ChainState,
-        layout: &Layout,
-        weighted: Readings,
-        components: bool,
-        spec: &Spec,
-        data: &LimbData,
+        problem: &FinalProblem,
+        others: Option<&DMatrix<f64>>,
         config: &MlConfig,
     ) -> Self {
+        let (layout, spec, data) = (&problem.layout, &problem.spec, &problem.data);
+        let components = problem.noise_components.is_some();
+        let weighted = problem.readings.clone();
         let sigma = config.noise_sd;
         let weighted = Readings {
             gauge_prior: None,
@@ -1820,7 +1884,7 @@ impl Precision {
         };
         let normal = normal_system(state, layout, &readings, spec, &map, sigma);
         let residual_ratio = ratio_of(&normal);
-        let (normal, scale) = match &weighted {
+        let (mut normal, scale) = match &weighted {
             Some(weighted) => {
                 let normal = normal_system(state, layout, weighted, spec, &map, sigma);
                 let ratio = ratio_of(&normal);
@@ -1828,6 +1892,9 @@ impl Precision {
             }
             None => (normal, residual_ratio),
         };
+        if let Some(others) = others {
+            normal.add_shared_information(others);
+        }
         let (cov, unobservable) = covariance(
             &normal,
             &map,

@@ -182,6 +182,11 @@ pub(super) struct ColumnMap {
 }
 
 impl ColumnMap {
+    /// The shared columns, (block index, component), in the order of the shared system.
+    pub fn shared(&self) -> &[(usize, usize)] {
+        &self.shared
+    }
+
     pub fn new(spec: &Spec) -> Self {
         let mut slots = Vec::new();
         let mut shared = Vec::new();
@@ -866,6 +871,36 @@ pub(super) fn normal_system(
     }
 }
 
+impl Normal {
+    /// Adds `information` (in the shared columns' order) to the shared block: what other
+    /// readings tell of the shared parameters.
+    pub(super) fn add_shared_information(&mut self, information: &DMatrix<f64>) {
+        self.c += information;
+    }
+
+    /// The information of the shared columns with every SU's own columns eliminated (each SU
+    /// block by its pseudo-inverse, as [`eliminate`] does): `C − Σ Bᵀ A⁺ B`.
+    pub(super) fn shared_information(&self) -> DMatrix<f64> {
+        let floor = self.largest_diagonal() * 1e-12;
+        let mut s = self.c.clone();
+        for su in &self.sus {
+            let (inv, _) = pseudo_inverse(&su.a, floor);
+            s -= su.b.transpose() * &inv * &su.b;
+        }
+        s
+    }
+
+    /// The largest diagonal entry of the whole normal matrix.
+    fn largest_diagonal(&self) -> f64 {
+        self.sus
+            .iter()
+            .flat_map(|s| s.a.diagonal().iter().copied().collect::<Vec<_>>())
+            .chain(self.c.diagonal().iter().copied())
+            .fold(0.0f64, f64::max)
+            .max(1e-300)
+    }
+}
+
 /// The dense information matrix `JᵀJ` (columns in `spec.columns()` order) of a normal system.
 pub(super) fn information(normal: &Normal, map: &ColumnMap) -> DMatrix<f64> {
     let n = map.slots.len();
@@ -1058,51 +1093,81 @@ pub(super) fn dense_problem(
     (r, jac)
 }
 
-/// The damped Gauss–Newton step `(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr` with the SU blocks eliminated;
-/// `None` when a factorisation fails (the caller raises λ).
-fn schur_step(normal: &Normal, map: &ColumnMap, lambda: f64) -> Option<Vec<f64>> {
-    let m = normal.c.nrows();
-    let mut s = normal.c.clone();
-    for j in 0..m {
-        s[(j, j)] += lambda * normal.c[(j, j)].max(1e-24);
-    }
-    let mut rhs = -normal.gs.clone();
-    let mut reduced = Vec::with_capacity(normal.sus.len());
-    for su in &normal.sus {
-        let k = su.a.nrows();
-        if k == 0 {
-            reduced.push(None);
-            continue;
+/// The damped Gauss–Newton step `(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr` of problems that share parameters,
+/// with every problem's SU blocks eliminated: `parts[i]` is a problem's normal system, its
+/// columns, and where each of its shared columns sits among the `shared` columns of all (the
+/// shared systems are summed there). Returns each problem's step in its columns' order; `None`
+/// when a factorisation fails (the caller raises λ).
+fn schur_step(
+    parts: &[(&Normal, &ColumnMap, &[usize])],
+    shared: usize,
+    lambda: f64,
+) -> Option<Vec<Vec<f64>>> {
+    let mut s = DMatrix::zeros(shared, shared);
+    let mut rhs = DVector::zeros(shared);
+    for (normal, _, at) in parts {
+        for (i, &gi) in at.iter().enumerate() {
+            rhs[gi] -= normal.gs[i];
+            for (j, &gj) in at.iter().enumerate() {
+                s[(gi, gj)] += normal.c[(i, j)];
+            }
         }
-        let mut a = su.a.clone();
-        for l in 0..k {
-            a[(l, l)] += lambda * su.a[(l, l)].max(1e-24);
-        }
-        let chol = a.cholesky()?;
-        let w = chol.solve(&su.b);
-        let wv = chol.solve(&su.go);
-        s -= su.b.tr_mul(&w);
-        rhs += su.b.tr_mul(&wv);
-        reduced.push(Some((w, wv)));
     }
-    let ds = if m > 0 {
+    let diagonal: Vec<f64> = (0..shared).map(|j| s[(j, j)]).collect();
+    for (j, d) in diagonal.iter().enumerate() {
+        s[(j, j)] += lambda * d.max(1e-24);
+    }
+    let mut reduced = Vec::with_capacity(parts.len());
+    for (normal, _, at) in parts {
+        let mut own = Vec::with_capacity(normal.sus.len());
+        for su in &normal.sus {
+            let k = su.a.nrows();
+            if k == 0 {
+                own.push(None);
+                continue;
+            }
+            let mut a = su.a.clone();
+            for l in 0..k {
+                a[(l, l)] += lambda * su.a[(l, l)].max(1e-24);
+            }
+            let chol = a.cholesky()?;
+            let w = chol.solve(&su.b);
+            let wv = chol.solve(&su.go);
+            let (sw, swv) = (su.b.tr_mul(&w), su.b.tr_mul(&wv));
+            for (i, &gi) in at.iter().enumerate() {
+                rhs[gi] += swv[i];
+                for (j, &gj) in at.iter().enumerate() {
+                    s[(gi, gj)] -= sw[(i, j)];
+                }
+            }
+            own.push(Some((w, wv)));
+        }
+        reduced.push(own);
+    }
+    let ds = if shared > 0 {
         s.cholesky()?.solve(&rhs)
     } else {
         DVector::zeros(0)
     };
-    let own: Vec<Option<DVector<f64>>> = reduced
-        .into_iter()
-        .map(|part| part.map(|(w, wv)| -(wv + w * &ds)))
+    let steps = parts
+        .iter()
+        .zip(reduced)
+        .map(|((_, map, at), own)| {
+            let local = DVector::from_iterator(at.len(), at.iter().map(|&g| ds[g]));
+            let own: Vec<Option<DVector<f64>>> = own
+                .into_iter()
+                .map(|part| part.map(|(w, wv)| -(wv + w * &local)))
+                .collect();
+            map.slots
+                .iter()
+                .map(|slot| match *slot {
+                    Slot::Shared(j) => local[j],
+                    Slot::Own(i, l) => own[i].as_ref().map_or(0.0, |d| d[l]),
+                })
+                .collect()
+        })
         .collect();
-    Some(
-        map.slots
-            .iter()
-            .map(|slot| match *slot {
-                Slot::Shared(j) => ds[j],
-                Slot::Own(i, l) => own[i].as_ref().map_or(0.0, |d| d[l]),
-            })
-            .collect(),
-    )
+    Some(steps)
 }
 
 /// Applies a step of the free columns to the state (the retraction).
@@ -1176,27 +1241,89 @@ pub(super) fn solve(
     max_iterations: usize,
     tolerance: f64,
 ) -> Solved {
-    let map = ColumnMap::new(spec);
-    let columns = spec.columns();
-    let mut state = state;
-    let mut normal = normal_system(&state, layout, data, spec, &map, sigma);
-    let mut cost = normal.cost;
+    let shared = ColumnMap::new(spec).shared.len();
+    let member = Member {
+        state,
+        layout,
+        data,
+        spec,
+        shared: (0..shared).collect(),
+    };
+    let (mut states, cost, iterations) =
+        solve_together(vec![member], shared, sigma, max_iterations, tolerance);
+    Solved {
+        state: states.remove(0),
+        cost,
+        iterations,
+    }
+}
+
+/// One of several problems solved together: its state and problem, and where each of its shared
+/// columns sits among the columns the problems share (problems that share a parameter give it
+/// the same place there and hold the same value of it).
+pub(super) struct Member<'a> {
+    pub state: ChainState,
+    pub layout: &'a Layout,
+    pub data: &'a Readings,
+    pub spec: &'a Spec,
+    pub shared: Vec<usize>,
+}
+
+/// Levenberg–Marquardt on the sum of the members' costs, their SU blocks eliminated and their
+/// shared columns solved as one system of `shared` columns ([`solve`] for one problem). Returns
+/// the members' states, the cost and the iterations.
+pub(super) fn solve_together(
+    mut members: Vec<Member>,
+    shared: usize,
+    sigma: f64,
+    max_iterations: usize,
+    tolerance: f64,
+) -> (Vec<ChainState>, f64, usize) {
+    let maps: Vec<ColumnMap> = members.iter().map(|m| ColumnMap::new(m.spec)).collect();
+    let columns: Vec<Vec<(usize, usize)>> = members.iter().map(|m| m.spec.columns()).collect();
+    let normals = |members: &[Member]| -> Vec<Normal> {
+        members
+            .iter()
+            .zip(&maps)
+            .map(|(m, map)| normal_system(&m.state, m.layout, m.data, m.spec, map, sigma))
+            .collect()
+    };
+    let mut normal = normals(&members);
+    let mut cost: f64 = normal.iter().map(|n| n.cost).sum();
     let mut lambda: f64 = 1e-3;
     let mut iterations = 0;
     while iterations < max_iterations {
         iterations += 1;
         let mut improved = false;
         for _ in 0..40 {
-            let Some(step) = schur_step(&normal, &map, lambda) else {
+            let parts: Vec<(&Normal, &ColumnMap, &[usize])> = normal
+                .iter()
+                .zip(&maps)
+                .zip(&members)
+                .map(|((n, map), m)| (n, map, m.shared.as_slice()))
+                .collect();
+            let Some(steps) = schur_step(&parts, shared, lambda) else {
                 lambda *= 10.0;
                 continue;
             };
-            let trial = retract_columns(&state, spec, &columns, &step);
-            let trial_cost = cost_of(&trial, layout, data, spec, &map, sigma);
+            let trials: Vec<ChainState> = members
+                .iter()
+                .zip(&columns)
+                .zip(&steps)
+                .map(|((m, columns), step)| retract_columns(&m.state, m.spec, columns, step))
+                .collect();
+            let trial_cost: f64 = trials
+                .iter()
+                .zip(&members)
+                .zip(&maps)
+                .map(|((t, m), map)| cost_of(t, m.layout, m.data, m.spec, map, sigma))
+                .sum();
             if trial_cost < cost {
                 let relative = (cost - trial_cost) / cost.max(1e-300);
-                let step_norm = step.iter().map(|x| x * x).sum::<f64>().sqrt();
-                state = trial;
+                let step_norm = steps.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+                for (m, t) in members.iter_mut().zip(trials) {
+                    m.state = t;
+                }
                 cost = trial_cost;
                 lambda = (lambda / 3.0).max(1e-12);
                 improved = relative > tolerance && cost * relative > 1e-6 && step_norm > 1e-10;
@@ -1210,17 +1337,20 @@ pub(super) fn solve(
         if !improved {
             break;
         }
-        normal = normal_system(&state, layout, data, spec, &map, sigma);
+        normal = normals(&members);
     }
-    Solved {
-        state,
+    (
+        members.into_iter().map(|m| m.state).collect(),
         cost,
         iterations,
-    }
+    )
 }
 
 /// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.
-fn pseudo_inverse(m: &DMatrix<f64>, floor: f64) -> (DMatrix<f64>, Vec<(f64, DVector<f64>)>) {
+pub(super) fn pseudo_inverse(
+    m: &DMatrix<f64>,
+    floor: f64,
+) -> (DMatrix<f64>, Vec<(f64, DVector<f64>)>) {
     let n = m.nrows();
     let mut inverse = DMatrix::zeros(n, n);
     let mut pairs = Vec::with_capacity(n);
@@ -1262,13 +1392,7 @@ pub(super) fn eliminate(
     limit: f64,
 ) -> Eliminated {
     let n = map.slots.len();
-    let largest = normal
-        .sus
-        .iter()
-        .flat_map(|s| s.a.diagonal().iter().copied().collect::<Vec<_>>())
-        .chain(normal.c.diagonal().iter().copied())
-        .fold(0.0f64, f64::max)
-        .max(1e-300);
+    let largest = normal.largest_diagonal();
     let mut found = Directions {
         names,
         n,

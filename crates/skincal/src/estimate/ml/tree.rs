@@ -1,0 +1,294 @@
+//! The limbs of one tree fitted together: a limb that hangs on another is searched and fitted with
+//! its base path and gravity held at its parent's estimate, so the DoFs of a trunk are first
+//! estimated from the trunk's own few SUs although every SU of the arms and the head reads their
+//! motion. Here every limb hanging (directly or not) on one limb that starts at the reference
+//! segment is fitted again in one maximum-likelihood problem from where the limb-by-limb fits
+//! ended: gravity and every DoF's line shared by all the SUs they move, each SU block eliminated
+//! as in a limb's own fit (time linear in the number of SUs), the gauge that the root limb holds
+//! holding the whole tree. Limbs that start at the reference segment share nothing that a reading
+//! tells (how each sits on the segment, and so its gravity, is its own): each is a tree of its own.
+//!
+//! What is reported of each limb afterwards (residual, covariance, undetermined directions) is
+//! computed from its own readings, as before, at the shared solution: a trunk's covariance does
+//! not take the information the limbs on it add, so it is larger than the tree's (never smaller).
+
+use std::collections::HashMap;
+use std::time::Instant;
+
+use nalgebra::DMatrix;
+
+use super::problem::{
+    normal_system, pseudo_inverse, solve_together, Block, ColumnMap, Member, Readings, Spec,
+};
+use super::{ChainState, FinalProblem, MlChainEstimate, MlConfig, FINAL_TOLERANCE};
+use crate::estimate::EstimateError;
+
+/// A parameter by what it is, so that the limbs that share it give it one column.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+enum Shared {
+    /// A component of gravity (of the tree's one gravity block).
+    Gravity(usize),
+    /// A component of a DoF's joint line.
+    Joint(String, usize),
+    /// The skin's delay behind the joint states, per limb (each limb's fit found its own).
+    SkinDelay(usize),
+}
+
+/// Every limb of `estimates` that hangs on a limb starting at the reference segment fitted again
+/// with that limb and every other limb of its tree in one problem (`parents[i]`: the index of the
+/// limb that limb `i` hangs on). A tree is left as it was when a limb's final problem is not kept,
+/// or when the joint fit leaves a limb that converged on its own above the noise.
+pub fn refine_trees(
+    estimates: &mut [MlChainEstimate],
+    parents: &[Option<usize>],
+    config: &MlConfig,
+) -> Result<(), EstimateError> {
+    for root in (0..estimates.len()).filter(|&i| parents[i].is_none()) {
+        let tree = tree_of(root, parents);
+        if tree.len() > 1 {
+            refine_tree(estimates, &tree, config)?;
+        }
+    }
+    Ok(())
+}
+
+/// `root` and every limb that hangs on it, directly or not, parents before children.
+fn tree_of(root: usize, parents: &[Option<usize>]) -> Vec<usize> {
+    let mut tree = vec![root];
+    let mut at = 0;
+    while at < tree.len() {
+        let parent = tree[at];
+        tree.extend((0..parents.len()).filter(|&i| parents[i] == Some(parent)));
+        at += 1;
+    }
+    tree
+}
+
+/// One limb of the tree: its final problem, its state at the start of the joint fit, and its
+/// problem with the base path and gravity freed (the blocks the tree shares).
+struct Limb {
+    problem: std::sync::Arc<FinalProblem>,
+    state: ChainState,
+    spec: Spec,
+}
+
+fn refine_tree(
+    estimates: &mut [MlChainEstimate],
+    tree: &[usize],
+    config: &MlConfig,
+) -> Result<(), EstimateError> {
+    let started = Instant::now();
+    let Some(limbs) = freed(estimates, tree) else {
+        return Ok(());
+    };
+    let mut columns: HashMap<Shared, usize> = HashMap::new();
+    let mut shared_of = Vec::with_capacity(limbs.len());
+    for (i, limb) in limbs.iter().enumerate() {
+        let Some(at) = place(&limb.spec, &limb.problem, i, &mut columns) else {
+            return Ok(());
+        };
+        shared_of.push(at);
+    }
+    let members = limbs
+        .iter()
+        .zip(shared_of.iter().cloned())
+        .map(|(limb, shared)| Member {
+            state: limb.state.clone(),
+            layout: &limb.problem.layout,
+            data: &limb.problem.readings,
+            spec: &limb.spec,
+            shared,
+        })
+        .collect();
+    let (states, _, iterations) = solve_together(
+        members,
+        columns.len(),
+        config.noise_sd,
+        config.max_iterations,
+        FINAL_TOLERANCE,
+    );
+    let others = what_others_tell(&limbs, &states, &shared_of, &mut columns, config);
+    let mut refined = Vec::with_capacity(tree.len());
+    for (((&i, limb), state), others) in tree.iter().zip(&limbs).zip(states).zip(&others) {
+        let before = &estimates[i];
+        let problem = FinalProblem::clone(&limb.problem);
+        let its = (before.iterations + iterations, started);
+        let mut after = problem.report(state, others.as_ref(), its, config)?;
+        if before.converged && !after.converged {
+            return Ok(());
+        }
+        after.seconds += before.seconds;
+        after.joint_orders.clone_from(&before.joint_orders);
+        after.retries.clone_from(&before.retries);
+        after.retries.push(format!(
+            "fitted with the {} limbs of its tree in one problem (every DoF's line shared by the SUs it moves): residual {:.2} σ, {:.2} σ alone",
+            tree.len(),
+            after.residual_ratio,
+            before.residual_ratio
+        ));
+        refined.push(after);
+    }
+    for (&i, after) in tree.iter().zip(refined) {
+        estimates[i] = after;
+    }
+    Ok(())
+}
+
+/// The limbs of `tree` (the root first) with their base paths and gravity freed: each sub-limb's
+/// problem gains the root's gravity block (held as the root holds it) and its path's joint blocks
+/// (free, as in the problems of the limbs they belong to), and starts from their values there. `None` when an estimate has no
+/// final problem or state kept.
+fn freed(estimates: &[MlChainEstimate], tree: &[usize]) -> Option<Vec<Limb>> {
+    let root = estimates[tree[0]].problem.0.clone()?;
+    let root_state = estimates[tree[0]].state.clone()?;
+    let gravity = match root.spec.blocks.first() {
+        Some(b @ (Block::Gravity | Block::GravityDirection)) => Some(*b),
+        _ => None,
+    };
+    // Each DoF's line as the limb that owns it (the one it is not on the base path of) has it.
+    let mut owned = HashMap::new();
+    for &i in tree {
+        let (problem, state) = (
+            estimates[i].problem.0.as_ref()?,
+            estimates[i].state.as_ref()?,
+        );
+        let chain = &problem.data.chain;
+        for (k, dof) in chain.dofs().into_iter().enumerate().skip(chain.base_dofs()) {
+            owned.insert(dof, state.joints[k]);
+        }
+    }
+    let mut limbs = Vec::with_capacity(tree.len());
+    for &i in tree {
+        let problem = estimates[i].problem.0.clone()?;
+        let mut state = estimates[i].state.clone()?;
+        let chain = &problem.data.chain;
+        let base_dofs = chain.base_dofs();
+        let spec = if base_dofs == 0 {
+            problem.spec.clone()
+        } else {
+            let dofs = chain.dofs();
+            for (k, dof) in dofs.iter().enumerate().take(base_dofs).skip(1) {
+                state.joints[k] = *owned.get(dof)?;
+            }
+            state.gravity = root_state.gravity;
+            with_path(&problem.spec, gravity, &root.spec, base_dofs)
+        };
+        limbs.push(Limb {
+            problem,
+            state,
+            spec,
+        });
+    }
+    Some(limbs)
+}
+
+/// `spec` (a sub-limb's, its base path held) with gravity (`gravity`, held as `root` holds it)
+/// and the joint blocks of its path's DoFs `1…base_dofs−1` free.
+fn with_path(spec: &Spec, gravity: Option<Block>, root: &Spec, base_dofs: usize) -> Spec {
+    let mut blocks: Vec<Block> = gravity.into_iter().collect();
+    let mut held: Vec<(usize, usize)> = if gravity.is_some() {
+        root.held
+            .iter()
+            .filter(|&&(b, _)| b == 0)
+            .copied()
+            .collect()
+    } else {
+        Vec::new()
+    };
+    blocks.extend((1..base_dofs).map(Block::Joint));
+    let offset = blocks.len();
+    blocks.extend(spec.blocks.iter().copied());
+    held.extend(spec.held.iter().map(|&(b, c)| (b + offset, c)));
+    Spec {
+        blocks,
+        held,
+        sus: spec.sus.clone(),
+        prefix: None,
+    }
+}
+
+/// Where each shared column of `spec` (limb `i`'s problem) sits among the tree's `columns`, which
+/// gain the parameters not yet placed; `None` for a block a final problem does not share.
+fn place(
+    spec: &Spec,
+    problem: &FinalProblem,
+    i: usize,
+    columns: &mut HashMap<Shared, usize>,
+) -> Option<Vec<usize>> {
+    let dofs = problem.data.chain.dofs();
+    ColumnMap::new(spec)
+        .shared()
+        .iter()
+        .map(|&(b, c)| {
+            let key = match spec.blocks[b] {
+                Block::Gravity | Block::GravityDirection => Shared::Gravity(c),
+                Block::Joint(k) => Shared::Joint(dofs[k].clone(), c),
+                Block::SkinDelay => Shared::SkinDelay(i),
+                _ => return None,
+            };
+            let next = columns.len();
+            Some(*columns.entry(key).or_insert(next))
+        })
+        .collect()
+}
+
+/// Per limb at the tree's solution: the information that the other limbs' readings give of its
+/// own problem's shared columns (in their order), given its base path — the tree's information
+/// (every SU block eliminated) with the path held and the columns of no concern to the limb
+/// marginalised, less the limb's own. `None` for a limb no other limb tells anything more.
+fn what_others_tell(
+    limbs: &[Limb],
+    states: &[ChainState],
+    shared_of: &[Vec<usize>],
+    columns: &mut HashMap<Shared, usize>,
+    config: &MlConfig,
+) -> Vec<Option<DMatrix<f64>>> {
+    let n = columns.len();
+    let own: Vec<DMatrix<f64>> = limbs
+        .iter()
+        .zip(states)
+        .map(|(limb, state)| {
+            let readings = Readings {
+                gauge_prior: None,
+                ..limb.problem.readings.clone()
+            };
+            let map = ColumnMap::new(&limb.spec);
+            let layout = &limb.problem.layout;
+            normal_system(state, layout, &readings, &limb.spec, &map, config.noise_sd)
+                .shared_information()
+        })
+        .collect();
+    let mut tree = DMatrix::zeros(n, n);
+    for (s, at) in own.iter().zip(shared_of) {
+        for (a, &ga) in at.iter().enumerate() {
+            for (b, &gb) in at.iter().enumerate() {
+                tree[(ga, gb)] += s[(a, b)];
+            }
+        }
+    }
+    let floor = tree.diagonal().iter().fold(0.0f64, |m, &d| m.max(d)) * 1e-12;
+    limbs
+        .iter()
+        .enumerate()
+        .map(|(i, limb)| {
+            let mine = place(&limb.problem.spec, &limb.problem, i, columns)?;
+            let freed = &shared_of[i];
+            let rest: Vec<usize> = (0..n)
+                .filter(|g| !freed.contains(g) && !mine.contains(g))
+                .collect();
+            let pick = |rows: &[usize], cols: &[usize]| {
+                DMatrix::from_fn(rows.len(), cols.len(), |a, b| tree[(rows[a], cols[b])])
+            };
+            let (inverse, _) = pseudo_inverse(&pick(&rest, &rest), floor);
+            let cross = pick(&mine, &rest);
+            let marginal = pick(&mine, &mine) - &cross * inverse * cross.transpose();
+            let at: Vec<usize> = mine
+                .iter()
+                .map(|g| freed.iter().position(|f| f == g))
+                .collect::<Option<_>>()?;
+            let alone = DMatrix::from_fn(at.len(), at.len(), |a, b| own[i][(at[a], at[b])]);
+            let others = marginal - alone;
+            (others.amax() > floor).then_some(others)
+        })
+        .collect()
+}
