@@ -6,12 +6,15 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion};
+use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
 use skincal::ingest::{ingest, motion::motion_record, IngestConfig};
 use skincal::log::mcap::{Compression, McapSink};
 use skincal::log::Topics;
+use skincal::measurements::MeasurementSet;
+use skincal::model::Robot;
+use skincal::motion::MotionRecord;
 use skincal::predict::validate;
 use skincal::sim::timeseries::{record, LogConfig};
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
@@ -54,34 +57,7 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     let started = Instant::now();
     let motion = motion_record(&[log], &set.dofs, &set.sus, &config, &mut |_, _, _| {})?;
     let record_s = started.elapsed().as_secs_f64();
-    // The tree from the robot's own structure experiment (the log has none).
-    let condensed = simulate(&robot, &SimulationConfig::default())?.measurements;
-    let structure = explore(&condensed, &ExploreConfig::default())?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads)
-        .build()?;
-    let ml = MlConfig::default();
-    let (readings, readings_s, samples, samples_s) = pool.install(|| -> Result<_> {
-        let started = Instant::now();
-        let readings = calibrate_body(&set, Some(&structure), &ml, None)?;
-        let readings_s = started.elapsed().as_secs_f64();
-        let started = Instant::now();
-        let samples = calibrate_body_on_motion(
-            &set,
-            &motion,
-            Some(&structure),
-            &ml,
-            None,
-            &[],
-            &mut |_, _, _| {},
-        )?;
-        Ok((
-            readings,
-            readings_s,
-            samples,
-            started.elapsed().as_secs_f64(),
-        ))
-    })?;
+    let fits = Fits::of(&robot, &set, &motion, args.threads)?;
     let held_out = simulate(
         &robot,
         &SimulationConfig {
@@ -92,9 +68,10 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         },
     )?
     .measurements;
-    let [r, s] = [&readings, &samples].map(|m| validate(m, &held_out, "held-out"));
+    let [r, s] = [&fits.readings, &fits.samples].map(|m| validate(m, &held_out, "held-out"));
     let (r, s) = (r?, s?);
-    let blocks: usize = samples
+    let blocks: usize = fits
+        .samples
         .limbs
         .iter()
         .filter_map(|l| l.estimate.motion.as_ref().map(|m| m.blocks))
@@ -109,34 +86,14 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         motion.period * 1e3,
         args.threads
     );
-    outln!(
-        "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>9}",
-        "ingest s",
-        "record s",
-        "readings s",
-        "samples s",
-        "fitted",
-        "readings stat",
-        "readings dyn",
-        "samples stat",
-        "samples dyn",
-        "peak MB"
-    );
     let peak = crate::peak_memory_mb();
-    // The refit starts from the readings' fit, which its time includes.
-    outln!(
-        "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>9.0}",
-        ingest_s,
-        record_s,
-        readings_s,
-        samples_s,
+    let row = Row {
+        times: [ingest_s, record_s, fits.readings_s, fits.samples_s],
         blocks,
-        r.static_rms,
-        r.dynamic_rms,
-        s.static_rms,
-        s.dynamic_rms,
-        peak
-    );
+        held_out: [r.static_rms, r.dynamic_rms, s.static_rms, s.dynamic_rms],
+        peak,
+    };
+    row.print();
     out::json(&serde_json::json!({
         "command": "bench motion",
         "seconds": plan.duration,
@@ -145,8 +102,8 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         "threads": args.threads,
         "ingest_s": ingest_s,
         "record_s": record_s,
-        "readings_fit_s": readings_s,
-        "samples_fit_s": samples_s,
+        "readings_fit_s": fits.readings_s,
+        "samples_fit_s": fits.samples_s,
         "held_out": {
             "readings": [r.static_rms, r.dynamic_rms],
             "samples": [s.static_rms, s.dynamic_rms],
@@ -154,4 +111,93 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         "peak_mb": peak,
     }));
     Ok(())
+}
+
+/// The two fits of the log, each timed on a pool of `threads`: on the readings alone, and on
+/// every sample of the motion record (its time includes the readings' fit it starts from).
+struct Fits {
+    readings: BodyModel,
+    readings_s: f64,
+    samples: BodyModel,
+    samples_s: f64,
+}
+
+impl Fits {
+    fn of(
+        robot: &Robot,
+        set: &MeasurementSet,
+        motion: &MotionRecord,
+        threads: usize,
+    ) -> Result<Self> {
+        // The tree from the robot's own structure experiment (the log has none).
+        let condensed = simulate(robot, &SimulationConfig::default())?.measurements;
+        let structure = explore(&condensed, &ExploreConfig::default())?;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()?;
+        let ml = MlConfig::default();
+        pool.install(|| -> Result<_> {
+            let started = Instant::now();
+            let readings = calibrate_body(set, Some(&structure), &ml, None)?;
+            let readings_s = started.elapsed().as_secs_f64();
+            let started = Instant::now();
+            let samples = calibrate_body_on_motion(
+                set,
+                motion,
+                Some(&structure),
+                &ml,
+                None,
+                &[],
+                &mut |_, _, _| {},
+            )?;
+            Ok(Self {
+                readings,
+                readings_s,
+                samples,
+                samples_s: started.elapsed().as_secs_f64(),
+            })
+        })
+    }
+}
+
+/// The table's one row: ingest, record, readings' fit and samples' fit times (s), the blocks
+/// fitted, the held-out static and dynamic RMS of both fits (m/s²) and the peak memory (MB).
+struct Row {
+    times: [f64; 4],
+    blocks: usize,
+    held_out: [f64; 4],
+    peak: f64,
+}
+
+impl Row {
+    fn print(&self) {
+        outln!(
+            "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>9}",
+            "ingest s",
+            "record s",
+            "readings s",
+            "samples s",
+            "fitted",
+            "readings stat",
+            "readings dyn",
+            "samples stat",
+            "samples dyn",
+            "peak MB"
+        );
+        let [ingest, record, readings, samples] = self.times;
+        let [rs, rd, ss, sd] = self.held_out;
+        outln!(
+            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>9.0}",
+            ingest,
+            record,
+            readings,
+            samples,
+            self.blocks,
+            rs,
+            rd,
+            ss,
+            sd,
+            self.peak
+        );
+    }
 }

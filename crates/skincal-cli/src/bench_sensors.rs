@@ -125,9 +125,43 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         crate::out::json_mode();
     }
     let robot = io::load_robot(&args.robot, SuPlacement::default())?;
-    let names = robot.model.su_names();
-    // Four broken SUs, on different limbs where the robot has them (the humanoid's).
-    let broken: Vec<SuFault> = [
+    let broken = broken_sus(&robot.model.su_names());
+    let broken_names: Vec<String> = broken.iter().map(|f| f.su.clone()).collect();
+    outln!(
+        "{} on real sensors, seeds 1…{}; P = 20, uniform ±0.01 g noise; every scenario against the same seed without it: SU pose RMS (relative to the previous SU, against the truth), held-out prediction of the same skin (20 other noise-free poses), static and dynamic RMS\n",
+        args.robot, args.seeds
+    );
+    let scenarios = scenarios(broken);
+    let mut tallies: Vec<Tally> = scenarios.iter().map(|_| Tally::default()).collect();
+    let mut named = 0;
+    let bar = crate::out::progress_bar(args.seeds, "bench sensors: seeds");
+    for seed in 1..=args.seeds {
+        bar.inc(1);
+        named += one_seed(&robot, seed, &scenarios, &broken_names, &mut tallies)?;
+    }
+    bar.finish_and_clear();
+    out!("{}", table(&scenarios, &tallies));
+    if !broken_names.is_empty() {
+        outln!(
+            "\nbroken SUs ({}) named with the right fault: {named} of {}",
+            broken_names.join(", "),
+            broken_names.len() * args.seeds as usize
+        );
+    }
+    outln!("(tree exact: the tree the clean readings give without the SUs set aside, which explore names with the reason; ratios: median over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
+    crate::out::json(&summary(
+        &args,
+        &scenarios,
+        &tallies,
+        named,
+        broken_names.len(),
+    ));
+    Ok(())
+}
+
+/// Four broken SUs, on different limbs where the robot has them (the humanoid's).
+fn broken_sus(names: &[String]) -> Vec<SuFault> {
+    [
         ("l_forearm_side", Fault::Dead),
         ("r_thigh_back", Fault::Frozen),
         ("head_top", Fault::Railed),
@@ -139,12 +173,12 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
         su: su.into(),
         fault,
     })
-    .collect();
-    let broken_names: Vec<String> = broken.iter().map(|f| f.su.clone()).collect();
-    outln!(
-        "{} on real sensors, seeds 1…{}; P = 20, uniform ±0.01 g noise; every scenario against the same seed without it: SU pose RMS (relative to the previous SU, against the truth), held-out prediction of the same skin (20 other noise-free poses), static and dynamic RMS\n",
-        args.robot, args.seeds
-    );
+    .collect()
+}
+
+/// The scenarios: biased and mis-scaled sensors, glitches, and `broken` SUs (when there are any).
+fn scenarios(broken: Vec<SuFault>) -> Vec<Scenario> {
+    let none_broken = broken.is_empty();
     let mut scenarios: Vec<Scenario> = vec![
         (
             "bias ±0.06 g, scale ±3 %",
@@ -162,66 +196,74 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
             Box::new(move |c: &mut SimulationConfig| c.faults = broken.clone()),
         ),
     ];
-    if broken_names.is_empty() {
+    if none_broken {
         scenarios.pop();
     }
-    let mut tallies: Vec<Tally> = scenarios.iter().map(|_| Tally::default()).collect();
+    scenarios
+}
+
+/// Every scenario on `seed` against the same seed without it, added to `tallies`; returns how
+/// many broken SUs were named with the right fault.
+fn one_seed(
+    robot: &Robot,
+    seed: u64,
+    scenarios: &[Scenario],
+    broken_names: &[String],
+    tallies: &mut [Tally],
+) -> Result<usize> {
     let mut named = 0;
-    let bar = crate::out::progress_bar(args.seeds, "bench sensors: seeds");
-    for seed in 1..=args.seeds {
-        bar.inc(1);
-        let clean_config = SimulationConfig {
-            seed,
-            ..SimulationConfig::default()
+    let clean_config = SimulationConfig {
+        seed,
+        ..SimulationConfig::default()
+    };
+    // The same skin in other poses, noise-free: its intrinsics, no glitch, no fault.
+    let held_out = |c: &SimulationConfig| -> Result<_> {
+        let mut held = c.clone();
+        held.structure = false;
+        held.pose_seed = Some(1000 + seed);
+        held.faults.clear();
+        held.imperfections = Imperfections {
+            uniform_noise: 0.0,
+            glitches: 0.0,
+            ..c.imperfections
         };
-        for (i, (name, apply)) in scenarios.iter().enumerate() {
-            let mut config = clean_config.clone();
-            apply(&mut config);
-            // The same skin in other poses, noise-free: its intrinsics, no glitch, no fault.
-            let held_out = |c: &SimulationConfig| -> Result<_> {
-                let mut held = c.clone();
-                held.structure = false;
-                held.pose_seed = Some(1000 + seed);
-                held.faults.clear();
-                held.imperfections = Imperfections {
-                    uniform_noise: 0.0,
-                    glitches: 0.0,
-                    ..c.imperfections
-                };
-                Ok(sim::simulate(&robot, &held)?.measurements)
-            };
-            let ignore = if config.faults.is_empty() {
-                Vec::new()
-            } else {
-                broken_names.clone()
-            };
-            let clean = run(&robot, &clean_config, &held_out(&clean_config)?, &ignore)?;
-            let r = match run(&robot, &config, &held_out(&config)?, &ignore) {
-                Ok(r) => r,
-                Err(e) => {
-                    outln!("seed {seed}, {name}: {e}");
-                    continue;
-                }
-            };
-            tallies[i].add(&clean, &r)?;
-            named += named_faults(&config.faults, &r.model);
-        }
+        Ok(sim::simulate(robot, &held)?.measurements)
+    };
+    for (i, (name, apply)) in scenarios.iter().enumerate() {
+        let mut config = clean_config.clone();
+        apply(&mut config);
+        let ignore = if config.faults.is_empty() {
+            Vec::new()
+        } else {
+            broken_names.to_vec()
+        };
+        let clean = run(robot, &clean_config, &held_out(&clean_config)?, &ignore)?;
+        let r = match run(robot, &config, &held_out(&config)?, &ignore) {
+            Ok(r) => r,
+            Err(e) => {
+                outln!("seed {seed}, {name}: {e}");
+                continue;
+            }
+        };
+        tallies[i].add(&clean, &r)?;
+        named += named_faults(&config.faults, &r.model);
     }
-    bar.finish_and_clear();
-    out!("{}", table(&scenarios, &tallies));
-    if !broken_names.is_empty() {
-        outln!(
-            "\nbroken SUs ({}) named with the right fault: {named} of {}",
-            broken_names.join(", "),
-            broken_names.len() * args.seeds as usize
-        );
-    }
-    outln!("(tree exact: the tree the clean readings give without the SUs set aside, which explore names with the reason; ratios: median over seeds, worst in brackets; the broken-SU scenario compares the other SUs only)");
-    crate::out::json(&serde_json::json!({
+    Ok(named)
+}
+
+/// The JSON summary: per scenario its tallies, and the broken SUs named of `broken` per seed.
+fn summary(
+    args: &BenchSensorsArgs,
+    scenarios: &[Scenario],
+    tallies: &[Tally],
+    named: usize,
+    broken: usize,
+) -> serde_json::Value {
+    serde_json::json!({
         "command": "bench sensors",
         "robot": args.robot,
         "seeds": args.seeds,
-        "scenarios": scenarios.iter().zip(&tallies).map(|((name, _), t)| {
+        "scenarios": scenarios.iter().zip(tallies).map(|((name, _), t)| {
             let ratio = |k: usize| serde_json::json!({
                 "median": median(&t.ratios[k]),
                 "worst": t.worst[k],
@@ -239,9 +281,8 @@ pub fn bench_sensors(args: BenchSensorsArgs) -> Result<()> {
             })
         }).collect::<Vec<_>>(),
         "broken_named": named,
-        "broken": broken_names.len() * args.seeds as usize,
-    }));
-    Ok(())
+        "broken": broken * args.seeds as usize,
+    })
 }
 
 /// The median of `values` (NaN when empty).

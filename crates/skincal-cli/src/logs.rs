@@ -682,6 +682,29 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         (_, s) => s.as_ref().map(|s| s.0.clone()).unwrap_or_default(),
     };
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    ingest_header(&plan, sus, cores, args.repeats);
+    let mut rows = Vec::new();
+    for (format, compression) in bench_variants(&args.format, &args.compression) {
+        let (path, row) = ingest_row(&robot, &plan, &dir, (format, compression), args.repeats)?;
+        rows.push(row);
+        if args.dir.is_none() {
+            let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
+        }
+    }
+    crate::out::json(&serde_json::json!({
+        "command": "bench ingest",
+        "log_seconds": plan.duration,
+        "sus": sus,
+        "rate_hz": 1000,
+        "cores": cores,
+        "rows": rows,
+    }));
+    drop(scratch);
+    Ok(())
+}
+
+/// What `bench ingest` measures, and its table's header.
+fn ingest_header(plan: &Plan, sus: usize, cores: usize, repeats: usize) {
     outln!(
         "Ingestion of a {:.0} s, 1 kHz log of paper-7dof with {} SUs ({} skin samples/s), {} cores;\n\
          bare pass: read (and decompress) the log and walk every message or row, decoding nothing;\n\
@@ -691,7 +714,7 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         sus,
         sus * 1000,
         cores,
-        args.repeats
+        repeats
     );
     outln!(
         "{:<12} {:>10} {:>12} {:>10} {:>10} {:>12} {:>12} {:>12} {:>10} {:>12} {:>14} {:>10}",
@@ -708,51 +731,62 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
         "samples/s",
         "peak MB"
     );
-    let mut rows = Vec::new();
-    for (format, compression) in bench_variants(&args.format, &args.compression) {
-        let name = match compression {
-            Some(c) => format!("mcap-{c:?}").to_lowercase(),
-            None => "csv".into(),
-        };
-        let path = dir.join(match format {
-            LogFormatArg::Mcap => format!("{name}.mcap"),
-            LogFormatArg::Csv => name.clone(),
-        });
-        let compression = compression.unwrap_or(CompressionArg::None).into();
-        let mut sink = sink_for(format, &path, compression, true);
-        record(
-            &robot,
-            &plan,
-            &LogConfig::default(),
-            sink.as_mut(),
-            &mut |_| {},
-        )?;
-        let size = dir_size(&path) as f64 / 1e6;
-        let config = IngestConfig {
-            pattern: Some(plan.pattern),
-            dofs: Some(robot.model.dof_names()),
-            sus: Some(robot.model.su_names()),
-            ..IngestConfig::default()
-        };
-        let t = time_ingest(&path, &config, args.repeats)?;
-        let cpu_ratio = t.cpu.zip(t.bare_cpu).map(|(i, b)| i / b);
-        let optional = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.2}"));
-        outln!(
-            "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12} {:>12} {:>10} {:>12.1} {:>14.0} {:>10.0}",
-            name,
-            size,
-            t.samples,
-            t.bare,
-            t.seconds,
-            t.seconds / t.bare,
-            optional(t.bare_cpu),
-            optional(t.cpu),
-            optional(cpu_ratio),
-            plan.duration / t.seconds,
-            t.samples as f64 / t.seconds,
-            t.peak
-        );
-        rows.push(serde_json::json!({
+}
+
+/// `plan` recorded in one format (and compression) in `dir` and ingested `repeats` times: its
+/// table row printed; returns the log's path and the row as JSON.
+fn ingest_row(
+    robot: &skincal::model::Robot,
+    plan: &Plan,
+    dir: &Path,
+    (format, compression): (LogFormatArg, Option<CompressionArg>),
+    repeats: usize,
+) -> Result<(PathBuf, serde_json::Value)> {
+    let name = match compression {
+        Some(c) => format!("mcap-{c:?}").to_lowercase(),
+        None => "csv".into(),
+    };
+    let path = dir.join(match format {
+        LogFormatArg::Mcap => format!("{name}.mcap"),
+        LogFormatArg::Csv => name.clone(),
+    });
+    let compression = compression.unwrap_or(CompressionArg::None).into();
+    let mut sink = sink_for(format, &path, compression, true);
+    record(
+        robot,
+        plan,
+        &LogConfig::default(),
+        sink.as_mut(),
+        &mut |_| {},
+    )?;
+    let size = dir_size(&path) as f64 / 1e6;
+    let config = IngestConfig {
+        pattern: Some(plan.pattern),
+        dofs: Some(robot.model.dof_names()),
+        sus: Some(robot.model.su_names()),
+        ..IngestConfig::default()
+    };
+    let t = time_ingest(&path, &config, repeats)?;
+    let cpu_ratio = t.cpu.zip(t.bare_cpu).map(|(i, b)| i / b);
+    let optional = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.2}"));
+    outln!(
+        "{:<12} {:>10.1} {:>12} {:>10.2} {:>10.2} {:>12.2} {:>12} {:>12} {:>10} {:>12.1} {:>14.0} {:>10.0}",
+        name,
+        size,
+        t.samples,
+        t.bare,
+        t.seconds,
+        t.seconds / t.bare,
+        optional(t.bare_cpu),
+        optional(t.cpu),
+        optional(cpu_ratio),
+        plan.duration / t.seconds,
+        t.samples as f64 / t.seconds,
+        t.peak
+    );
+    Ok((
+        path,
+        serde_json::json!({
             "format": name,
             "size_mb": size,
             "samples": t.samples,
@@ -765,21 +799,8 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
             "times_real_time": plan.duration / t.seconds,
             "samples_per_s": t.samples as f64 / t.seconds,
             "peak_mb": t.peak,
-        }));
-        if args.dir.is_none() {
-            let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
-        }
-    }
-    crate::out::json(&serde_json::json!({
-        "command": "bench ingest",
-        "log_seconds": plan.duration,
-        "sus": sus,
-        "rate_hz": 1000,
-        "cores": cores,
-        "rows": rows,
-    }));
-    drop(scratch);
-    Ok(())
+        }),
+    ))
 }
 
 /// The paper's 7-DoF arm with about `sus` random SUs, and a training program cut to `seconds`.

@@ -431,40 +431,9 @@ fn calibrate_limbs(
     let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
     let mut fitted = Fitted::default();
     for chain in &chains {
-        let mut chain = chain.clone();
-        // SUs set aside in a parent limb stay out of its sub-limbs' base path.
-        for j in &mut chain.joints {
-            j.sus
-                .retain(|su| !fitted.broken.iter().any(|b| b.su == *su));
-        }
-        let parent = fitted.parent_of(&mut chain)?;
-        let base_dofs = chain.base_dofs();
-        let mut base = parent.and_then(|p| LimbBase::of(&fitted.estimates[p], base_dofs));
-        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
-        if let (false, Some(p)) = (first.converged, parent) {
-            match fitted.rescue_with_parent(set, &chain, &mut first, p, config)? {
-                Rescue::None => {}
-                Rescue::PathFree => chain = first.chain.clone(),
-                Rescue::ParentReplaced => {
-                    chain = first.chain.clone();
-                    base = LimbBase::of(&fitted.estimates[p], base_dofs);
-                }
-            }
-        }
-        let broken = &mut fitted.broken;
-        let estimate = set_aside_misfits(set, chain, base.as_ref(), config, first, keep, broken)?;
-        let on = parent.map(|p| &fitted.estimates[p]);
-        let mut estimate = rescue_with_children(set, estimate, on, &chains, config)?;
-        if let Some(record) = motion {
-            estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
-        }
-        progress(
-            &estimate.chain.name,
-            fitted.estimates.len() + 1,
-            chains.len(),
-        );
-        fitted.estimates.push(estimate);
-        fitted.parents.push(parent);
+        fitted.add(set, chain, &chains, motion, config, keep)?;
+        let done = fitted.estimates.last().expect("just added");
+        progress(&done.chain.name, fitted.estimates.len(), chains.len());
     }
     let static_sus = structure.map_or_else(Vec::new, |s| reference_sus(set, s, training, config));
     let reference = structure.map_or_else(|| "reference".to_string(), |s| s.root.clone());
@@ -545,6 +514,50 @@ struct Fitted {
 }
 
 impl Fitted {
+    /// Limb `chain` (one of `chains`, every limb it hangs on already fitted) searched and fitted on
+    /// its parent's base path, rescued where it does not converge (with its parent, or with its
+    /// path free; as a parent, with its children), its misfit SUs set aside (`keep` excepted),
+    /// then fitted on every sample of `motion`.
+    fn add(
+        &mut self,
+        set: &MeasurementSet,
+        chain: &LimbChain,
+        chains: &[LimbChain],
+        motion: Option<&MotionRecord>,
+        config: &MlConfig,
+        keep: &[String],
+    ) -> Result<(), EstimateError> {
+        let mut chain = chain.clone();
+        // SUs set aside in a parent limb stay out of its sub-limbs' base path.
+        for j in &mut chain.joints {
+            j.sus.retain(|su| !self.broken.iter().any(|b| b.su == *su));
+        }
+        let parent = self.parent_of(&mut chain)?;
+        let base_dofs = chain.base_dofs();
+        let mut base = parent.and_then(|p| LimbBase::of(&self.estimates[p], base_dofs));
+        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
+        if let (false, Some(p)) = (first.converged, parent) {
+            match self.rescue_with_parent(set, &chain, &mut first, p, config)? {
+                Rescue::None => {}
+                Rescue::PathFree => chain = first.chain.clone(),
+                Rescue::ParentReplaced => {
+                    chain = first.chain.clone();
+                    base = LimbBase::of(&self.estimates[p], base_dofs);
+                }
+            }
+        }
+        let broken = &mut self.broken;
+        let estimate = set_aside_misfits(set, chain, base.as_ref(), config, first, keep, broken)?;
+        let on = parent.map(|p| &self.estimates[p]);
+        let mut estimate = rescue_with_children(set, estimate, on, chains, config)?;
+        if let Some(record) = motion {
+            estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
+        }
+        self.estimates.push(estimate);
+        self.parents.push(parent);
+        Ok(())
+    }
+
     /// The limb `chain` hangs on (none for a limb from the reference), its base path given the
     /// DoF order the parent's estimate found.
     fn parent_of(&self, chain: &mut LimbChain) -> Result<Option<usize>, EstimateError> {
