@@ -93,8 +93,13 @@ pub fn bench_body(args: BenchBodyArgs) -> Result<()> {
             Subject::RandomTree(d) => format!("random trees, {d} DoFs, {} SUs", args.random_sus),
             Subject::Robot(r) => format!("{r}, {} SUs per skinned segment", args.sus_per_segment),
         };
+        let fit = if args.limb_by_limb {
+            "each limb fitted on its own"
+        } else {
+            "each tree's limbs fitted together"
+        };
         outln!(
-            "whole pipeline on {what}; P = {} poses within the limits, uniform ±{} g noise, seeds 1…{}; held-out: 20 fresh noise-free poses\n",
+            "whole pipeline on {what}; P = {} poses within the limits, uniform ±{} g noise, seeds 1…{}; {fit}; held-out: 20 fresh noise-free poses\n",
             args.poses, args.noise, args.seeds
         );
         let mut runs = Vec::new();
