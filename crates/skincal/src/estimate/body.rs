@@ -445,6 +445,11 @@ fn calibrate_limbs(
     if config.whole_tree {
         refine_trees(&mut estimates, &parents, config)?;
     }
+    // The final problems (each limb's data and readings, kept for the tree's fit) are not part
+    // of the model: the model does not carry a copy of the measurement set.
+    for estimate in &mut estimates {
+        estimate.problem = Default::default();
+    }
     let parents = parents
         .iter()
         .map(|p| p.map(|p| estimates[p].chain.name.clone()))
