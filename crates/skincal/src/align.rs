@@ -42,7 +42,7 @@ use crate::estimate::body::BodyModel;
 use crate::estimate::ml::JointCovariance;
 use crate::model::description::DescriptionError;
 use crate::model::urdf::UrdfTree;
-use crate::model::{forward_kinematics, DofIndex, Robot};
+use crate::model::{forward_kinematics, DofIndex, DofKind, Robot};
 
 /// Errors of the alignment, the check and the merge.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -515,9 +515,19 @@ fn check_joint(
             None => block.symmetric_eigenvalues().max().max(0.0).sqrt(),
         }
     };
-    (check.chi2, check.components) = mahalanobis(&r, c);
+    if model.dofs()[d].kind == DofKind::Prismatic {
+        // A sliding axis has a direction and no line: only its tilt is compared.
+        let tilt = c.fixed_view::<2, 2>(0, 0).into_owned();
+        let mut only = DMatrix::zeros(4, 4);
+        only.fixed_view_mut::<2, 2>(0, 0).copy_from(&tilt);
+        (check.chi2, check.components) = mahalanobis(&Vector4::new(r[0], r[1], 0.0, 0.0), &only);
+        check.distance = 0.0;
+        check.shift = [0.0; 3];
+    } else {
+        (check.chi2, check.components) = mahalanobis(&r, c);
+        check.distance_sd = sd_along(r[2], r[3], 2);
+    }
     check.angle_sd = sd_along(r[0], r[1], 0);
-    check.distance_sd = sd_along(r[2], r[3], 2);
     check.verdict = if check.components > 0 && check.chi2 > CHI2_3SIGMA[check.components - 1] {
         JointVerdict::Disagrees
     } else {
@@ -644,7 +654,7 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
         .joints
         .iter()
         .enumerate()
-        .filter(|(_, j)| matches!(j.kind, J::Revolute | J::Continuous))
+        .filter(|(_, j)| matches!(j.kind, J::Revolute | J::Continuous | J::Prismatic))
         .map(|(i, j)| (j.name.as_str(), (i, j)))
         .collect();
     let n = model.dofs().len();
@@ -655,15 +665,21 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
         .collect();
     let mut urdf = Vec::with_capacity(n);
     for (d, dof) in model.dofs().iter().enumerate() {
+        let sliding = |j: &crate::model::urdf::UrdfJoint| matches!(j.kind, J::Prismatic);
         let entry = match moving.get(dof.name.as_str()) {
             None => Err(match tree.joints.iter().find(|j| j.name == dof.name) {
                 Some(j) => format!(
-                    "the URDF's joint of this name is {:?}, not revolute or continuous",
+                    "the URDF's joint of this name is {:?}, not revolute, continuous or prismatic",
                     j.kind
                 )
                 .to_lowercase(),
                 None => "the URDF has no joint of this name".to_string(),
             }),
+            Some(&(_, j)) if sliding(j) != (dof.kind == DofKind::Prismatic) => Err(format!(
+                "the URDF's joint of this name is {}, the calibrated DoF {}",
+                if sliding(j) { "prismatic" } else { "revolute" },
+                dof.kind.name()
+            )),
             Some(&(index, j)) => {
                 let above = tree.moving_joint_above(&j.parent).map(|a| a.name.as_str());
                 match parent[d] {

@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::model::sensor::{ExcitationPattern, MAX_ANGLE, MAX_READING, STANDARD_GRAVITY};
+use crate::model::DofKind;
 
 /// The value of the `format` field.
 pub const FORMAT: &str = "skincal-measurements";
@@ -117,6 +118,10 @@ pub struct MeasurementSet {
     pub dofs: Vec<String>,
     /// SU names; the order of every list of readings.
     pub sus: Vec<String>,
+    /// The DoFs of `dofs` that are prismatic: their positions are in m and their pattern is the
+    /// set's scaled by [`crate::model::PRISMATIC_PATTERN_SCALE`] (m per rad). Every other DoF is revolute.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prismatic: Vec<String>,
     /// The structure experiment, if recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub structure: Option<StructureExperiment>,
@@ -214,6 +219,7 @@ impl MeasurementSet {
             units: Units::default(),
             dofs,
             sus,
+            prismatic: Vec::new(),
             structure: None,
             training: None,
             extra: Map::new(),
@@ -280,6 +286,15 @@ impl MeasurementSet {
         self.dofs.iter().position(|d| d == name)
     }
 
+    /// Whether DoF `d` (an index into `dofs`) is revolute or prismatic.
+    pub fn dof_kind(&self, d: usize) -> DofKind {
+        if self.prismatic.contains(&self.dofs[d]) {
+            DofKind::Prismatic
+        } else {
+            DofKind::Revolute
+        }
+    }
+
     /// Checks every invariant of the format: header, unique names, array lengths, known DoF
     /// names, finite values.
     pub fn validate(&self) -> Result<(), MeasurementError> {
@@ -303,6 +318,9 @@ impl MeasurementSet {
                     });
                 }
             }
+        }
+        for (i, name) in self.prismatic.iter().enumerate() {
+            self.check_dof(format!("prismatic[{i}]"), name)?;
         }
         self.units.check()?;
         if let Some(s) = &self.structure {

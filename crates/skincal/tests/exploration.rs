@@ -200,6 +200,7 @@ fn matrix(sus: &[&str], dofs: &[&str], rows: &[&[u8]]) -> ActivityMatrix {
             .map(|r| r.iter().map(|&x| f64::from(x) * 9.81).collect())
             .collect(),
         explored: vec![true; dofs.len()],
+        prismatic: Vec::new(),
         threshold: 0.05 * 9.81,
         uncertainty_factor: 2.0,
         orientations: 2,

@@ -149,6 +149,7 @@ fn dh_chain(rows: &[[f64; 4]], sus: &[[f64; 6]]) -> Robot {
             child: format!("s{}", i + 1),
             origin,
             axis: Vector3::z(),
+            kind: skincal::model::DofKind::Revolute,
             limits: Limits::CONTINUOUS,
         });
         b.sus.push(SuSpec {
@@ -387,7 +388,6 @@ fn dual_number_derivatives_match_central_differences() {
 /// and the rate of that): the velocity recursion is checked by nothing but the positions.
 #[test]
 fn segment_motion_is_the_second_derivative_of_the_forward_kinematics() {
-    use skincal::model::{segment_motion, specific_force};
     use skincal::sim::{random_tree, RandomTreeConfig};
     let config = RandomTreeConfig {
         dofs: 9,
@@ -395,6 +395,24 @@ fn segment_motion_is_the_second_derivative_of_the_forward_kinematics() {
         ..RandomTreeConfig::default()
     };
     let robot = random_tree(&config, 11).unwrap();
+    motion_matches_differences(&robot);
+    // The same tree with every third DoF sliding along its axis instead of turning about it.
+    let mut builder = robot.to_builder();
+    for d in builder.dofs.iter_mut().step_by(3) {
+        d.kind = skincal::model::DofKind::Prismatic;
+        d.limits = Limits {
+            lower: -0.5,
+            upper: 0.5,
+            ..d.limits
+        };
+    }
+    let sliding = builder.build().unwrap();
+    assert_eq!(sliding.model.prismatic_dof_names().len(), 3);
+    motion_matches_differences(&sliding);
+}
+
+fn motion_matches_differences(robot: &skincal::model::Robot) {
+    use skincal::model::{segment_motion, specific_force};
     let n = robot.model.dofs().len();
     // q(t) = a sin(w t + phase): every DoF moving, with velocity and acceleration at once.
     let at = |t: f64, order: u32| -> Vec<f64> {

@@ -5,8 +5,8 @@ use approx::assert_relative_eq;
 use nalgebra::{Matrix3, Vector3};
 use skincal::io::{load_robot, IoError, SuPlacement};
 use skincal::model::description::DescriptionError;
-use skincal::model::forward_kinematics;
 use skincal::model::sensor::{gravity_upright, static_readings};
+use skincal::model::{forward_kinematics, DofKind};
 
 use crate::common::fixture;
 
@@ -122,22 +122,69 @@ fn a_bare_urdf_gets_random_sus_on_every_link() {
 }
 
 #[test]
-fn prismatic_joints_are_refused_by_name() {
-    let err = load_robot(
+fn a_prismatic_joint_slides_its_link_along_its_axis() {
+    // slider.urdf: `rail` slides `carriage` along the base's x within 0…0.5 m.
+    let robot = load_robot(
         fixture("slider.urdf").to_str().unwrap(),
-        SuPlacement::default(),
+        SuPlacement {
+            per_link: Some(1),
+            seed: 3,
+        },
     )
-    .unwrap_err();
-    match &err {
-        IoError::Description {
-            source: DescriptionError::UnsupportedJoint { joint, kind },
-            ..
-        } => {
-            assert_eq!((joint.as_str(), kind.as_str()), ("rail", "prismatic"));
+    .unwrap();
+    let m = &robot.model;
+    let rail = &m.dofs()[0];
+    assert_eq!(
+        (rail.name.as_str(), rail.kind),
+        ("rail", DofKind::Prismatic)
+    );
+    assert_eq!((rail.limits.lower, rail.limits.upper), (0.0, 0.5));
+    assert_eq!(m.prismatic_dof_names(), ["rail"]);
+    let (base, carriage) = (
+        m.su_index("base_su1").unwrap(),
+        m.su_index("carriage_su1").unwrap(),
+    );
+    let at = |q: f64| forward_kinematics(m, &robot.parameters, &[q]);
+    let (k0, k1) = (at(0.0), at(0.3));
+    // The carriage's SU moves 0.3 m along x and does not turn; the base's stays.
+    assert_relative_eq!(
+        k1.sus[carriage].translation.vector - k0.sus[carriage].translation.vector,
+        Vector3::new(0.3, 0.0, 0.0),
+        epsilon = 1e-12
+    );
+    assert_relative_eq!(
+        k1.sus[carriage]
+            .rotation
+            .angle_to(&k0.sus[carriage].rotation),
+        0.0,
+        epsilon = 1e-12
+    );
+    assert_eq!(k0.sus[base], k1.sus[base]);
+}
+
+#[test]
+fn floating_and_planar_joints_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    for kind in ["floating", "planar"] {
+        let file = dir.path().join(format!("{kind}.urdf"));
+        std::fs::write(
+            &file,
+            format!(
+                r#"<robot name="r"><link name="a"/><link name="b"/>
+                <joint name="free" type="{kind}"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint></robot>"#
+            ),
+        )
+        .unwrap();
+        let err = load_robot(file.to_str().unwrap(), SuPlacement::default()).unwrap_err();
+        match &err {
+            IoError::Description {
+                source: DescriptionError::UnsupportedJoint { joint, kind: found },
+                ..
+            } => assert_eq!((joint.as_str(), found.as_str()), ("free", kind)),
+            other => panic!("unexpected {other}"),
         }
-        other => panic!("unexpected {other}"),
+        assert!(err.to_string().contains(&format!("{kind}.urdf")));
     }
-    assert!(err.to_string().contains("slider.urdf"));
 }
 
 #[test]

@@ -1213,6 +1213,7 @@ fn add_limb(
             child: chain.segment_after(k),
             origin: PlacementSpec::from_isometry(&origin),
             axis: Vector3::z(),
+            kind: chain.kinds()[k],
             limits: observed_limits(set, dof),
         });
     }

@@ -8,6 +8,7 @@ use super::{EstimateError, SerialChain};
 use crate::explore::Structure;
 use crate::measurements::MeasurementSet;
 use crate::model::sensor::ExcitationPattern;
+use crate::model::DofKind;
 
 /// A joint of a limb: the DoFs between two segments that carry SUs.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -37,9 +38,26 @@ pub struct LimbChain {
     pub base_joints: usize,
     /// Joints from the static reference outwards.
     pub joints: Vec<LimbJoint>,
+    /// The DoFs of the chain that are prismatic (the others are revolute).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prismatic: Vec<String>,
 }
 
 impl LimbChain {
+    /// Whether each DoF along the chain is revolute or prismatic.
+    pub fn kinds(&self) -> Vec<DofKind> {
+        self.dofs()
+            .iter()
+            .map(|d| {
+                if self.prismatic.contains(d) {
+                    DofKind::Prismatic
+                } else {
+                    DofKind::Revolute
+                }
+            })
+            .collect()
+    }
+
     /// All DoFs along the chain.
     pub fn dofs(&self) -> Vec<String> {
         self.joints.iter().flat_map(|j| j.dofs.clone()).collect()
@@ -121,6 +139,7 @@ impl From<&SerialChain> for LimbChain {
         LimbChain {
             name: chain.name.clone(),
             base_joints: 0,
+            prismatic: Vec::new(),
             joints: chain
                 .dofs
                 .iter()
@@ -176,6 +195,7 @@ pub fn limb_chains(structure: &Structure) -> Result<Vec<LimbChain>, EstimateErro
             name: limb.to.clone(),
             base_joints,
             joints: path,
+            prismatic: Vec::new(),
         });
     }
     // Parents first: a limb's base path is a prefix of its parent's path.
@@ -293,8 +313,30 @@ impl LimbData {
             dynamics.push(per_su);
             missing.push(lacking);
         }
+        let mut chain = chain.clone();
+        chain.prismatic = dofs
+            .iter()
+            .zip(&dof_index)
+            .filter(|&(_, &d)| set.dof_kind(d) == DofKind::Prismatic)
+            .map(|(name, _)| name.clone())
+            .collect();
+        if let Some(joint) = chain
+            .joints
+            .iter()
+            .find(|j| j.dofs.len() > 1 && j.dofs.iter().any(|d| chain.prismatic.contains(d)))
+        {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: format!(
+                    "joint {} holds the prismatic DoF(s) {:?} among the DoFs {:?} with no SU between them: a prismatic DoF is calibrated only with skin on the segment it moves (put an SU there, or hold the DoF still: make it fixed in the description)",
+                    joint.id,
+                    joint.dofs.iter().filter(|d| chain.prismatic.contains(d)).collect::<Vec<_>>(),
+                    joint.dofs
+                ),
+            });
+        }
         let data = Self {
-            chain: chain.clone(),
+            chain,
             q,
             su_depth,
             statics,

@@ -246,6 +246,18 @@ impl ChainData {
             .iter()
             .map(|d| find("DoF", &set.dofs, d))
             .collect::<Result<_, _>>()?;
+        if let Some(&d) = dof_index
+            .iter()
+            .find(|&&d| set.dof_kind(d) == crate::model::DofKind::Prismatic)
+        {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: format!(
+                    "DoF `{}` is prismatic, and the paper's estimator models revolute DoFs only: use the maximum-likelihood estimator (the default)",
+                    set.dofs[d]
+                ),
+            });
+        }
         let su_index: Vec<usize> = chain
             .sus
             .iter()
@@ -319,6 +331,7 @@ pub fn chain_robot(
             child: segment(k),
             origin,
             axis: Vector3::z(),
+            kind: crate::model::DofKind::Revolute,
             limits: Limits::CONTINUOUS,
         });
     }

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::{ExploreConfig, ExploreError};
 use crate::measurements::{MeasurementSet, StructureExperiment};
 use crate::model::sensor::STANDARD_GRAVITY;
+use crate::model::DofKind;
 
 /// A static reading whose norm differs from its SU's median norm by more than this, g, is misread
 /// (bias and scale errors move the norm by well under 0.1 g).
@@ -37,10 +38,16 @@ pub struct ActivityMatrix {
     /// DoF names (columns).
     pub dofs: Vec<String>,
     /// `change[u][d]`: the largest change of any axis of SU `u`'s reading when DoF `d` moved, over
-    /// all orientations, m/s² (0 for a DoF that was never moved).
+    /// all orientations, m/s² (0 for a DoF that was never moved). For a prismatic DoF, which turns
+    /// no gravity: the typical acceleration its pattern gave the SU, scaled so that half the
+    /// pattern's peak meets the threshold ([`prismatic_columns`]).
     pub change: Vec<Vec<f64>>,
-    /// Whether each DoF was moved in at least one orientation.
+    /// Whether each DoF was moved in at least one orientation (a prismatic one: excited in at
+    /// least one training pose).
     pub explored: Vec<bool>,
+    /// Per DoF: whether it is prismatic (empty when none is).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub prismatic: Vec<bool>,
     /// The threshold, m/s².
     pub threshold: f64,
     /// The uncertainty factor.
@@ -724,6 +731,11 @@ pub struct Misread {
 }
 
 impl ActivityMatrix {
+    /// Whether DoF `d` is prismatic.
+    pub fn is_prismatic(&self, d: usize) -> bool {
+        self.prismatic.get(d).copied().unwrap_or(false)
+    }
+
     /// Whether DoF `d` moves SU `u`.
     pub fn is_active(&self, u: usize, d: usize) -> bool {
         self.explored[d] && self.change[u][d] > self.threshold
@@ -763,9 +775,19 @@ pub fn activity_matrix(
         threshold,
         config.uncertainty_factor,
     );
+    let prismatic: Vec<bool> = (0..set.dofs.len())
+        .map(|d| set.dof_kind(d) == DofKind::Prismatic)
+        .collect();
+    let mut change = change;
+    let mut explored = moves.explored;
+    prismatic_columns(set, &prismatic, &mut change, &mut explored, threshold);
     let is_broken = |u: usize| screen.is_broken[u];
-    inferred.retain(|&(u, _, _)| !is_broken(u));
-    undecided.retain(|&(u, _)| !is_broken(u));
+    inferred.retain(|&(u, d, _)| !is_broken(u) && !prismatic[d]);
+    undecided.retain(|&(u, d)| !is_broken(u) && !prismatic[d]);
+    let contradicted: Vec<_> = contradicted
+        .into_iter()
+        .filter(|&(_, _, d)| !prismatic[d])
+        .collect();
     let mut misread = moves.misreads;
     for (u, o, d) in contradicted {
         let orientation = &structure.orientations[o];
@@ -785,7 +807,12 @@ pub fn activity_matrix(
         sus: set.sus.clone(),
         dofs: set.dofs.clone(),
         change,
-        explored: moves.explored,
+        explored,
+        prismatic: if prismatic.contains(&true) {
+            prismatic
+        } else {
+            Vec::new()
+        },
         threshold,
         uncertainty_factor: config.uncertainty_factor,
         orientations: structure.orientations.len(),
@@ -805,6 +832,45 @@ pub fn activity_matrix(
             .collect(),
         broken: screen.broken,
     })
+}
+
+/// The columns of the prismatic DoFs, from the training experiment: a prismatic DoF turns no
+/// gravity, so its structure move changes no static reading, but its pattern accelerates every SU
+/// it carries by `α s` along its axis at the peak (`α = 2πfA`, `s` the pattern scale) and no other
+/// SU at all. `change[u][d]` becomes the median over the poses of the norm of SU `u`'s dynamic
+/// reading of `d`, times `threshold / (α s / 2)`: an SU is moved when it typically read more than
+/// half the pattern's peak. A DoF with no dynamic reading is not explored.
+fn prismatic_columns(
+    set: &MeasurementSet,
+    prismatic: &[bool],
+    change: &mut [Vec<f64>],
+    explored: &mut [bool],
+    threshold: f64,
+) {
+    for d in (0..set.dofs.len()).filter(|&d| prismatic[d]) {
+        explored[d] = false;
+        for row in change.iter_mut() {
+            row[d] = 0.0;
+        }
+        let Some(training) = &set.training else {
+            continue;
+        };
+        let peak = training.pattern.of(DofKind::Prismatic).peak_acceleration();
+        let readings: Vec<&Vec<[f64; 3]>> = training
+            .poses
+            .iter()
+            .filter_map(|p| p.dynamic.get(&set.dofs[d]))
+            .collect();
+        if readings.is_empty() || peak.is_nan() || peak <= 0.0 {
+            continue;
+        }
+        explored[d] = true;
+        for (u, row) in change.iter_mut().enumerate() {
+            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
+            norms.sort_by(f64::total_cmp);
+            row[d] = norms[norms.len() / 2] * threshold / (0.5 * peak);
+        }
+    }
 }
 
 fn check_config(config: &ExploreConfig) -> Result<(), ExploreError> {

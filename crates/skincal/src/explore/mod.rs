@@ -548,7 +548,11 @@ fn unexplored_dofs(a: &ActivityMatrix) -> Vec<Diagnostic> {
         .map(|d| Diagnostic {
             kind: DiagnosticKind::DofNotExplored,
             severity: Severity::Error,
-            message: format!("DoF `{}` was never moved in the structure experiment, so nothing is known about it: add a move of it from the rest pose", a.dofs[d]),
+            message: if a.is_prismatic(d) {
+                format!("prismatic DoF `{}` has no dynamic reading in the training experiment: it turns no gravity, so only the accelerations of its excitation pattern tell which SUs it carries; record the training experiment with its pattern", a.dofs[d])
+            } else {
+                format!("DoF `{}` was never moved in the structure experiment, so nothing is known about it: add a move of it from the rest pose", a.dofs[d])
+            },
             sus: vec![],
             dofs: vec![a.dofs[d].clone()],
         })
@@ -623,7 +627,9 @@ fn moving_dofs(a: &ActivityMatrix, diagnostics: &mut Vec<Diagnostic>) -> Vec<usi
             .map(|(su, _)| su.as_str())
             .collect();
         let lost;
-        let (cause, severity) = if !unread.is_empty() {
+        let (cause, severity) = if a.is_prismatic(d) {
+            ("it is prismatic, and its excitation pattern accelerated no SU by half its peak: the segment it moves carries no SU (a gripper finger without skin), or the DoF did not actually move; it is left out and not calibrated", Severity::Warning)
+        } else if !unread.is_empty() {
             lost = format!("but the readings of {} in its moves were misread, so whether it moves them cannot be told; the DoF is left out and not calibrated (record its move again)", unread.join(", "));
             (lost.as_str(), Severity::Warning)
         } else if a.orientations < 2 {
@@ -634,7 +640,11 @@ fn moving_dofs(a: &ActivityMatrix, diagnostics: &mut Vec<Diagnostic>) -> Vec<usi
         diagnostics.push(Diagnostic {
             kind: DiagnosticKind::DofMovesNoSu,
             severity,
-            message: format!("DoF `{}` changed no SU's reading by more than {:.3} g (largest change {largest:.3} g): {cause}", a.dofs[d], a.threshold / STANDARD_GRAVITY),
+            message: if a.is_prismatic(d) {
+                format!("DoF `{}` accelerated no SU by more than half its pattern's peak (largest: {:.2} of the peak): {cause}", a.dofs[d], largest * STANDARD_GRAVITY / a.threshold / 2.0)
+            } else {
+                format!("DoF `{}` changed no SU's reading by more than {:.3} g (largest change {largest:.3} g): {cause}", a.dofs[d], a.threshold / STANDARD_GRAVITY)
+            },
             sus: vec![],
             dofs: vec![a.dofs[d].clone()],
         });

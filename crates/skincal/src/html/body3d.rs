@@ -32,13 +32,16 @@ const VIEW3D: &str = r#"(function () {
                  y * x * v + z * s, c + y * y * v, y * z * v - x * s,
                  z * x * v - y * s, z * y * v + x * s, c + z * z * v], p: [0, 0, 0] };
   }
+  function slide(k, t) { // translation by t along the unit axis k
+    return { r: [1, 0, 0, 0, 1, 0, 0, 0, 1], p: [k[0] * t, k[1] * t, k[2] * t] };
+  }
   function apply(t, v) { return mul(t, { r: [1, 0, 0, 0, 1, 0, 0, 0, 1], p: v }).p; }
   function frames() {
     var seg = [{ r: [1, 0, 0, 0, 1, 0, 0, 0, 1], p: [0, 0, 0] }], joints = [];
     data.dofs.forEach(function (d, i) {
       var j = mul(seg[d.parent], { r: d.r, p: d.o });
       joints[i] = j;
-      seg[d.child] = mul(j, turn(d.axis, q[i]));
+      seg[d.child] = mul(j, d.prismatic ? slide(d.axis, q[i]) : turn(d.axis, q[i]));
     });
     return { seg: seg, joints: joints };
   }
@@ -94,7 +97,7 @@ const VIEW3D: &str = r#"(function () {
   var box = document.getElementById('view3d-sliders');
   data.dofs.forEach(function (d, i) {
     var label = document.createElement('label'), input = document.createElement('input');
-    input.type = 'range'; input.min = d.lower; input.max = d.upper; input.step = 0.01; input.value = 0;
+    input.type = 'range'; input.min = d.lower; input.max = d.upper; input.step = (d.upper - d.lower) / 400; input.value = 0;
     input.addEventListener('input', function () { q[i] = parseFloat(input.value); draw(); });
     label.appendChild(document.createTextNode(d.name + ' '));
     label.appendChild(input);
@@ -281,6 +284,7 @@ fn body_data(m: &BodyModel, bases: &Bases, colouring: &Colouring) -> Option<serd
         dofs.push(serde_json::json!({
             "name": dof.name, "parent": dof.parent, "child": dof.child,
             "r": r, "o": [o.x, o.y, o.z], "axis": dof.axis.as_ref().as_slice(),
+            "prismatic": dof.kind == crate::model::DofKind::Prismatic,
             "lower": finite(dof.limits.lower, -std::f64::consts::PI),
             "upper": finite(dof.limits.upper, std::f64::consts::PI),
         }));

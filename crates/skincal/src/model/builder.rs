@@ -7,7 +7,8 @@ use serde::{Deserialize, Serialize};
 
 use super::transform::to_xyz_rpy;
 use super::{
-    Dof, Limits, ModelError, Parameterization, Placement, Robot, RobotModel, Segment, SensorUnit,
+    Dof, DofKind, Limits, ModelError, Parameterization, Placement, Robot, RobotModel, Segment,
+    SensorUnit,
 };
 
 /// A placement with its values, as given by a robot description.
@@ -75,8 +76,10 @@ pub struct DofSpec {
     pub child: String,
     /// Placement of its joint frame on the parent segment.
     pub origin: PlacementSpec,
-    /// Rotation axis in the joint frame (normalised by the builder).
+    /// Axis in the joint frame (normalised by the builder): of rotation, or of translation.
     pub axis: Vector3<f64>,
+    /// Revolute or prismatic.
+    pub kind: DofKind,
     /// Limits.
     pub limits: Limits,
 }
@@ -250,6 +253,7 @@ impl RobotBuilder {
                 child: segment_of[d.child.as_str()],
                 origin,
                 axis: Unit::new_normalize(d.axis),
+                kind: d.kind,
                 limits: d.limits,
             });
         }
@@ -363,6 +367,7 @@ impl Robot {
                     child: m.segments[d.child].name.clone(),
                     origin: self.placement_spec(&d.origin),
                     axis: d.axis.into_inner(),
+                    kind: d.kind,
                     limits: d.limits,
                 })
                 .collect(),

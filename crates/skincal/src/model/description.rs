@@ -13,7 +13,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    DofSpec, Limits, ModelError, Parameterization, PlacementSpec, Robot, RobotBuilder, SuSpec,
+    DofKind, DofSpec, Limits, ModelError, Parameterization, PlacementSpec, Robot, RobotBuilder,
+    SuSpec,
 };
 
 /// Errors in a robot description.
@@ -35,7 +36,7 @@ pub enum DescriptionError {
     #[error("URDF does not parse: {0}")]
     Urdf(String),
     /// A URDF joint type that skincal cannot model.
-    #[error("URDF joint `{joint}` is {kind}: skincal models revolute and continuous DoFs only (fixed joints merge links); make it fixed or remove it")]
+    #[error("URDF joint `{joint}` is {kind}: skincal models revolute, continuous and prismatic DoFs only (fixed joints merge links); make it fixed or remove it")]
     UnsupportedJoint {
         /// The joint.
         joint: String,
@@ -89,9 +90,13 @@ pub struct DofEntry {
     /// Axis placement as a URDF-like origin on the parent segment.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub origin: Option<OriginEntry>,
-    /// Rotation axis in the joint frame (only with `origin` or no placement); default `[0, 0, 1]`.
+    /// Axis in the joint frame (only with `origin` or no placement); default `[0, 0, 1]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub axis: Option<[f64; 3]>,
+    /// `revolute` (the default) or `prismatic` (it slides along its axis; positions in m, and
+    /// `lower` and `upper` are needed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<DofKind>,
     /// Lowest position, rad. With `upper` omitted too, the DoF turns freely (±π is sampled).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lower: Option<f64>,
@@ -296,7 +301,14 @@ impl RobotFile {
                 (None, Some(o)) => PlacementSpec::xyz_rpy(o.xyz, o.rpy),
                 (None, None) => PlacementSpec::identity(),
             };
+            let kind = d.kind.unwrap_or_default();
             let limits = match (d.lower, d.upper) {
+                (None, None) if kind == DofKind::Prismatic => {
+                    return Err(invalid(
+                        "",
+                        "a prismatic DoF slides within limits: give `lower` and `upper` (m)",
+                    ))
+                }
                 (None, None) => Limits {
                     velocity: d.velocity,
                     acceleration: d.acceleration,
@@ -323,6 +335,7 @@ impl RobotFile {
                 child: d.child.clone(),
                 origin,
                 axis: Vector3::from(d.axis.unwrap_or([0.0, 0.0, 1.0])),
+                kind,
                 limits,
             });
         }
@@ -364,13 +377,15 @@ impl RobotFile {
                         (None, Some(OriginEntry { xyz, rpy }))
                     }
                 };
-                let free = d.limits.lower == Limits::CONTINUOUS.lower
+                let free = d.kind == DofKind::Revolute
+                    && d.limits.lower == Limits::CONTINUOUS.lower
                     && d.limits.upper == Limits::CONTINUOUS.upper;
                 DofEntry {
                     name: d.name.clone(),
                     parent: Some(d.parent.clone()),
                     child: d.child.clone(),
                     axis: dh.is_none().then(|| d.axis.into()),
+                    kind: (d.kind != DofKind::Revolute).then_some(d.kind),
                     dh,
                     origin,
                     lower: (!free).then_some(d.limits.lower),

@@ -2,8 +2,8 @@
 
 use nalgebra::{Isometry3, Matrix3, RealField, Vector3};
 
-use super::transform::{rotation_about, scalar, vector};
-use super::{DofIndex, RobotModel, SuIndex};
+use super::transform::{scalar, vector};
+use super::{DofIndex, DofKind, RobotModel, SuIndex};
 
 /// The frames of one configuration, all expressed in the reference frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -35,10 +35,12 @@ impl<T: RealField> Kinematics<T> {
     }
 }
 
-/// Frames of every joint, segment and SU at pose `q` (one angle per DoF, rad).
+/// Frames of every joint, segment and SU at pose `q` (one position per DoF: rad, or m for a
+/// prismatic one).
 ///
 /// Segments are visited in topological order, so every parent frame is ready before its children:
-/// `T_ref←child = T_ref←parent · T_origin · Rot(axis, q)`; `T_ref←SU = T_ref←segment · T_SU`.
+/// `T_ref←child = T_ref←parent · T_origin · Rot(axis, q)` (or `Trans(axis·q)` for a prismatic DoF);
+/// `T_ref←SU = T_ref←segment · T_SU`.
 ///
 /// # Panics
 /// If `parameters` or `q` do not have the model's lengths (a programming error: measurement files
@@ -82,7 +84,7 @@ pub fn segment_frames<T: RealField>(
             .expect("non-root segments have a parent DoF");
         let dof = &model.dofs()[d];
         let joint = segments[dof.parent].clone() * dof.origin.transform(parameters);
-        segments[s] = joint.clone() * rotation_about(&dof.axis, q[d].clone());
+        segments[s] = joint.clone() * dof.kind.motion(&dof.axis, q[d].clone());
         joints[d] = joint;
     }
     Kinematics {
@@ -178,10 +180,41 @@ impl<T: RealField> BodyMotion<T> {
             accel: self.accel.clone() + tangential + centripetal + coriolis,
         }
     }
+
+    /// The motion of a body that slides relative to this one along the unit `axis` (fixed in this
+    /// body, in the reference frame now) at rate `rate` and acceleration `accel` (m/s, m/s²).
+    ///
+    /// A point of the sliding body moves as this body's point where it is, plus `q̇ z` relative to
+    /// it: `a = a_this(p) + q̈ z + 2 ω × q̇ z` (the axis turns with this body); the two bodies turn
+    /// alike.
+    pub fn slide(&self, axis: &Vector3<T>, rate: T, accel: T) -> Self {
+        let coriolis = self.omega.cross(axis) * (rate * scalar::<T>(2.0));
+        Self {
+            omega: self.omega.clone(),
+            alpha: self.alpha.clone(),
+            accel: self.accel.clone() + axis.clone() * accel + coriolis,
+        }
+    }
+
+    /// The motion of the body that DoF of kind `kind` moves relative to this one: [`Self::through`]
+    /// or [`Self::slide`] (`point` is unused for a prismatic DoF).
+    pub fn moved_by(
+        &self,
+        kind: DofKind,
+        axis: &Vector3<T>,
+        point: &Vector3<T>,
+        rate: T,
+        accel: T,
+    ) -> Self {
+        match kind {
+            DofKind::Revolute => self.through(axis, point, rate, accel),
+            DofKind::Prismatic => self.slide(axis, rate, accel),
+        }
+    }
 }
 
 /// The motion of every segment at pose `q` with joint velocities `qd` and accelerations `qdd`
-/// (one per DoF, rad/s and rad/s²), from the frames of [`forward_kinematics`] at `q`, with the
+/// (one per DoF, rad/s and rad/s², or m/s and m/s² for a prismatic one), from the frames of [`forward_kinematics`] at `q`, with the
 /// reference segment still.
 ///
 /// # Panics
@@ -199,8 +232,9 @@ pub fn segment_motion<T: RealField>(
         let d = segment
             .parent_dof
             .expect("non-root segments have a parent DoF");
-        let parent = model.dofs()[d].parent;
-        motion[s] = motion[parent].through(
+        let dof = &model.dofs()[d];
+        motion[s] = motion[dof.parent].moved_by(
+            dof.kind,
             &frames.axis(model, d),
             &frames.axis_point(d),
             qd[d].clone(),

@@ -1,6 +1,6 @@
 //! The kinematic model of a skin-covered robot.
 //!
-//! A robot is a tree of rigid **segments** joined by revolute **DoFs**; **sensor units** (SUs, one
+//! A robot is a tree of rigid **segments** joined by revolute or prismatic **DoFs**; **sensor units** (SUs, one
 //! 3-axis accelerometer each) sit on segments. The model is flat and immutable: segments are stored
 //! in topological order (index 0 is the static reference segment, every segment after its parent),
 //! DoFs and SUs in the order they were given, and every number that describes the geometry lives
@@ -105,7 +105,7 @@ pub enum ModelError {
         what: String,
     },
     /// The model has no DoF.
-    #[error("the robot has no DoF: at least one revolute DoF is needed")]
+    #[error("the robot has no DoF: at least one revolute or prismatic DoF is needed")]
     NoDofs,
 }
 
@@ -190,7 +190,8 @@ impl Placement {
     }
 }
 
-/// Position, velocity and acceleration limits of a DoF (rad, rad/s, rad/s²).
+/// Position, velocity and acceleration limits of a DoF (rad, rad/s, rad/s²; m, m/s, m/s² for a
+/// prismatic one).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Limits {
     /// Lowest position.
@@ -222,13 +223,13 @@ impl Limits {
     fn check(&self) -> Result<(), String> {
         if !self.lower.is_finite() || !self.upper.is_finite() {
             return Err(format!(
-                "lower {} and upper {} must be finite numbers (rad)",
+                "lower {} and upper {} must be finite numbers",
                 self.lower, self.upper
             ));
         }
         if self.lower > self.upper {
             return Err(format!(
-                "lower {} is above upper {} (rad)",
+                "lower {} is above upper {}",
                 self.lower, self.upper
             ));
         }
@@ -255,7 +256,65 @@ pub struct Segment {
     pub parent_dof: Option<DofIndex>,
 }
 
-/// A revolute degree of freedom.
+/// How a DoF moves the segment it carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DofKind {
+    /// It turns about its axis; positions in rad.
+    #[default]
+    Revolute,
+    /// It slides along its axis; positions in m. It turns no gravity, so only the accelerations of
+    /// its motion tell what it carries and where its axis points.
+    Prismatic,
+}
+
+/// Metres of travel a prismatic DoF makes per radian of a revolute DoF's excitation pattern: its
+/// pattern is the revolute one scaled by this (eqs. 10–12 with `A` in m/s), so that the plan's one
+/// pattern drives a gripper finger or a linear axis as a point 0.1 m from a revolute axis moves.
+pub const PRISMATIC_PATTERN_SCALE: f64 = 0.1;
+
+impl DofKind {
+    /// The transform of the child segment's frame in the joint frame at position `q`.
+    pub fn motion<T: RealField>(self, axis: &Unit<Vector3<f64>>, q: T) -> Isometry3<T> {
+        match self {
+            Self::Revolute => Isometry3::from_parts(
+                nalgebra::Translation3::identity(),
+                transform::rotation_about(axis, q),
+            ),
+            Self::Prismatic => Isometry3::from_parts(
+                nalgebra::Translation3::from(transform::vector::<T>(axis.as_ref()) * q),
+                nalgebra::UnitQuaternion::identity(),
+            ),
+        }
+    }
+
+    /// The unit of its position: `rad` or `m`.
+    pub fn unit(self) -> &'static str {
+        match self {
+            Self::Revolute => "rad",
+            Self::Prismatic => "m",
+        }
+    }
+
+    /// The factor from the plan's excitation pattern (rad) to this DoF's (1 or
+    /// [`PRISMATIC_PATTERN_SCALE`]).
+    pub fn pattern_scale(self) -> f64 {
+        match self {
+            Self::Revolute => 1.0,
+            Self::Prismatic => PRISMATIC_PATTERN_SCALE,
+        }
+    }
+
+    /// Its name as URDF and the robot descriptions spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Revolute => "revolute",
+            Self::Prismatic => "prismatic",
+        }
+    }
+}
+
+/// A degree of freedom: revolute or prismatic.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Dof {
     /// Unique name.
@@ -266,10 +325,17 @@ pub struct Dof {
     pub child: SegmentIndex,
     /// Placement of the joint frame on the parent segment.
     pub origin: Placement,
-    /// Unit rotation axis in the joint frame.
+    /// Unit axis in the joint frame: of rotation, or of translation for a prismatic DoF.
     pub axis: Unit<Vector3<f64>>,
+    /// Revolute or prismatic.
+    #[serde(default, skip_serializing_if = "is_revolute")]
+    pub kind: DofKind,
     /// Limits.
     pub limits: Limits,
+}
+
+fn is_revolute(kind: &DofKind) -> bool {
+    *kind == DofKind::Revolute
 }
 
 /// A sensor unit: one 3-axis accelerometer on a segment.
@@ -366,6 +432,15 @@ impl RobotModel {
     /// DoF names in order.
     pub fn dof_names(&self) -> Vec<String> {
         self.dofs.iter().map(|d| d.name.clone()).collect()
+    }
+
+    /// Names of the prismatic DoFs, in order.
+    pub fn prismatic_dof_names(&self) -> Vec<String> {
+        self.dofs
+            .iter()
+            .filter(|d| d.kind == DofKind::Prismatic)
+            .map(|d| d.name.clone())
+            .collect()
     }
 
     /// SU names in order.

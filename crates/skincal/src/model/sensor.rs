@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use super::kinematics::{forward_kinematics, Kinematics};
 use super::transform::scalar;
-use super::{DofIndex, RobotModel, SuIndex};
+use super::{DofIndex, DofKind, RobotModel, SuIndex};
 
 /// Gravitational acceleration used throughout, m/s² (1 g).
 pub const STANDARD_GRAVITY: f64 = 9.81;
@@ -72,6 +72,15 @@ impl Default for ExcitationPattern {
 }
 
 impl ExcitationPattern {
+    /// The pattern a DoF of `kind` runs: this one for a revolute DoF, scaled by
+    /// [`DofKind::pattern_scale`] (m per rad) for a prismatic one.
+    pub fn of(&self, kind: DofKind) -> ExcitationPattern {
+        ExcitationPattern {
+            amplitude: self.amplitude * kind.pattern_scale(),
+            frequency: self.frequency,
+        }
+    }
+
     /// `θ_patt(t) = A/(2πf)·(1 − cos 2πft)` (eq. 10), rad.
     pub fn angle(&self, t: f64) -> f64 {
         let w = 2.0 * PI * self.frequency;
@@ -140,7 +149,7 @@ pub fn specific_force<T: RealField>(
 }
 
 /// Acceleration (reference frame) of SU `su` when DoF `dof` turns with `omega` and `alpha`:
-/// `α z × r + ω² z × (z × r)`; zero when the DoF does not move the SU.
+/// `α z × r + ω² z × (z × r)`, or slides with them: `α z`; zero when the DoF does not move the SU.
 pub fn su_acceleration<T: RealField>(
     model: &RobotModel,
     kinematics: &Kinematics<T>,
@@ -153,6 +162,9 @@ pub fn su_acceleration<T: RealField>(
         return Vector3::zeros();
     }
     let z = kinematics.axis(model, dof);
+    if model.dofs()[dof].kind == DofKind::Prismatic {
+        return z * alpha;
+    }
     let r = kinematics.su_position(su) - kinematics.axis_point(dof);
     let tangential = z.cross(&r) * alpha;
     let centripetal = z.cross(&z.cross(&r)) * (omega.clone() * omega);
@@ -174,7 +186,8 @@ pub fn static_readings<T: RealField>(
 }
 
 /// Dynamic acceleration of every SU at the peak of `pattern` on `dof`, in each SU's frame (m/s²):
-/// `R_SU←ref · (2πfA · z_d × r)`. SUs that the DoF does not move read zero.
+/// `R_SU←ref · (2πfA · z_d × r)` (`R_SU←ref · 2πfA s · z_d` for a prismatic DoF, whose pattern is
+/// scaled by `s`, [`ExcitationPattern::of`]). SUs that the DoF does not move read zero.
 pub fn peak_dynamic_accelerations<T: RealField>(
     model: &RobotModel,
     parameters: &[T],
@@ -193,7 +206,7 @@ pub fn peak_dynamic_accelerations_at<T: RealField>(
     dof: DofIndex,
     pattern: &ExcitationPattern,
 ) -> Vec<Vector3<T>> {
-    let alpha: T = scalar(pattern.peak_acceleration());
+    let alpha: T = scalar(pattern.of(model.dofs()[dof].kind).peak_acceleration());
     (0..model.sus().len())
         .map(|su| {
             let a = su_acceleration(model, kinematics, su, dof, T::zero(), alpha.clone());
@@ -214,6 +227,7 @@ pub fn readings_during_pattern<T: RealField>(
     pattern: &ExcitationPattern,
     t: f64,
 ) -> Vec<Vector3<T>> {
+    let pattern = pattern.of(model.dofs()[dof].kind);
     let mut qt = q.to_vec();
     qt[dof] += scalar::<T>(pattern.angle(t));
     let k = forward_kinematics(model, parameters, &qt);
@@ -252,6 +266,7 @@ pub fn numerical_accelerations_at(
     t: f64,
     h: f64,
 ) -> Vec<Vector3<f64>> {
+    let pattern = pattern.of(model.dofs()[dof].kind);
     let at = |time: f64| {
         let mut qt = q.to_vec();
         qt[dof] += pattern.angle(time);

@@ -1,9 +1,9 @@
 //! URDF import (via `urdf-rs`).
 //!
-//! Revolute and continuous joints become DoFs; links joined by fixed joints are merged into one
-//! segment, named after the link closest to the root, and every merged link keeps its offset
-//! `T_segment←link`, so that joint origins and SU placements given on any link land correctly.
-//! The root link becomes the static reference segment. Prismatic, floating, planar and spherical
+//! Revolute, continuous and prismatic joints become DoFs; links joined by fixed joints are merged
+//! into one segment, named after the link closest to the root, and every merged link keeps its
+//! offset `T_segment←link`, so that joint origins and SU placements given on any link land
+//! correctly. The root link becomes the static reference segment. Floating, planar and spherical
 //! joints are rejected with an error naming the joint.
 
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::description::{random_su_placement, DescriptionError, SuEntry};
 use super::transform::xyz_rpy;
-use super::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use super::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 
 /// Where the SUs of an imported URDF come from.
 #[derive(Debug, Clone, PartialEq)]
@@ -255,8 +255,7 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
     for j in &tree.joints {
         use urdf_rs::JointType as J;
         let kind = match j.kind {
-            J::Revolute | J::Continuous | J::Fixed => continue,
-            J::Prismatic => "prismatic",
+            J::Revolute | J::Continuous | J::Prismatic | J::Fixed => continue,
             J::Floating => "floating",
             J::Planar => "planar",
             J::Spherical => "spherical",
@@ -297,6 +296,11 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
             child: j.child.clone(),
             origin: PlacementSpec::from_isometry(&origin),
             axis: j.axis,
+            kind: if matches!(j.kind, urdf_rs::JointType::Prismatic) {
+                DofKind::Prismatic
+            } else {
+                DofKind::Revolute
+            },
             limits,
         });
     }
@@ -341,9 +345,11 @@ fn positive(v: f64) -> Option<f64> {
 }
 
 /// A robot as URDF text, kinematics only: one link per segment (the reference segment is the root
-/// link), one `continuous` joint per DoF named after it (origin and axis as in the model; the
-/// range the model's limits give is noted in a comment, not written as a `<limit>`: the robot's
-/// real limits, effort and velocity are not known), and one link per SU named after it, attached
+/// link), one `continuous` joint per revolute DoF named after it (origin and axis as in the model;
+/// the range the model's limits give is noted in a comment, not written as a `<limit>`: the
+/// robot's real limits, effort and velocity are not known), one `prismatic` joint per prismatic
+/// DoF (whose `<limit>` URDF requires: the model's range, effort and velocity 0 as unknown), and
+/// one link per SU named after it, attached
 /// to its segment by a fixed joint `<su>_mount` (origin only). No link has inertial values.
 /// Loading the text back and composing the joints gives the model's forward kinematics.
 ///
@@ -399,11 +405,20 @@ pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
     for (d, dof) in m.dofs().iter().enumerate() {
         let placement = k.segments[dof.parent].inverse() * k.joints[d];
         let axis = dof.axis.into_inner();
+        let kind = match dof.kind {
+            DofKind::Revolute => "continuous",
+            DofKind::Prismatic => "prismatic",
+        };
         out.push_str(&format!(
-            "  <joint name=\"{}\" type=\"continuous\">\n",
+            "  <joint name=\"{}\" type=\"{kind}\">\n",
             xml_escape(&dof.name)
         ));
-        if dof.limits != super::Limits::CONTINUOUS {
+        if dof.kind == DofKind::Prismatic {
+            out.push_str(&format!(
+                "    <limit lower=\"{}\" upper=\"{}\" effort=\"0\" velocity=\"0\"/>\n",
+                dof.limits.lower, dof.limits.upper
+            ));
+        } else if dof.limits != super::Limits::CONTINUOUS {
             out.push_str(&format!(
                 "    <!-- calibrated over {} … {} rad -->\n",
                 dof.limits.lower, dof.limits.upper

@@ -30,7 +30,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::model::sensor::ExcitationPattern;
-use crate::model::Robot;
+use crate::model::{DofKind, Robot};
 
 mod sweep;
 pub mod trajectory;
@@ -415,6 +415,14 @@ pub struct PlanDof {
     /// for a DoF on the base.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub parent: Option<String>,
+    /// Revolute or prismatic: a prismatic DoF's limits are in m, m/s and m/s², and it runs the
+    /// pattern scaled by [`DofKind::pattern_scale`].
+    #[serde(default, skip_serializing_if = "is_revolute")]
+    pub kind: DofKind,
+}
+
+fn is_revolute(kind: &DofKind) -> bool {
+    *kind == DofKind::Revolute
 }
 
 impl PlanDof {
@@ -435,8 +443,22 @@ impl PlanDof {
                 acceleration: d.limits.acceleration.unwrap_or(DEFAULT_ACCELERATION),
                 velocity_assumed: d.limits.velocity.is_none(),
                 acceleration_assumed: d.limits.acceleration.is_none(),
+                kind: d.kind,
             })
             .collect()
+    }
+
+    /// Its limits in the units of the plan's pattern (rad): a prismatic DoF's divided by its
+    /// pattern scale, so that one pattern is checked against every DoF alike.
+    fn in_pattern_units(&self) -> PlanDof {
+        let s = self.kind.pattern_scale();
+        PlanDof {
+            lower: self.lower / s,
+            upper: self.upper / s,
+            velocity: self.velocity / s,
+            acceleration: self.acceleration / s,
+            ..self.clone()
+        }
     }
 
     fn check(&self) -> Result<(), PlanError> {
@@ -616,6 +638,8 @@ pub struct PatternChoice {
 /// Chooses `A` and `f` for `dofs` (see the module documentation). With `config.pattern` set, checks
 /// that pattern instead.
 pub fn choose_pattern(dofs: &[PlanDof], config: &PlanConfig) -> Result<PatternChoice, PlanError> {
+    let dofs: Vec<PlanDof> = dofs.iter().map(PlanDof::in_pattern_units).collect();
+    let dofs = dofs.as_slice();
     let window = Window {
         ramp_cycles: config.ramp_cycles,
         hold_cycles: config.hold_cycles,
@@ -1102,9 +1126,10 @@ impl Plan {
                 let [x, v, a] = self.window.pattern_at(&self.pattern, tau);
                 for name in std::iter::once(dof).chain(together) {
                     if let Some(d) = self.dofs.iter().position(|x| &x.name == name) {
-                        s.q[d] += x;
-                        s.qd[d] = v;
-                        s.qdd[d] = a;
+                        let scale = self.dofs[d].kind.pattern_scale();
+                        s.q[d] += x * scale;
+                        s.qd[d] = v * scale;
+                        s.qdd[d] = a * scale;
                     }
                 }
             }
@@ -1190,9 +1215,10 @@ pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
 
 /// A random training pose within each DoF's range (within ±`pose_range`), leaving room for the
 /// excitation's `excursion` above it.
-fn draw_pose(dofs: &[PlanDof], pose_range: f64, excursion: f64, rng: &mut impl Rng) -> Vec<f64> {
+fn draw_pose(dofs: &[PlanDof], pose_range: f64, excursion: &[f64], rng: &mut impl Rng) -> Vec<f64> {
     dofs.iter()
-        .map(|d| {
+        .zip(excursion)
+        .map(|(d, &excursion)| {
             let lo = d.lower.max(-pose_range);
             let hi = (d.upper - excursion).min(pose_range);
             let (lo, hi) = if lo <= hi {
@@ -1247,7 +1273,7 @@ impl Guard<'_> {
 
     /// The first contact of a training pose or its excitations: every slot's DoFs together at
     /// half and at the whole of the pattern's `excursion` (the pattern moves a DoF one way).
-    fn pose_contact(&self, q: &[f64], slots: &[Vec<usize>], excursion: f64) -> Option<Touch> {
+    fn pose_contact(&self, q: &[f64], slots: &[Vec<usize>], excursion: &[f64]) -> Option<Touch> {
         let clearance = self.clearance?;
         let touch = |q: &[f64]| clearance.contact(q, 0.0);
         touch(q).or_else(|| {
@@ -1255,7 +1281,7 @@ impl Guard<'_> {
                 [0.5, 1.0].iter().find_map(|share| {
                     let mut moved = q.to_vec();
                     for &d in slot {
-                        moved[d] += excursion * share;
+                        moved[d] += excursion[d] * share;
                     }
                     touch(&moved)
                 })
@@ -1271,7 +1297,7 @@ impl Guard<'_> {
         &mut self,
         p: usize,
         slots: &[Vec<usize>],
-        excursion: f64,
+        excursion: &[f64],
         from: Option<&[f64]>,
         draw: &mut dyn FnMut() -> Vec<f64>,
     ) -> Result<Vec<f64>, PlanError> {
@@ -1392,7 +1418,8 @@ impl Builder<'_> {
                 velocity: None,
                 acceleration: None,
             };
-            let target = structure_move(&limits, rest[d], config.structure_angle);
+            let angle = config.structure_angle * dofs[d].kind.pattern_scale();
+            let target = structure_move(&limits, rest[d], angle);
             let mut moved = rest.to_vec();
             moved[d] = target;
             let other = 2.0 * rest[d] - target;
@@ -1458,22 +1485,25 @@ impl Builder<'_> {
     ) -> Result<(), PlanError> {
         let dofs = self.dofs;
         let mut rng = pose_stream(config.seed);
-        let excursion = pattern.excursion() * 1.01;
+        let excursion: Vec<f64> = dofs
+            .iter()
+            .map(|d| pattern.of(d.kind).excursion() * 1.01)
+            .collect();
         let slots = if config.parallel {
             slots(dofs)
         } else {
             (0..dofs.len()).map(|d| vec![d]).collect()
         };
-        let mut draw = || draw_pose(dofs, config.pose_range, excursion, &mut rng);
+        let mut draw = || draw_pose(dofs, config.pose_range, &excursion, &mut rng);
         let drawn = (0..config.poses)
-            .map(|p| guard.clear_pose(p, &slots, excursion, None, &mut draw))
+            .map(|p| guard.clear_pose(p, &slots, &excursion, None, &mut draw))
             .collect::<Result<Vec<_>, _>>()?;
         for (p, q) in self.nearest_first(drawn).into_iter().enumerate() {
             let q = match guard.path_contact(&self.pose, &q) {
                 None => q,
                 Some(_) => {
                     let from = self.pose.clone();
-                    guard.clear_pose(p, &slots, excursion, Some(&from), &mut draw)?
+                    guard.clear_pose(p, &slots, &excursion, Some(&from), &mut draw)?
                 }
             };
             self.go(Part::Training, &q, Some(p));

@@ -234,6 +234,7 @@ mod tests {
             velocity_assumed: false,
             acceleration_assumed: false,
             parent: None,
+            kind: crate::model::DofKind::Revolute,
         }
     }
 

@@ -597,6 +597,7 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
     let mut sensors = faulty_sensors(robot, config, data_seed)?;
     let mut pose_rng = pose_stream(data_seed);
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
+    set.prismatic = model.prismatic_dof_names();
     let mut orientations = vec![BaseOrientation::upright()];
     if config.tilted_orientation {
         orientations.push(BaseOrientation::tilted());
@@ -697,11 +698,9 @@ fn structure_experiment(
         let moves = (0..model.dofs().len())
             .map(|d| {
                 let mut pose = rest_pose.clone();
-                pose[d] = structure_move(
-                    &model.dofs()[d].limits,
-                    rest_pose[d],
-                    config.structure_angle,
-                );
+                let dof = &model.dofs()[d];
+                let angle = config.structure_angle * dof.kind.pattern_scale();
+                pose[d] = structure_move(&dof.limits, rest_pose[d], angle);
                 let readings = static_readings(robot, sensors, &pose, &g);
                 Move {
                     dof: model.dofs()[d].name.clone(),
@@ -929,6 +928,7 @@ fn random_dof(
         child: child.clone(),
         origin: PlacementSpec::from_isometry(&origin),
         axis,
+        kind: crate::model::DofKind::Revolute,
         limits: Limits {
             velocity: Some(2.0),
             acceleration: Some(10.0),
@@ -1006,6 +1006,7 @@ pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError>
             child: format!("link{k}"),
             origin,
             axis: Vector3::z(),
+            kind: crate::model::DofKind::Revolute,
             limits: Limits {
                 velocity: Some(1.7),
                 acceleration: Some(10.0),

@@ -209,6 +209,7 @@ impl Limb {
                 child: child.clone(),
                 origin: PlacementSpec::from_isometry(&placement),
                 axis: Vector3::z(),
+                kind: crate::model::DofKind::Revolute,
                 limits: limits(rng),
             });
             self.parent = child;

@@ -123,6 +123,7 @@ pub fn cramer_rao_bound(
             &(0..dofs)
                 .map(|_| rng.random_range(-2.62..=2.62))
                 .collect::<Vec<f64>>(),
+            &layout.kinds,
         );
         let pair = |s: &ChainState, i: usize| {
             let f = frames(s, &layout, &q, None, layout.dofs);
@@ -225,7 +226,8 @@ pub fn observable_su_errors(
         .map(|d| truth.model.dof_index(d))
         .collect::<Option<_>>()?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let held_out: Vec<Vec<UnitQuaternion<f64>>> = (0..poses)
+    let kinds = data.chain.kinds();
+    let held_out: Vec<Vec<Isometry3<f64>>> = (0..poses)
         .map(|_| {
             let q: Vec<f64> = dofs
                 .iter()
@@ -239,7 +241,7 @@ pub fn observable_su_errors(
                     }
                 })
                 .collect();
-            turns_of(&q)
+            turns_of(&q, &kinds)
         })
         .collect();
     let problem = PairProblem::new(data, config, held_out, estimate);
@@ -291,7 +293,7 @@ struct PairProblem<'a> {
     map: ColumnMap,
     readings: Readings,
     sigma: f64,
-    held_out: Vec<Vec<UnitQuaternion<f64>>>,
+    held_out: Vec<Vec<Isometry3<f64>>>,
     /// The estimate's pairs, and its SU frames on their segments.
     target: Vec<Isometry3<f64>>,
     estimate_sus: Vec<Isometry3<f64>>,
@@ -303,13 +305,10 @@ impl<'a> PairProblem<'a> {
     fn new(
         data: &'a LimbData,
         config: &MlConfig,
-        held_out: Vec<Vec<UnitQuaternion<f64>>>,
+        held_out: Vec<Vec<Isometry3<f64>>>,
         estimate: &ChainState,
     ) -> Self {
-        let layout = Layout {
-            dofs: data.chain.dofs().len(),
-            su_segment: data.su_depth.clone(),
-        };
+        let layout = Layout::of(data);
         let mut spec = full_spec(&layout, 1, true, None, config.intrinsics);
         if config.intrinsics.components() > 3 {
             spec.blocks[0] = Block::GravityDirection;

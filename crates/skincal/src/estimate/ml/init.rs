@@ -7,6 +7,7 @@ use nalgebra::{
 
 use super::problem::{frames, Layout, Readings};
 use super::ChainState;
+use crate::model::DofKind;
 
 /// Rotation taking unit vector `n` onto `z`.
 pub(super) fn onto_z(n: &Vector3<f64>) -> UnitQuaternion<f64> {
@@ -64,6 +65,9 @@ pub(super) fn su_from_axis(
         .filter(|&p| !data.is_rejected(p, u, 1 + d))
         .map(|p| data.dynamics[p][u][d])
         .collect();
+    if layout.kinds[d] == DofKind::Prismatic {
+        return su_on_slide(&rows, sign);
+    }
     if rows.is_empty() {
         let n = axis_from_gravity(state, layout, data, u, d) * sign;
         return Isometry3::from_parts(Translation3::identity(), onto_z(&n));
@@ -73,6 +77,17 @@ pub(super) fn su_from_axis(
     let lever = mean.cross(&n);
     let rotation = onto_z(&n);
     Isometry3::from_parts(Translation3::from(rotation * lever), rotation)
+}
+
+/// Closed-form placement of an SU on the segment a prismatic DoF moves directly: its pattern
+/// accelerates the SU along the axis alone, so the axis in the SU frame is the mean direction of
+/// those accelerations (`sign` −1 gives the reverse, a start the fit should leave). Where on the
+/// segment the SU sits is not told by the slide (its line may be anywhere): the SU is put at the
+/// segment's origin and the joint's position found from the upstream DoFs.
+fn su_on_slide(rows: &[Vector3<f64>], sign: f64) -> Isometry3<f64> {
+    let mean: Vector3<f64> = rows.iter().sum();
+    let n = mean.try_normalize(1e-12).unwrap_or_else(Vector3::z) * sign;
+    Isometry3::from_parts(Translation3::identity(), onto_z(&n))
 }
 
 /// The axis of DoF `d` in the frame of SU `u` on the segment it moves directly, from the SU's
@@ -431,16 +446,21 @@ impl Lsq3 {
 }
 
 /// Adds the upstream accelerations of an SU whose position is `c + R_seg·t` (world) with unknown `t`:
-/// `a_w/α = z × (c + R_seg t − o)`, i.e. `[z]×·R_seg·t = a_w/α − z × (c − o)`, for every DoF `d < k`.
+/// `a_w/α = z × (c + R_seg t − o)`, i.e. `[z]×·R_seg·t = a_w/α − z × (c − o)`, for every revolute
+/// DoF `d` of the `upstream` ones (a prismatic DoF accelerates every point it carries alike: its
+/// readings tell no position).
 fn add_lever_rows(
     lsq: &mut Lsq3,
     f: &super::problem::Frames,
-    k: usize,
+    upstream: &[DofKind],
     rseg: &Matrix3<f64>,
     c: &Vector3<f64>,
     accelerations_world: impl Fn(usize) -> Option<Vector3<f64>>,
 ) {
-    for d in 0..k {
+    for (d, kind) in upstream.iter().enumerate() {
+        if *kind == DofKind::Prismatic {
+            continue;
+        }
         let Some(a) = accelerations_world(d) else {
             continue;
         };
@@ -485,9 +505,9 @@ pub(super) fn joint_starts(
                 let turn = data.turns[p][k];
                 let r_world = seg.rotation * r * turn * tail[p].rotation;
                 let c =
-                    (seg * nalgebra::Point3::from(r * (turn * tail[p].translation.vector))).coords;
+                    (seg * nalgebra::Point3::from(r * (turn * tail[p]).translation.vector)).coords;
                 let rseg = seg.rotation.to_rotation_matrix().into_inner();
-                add_lever_rows(&mut lsq, f, k, &rseg, &c, |d| {
+                add_lever_rows(&mut lsq, f, &layout.kinds[..k], &rseg, &c, |d| {
                     (!data.is_rejected(p, u, 1 + d))
                         .then(|| r_world * data.dynamics[p][u][d] / data.alpha)
                 });
@@ -525,7 +545,8 @@ pub(super) fn su_starts(
                 let seg = f.segments[s];
                 let rseg = seg.rotation.to_rotation_matrix().into_inner();
                 let r_world = seg.rotation * r;
-                add_lever_rows(&mut lsq, f, s, &rseg, &seg.translation.vector, |d| {
+                let kinds = &layout.kinds[..s];
+                add_lever_rows(&mut lsq, f, kinds, &rseg, &seg.translation.vector, |d| {
                     (!data.is_rejected(p, u, 1 + d))
                         .then(|| r_world * data.dynamics[p][u][d] / data.alpha)
                 });

@@ -627,7 +627,10 @@ impl MlChainEstimate {
 fn readings(data: &LimbData) -> Readings {
     Readings {
         q: data.q.clone(),
-        turns: data.q.iter().map(|q| turns_of(q)).collect(),
+        turns: {
+            let kinds = data.chain.kinds();
+            data.q.iter().map(|q| turns_of(q, &kinds)).collect()
+        },
         statics: data.statics.clone(),
         dynamics: data.dynamics.clone(),
         alpha: data.pattern.peak_acceleration(),
@@ -1080,10 +1083,7 @@ impl<'a> Search<'a> {
         Self {
             data,
             config,
-            layout: Layout {
-                dofs,
-                su_segment: data.su_depth.clone(),
-            },
+            layout: Layout::of(data),
             readings,
             spans: spans(data),
             empty: ChainState {
@@ -1456,10 +1456,7 @@ impl Lead<'_> {
             vertical,
             config,
         } = *self;
-        let layout = Layout {
-            dofs: data.q.first().map_or(0, |q| q.len()),
-            su_segment: data.su_depth.clone(),
-        };
+        let layout = Layout::of(data);
         let mut spec = full_spec(
             &layout,
             data.chain.base_dofs().max(1),
@@ -1633,10 +1630,7 @@ fn final_fit(
     started: Instant,
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
-    let layout = Layout {
-        dofs: data.q.first().map_or(0, |q| q.len()),
-        su_segment: data.su_depth.clone(),
-    };
+    let layout = Layout::of(data);
     // The whole limb at once: the kinematics, then with the accelerometer intrinsics; glitches
     // left out; the static and dynamic noise weighed apart.
     let gauge_su = gauge_su(data, base);
@@ -2565,7 +2559,7 @@ fn relative_pose(state: &ChainState, layout: &Layout, u: usize) -> Isometry3<f64
     let f = frames(
         state,
         layout,
-        &vec![UnitQuaternion::identity(); layout.dofs],
+        &vec![Isometry3::identity(); layout.dofs],
         None,
         layout.dofs,
     );
@@ -2732,6 +2726,7 @@ fn limb_robot(
     let dofs = chain.dofs();
     let sus = chain.sus();
     let mut b = RobotBuilder::new(chain.name.clone(), "reference");
+    let kinds = chain.kinds();
     for (k, dof) in dofs.iter().enumerate() {
         b.dofs.push(DofSpec {
             name: dof.clone(),
@@ -2743,7 +2738,16 @@ fn limb_robot(
             child: chain.segment_after(k),
             origin: PlacementSpec::from_isometry(&state.joints[k]),
             axis: Vector3::z(),
-            limits: Limits::CONTINUOUS,
+            kind: kinds[k],
+            limits: match kinds[k] {
+                crate::model::DofKind::Revolute => Limits::CONTINUOUS,
+                crate::model::DofKind::Prismatic => Limits {
+                    lower: -1.0,
+                    upper: 1.0,
+                    velocity: None,
+                    acceleration: None,
+                },
+            },
         });
     }
     for (u, su) in sus.iter().enumerate() {
@@ -2784,6 +2788,7 @@ fn serial_layout(dofs: usize) -> Layout {
     Layout {
         dofs,
         su_segment: (1..=dofs).collect(),
+        kinds: vec![crate::model::DofKind::Revolute; dofs],
     }
 }
 

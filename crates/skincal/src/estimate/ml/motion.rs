@@ -6,7 +6,7 @@
 //! Each sample is one instant of the chain's motion: its segments' terms and their derivatives
 //! come from the limb's one kinematics ([`super::terms`]), as the readings' do.
 
-use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 
 use super::problem::Block;
@@ -14,6 +14,7 @@ use super::terms::{link, Chain, Instant, SegmentTerms};
 use super::ChainState;
 use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
+use crate::model::DofKind;
 use crate::motion::{MotionRecord, SkinFilter, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
@@ -32,8 +33,8 @@ pub const SUDDEN: f64 = 3.0;
 pub(super) struct MotionSample {
     run: usize,
     block: usize,
-    /// `Rz(q)` of every DoF.
-    turns: Vec<UnitQuaternion<f64>>,
+    /// The motion of every DoF: `Rz(q)`, or `Tz(q)` for a prismatic one.
+    turns: Vec<Isometry3<f64>>,
     qd: Vec<f64>,
     qdd: Vec<f64>,
     qdd_sd: Vec<f64>,
@@ -43,6 +44,8 @@ pub(super) struct MotionSample {
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
     period: f64,
+    /// Per chain DoF: revolute or prismatic.
+    kinds: Vec<DofKind>,
     /// Blocks between two samples the fit takes in a run.
     stride: usize,
     pub(super) samples: Vec<MotionSample>,
@@ -93,6 +96,7 @@ impl LimbMotion {
             .iter()
             .map(|s| find("SU", &record.sus, s))
             .collect::<Result<_, _>>()?;
+        let kinds = data.chain.kinds();
         let margin = (MAX_DELAY / record.period).ceil() as usize + 2;
         let limits = sudden_limits(record, &dofs);
         let filter = record.skin_filter();
@@ -112,7 +116,7 @@ impl LimbMotion {
                 samples.push(MotionSample {
                     run: r,
                     block: b,
-                    turns: super::problem::turns_of(&pick(&run.q[b])),
+                    turns: super::problem::turns_of(&pick(&run.q[b]), &kinds),
                     qd: pick(&run.qd[b]),
                     qdd: pick(&run.qdd[b]),
                     qdd_sd: pick(&run.qdd_sd[b]),
@@ -142,6 +146,7 @@ impl LimbMotion {
             .collect();
         Ok(Self {
             period: record.period,
+            kinds,
             stride,
             samples,
             skin,
@@ -171,9 +176,14 @@ impl LimbMotion {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
                 let mut axes = Vec::with_capacity(state.joints.len());
-                for (joint, turn) in state.joints.iter().zip(&sample.turns) {
+                for ((joint, turn), kind) in state.joints.iter().zip(&sample.turns).zip(&self.kinds)
+                {
                     let (frame, next) = link(&segment, joint, turn);
-                    axes.push((frame.rotation * Vector3::z(), frame.translation.vector));
+                    axes.push((
+                        frame.rotation * Vector3::z(),
+                        frame.translation.vector,
+                        *kind,
+                    ));
                     segment = next;
                     segments.push(segment);
                 }
@@ -186,7 +196,10 @@ impl LimbMotion {
                             .iter()
                             .take(s)
                             .zip(&sample.qdd_sd)
-                            .map(|((z, o), sd)| (z.cross(&(p - o)) * *sd).norm_squared())
+                            .map(|((z, o, kind), sd)| match kind {
+                                DofKind::Revolute => (z.cross(&(p - o)) * *sd).norm_squared(),
+                                DofKind::Prismatic => sd * sd,
+                            })
                             .sum();
                         let spin: f64 = sample.qd.iter().take(s).map(|v| v.abs()).sum();
                         let turn: f64 = sample.qdd.iter().take(s).map(|a| a.abs()).sum();
@@ -292,7 +305,7 @@ pub(super) fn segment_terms(
     last: usize,
     columns: Option<&[(Block, usize)]>,
 ) -> Vec<SegmentTerms> {
-    let chain = Chain::new(state, columns);
+    let chain = Chain::new(state, &motion.kinds, columns);
     motion
         .samples
         .par_iter()

@@ -18,8 +18,10 @@ use rayon::prelude::*;
 use super::motion::{segment_terms, LimbMotion, MAX_DELAY};
 use super::terms::{link, Chain, ReadingInstants, SegmentTerms};
 use super::{ChainState, Unobservable};
+use crate::estimate::limb::LimbData;
 use crate::model::intrinsics::Intrinsics;
 use crate::model::sensor::STANDARD_GRAVITY;
+use crate::model::DofKind;
 
 /// The prior standard deviation of each intrinsic component (bias 0.1 g, scale 5 %,
 /// misalignment 0.05 rad): weak beside what the readings tell when they tell it, it holds the
@@ -51,14 +53,27 @@ pub(super) const POSITION_PRIOR_SD: f64 = 10.0;
 pub(super) struct Layout {
     pub dofs: usize,
     pub su_segment: Vec<usize>,
+    /// Per DoF: revolute or prismatic (turns about or slides along its joint frame's `z`).
+    pub kinds: Vec<DofKind>,
+}
+
+impl Layout {
+    /// The layout of a limb's data.
+    pub fn of(data: &LimbData) -> Self {
+        Self {
+            dofs: data.chain.dofs().len(),
+            su_segment: data.su_depth.clone(),
+            kinds: data.chain.kinds(),
+        }
+    }
 }
 
 /// Readings of the limb, per pose and SU, in m/s².
 #[derive(Debug, Clone)]
 pub(super) struct Readings {
     pub q: Vec<Vec<f64>>,
-    /// `Rz(q)` of every DoF in every pose.
-    pub turns: Vec<Vec<UnitQuaternion<f64>>>,
+    /// The motion of every DoF in every pose: `Rz(q)`, or `Tz(q)` for a prismatic one.
+    pub turns: Vec<Vec<Isometry3<f64>>>,
     pub statics: Vec<Vec<Vector3<f64>>>,
     /// `dynamics[p][u][d]` for every DoF `d` before the SU.
     pub dynamics: Vec<Vec<Vec<Vector3<f64>>>>,
@@ -249,10 +264,11 @@ pub(super) fn prefixes(
     )
 }
 
-/// `Rz(q_k)` for every DoF of a pose.
-pub(super) fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
+/// The motion of every DoF of a pose: `Rz(q_k)`, or `Tz(q_k)` for a prismatic DoF.
+pub(super) fn turns_of(q: &[f64], kinds: &[DofKind]) -> Vec<Isometry3<f64>> {
     q.iter()
-        .map(|&a| UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a))
+        .zip(kinds)
+        .map(|(&a, kind)| kind.motion(&Vector3::z_axis(), a))
         .collect()
 }
 
@@ -261,7 +277,7 @@ pub(super) fn turns_of(q: &[f64]) -> Vec<UnitQuaternion<f64>> {
 pub(super) fn frames(
     state: &ChainState,
     layout: &Layout,
-    turns: &[UnitQuaternion<f64>],
+    turns: &[Isometry3<f64>],
     prefix: Option<&Prefix>,
     last: usize,
 ) -> Frames {
@@ -345,8 +361,8 @@ fn pose_terms(
 ) -> Vec<Vec<SegmentTerms>> {
     let last = last_segment(layout, spec);
     let columns = shared_columns(spec, map);
-    let chain = Chain::new(state, jacobian.then_some(columns.as_slice()));
-    let readings = ReadingInstants::new(layout.dofs, last, data.alpha);
+    let chain = Chain::new(state, &layout.kinds, jacobian.then_some(columns.as_slice()));
+    let readings = ReadingInstants::new(&layout.kinds, last, data.alpha);
     let instants = readings.instants();
     (0..data.q.len())
         .into_par_iter()

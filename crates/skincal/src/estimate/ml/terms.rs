@@ -18,14 +18,14 @@ use num_dual::Dual64;
 
 use super::problem::{gravity_directions, Block, Prefix};
 use super::ChainState;
-use crate::model::BodyMotion;
+use crate::model::{BodyMotion, DofKind};
 
 /// Joint `k`'s frame and the frame of the segment its DoF turns, from the frame `segment` of the
 /// segment it sits on, its frame `joint` there and its turn `Rz(q_k)`: `(S·J, S·J·Rz(q))`.
 pub(super) fn link<T: RealField + Copy>(
     segment: &Isometry3<T>,
     joint: &Isometry3<T>,
-    turn: &UnitQuaternion<T>,
+    turn: &Isometry3<T>,
 ) -> (Isometry3<T>, Isometry3<T>) {
     let frame = segment * joint;
     (frame, frame * turn)
@@ -71,12 +71,14 @@ pub(super) struct ReadingInstants {
 }
 
 impl ReadingInstants {
-    /// For a chain of `dofs` DoFs whose dynamic readings are those of DoFs `0…dynamic−1`.
-    pub fn new(dofs: usize, dynamic: usize, alpha: f64) -> Self {
+    /// For a chain of DoFs of `kinds` whose dynamic readings are those of DoFs `0…dynamic−1`,
+    /// under a pattern of peak acceleration `alpha` (scaled for a prismatic DoF).
+    pub fn new(kinds: &[DofKind], dynamic: usize, alpha: f64) -> Self {
+        let dofs = kinds.len();
         let kicks = (0..dynamic.min(dofs))
             .map(|d| {
                 let mut a = vec![0.0; dofs];
-                a[d] = alpha;
+                a[d] = alpha * kinds[d].pattern_scale();
                 a
             })
             .collect();
@@ -158,14 +160,15 @@ impl<T: RealField + Copy> Stage<T> {
         }
     }
 
-    /// Moves the stage on to the segment DoF `k` turns by `turn`, its joint frame `joint` on
-    /// this segment (followed by the local motion `step` when given).
+    /// Moves the stage on to the segment DoF `k` (of `kind`) moves by `turn`, its joint frame
+    /// `joint` on this segment (followed by the local motion `step` when given).
     fn advance(
         &mut self,
         k: usize,
+        kind: DofKind,
         joint: &Isometry3<T>,
         step: Option<&Isometry3<T>>,
-        turn: &UnitQuaternion<T>,
+        turn: &Isometry3<T>,
         instants: &[Instant],
     ) {
         let joint = step.map_or(*joint, |s| joint * s);
@@ -174,9 +177,10 @@ impl<T: RealField + Copy> Stage<T> {
         let point = frame.translation.vector;
         for (motion, i) in self.motions.iter_mut().zip(instants) {
             // A DoF at rest adds nothing to the motion it carries on (exactly: every term of
-            // `through` is a multiple of its rate or acceleration).
+            // `through` and `slide` is a multiple of its rate or acceleration).
             if i.qd[k] != 0.0 || i.qdd[k] != 0.0 {
-                *motion = motion.through(
+                *motion = motion.moved_by(
+                    kind,
                     &axis,
                     &point,
                     T::from_subset(&i.qd[k]),
@@ -203,6 +207,7 @@ enum Column {
 /// and the shared columns the derivatives are wanted along.
 pub(super) struct Chain<'a> {
     state: &'a ChainState,
+    kinds: &'a [DofKind],
     lifted: Vec<Isometry3<Dual64>>,
     gravity: Vector3<Dual64>,
     columns: Vec<Column>,
@@ -211,7 +216,11 @@ pub(super) struct Chain<'a> {
 impl<'a> Chain<'a> {
     /// `columns`: the problem's shared columns (block and component) to differentiate along;
     /// `None` for the terms alone.
-    pub fn new(state: &'a ChainState, columns: Option<&[(Block, usize)]>) -> Self {
+    pub fn new(
+        state: &'a ChainState,
+        kinds: &'a [DofKind],
+        columns: Option<&[(Block, usize)]>,
+    ) -> Self {
         let directions = gravity_directions(&state.gravity);
         let columns = columns
             .unwrap_or(&[])
@@ -226,21 +235,22 @@ impl<'a> Chain<'a> {
             .collect();
         Self {
             state,
+            kinds,
             lifted: state.joints.iter().map(lift).collect(),
             gravity: state.gravity.map(Dual64::from),
             columns,
         }
     }
 
-    /// The terms of segments `1..=last` at each instant of a pose whose DoFs turn by `turns`
-    /// (`Rz(q)` per DoF), and their rates along the chain's columns. From `prefix`, the frames
+    /// The terms of segments `1..=last` at each instant of a pose whose DoFs move by `turns`
+    /// (`Rz(q)` or `Tz(q)` per DoF), and their rates along the chain's columns. From `prefix`, the frames
     /// before its segment are taken from it, and the segments before it get zero terms.
     ///
     /// One pass down the chain: at each joint, the passes of the columns of its line start from
     /// the real stage (lifted to dual numbers), and every pass moves on with the real one.
     pub fn terms(
         &self,
-        turns: &[UnitQuaternion<f64>],
+        turns: &[Isometry3<f64>],
         prefix: Option<&Prefix>,
         instants: &[Instant],
         last: usize,
@@ -264,14 +274,15 @@ impl<'a> Chain<'a> {
                         passes.push((col, k, lift_stage(&stage)));
                     }
                 }
-                stage.advance(k, &self.state.joints[k], None, &turns[k], instants);
-                let turn = lift_turn(&turns[k]);
+                let kind = self.kinds[k];
+                stage.advance(k, kind, &self.state.joints[k], None, &turns[k], instants);
+                let turn = lift(&turns[k]);
                 for (col, from, pass) in &mut passes {
                     let step = match &self.columns[*col] {
                         Column::Joint(_, step) if *from == k => Some(step),
                         _ => None,
                     };
-                    pass.advance(k, &self.lifted[k], step, &turn, instants);
+                    pass.advance(k, kind, &self.lifted[k], step, &turn, instants);
                 }
             }
             for o in &mut out {
@@ -345,7 +356,7 @@ impl<'a> Chain<'a> {
                 motions
                     .iter()
                     .zip(instants)
-                    .map(|(m, i)| m.through(&axis, &point, i.qd[k], i.qdd[k]))
+                    .map(|(m, i)| m.moved_by(self.kinds[k], &axis, &point, i.qd[k], i.qdd[k]))
                     .collect()
             });
         let first = prefix.joints.len();
