@@ -475,12 +475,14 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
         let robot = io::load_robot(spec, SuPlacement::default())?;
         config.dofs = Some(robot.model.dof_names());
         config.sus = Some(robot.model.su_names());
+        config.prismatic = robot.model.prismatic_dof_names();
     }
     if let Some(path) = &args.plan {
         let plan = skincal::io::read_plan(path)?;
         config.pattern = Some(plan.pattern);
         if config.dofs.is_none() {
             config.dofs = Some(plan.dof_names());
+            config.prismatic = plan.prismatic_dof_names();
         }
         config = config.for_still_periods(plan.config.still);
     }

@@ -198,6 +198,7 @@ pub fn reading_noise(
     )?;
     let ingest_config = IngestConfig {
         pattern: Some(plan.pattern),
+        prismatic: plan.prismatic_dof_names(),
         ..IngestConfig::default()
     }
     .for_still_periods(plan.config.still);

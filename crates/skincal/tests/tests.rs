@@ -18,6 +18,7 @@ mod ml_estimation;
 mod motion;
 mod paper;
 mod physics;
+mod prismatic;
 mod real_logs;
 mod real_robots;
 mod robot_like;

@@ -637,6 +637,7 @@ fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
 fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec<bool>>> {
     let nu = passes.sus.names.len();
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
+    set.prismatic = prismatic_of(passes);
     set.structure = Some(StructureExperiment {
         orientations: orientations.to_vec(),
         extra: Map::new(),
@@ -701,6 +702,7 @@ pub(super) fn assemble(
         }));
     }
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
+    set.prismatic = prismatic_of(&passes);
     let dynamic = poses.iter().map(|p| p.dynamic.len()).sum();
     let (orientation_count, training_poses) = (orientations.len(), poses.len());
     if !orientations.is_empty() {
@@ -875,4 +877,14 @@ fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
         }
     }
     warnings
+}
+
+/// The logged DoFs that the configuration names prismatic.
+fn prismatic_of(passes: &Passes<'_>) -> Vec<String> {
+    passes
+        .dofs
+        .iter()
+        .filter(|d| passes.config.prismatic.contains(d))
+        .cloned()
+        .collect()
 }

@@ -135,6 +135,9 @@ pub struct IngestConfig {
     pub dofs: Option<Vec<String>>,
     /// The SUs expected (in this order); other frame ids are reported as unknown.
     pub sus: Option<Vec<String>>,
+    /// The DoFs that are prismatic (from the robot's description or the plan): the measurement
+    /// set says so, so that their positions are read in m and their patterns as scaled.
+    pub prismatic: Vec<String>,
     /// How the structure part's tree is found where ingest needs it (to tell which DoF of
     /// several excited together moved an SU): the settings `explore` will be run with.
     pub explore: crate::explore::ExploreConfig,
@@ -180,6 +183,7 @@ impl Default for IngestConfig {
             pattern: None,
             dofs: None,
             sus: None,
+            prismatic: Vec::new(),
             explore: crate::explore::ExploreConfig::default(),
         }
     }

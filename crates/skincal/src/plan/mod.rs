@@ -974,6 +974,15 @@ impl Plan {
         self.dofs.iter().map(|d| d.name.clone()).collect()
     }
 
+    /// Names of its prismatic DoFs.
+    pub fn prismatic_dof_names(&self) -> Vec<String> {
+        self.dofs
+            .iter()
+            .filter(|d| d.kind == DofKind::Prismatic)
+            .map(|d| d.name.clone())
+            .collect()
+    }
+
     /// Parses and checks a plan file's text.
     pub fn from_json(text: &str) -> Result<Self, PlanError> {
         let plan: Self =
