@@ -81,8 +81,8 @@ enum Command {
     /// residual and uncertainty charts, held-out errors) from what DIR holds.
     #[command(after_help = EXIT_CODES)]
     Report(ReportArgs),
-    /// Write a calibrated model as URDF, kinematics only: one link per segment, continuous joints
-    /// named after the DoFs, one link per SU on a fixed joint; or, with --into, the SU frames
+    /// Write a calibrated model as URDF, kinematics only: one link per segment, continuous (or
+    /// prismatic) joints named after the DoFs, one link per SU on a fixed joint; or, with --into, the SU frames
     /// added to the robot's own URDF.
     #[command(name = "export-urdf", after_help = EXIT_CODES)]
     ExportUrdf(urdf::ExportUrdfArgs),

@@ -704,6 +704,18 @@ fn render_pattern(s: &mut String, plan: &Plan) {
         p.excursion().to_degrees()
     );
     let _ = writeln!(s, "  limited by {}", plan.pattern_limited_by);
+    let prismatic = plan.prismatic_dof_names();
+    if !prismatic.is_empty() {
+        let scale = skincal::model::PRISMATIC_PATTERN_SCALE;
+        let _ = writeln!(
+            s,
+            "  prismatic {}: the pattern scaled by {scale} m per rad (A = {:.4} m/s, peak {:.3} m/s², excursion {:.4} m)",
+            prismatic.join(", "),
+            p.amplitude * scale,
+            p.peak_acceleration() * scale,
+            p.excursion() * scale
+        );
+    }
     let _ = writeln!(
         s,
         "  window: {} period(s) rise, {} at full amplitude, {} fall ({:.2} s per excitation)",

@@ -77,6 +77,15 @@ pub fn simulation_summary(robot: &Robot, config: &SimulationConfig, summary: &Su
             p.peak_acceleration()
         );
     }
+    let prismatic = m.prismatic_dof_names();
+    if !prismatic.is_empty() {
+        let _ = writeln!(
+            s,
+            "prismatic   {} (positions in m; structure moves and patterns scaled by {} m per rad)",
+            prismatic.join(", "),
+            skincal::model::PRISMATIC_PATTERN_SCALE
+        );
+    }
     let (mean, sd) = summary.static_norm;
     let _ = writeln!(
         s,

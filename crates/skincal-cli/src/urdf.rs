@@ -78,11 +78,17 @@ pub fn export_urdf(args: ExportUrdfArgs) -> Result<()> {
         .out
         .unwrap_or_else(|| args.model.with_extension("urdf"));
     io::write_all(&[(out.clone(), text)], args.force)?;
+    let prismatic = robot.model.prismatic_dof_names().len();
     outln!(
-        "wrote {} ({} links, {} continuous joints, {} SU links; kinematics only)",
+        "wrote {} ({} links, {} continuous{} joints, {} SU links; kinematics only)",
         out.display(),
         robot.model.segments().len() + robot.model.sus().len(),
-        robot.model.dofs().len(),
+        robot.model.dofs().len() - prismatic,
+        if prismatic > 0 {
+            format!(" and {prismatic} prismatic")
+        } else {
+            String::new()
+        },
         robot.model.sus().len()
     );
     out::json(&serde_json::json!({

@@ -2156,3 +2156,44 @@ fn every_number_the_report_draws_is_the_one_the_cli_prints() {
         );
     }
 }
+
+/// The stock Panda URDF, prismatic fingers and all, through the command line as a user runs it:
+/// simulated, explored (complete tree), calibrated, exported with its fingers as prismatic joints,
+/// and its own URDF checked against the calibration (exit 0: every compared joint agrees).
+#[test]
+fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let stock = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
+        .map(|r| Path::new(&r).join("panda_description/urdf/panda.urdf"))
+        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let stock = stock.to_str().unwrap();
+    let run = |args: &[&str]| {
+        let out = skincal(args, d);
+        assert_eq!(out.status.code(), Some(0), "{args:?}: {}", stderr(&out));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let summary = run(&[
+        "simulate",
+        "--robot",
+        stock,
+        "--sus-per-link",
+        "2",
+        "--out",
+        "sim",
+    ]);
+    assert!(
+        summary.contains("prismatic   panda_finger_joint1, panda_finger_joint2"),
+        "{summary}"
+    );
+    assert!(run(&["explore", "sim"]).contains("The tree is complete."));
+    run(&["calibrate", "sim"]);
+    let exported = run(&["export-urdf", "sim/model.json"]);
+    assert!(
+        exported.contains("7 continuous and 2 prismatic joints"),
+        "{exported}"
+    );
+    let urdf = std::fs::read_to_string(d.join("sim/model.urdf")).unwrap();
+    assert_eq!(urdf.matches("type=\"prismatic\"").count(), 2);
+    run(&["check-urdf", "sim/model.json", stock]);
+}
