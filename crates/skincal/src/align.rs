@@ -194,6 +194,9 @@ struct Plan {
     parent: Vec<Option<DofIndex>>,
     /// Per DoF: the first DoF of a limb that hangs on another limb's segment.
     hangs: Vec<bool>,
+    /// Per DoF: it sits on the segment a prismatic DoF moves, whose line (unlike its direction)
+    /// no reading places: the alignment starts afresh there.
+    after_slide: Vec<bool>,
     /// Per DoF: the DoFs after it, nearest first (for a limb base's turn and shift).
     descendants: Vec<Vec<DofIndex>>,
 }
@@ -201,7 +204,7 @@ struct Plan {
 impl Plan {
     /// Whether the alignment starts afresh at `d`: a limb's first DoF.
     fn is_base(&self, d: DofIndex) -> bool {
-        self.parent[d].is_none() || self.hangs[d]
+        self.parent[d].is_none() || self.hangs[d] || self.after_slide[d]
     }
 }
 
@@ -483,6 +486,10 @@ fn check_joint(
             JointVerdict::LimbBase,
             "where a limb sits on the reference segment no reading tells: the URDF is aligned on this axis".into(),
         ),
+        (Ok(_), Some(p), _) if plan.after_slide[d] => return blank(
+            JointVerdict::LimbBase,
+            format!("on the segment prismatic `{}` moves, where a slide's line lies no reading tells (only its direction): the URDF is aligned on this axis", model.dofs()[p].name),
+        ),
         (Ok(_), Some(p), _) if plan.hangs[d] => return blank(
             JointVerdict::LimbBase,
             format!("a limb on `{}`'s segment, fitted with that limb's path and gravity held: where it sits on it carries that limb's gravity uncertainty, which the model does not keep; the URDF is aligned on this axis", model.dofs()[p].name),
@@ -731,10 +738,15 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
                 .any(|l| l.parent.is_some() && l.dofs.first() == Some(&dof.name))
         })
         .collect();
+    let after_slide = parent
+        .iter()
+        .map(|p| p.is_some_and(|p| model.dofs()[p].kind == DofKind::Prismatic))
+        .collect();
     Ok(Plan {
         urdf,
         parent,
         hangs,
+        after_slide,
         descendants,
     })
 }

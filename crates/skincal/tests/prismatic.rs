@@ -3,56 +3,30 @@
 
 use skincal::estimate::body::calibrate_body;
 use skincal::estimate::ml::MlConfig;
-use skincal::explore::{explore, DiagnosticKind, ExploreConfig, Severity, Structure};
+use skincal::explore::{explore, DiagnosticKind, ExploreConfig, Severity};
 use skincal::io::{load_robot, SuPlacement};
 use skincal::model::{DofKind, Robot};
 use skincal::predict::validate;
-use skincal::sim::{simulate, Imperfections, SimulationConfig};
+use skincal::sim::{simulate, SimulationConfig};
 
-use crate::real_robots::description;
-
-/// The DoFs on the path from the reference to each SU's segment, by the structure and by the
-/// truth, as sorted name lists: equal for every SU when the tree is exact.
-fn paths(truth: &Robot, s: &Structure) -> Vec<(String, Vec<String>, Vec<String>)> {
-    let m = &truth.model;
-    let mut out = Vec::new();
-    for segment in &s.segments {
-        let mut found: Vec<String> = Vec::new();
-        let mut current = segment;
-        while let Some(j) = &current.parent_joint {
-            let joint = s.joint(j).unwrap();
-            found.extend(joint.dofs.iter().cloned());
-            current = s.segment(&joint.parent).unwrap();
-        }
-        found.sort();
-        for su in &segment.sus {
-            let u = m.su_index(su).unwrap();
-            let mut expected: Vec<String> = m
-                .chain_to(m.sus()[u].segment)
-                .into_iter()
-                .map(|d| m.dofs()[d].name.clone())
-                .collect();
-            expected.sort();
-            out.push((su.clone(), found.clone(), expected));
-        }
-    }
-    out
-}
+use crate::real_robots::{description, tree_is_exact};
 
 /// Simulated experiments of `robot` (±0.01 g, 20 poses, `seed`), explored; the tree checked
-/// exact; calibrated; every limb converged; the held-out static and dynamic RMS errors on 20 fresh
-/// noise-free poses.
-fn calibrated_error(robot: &Robot, seed: u64, what: &str) -> (f64, f64) {
+/// exact; calibrated; every limb converged; the robot's URDF (`urdf`) checked against the
+/// calibration: at most one compared joint outside 3σ; the held-out static and dynamic RMS errors
+/// on 20 fresh noise-free poses.
+fn calibrated_error(robot: &Robot, urdf: &str, seed: u64, what: &str) -> (f64, f64) {
     let config = SimulationConfig {
         seed,
         ..SimulationConfig::default()
     };
     let set = simulate(robot, &config).unwrap().measurements;
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
-    assert!(structure.unplaced_sus.is_empty() && structure.unplaced_dofs.is_empty());
-    for (su, found, expected) in paths(robot, &structure) {
-        assert_eq!(found, expected, "{what}, seed {seed}: {su}");
-    }
+    assert!(
+        tree_is_exact(robot, &structure),
+        "{what}, seed {seed}: {:?}",
+        structure.diagnostics
+    );
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
     for limb in &model.limbs {
         assert!(
@@ -61,17 +35,13 @@ fn calibrated_error(robot: &Robot, seed: u64, what: &str) -> (f64, f64) {
             limb.dofs, limb.estimate.residual_ratio
         );
     }
-    let held_out = simulate(
-        robot,
-        &SimulationConfig {
-            seed: seed + 1000,
-            structure: false,
-            imperfections: Imperfections::none(),
-            ..SimulationConfig::default()
-        },
-    )
-    .unwrap()
-    .measurements;
+    let check = skincal::align::align(&model, urdf).unwrap().check;
+    assert!(
+        check.disagree.len() <= 1,
+        "{what}, seed {seed}: {:?}",
+        check.joints
+    );
+    let held_out = crate::common::held_out(robot, seed + 1000);
     let check = validate(&model, &held_out, "held-out").unwrap();
     eprintln!(
         "{what}, seed {seed}: held-out static {:.4}, dynamic {:.4} m/s²",
@@ -93,8 +63,9 @@ fn stock_urdfs_with_prismatic_fingers_calibrate_without_edits() {
         ("panda_description/urdf/panda.urdf", 2),
         ("baxter_description/urdf/baxter.urdf", 4),
     ] {
+        let file = description(path);
         let robot = load_robot(
-            description(path).to_str().unwrap(),
+            file.to_str().unwrap(),
             SuPlacement {
                 per_link: Some(2),
                 seed: 1,
@@ -102,7 +73,8 @@ fn stock_urdfs_with_prismatic_fingers_calibrate_without_edits() {
         )
         .unwrap();
         assert_eq!(robot.model.prismatic_dof_names().len(), fingers, "{path}");
-        let (s, d) = calibrated_error(&robot, 1, path);
+        let urdf = std::fs::read_to_string(&file).unwrap();
+        let (s, d) = calibrated_error(&robot, &urdf, 1, path);
         assert!(s <= 0.05 && d <= 0.05, "{path}: {s:.4} / {d:.4} m/s²");
     }
 }
@@ -134,9 +106,11 @@ fn a_linear_axis_under_an_arm_is_calibrated_as_well_as_a_revolute_one() {
     let turning = arm_on_a_rail("revolute");
     assert_eq!(sliding.model.dofs()[0].kind, DofKind::Prismatic);
     assert_eq!(turning.model.dofs()[0].kind, DofKind::Revolute);
+    // Each robot's own URDF is its description exported (a prismatic or a continuous rail).
     let mean = |robot: &Robot, what: &str| {
+        let urdf = skincal::model::urdf::to_urdf(robot).unwrap();
         let errors: Vec<(f64, f64)> = (1..=3)
-            .map(|seed| calibrated_error(robot, seed, what))
+            .map(|seed| calibrated_error(robot, &urdf, seed, what))
             .collect();
         let n = errors.len() as f64;
         (
@@ -248,9 +222,7 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
     assert_eq!(set.prismatic, ["rail"]);
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
-    for (su, found, expected) in paths(&robot, &structure) {
-        assert_eq!(found, expected, "{su}");
-    }
+    assert!(tree_is_exact(&robot, &structure));
     let ml = MlConfig::default();
     let windows = calibrate_body(&set, Some(&structure), &ml, None).unwrap();
     let record =

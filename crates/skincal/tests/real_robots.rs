@@ -29,7 +29,7 @@ pub(crate) fn description(path: &str) -> PathBuf {
 }
 
 /// Whether every SU of the structure sits after exactly the DoFs that move it in `truth`.
-fn tree_is_exact(truth: &Robot, s: &Structure) -> bool {
+pub(crate) fn tree_is_exact(truth: &Robot, s: &Structure) -> bool {
     s.unplaced_sus.is_empty() && placed_sus_are_exact(truth, s)
 }
 
