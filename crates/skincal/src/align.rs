@@ -197,6 +197,9 @@ struct Plan {
     /// Per DoF: it sits on the segment a prismatic DoF moves, whose line (unlike its direction)
     /// no reading places: the alignment starts afresh there.
     after_slide: Vec<bool>,
+    /// Per DoF: prismatic. A slide turns nothing, so the segment it moves keeps its parent's
+    /// alignment (its line is not measured, its direction is checked), even as a limb's first DoF.
+    slides: Vec<bool>,
     /// Per DoF: the DoFs after it, nearest first (for a limb base's turn and shift).
     descendants: Vec<Vec<DofIndex>>,
 }
@@ -258,12 +261,15 @@ fn run(plan: &Plan, cal: &[Isometry3<f64>]) -> Run {
         let Ok(Matched { frame: u, .. }) = &plan.urdf[d] else {
             continue;
         };
-        match plan.parent[d].filter(|_| !plan.is_base(d)) {
+        match plan.parent[d].filter(|_| !plan.is_base(d) || plan.slides[d]) {
             None => a[d] = Some(limb_base(plan, cal, d, u)),
             Some(p) => {
                 let Some(ap) = a[p] else { continue };
                 let (ad, rd) = carried(&ap, u, &cal[d]);
-                (a[d], r[d]) = (Some(ad), Some(rd));
+                // A slide's segment keeps the parent's alignment: no shift onto a line that
+                // no reading placed.
+                a[d] = Some(if plan.slides[d] { ap } else { ad });
+                r[d] = Some(rd);
             }
         }
     }
@@ -490,7 +496,7 @@ fn check_joint(
             JointVerdict::LimbBase,
             format!("on the segment prismatic `{}` moves, where a slide's line lies no reading tells (only its direction): the URDF is aligned on this axis", model.dofs()[p].name),
         ),
-        (Ok(_), Some(p), _) if plan.hangs[d] => return blank(
+        (Ok(_), Some(p), _) if plan.hangs[d] && !plan.slides[d] => return blank(
             JointVerdict::LimbBase,
             format!("a limb on `{}`'s segment, fitted with that limb's path and gravity held: where it sits on it carries that limb's gravity uncertainty, which the model does not keep; the URDF is aligned on this axis", model.dofs()[p].name),
         ),
@@ -742,11 +748,17 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
         .iter()
         .map(|p| p.is_some_and(|p| model.dofs()[p].kind == DofKind::Prismatic))
         .collect();
+    let slides = model
+        .dofs()
+        .iter()
+        .map(|dof| dof.kind == DofKind::Prismatic)
+        .collect();
     Ok(Plan {
         urdf,
         parent,
         hangs,
         after_slide,
+        slides,
         descendants,
     })
 }

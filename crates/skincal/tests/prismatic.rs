@@ -252,3 +252,66 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
         );
     }
 }
+
+/// `export-urdf --into` the stock Panda: each SU on a finger is put on its finger link where the
+/// simulated robot has it, read back from the merged file by URDF import (every link's frame at
+/// the zero pose, against the truth's forward kinematics there): a slide's line is not measured,
+/// so its segment keeps the hand's alignment instead of being shifted onto it.
+#[test]
+fn finger_sus_merged_into_the_stock_urdf_sit_where_the_truth_has_them() {
+    use skincal::align::{align, merge_sus};
+    use skincal::model::forward_kinematics;
+    use skincal::model::urdf::UrdfTree;
+    let file = description("panda_description/urdf/panda.urdf");
+    let urdf = std::fs::read_to_string(&file).unwrap();
+    for seed in 1..=3 {
+        let robot = load_robot(
+            file.to_str().unwrap(),
+            SuPlacement {
+                per_link: Some(2),
+                seed,
+            },
+        )
+        .unwrap();
+        let set = simulate(
+            &robot,
+            &SimulationConfig {
+                seed,
+                ..SimulationConfig::default()
+            },
+        )
+        .unwrap()
+        .measurements;
+        let structure = explore(&set, &ExploreConfig::default()).unwrap();
+        let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+        let alignment = align(&model, &urdf).unwrap();
+        let merged = UrdfTree::parse(&merge_sus(&alignment, &urdf, "", false).unwrap()).unwrap();
+        let m = &robot.model;
+        let truth = forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
+        let mut fingers = 0;
+        for (u, su) in m.sus().iter().enumerate() {
+            if !m.segments()[su.segment].name.contains("finger") {
+                continue;
+            }
+            fingers += 1;
+            let placed = merged.frames[&su.name];
+            let position = (placed.translation.vector - truth.sus[u].translation.vector).norm();
+            let angle = placed
+                .rotation
+                .angle_to(&truth.sus[u].rotation)
+                .to_degrees();
+            eprintln!(
+                "seed {seed}, {}: {:.2} mm, {angle:.2}°",
+                su.name,
+                position * 1e3
+            );
+            assert!(
+                position < 0.01 && angle < 2.0,
+                "seed {seed}, {}: {:.1} mm, {angle:.2}° from the truth",
+                su.name,
+                position * 1e3
+            );
+        }
+        assert_eq!(fingers, 4);
+    }
+}
