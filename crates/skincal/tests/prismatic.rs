@@ -9,7 +9,7 @@ use skincal::model::{DofKind, Robot};
 use skincal::predict::validate;
 use skincal::sim::{simulate, SimulationConfig};
 
-use crate::real_robots::{description, tree_is_exact};
+use crate::real_robots::{description, simulated, tree_is_exact};
 
 /// Simulated experiments of `robot` (±0.01 g, 20 poses, `seed`), explored; the tree checked
 /// exact; calibrated; every limb converged; the robot's URDF (`urdf`) checked against the
@@ -265,24 +265,7 @@ fn finger_sus_merged_into_the_stock_urdf_sit_where_the_truth_has_them() {
     let file = description("panda_description/urdf/panda.urdf");
     let urdf = std::fs::read_to_string(&file).unwrap();
     for seed in 1..=3 {
-        let robot = load_robot(
-            file.to_str().unwrap(),
-            SuPlacement {
-                per_link: Some(2),
-                seed,
-            },
-        )
-        .unwrap();
-        let set = simulate(
-            &robot,
-            &SimulationConfig {
-                seed,
-                ..SimulationConfig::default()
-            },
-        )
-        .unwrap()
-        .measurements;
-        let structure = explore(&set, &ExploreConfig::default()).unwrap();
+        let (robot, set, structure, _) = simulated(&file, seed);
         let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
         let alignment = align(&model, &urdf).unwrap();
         let merged = UrdfTree::parse(&merge_sus(&alignment, &urdf, "", false).unwrap()).unwrap();

@@ -73,7 +73,7 @@ fn with_two_sus_per_link(file: &std::path::Path, seed: u64) -> Robot {
 
 /// The description in `file` with 2 random SUs per link (`seed`), its simulated experiments
 /// (±0.01 g, 20 poses) explored, and 20 fresh noise-free poses of it (seed + 1000).
-fn simulated(
+pub(crate) fn simulated(
     file: &std::path::Path,
     seed: u64,
 ) -> (Robot, MeasurementSet, Structure, MeasurementSet) {

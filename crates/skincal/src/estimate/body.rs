@@ -1197,6 +1197,7 @@ fn add_limb(
         .expect("a fresh estimate has its state");
     let chain = &estimate.chain;
     let base_dofs = chain.base_dofs();
+    let kinds = chain.kinds();
     for (k, dof) in chain.dofs().iter().enumerate().skip(base_dofs) {
         let origin = if k == 0 {
             base * state.joints[0]
@@ -1213,7 +1214,7 @@ fn add_limb(
             child: chain.segment_after(k),
             origin: PlacementSpec::from_isometry(&origin),
             axis: Vector3::z(),
-            kind: chain.kinds()[k],
+            kind: kinds[k],
             limits: observed_limits(set, dof),
         });
     }

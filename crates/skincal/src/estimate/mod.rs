@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use crate::explore::Structure;
 use crate::measurements::MeasurementSet;
 use crate::model::{
-    forward_kinematics, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec,
+    forward_kinematics, DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec,
 };
 
 /// Errors that stop an estimation before it starts.
@@ -248,7 +248,7 @@ impl ChainData {
             .collect::<Result<_, _>>()?;
         if let Some(&d) = dof_index
             .iter()
-            .find(|&&d| set.dof_kind(d) == crate::model::DofKind::Prismatic)
+            .find(|&&d| set.dof_kind(d) == DofKind::Prismatic)
         {
             return Err(EstimateError::UnsupportedLimb {
                 limb: chain.name.clone(),
@@ -331,7 +331,7 @@ pub fn chain_robot(
             child: segment(k),
             origin,
             axis: Vector3::z(),
-            kind: crate::model::DofKind::Revolute,
+            kind: DofKind::Revolute,
             limits: Limits::CONTINUOUS,
         });
     }

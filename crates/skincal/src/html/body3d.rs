@@ -8,6 +8,7 @@ use maud::{html, Markup, PreEscaped};
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 use crate::estimate::body::BodyModel;
+use crate::model::DofKind;
 
 /// The script of the 3D view: forward kinematics of the embedded body and an orthographic
 /// drawing on a canvas, turned by dragging.
@@ -284,7 +285,7 @@ fn body_data(m: &BodyModel, bases: &Bases, colouring: &Colouring) -> Option<serd
         dofs.push(serde_json::json!({
             "name": dof.name, "parent": dof.parent, "child": dof.child,
             "r": r, "o": [o.x, o.y, o.z], "axis": dof.axis.as_ref().as_slice(),
-            "prismatic": dof.kind == crate::model::DofKind::Prismatic,
+            "prismatic": dof.kind == DofKind::Prismatic,
             "lower": finite(dof.limits.lower, -std::f64::consts::PI),
             "upper": finite(dof.limits.upper, std::f64::consts::PI),
         }));

@@ -40,7 +40,7 @@ use crate::model::sensor::{
     gravity_upright, peak_dynamic_accelerations_at, specific_force, ExcitationPattern, MAX_READING,
     STANDARD_GRAVITY,
 };
-use crate::model::{forward_kinematics, Robot};
+use crate::model::{forward_kinematics, DofKind, Robot};
 use crate::plan::pose_stream;
 pub use crate::plan::structure_move;
 
@@ -928,7 +928,7 @@ fn random_dof(
         child: child.clone(),
         origin: PlacementSpec::from_isometry(&origin),
         axis,
-        kind: crate::model::DofKind::Revolute,
+        kind: DofKind::Revolute,
         limits: Limits {
             velocity: Some(2.0),
             acceleration: Some(10.0),
@@ -1006,7 +1006,7 @@ pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError>
             child: format!("link{k}"),
             origin,
             axis: Vector3::z(),
-            kind: crate::model::DofKind::Revolute,
+            kind: DofKind::Revolute,
             limits: Limits {
                 velocity: Some(1.7),
                 acceleration: Some(10.0),

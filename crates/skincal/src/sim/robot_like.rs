@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::SimulationError;
-use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use crate::model::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 
 /// Settings of [`robot_like_limb`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -209,7 +209,7 @@ impl Limb {
                 child: child.clone(),
                 origin: PlacementSpec::from_isometry(&placement),
                 axis: Vector3::z(),
-                kind: crate::model::DofKind::Revolute,
+                kind: DofKind::Revolute,
                 limits: limits(rng),
             });
             self.parent = child;

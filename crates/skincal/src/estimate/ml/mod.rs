@@ -78,7 +78,7 @@ use super::{ChainData, EstimateError};
 use crate::model::description::RobotFile;
 use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
-use crate::model::{DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use crate::model::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
     covariance, frames, normal_system, prefixes, retract, retract_columns, solve, turns_of, Block,
     ColumnMap, Layout, Prefix, Readings, Solved, Spec,
@@ -2739,15 +2739,7 @@ fn limb_robot(
             origin: PlacementSpec::from_isometry(&state.joints[k]),
             axis: Vector3::z(),
             kind: kinds[k],
-            limits: match kinds[k] {
-                crate::model::DofKind::Revolute => Limits::CONTINUOUS,
-                crate::model::DofKind::Prismatic => Limits {
-                    lower: -1.0,
-                    upper: 1.0,
-                    velocity: None,
-                    acceleration: None,
-                },
-            },
+            limits: Limits::CONTINUOUS,
         });
     }
     for (u, su) in sus.iter().enumerate() {
@@ -2788,7 +2780,7 @@ fn serial_layout(dofs: usize) -> Layout {
     Layout {
         dofs,
         su_segment: (1..=dofs).collect(),
-        kinds: vec![crate::model::DofKind::Revolute; dofs],
+        kinds: vec![DofKind::Revolute; dofs],
     }
 }
 
