@@ -476,6 +476,7 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
         config.dofs = Some(robot.model.dof_names());
         config.sus = Some(robot.model.su_names());
         config.prismatic = robot.model.prismatic_dof_names();
+        config.mimic = robot.model.mimic_specs();
     }
     if let Some(path) = &args.plan {
         let plan = skincal::io::read_plan(path)?;
@@ -483,6 +484,7 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
         if config.dofs.is_none() {
             config.dofs = Some(plan.dof_names());
             config.prismatic = plan.prismatic_dof_names();
+            config.mimic = plan.mimic_specs();
         }
         config = config.for_still_periods(plan.config.still);
     }

@@ -633,14 +633,15 @@ fn render_plan(plan: &Plan) -> String {
         );
     } else if plan.config.training {
         let windows = count(&|a| matches!(a, Action::Excitation { .. }));
+        let driven = plan.dofs.len() - plan.mimic_specs().len();
         let _ = writeln!(
             s,
             "  training experiment: {:.1} – {:.1} s, {} poses × {} DoFs{}",
             plan.structure_duration,
             plan.duration,
             plan.config.poses,
-            plan.dofs.len(),
-            if windows < plan.config.poses * plan.dofs.len() {
+            driven,
+            if windows < plan.config.poses * driven {
                 format!(
                     " in {} excitation windows ({} per pose: the limbs in parallel, the DoFs at \
                      one depth of the tree at a time)",
@@ -714,6 +715,19 @@ fn render_pattern(s: &mut String, plan: &Plan) {
             p.amplitude * scale,
             p.peak_acceleration() * scale,
             p.excursion() * scale
+        );
+    }
+    for (follower, m) in plan.mimic_specs() {
+        let _ = writeln!(
+            s,
+            "  mimic {follower}: follows {} (× {}{}), never moved alone and left out of the ROS 2 goals",
+            m.leader,
+            m.multiplier,
+            if m.offset == 0.0 {
+                String::new()
+            } else {
+                format!(", {:+}", m.offset)
+            }
         );
     }
     let _ = writeln!(

@@ -86,6 +86,13 @@ pub fn simulation_summary(robot: &Robot, config: &SimulationConfig, summary: &Su
             skincal::model::PRISMATIC_PATTERN_SCALE
         );
     }
+    for (follower, mimic) in m.mimic_specs() {
+        let _ = writeln!(
+            s,
+            "mimic       {follower} follows {} (× {}, {:+}): moved with it, never alone",
+            mimic.leader, mimic.multiplier, mimic.offset
+        );
+    }
     let (mean, sd) = summary.static_norm;
     let _ = writeln!(
         s,

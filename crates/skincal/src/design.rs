@@ -32,7 +32,7 @@ use crate::ingest::{ingest, IngestConfig, IngestError};
 use crate::log::csv::CsvSink;
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
-use crate::model::Robot;
+use crate::model::{DofKind, Robot};
 use crate::plan::{Clearance, Part, Plan, PlanConfig, PlanDof, PlanError};
 pub use crate::plan::{Forecast, ReadingNoise};
 use crate::predict::{validate, PredictError};
@@ -199,6 +199,7 @@ pub fn reading_noise(
     let ingest_config = IngestConfig {
         pattern: Some(plan.pattern),
         prismatic: plan.prismatic_dof_names(),
+        mimic: plan.mimic_specs(),
         ..IngestConfig::default()
     }
     .for_still_periods(plan.config.still);
@@ -253,9 +254,14 @@ impl Reference {
                 .map(|s| s.measurements)
                 .map_err(|source| DesignError::Simulate { what, source })
         };
+        // A slide turns no gravity and a mimic DoF's body is told apart by the poses: their
+        // columns and bodies come from the training part.
+        let model = &robot.model;
+        let training_tells = (0..model.dofs().len())
+            .any(|d| model.dofs()[d].kind == DofKind::Prismatic || model.is_follower(d));
         let explored = simulated(
             SimulationConfig {
-                training: false,
+                training: training_tells,
                 imperfections: Imperfections::none(),
                 ..SimulationConfig::default()
             },

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use crate::model::sensor::{ExcitationPattern, MAX_ANGLE, MAX_READING, STANDARD_GRAVITY};
-use crate::model::DofKind;
+use crate::model::{DofKind, MimicSpec};
 
 /// The value of the `format` field.
 pub const FORMAT: &str = "skincal-measurements";
@@ -122,6 +122,11 @@ pub struct MeasurementSet {
     /// set's scaled by [`crate::model::PRISMATIC_PATTERN_SCALE`] (m per rad). Every other DoF is revolute.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub prismatic: Vec<String>,
+    /// The DoFs of `dofs` that are mimic joints, each with the DoF it follows
+    /// (`{"finger_2": {"joint": "finger_1", "multiplier": -1.0, "offset": 0.0}}`): they have no
+    /// actuator, so no move or excitation of their own; their leader's moves move them too.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub mimic: BTreeMap<String, MimicSpec>,
     /// The structure experiment, if recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub structure: Option<StructureExperiment>,
@@ -220,6 +225,7 @@ impl MeasurementSet {
             dofs,
             sus,
             prismatic: Vec::new(),
+            mimic: BTreeMap::new(),
             structure: None,
             training: None,
             extra: Map::new(),
@@ -295,6 +301,20 @@ impl MeasurementSet {
         }
     }
 
+    /// Whether DoF `d` (an index into `dofs`) is a mimic joint (it moves only with its leader).
+    pub fn is_follower(&self, d: usize) -> bool {
+        self.mimic.contains_key(&self.dofs[d])
+    }
+
+    /// The indices of the DoFs that follow DoF `leader` (mimic joints).
+    pub fn followers_of(&self, leader: usize) -> Vec<usize> {
+        self.mimic
+            .iter()
+            .filter(|(_, m)| m.leader == self.dofs[leader])
+            .filter_map(|(f, _)| self.dof_index(f))
+            .collect()
+    }
+
     /// Checks every invariant of the format: header, unique names, array lengths, known DoF
     /// names, finite values.
     pub fn validate(&self) -> Result<(), MeasurementError> {
@@ -321,6 +341,19 @@ impl MeasurementSet {
         }
         for (i, name) in self.prismatic.iter().enumerate() {
             self.check_dof(format!("prismatic[{i}]"), name)?;
+        }
+        for (name, m) in &self.mimic {
+            self.check_dof(format!("mimic.{name}"), name)?;
+            self.check_dof(format!("mimic.{name}.joint"), &m.leader)?;
+            if self.mimic.contains_key(&m.leader)
+                || !m.multiplier.is_finite()
+                || !m.offset.is_finite()
+            {
+                return Err(MeasurementError::InvalidValue {
+                    field: format!("mimic.{name}"),
+                    reason: format!("it follows `{}`, which follows another DoF itself or with a non-finite factor: name the DoF with the actuator and finite `multiplier` and `offset`", m.leader),
+                });
+            }
         }
         self.units.check()?;
         if let Some(s) = &self.structure {

@@ -208,6 +208,8 @@ fn matrix(sus: &[&str], dofs: &[&str], rows: &[&[u8]]) -> ActivityMatrix {
         misread: Vec::new(),
         inferred: Vec::new(),
         undecided: Vec::new(),
+        leader_of: Vec::new(),
+        mimic_driven: Vec::new(),
         broken: Vec::new(),
     }
 }

@@ -151,6 +151,7 @@ fn dh_chain(rows: &[[f64; 4]], sus: &[[f64; 6]]) -> Robot {
             axis: Vector3::z(),
             kind: skincal::model::DofKind::Revolute,
             limits: Limits::CONTINUOUS,
+            mimic: None,
         });
         b.sus.push(SuSpec {
             name: format!("su{}", i + 1),

@@ -28,15 +28,31 @@ pub(crate) fn description(path: &str) -> PathBuf {
     file
 }
 
-/// Whether every SU of the structure sits after exactly the DoFs that move it in `truth`.
+/// Whether every SU of the structure sits after exactly the DoFs that move it in `truth`, and
+/// only SUs and DoFs that mimic joints make ambiguous are left out: SUs behind a mimic DoF or a
+/// DoF with mimic followers (whose bodies are told apart and set aside), and those DoFs.
 pub(crate) fn tree_is_exact(truth: &Robot, s: &Structure) -> bool {
-    s.unplaced_sus.is_empty() && placed_sus_are_exact(truth, s)
+    let m = &truth.model;
+    s.unplaced_sus.iter().all(|su| {
+        let u = m.su_index(su).unwrap();
+        m.chain_to(m.sus()[u].segment)
+            .into_iter()
+            .any(|d| coupled(truth, d))
+    }) && placed_sus_are_exact(truth, s)
 }
 
-/// Whether every SU the structure places sits after exactly the DoFs that move it in `truth`.
+/// Whether DoF `d` is a mimic DoF or has mimic followers.
+fn coupled(truth: &Robot, d: usize) -> bool {
+    truth.model.is_follower(d) || !truth.model.followers_of(d).is_empty()
+}
+
+/// Whether every SU the structure places sits after exactly the DoFs that move it in `truth` (a
+/// mimic DoF stands for its leader, which moves it).
 fn placed_sus_are_exact(truth: &Robot, s: &Structure) -> bool {
     let m = &truth.model;
-    s.unplaced_dofs.is_empty()
+    s.unplaced_dofs
+        .iter()
+        .all(|d| m.dof_index(d).is_some_and(|d| coupled(truth, d)))
         && s.segments.iter().all(|segment| {
             let mut found: Vec<String> = Vec::new();
             let mut current = segment;
@@ -51,9 +67,14 @@ fn placed_sus_are_exact(truth: &Robot, s: &Structure) -> bool {
                 let mut truth: Vec<String> = m
                     .chain_to(m.sus()[u].segment)
                     .into_iter()
-                    .map(|d| m.dofs()[d].name.clone())
+                    .map(|d| {
+                        m.dofs()[m.dofs()[d].mimic.map_or(d, |x| x.leader)]
+                            .name
+                            .clone()
+                    })
                     .collect();
                 truth.sort();
+                truth.dedup();
                 truth == found
             })
         })

@@ -14,6 +14,7 @@ mod exploration;
 mod kinematics;
 mod logs;
 mod measurements;
+mod mimic;
 mod ml_estimation;
 mod motion;
 mod paper;

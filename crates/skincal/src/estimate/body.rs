@@ -1216,6 +1216,7 @@ fn add_limb(
             axis: Vector3::z(),
             kind: kinds[k],
             limits: observed_limits(set, dof),
+            mimic: None,
         });
     }
     let depth: Vec<usize> = chain.joints[chain.base_joints..]

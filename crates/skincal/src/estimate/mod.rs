@@ -333,6 +333,7 @@ pub fn chain_robot(
             axis: Vector3::z(),
             kind: DofKind::Revolute,
             limits: Limits::CONTINUOUS,
+            mimic: None,
         });
     }
     for (k, placement) in sus {

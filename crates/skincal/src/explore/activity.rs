@@ -69,6 +69,13 @@ pub struct ActivityMatrix {
     /// SU is set aside.
     #[serde(default)]
     pub undecided: Vec<(String, String)>,
+    /// Per DoF: the DoF it follows, for a mimic DoF (empty when none is one). A mimic DoF has no
+    /// column: its leader's moves move it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub leader_of: Vec<Option<usize>>,
+    /// SUs on bodies that mimic DoFs drive ([`super::mimic`]): set aside.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub mimic_driven: Vec<super::mimic::MimicDriven>,
     /// SUs whose readings no working accelerometer gives: set aside.
     #[serde(default)]
     pub broken: Vec<BrokenSu>,
@@ -736,6 +743,16 @@ impl ActivityMatrix {
         self.prismatic.get(d).copied().unwrap_or(false)
     }
 
+    /// Whether DoF `d` is a mimic DoF (it moves only with its leader and has no column).
+    pub fn is_follower(&self, d: usize) -> bool {
+        self.leader_of.get(d).is_some_and(Option::is_some)
+    }
+
+    /// Whether DoF `d` has mimic followers (its moves turn their bodies by other rotations).
+    pub fn has_followers(&self, d: usize) -> bool {
+        self.leader_of.contains(&Some(d))
+    }
+
     /// Whether DoF `d` moves SU `u`.
     pub fn is_active(&self, u: usize, d: usize) -> bool {
         self.explored[d] && self.change[u][d] > self.threshold
@@ -781,12 +798,15 @@ pub fn activity_matrix(
     let mut change = change;
     let mut explored = moves.explored;
     prismatic_columns(set, &prismatic, &mut change, &mut explored, threshold);
+    led_columns(set, &prismatic, &mut change, threshold);
     let is_broken = |u: usize| screen.is_broken[u];
-    inferred.retain(|&(u, d, _)| !is_broken(u) && !prismatic[d]);
-    undecided.retain(|&(u, d)| !is_broken(u) && !prismatic[d]);
+    // Prismatic columns come from the training experiment, and mimic DoFs have none.
+    let own_column = |d: usize| !prismatic[d] && !set.is_follower(d);
+    inferred.retain(|&(u, d, _)| !is_broken(u) && own_column(d));
+    undecided.retain(|&(u, d)| !is_broken(u) && own_column(d));
     let contradicted: Vec<_> = contradicted
         .into_iter()
-        .filter(|&(_, _, d)| !prismatic[d])
+        .filter(|&(_, _, d)| own_column(d))
         .collect();
     let mut misread = moves.misreads;
     for (u, o, d) in contradicted {
@@ -795,6 +815,23 @@ pub fn activity_matrix(
             misread.push(screen.misread_at(u, o, Some(&set.dofs[d]), &mv.readings[u]));
         }
     }
+    let active: Vec<Vec<bool>> = change
+        .iter()
+        .map(|row| {
+            row.iter()
+                .zip(&explored)
+                .map(|(&c, &e)| e && c > threshold)
+                .collect()
+        })
+        .collect();
+    let mimic_driven = super::mimic::mimic_driven(set, &active, &screen.is_broken);
+    let leader_of: Vec<Option<usize>> = (0..set.dofs.len())
+        .map(|d| {
+            set.mimic
+                .get(&set.dofs[d])
+                .and_then(|m| set.dof_index(&m.leader))
+        })
+        .collect();
     let rest_turn = (0..set.sus.len())
         .map(|u| match structure.orientations.as_slice() {
             [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
@@ -830,6 +867,12 @@ pub fn activity_matrix(
             .into_iter()
             .map(|(u, d)| (set.sus[u].clone(), set.dofs[d].clone()))
             .collect(),
+        leader_of: if leader_of.iter().any(Option::is_some) {
+            leader_of
+        } else {
+            Vec::new()
+        },
+        mimic_driven,
         broken: screen.broken,
     })
 }
@@ -869,6 +912,36 @@ fn prismatic_columns(
             let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
             norms.sort_by(f64::total_cmp);
             row[d] = norms[norms.len() / 2] * threshold / (0.5 * peak);
+        }
+    }
+}
+
+/// The columns of revolute DoFs with mimic followers, completed from the training experiment: a
+/// follower may carry a body without turning it against the leader's parent (a parallel
+/// gripper's fingertip stays level), which no static reading sees, while the leader's pattern
+/// accelerates it. An SU whose dynamic reading of the DoF typically exceeds half the peak of a
+/// point 0.1 m from its axis ([`crate::model::PRISMATIC_PATTERN_SCALE`]) is moved by it.
+fn led_columns(set: &MeasurementSet, prismatic: &[bool], change: &mut [Vec<f64>], threshold: f64) {
+    let Some(training) = &set.training else {
+        return;
+    };
+    let peak = training.pattern.of(DofKind::Prismatic).peak_acceleration();
+    if peak.is_nan() || peak <= 0.0 {
+        return;
+    }
+    for d in (0..set.dofs.len()).filter(|&d| !prismatic[d] && !set.followers_of(d).is_empty()) {
+        let readings: Vec<&Vec<[f64; 3]>> = training
+            .poses
+            .iter()
+            .filter_map(|p| p.dynamic.get(&set.dofs[d]))
+            .collect();
+        if readings.is_empty() {
+            continue;
+        }
+        for (u, row) in change.iter_mut().enumerate() {
+            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
+            norms.sort_by(f64::total_cmp);
+            row[d] = row[d].max(norms[norms.len() / 2] * threshold / (0.5 * peak));
         }
     }
 }
@@ -1003,6 +1076,18 @@ impl<'a> Screen<'a> {
             .collect()
     }
 
+    /// How far a move of DoF `d` can turn an SU, relative to its travel: 1, plus the multipliers
+    /// of the mimic DoFs that follow it (a chain of them turns its last body by their sum).
+    fn travel_factor(&self, d: usize) -> f64 {
+        1.0 + self
+            .set
+            .followers_of(d)
+            .iter()
+            .filter_map(|&f| self.set.mimic.get(&self.set.dofs[f]))
+            .map(|m| m.multiplier.abs())
+            .sum::<f64>()
+    }
+
     /// Every move's changes and turns against the rest, leaving out misread readings: a norm off
     /// |g|, a turn beyond the DoF's travel ([`beyond_travel`]), or a lone turn unlike the clear
     /// majority's ([`odd_turns`]).
@@ -1046,7 +1131,10 @@ impl<'a> Screen<'a> {
                     .filter(|&u| changes[u].is_some_and(|c| c > clear))
                     .map(|u| (angle_between(&orientation.rest[u], &mv.readings[u]), u))
                     .collect();
-                let travel = (mv.pose[d] - orientation.rest_pose[d]).abs();
+                // Mimic DoFs that follow this one turn their bodies too, in a chain by their
+                // own travels on top of its.
+                let led = self.set.followers_of(d);
+                let travel = (mv.pose[d] - orientation.rest_pose[d]).abs() * self.travel_factor(d);
                 let beyond = beyond_travel(&turned, travel, super::checks::RIGID_TOLERANCE);
                 let turned: Vec<(f64, usize)> = turned
                     .into_iter()
@@ -1059,7 +1147,14 @@ impl<'a> Screen<'a> {
                     let off = (norm(&mv.readings[u]) - self.expected[u]).abs() / self.expected[u];
                     out.doubt[u][d] = f64::max(out.doubt[u][d], excess + off);
                 }
-                for u in beyond.into_iter().chain(odd_turns(&turned)) {
+                // A DoF with followers turns each body they drive by its own rotation: unlike
+                // turns are no glitch there.
+                let odd = if led.is_empty() {
+                    odd_turns(&turned)
+                } else {
+                    Vec::new()
+                };
+                for u in beyond.into_iter().chain(odd) {
                     out.misreads
                         .push(self.misread_at(u, oi, Some(&mv.dof), &mv.readings[u]));
                     changes[u] = None;

@@ -58,6 +58,10 @@ fn unlike_turns(
 ) -> Option<Diagnostic> {
     let norm = |r: &[f64; 3]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
     let d = a.dofs.iter().position(|x| *x == mv.dof)?;
+    if a.has_followers(d) {
+        // Its mimic followers turn the bodies they drive by rotations of their own.
+        return None;
+    }
     let mut turned = turned_sus(a, (oi, o), mv);
     // SUs that turned further than the DoF travelled, each alone, read wrongly: the
     // activity matrix left them out already.

@@ -17,6 +17,9 @@
 //! 4. **Anatomy**: end effectors (leaves), branching segments (more than two joints) and the limbs
 //!    from the reference or a branching segment to the next end effector or branching segment.
 //!
+//! A mimic DoF has no column (its leader's moves move it); the SUs on the bodies it drives share
+//! their leader's row and are told apart by their readings ([`mimic`]) and set aside.
+//!
 //! Whatever does not fit a tree is reported in plain words and left out, and the largest
 //! consistent part of the tree is returned.
 
@@ -30,9 +33,11 @@ use crate::model::sensor::STANDARD_GRAVITY;
 
 mod activity;
 mod checks;
+mod mimic;
 
 pub use activity::{activity_matrix, broken_sus, ActivityMatrix, BrokenSu, Inferred, Misread};
 use checks::physical_checks;
+pub use mimic::MimicDriven;
 
 /// Settings of the exploration.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -120,6 +125,8 @@ pub enum DiagnosticKind {
     MisreadReading,
     /// An SU that reads zeros, the same value in every pose, or an axis stuck at its range.
     BrokenSu,
+    /// SUs on a body that a mimic DoF drives, not the body of the DoF they move with.
+    MimicDriven,
 }
 
 /// A finding, with the SUs and DoFs involved and the likely cause in plain words.
@@ -535,16 +542,18 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
     let dof_rows: Vec<FixedBitSet> = (0..nu).map(|u| activity_row(a, u, &moving)).collect();
     let mut excluded = vec![false; nu];
     set_aside_broken(a, &mut excluded, &mut diagnostics);
+    set_aside_mimic_driven(a, &mut excluded, &mut diagnostics);
     set_aside_undecided(a, &mut excluded, &mut diagnostics);
     diagnostics.extend(null_rows(a, config, &dof_rows, &moving, &mut excluded));
     let attempt = sort_into_tree(a, &dof_rows, &moving, &mut excluded, &mut diagnostics);
     finish(a, attempt, diagnostics, &excluded, &moving, &dof_rows)
 }
 
-/// An error for every DoF the structure experiment never moved.
+/// An error for every DoF the structure experiment never moved (a mimic DoF moves with its
+/// leader and needs no move of its own).
 fn unexplored_dofs(a: &ActivityMatrix) -> Vec<Diagnostic> {
     (0..a.dofs.len())
-        .filter(|&d| !a.explored[d])
+        .filter(|&d| !a.explored[d] && !a.is_follower(d))
         .map(|d| Diagnostic {
             kind: DiagnosticKind::DofNotExplored,
             severity: Severity::Error,
@@ -678,6 +687,45 @@ fn set_aside_broken(a: &ActivityMatrix, excluded: &mut [bool], diagnostics: &mut
             ),
             sus: vec![b.su.clone()],
             dofs: vec![],
+        });
+    }
+}
+
+/// SUs on bodies that mimic DoFs drive are left out of the tree, named with their leader: the
+/// tree has one body per joint, and a follower's body is not its leader's.
+fn set_aside_mimic_driven(
+    a: &ActivityMatrix,
+    excluded: &mut [bool],
+    diagnostics: &mut Vec<Diagnostic>,
+) {
+    let mut by_leader: BTreeMap<&str, Vec<&MimicDriven>> = BTreeMap::new();
+    for m in &a.mimic_driven {
+        by_leader.entry(m.leader.as_str()).or_default().push(m);
+        if let Some(u) = a.sus.iter().position(|x| *x == m.su) {
+            excluded[u] = true;
+        }
+    }
+    for (leader, driven) in by_leader {
+        let sus: Vec<String> = driven.iter().map(|m| m.su.clone()).collect();
+        diagnostics.push(Diagnostic {
+            kind: DiagnosticKind::MimicDriven,
+            severity: Severity::Warning,
+            message: if driven[0].kept.is_empty() {
+                format!(
+                    "{} move with DoF `{leader}` on several rigid bodies (their gravity readings do not keep one rotation between them over the poses, or they read its slide in opposite ways): the mimic DoFs following `{leader}` ({}) drive them, by other multiples of its motion, and which body is `{leader}`'s own cannot be told from the readings; skincal calibrates one body per DoF, so they are left out of the tree and not calibrated",
+                    sus.join(", "),
+                    driven[0].followers.join(", ")
+                )
+            } else {
+                format!(
+                    "{} move with DoF `{leader}` but not as one rigid body with {} (their gravity readings do not keep one rotation between them over the poses, or they read its slide the other way): they sit on a body that a mimic DoF following `{leader}` drives ({}); skincal calibrates one body per DoF, so they are left out of the tree and not calibrated",
+                    sus.join(", "),
+                    driven[0].kept.join(", "),
+                    driven[0].followers.join(", ")
+                )
+            },
+            sus,
+            dofs: vec![leader.to_string()],
         });
     }
 }

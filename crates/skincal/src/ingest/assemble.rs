@@ -299,7 +299,7 @@ fn training_pose(
     let missing: Vec<&String> = passes
         .dofs
         .iter()
-        .filter(|d| !readings.dynamic.contains_key(*d))
+        .filter(|d| !readings.dynamic.contains_key(*d) && !passes.config.mimic.contains_key(*d))
         .collect();
     if !missing.is_empty() {
         let warning = format!(
@@ -518,17 +518,18 @@ fn report_fits(
 
 /// The DoFs in which pose `a` differs from `b`: beyond `motion_threshold`, and beyond
 /// `coupled_fraction` of the largest difference (a compliant servo sags differently when another
-/// DoF changes the load).
-fn differing(a: &[f64], b: &[f64], config: &IngestConfig) -> Vec<usize> {
-    let largest = a
-        .iter()
-        .zip(b)
-        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+/// DoF changes the load). A mimic DoF (named in `config`, of `dofs`) differs with its leader and
+/// is not counted.
+fn differing(a: &[f64], b: &[f64], dofs: &[String], config: &IngestConfig) -> Vec<usize> {
+    let own = |d: usize| dofs.get(d).is_none_or(|n| !config.mimic.contains_key(n));
+    let largest = (0..a.len())
+        .filter(|&d| own(d))
+        .fold(0.0f64, |m, d| m.max((a[d] - b[d]).abs()));
     let bound = config
         .motion_threshold
         .max(config.coupled_fraction * largest);
     (0..a.len())
-        .filter(|&d| (a[d] - b[d]).abs() >= bound)
+        .filter(|&d| own(d) && (a[d] - b[d]).abs() >= bound)
         .collect()
 }
 
@@ -545,7 +546,7 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
         .map(|(i, s)| {
             let same = members
                 .iter()
-                .filter(|o| differing(&o.pose, &s.pose, config).is_empty())
+                .filter(|o| differing(&o.pose, &s.pose, passes.dofs, config).is_empty())
                 .count();
             (i, same)
         })
@@ -569,7 +570,7 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
                 continue;
             }
         };
-        match differing(&st.pose, &rest_pose, config).as_slice() {
+        match differing(&st.pose, &rest_pose, passes.dofs, config).as_slice() {
             [] => {
                 rest_n += 1;
                 for (s, r) in rest_sum.iter_mut().zip(&readings) {
@@ -638,6 +639,7 @@ fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec
     let nu = passes.sus.names.len();
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
     set.prismatic = prismatic_of(passes);
+    set.mimic = mimic_of(passes);
     set.structure = Some(StructureExperiment {
         orientations: orientations.to_vec(),
         extra: Map::new(),
@@ -703,6 +705,7 @@ pub(super) fn assemble(
     }
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
     set.prismatic = prismatic_of(&passes);
+    set.mimic = mimic_of(&passes);
     let dynamic = poses.iter().map(|p| p.dynamic.len()).sum();
     let (orientation_count, training_poses) = (orientations.len(), poses.len());
     if !orientations.is_empty() {
@@ -877,6 +880,17 @@ fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
         }
     }
     warnings
+}
+
+/// The logged DoFs that the configuration names mimic joints of logged leaders.
+fn mimic_of(passes: &Passes<'_>) -> std::collections::BTreeMap<String, crate::model::MimicSpec> {
+    passes
+        .config
+        .mimic
+        .iter()
+        .filter(|(f, m)| passes.dofs.contains(f) && passes.dofs.contains(&m.leader))
+        .map(|(f, m)| (f.clone(), m.clone()))
+        .collect()
 }
 
 /// The logged DoFs that the configuration names prismatic.

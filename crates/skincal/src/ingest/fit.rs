@@ -225,10 +225,14 @@ pub(super) fn design(
     })
 }
 
-/// The excited DoFs first, then every other DoF that moved over `[start, end)`.
+/// The excited DoFs first, then every other DoF that moved over `[start, end)` (but the mimic
+/// ones: their motion is their leaders').
 fn moving_dofs(timeline: &Timeline, excited: &[usize], start: usize, end: usize) -> Vec<usize> {
     let mut dofs = excited.to_vec();
     dofs.extend((0..timeline.theta.len()).filter(|&e| {
+        if timeline.follows(e) {
+            return false;
+        }
         let th = &timeline.theta[e][start..end];
         let (lo, hi) = th
             .iter()

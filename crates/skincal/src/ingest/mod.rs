@@ -138,6 +138,10 @@ pub struct IngestConfig {
     /// The DoFs that are prismatic (from the robot's description or the plan): the measurement
     /// set says so, so that their positions are read in m and their patterns as scaled.
     pub prismatic: Vec<String>,
+    /// The DoFs that are mimic joints, with the DoF each follows (from the robot's description or
+    /// the plan): they move only with their leaders, so a leader's motion is told by the leader
+    /// alone, and the measurement set says so.
+    pub mimic: std::collections::BTreeMap<String, crate::model::MimicSpec>,
     /// How the structure part's tree is found where ingest needs it (to tell which DoF of
     /// several excited together moved an SU): the settings `explore` will be run with.
     pub explore: crate::explore::ExploreConfig,
@@ -184,6 +188,7 @@ impl Default for IngestConfig {
             dofs: None,
             sus: None,
             prismatic: Vec::new(),
+            mimic: std::collections::BTreeMap::new(),
             explore: crate::explore::ExploreConfig::default(),
         }
     }

@@ -318,7 +318,13 @@ impl Pass<'_> {
             return;
         };
         if to > self.from {
-            let timeline = Timeline::build(&grid, &self.series, self.from, to, self.config.max_gap);
+            let timeline = Timeline::build(
+                &grid,
+                (&self.series, &self.dofs),
+                self.from,
+                to,
+                self.config,
+            );
             let mut found = pieces(&timeline, &self.dofs, self.config, at_end);
             let settled = if at_end {
                 found.len()

@@ -488,12 +488,18 @@ enum Motion {
 /// moved less than `coupled_fraction` of the one that moved most only followed it (servo
 /// compliance, reaction torques, ringing), and so do their changes of position at the end
 /// (the sag of a compliant servo under a changed load). DoFs that moved more and all came back
-/// were excited together (a plan's parallel limbs).
+/// were excited together (a plan's parallel limbs). Mimic DoFs (`config.mimic`) move with their
+/// leaders and tell nothing of their own.
 fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) -> Motion {
+    let own = |e: usize| !timeline.follows(e);
     let excursion: Vec<f64> = timeline
         .theta
         .iter()
-        .map(|th| {
+        .enumerate()
+        .map(|(e, th)| {
+            if !own(e) {
+                return 0.0;
+            }
             th[ms..=me]
                 .iter()
                 .fold(0.0f64, |m, q| m.max((q - th[ms]).abs()))
@@ -543,12 +549,9 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
     // A compliant servo's sag under a changed load is small in itself, not only beside the move:
     // a DoF that ends a tenth of a radian away was moved too.
     let sag = SAG_STEPS * config.motion_threshold;
-    if timeline
-        .theta
-        .iter()
-        .enumerate()
-        .any(|(e, th)| e != main && !followed(net(th), moved.min(sag / config.coupled_fraction)))
-    {
+    if timeline.theta.iter().enumerate().any(|(e, th)| {
+        e != main && own(e) && !followed(net(th), moved.min(sag / config.coupled_fraction))
+    }) {
         Motion::Transfer
     } else {
         Motion::Move(main)

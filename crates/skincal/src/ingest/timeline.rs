@@ -180,6 +180,9 @@ pub(super) fn newest_common(series: &[Vec<(f64, f64)>]) -> f64 {
         .fold(f64::MAX, f64::min)
 }
 
+/// One DoF's joint states: `(stamp, position)`, sorted.
+pub(super) type Samples = Vec<(f64, f64)>;
+
 /// Joint positions of grid points `[first, first + len)` of one log.
 #[derive(Debug, Clone)]
 pub(super) struct Timeline {
@@ -190,6 +193,8 @@ pub(super) struct Timeline {
     pub(super) theta: Vec<Vec<f64>>,
     /// Grid points inside a joint-state gap.
     pub(super) invalid: Vec<bool>,
+    /// Per DoF: a mimic joint, which moves only with its leader (empty when none is).
+    pub(super) mimic: Vec<bool>,
 }
 
 impl Timeline {
@@ -202,16 +207,22 @@ impl Timeline {
         self.grid.time(self.first + n)
     }
 
+    /// Whether DoF `e` is a mimic joint: its motion is its leader's and tells nothing of its own.
+    pub(super) fn follows(&self, e: usize) -> bool {
+        self.mimic.get(e).copied().unwrap_or(false)
+    }
+
     /// Grid points `[from, to)` of `grid`, the DoFs' positions linearly interpolated between their
-    /// samples `cleaned` (sorted, without repeated stamps); points inside a gap longer than
-    /// `max_gap` are invalid.
+    /// samples `cleaned` (sorted, without repeated stamps, in the order of `dofs`); points inside
+    /// a gap longer than `config.max_gap` are invalid.
     pub(super) fn build(
         grid: &Grid,
-        cleaned: &[Vec<(f64, f64)>],
+        (cleaned, dofs): (&[Samples], &[String]),
         from: usize,
         to: usize,
-        max_gap: f64,
+        config: &IngestConfig,
     ) -> Timeline {
+        let max_gap = config.max_gap;
         let n = to.saturating_sub(from);
         let mut invalid = vec![false; n];
         let mut theta = Vec::with_capacity(cleaned.len());
@@ -243,6 +254,7 @@ impl Timeline {
             first: from,
             theta,
             invalid,
+            mimic: dofs.iter().map(|d| config.mimic.contains_key(d)).collect(),
         }
     }
 }
@@ -392,7 +404,8 @@ pub(super) fn read_joints(
     let mut grid = Grid::fit(path, &cleaned)?;
     let n = grid.points(path, &cleaned)?;
     grid.finish(&cleaned, config, report);
-    Ok(Timeline::build(&grid, &cleaned, 0, n, config.max_gap))
+    let dofs = dof_names.clone().unwrap_or_default();
+    Ok(Timeline::build(&grid, (&cleaned, &dofs), 0, n, config))
 }
 
 /// Steps between readings below this are floating-point noise, not an encoder's, rad.

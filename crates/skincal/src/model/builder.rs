@@ -7,8 +7,8 @@ use serde::{Deserialize, Serialize};
 
 use super::transform::to_xyz_rpy;
 use super::{
-    Dof, DofKind, Limits, ModelError, Parameterization, Placement, Robot, RobotModel, Segment,
-    SensorUnit,
+    Dof, DofKind, Limits, Mimic, ModelError, Parameterization, Placement, Robot, RobotModel,
+    Segment, SensorUnit,
 };
 
 /// A placement with its values, as given by a robot description.
@@ -82,6 +82,27 @@ pub struct DofSpec {
     pub kind: DofKind,
     /// Limits.
     pub limits: Limits,
+    /// The DoF it follows, if it is a mimic joint.
+    pub mimic: Option<MimicSpec>,
+}
+
+/// A mimic DoF's leader by name, as a robot description gives it (URDF `<mimic>`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MimicSpec {
+    /// The DoF it follows (URDF `joint`).
+    #[serde(rename = "joint")]
+    pub leader: String,
+    /// `q = multiplier · q_leader + offset`.
+    #[serde(default = "one")]
+    pub multiplier: f64,
+    /// Offset, rad or m.
+    #[serde(default)]
+    pub offset: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// A sensor unit as given by a robot description.
@@ -247,6 +268,7 @@ impl RobotBuilder {
                 })?;
             let owner = format!("DoF `{}`", d.name);
             let origin = parameters.place(&owner, &d.origin, &format!("{}.origin.", d.name))?;
+            let mimic = d.mimic.as_ref().map(|m| self.mimic(d, m)).transpose()?;
             dofs.push(Dof {
                 name: d.name.clone(),
                 parent: segment_of[d.parent.as_str()],
@@ -255,9 +277,39 @@ impl RobotBuilder {
                 axis: Unit::new_normalize(d.axis),
                 kind: d.kind,
                 limits: d.limits,
+                mimic,
             });
         }
         Ok(dofs)
+    }
+
+    /// DoF `d`'s mimic relation with its leader's index: a leader that exists, is another DoF
+    /// and follows nobody, and finite factors.
+    fn mimic(&self, d: &DofSpec, m: &MimicSpec) -> Result<Mimic, ModelError> {
+        let invalid = |reason| ModelError::InvalidMimic {
+            dof: d.name.clone(),
+            leader: m.leader.clone(),
+            reason,
+        };
+        let leader = self
+            .dofs
+            .iter()
+            .position(|l| l.name == m.leader)
+            .ok_or_else(|| invalid("is not a DoF of the robot"))?;
+        if self.dofs[leader].name == d.name {
+            return Err(invalid("is the DoF itself"));
+        }
+        if self.dofs[leader].mimic.is_some() {
+            return Err(invalid("follows another DoF itself"));
+        }
+        if !(m.multiplier.is_finite() && m.offset.is_finite()) {
+            return Err(invalid("it follows with a non-finite multiplier or offset"));
+        }
+        Ok(Mimic {
+            leader,
+            multiplier: m.multiplier,
+            offset: m.offset,
+        })
     }
 
     /// The SUs, their placements in `parameters` (after every DoF's).
@@ -315,8 +367,8 @@ impl Parameters {
     }
 }
 
-/// `moved_by[segment][dof]`: whether the DoF lies on the path from the reference to the segment
-/// (segments in topological order).
+/// `moved_by[segment][dof]`: whether the DoF, or a mimic DoF that follows it, lies on the path
+/// from the reference to the segment (segments in topological order).
 fn moved_by(segments: &[Segment], dofs: &[Dof]) -> Vec<Vec<bool>> {
     let mut moved_by = vec![vec![false; dofs.len()]; segments.len()];
     for s in 1..segments.len() {
@@ -325,6 +377,9 @@ fn moved_by(segments: &[Segment], dofs: &[Dof]) -> Vec<Vec<bool>> {
             .expect("only the reference has no parent DoF");
         let mut row = moved_by[dofs[d].parent].clone();
         row[d] = true;
+        if let Some(m) = dofs[d].mimic {
+            row[m.leader] = true;
+        }
         moved_by[s] = row;
     }
     moved_by
@@ -369,6 +424,11 @@ impl Robot {
                     axis: d.axis.into_inner(),
                     kind: d.kind,
                     limits: d.limits,
+                    mimic: d.mimic.map(|x| MimicSpec {
+                        leader: m.dofs[x.leader].name.clone(),
+                        multiplier: x.multiplier,
+                        offset: x.offset,
+                    }),
                 })
                 .collect(),
             sus: m

@@ -13,8 +13,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    DofKind, DofSpec, Limits, ModelError, Parameterization, PlacementSpec, Robot, RobotBuilder,
-    SuSpec,
+    DofKind, DofSpec, Limits, MimicSpec, ModelError, Parameterization, PlacementSpec, Robot,
+    RobotBuilder, SuSpec,
 };
 
 /// Errors in a robot description.
@@ -109,6 +109,11 @@ pub struct DofEntry {
     /// Largest angular acceleration, rad/s².
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub acceleration: Option<f64>,
+    /// The DoF it follows, if it is a mimic joint with no actuator of its own:
+    /// `mimic = { joint = "finger_1", multiplier = -1.0, offset = 0.0 }` (`multiplier` defaults
+    /// to 1, `offset` to 0), `q = multiplier · q_joint + offset`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mimic: Option<MimicSpec>,
 }
 
 /// A standard DH row, paper eq. 5.
@@ -337,6 +342,7 @@ impl RobotFile {
                 axis: Vector3::from(d.axis.unwrap_or([0.0, 0.0, 1.0])),
                 kind,
                 limits,
+                mimic: d.mimic.clone(),
             });
         }
         for (i, s) in self.sus.iter().enumerate() {
@@ -392,6 +398,7 @@ impl RobotFile {
                     upper: (!free).then_some(d.limits.upper),
                     velocity: d.limits.velocity,
                     acceleration: d.limits.acceleration,
+                    mimic: d.mimic.clone(),
                 }
             })
             .collect();

@@ -40,7 +40,8 @@ impl<T: RealField> Kinematics<T> {
 ///
 /// Segments are visited in topological order, so every parent frame is ready before its children:
 /// `T_ref←child = T_ref←parent · T_origin · Rot(axis, q)` (or `Trans(axis·q)` for a prismatic DoF);
-/// `T_ref←SU = T_ref←segment · T_SU`.
+/// `T_ref←SU = T_ref←segment · T_SU`. A mimic DoF takes its position from its leader
+/// ([`super::Dof::position`]); its own entry of `q` is not read.
 ///
 /// # Panics
 /// If `parameters` or `q` do not have the model's lengths (a programming error: measurement files
@@ -84,7 +85,7 @@ pub fn segment_frames<T: RealField>(
             .expect("non-root segments have a parent DoF");
         let dof = &model.dofs()[d];
         let joint = segments[dof.parent].clone() * dof.origin.transform(parameters);
-        segments[s] = joint.clone() * dof.kind.motion(&dof.axis, q[d].clone());
+        segments[s] = joint.clone() * dof.kind.motion(&dof.axis, dof.position(d, q));
         joints[d] = joint;
     }
     Kinematics {
@@ -237,8 +238,8 @@ pub fn segment_motion<T: RealField>(
             dof.kind,
             &frames.axis(model, d),
             &frames.axis_point(d),
-            qd[d].clone(),
-            qdd[d].clone(),
+            dof.rate(d, qd),
+            dof.rate(d, qdd),
         );
     }
     motion

@@ -31,7 +31,7 @@ pub mod sensor;
 pub mod transform;
 pub mod urdf;
 
-pub use builder::{DofSpec, PlacementSpec, RobotBuilder, SuSpec};
+pub use builder::{DofSpec, MimicSpec, PlacementSpec, RobotBuilder, SuSpec};
 pub use kinematics::{
     forward_kinematics, segment_frames, segment_motion, specific_force, BodyMotion, Kinematics,
 };
@@ -103,6 +103,16 @@ pub enum ModelError {
     NotFinite {
         /// The DoF or SU.
         what: String,
+    },
+    /// A mimic DoF's leader is missing, is itself, or is itself a follower.
+    #[error("DoF `{dof}` mimics `{leader}`, which {reason}: a mimic DoF follows a DoF with its own actuator")]
+    InvalidMimic {
+        /// The mimic DoF.
+        dof: String,
+        /// The leader it names.
+        leader: String,
+        /// What is wrong.
+        reason: &'static str,
     },
     /// The model has no DoF.
     #[error("the robot has no DoF: at least one revolute or prismatic DoF is needed")]
@@ -332,6 +342,45 @@ pub struct Dof {
     pub kind: DofKind,
     /// Limits.
     pub limits: Limits,
+    /// The DoF it follows, if it is a mimic joint (no actuator of its own).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mimic: Option<Mimic>,
+}
+
+/// How a mimic DoF (a URDF `<mimic>` joint: a gripper's second finger, a hand's coupled
+/// phalanges) follows its leader: `q = multiplier · q_leader + offset`, in the follower's own unit
+/// (rad or m). It has no actuator: a plan never moves it alone, and the kinematics compute its
+/// position, velocity and acceleration from the leader's, whatever a pose vector holds for it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Mimic {
+    /// The DoF it follows (itself never a follower).
+    pub leader: DofIndex,
+    /// Factor on the leader's position.
+    pub multiplier: f64,
+    /// Offset, rad or m.
+    #[serde(default)]
+    pub offset: f64,
+}
+
+impl Dof {
+    /// Its position in pose `q`: `q[leader]·multiplier + offset` for a mimic DoF, else `q[own]`.
+    pub fn position<T: RealField>(&self, own: DofIndex, q: &[T]) -> T {
+        match &self.mimic {
+            Some(m) => {
+                q[m.leader].clone() * transform::scalar(m.multiplier) + transform::scalar(m.offset)
+            }
+            None => q[own].clone(),
+        }
+    }
+
+    /// Its rate (velocity or acceleration) from the pose-rate vector `rates`: the leader's times
+    /// the multiplier for a mimic DoF, else its own.
+    pub fn rate<T: RealField>(&self, own: DofIndex, rates: &[T]) -> T {
+        match &self.mimic {
+            Some(m) => rates[m.leader].clone() * transform::scalar(m.multiplier),
+            None => rates[own].clone(),
+        }
+    }
 }
 
 fn is_revolute(kind: &DofKind) -> bool {
@@ -392,7 +441,8 @@ impl RobotModel {
         self.parameter_names.len()
     }
 
-    /// Whether moving `dof` moves `segment` (the DoF is on the segment's path to the reference).
+    /// Whether moving `dof` moves `segment` (the DoF, or a mimic DoF that follows it, is on the
+    /// segment's path to the reference).
     pub fn moves_segment(&self, dof: DofIndex, segment: SegmentIndex) -> bool {
         self.moved_by[segment][dof]
     }
@@ -440,6 +490,53 @@ impl RobotModel {
             .iter()
             .filter(|d| d.kind == DofKind::Prismatic)
             .map(|d| d.name.clone())
+            .collect()
+    }
+
+    /// Whether DoF `d` follows another (a mimic joint).
+    pub fn is_follower(&self, d: DofIndex) -> bool {
+        self.dofs[d].mimic.is_some()
+    }
+
+    /// The DoFs that have an actuator (every DoF but the mimic ones), in order: those a plan moves.
+    pub fn driven_dofs(&self) -> Vec<DofIndex> {
+        (0..self.dofs.len())
+            .filter(|&d| !self.is_follower(d))
+            .collect()
+    }
+
+    /// The mimic DoFs that follow `leader`.
+    pub fn followers_of(&self, leader: DofIndex) -> Vec<DofIndex> {
+        (0..self.dofs.len())
+            .filter(|&d| self.dofs[d].mimic.is_some_and(|m| m.leader == leader))
+            .collect()
+    }
+
+    /// `q` with every mimic DoF's entry set from its leader's (`rates`: without the offset, for
+    /// velocities and accelerations), so a pose written out agrees with what the kinematics use.
+    pub fn follow_leaders(&self, q: &mut [f64], rates: bool) {
+        for (d, dof) in self.dofs.iter().enumerate() {
+            if let Some(m) = dof.mimic {
+                q[d] = q[m.leader] * m.multiplier + if rates { 0.0 } else { m.offset };
+            }
+        }
+    }
+
+    /// Each mimic DoF's name with its leader's, as a measurement set lists them.
+    pub fn mimic_specs(&self) -> std::collections::BTreeMap<String, MimicSpec> {
+        self.dofs
+            .iter()
+            .filter_map(|d| {
+                let m = d.mimic?;
+                Some((
+                    d.name.clone(),
+                    MimicSpec {
+                        leader: self.dofs[m.leader].name.clone(),
+                        multiplier: m.multiplier,
+                        offset: m.offset,
+                    },
+                ))
+            })
             .collect()
     }
 

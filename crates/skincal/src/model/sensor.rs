@@ -26,7 +26,7 @@ use std::f64::consts::PI;
 use nalgebra::{RealField, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::kinematics::{forward_kinematics, Kinematics};
+use super::kinematics::{forward_kinematics, segment_motion, BodyMotion, Kinematics};
 use super::transform::scalar;
 use super::{DofIndex, DofKind, RobotModel, SuIndex};
 
@@ -148,8 +148,25 @@ pub fn specific_force<T: RealField>(
         .inverse_transform_vector(&(acceleration - gravity))
 }
 
+/// The motion of every segment when DoF `dof` turns (or slides) with rate `omega` and
+/// acceleration `alpha` and every other DoF is still, but for the mimic DoFs that follow it.
+fn driven_motion<T: RealField>(
+    model: &RobotModel,
+    kinematics: &Kinematics<T>,
+    dof: DofIndex,
+    omega: T,
+    alpha: T,
+) -> Vec<BodyMotion<T>> {
+    let n = model.dofs().len();
+    let (mut qd, mut qdd) = (vec![T::zero(); n], vec![T::zero(); n]);
+    qd[dof] = omega;
+    qdd[dof] = alpha;
+    segment_motion(model, kinematics, &qd, &qdd)
+}
+
 /// Acceleration (reference frame) of SU `su` when DoF `dof` turns with `omega` and `alpha`:
 /// `α z × r + ω² z × (z × r)`, or slides with them: `α z`; zero when the DoF does not move the SU.
+/// The mimic DoFs that follow `dof` move with it.
 pub fn su_acceleration<T: RealField>(
     model: &RobotModel,
     kinematics: &Kinematics<T>,
@@ -161,14 +178,8 @@ pub fn su_acceleration<T: RealField>(
     if !model.moves_su(dof, su) {
         return Vector3::zeros();
     }
-    let z = kinematics.axis(model, dof);
-    if model.dofs()[dof].kind == DofKind::Prismatic {
-        return z * alpha;
-    }
-    let r = kinematics.su_position(su) - kinematics.axis_point(dof);
-    let tangential = z.cross(&r) * alpha;
-    let centripetal = z.cross(&z.cross(&r)) * (omega.clone() * omega);
-    tangential + centripetal
+    let motion = driven_motion(model, kinematics, dof, omega, alpha);
+    motion[model.sus()[su].segment].point_acceleration(&kinematics.su_position(su))
 }
 
 /// Static readings of every SU at pose `q` under `gravity` (reference frame), m/s².
@@ -207,9 +218,10 @@ pub fn peak_dynamic_accelerations_at<T: RealField>(
     pattern: &ExcitationPattern,
 ) -> Vec<Vector3<T>> {
     let alpha: T = scalar(pattern.of(model.dofs()[dof].kind).peak_acceleration());
+    let motion = driven_motion(model, kinematics, dof, T::zero(), alpha);
     (0..model.sus().len())
         .map(|su| {
-            let a = su_acceleration(model, kinematics, su, dof, T::zero(), alpha.clone());
+            let a = motion[model.sus()[su].segment].point_acceleration(&kinematics.su_position(su));
             kinematics.sus[su].rotation.inverse_transform_vector(&a)
         })
         .collect()
@@ -231,11 +243,16 @@ pub fn readings_during_pattern<T: RealField>(
     let mut qt = q.to_vec();
     qt[dof] += scalar::<T>(pattern.angle(t));
     let k = forward_kinematics(model, parameters, &qt);
-    let omega: T = scalar(pattern.velocity(t));
-    let alpha: T = scalar(pattern.acceleration(t));
+    let motion = driven_motion(
+        model,
+        &k,
+        dof,
+        scalar(pattern.velocity(t)),
+        scalar(pattern.acceleration(t)),
+    );
     (0..model.sus().len())
         .map(|su| {
-            let a = su_acceleration(model, &k, su, dof, omega.clone(), alpha.clone());
+            let a = motion[model.sus()[su].segment].point_acceleration(&k.su_position(su));
             specific_force(&k.sus[su], &a, gravity)
         })
         .collect()

@@ -14,7 +14,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::description::{random_su_placement, DescriptionError, SuEntry};
 use super::transform::xyz_rpy;
-use super::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
+use super::{DofKind, DofSpec, Limits, MimicSpec, PlacementSpec, Robot, RobotBuilder, SuSpec};
 
 /// Where the SUs of an imported URDF come from.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,6 +47,8 @@ pub struct UrdfJoint {
     pub axis: Vector3<f64>,
     /// The joint's limits as the file gives them.
     pub limit: urdf_rs::JointLimit,
+    /// The joint it follows, if it is a mimic joint.
+    pub mimic: Option<MimicSpec>,
 }
 
 /// A URDF's kinematic tree: its links and joints checked to form one tree, joints in breadth-first
@@ -154,6 +156,11 @@ impl UrdfTree {
                     origin,
                     axis,
                     limit: j.limit.clone(),
+                    mimic: j.mimic.as_ref().map(|m| MimicSpec {
+                        leader: m.joint.clone(),
+                        multiplier: m.multiplier.unwrap_or(1.0),
+                        offset: m.offset.unwrap_or(0.0),
+                    }),
                 });
                 queue.push_back(child);
             }
@@ -248,6 +255,31 @@ pub struct Segments {
     pub joints: HashMap<String, (String, Isometry3<f64>)>,
 }
 
+impl UrdfTree {
+    /// Joint `j`'s leader as a DoF follows it: through a chain of mimic joints to the first that
+    /// follows nobody (`q = m₂(m₁ q + o₁) + o₂`). A mimic tag on a fixed joint, or one naming a
+    /// joint the file does not have, is left for the builder to report.
+    fn mimic_of(&self, j: &UrdfJoint) -> Option<MimicSpec> {
+        let mut spec = j.mimic.clone()?;
+        for _ in 0..self.joints.len() {
+            let Some(next) = self
+                .joints
+                .iter()
+                .find(|l| l.name == spec.leader && l.name != j.name)
+                .and_then(|l| l.mimic.as_ref())
+            else {
+                break;
+            };
+            spec = MimicSpec {
+                leader: next.leader.clone(),
+                multiplier: spec.multiplier * next.multiplier,
+                offset: spec.multiplier * next.offset + spec.offset,
+            };
+        }
+        Some(spec)
+    }
+}
+
 /// Converts URDF text into a robot.
 pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError> {
     let tree = UrdfTree::parse(text)?;
@@ -302,6 +334,7 @@ pub fn from_urdf(text: &str, sus: UrdfSus<'_>) -> Result<Robot, DescriptionError
                 DofKind::Revolute
             },
             limits,
+            mimic: tree.mimic_of(j),
         });
     }
 
@@ -348,8 +381,8 @@ fn positive(v: f64) -> Option<f64> {
 /// link), one `continuous` joint per revolute DoF named after it (origin and axis as in the model;
 /// the range the model's limits give is noted in a comment, not written as a `<limit>`: the
 /// robot's real limits, effort and velocity are not known), one `prismatic` joint per prismatic
-/// DoF (whose `<limit>` URDF requires: the model's range, effort and velocity 0 as unknown), and
-/// one link per SU named after it, attached
+/// DoF (whose `<limit>` URDF requires: the model's range, effort and velocity 0 as unknown), a
+/// `<mimic>` on each DoF that follows another, and one link per SU named after it, attached
 /// to its segment by a fixed joint `<su>_mount` (origin only). No link has inertial values.
 /// Loading the text back and composing the joints gives the model's forward kinematics.
 ///
@@ -422,6 +455,14 @@ pub fn to_urdf(robot: &Robot) -> Result<String, DescriptionError> {
             out.push_str(&format!(
                 "    <!-- calibrated over {} … {} rad -->\n",
                 dof.limits.lower, dof.limits.upper
+            ));
+        }
+        if let Some(mimic) = &dof.mimic {
+            out.push_str(&format!(
+                "    <mimic joint=\"{}\" multiplier=\"{}\" offset=\"{}\"/>\n",
+                xml_escape(&m.dofs()[mimic.leader].name),
+                mimic.multiplier,
+                mimic.offset
             ));
         }
         out.push_str(&format!(

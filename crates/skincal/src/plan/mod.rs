@@ -30,7 +30,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::model::sensor::ExcitationPattern;
-use crate::model::{DofKind, Robot};
+use crate::model::{DofKind, MimicSpec, Robot};
 
 mod sweep;
 pub mod trajectory;
@@ -419,10 +419,27 @@ pub struct PlanDof {
     /// pattern scaled by [`DofKind::pattern_scale`].
     #[serde(default, skip_serializing_if = "is_revolute")]
     pub kind: DofKind,
+    /// The DoF it follows, for a mimic joint: it has no actuator, so the plan never moves or
+    /// excites it alone, and wherever the plan puts its leader it is at `multiplier · q + offset`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mimic: Option<MimicSpec>,
 }
 
 fn is_revolute(kind: &DofKind) -> bool {
     *kind == DofKind::Revolute
+}
+
+/// Every mimic DoF of `dofs` in `q` where its leader puts it (`rates`: velocities or
+/// accelerations, which take no offset).
+fn follow_leaders(dofs: &[PlanDof], q: &mut [f64], rates: bool) {
+    for (f, dof) in dofs.iter().enumerate() {
+        let Some(m) = &dof.mimic else {
+            continue;
+        };
+        if let Some(l) = dofs.iter().position(|d| d.name == m.leader) {
+            q[f] = q[l] * m.multiplier + if rates { 0.0 } else { m.offset };
+        }
+    }
 }
 
 impl PlanDof {
@@ -444,6 +461,11 @@ impl PlanDof {
                 velocity_assumed: d.limits.velocity.is_none(),
                 acceleration_assumed: d.limits.acceleration.is_none(),
                 kind: d.kind,
+                mimic: d.mimic.map(|m| MimicSpec {
+                    leader: model.dofs()[m.leader].name.clone(),
+                    multiplier: m.multiplier,
+                    offset: m.offset,
+                }),
             })
             .collect()
     }
@@ -894,7 +916,8 @@ impl Plan {
             ramp_cycles: config.ramp_cycles,
             hold_cycles: config.hold_cycles,
         };
-        let rest: Vec<f64> = dofs.iter().map(|d| 0f64.clamp(d.lower, d.upper)).collect();
+        let mut rest: Vec<f64> = dofs.iter().map(|d| 0f64.clamp(d.lower, d.upper)).collect();
+        follow_leaders(&dofs, &mut rest, false);
         let mut builder = Builder {
             dofs: &dofs,
             fraction: config.limit_fraction,
@@ -980,6 +1003,14 @@ impl Plan {
             .iter()
             .filter(|d| d.kind == DofKind::Prismatic)
             .map(|d| d.name.clone())
+            .collect()
+    }
+
+    /// Its mimic DoFs, each with the DoF it follows.
+    pub fn mimic_specs(&self) -> std::collections::BTreeMap<String, MimicSpec> {
+        self.dofs
+            .iter()
+            .filter_map(|d| Some((d.name.clone(), d.mimic.clone()?)))
             .collect()
     }
 
@@ -1093,7 +1124,19 @@ impl Plan {
     }
 
     /// The commanded state at `t` (s); the rest pose before the start, the last pose after the end.
+    /// Mimic DoFs are where their leaders put them.
     pub fn state(&self, t: f64) -> JointState {
+        let mut s = self.own_state(t);
+        if self.dofs.iter().any(|d| d.mimic.is_some()) {
+            follow_leaders(&self.dofs, &mut s.q, false);
+            follow_leaders(&self.dofs, &mut s.qd, true);
+            follow_leaders(&self.dofs, &mut s.qdd, true);
+        }
+        s
+    }
+
+    /// [`Self::state`] before the mimic DoFs follow.
+    fn own_state(&self, t: f64) -> JointState {
         let nd = self.dofs.len();
         let Some(first) = self.phases.first() else {
             return JointState {
@@ -1197,7 +1240,8 @@ impl Plan {
 /// (the number of DoFs between it and the base), so no DoF of a slot moves another's axis and no
 /// SU is moved by two DoFs of one slot — each SU's response to a slot is its response to at most
 /// one DoF. The number of slots is the length of the longest chain, the fewest possible. A DoF
-/// whose parent is not among `dofs` (or a loop) counts as on the base.
+/// whose parent is not among `dofs` (or a loop) counts as on the base. Mimic DoFs have no slot:
+/// they move with their leaders.
 pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
     let index = |name: &str| dofs.iter().position(|d| d.name == name);
     let depth = |mut d: usize| {
@@ -1212,7 +1256,7 @@ pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
         n
     };
     let mut out: Vec<Vec<usize>> = Vec::new();
-    for d in 0..dofs.len() {
+    for d in (0..dofs.len()).filter(|&d| dofs[d].mimic.is_none()) {
         let k = depth(d);
         if out.len() <= k {
             out.resize(k + 1, Vec::new());
@@ -1225,7 +1269,8 @@ pub fn slots(dofs: &[PlanDof]) -> Vec<Vec<usize>> {
 /// A random training pose within each DoF's range (within ±`pose_range`), leaving room for the
 /// excitation's `excursion` above it.
 fn draw_pose(dofs: &[PlanDof], pose_range: f64, excursion: &[f64], rng: &mut impl Rng) -> Vec<f64> {
-    dofs.iter()
+    let mut q: Vec<f64> = dofs
+        .iter()
         .zip(excursion)
         .map(|(d, &excursion)| {
             let lo = d.lower.max(-pose_range);
@@ -1241,7 +1286,9 @@ fn draw_pose(dofs: &[PlanDof], pose_range: f64, excursion: &[f64], rng: &mut imp
                 lo
             }
         })
-        .collect()
+        .collect();
+    follow_leaders(dofs, &mut q, false);
+    q
 }
 
 /// The collision check while a plan is built, and what it changed.
@@ -1420,7 +1467,7 @@ impl Builder<'_> {
     fn structure_part(&mut self, guard: &mut Guard<'_>, rest: &[f64], config: &PlanConfig) {
         let dofs = self.dofs;
         self.still(Part::Structure, config.still, None);
-        for d in 0..dofs.len() {
+        for d in (0..dofs.len()).filter(|&d| dofs[d].mimic.is_none()) {
             let limits = crate::model::Limits {
                 lower: dofs[d].lower,
                 upper: dofs[d].upper,
@@ -1431,12 +1478,14 @@ impl Builder<'_> {
             let target = structure_move(&limits, rest[d], angle);
             let mut moved = rest.to_vec();
             moved[d] = target;
+            follow_leaders(dofs, &mut moved, false);
             let other = 2.0 * rest[d] - target;
             if guard.path_contact(rest, &moved).is_some()
                 && (dofs[d].lower..=dofs[d].upper).contains(&other)
             {
                 let mut back = rest.to_vec();
                 back[d] = other;
+                follow_leaders(dofs, &mut back, false);
                 if guard.path_contact(rest, &back).is_none() {
                     moved = back;
                 }
@@ -1501,7 +1550,10 @@ impl Builder<'_> {
         let slots = if config.parallel {
             slots(dofs)
         } else {
-            (0..dofs.len()).map(|d| vec![d]).collect()
+            (0..dofs.len())
+                .filter(|&d| dofs[d].mimic.is_none())
+                .map(|d| vec![d])
+                .collect()
         };
         let mut draw = || draw_pose(dofs, config.pose_range, &excursion, &mut rng);
         let drawn = (0..config.poses)
@@ -1591,7 +1643,7 @@ impl Builder<'_> {
 
     fn go(&mut self, part: Part, target: &[f64], pose: Option<usize>) {
         let moving: Vec<usize> = (0..self.dofs.len())
-            .filter(|&d| target[d] != self.pose[d])
+            .filter(|&d| target[d] != self.pose[d] && self.dofs[d].mimic.is_none())
             .collect();
         if moving.is_empty() {
             return;

@@ -235,6 +235,7 @@ mod tests {
             acceleration_assumed: false,
             parent: None,
             kind: crate::model::DofKind::Revolute,
+            mimic: None,
         }
     }
 

@@ -48,7 +48,8 @@ pub struct Trajectory {
 }
 
 impl Plan {
-    /// The plan's `section` as a joint trajectory with knots every `step` s inside moving phases.
+    /// The plan's `section` as a joint trajectory with knots every `step` s inside moving phases,
+    /// of the DoFs with an actuator (a controller commands no mimic joint: it follows its leader).
     ///
     /// # Panics
     /// If `step` is not positive and finite (a programming error: the CLI checks its option).
@@ -77,20 +78,24 @@ impl Plan {
         // The first still period's start is where the robot already stands.
         times.retain(|&t| t > 1e-9);
         times.dedup_by(|b, a| *b - *a < 1e-9);
+        let driven: Vec<usize> = (0..self.dofs.len())
+            .filter(|&d| self.dofs[d].mimic.is_none())
+            .collect();
+        let pick = |v: &[f64]| driven.iter().map(|&d| v[d]).collect::<Vec<f64>>();
         let knots = times
             .into_iter()
             .map(|t| {
                 let s = self.state(t);
                 Knot {
                     time: t,
-                    positions: s.q,
-                    velocities: s.qd,
-                    accelerations: s.qdd,
+                    positions: pick(&s.q),
+                    velocities: pick(&s.qd),
+                    accelerations: pick(&s.qdd),
                 }
             })
             .collect();
         Trajectory {
-            joint_names: self.dof_names(),
+            joint_names: driven.iter().map(|&d| self.dofs[d].name.clone()).collect(),
             knots,
         }
     }
@@ -107,6 +112,11 @@ impl Trajectory {
     /// as the joint trajectory controller's splines do), checked at `per_segment` points inside
     /// every segment: how faithfully a controller reproduces the plan from these knots.
     pub fn interpolation_error(&self, plan: &Plan, per_segment: usize) -> f64 {
+        let index: Vec<Option<usize>> = self
+            .joint_names
+            .iter()
+            .map(|n| plan.dofs.iter().position(|d| &d.name == n))
+            .collect();
         let mut worst = 0.0f64;
         for pair in self.knots.windows(2) {
             let (a, b) = (&pair[0], &pair[1]);
@@ -114,7 +124,11 @@ impl Trajectory {
             for i in 1..=per_segment {
                 let t = a.time + h * i as f64 / (per_segment + 1) as f64;
                 let truth = plan.state(t).q;
-                for (d, q) in truth.iter().enumerate() {
+                for (d, q) in index
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(d, i)| Some((d, truth[(*i)?])))
+                {
                     let p = quintic(
                         [a.positions[d], a.velocities[d], a.accelerations[d]],
                         [b.positions[d], b.velocities[d], b.accelerations[d]],

@@ -598,6 +598,7 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
     let mut pose_rng = pose_stream(data_seed);
     let mut set = MeasurementSet::new(model.dof_names(), model.su_names());
     set.prismatic = model.prismatic_dof_names();
+    set.mimic = model.mimic_specs();
     let mut orientations = vec![BaseOrientation::upright()];
     if config.tilted_orientation {
         orientations.push(BaseOrientation::tilted());
@@ -690,17 +691,21 @@ fn structure_experiment(
     config: &SimulationConfig,
 ) -> StructureExperiment {
     let model = &robot.model;
-    let rest_pose: Vec<f64> = model.dofs().iter().map(|d| d.limits.clamp(0.0)).collect();
+    let mut rest_pose: Vec<f64> = model.dofs().iter().map(|d| d.limits.clamp(0.0)).collect();
+    model.follow_leaders(&mut rest_pose, false);
     let mut blocks = Vec::new();
     for o in orientations {
         let g = Vector3::from(o.gravity);
         let rest = static_readings(robot, sensors, &rest_pose, &g);
-        let moves = (0..model.dofs().len())
+        let moves = model
+            .driven_dofs()
+            .into_iter()
             .map(|d| {
                 let mut pose = rest_pose.clone();
                 let dof = &model.dofs()[d];
                 let angle = config.structure_angle * dof.kind.pattern_scale();
                 pose[d] = structure_move(&dof.limits, rest_pose[d], angle);
+                model.follow_leaders(&mut pose, false);
                 let readings = static_readings(robot, sensors, &pose, &g);
                 Move {
                     dof: model.dofs()[d].name.clone(),
@@ -726,9 +731,9 @@ fn structure_experiment(
 }
 
 /// A random training pose: each DoF uniform within its limits and `±range` (its limits alone
-/// where the two do not meet).
+/// where the two do not meet); a mimic DoF where its leader puts it.
 fn training_angles(model: &crate::model::RobotModel, rng: &mut ChaCha8Rng, range: f64) -> Vec<f64> {
-    model
+    let mut q: Vec<f64> = model
         .dofs()
         .iter()
         .map(|d| {
@@ -744,10 +749,13 @@ fn training_angles(model: &crate::model::RobotModel, rng: &mut ChaCha8Rng, range
                 lo
             }
         })
-        .collect()
+        .collect();
+    model.follow_leaders(&mut q, false);
+    q
 }
 
-/// The training readings in pose `q`: static under `gravity`, and every DoF's pattern's peak.
+/// The training readings in pose `q`: static under `gravity`, and every driven DoF's pattern's
+/// peak (a mimic DoF moves with its leader's pattern).
 fn training_pose(
     robot: &Robot,
     sensors: &mut Sensors<'_>,
@@ -767,7 +775,9 @@ fn training_pose(
         .enumerate()
         .map(|(su, f)| sensors.static_reading(su, f))
         .collect();
-    let dynamic = (0..model.dofs().len())
+    let dynamic = model
+        .driven_dofs()
+        .into_iter()
         .map(|d| {
             let peak = peak_dynamic_accelerations_at(model, &k, d, &config.pattern);
             let r = peak
@@ -934,6 +944,7 @@ fn random_dof(
             acceleration: Some(10.0),
             ..Limits::CONTINUOUS
         },
+        mimic: None,
     });
     (child, joint)
 }
@@ -1012,6 +1023,7 @@ pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError>
                 acceleration: Some(10.0),
                 ..Limits::CONTINUOUS
             },
+            mimic: None,
         });
     }
     for k in 1..=dofs {

@@ -211,6 +211,7 @@ impl Limb {
                 axis: Vector3::z(),
                 kind: DofKind::Revolute,
                 limits: limits(rng),
+                mimic: None,
             });
             self.parent = child;
         }

@@ -2740,6 +2740,7 @@ fn limb_robot(
             axis: Vector3::z(),
             kind: kinds[k],
             limits: Limits::CONTINUOUS,
+            mimic: None,
         });
     }
     for (u, su) in sus.iter().enumerate() {
