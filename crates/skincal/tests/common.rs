@@ -112,6 +112,88 @@ pub fn calibrated_on_motion(
     model
 }
 
+/// `robot` through `plan` logged at 1 kHz into `dir` (±0.01 g skin, the structure part again
+/// with the base tilted) and ingested with `config`: what ingest found, and the upright log.
+pub fn logged_and_ingested(
+    robot: &skincal::model::Robot,
+    plan: &skincal::plan::Plan,
+    config: &skincal::ingest::IngestConfig,
+    dir: &std::path::Path,
+) -> (skincal::ingest::Ingested, std::path::PathBuf) {
+    use skincal::log::mcap::{Compression, McapSink};
+    use skincal::log::Topics;
+    use skincal::sim::timeseries::{record, LogConfig};
+    let log = |name: &str, config: &LogConfig| {
+        let path = dir.join(name);
+        let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
+        record(robot, plan, config, &mut sink, &mut |_| {}).unwrap();
+        path
+    };
+    let upright = log("upright.mcap", &LogConfig::default());
+    let tilted = log(
+        "tilted.mcap",
+        &LogConfig {
+            part: Some(skincal::plan::Part::Structure),
+            orientation: skincal::sim::BaseOrientation::tilted(),
+            seed: 6,
+            ..LogConfig::default()
+        },
+    );
+    let ingested =
+        skincal::ingest::ingest(&[upright.clone(), tilted], config, &mut |_, _, _| {}).unwrap();
+    (ingested, upright)
+}
+
+/// `set` (ingested from `log` with `config`) calibrated on `structure` from the windows'
+/// readings and from every sample of `log`: both predict 20 fresh noise-free poses of `robot`
+/// (seed 99) within 0.05 m/s² RMS, static and dynamic (printed under `what`).
+pub fn logs_calibrate(
+    robot: &skincal::model::Robot,
+    (set, structure): (
+        &skincal::measurements::MeasurementSet,
+        &skincal::explore::Structure,
+    ),
+    log: &std::path::Path,
+    config: &skincal::ingest::IngestConfig,
+    what: &str,
+) {
+    use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion};
+    let ml = skincal::estimate::ml::MlConfig::default();
+    let windows = calibrate_body(set, Some(structure), &ml, None).unwrap();
+    let record = skincal::ingest::motion::motion_record(
+        &[log.to_path_buf()],
+        &set.dofs,
+        &set.sus,
+        config,
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let samples = calibrate_body_on_motion(
+        set,
+        &record,
+        Some(structure),
+        &ml,
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let held_out = held_out(robot, 99);
+    for (how, model) in [("windows", &windows), ("every sample", &samples)] {
+        let check = skincal::predict::validate(model, &held_out, "held-out").unwrap();
+        eprintln!(
+            "{what} from its logs, {how}: held-out static {:.4}, dynamic {:.4} m/s²",
+            check.static_rms, check.dynamic_rms
+        );
+        assert!(
+            check.static_rms <= 0.05 && check.dynamic_rms <= 0.05,
+            "{what}, {how}: {:.4} / {:.4}",
+            check.static_rms,
+            check.dynamic_rms
+        );
+    }
+}
+
 /// The Python that runs the scripts of `tests/python` (`cargo xtask test` makes it and sets
 /// `SKINCAL_TEST_PYTHON`).
 pub fn test_python() -> std::ffi::OsString {

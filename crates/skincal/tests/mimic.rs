@@ -283,18 +283,8 @@ fn the_bodies_mimic_joints_drive_are_told_apart_and_set_aside() {
 /// noise-free held-out poses within 0.05 m/s².
 #[test]
 fn a_gripper_with_a_mimic_finger_is_calibrated_from_its_logs() {
-    use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion};
-    use skincal::estimate::ml::MlConfig;
-    use skincal::ingest::motion::motion_record;
-    use skincal::ingest::{ingest, IngestConfig};
-    use skincal::log::mcap::{Compression, McapSink};
-    use skincal::log::Topics;
-    use skincal::plan::Part;
-    use skincal::predict::validate;
-    use skincal::sim::timeseries::{record, LogConfig};
-    use skincal::sim::BaseOrientation;
+    use skincal::ingest::IngestConfig;
 
-    // `grip_2` turns about −z by the leader's angle: the fingers close towards each other.
     let urdf = gripper_urdf_with(r#"<mimic joint="grip" multiplier="1"/>"#);
     let robot = from_urdf(
         &urdf,
@@ -314,27 +304,12 @@ fn a_gripper_with_a_mimic_finger_is_calibrated_from_its_logs() {
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let log = |name: &str, config: &LogConfig| {
-        let path = dir.path().join(name);
-        let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
-        record(&robot, &plan, config, &mut sink, &mut |_| {}).unwrap();
-        path
-    };
-    let upright = log("upright.mcap", &LogConfig::default());
-    let tilted = log(
-        "tilted.mcap",
-        &LogConfig {
-            part: Some(Part::Structure),
-            orientation: BaseOrientation::tilted(),
-            seed: 6,
-            ..LogConfig::default()
-        },
-    );
     let config = IngestConfig {
         mimic: robot.model.mimic_specs(),
         ..IngestConfig::default()
     };
-    let ingested = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {}).unwrap();
+    let (ingested, upright) =
+        crate::common::logged_and_ingested(&robot, &plan, &config, dir.path());
     assert!(
         ingested.report.warnings.is_empty(),
         "{:?}",
@@ -357,32 +332,5 @@ fn a_gripper_with_a_mimic_finger_is_calibrated_from_its_logs() {
     // The second finger's body (with the tip) is the larger, and a mirrored follower's body
     // moves as the leader's would: it stands for the leader's, and the first finger is set aside.
     assert_eq!(aside, ["finger_1_su1", "finger_1_su2"]);
-    let ml = MlConfig::default();
-    let windows = calibrate_body(&set, Some(&structure), &ml, None).unwrap();
-    let record =
-        motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
-    let samples = calibrate_body_on_motion(
-        &set,
-        &record,
-        Some(&structure),
-        &ml,
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
-    let held_out = crate::common::held_out(&robot, 99);
-    for (what, model) in [("windows", &windows), ("every sample", &samples)] {
-        let check = validate(model, &held_out, "held-out").unwrap();
-        eprintln!(
-            "gripper from its logs, {what}: held-out static {:.4}, dynamic {:.4} m/s²",
-            check.static_rms, check.dynamic_rms
-        );
-        assert!(
-            check.static_rms <= 0.05 && check.dynamic_rms <= 0.05,
-            "{what}: {:.4} / {:.4}",
-            check.static_rms,
-            check.dynamic_rms
-        );
-    }
+    crate::common::logs_calibrate(&robot, (&set, &structure), &upright, &config, "gripper");
 }

@@ -179,14 +179,8 @@ fn fingers_without_skin_are_listed_and_left_out() {
 /// calibrate it to the noise-free held-out poses within 0.05 m/s².
 #[test]
 fn a_linear_axis_is_calibrated_from_its_logs() {
-    use skincal::estimate::body::calibrate_body_on_motion;
-    use skincal::ingest::motion::motion_record;
-    use skincal::ingest::{ingest, IngestConfig};
-    use skincal::log::mcap::{Compression, McapSink};
-    use skincal::log::Topics;
-    use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
-    use skincal::sim::timeseries::{record, LogConfig};
-    use skincal::sim::BaseOrientation;
+    use skincal::ingest::IngestConfig;
+    use skincal::plan::{Plan, PlanConfig, PlanDof};
 
     let robot = arm_on_a_rail("prismatic");
     let plan = Plan::new(
@@ -200,61 +194,18 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
     .unwrap();
     assert_eq!(plan.prismatic_dof_names(), ["rail"]);
     let dir = tempfile::tempdir().unwrap();
-    let log = |name: &str, config: &LogConfig| {
-        let path = dir.path().join(name);
-        let mut sink = McapSink::new(&path, Topics::default(), Compression::Zstd, false);
-        record(&robot, &plan, config, &mut sink, &mut |_| {}).unwrap();
-        path
-    };
-    let upright = log("upright.mcap", &LogConfig::default());
-    let tilted = log(
-        "tilted.mcap",
-        &LogConfig {
-            part: Some(Part::Structure),
-            orientation: BaseOrientation::tilted(),
-            seed: 6,
-            ..LogConfig::default()
-        },
-    );
     let config = IngestConfig {
         prismatic: robot.model.prismatic_dof_names(),
         ..IngestConfig::default()
     };
-    let set = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {})
-        .unwrap()
-        .measurements;
+    let (ingested, upright) =
+        crate::common::logged_and_ingested(&robot, &plan, &config, dir.path());
+    let set = ingested.measurements;
     assert_eq!(set.prismatic, ["rail"]);
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
     assert!(tree_is_exact(&robot, &structure));
-    let ml = MlConfig::default();
-    let windows = calibrate_body(&set, Some(&structure), &ml, None).unwrap();
-    let record =
-        motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
-    let samples = calibrate_body_on_motion(
-        &set,
-        &record,
-        Some(&structure),
-        &ml,
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
-    let held_out = crate::common::held_out(&robot, 99);
-    for (what, model) in [("windows", &windows), ("every sample", &samples)] {
-        let check = validate(model, &held_out, "held-out").unwrap();
-        eprintln!(
-            "rail from its logs, {what}: held-out static {:.4}, dynamic {:.4} m/s²",
-            check.static_rms, check.dynamic_rms
-        );
-        assert!(
-            check.static_rms <= 0.05 && check.dynamic_rms <= 0.05,
-            "{what}: {:.4} / {:.4}",
-            check.static_rms,
-            check.dynamic_rms
-        );
-    }
+    crate::common::logs_calibrate(&robot, (&set, &structure), &upright, &config, "rail");
 }
 
 /// `export-urdf --into` the stock Panda: each SU on a finger is put on its finger link where the

@@ -329,8 +329,7 @@ fn sighted_dofs(per: &[Vec<Vec<Option<f64>>>], clear: f64) -> Vec<Vec<bool>> {
 #[allow(clippy::type_complexity)]
 fn combine_orientations(
     per: &mut [Vec<Vec<Option<f64>>>],
-    turns: &[Vec<Vec<Option<f64>>>],
-    doubt: &[Vec<f64>],
+    (turns, doubt, led): (&[Vec<Vec<Option<f64>>>], &[Vec<f64>], &[bool]),
     threshold: f64,
     uncertainty_factor: f64,
 ) -> (
@@ -342,7 +341,7 @@ fn combine_orientations(
     // SUs × DoFs.
     let size = (doubt.len(), doubt.first().map_or(0, Vec::len));
     let clear_still = threshold / uncertainty_factor;
-    let contradicted = leave_out_contradicted(per, size, threshold, uncertainty_factor);
+    let contradicted = leave_out_contradicted(per, (size, led), threshold, uncertainty_factor);
     let (mut change, known, by_turns) = known_entries(per, turns, size, threshold, clear_still);
     let measured: Vec<Vec<bool>> = change
         .iter()
@@ -385,10 +384,11 @@ fn combine_orientations(
 /// A DoF turns gravity by the same angle for every SU it moves: in an orientation where it
 /// clearly moves at least two SUs, an SU it leaves clearly still is not downstream of it, and its
 /// activity in another orientation is a misread reading, left out of `per`. Returns those
-/// `(su, orientation, dof)`.
+/// `(su, orientation, dof)`. DoFs `led` (with mimic followers, whose bodies turn about axes of
+/// their own) are not judged.
 fn leave_out_contradicted(
     per: &mut [Vec<Vec<Option<f64>>>],
-    (nu, nd): (usize, usize),
+    ((nu, nd), led): ((usize, usize), &[bool]),
     threshold: f64,
     uncertainty_factor: f64,
 ) -> Vec<(usize, usize, usize)> {
@@ -396,7 +396,7 @@ fn leave_out_contradicted(
     let sighted = sighted_dofs(per, threshold * uncertainty_factor);
     let mut contradicted = Vec::new();
     for u in 0..nu {
-        for d in 0..nd {
+        for d in (0..nd).filter(|&d| !led.get(d).copied().unwrap_or(false)) {
             let still_where_sighted = (0..per.len())
                 .any(|o| sighted[o][d] && per[o][u][d].is_some_and(|c| c < clear_still));
             if !still_where_sighted {
@@ -785,10 +785,14 @@ pub fn activity_matrix(
         return Err(ExploreError::NoMoves);
     }
     screen.rebuild_rests(&rest_misread, &mut moves.per, config);
+    // A DoF with mimic followers turns each body they drive about an axis of its own: an SU it
+    // leaves still in one orientation may turn in the other.
+    let led: Vec<bool> = (0..set.dofs.len())
+        .map(|d| !set.followers_of(d).is_empty())
+        .collect();
     let (change, mut inferred, contradicted, mut undecided) = combine_orientations(
         &mut moves.per,
-        &moves.turns,
-        &moves.doubt,
+        (&moves.turns, &moves.doubt, &led),
         threshold,
         config.uncertainty_factor,
     );

@@ -15,9 +15,10 @@ use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::DofKind;
 
 /// SUs on one body agree up to a fixed rotation within this, g, in three poses of four: the noise
-/// and the sensors' scale errors (±5 % of 1 g) stay below it, while a follower that turns its
-/// body by ten degrees against the leader's moves gravity by 0.17 g.
-const RIGID_RESIDUAL: f64 = 0.1;
+/// of two readings (±0.01 g each) stays below it, while a body that a follower turns by two
+/// degrees against the leader's moves gravity by 0.035 g. Sensors' scale errors of several
+/// percent may split one body (its SUs are then set aside, never fitted wrongly).
+const RIGID_RESIDUAL: f64 = 0.03;
 /// Two SUs on one slide read its accelerations along one direction: the cosine between them (in
 /// one frame) is near 1, near −1 for a mirrored finger.
 const SAME_SLIDE_COSINE: f64 = 0.8;
