@@ -785,10 +785,17 @@ pub fn activity_matrix(
         return Err(ExploreError::NoMoves);
     }
     screen.rebuild_rests(&rest_misread, &mut moves.per, config);
+    let leader_of: Vec<Option<usize>> = (0..set.dofs.len())
+        .map(|d| {
+            set.mimic
+                .get(&set.dofs[d])
+                .and_then(|m| set.dof_index(&m.leader))
+        })
+        .collect();
     // A DoF with mimic followers turns each body they drive about an axis of its own: an SU it
     // leaves still in one orientation may turn in the other.
     let led: Vec<bool> = (0..set.dofs.len())
-        .map(|d| !set.followers_of(d).is_empty())
+        .map(|d| leader_of.contains(&Some(d)))
         .collect();
     let (change, mut inferred, contradicted, mut undecided) = combine_orientations(
         &mut moves.per,
@@ -805,7 +812,7 @@ pub fn activity_matrix(
     led_columns(set, &prismatic, &mut change, threshold);
     let is_broken = |u: usize| screen.is_broken[u];
     // Prismatic columns come from the training experiment, and mimic DoFs have none.
-    let own_column = |d: usize| !prismatic[d] && !set.is_follower(d);
+    let own_column = |d: usize| !prismatic[d] && leader_of[d].is_none();
     inferred.retain(|&(u, d, _)| !is_broken(u) && own_column(d));
     undecided.retain(|&(u, d)| !is_broken(u) && own_column(d));
     let contradicted: Vec<_> = contradicted
@@ -829,13 +836,6 @@ pub fn activity_matrix(
         })
         .collect();
     let mimic_driven = super::mimic::mimic_driven(set, &active, &screen.is_broken);
-    let leader_of: Vec<Option<usize>> = (0..set.dofs.len())
-        .map(|d| {
-            set.mimic
-                .get(&set.dofs[d])
-                .and_then(|m| set.dof_index(&m.leader))
-        })
-        .collect();
     let rest_turn = (0..set.sus.len())
         .map(|u| match structure.orientations.as_slice() {
             [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
