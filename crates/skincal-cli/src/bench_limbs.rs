@@ -198,7 +198,7 @@ pub fn bench_limbs(args: BenchLimbsArgs) -> Result<()> {
     let (table, summary) = summary_table(&outcomes);
     out!("{table}");
     outln!(
-        "\nconverged (residual ≤ 1.5 σ): {converged} of {n} ({:.1} %)",
+        "\nconverged (residual within the noise's band at its size): {converged} of {n} ({:.1} %)",
         100.0 * converged as f64 / n.max(1) as f64
     );
     let within = |bound: fn(&Outcome) -> f64| {

@@ -419,10 +419,11 @@ fn fit_lines(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
         g[2],
         (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()
     );
-    let verdict = if e.converged {
-        "converged"
-    } else {
-        "NOT CONVERGED"
+    let verdict = match (e.converged, &e.residual_band) {
+        (true, Some(b)) => format!("converged (within {:.3}×, the noise's band at {} degrees of freedom)", b.upper, b.dof),
+        (false, Some(b)) => format!("NOT CONVERGED (beyond {:.3}×, the noise's band at {} degrees of freedom: a misfit, or noise larger than the weights say)", b.upper, b.dof),
+        (true, None) => "converged".into(),
+        (false, None) => "NOT CONVERGED".into(),
     };
     if let Some(m) = &e.motion {
         let _ = writeln!(

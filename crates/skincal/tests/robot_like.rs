@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use skincal::estimate::body::{calibrate_body, BodyModel};
 use skincal::estimate::limb::{limb_chains, LimbData};
-use skincal::estimate::ml::{limb_state_of, observable_su_errors, MlConfig};
+use skincal::estimate::ml::{estimate_limb, limb_state_of, observable_su_errors, MlConfig};
 use skincal::explore::{explore, ExploreConfig, Structure};
 use skincal::measurements::MeasurementSet;
 use skincal::model::sensor::gravity_upright;
@@ -491,4 +491,57 @@ fn calibrated_su_poses_are_at_the_bound_in_the_directions_the_readings_tell() {
     }
     let rms = (squares.iter().sum::<f64>() / squares.len() as f64).sqrt();
     assert!(rms < 1.2, "RMS of error / bound {rms:.2}: {squares:?}");
+}
+
+#[test]
+fn a_wrong_minimum_below_one_and_a_half_sigma_is_not_taken_for_the_noise_level() {
+    // like-H1-O1-O1-A1-P2-I1-I1-P1-100: the first search ends at 1.46 σ in a wrong minimum
+    // (held-out static 0.42 m/s², seven times the noise). A fixed 1.5 σ bound took it for the
+    // noise level; at 8 000 degrees of freedom the noise allows 1.03 σ, so the search goes on
+    // and a wider one finds the right minimum.
+    let (model, check) = calibrated_limb(100, "like-H1-O1-O1-A1-P2");
+    let limb = &model.limbs[0].estimate;
+    let band = limb.residual_band.expect("a readings fit has a band");
+    assert!(band.upper < 1.05, "{band:?}");
+    assert!(limb.converged && band.holds(limb.residual_ratio));
+    let first: f64 = limb
+        .retries
+        .iter()
+        .find_map(|r| r.split("(was ").nth(1)?.split(' ').next()?.parse().ok())
+        .expect("a retry names the first fit's residual");
+    assert!(
+        first > band.upper && first < 1.5,
+        "first fit {first} σ: {:?}",
+        limb.retries
+    );
+    assert!(check.static_rms < 0.05, "{}", check.static_rms);
+    assert!(check.dynamic_rms < 0.05, "{}", check.dynamic_rms);
+}
+
+#[test]
+fn a_limb_given_a_wrong_tree_is_never_reported_converged() {
+    // like-V1-A1-P3-A1-I1-O1-I1-4 with one SU placed one segment too far out: the limb's other
+    // 13 SUs fit, so the residual grows by less than a fixed 1.5 σ bound would notice; the noise's
+    // band at the data's size does. The right tree converges.
+    let (_, set, _, data) = limb_data(4, "like-V1-A1-P3");
+    let config = MlConfig::default();
+    let right = estimate_limb(&data, None, &config).unwrap();
+    assert!(right.converged, "right tree: {:.3} σ", right.residual_ratio);
+    let mut chain = data.chain.clone();
+    let from = (1..chain.joints.len() - 1)
+        .find(|&j| chain.joints[j].sus.len() >= 2)
+        .expect("a segment with two SUs");
+    let su = chain.joints[from].sus.remove(0);
+    chain.joints[from + 1].sus.push(su.clone());
+    let wrong = estimate_limb(&LimbData::new(&set, &chain).unwrap(), None, &config).unwrap();
+    let band = wrong.residual_band.unwrap();
+    eprintln!(
+        "{su} one segment out: residual {:.3} σ, band {:.3} σ; right tree {:.3} σ",
+        wrong.residual_ratio, band.upper, right.residual_ratio
+    );
+    assert!(
+        !wrong.converged,
+        "wrong tree: {:.3} σ",
+        wrong.residual_ratio
+    );
 }

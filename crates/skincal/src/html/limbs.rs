@@ -191,6 +191,9 @@ fn one_limb(
                 (limb.dofs.len()) " DoFs (" (limb.dofs.join(", ")) "), " (limb.sus.len()) " SUs; residual "
                 span class=(if e.converged { "" } else { "bad" }) { (format!("{:.3}", e.residual_ratio)) " σ, "
                     (if e.converged { "converged" } else { "NOT CONVERGED" }) }
+                @if let Some(b) = &e.residual_band {
+                    " (the noise's band at " (b.dof) " degrees of freedom: up to " (format!("{:.3}", b.upper)) " σ)"
+                }
                 "; " (e.iterations) " iterations"
                 @if e.seconds > 0.0 { " in " (format!("{:.1}", e.seconds * 1e3)) " ms" }
                 @if let Some(model) = e.intrinsics_model { "; accelerometer model: " (model.name()) }

@@ -47,12 +47,18 @@
 //! 4. Every candidate (both signs of the axis, every searched angle) is refined by LM on the
 //!    segment's data; the best is kept. Finally the whole chain is refined jointly.
 //!
+//! **Convergence** (`band.rs`). A fit is at the noise level when its residual ratio lies within
+//! the band a right model stays in at the data's size (`√(χ²_ν(0.999)/ν)`: 1.02 σ at 10 000
+//! degrees of freedom), not below a fixed bound; a fit off it goes on to other joint orders and
+//! a wider search.
+//!
 //! **Uncertainty.** The parameter covariance is `σ̂²·(JᵀJ)⁺` by the same elimination, with
 //! symmetric eigen-decompositions of the SU blocks and of the reduced shared system (directions
 //! with no information get none), propagated to each SU's position and orientation relative to the
 //! previous SU. The directions of that pose no reading determines — the null directions of the
 //! information with the gauge released — are listed per SU, never given a deviation.
 
+mod band;
 mod bound;
 mod init;
 mod motion;
@@ -60,6 +66,7 @@ mod problem;
 mod terms;
 mod tree;
 
+pub use band::{ResidualBand, FALSE_ALARM};
 pub use motion::{LimbMotion, MAX_DELAY};
 pub use tree::refine_trees;
 
@@ -93,7 +100,8 @@ pub struct MlConfig {
     pub angle_starts: usize,
     /// Largest number of LM iterations per solve.
     pub max_iterations: usize,
-    /// A result whose residual RMS exceeds this multiple of `noise_sd` is not converged.
+    /// A result whose residual RMS exceeds this multiple of `noise_sd` is never converged; a
+    /// readings fit must also lie within the noise's band at its size ([`ResidualBand`]).
     pub converged_ratio: f64,
     /// Candidates carried from one segment to the next.
     pub beam: usize,
@@ -534,8 +542,12 @@ pub struct MlChainEstimate {
     /// set) rather than by the configured noise.
     #[serde(default)]
     pub reading_sd: bool,
-    /// Whether the residual is at the noise level.
+    /// Whether the residual is at the noise level: within its band at the data's size
+    /// ([`ResidualBand`]; a fit on a motion record: within `MlConfig::converged_ratio`).
     pub converged: bool,
+    /// The band of the residual ratio at the noise level, at the fit's size (readings fits).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub residual_band: Option<ResidualBand>,
     /// The gauge: parameters held, or directions the data leave free.
     pub fixed: Vec<String>,
     /// Directions the data do not determine.
@@ -1752,7 +1764,9 @@ impl FinalFit {
             residual_ratio,
             noise_sd_estimate: config.noise_sd * residual_ratio,
             reading_sd: readings.sd.is_some(),
-            converged: residual_ratio <= config.converged_ratio,
+            converged: residual_ratio <= config.converged_ratio
+                && precision.band.is_none_or(|b| b.holds(residual_ratio)),
+            residual_band: precision.band,
             fixed: problem.fixed.clone(),
             uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
             joint_covariance: joint_covariance(spec, &flat_dofs, cov),
@@ -1838,6 +1852,9 @@ struct Precision {
     /// The readings the residual is measured on.
     readings: Readings,
     residual_ratio: f64,
+    /// The band of the residual ratio at the noise level (readings fits only: a motion
+    /// record's noise model is approximate).
+    band: Option<ResidualBand>,
     cov: DMatrix<f64>,
     /// The parameters' names, in the covariance's order.
     names: Vec<String>,
@@ -1878,6 +1895,10 @@ impl Precision {
         };
         let normal = normal_system(state, layout, &readings, spec, &map, sigma);
         let residual_ratio = ratio_of(&normal);
+        let band = readings
+            .motion
+            .is_none()
+            .then(|| ResidualBand::at(normal.rows.saturating_sub(dof_count)));
         let (mut normal, scale) = match &weighted {
             Some(weighted) => {
                 let normal = normal_system(state, layout, weighted, spec, &map, sigma);
@@ -1900,6 +1921,7 @@ impl Precision {
         Self {
             readings,
             residual_ratio,
+            band: band.flatten(),
             cov,
             names,
             unobservable,
