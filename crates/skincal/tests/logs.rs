@@ -1167,3 +1167,87 @@ fn logs_read_inside_a_parallel_loop_over_them_give_every_sample() {
     let together: Vec<usize> = paths.par_iter().map(|p| count(p)).collect();
     assert!(together.iter().all(|&n| n == alone[0]), "{together:?}");
 }
+
+#[test]
+fn training_recorded_in_a_second_base_orientation_is_left_out_and_named() {
+    // The whole program recorded twice, the second time on a tilted mount: the two logs' training
+    // poses read two gravities, which one fit cannot explain (it ended at 756 σ). The tilted log's
+    // training is left out, named, and kept out of the motion record; its structure moves count.
+    // Recorded twice on the same mount, both logs' training is kept.
+    let robot = robot("paper-7dof");
+    let poses = 4;
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses,
+            seed: 3,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    let whole = |seed, orientation| LogConfig {
+        seed,
+        orientation,
+        ..LogConfig::default()
+    };
+    record_to(
+        &robot,
+        &plan,
+        &whole(5, BaseOrientation::upright()),
+        &path("upright.mcap"),
+        true,
+    );
+    record_to(
+        &robot,
+        &plan,
+        &whole(6, BaseOrientation::tilted()),
+        &path("tilted.mcap"),
+        true,
+    );
+    record_to(
+        &robot,
+        &plan,
+        &whole(7, BaseOrientation::upright()),
+        &path("again.mcap"),
+        true,
+    );
+
+    let logs = [path("upright.mcap"), path("tilted.mcap")];
+    let ingested = ingest(&logs, &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let report = &ingested.report;
+    assert_eq!(report.orientations, 2, "{report:#?}");
+    assert_eq!(report.training_poses, poses);
+    assert!(!report.logs[0].other_base && report.logs[1].other_base);
+    assert_eq!(report.warnings.len(), 1, "{:?}", report.warnings);
+    assert!(
+        report.warnings[0].starts_with(&format!(
+            "{}: its {poses} training poses are left out",
+            logs[1].display()
+        )),
+        "{}",
+        report.warnings[0]
+    );
+    assert_eq!(
+        skincal::ingest::motion::training_logs(report),
+        vec![logs[0].clone()]
+    );
+    let set = &ingested.measurements;
+    let structure = explore(set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let model = calibrate_body(set, Some(&structure), &MlConfig::default(), None).unwrap();
+    assert!(model.limbs.iter().all(|l| l.estimate.converged));
+    let check = validate(&model, &crate::common::held_out(&robot, 77), "held-out").unwrap();
+    assert!(
+        check.static_rms < 0.05 && check.dynamic_rms < 0.05,
+        "{check:?}"
+    );
+
+    let logs = [path("upright.mcap"), path("again.mcap")];
+    let ingested = ingest(&logs, &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let report = &ingested.report;
+    assert_eq!(report.training_poses, 2 * poses, "{:?}", report.warnings);
+    assert!(report.logs.iter().all(|l| !l.other_base));
+    assert_eq!(skincal::ingest::motion::training_logs(report).len(), 2);
+}

@@ -8,7 +8,7 @@ use super::fit::{Excitation, PooledFit};
 use super::segment::{Event, Segmentation, SHORT_STILL};
 use super::skin::{Accumulated, SuRegistry};
 use super::timeline::Grid;
-use super::{ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
+use super::{base, ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
 use crate::measurements::{
     MeasurementSet, Move, Orientation, Reading, StructureExperiment, TrainingExperiment,
     TrainingPose,
@@ -685,6 +685,7 @@ pub(super) fn assemble(
         ));
     }
     let (stations, group_count) = stations(passes.segs, passes.config);
+    let stations = training_in_one_base(&mut passes, stations);
     let sample_noise = sample_noise(&mut passes);
     let orientations = orientations(&mut passes, &stations, group_count);
     let poses = training_poses(&mut passes, &stations, &pattern)?;
@@ -751,6 +752,81 @@ pub(super) fn assemble(
         measurements: set,
         report,
     })
+}
+
+/// The stations without the training poses of logs whose base stood otherwise than in the logs
+/// with most training poses (each such log warned of and marked): the training is fitted with
+/// one gravity. Their structure stations stay (another orientation of the structure part).
+fn training_in_one_base(passes: &mut Passes<'_>, stations: Vec<Station>) -> Vec<Station> {
+    let mut trained: Vec<usize> = stations
+        .iter()
+        .filter(|s| !s.excitations.is_empty())
+        .map(|s| s.log)
+        .collect();
+    trained.dedup();
+    if trained.len() < 2 {
+        return stations;
+    }
+    let classes = {
+        let shared: &Passes<'_> = passes;
+        let readings: Vec<Box<dyn Fn() -> Option<Vec<Reading>> + '_>> = stations
+            .iter()
+            .map(|st| {
+                Box::new(move || {
+                    let r = shared.still_reading(st).ok()?;
+                    Some(r.into_iter().map(|(r, _)| r).collect())
+                }) as Box<dyn Fn() -> Option<Vec<Reading>>>
+            })
+            .collect();
+        let stills: Vec<base::Still<'_>> = stations
+            .iter()
+            .zip(&readings)
+            .map(|(st, r)| base::Still {
+                log: st.log,
+                pose: &st.pose,
+                readings: r.as_ref(),
+            })
+            .collect();
+        let same = |a: &[f64], b: &[f64]| differing(a, b, shared.dofs, shared.config).is_empty();
+        base::base_orientations(shared.reports.len(), &stills, &same)
+    };
+    let mut poses = BTreeMap::<usize, usize>::new();
+    for st in stations.iter().filter(|s| !s.excitations.is_empty()) {
+        if let Some(c) = classes[st.log] {
+            *poses.entry(c).or_default() += 1;
+        }
+    }
+    let Some(kept) = poses
+        .iter()
+        .max_by_key(|&(c, n)| (*n, std::cmp::Reverse(*c)))
+        .map(|(c, _)| *c)
+    else {
+        return stations;
+    };
+    let first_kept = (0..classes.len()).find(|&l| classes[l] == Some(kept));
+    let other = |log: usize| classes[log].is_some_and(|c| c != kept);
+    for log in trained.into_iter().filter(|&l| other(l)) {
+        let left = stations
+            .iter()
+            .filter(|s| s.log == log && !s.excitations.is_empty())
+            .count();
+        let warning = format!(
+            "{}: its {left} training poses are left out: the robot's base stood otherwise than \
+             in {} (at one joint pose held in both, the SUs' gravity readings turned by more \
+             than {:.0}°), and the training poses are fitted with one gravity. Its structure moves count as another \
+             base orientation; record the training in one orientation (`skincal record --part \
+             structure` for the others), or ingest each orientation's training on its own",
+            passes.path(log),
+            first_kept.map_or_else(|| "the other logs".into(), |l| passes.path(l)),
+            base::OTHER_BASE.to_degrees()
+        );
+        passes.warnings.push(warning);
+        passes.reports[log].other_base = true;
+    }
+    stations
+        .into_iter()
+        .filter(|s| s.excitations.is_empty() || !other(s.log))
+        .collect()
 }
 
 /// Each SU's sample variance from the spread of its still windows (in `passes`, where every SU

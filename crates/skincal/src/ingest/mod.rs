@@ -41,6 +41,7 @@
 //! counted in the [`IngestReport`].
 
 mod assemble;
+mod base;
 mod fit;
 pub mod motion;
 mod pass;
@@ -318,6 +319,10 @@ pub struct LogReport {
     pub pauses: usize,
     /// Single-DoF excitations found.
     pub excitations: usize,
+    /// Its training poses were left out: the robot's base stood otherwise than in the logs whose
+    /// training poses the set holds (the fit has one gravity); its structure moves count.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub other_base: bool,
     /// Single-DoF structure moves found.
     pub moves: usize,
     /// Motions of several DoFs (transfers), skipped.

@@ -89,7 +89,7 @@ struct Gathered {
 /// The logs whose every sample the time-domain fit takes, all in one base orientation: those with
 /// training poses (excitations), or where none has any, those where several DoFs moved at once (a
 /// continuous program, ordinary work). A structure experiment's logs in other orientations have
-/// neither.
+/// neither, or their training is left out ([`LogReport::other_base`]).
 pub fn training_logs(report: &IngestReport) -> Vec<PathBuf> {
     let with = |keep: &dyn Fn(&LogReport) -> bool| -> Vec<PathBuf> {
         report
@@ -99,7 +99,7 @@ pub fn training_logs(report: &IngestReport) -> Vec<PathBuf> {
             .map(|l| l.path.clone())
             .collect()
     };
-    let excited = with(&|l| l.excitations > 0);
+    let excited = with(&|l| l.excitations > 0 && !l.other_base);
     if excited.is_empty() {
         with(&|l| l.transfers > 0)
     } else {
