@@ -541,7 +541,7 @@ impl Fitted {
         let base_dofs = chain.base_dofs();
         let mut base = parent.and_then(|p| LimbBase::of(&self.estimates[p], base_dofs));
         let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
-        if let (false, Some(p)) = (first.converged, parent) {
+        if let (false, Some(p)) = (config.search_done(&first, true), parent) {
             match self.rescue_with_parent(set, &chain, &mut first, p, config)? {
                 Rescue::None => {}
                 Rescue::PathFree => chain = first.chain.clone(),
@@ -647,7 +647,7 @@ fn rescue_with_children(
         .filter(|c| hangs_on(c, &estimate.chain))
         .collect();
     for child in children {
-        if estimate.converged {
+        if config.search_done(&estimate, on.is_some()) {
             break;
         }
         let tried = sublimb::parent_from_child(set, &estimate.chain, on, child, config)?;
