@@ -226,31 +226,46 @@ fn run(robot: &Robot, seed: u64, args: &BenchBodyArgs) -> Result<Result<Run, Str
 /// Whether the structure places every SU of `truth` after exactly the DoFs that move it.
 pub(crate) fn structure_is_exact(truth: &Robot, s: &Structure) -> bool {
     let m = &truth.model;
-    if !s.unplaced_sus.is_empty() || !s.unplaced_dofs.is_empty() {
-        return false;
-    }
-    s.segments.iter().all(|segment| {
-        let mut found: Vec<String> = Vec::new();
-        let mut current = segment;
-        while let Some(j) = &current.parent_joint {
-            let joint = s.joint(j).expect("parent joints exist");
-            found.extend(joint.dofs.iter().cloned());
-            current = s.segment(&joint.parent).expect("parents exist");
-        }
-        found.sort();
-        segment.sus.iter().all(|su| {
-            let Some(u) = m.su_index(su) else {
-                return false;
-            };
-            let mut expected: Vec<String> = m
-                .chain_to(m.sus()[u].segment)
-                .into_iter()
-                .map(|d| m.dofs()[d].name.clone())
-                .collect();
-            expected.sort();
-            expected == found
+    // Mimic DoFs and their leaders drive bodies that explore sets aside by design: an SU or DoF
+    // behind one may stay unplaced, and a follower stands for its leader.
+    let coupled = |d: usize| m.is_follower(d) || !m.followers_of(d).is_empty();
+    let unplaced_sus = s.unplaced_sus.iter().all(|su| {
+        m.su_index(su)
+            .is_some_and(|u| m.chain_to(m.sus()[u].segment).into_iter().any(&coupled))
+    });
+    let unplaced_dofs = s
+        .unplaced_dofs
+        .iter()
+        .all(|d| m.dof_index(d).is_some_and(&coupled));
+    unplaced_sus
+        && unplaced_dofs
+        && s.segments.iter().all(|segment| {
+            let mut found: Vec<String> = Vec::new();
+            let mut current = segment;
+            while let Some(j) = &current.parent_joint {
+                let joint = s.joint(j).expect("parent joints exist");
+                found.extend(joint.dofs.iter().cloned());
+                current = s.segment(&joint.parent).expect("parents exist");
+            }
+            found.sort();
+            segment.sus.iter().all(|su| {
+                let Some(u) = m.su_index(su) else {
+                    return false;
+                };
+                let mut expected: Vec<String> = m
+                    .chain_to(m.sus()[u].segment)
+                    .into_iter()
+                    .map(|d| {
+                        m.dofs()[m.dofs()[d].mimic.map_or(d, |x| x.leader)]
+                            .name
+                            .clone()
+                    })
+                    .collect();
+                expected.sort();
+                expected.dedup();
+                expected == found
+            })
         })
-    })
 }
 
 fn rms(values: impl Iterator<Item = f64>) -> f64 {
