@@ -541,7 +541,7 @@ impl Fitted {
         let base_dofs = chain.base_dofs();
         let mut base = parent.and_then(|p| LimbBase::of(&self.estimates[p], base_dofs));
         let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
-        if let (false, Some(p)) = (config.search_done(&first, true), parent) {
+        if let (false, Some(p)) = (config.search_done(&first, parent.is_some()), parent) {
             match self.rescue_with_parent(set, &chain, &mut first, p, config)? {
                 Rescue::None => {}
                 Rescue::PathFree => chain = first.chain.clone(),

@@ -769,26 +769,17 @@ fn training_in_one_base(passes: &mut Passes<'_>, stations: Vec<Station>) -> Vec<
     }
     let classes = {
         let shared: &Passes<'_> = passes;
-        let readings: Vec<Box<dyn Fn() -> Option<Vec<Reading>> + '_>> = stations
-            .iter()
-            .map(|st| {
-                Box::new(move || {
-                    let r = shared.still_reading(st).ok()?;
-                    Some(r.into_iter().map(|(r, _)| r).collect())
-                }) as Box<dyn Fn() -> Option<Vec<Reading>>>
-            })
-            .collect();
-        let stills: Vec<base::Still<'_>> = stations
-            .iter()
-            .zip(&readings)
-            .map(|(st, r)| base::Still {
-                log: st.log,
-                pose: &st.pose,
-                readings: r.as_ref(),
-            })
-            .collect();
+        let stills: Vec<base::Still<'_>> = stations.iter().map(|s| (s.log, &s.pose[..])).collect();
         let same = |a: &[f64], b: &[f64]| differing(a, b, shared.dofs, shared.config).is_empty();
-        base::base_orientations(shared.reports.len(), &stills, &same)
+        let at = |k: usize| {
+            let r = shared.still_reading(&stations[k]).ok()?;
+            Some(r.into_iter().map(|(r, _)| r).collect())
+        };
+        let read = base::Readings {
+            same_pose: &same,
+            at: &at,
+        };
+        base::base_orientations(shared.reports.len(), &stills, &read)
     };
     let mut poses = BTreeMap::<usize, usize>::new();
     for st in stations.iter().filter(|s| !s.excitations.is_empty()) {
@@ -813,8 +804,8 @@ fn training_in_one_base(passes: &mut Passes<'_>, stations: Vec<Station>) -> Vec<
         let warning = format!(
             "{}: its {left} training poses are left out: the robot's base stood otherwise than \
              in {} (at one joint pose held in both, the SUs' gravity readings turned by more \
-             than {:.0}°), and the training poses are fitted with one gravity. Its structure moves count as another \
-             base orientation; record the training in one orientation (`skincal record --part \
+             than {:.0}°), and the training poses are fitted with one gravity. Its structure \
+             moves count as another base orientation; record the training in one orientation (`skincal record --part \
              structure` for the others), or ingest each orientation's training on its own",
             passes.path(log),
             first_kept.map_or_else(|| "the other logs".into(), |l| passes.path(l)),

@@ -14,21 +14,22 @@ pub const OTHER_BASE: f64 = 3.0 * std::f64::consts::PI / 180.0;
 /// A reading shorter than this (m/s²) tells no direction of gravity (a dead or railed SU).
 const LEAST_GRAVITY: f64 = 3.0;
 
-/// One still station of a log, as this module needs it.
-pub(super) struct Still<'a> {
-    pub log: usize,
-    pub pose: &'a [f64],
-    /// Its static readings (computed only where its pose is met in another log).
-    pub readings: &'a dyn Fn() -> Option<Vec<Reading>>,
+/// One still station of a log, as this module needs it: the log and the joint pose held.
+pub(super) type Still<'a> = (usize, &'a [f64]);
+
+/// How the module reads the data: whether two joint poses are one, and the static readings of a
+/// station (by its index in the stations; asked for only where its pose is met in another log).
+pub(super) struct Readings<'a> {
+    pub same_pose: &'a dyn Fn(&[f64], &[f64]) -> bool,
+    pub at: &'a dyn Fn(usize) -> Option<Vec<Reading>>,
 }
 
 /// Per log (of `logs`), the base orientation it was recorded in, numbered in order of first
 /// appearance; `None` for a log that holds no still pose another log holds too (nothing tells).
-/// `same_pose` tells whether two joint poses are one.
 pub(super) fn base_orientations(
     logs: usize,
     stills: &[Still<'_>],
-    same_pose: &dyn Fn(&[f64], &[f64]) -> bool,
+    read: &Readings<'_>,
 ) -> Vec<Option<usize>> {
     let mut class: Vec<Option<usize>> = vec![None; logs];
     let mut classes = 0;
@@ -36,7 +37,7 @@ pub(super) fn base_orientations(
         let mut differs = false;
         for earlier in 0..log {
             let Some(c) = class[earlier] else { continue };
-            match turned(stills, log, earlier, same_pose) {
+            match turned(stills, log, earlier, read) {
                 Some(angle) if angle <= OTHER_BASE => {
                     class[log] = Some(c);
                     break;
@@ -55,18 +56,14 @@ pub(super) fn base_orientations(
 
 /// The median angle between the gravity readings of logs `a` and `b` at the first joint pose
 /// both hold still; `None` where they share none.
-fn turned(
-    stills: &[Still<'_>],
-    a: usize,
-    b: usize,
-    same_pose: &dyn Fn(&[f64], &[f64]) -> bool,
-) -> Option<f64> {
-    let (first, second) = stills.iter().filter(|s| s.log == a).find_map(|s| {
-        let t = stills
-            .iter()
-            .find(|t| t.log == b && same_pose(s.pose, t.pose))?;
-        Some(((s.readings)()?, (t.readings)()?))
-    })?;
+fn turned(stills: &[Still<'_>], a: usize, b: usize, read: &Readings<'_>) -> Option<f64> {
+    let (first, second) = (0..stills.len())
+        .filter(|&s| stills[s].0 == a)
+        .find_map(|s| {
+            let t = (0..stills.len())
+                .find(|&t| stills[t].0 == b && (read.same_pose)(stills[s].1, stills[t].1))?;
+            Some(((read.at)(s)?, (read.at)(t)?))
+        })?;
     let mut angles: Vec<f64> = first
         .iter()
         .zip(&second)
@@ -95,54 +92,29 @@ mod tests {
     fn logs_at_one_pose_are_told_apart_by_how_far_gravity_turned() {
         let rest = [0.0, 0.5];
         let elsewhere = [1.0, 0.5];
-        let upright = || Some(vec![[0.0, 0.0, -9.81], [0.0, 6.9, -6.9], [9.81, 0.0, 0.0]]);
-        let again = || Some(vec![[0.05, 0.0, -9.81], [0.0, 6.95, -6.9], [9.8, 0.1, 0.0]]);
-        let mounted = || {
-            Some(
-                vec![[0.0, 0.0, -9.81], [0.0, 6.9, -6.9], [9.81, 0.0, 0.0]]
-                    .into_iter()
-                    .map(|r| tilted(r, 20.0))
-                    .collect(),
-            )
-        };
-        let dead = || Some(vec![[0.0; 3]; 3]);
-        let stills = [
-            Still {
-                log: 0,
-                pose: &rest,
-                readings: &upright,
-            },
-            Still {
-                log: 1,
-                pose: &rest,
-                readings: &mounted,
-            },
-            Still {
-                log: 2,
-                pose: &elsewhere,
-                readings: &upright,
-            },
-            Still {
-                log: 2,
-                pose: &rest,
-                readings: &again,
-            },
-            Still {
-                log: 3,
-                pose: &elsewhere,
-                readings: &mounted,
-            },
-            Still {
-                log: 4,
-                pose: &rest,
-                readings: &dead,
-            },
+        let upright = vec![[0.0, 0.0, -9.81], [0.0, 6.9, -6.9], [9.81, 0.0, 0.0]];
+        let again = vec![[0.05, 0.0, -9.81], [0.0, 6.95, -6.9], [9.8, 0.1, 0.0]];
+        let mounted: Vec<Reading> = upright.iter().map(|&r| tilted(r, 20.0)).collect();
+        let dead = vec![[0.0; 3]; 3];
+        let stills: [Still<'_>; 6] = [
+            (0, &rest),
+            (1, &rest),
+            (2, &elsewhere),
+            (2, &rest),
+            (3, &elsewhere),
+            (4, &rest),
         ];
+        let readings = [&upright, &mounted, &upright, &again, &mounted, &dead];
         let same = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-3);
+        let at = |k: usize| Some(readings[k].clone());
+        let read = Readings {
+            same_pose: &same,
+            at: &at,
+        };
         // Log 2 stood as log 0 did; log 1 was tilted 20°; log 3 shares its pose only with log 2
         // and reads it turned; a dead skin tells nothing.
         assert_eq!(
-            base_orientations(5, &stills, &same),
+            base_orientations(5, &stills, &read),
             vec![Some(0), Some(1), Some(0), Some(2), None]
         );
     }
