@@ -659,6 +659,25 @@ fn limb_jacobian(
     out
 }
 
+/// Per DoF (of the tree given by each DoF's `parent`), every DoF after it, nearest first.
+fn descendants(parent: &[Option<DofIndex>]) -> Vec<Vec<DofIndex>> {
+    let n = parent.len();
+    (0..n)
+        .map(|d| {
+            let mut out = Vec::new();
+            let mut frontier = vec![d];
+            while !frontier.is_empty() {
+                let next: Vec<DofIndex> = (0..n)
+                    .filter(|&c| parent[c].is_some_and(|p| frontier.contains(&p)))
+                    .collect();
+                out.extend(&next);
+                frontier = next;
+            }
+            out
+        })
+        .collect()
+}
+
 /// Matches the calibrated DoFs with the URDF's joints and checks that the trees agree.
 fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignError> {
     use urdf_rs::JointType as J;
@@ -721,20 +740,7 @@ fn plan(body: &BodyModel, robot: &Robot, tree: &UrdfTree) -> Result<Plan, AlignE
                 .collect(),
         });
     }
-    let descendants = (0..n)
-        .map(|d| {
-            let mut out = Vec::new();
-            let mut frontier = vec![d];
-            while !frontier.is_empty() {
-                let next: Vec<DofIndex> = (0..n)
-                    .filter(|&c| parent[c].is_some_and(|p| frontier.contains(&p)))
-                    .collect();
-                out.extend(&next);
-                frontier = next;
-            }
-            out
-        })
-        .collect();
+    let descendants = descendants(&parent);
     let hangs = model
         .dofs()
         .iter()

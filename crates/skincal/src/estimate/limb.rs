@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{EstimateError, SerialChain};
 use crate::explore::Structure;
-use crate::measurements::MeasurementSet;
+use crate::measurements::{MeasurementSet, TrainingPose};
 use crate::model::sensor::ExcitationPattern;
 use crate::model::DofKind;
 
@@ -246,21 +246,7 @@ impl LimbData {
             .iter()
             .map(|d| find("DoF", &set.dofs, d))
             .collect::<Result<_, _>>()?;
-        let mut su_index = Vec::new();
-        for joint in &chain.joints[chain.base_joints..] {
-            if joint.sus.is_empty() {
-                return Err(EstimateError::UnsupportedLimb {
-                    limb: chain.name.clone(),
-                    reason: format!(
-                        "segment {} (after joint {}) carries no SU",
-                        joint.segment, joint.id
-                    ),
-                });
-            }
-            for su in &joint.sus {
-                su_index.push(find("SU", &set.sus, su)?);
-            }
-        }
+        let su_index = su_indices(set, chain)?;
         let su_depth = chain.su_depths();
         let mut q = Vec::new();
         let mut statics = Vec::new();
@@ -268,28 +254,12 @@ impl LimbData {
         let mut missing = Vec::new();
         let mut sd = Some(Vec::new());
         for pose in &training.poses {
-            if let (Some(all), Some(statics)) = (sd.as_mut(), &pose.static_sd) {
-                // A missing reading's deviation is never used: any positive value holds its place.
-                let per_su: Option<Vec<Vec<f64>>> = su_index
-                    .iter()
-                    .zip(&su_depth)
-                    .map(|(&u, &depth)| {
-                        let dynamic = dofs[..depth].iter().map(|dof| {
-                            match (pose.dynamic.contains_key(dof), pose.dynamic_sd.get(dof)) {
-                                (false, _) => Some(1.0),
-                                (true, sd) => sd.map(|v| v[u]),
-                            }
-                        });
-                        std::iter::once(Some(statics[u])).chain(dynamic).collect()
-                    })
-                    .collect();
-                match per_su {
-                    Some(v) => all.push(v),
-                    None => sd = None,
-                }
-            } else {
-                sd = None;
-            }
+            sd = sd
+                .zip(pose_sd(pose, &su_index, &su_depth, &dofs))
+                .map(|(mut all, this)| {
+                    all.push(this);
+                    all
+                });
             q.push(dof_index.iter().map(|&d| pose.q[d]).collect());
             statics.push(
                 su_index
@@ -297,44 +267,11 @@ impl LimbData {
                     .map(|&u| Vector3::from(pose.static_readings[u]))
                     .collect(),
             );
-            let mut per_su: Vec<Vec<Vector3<f64>>> =
-                su_depth.iter().map(|&d| Vec::with_capacity(d)).collect();
-            let mut lacking: Vec<Vec<bool>> =
-                su_depth.iter().map(|&d| vec![false; 1 + d]).collect();
-            for (k, dof) in dofs.iter().enumerate() {
-                let readings = pose.dynamic.get(dof);
-                for (i, &u) in su_index.iter().enumerate() {
-                    if k < su_depth[i] {
-                        per_su[i].push(readings.map_or_else(Vector3::zeros, |r| r[u].into()));
-                        lacking[i][1 + k] = readings.is_none();
-                    }
-                }
-            }
+            let (per_su, lacking) = pose_dynamics(pose, &su_index, &su_depth, &dofs);
             dynamics.push(per_su);
             missing.push(lacking);
         }
-        let mut chain = chain.clone();
-        chain.prismatic = dofs
-            .iter()
-            .zip(&dof_index)
-            .filter(|&(_, &d)| set.dof_kind(d) == DofKind::Prismatic)
-            .map(|(name, _)| name.clone())
-            .collect();
-        if let Some(joint) = chain
-            .joints
-            .iter()
-            .find(|j| j.dofs.len() > 1 && j.dofs.iter().any(|d| chain.prismatic.contains(d)))
-        {
-            return Err(EstimateError::UnsupportedLimb {
-                limb: chain.name.clone(),
-                reason: format!(
-                    "joint {} holds the prismatic DoF(s) {:?} among the DoFs {:?} with no SU between them: a prismatic DoF is calibrated only with skin on the segment it moves (put an SU there, or hold the DoF still: make it fixed in the description)",
-                    joint.id,
-                    joint.dofs.iter().filter(|d| chain.prismatic.contains(d)).collect::<Vec<_>>(),
-                    joint.dofs
-                ),
-            });
-        }
+        let chain = with_prismatic(set, chain, &dofs, &dof_index)?;
         let data = Self {
             chain,
             q,
@@ -499,4 +436,114 @@ impl From<&super::ChainData> for LimbData {
             missing: Vec::new(),
         }
     }
+}
+
+/// The set's index of every SU of `chain`'s estimated segments, in chain order; an estimated
+/// segment without SU is refused.
+fn su_indices(set: &MeasurementSet, chain: &LimbChain) -> Result<Vec<usize>, EstimateError> {
+    let mut su_index = Vec::new();
+    for joint in &chain.joints[chain.base_joints..] {
+        if joint.sus.is_empty() {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: chain.name.clone(),
+                reason: format!(
+                    "segment {} (after joint {}) carries no SU",
+                    joint.segment, joint.id
+                ),
+            });
+        }
+        for su in &joint.sus {
+            su_index.push(super::position("SU", &set.sus, su, &chain.name)?);
+        }
+    }
+    Ok(su_index)
+}
+
+/// Per SU (set indices `su_index`, moved by the first `su_depth` of `dofs`): the deviation of
+/// its static reading in `pose`, then of its dynamic reading of each DoF; `None` unless the
+/// pose gives every one of them.
+fn pose_sd(
+    pose: &TrainingPose,
+    su_index: &[usize],
+    su_depth: &[usize],
+    dofs: &[String],
+) -> Option<Vec<Vec<f64>>> {
+    let statics = pose.static_sd.as_ref()?;
+    su_index
+        .iter()
+        .zip(su_depth)
+        .map(|(&u, &depth)| {
+            let dynamic = dofs[..depth].iter().map(|dof| {
+                // A missing reading's deviation is never used: any positive value holds its place.
+                match (pose.dynamic.contains_key(dof), pose.dynamic_sd.get(dof)) {
+                    (false, _) => Some(1.0),
+                    (true, sd) => sd.map(|v| v[u]),
+                }
+            });
+            std::iter::once(Some(statics[u])).chain(dynamic).collect()
+        })
+        .collect()
+}
+
+/// Per SU: its dynamic readings in `pose` of the DoFs that move it (zero where the pose has
+/// none), and which of them are missing (`[0]`, the static reading, never).
+#[allow(clippy::type_complexity)]
+fn pose_dynamics(
+    pose: &TrainingPose,
+    su_index: &[usize],
+    su_depth: &[usize],
+    dofs: &[String],
+) -> (Vec<Vec<Vector3<f64>>>, Vec<Vec<bool>>) {
+    let mut per_su: Vec<Vec<Vector3<f64>>> =
+        su_depth.iter().map(|&d| Vec::with_capacity(d)).collect();
+    let mut lacking: Vec<Vec<bool>> = su_depth.iter().map(|&d| vec![false; 1 + d]).collect();
+    for (k, dof) in dofs.iter().enumerate() {
+        let readings = pose.dynamic.get(dof);
+        for (i, &u) in su_index.iter().enumerate() {
+            if k < su_depth[i] {
+                per_su[i].push(readings.map_or_else(Vector3::zeros, |r| r[u].into()));
+                lacking[i][1 + k] = readings.is_none();
+            }
+        }
+    }
+    (per_su, lacking)
+}
+
+/// `chain` with its prismatic DoFs (of `dofs`, set indices `dof_index`) named; a prismatic DoF
+/// that shares a joint with others (no SU between them) is refused.
+fn with_prismatic(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    dofs: &[String],
+    dof_index: &[usize],
+) -> Result<LimbChain, EstimateError> {
+    let mut chain = chain.clone();
+    chain.prismatic = dofs
+        .iter()
+        .zip(dof_index)
+        .filter(|&(_, &d)| set.dof_kind(d) == DofKind::Prismatic)
+        .map(|(name, _)| name.clone())
+        .collect();
+    if let Some(joint) = chain
+        .joints
+        .iter()
+        .find(|j| j.dofs.len() > 1 && j.dofs.iter().any(|d| chain.prismatic.contains(d)))
+    {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: chain.name.clone(),
+            reason: format!(
+                "joint {} holds the prismatic DoF(s) {:?} among the DoFs {:?} with no SU between \
+                 them: a prismatic DoF is calibrated only with skin on the segment it moves (put \
+                 an SU there, or hold the DoF still: make it fixed in the description)",
+                joint.id,
+                joint
+                    .dofs
+                    .iter()
+                    .filter(|d| chain.prismatic.contains(d))
+                    .collect::<Vec<_>>(),
+                joint.dofs
+            ),
+        });
+    }
+    Ok(chain)
 }

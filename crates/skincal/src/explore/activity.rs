@@ -785,13 +785,7 @@ pub fn activity_matrix(
         return Err(ExploreError::NoMoves);
     }
     screen.rebuild_rests(&rest_misread, &mut moves.per, config);
-    let leader_of: Vec<Option<usize>> = (0..set.dofs.len())
-        .map(|d| {
-            set.mimic
-                .get(&set.dofs[d])
-                .and_then(|m| set.dof_index(&m.leader))
-        })
-        .collect();
+    let leader_of = mimic_leaders(set);
     // A DoF with mimic followers turns each body they drive about an axis of its own: an SU it
     // leaves still in one orientation may turn in the other.
     let led: Vec<bool> = (0..set.dofs.len())
@@ -836,14 +830,7 @@ pub fn activity_matrix(
         })
         .collect();
     let mimic_driven = super::mimic::mimic_driven(set, &active, &screen.is_broken);
-    let rest_turn = (0..set.sus.len())
-        .map(|u| match structure.orientations.as_slice() {
-            [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
-                Some(angle_between(&first.rest[u], &second.rest[u]))
-            }
-            _ => None,
-        })
-        .collect();
+    let rest_turn = rest_turns(structure, &rest_misread, set.sus.len());
     Ok(ActivityMatrix {
         sus: set.sus.clone(),
         dofs: set.dofs.clone(),
@@ -879,6 +866,34 @@ pub fn activity_matrix(
         mimic_driven,
         broken: screen.broken,
     })
+}
+
+/// Per DoF of `set`, the index of the DoF it follows as a mimic joint.
+fn mimic_leaders(set: &MeasurementSet) -> Vec<Option<usize>> {
+    (0..set.dofs.len())
+        .map(|d| {
+            set.mimic
+                .get(&set.dofs[d])
+                .and_then(|m| set.dof_index(&m.leader))
+        })
+        .collect()
+}
+
+/// Per SU, the angle its rest reading turned from the first orientation to the second (`None`
+/// with one orientation, or where either rest reading was misread), for `sus` SUs.
+fn rest_turns(
+    structure: &StructureExperiment,
+    rest_misread: &[Vec<bool>],
+    sus: usize,
+) -> Vec<Option<f64>> {
+    (0..sus)
+        .map(|u| match structure.orientations.as_slice() {
+            [first, second, ..] if !rest_misread[0][u] && !rest_misread[1][u] => {
+                Some(angle_between(&first.rest[u], &second.rest[u]))
+            }
+            _ => None,
+        })
+        .collect()
 }
 
 /// The columns of the prismatic DoFs, from the training experiment: a prismatic DoF turns no
