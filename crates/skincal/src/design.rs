@@ -16,7 +16,6 @@
 //! sweep once and calibrates the description from that log's motion alone.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 use nalgebra::Vector3;
 use rand::SeedableRng;
@@ -27,9 +26,9 @@ use crate::estimate::body::{calibrate_body, calibrate_body_on_motion};
 use crate::estimate::ml::MlConfig;
 use crate::estimate::EstimateError;
 use crate::explore::{explore, ExploreConfig, ExploreError, Structure};
-use crate::ingest::motion::motion_record;
-use crate::ingest::{ingest, IngestConfig, IngestError};
-use crate::log::csv::CsvSink;
+use crate::ingest::motion::motion_record_from;
+use crate::ingest::{ingest_from, IngestConfig, IngestError};
+use crate::log::{LogSource, MemoryLog};
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::{DofKind, Robot};
@@ -50,9 +49,6 @@ pub enum DesignError {
          wrote)"
     )]
     NoSus,
-    /// The scratch directory for a recorded log could not be made.
-    #[error("forecast: cannot create a scratch directory: {0}")]
-    Scratch(#[source] std::io::Error),
     /// Simulating the description failed.
     #[error("forecast: simulating {what}: {source}")]
     Simulate {
@@ -121,51 +117,24 @@ fn per_sample_sd(imperfections: &Imperfections) -> f64 {
     (imperfections.uniform_noise.powi(2) / 3.0 + imperfections.gaussian_noise.powi(2)).sqrt() * g
 }
 
-/// A scratch directory for a recorded log, removed on drop (or by
-/// [`crate::log::remove_transient`] on a signal).
-struct Scratch {
-    dir: tempfile::TempDir,
-    /// The log's path inside it (`ingest` takes paths).
-    log: PathBuf,
-}
-
-impl Scratch {
-    fn new() -> Result<Scratch, DesignError> {
-        let dir = tempfile::Builder::new()
-            .prefix("skincal-forecast-")
-            .tempdir()
-            .map_err(DesignError::Scratch)?;
-        crate::log::hold_transient(dir.path());
-        let log = dir.path().to_path_buf();
-        Ok(Scratch { dir, log })
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        crate::log::release_transient(self.dir.path());
-    }
-}
-
-/// `plan` (its training part alone, with `part`) recorded as a 1 kHz CSV log of `robot` with
-/// `imperfections`, in a scratch directory; `what` names it in an error.
+/// `plan` (its training part alone, with `part`) recorded as a 1 kHz log of `robot` with
+/// `imperfections`, in memory; `what` names it in an error.
 fn recorded(
     robot: &Robot,
     plan: &Plan,
     part: Option<Part>,
     imperfections: &Imperfections,
     what: &'static str,
-) -> Result<Scratch, DesignError> {
-    let scratch = Scratch::new()?;
+) -> Result<LogSource, DesignError> {
     let config = LogConfig {
         imperfections: *imperfections,
         part,
         ..LogConfig::default()
     };
-    let mut sink = CsvSink::new(&scratch.log, true);
-    record(robot, plan, &config, &mut sink, &mut |_| {})
+    let mut log = MemoryLog::new(what);
+    record(robot, plan, &config, &mut log, &mut |_| {})
         .map_err(|source| DesignError::Record { what, source })?;
-    Ok(scratch)
+    Ok(LogSource::Memory(log))
 }
 
 /// The noise of one reading under `plan`'s protocol with samples of `sample_sd` m/s² per axis
@@ -189,7 +158,7 @@ pub fn reading_noise(
         },
     )?;
     let imperfections = sensor(sample_sd);
-    let scratch = recorded(
+    let log = recorded(
         robot,
         &one,
         Some(Part::Training),
@@ -203,8 +172,8 @@ pub fn reading_noise(
         ..IngestConfig::default()
     }
     .for_still_periods(plan.config.still);
-    let ingested = ingest(
-        std::slice::from_ref(&scratch.log),
+    let ingested = ingest_from(
+        std::slice::from_ref(&log),
         &ingest_config,
         &mut |_, _, _| {},
     )
@@ -434,10 +403,10 @@ pub fn forecast_sweep(
     let imperfections = sensor(sample_sd);
     // The whole upright log, as the robot records it: the structure part's still periods are
     // the quiet moments the fit starts from.
-    let scratch = recorded(robot, plan, None, &imperfections, "the program")?;
+    let log = recorded(robot, plan, None, &imperfections, "the program")?;
     let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
-    let motion = motion_record(
-        std::slice::from_ref(&scratch.log),
+    let motion = motion_record_from(
+        std::slice::from_ref(&log),
         &dofs,
         &sus,
         &IngestConfig::default(),

@@ -56,7 +56,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::log::{self, LogError, LogFormat, ReadStats, Topics};
+use crate::log::{LogError, LogSource, ReadStats, Topics};
 use crate::measurements::{ApparentUnit, MeasurementSet};
 use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use assemble::{assemble, Passes};
@@ -438,11 +438,41 @@ pub fn ingest(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Ingested, IngestError> {
+    let sources: Vec<LogSource> = logs.iter().cloned().map(LogSource::File).collect();
+    ingest_from(&sources, config, progress)
+}
+
+/// Reads `logs`, files or logs in memory, and extracts the measurement set: [`ingest`] of any
+/// [`LogSource`].
+///
+/// ```
+/// use skincal::ingest::{ingest_from, IngestConfig};
+/// use skincal::log::{LogSource, MemoryLog};
+/// use skincal::model::presets;
+/// use skincal::plan::{Plan, PlanConfig, PlanDof};
+/// use skincal::sim::timeseries::{record, LogConfig};
+///
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let program = PlanConfig { poses: 1, ..PlanConfig::short() };
+/// let plan = Plan::new(PlanDof::from_robot(&robot), &program).unwrap();
+/// // The program recorded at 1 kHz into memory, and read from there: no file between the two.
+/// let mut log = MemoryLog::new("recorded");
+/// record(&robot, &plan, &LogConfig::default(), &mut log, &mut |_| {}).unwrap();
+/// let found = ingest_from(&[LogSource::Memory(log)], &IngestConfig::default(), &mut |_, _, _| {})
+///     .unwrap();
+/// assert_eq!(found.measurements.summary().training_poses, 1);
+/// assert_eq!(found.report.logs[0].format, "memory");
+/// ```
+pub fn ingest_from(
+    logs: &[LogSource],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Ingested, IngestError> {
     ingest_logs(logs, config, progress, Some(pass::HELD)).map_err(|e| match e {
         IngestError::Empty(reason) if !logs.is_empty() => IngestError::Empty(format!(
             "in {}: {reason}",
             logs.iter()
-                .map(|l| l.display().to_string())
+                .map(|l| l.path().display().to_string())
                 .collect::<Vec<_>>()
                 .join(", ")
         )),
@@ -453,7 +483,7 @@ pub fn ingest(
 /// The ingestion, each log read in one pass (segmented every `step` skin samples) where it can
 /// be, else (and with `step` `None`) in two.
 fn ingest_logs(
-    logs: &[PathBuf],
+    logs: &[LogSource],
     config: &IngestConfig,
     progress: &mut Progress<'_>,
     step: Option<usize>,
@@ -468,8 +498,8 @@ fn ingest_logs(
     let mut reports = Vec::new();
     let mut dof_names: Option<Vec<String>> = config.dofs.clone();
     let mut sus = SuRegistry::new(config.sus.clone());
-    for path in logs {
-        let (log, report) = read_log(path, config, step, &mut dof_names, &mut sus, progress)?;
+    for source in logs {
+        let (log, report) = read_log(source, config, step, &mut dof_names, &mut sus, progress)?;
         grids.push(log.grid);
         plans.push(log.seg);
         accumulators.push(log.acc);
@@ -498,20 +528,15 @@ fn ingest_logs(
 /// One log read in one pass where it can be (segmented every `step` skin samples), else in
 /// two; the DoF names and SUs it holds added to those of the logs before.
 fn read_log(
-    path: &Path,
+    source: &LogSource,
     config: &IngestConfig,
     step: Option<usize>,
     dof_names: &mut Option<Vec<String>>,
     sus: &mut SuRegistry,
     progress: &mut Progress<'_>,
 ) -> Result<(LogPass, LogReport), IngestError> {
-    let format = match log::format_of(path)? {
-        LogFormat::Mcap => "mcap".into(),
-        LogFormat::Csv => "csv".into(),
-        LogFormat::Db3 => "rosbag2 sqlite3".into(),
-        LogFormat::Bag => "ros1 bag".into(),
-        LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
-    };
+    let path = source.path();
+    let format = source.format()?;
     let fresh = || LogReport {
         path: path.to_path_buf(),
         format: format.clone(),
@@ -520,7 +545,7 @@ fn read_log(
     let mut report = fresh();
     let (names_before, sus_before) = (dof_names.clone(), sus.clone());
     let once = match step {
-        Some(step) => one_pass(path, step, config, dof_names, sus, &mut report, progress)?,
+        Some(step) => one_pass(source, step, config, dof_names, sus, &mut report, progress)?,
         None => None,
     };
     let log = match once {
@@ -532,7 +557,7 @@ fn read_log(
             // The log breaks what one pass relies on: read it twice.
             (*dof_names, *sus, report) = (names_before, sus_before, fresh());
             report.passes = 2;
-            two_passes(path, config, dof_names, sus, &mut report, progress)?
+            two_passes(source, config, dof_names, sus, &mut report, progress)?
         }
     };
     report.joint_start = log.grid.t0;
@@ -568,7 +593,7 @@ fn pattern_of(
 /// An error when the static readings' median norm is far from |g|: the skin's samples are in
 /// another unit than m/s² (a driver that publishes g or mg), and every reading would be off by
 /// that factor; `scale` is what they were multiplied by.
-fn skin_unit(set: &MeasurementSet, scale: f64, logs: &[PathBuf]) -> Result<(), IngestError> {
+fn skin_unit(set: &MeasurementSet, scale: f64, logs: &[LogSource]) -> Result<(), IngestError> {
     let Some(median) = set.median_static_norm() else {
         return Ok(());
     };
@@ -593,7 +618,10 @@ fn skin_unit(set: &MeasurementSet, scale: f64, logs: &[PathBuf]) -> Result<(), I
     } else {
         format!(", after scaling by {scale}")
     };
-    let names: Vec<String> = logs.iter().map(|l| l.display().to_string()).collect();
+    let names: Vec<String> = logs
+        .iter()
+        .map(|l| l.path().display().to_string())
+        .collect();
     Err(IngestError::SkinUnit(format!(
         "{}: the static readings' median norm is {median:.4} m/s²{scaled}, but a resting \
          accelerometer reads |g| = {STANDARD_GRAVITY} m/s² (sensor_msgs/Imu carries m/s²): {advice}",
@@ -628,17 +656,17 @@ fn one_clock(path: &Path, report: &LogReport) -> Result<(), IngestError> {
 /// The log at `path` read twice: its joint states (put on the grid and segmented), then its skin
 /// samples.
 fn two_passes(
-    path: &Path,
+    source: &LogSource,
     config: &IngestConfig,
     dof_names: &mut Option<Vec<String>>,
     sus: &mut SuRegistry,
     report: &mut LogReport,
     progress: &mut Progress<'_>,
 ) -> Result<LogPass, IngestError> {
-    let timeline = read_joints(path, config, dof_names, report, progress)?;
+    let timeline = read_joints(source, config, dof_names, report, progress)?;
     let dofs = dof_names.clone().unwrap_or_default();
     let seg = segment(&timeline, &dofs, config, report);
-    let acc = read_skin(path, &timeline, &seg, config, sus, report, progress)?;
+    let acc = read_skin(source, &timeline, &seg, config, sus, report, progress)?;
     Ok(LogPass {
         grid: timeline.grid,
         seg,
@@ -669,6 +697,8 @@ mod tests {
 
     /// The ingestion of `logs` read once (segmented every `step` samples) and read twice.
     fn once_and_twice(logs: &[PathBuf], step: usize) -> (Ingested, Ingested) {
+        let logs: Vec<LogSource> = logs.iter().cloned().map(LogSource::File).collect();
+        let logs = &logs[..];
         let config = IngestConfig::default();
         let once = ingest_logs(logs, &config, &mut |_, _, _| {}, Some(step)).unwrap();
         let twice = ingest_logs(logs, &config, &mut |_, _, _| {}, None).unwrap();
@@ -746,5 +776,47 @@ mod tests {
         assert!(once.report.logs[0].unsorted_joint_stamps > 0);
         assert_eq!(once.report.logs[0].passes, 2);
         same(&once, &twice);
+    }
+
+    #[test]
+    fn a_log_in_memory_gives_what_its_file_gives() {
+        // One recording written to an MCAP file (whose CDR keeps every f64 and nanosecond
+        // stamps) and to memory under the file's name: the same measurement set, the same report
+        // but for the format.
+        let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+        let plan = Plan::new(
+            PlanDof::from_robot(&robot),
+            &PlanConfig {
+                poses: 2,
+                seed: 7,
+                ..PlanConfig::short()
+            },
+        )
+        .unwrap();
+        let flawed = LogConfig {
+            jitter: 2e-5,
+            drop_probability: 0.01,
+            seed: 4,
+            ..LogConfig::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("recorded.mcap");
+        let mut sink = McapSink::new(&file, Topics::default(), Compression::None, false);
+        record(&robot, &plan, &flawed, &mut sink, &mut |_| {}).unwrap();
+        let mut memory = crate::log::MemoryLog::new(&file);
+        record(&robot, &plan, &flawed, &mut memory, &mut |_| {}).unwrap();
+        let config = IngestConfig::default();
+        let from_file = ingest(std::slice::from_ref(&file), &config, &mut |_, _, _| {}).unwrap();
+        let mut from_memory =
+            ingest_from(&[LogSource::Memory(memory)], &config, &mut |_, _, _| {}).unwrap();
+        assert_eq!(from_memory.report.logs[0].format, "memory");
+        assert_eq!(from_file.report.logs[0].format, "mcap");
+        from_memory.report.logs[0].format = "mcap".into();
+        assert!(
+            from_file.report.training_poses == 2,
+            "{:?}",
+            from_file.report
+        );
+        same(&from_file, &from_memory);
     }
 }

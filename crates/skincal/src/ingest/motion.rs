@@ -15,7 +15,7 @@ use nalgebra::{SMatrix, SVector};
 
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
-use crate::log::{self, Sample, Stream};
+use crate::log::{LogSource, Sample, Stream};
 use crate::motion::{
     MotionRecord, MotionRun, SampleCount, SampleCounter, MOTION_FORMAT, MOTION_VERSION,
 };
@@ -107,8 +107,8 @@ pub fn training_logs(report: &IngestReport) -> Vec<PathBuf> {
     }
 }
 
-/// The motion record of `logs` for the DoFs and SUs named (those of the measurement set the same
-/// logs gave), in one pass over each log.
+/// The motion record of the log files `logs` for the DoFs and SUs named (those of the
+/// measurement set the same logs gave), in one pass over each log: [`motion_record_from`] files.
 pub fn motion_record(
     logs: &[PathBuf],
     dofs: &[String],
@@ -116,9 +116,22 @@ pub fn motion_record(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
+    let sources: Vec<LogSource> = logs.iter().cloned().map(LogSource::File).collect();
+    motion_record_from(&sources, dofs, sus, config, progress)
+}
+
+/// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass
+/// over each log.
+pub fn motion_record_from(
+    logs: &[LogSource],
+    dofs: &[String],
+    sus: &[String],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<MotionRecord, IngestError> {
     let gathered: Vec<Gathered> = logs
         .iter()
-        .map(|path| gather(path, dofs, sus, config, progress))
+        .map(|log| gather(log, dofs, sus, config, progress))
         .collect::<Result<_, _>>()?;
     let h = gathered
         .iter()
@@ -126,8 +139,8 @@ pub fn motion_record(
         .fold(HALF_WIDTHS[0], f64::max);
     let mut runs = Vec::new();
     let mut samples = vec![SampleCount::default(); sus.len()];
-    for (path, gathered) in logs.iter().zip(&gathered) {
-        runs.extend(runs_of(path, gathered, h, config));
+    for (log, gathered) in logs.iter().zip(&gathered) {
+        runs.extend(runs_of(log.path(), gathered, h, config));
         for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
             *total = total.plus(skin.count.count);
         }
@@ -136,7 +149,7 @@ pub fn motion_record(
         return Err(IngestError::Empty(format!(
             "for the time-domain record in {}: no stretch of {} s where every DoF has joint states on both sides",
             logs.iter()
-                .map(|l| l.display().to_string())
+                .map(|l| l.path().display().to_string())
                 .collect::<Vec<_>>()
                 .join(", "),
             2.0 * HALF_WIDTHS[HALF_WIDTHS.len() - 1]
@@ -160,12 +173,13 @@ pub fn motion_record(
 }
 
 fn gather(
-    path: &Path,
+    source: &LogSource,
     dofs: &[String],
     sus: &[String],
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Gathered, IngestError> {
+    let path = source.path();
     let dof_index: HashMap<&str, usize> = dofs
         .iter()
         .enumerate()
@@ -181,10 +195,9 @@ fn gather(
         skin: (0..sus.len()).map(|_| SkinBlocks::default()).collect(),
         origin: f64::NAN,
     };
-    let total = log::size_of(path, Stream::Both);
+    let total = source.size(Stream::Both);
     let label = format!("motion of {}", path.display());
-    log::read_log(
-        path,
+    source.read(
         Stream::Both,
         &config.topics,
         &mut |sample| {

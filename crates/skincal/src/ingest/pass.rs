@@ -22,7 +22,7 @@ use super::segment::{filter_points, pieces, trim_points, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
 use super::timeline::{newest_common, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
-use crate::log::{self, LogError, PassStats, Sample, Stream};
+use crate::log::{LogError, LogSource, PassStats, Sample, Stream};
 
 /// Skin samples that arrive between two segmentations of the timeline.
 pub(super) const HELD: usize = 1 << 18;
@@ -94,7 +94,7 @@ struct Pass<'a> {
 /// The single pass over the log at `path`, segmenting the timeline again every `step` skin
 /// samples; `Ok(None)` when the log needs two passes.
 pub(super) fn one_pass(
-    path: &Path,
+    source: &LogSource,
     step: usize,
     config: &IngestConfig,
     dof_names: &mut Option<Vec<String>>,
@@ -102,7 +102,8 @@ pub(super) fn one_pass(
     report: &mut LogReport,
     progress: &mut Progress<'_>,
 ) -> Result<Option<LogPass>, IngestError> {
-    let total = log::size_of(path, Stream::Both);
+    let path = source.path();
+    let total = source.size(Stream::Both);
     let label = format!("samples of {}", path.display());
     let dofs = dof_names.clone().unwrap_or_default();
     let mut pass = Pass {
@@ -131,8 +132,7 @@ pub(super) fn one_pass(
         cut: 0,
         abandoned: None,
     };
-    let read = log::read_log(
-        path,
+    let read = source.read(
         Stream::Both,
         &config.topics,
         &mut |s| {

@@ -1,13 +1,12 @@
 //! The skin samples, routed to the windows they fall in.
 
 use std::collections::{BTreeMap, HashMap};
-use std::path::Path;
 
 use super::fit::Excitation;
 use super::segment::Segmentation;
 use super::timeline::Timeline;
 use super::{IngestConfig, IngestError, LogReport, Progress, Repeated};
-use crate::log::{self, Sample, Stream};
+use crate::log::{LogSource, Sample, Stream};
 
 /// Names of the SUs and their indices.
 #[derive(Debug, Clone)]
@@ -506,7 +505,7 @@ impl Router {
 
 /// The skin samples of the log at `path` into the windows of its timeline: a pass over them alone.
 pub(super) fn read_skin(
-    path: &Path,
+    source: &LogSource,
     timeline: &Timeline,
     seg: &Segmentation,
     config: &IngestConfig,
@@ -514,12 +513,12 @@ pub(super) fn read_skin(
     report: &mut LogReport,
     progress: &mut Progress<'_>,
 ) -> Result<Accumulated, IngestError> {
-    let total = log::size_of(path, Stream::Imu);
+    let path = source.path();
+    let total = source.size(Stream::Imu);
     let label = format!("skin samples of {}", path.display());
     let mut router = Router::default();
     let n = timeline.len() as i64;
-    let stats = log::read_log(
-        path,
+    let stats = source.read(
         Stream::Imu,
         &config.topics,
         &mut |s| {

@@ -4,7 +4,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use super::{IngestConfig, IngestError, LogReport, Progress};
-use crate::log::{self, Sample, Stream};
+use crate::log::{LogSource, Sample, Stream};
 
 /// Slowest joint-state rate that can resolve an excitation pattern, Hz.
 const MIN_JOINT_RATE: f64 = 20.0;
@@ -372,17 +372,17 @@ pub(super) fn expected_dofs(
 
 /// The joint states of the log at `path` on its grid: a pass over them alone.
 pub(super) fn read_joints(
-    path: &Path,
+    source: &LogSource,
     config: &IngestConfig,
     dof_names: &mut Option<Vec<String>>,
     report: &mut LogReport,
     progress: &mut Progress<'_>,
 ) -> Result<Timeline, IngestError> {
-    let total = log::size_of(path, Stream::Joints);
+    let path = source.path();
+    let total = source.size(Stream::Joints);
     let label = format!("joint states of {}", path.display());
     let mut series = Series::default();
-    let stats = log::read_log(
-        path,
+    let stats = source.read(
         Stream::Joints,
         &config.topics,
         &mut |s| {

@@ -19,12 +19,14 @@ pub mod csv;
 pub mod db3;
 mod in_order;
 pub mod mcap;
+pub mod memory;
 pub mod ros;
 pub mod trajectory;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub use memory::MemoryLog;
 pub use ros::Time;
 
 /// Default topic of the joint states.
@@ -570,6 +572,82 @@ fn rosbag2_files(dir: &Path, metadata: &Path) -> Result<LogFormat, LogError> {
         )));
     }
     Ok(LogFormat::Rosbag2(files))
+}
+
+/// A log to read: a file or directory on disk (any format [`format_of`] recognises), or one held
+/// in memory.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LogSource {
+    /// A log on disk.
+    File(PathBuf),
+    /// A log in memory (e.g. one the simulator just recorded).
+    Memory(MemoryLog),
+}
+
+impl From<PathBuf> for LogSource {
+    fn from(path: PathBuf) -> LogSource {
+        LogSource::File(path)
+    }
+}
+
+impl From<&Path> for LogSource {
+    fn from(path: &Path) -> LogSource {
+        LogSource::File(path.to_path_buf())
+    }
+}
+
+impl From<MemoryLog> for LogSource {
+    fn from(log: MemoryLog) -> LogSource {
+        LogSource::Memory(log)
+    }
+}
+
+impl LogSource {
+    /// The file's path, or the name of the log in memory: what messages call it.
+    pub fn path(&self) -> &Path {
+        match self {
+            LogSource::File(path) => path,
+            LogSource::Memory(log) => log.name(),
+        }
+    }
+
+    /// Its format in words (`mcap`, `csv`, `rosbag2 (3 files)`, `memory`); an error where a file
+    /// is in none that is read.
+    pub fn format(&self) -> Result<String, LogError> {
+        let LogSource::File(path) = self else {
+            return Ok("memory".into());
+        };
+        Ok(match format_of(path)? {
+            LogFormat::Mcap => "mcap".into(),
+            LogFormat::Csv => "csv".into(),
+            LogFormat::Db3 => "rosbag2 sqlite3".into(),
+            LogFormat::Bag => "ros1 bag".into(),
+            LogFormat::Rosbag2(files) => format!("rosbag2 ({} files)", files.len()),
+        })
+    }
+
+    /// What a pass over `stream` reads, for progress ([`size_of`] for a file).
+    pub fn size(&self, stream: Stream) -> u64 {
+        match self {
+            LogSource::File(path) => size_of(path, stream),
+            LogSource::Memory(log) => log.size(stream),
+        }
+    }
+
+    /// Streams the samples of `stream` to `visit` ([`read_log`] for a file; a log in memory in
+    /// the order it was recorded).
+    pub fn read(
+        &self,
+        stream: Stream,
+        topics: &Topics,
+        visit: &mut dyn FnMut(Sample<'_>) -> Result<(), LogError>,
+        progress: &mut dyn FnMut(u64),
+    ) -> Result<PassStats, LogError> {
+        match self {
+            LogSource::File(path) => read_log(path, stream, topics, visit, progress),
+            LogSource::Memory(log) => log.read(stream, visit, progress),
+        }
+    }
 }
 
 /// Size in bytes of what a pass over `path` reads, for progress.
