@@ -1,0 +1,491 @@
+//! The final fit of a limb over every reading: the gauge, the problem kept for the tree's joint
+//! fit, the precision of its estimate, and the fit with the sensors' intrinsics.
+
+use super::report::FitProblem;
+use super::*;
+
+/// The SU whose turn about and shift along the first axis are held in a limb's final fit: the
+/// first, where the limb starts at the reference with a joint of one DoF (after a joint of several,
+/// that freedom is left to the damping, not to a parameter).
+pub(super) fn gauge_su(data: &LimbData, base: Option<&LimbBase>) -> Option<usize> {
+    let first = &spans(data)[data.chain.base_joints];
+    (base.is_none() && first.k0 == first.k1).then_some(0)
+}
+
+/// The mirror image of a limb's state about its vertical first axis: gravity reversed, and what
+/// sits on the first segment (the next joint's frame, its SUs) turned half a turn about the
+/// reference's x axis. In every pose each SU reads gravity as before, but the first DoF turns
+/// the other way.
+pub(super) fn mirrored(state: &ChainState, su_segment: &[usize]) -> ChainState {
+    let half_turn = Isometry3::from_parts(
+        nalgebra::Translation3::identity(),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+    );
+    let mut out = state.clone();
+    out.gravity = -state.gravity;
+    if let Some(j) = out.joints.get_mut(1) {
+        *j = half_turn * *j;
+    }
+    for (su, _) in out.sus.iter_mut().zip(su_segment).filter(|(_, &s)| s == 1) {
+        *su = half_turn * *su;
+    }
+    out
+}
+
+/// The final fit of a limb from `state`, and all that is reported of it: residual, covariance,
+/// what is unobservable, intrinsics. `readings`: the limb's, screened; `vertical`: gravity is held
+/// along the first axis.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn final_fit(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    readings: Readings,
+    state: ChainState,
+    vertical: bool,
+    mut iterations: usize,
+    started: Instant,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let layout = Layout::of(data);
+    // The whole limb at once: the kinematics, then with the accelerometer intrinsics; glitches
+    // left out; the static and dynamic noise weighed apart.
+    let gauge_su = gauge_su(data, base);
+    let final_spec = |intrinsics: IntrinsicsModel| {
+        let gauge = Gauge {
+            base_dofs: data.chain.base_dofs(),
+            base: base.is_some(),
+            su: gauge_su,
+            vertical,
+        };
+        final_spec(
+            &layout,
+            &gauge,
+            readings.motion.is_some(),
+            intrinsics,
+            config,
+        )
+    };
+    let (solved, spec, intrinsics_model, intrinsics_tests, its) =
+        fit_with_intrinsics(state, &layout, &readings, final_spec, config);
+    iterations += its;
+    let (solved, readings, its) = leave_out_glitches(solved, &layout, &readings, &spec, config);
+    iterations += its;
+    let rejected = rejected_counts(&readings, &data.chain.sus());
+    let (solved, weighted, its, noise_components) =
+        weigh_by_noise_components(solved, &layout, readings, &spec, config);
+    iterations += its;
+    let fixed = gauge_statement(data, base, gauge_su, vertical, &spec);
+    let problem = FinalProblem {
+        data: data.clone(),
+        layout,
+        spec,
+        readings: weighted,
+        fixed,
+        intrinsics_model,
+        intrinsics_tests,
+        noise_components,
+        rejected,
+    };
+    problem.report(solved.state, None, (iterations, started), config)
+}
+
+/// What a limb's final fit solved: the limb's readings as the fit weighed them, the problem and
+/// what the fit chose on the way (kept with the estimate, so that the limbs of one tree can be
+/// fitted again together: [`tree::refine_trees`]).
+#[derive(Debug, Clone)]
+pub(super) struct FinalProblem {
+    pub(super) data: LimbData,
+    pub(super) layout: Layout,
+    pub(super) spec: Spec,
+    /// The readings, weighed as the fit weighed them (by the noise components when it estimated
+    /// them).
+    pub(super) readings: Readings,
+    /// What the gauge holds, in words.
+    pub(super) fixed: Vec<String>,
+    pub(super) intrinsics_model: IntrinsicsModel,
+    pub(super) intrinsics_tests: Vec<IntrinsicsTest>,
+    pub(super) noise_components: Option<NoiseComponents>,
+    pub(super) rejected: Vec<SuRejected>,
+}
+
+impl FinalProblem {
+    /// All that is reported of the fit that ended at `state` after `iterations` from `started`:
+    /// its precision, its uncertainty, the limb as a robot; `others`: what other limbs' readings
+    /// tell of its shared columns, when they were fitted together ([`Precision::of`]).
+    pub(super) fn report(
+        self,
+        state: ChainState,
+        others: Option<&DMatrix<f64>>,
+        (iterations, started): (usize, Instant),
+        config: &MlConfig,
+    ) -> Result<MlChainEstimate, EstimateError> {
+        let precision = Precision::of(&state, &self, others, config);
+        if !precision.residual_ratio.is_finite() {
+            return Err(EstimateError::NotFinite {
+                limb: self.data.chain.name.clone(),
+                reason: format!("residual / noise = {}", precision.residual_ratio),
+            });
+        }
+        let fit = FinalFit {
+            state,
+            precision,
+            problem: self,
+        };
+        fit.estimate((iterations, started), config)
+    }
+}
+
+/// A limb's final fit and what is known of its precision.
+pub(super) struct FinalFit {
+    pub(super) state: ChainState,
+    pub(super) precision: Precision,
+    pub(super) problem: FinalProblem,
+}
+
+impl FinalFit {
+    /// All that is reported of the fit, which took `iterations` from `started`.
+    pub(super) fn estimate(
+        self,
+        (iterations, started): (usize, Instant),
+        config: &MlConfig,
+    ) -> Result<MlChainEstimate, EstimateError> {
+        let (state, precision, problem) = (self.state, self.precision, self.problem);
+        let (data, layout, spec) = (&problem.data, &problem.layout, &problem.spec);
+        let readings = &precision.readings;
+        let residual_ratio = precision.residual_ratio;
+        let flat_dofs = data.chain.dofs();
+        let flat_sus = data.chain.sus();
+        let cov = &precision.cov;
+        let open = free_directions(&state, layout, readings, spec, config.noise_sd);
+        let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
+        Ok(MlChainEstimate {
+            robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
+            dh: dh_table(&limb, &state, spec, cov, data),
+            chain: data.chain.clone(),
+            joint_orders: Vec::new(),
+            retries: Vec::new(),
+            gravity: state.gravity.into(),
+            residual_ratio,
+            noise_sd_estimate: config.noise_sd * residual_ratio,
+            reading_sd: readings.sd.is_some(),
+            converged: residual_ratio <= config.converged_ratio
+                && precision.band.is_none_or(|b| b.holds(residual_ratio)),
+            residual_band: precision.band,
+            fixed: problem.fixed.clone(),
+            uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
+            joint_covariance: joint_covariance(spec, &flat_dofs, cov),
+            intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, problem.intrinsics_model),
+            intrinsics_model: Some(problem.intrinsics_model),
+            intrinsics_tests: problem.intrinsics_tests.clone(),
+            noise_components: problem.noise_components,
+            rejected: problem.rejected.clone(),
+            missing_excitations: if readings.motion.is_some() {
+                Vec::new()
+            } else {
+                data.missing_excitations()
+            },
+            motion: readings.motion.as_ref().map(|m| {
+                let at = precision.names.iter().position(|n| n == "skin.delay");
+                MotionFit {
+                    blocks: m.len(),
+                    skin_delay: state.skin_delay,
+                    skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
+                }
+            }),
+            su_residual_ratio: su_residual_ratios(&state, layout, readings, spec, config.noise_sd),
+            unobservable: precision.unobservable,
+            iterations,
+            seconds: started.elapsed().as_secs_f64(),
+            state: Some(state),
+            problem: FitProblem(Some(std::sync::Arc::new(problem))),
+        })
+    }
+}
+
+/// How a limb's final fit fixes what the readings cannot tell.
+pub(super) struct Gauge {
+    /// DoFs of the base path (a sub-limb's, held at the parent's estimate).
+    pub(super) base_dofs: usize,
+    /// Whether the limb has a base path from a parent limb.
+    pub(super) base: bool,
+    /// The SU whose turn about and shift along the first axis are held.
+    pub(super) su: Option<usize>,
+    /// Whether gravity is held along the first axis.
+    pub(super) vertical: bool,
+}
+
+/// The final fit's problem: every block of the limb (the base path held), its intrinsics as
+/// `intrinsics` says, the skin's delay where there is a motion record, and gravity's direction
+/// alone where scales are fitted or chosen.
+pub(super) fn final_spec(
+    layout: &Layout,
+    gauge: &Gauge,
+    motion: bool,
+    intrinsics: IntrinsicsModel,
+    config: &MlConfig,
+) -> Spec {
+    let mut spec = full_spec(
+        layout,
+        gauge.base_dofs.max(1),
+        !gauge.base,
+        gauge.su,
+        intrinsics,
+    );
+    if gauge.vertical {
+        // Gravity along the first axis: its direction is held, which leaves the turn of
+        // everything after segment 1 about that axis exactly free (reported below).
+        spec.held.extend([(0, 0), (0, 1)]);
+    }
+    if motion {
+        spec.blocks.push(Block::SkinDelay);
+    }
+    if !gauge.base && (intrinsics.components() > 3 || config.select_intrinsics) {
+        // A common scale error of every SU and a gravity as much weaker read the same: the
+        // magnitude of gravity is what scales are measured against. When the data choose
+        // the model, every model holds it there, so that each is nested in the next and a
+        // limb with few SUs (a trunk) does not hand the limbs on it a magnitude of its own.
+        spec.blocks[0] = Block::GravityDirection;
+    }
+    spec
+}
+
+/// What a final fit reports of its precision: from the readings alone (not the gauge priors),
+/// the residual against the noise configured (or the set's own deviations), the covariance
+/// from the readings weighed as the fit weighed them.
+pub(super) struct Precision {
+    /// The readings the residual is measured on.
+    pub(super) readings: Readings,
+    pub(super) residual_ratio: f64,
+    /// The band of the residual ratio at the noise level (readings fits only: a motion
+    /// record's noise model is approximate).
+    pub(super) band: Option<ResidualBand>,
+    pub(super) cov: DMatrix<f64>,
+    /// The parameters' names, in the covariance's order.
+    pub(super) names: Vec<String>,
+    pub(super) unobservable: Vec<Unobservable>,
+}
+
+impl Precision {
+    /// The precision of `problem`'s fit at `state`; `others`: what other limbs' readings tell of
+    /// its shared columns (information, in their order), when they were fitted together.
+    pub(super) fn of(
+        state: &ChainState,
+        problem: &FinalProblem,
+        others: Option<&DMatrix<f64>>,
+        config: &MlConfig,
+    ) -> Self {
+        let (layout, spec, data) = (&problem.layout, &problem.spec, &problem.data);
+        let components = problem.noise_components.is_some();
+        let weighted = problem.readings.clone();
+        let sigma = config.noise_sd;
+        let weighted = Readings {
+            gauge_prior: None,
+            ..weighted
+        };
+        let (readings, weighted) = if components {
+            let plain = Readings {
+                sd: None,
+                ..weighted.clone()
+            };
+            (plain, Some(weighted))
+        } else {
+            (weighted, None)
+        };
+        let dof_count = spec.columns().len();
+        let names = column_names(&data.chain.dofs(), &data.chain.sus(), spec);
+        let map = ColumnMap::new(spec);
+        let ratio_of = |normal: &problem::Normal| {
+            (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
+        };
+        let normal = normal_system(state, layout, &readings, spec, &map, sigma);
+        let residual_ratio = ratio_of(&normal);
+        let band = readings
+            .motion
+            .is_none()
+            .then(|| ResidualBand::at(normal.rows.saturating_sub(dof_count)));
+        let (mut normal, scale) = match &weighted {
+            Some(weighted) => {
+                let normal = normal_system(state, layout, weighted, spec, &map, sigma);
+                let ratio = ratio_of(&normal);
+                (normal, ratio)
+            }
+            None => (normal, residual_ratio),
+        };
+        if let Some(others) = others {
+            normal.add_shared_information(others);
+        }
+        let (cov, unobservable) = covariance(
+            &normal,
+            &map,
+            scale.max(1.0),
+            &names,
+            config.observable_limit,
+        );
+        let unobservable = positions_in_one(unobservable, data, &readings);
+        Self {
+            readings,
+            residual_ratio,
+            band: band.flatten(),
+            cov,
+            names,
+            unobservable,
+        }
+    }
+}
+
+/// What the final fit held to fix the gauge, in words.
+pub(super) fn gauge_statement(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    gauge_su: Option<usize>,
+    vertical: bool,
+    spec: &Spec,
+) -> Vec<String> {
+    let (flat_dofs, flat_sus) = (data.chain.dofs(), data.chain.sus());
+    let mut fixed = Vec::new();
+    match (base, gauge_su) {
+        (Some(_), _) => fixed.push(format!(
+            "the base path ({} DoFs) and gravity, as the parent limb estimated them",
+            data.chain.base_dofs()
+        )),
+        (None, Some(u)) => fixed.extend([
+            format!("{}.rotation_z", flat_sus[u]),
+            format!("{}.z", flat_sus[u]),
+        ]),
+        (None, None) => fixed.push(format!(
+            "the turn about and shift along {}'s axis of everything it moves (no SU before {}: left to the damping, not held by a parameter)",
+            flat_dofs[0], flat_dofs.get(1).map_or("", String::as_str)
+        )),
+    }
+    if vertical {
+        fixed.push(format!("gravity.direction (along {}'s axis)", flat_dofs[0]));
+    }
+    if spec.blocks.first() == Some(&Block::GravityDirection) {
+        fixed.push(format!(
+            "gravity.magnitude ({STANDARD_GRAVITY} m/s²: what the sensors are measured against)"
+        ));
+    }
+    fixed
+}
+
+/// The limb's DH table with its standard deviations, for a serial chain.
+pub(super) fn dh_table(
+    limb: &Robot,
+    state: &ChainState,
+    spec: &Spec,
+    cov: &DMatrix<f64>,
+    data: &LimbData,
+) -> Option<DhTable> {
+    let serial = data.chain.as_serial()?;
+    let (dof_dof, dof_su) = crate::estimate::dh_form(limb, &serial)?;
+    let (dof_dof_sd, dof_su_sd) = dh_sd(state, spec, cov, data, &serial, (&dof_dof, &dof_su));
+    Some(DhTable {
+        dof_dof,
+        dof_su,
+        dof_dof_sd,
+        dof_su_sd,
+    })
+}
+
+/// The final fit from the search's best state: the kinematics alone, then, with `config`'s
+/// intrinsics, everything together (gravity set to 9.81 m/s² when only its direction is free);
+/// with `select_intrinsics`, each model from none upwards only when the data ask for it (each
+/// fitted from the one before). Returns the solution, its problem, the model fitted, the tests
+/// and the LM iterations.
+pub(super) fn fit_with_intrinsics(
+    state: ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    final_spec: impl Fn(IntrinsicsModel) -> Spec,
+    config: &MlConfig,
+) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
+    let fit = |state: ChainState, spec: &Spec| refit(state, layout, readings, spec, config);
+    // A start for `spec`: gravity at 9.81 m/s² when only its direction is free.
+    let from = |state: &ChainState, spec: &Spec| {
+        let mut start = state.clone();
+        if spec.blocks.first() == Some(&Block::GravityDirection) {
+            start.gravity = start.gravity.normalize() * STANDARD_GRAVITY;
+        }
+        start
+    };
+    let spec = final_spec(IntrinsicsModel::None);
+    let mut solved = fit(from(&state, &spec), &spec);
+    let mut iterations = solved.iterations;
+    let (mut spec, mut model) = (spec, IntrinsicsModel::None);
+    let mut tests = Vec::new();
+    let ladder: Vec<IntrinsicsModel> = if config.select_intrinsics {
+        [
+            IntrinsicsModel::Bias,
+            IntrinsicsModel::BiasScale,
+            IntrinsicsModel::Full,
+        ]
+        .into_iter()
+        .filter(|m| m.components() <= config.intrinsics.components())
+        .collect()
+    } else if config.intrinsics == IntrinsicsModel::None {
+        Vec::new()
+    } else {
+        vec![config.intrinsics]
+    };
+    // The residual rows that count (the same for every model: the readings do not change).
+    let rows = if config.select_intrinsics && !ladder.is_empty() {
+        let map = ColumnMap::new(&spec);
+        normal_system(
+            &solved.state,
+            layout,
+            readings,
+            &spec,
+            &map,
+            config.noise_sd,
+        )
+        .rows
+    } else {
+        0
+    };
+    // Every model of the ladder is fitted (each from the one before) so that the tests can be
+    // pooled over a skin; the one kept is the last of those taken in a row.
+    let mut climbing = true;
+    let mut current = (solved.clone(), spec.clone(), model);
+    for next in ladder {
+        let next_spec = final_spec(next);
+        let larger = fit(from(&current.0.state, &next_spec), &next_spec);
+        iterations += larger.iterations;
+        if config.select_intrinsics {
+            let (before, after) = (current.1.columns().len(), next_spec.columns().len());
+            let test = IntrinsicsTest::new(
+                next,
+                current.2,
+                current.0.cost,
+                larger.cost,
+                after.saturating_sub(before),
+                rows.saturating_sub(after),
+            );
+            tests.push(test);
+            climbing &= test.taken;
+        }
+        current = (larger, next_spec, next);
+        if climbing || !config.select_intrinsics {
+            (solved, spec, model) = current.clone();
+        }
+    }
+    (solved, spec, model, tests, iterations)
+}
+
+/// The final fit's solve: from `state` to [`FINAL_TOLERANCE`].
+pub(super) fn refit(
+    state: ChainState,
+    layout: &Layout,
+    readings: &Readings,
+    spec: &Spec,
+    config: &MlConfig,
+) -> Solved {
+    solve(
+        state,
+        layout,
+        readings,
+        spec,
+        config.noise_sd,
+        config.max_iterations,
+        FINAL_TOLERANCE,
+    )
+}
