@@ -33,7 +33,7 @@ use skincal::sim::changes::{ChangedLog, SkinChange};
 use skincal::sim::timeseries::{record, LogConfig};
 use skincal::sim::{simulate, BaseOrientation, SimulationConfig};
 
-use crate::logs::Scratch;
+use crate::logs::scratch;
 use crate::out::{self, outln};
 
 #[derive(Debug, Args)]
@@ -75,9 +75,9 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
     if args.trials == 0 || args.sus == 0 || !(args.seconds.is_finite() && args.seconds >= 5.0) {
         bail!("--trials and --sus must be positive, --seconds at least 5");
     }
-    let scratch = Scratch::create()?;
+    let scratch = scratch()?;
     let robot = skincal::io::load_robot(&args.robot, Default::default())?;
-    let model = calibrated(&robot, &scratch.0)?;
+    let model = calibrated(&robot, scratch.path())?;
     let mut rows = Vec::new();
     let bar = out::progress_bar((KINDS.len() * args.trials) as u64, "bench check: trials");
     for (k, kind) in KINDS.iter().enumerate() {
@@ -87,7 +87,7 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
             .map(|trial| {
                 let seed = 1000 * (k as u64 + 1) + trial as u64;
                 let change = random_change(kind, &robot, seed, args.seconds);
-                let row = trial_of(&robot, &model, change, args.seconds, seed, &scratch.0);
+                let row = trial_of(&robot, &model, change, args.seconds, seed, scratch.path());
                 bar.inc(1);
                 row
             })
@@ -96,7 +96,7 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
         rows.push((kind, row));
     }
     bar.finish_and_clear();
-    let speed = speed(args.sus, &scratch.0)?;
+    let speed = speed(args.sus, scratch.path())?;
     print_table(&args, &rows, &speed);
     Ok(())
 }

@@ -19,7 +19,7 @@ use skincal::predict::validate;
 use skincal::sim::timeseries::{record, LogConfig};
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
-use crate::logs::{bench_program, Scratch};
+use crate::logs::{bench_program, scratch};
 use crate::out::{self, outln};
 
 #[derive(Debug, Args)]
@@ -46,8 +46,8 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         bail!("--sus, --seconds and --threads must be positive");
     }
     let (robot, plan) = bench_program(args.sus, args.seconds)?;
-    let scratch = Scratch::create()?;
-    let log = scratch.0.join("log.mcap");
+    let scratch = scratch()?;
+    let log = scratch.path().join("log.mcap");
     let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
     record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {})?;
     let config = IngestConfig::default();

@@ -10,6 +10,7 @@ use skincal::ingest::{ingest, IngestConfig, IngestReport};
 use skincal::io::{self, SuPlacement};
 use skincal::log::csv::CsvSink;
 use skincal::log::mcap::{Compression, McapSink};
+use skincal::log::TransientDir;
 use skincal::log::{LogSink, Topics};
 use skincal::model::sensor::STANDARD_GRAVITY;
 use skincal::plan::{Action, Part, Plan, PlanConfig, PlanDof};
@@ -679,11 +680,14 @@ pub(crate) fn bench_ingest(args: BenchIngestArgs) -> Result<()> {
     let sus = robot.model.sus().len();
     let scratch = match &args.dir {
         Some(_) => None,
-        None => Some(Scratch::create()?),
+        None => Some(scratch()?),
     };
     let dir = match (&args.dir, &scratch) {
         (Some(d), _) => d.clone(),
-        (_, s) => s.as_ref().map(|s| s.0.clone()).unwrap_or_default(),
+        (_, s) => s
+            .as_ref()
+            .map(|s| s.path().to_path_buf())
+            .unwrap_or_default(),
     };
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     ingest_header(&plan, sus, cores, args.repeats);
@@ -914,24 +918,11 @@ fn time_ingest(path: &Path, config: &IngestConfig, repeats: usize) -> Result<Tim
     Ok(t)
 }
 
-/// A scratch directory, removed when dropped, on an error, or by a signal.
-pub(crate) struct Scratch(pub(crate) PathBuf);
-
-impl Scratch {
-    pub(crate) fn create() -> Result<Scratch> {
-        let dir = std::env::temp_dir().join(format!("skincal-bench-ingest-{}", std::process::id()));
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        skincal::log::hold_transient(&dir);
-        Ok(Scratch(dir))
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-        skincal::log::release_transient(&self.0);
-    }
+/// A scratch directory for the benchmarks' logs, removed when dropped, on an error, or by a
+/// signal.
+pub(crate) fn scratch() -> Result<TransientDir> {
+    TransientDir::new("skincal-bench-", None)
+        .context("cannot create a scratch directory in the system's temporary directory")
 }
 
 fn dir_size(path: &Path) -> u64 {

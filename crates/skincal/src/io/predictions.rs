@@ -164,20 +164,20 @@ enum Failure {
 
 /// The spilled arrays, in a temporary directory that is removed when dropped (or on a signal).
 struct Spill {
-    dir: tempfile::TempDir,
     arrays: BTreeMap<Array, (PathBuf, BufWriter<fs::File>, bool)>,
+    // Dropped after the files are closed (fields drop in order).
+    dir: crate::log::TransientDir,
 }
 
 impl Spill {
     fn create(beside: &Path) -> Result<Self, IoError> {
-        let dir = tempfile::Builder::new()
-            .prefix(".skincal-spill-")
-            .tempdir_in(beside)
-            .map_err(|source| IoError::Write {
-                path: beside.to_path_buf(),
-                source,
+        let dir =
+            crate::log::TransientDir::new(".skincal-spill-", Some(beside)).map_err(|source| {
+                IoError::Write {
+                    path: beside.to_path_buf(),
+                    source,
+                }
             })?;
-        crate::log::hold_transient(dir.path());
         Ok(Spill {
             dir,
             arrays: BTreeMap::new(),
@@ -283,14 +283,6 @@ impl Spill {
             std::io::copy(&mut f, w).map_err(Failure::Out)?;
         }
         w.write_all(b"]").map_err(Failure::Out)
-    }
-}
-
-impl Drop for Spill {
-    fn drop(&mut self) {
-        // The files closed first; the directory goes with `dir`.
-        self.arrays.clear();
-        crate::log::release_transient(self.dir.path());
     }
 }
 

@@ -777,6 +777,38 @@ pub fn release_transient(path: &Path) {
     }
 }
 
+/// A temporary directory held as transient ([`hold_transient`]) while it lives: removed when
+/// dropped, or by [`remove_transient`] on a signal. The one kind of scratch directory skincal
+/// makes.
+#[derive(Debug)]
+pub struct TransientDir(tempfile::TempDir);
+
+impl TransientDir {
+    /// A new directory named `prefix…` in `parent` (the system's temporary directory when
+    /// `None`).
+    pub fn new(prefix: &str, parent: Option<&Path>) -> std::io::Result<TransientDir> {
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(prefix);
+        let dir = match parent {
+            Some(parent) => builder.tempdir_in(parent)?,
+            None => builder.tempdir()?,
+        };
+        hold_transient(dir.path());
+        Ok(TransientDir(dir))
+    }
+
+    /// Its path.
+    pub fn path(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl Drop for TransientDir {
+    fn drop(&mut self) {
+        release_transient(self.0.path());
+    }
+}
+
 /// Removes every transient file and directory still held: what a process interrupted by a signal
 /// calls before it exits, so that no half-written output is left behind.
 pub fn remove_transient() {
