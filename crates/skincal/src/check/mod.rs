@@ -869,6 +869,45 @@ fn median(mut x: Vec<f64>) -> f64 {
 /// Checks a calibrated model against a motion record of any motion of the robot: each SU's
 /// noise (the record's, or from its residuals' differences), every block summed, small changes
 /// tested, and the SUs no small change explains matched and fitted anew (`refit::explain`).
+///
+/// ```
+/// use skincal::check::{check_skin, recalibrate, CheckConfig, Verdict};
+/// use skincal::estimate::body::calibrate_body;
+/// use skincal::estimate::ml::MlConfig;
+/// use skincal::explore::{explore, ExploreConfig};
+/// use skincal::ingest::{motion::motion_record_from, IngestConfig};
+/// use skincal::log::{LogSource, MemoryLog};
+/// use skincal::model::presets;
+/// use skincal::plan::{Plan, PlanConfig, PlanDof};
+/// use skincal::sim::changes::SkinChange;
+/// use skincal::sim::timeseries::{record, LogConfig};
+/// use skincal::sim::{simulate, SimulationConfig};
+///
+/// // Calibrated once, from the simulated experiments.
+/// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+/// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
+/// let structure = explore(&set, &ExploreConfig::default()).unwrap();
+/// let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+///
+/// // Later, su5 has shifted 2 cm on its segment, and the robot moves as it likes for 20 s.
+/// let moved = SkinChange::Move { su: "su5".into(), shift: [0.02, 0.0, 0.0], turn: [0.0; 3] };
+/// let changed = moved.robot(&robot).unwrap();
+/// let plan = Plan::new(PlanDof::from_robot(&robot), &PlanConfig::continuous()).unwrap();
+/// let mut log = MemoryLog::new("ordinary motion");
+/// record(&changed, &plan, &LogConfig::default(), &mut log, &mut |_| {}).unwrap();
+/// let (dofs, sus) = (robot.model.dof_names(), robot.model.su_names());
+/// let logs = [LogSource::Memory(log)];
+/// let config = IngestConfig::default();
+/// let motion = motion_record_from(&logs, &dofs, &sus, &config, &mut |_, _, _| {}).unwrap();
+///
+/// let report = check_skin(&model, &motion, &CheckConfig::default()).unwrap();
+/// for su in &report.sus {
+///     assert_eq!(su.verdict == Verdict::Moved, su.su == "su5", "{}: {:?}", su.su, su.verdict);
+/// }
+/// // Only su5 is fitted again, from the same motion.
+/// let (_, changes) = recalibrate(&model, &motion, &report, &CheckConfig::default()).unwrap();
+/// assert_eq!(changes.len(), 1);
+/// ```
 pub fn check_skin(
     model: &BodyModel,
     record: &MotionRecord,
