@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::Args;
 use skincal::estimate::paper::PaperConfig;
-use skincal::estimate::{self, ChainData, SerialChain};
+use skincal::estimate::{self, LimbData, SerialChain};
 use skincal::io::{self, SuPlacement};
 use skincal::sim::{self, Imperfections, SimulationConfig};
 
@@ -96,7 +96,7 @@ pub(crate) fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     for seed in args.first_seed..args.first_seed.saturating_add(args.seeds) {
         bar.inc(1);
         let (truth, set) = bench_set(&args, &paper, seed)?;
-        let data = ChainData::new(&set, &chain)?;
+        let data = LimbData::serial(&set, &chain)?;
         let mut seed_bound = None;
         for (model, position, rotation) in &mut bounds {
             seed_bound = ml::cramer_rao_bound(
@@ -189,7 +189,7 @@ fn bench_set(
 /// evaluations (NLopt's for the paper's method, LM iterations for ML).
 fn bench_fit(
     method: Method,
-    data: &ChainData,
+    data: &LimbData,
     seed: u64,
     sd: f64,
     args: &BenchCalibrateArgs,
@@ -207,8 +207,9 @@ fn bench_fit(
             (e.robot(), e.converged(), e.seconds(), e.evaluations())
         }
         Method::Ml => {
-            let e = ml::estimate_chain(
+            let e = ml::estimate_limb(
                 data,
+                None,
                 &MlConfig {
                     noise_sd: sd.max(1e-6),
                     intrinsics: args.intrinsics.into(),

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 use skincal::estimate::paper::PaperConfig;
-use skincal::estimate::{self, ChainData};
+use skincal::estimate::{self, LimbData};
 use skincal::explore::ExploreConfig;
 use skincal::io;
 use skincal::report;
@@ -197,7 +197,7 @@ fn calibrate_paper(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
     outln!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
     let mut estimates = Vec::new();
     for chain in &chains {
-        let data = ChainData::new(set, chain)?;
+        let data = LimbData::serial(set, chain)?;
         let busy = out::spinner(&format!(
             "limb {}: the paper's progressive steps",
             chain.name

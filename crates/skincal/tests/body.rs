@@ -413,7 +413,7 @@ fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
         dofs: robot.model.dof_names(),
         sus: robot.model.su_names(),
     };
-    let data = skincal::estimate::ChainData::new(&set, &chain).unwrap();
+    let data = skincal::estimate::LimbData::serial(&set, &chain).unwrap();
     let paper = skincal::estimate::paper::estimate_chain(
         &data,
         &skincal::estimate::paper::PaperConfig::default(),

@@ -3,7 +3,7 @@
 
 use skincal::estimate::paper::{estimate_chain, PaperConfig};
 use skincal::estimate::{
-    consecutive_su_errors, true_dh_table, ChainData, EstimateError, SerialChain,
+    consecutive_su_errors, true_dh_table, EstimateError, LimbData, SerialChain,
 };
 use skincal::model::description::RobotFile;
 use skincal::model::presets;
@@ -68,7 +68,7 @@ fn noise_free_data_is_fitted_to_the_truth_with_a_tight_stop() {
         },
     )
     .unwrap();
-    let data = ChainData::new(&sim.measurements, &chain()).unwrap();
+    let data = LimbData::serial(&sim.measurements, &chain()).unwrap();
     // e_T ≤ 1e-8 g² over 20 poses × 12 values is an RMS residual below 7e-6 g; with lever arms of
     // 0.1–0.4 m that leaves SU poses within well under a millimetre and 0.05°.
     let config = PaperConfig {
@@ -104,7 +104,7 @@ fn with_the_papers_noise_every_step_meets_the_stop_and_the_seed_repeats_the_run(
         },
     )
     .unwrap();
-    let data = ChainData::new(&sim.measurements, &chain()).unwrap();
+    let data = LimbData::serial(&sim.measurements, &chain()).unwrap();
     let config = PaperConfig {
         seed: 1,
         ..PaperConfig::default()
@@ -154,13 +154,13 @@ fn bad_training_data_gets_clear_errors() {
     let mut set = sim.measurements.clone();
     set.training = None;
     assert_eq!(
-        ChainData::new(&set, &chain()).unwrap_err(),
+        LimbData::serial(&set, &chain()).unwrap_err(),
         EstimateError::NoTrainingData
     );
 
     let mut set = sim.measurements.clone();
     set.training.as_mut().unwrap().poses[4].static_readings[2][1] = f64::NAN;
-    let err = ChainData::new(&set, &chain()).unwrap_err().to_string();
+    let err = LimbData::serial(&set, &chain()).unwrap_err().to_string();
     assert!(
         err.contains("training.poses[4].static") && err.contains("NaN"),
         "{err}"
@@ -170,7 +170,8 @@ fn bad_training_data_gets_clear_errors() {
     set.training.as_mut().unwrap().poses[7]
         .dynamic
         .remove("dof5");
-    let err = ChainData::new(&set, &chain()).unwrap_err();
+    let data = LimbData::serial(&set, &chain()).unwrap();
+    let err = estimate_chain(&data, &PaperConfig::default()).unwrap_err();
     assert!(
         matches!(err, EstimateError::MissingDynamic { pose: 7, ref dof, .. } if dof == "dof5"),
         "{err}"
@@ -178,7 +179,7 @@ fn bad_training_data_gets_clear_errors() {
 
     let mut set = sim.measurements.clone();
     set.training.as_mut().unwrap().poses.truncate(6);
-    let data = ChainData::new(&set, &chain()).unwrap();
+    let data = LimbData::serial(&set, &chain()).unwrap();
     let err = estimate_chain(&data, &PaperConfig::default()).unwrap_err();
     assert_eq!(
         err,
@@ -194,7 +195,7 @@ fn bad_training_data_gets_clear_errors() {
         dofs: vec!["dof1".into(), "dof2".into()],
         name: "S2".into(),
     };
-    let err = ChainData::new(&sim.measurements, &wrong)
+    let err = LimbData::serial(&sim.measurements, &wrong)
         .unwrap_err()
         .to_string();
     assert!(err.contains("elbow_su") && err.contains("S2"), "{err}");

@@ -2,8 +2,8 @@
 //! a constructed unobservable case.
 
 use nalgebra::Vector3;
-use skincal::estimate::ml::{estimate_chain, internals, state_of, MlConfig};
-use skincal::estimate::{consecutive_su_errors, ChainData, SerialChain};
+use skincal::estimate::ml::{estimate_limb, internals, state_of, MlConfig};
+use skincal::estimate::{consecutive_su_errors, LimbData, SerialChain};
 use skincal::model::description::RobotFile;
 use skincal::model::presets;
 use skincal::model::sensor::gravity_upright;
@@ -18,7 +18,7 @@ fn chain(n: usize) -> SerialChain {
 }
 
 /// The data of `truth` simulated with the paper's noise from `seed`, as one 7-DoF chain.
-fn paper_noise_data(truth: &skincal::model::Robot, seed: u64) -> ChainData {
+fn paper_noise_data(truth: &skincal::model::Robot, seed: u64) -> LimbData {
     let sim = simulate(
         truth,
         &SimulationConfig {
@@ -27,7 +27,7 @@ fn paper_noise_data(truth: &skincal::model::Robot, seed: u64) -> ChainData {
         },
     )
     .unwrap();
-    ChainData::new(&sim.measurements, &chain(7)).unwrap()
+    LimbData::serial(&sim.measurements, &chain(7)).unwrap()
 }
 
 fn noise_free() -> SimulationConfig {
@@ -41,9 +41,10 @@ fn noise_free() -> SimulationConfig {
 fn noise_free_data_gives_back_the_poses() {
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
     let sim = simulate(&truth, &noise_free()).unwrap();
-    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
-    let estimate = estimate_chain(
+    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    let estimate = estimate_limb(
         &data,
+        None,
         &MlConfig {
             noise_sd: 1e-3,
             ..MlConfig::default()
@@ -115,7 +116,7 @@ fn the_readings_jacobian_matches_central_differences_on_random_chains() {
             },
         )
         .unwrap();
-        let data = ChainData::new(&sim.measurements, &chain(5)).unwrap();
+        let data = LimbData::serial(&sim.measurements, &chain(5)).unwrap();
         // Linearised at the truth, which with noisy readings is not the optimum.
         let state = state_of(&truth, &chain(5), &gravity_upright()).unwrap();
         let (_, jac) = internals::full_problem(&data, &state, 0.05);
@@ -158,8 +159,8 @@ fn parallel_axes_leave_directions_the_data_cannot_see_and_they_are_named() {
         },
     )
     .unwrap();
-    let data = ChainData::new(&sim.measurements, &chain(3)).unwrap();
-    let estimate = estimate_chain(&data, &MlConfig::default()).unwrap();
+    let data = LimbData::serial(&sim.measurements, &chain(3)).unwrap();
+    let estimate = estimate_limb(&data, None, &MlConfig::default()).unwrap();
     assert!(estimate.converged, "{}", estimate.residual_ratio);
     let named: Vec<String> = estimate
         .unobservable
@@ -177,8 +178,8 @@ fn parallel_axes_leave_directions_the_data_cannot_see_and_they_are_named() {
 fn the_same_data_gives_the_same_estimate() {
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
     let data = paper_noise_data(&truth, 4);
-    let a = estimate_chain(&data, &MlConfig::default()).unwrap();
-    let b = estimate_chain(&data, &MlConfig::default()).unwrap();
+    let a = estimate_limb(&data, None, &MlConfig::default()).unwrap();
+    let b = estimate_limb(&data, None, &MlConfig::default()).unwrap();
     assert_eq!(a.robot, b.robot);
     assert_eq!(a.uncertainty, b.uncertainty);
     assert!(
@@ -197,7 +198,7 @@ fn with_the_papers_noise_the_error_is_near_the_bound_and_the_sds_are_honest() {
     let (mut err, mut bound) = (0.0, 0.0);
     for seed in 1..=5 {
         let data = paper_noise_data(&truth, seed);
-        let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+        let e = estimate_limb(&data, None, &MlConfig::default()).unwrap();
         assert!(e.converged, "seed {seed}");
         let a = consecutive_su_errors(&truth, &e.to_robot(), &chain(7), 30, seed).unwrap();
         err += a.position_rms.powi(2);
@@ -230,7 +231,7 @@ fn what_no_reading_tells_is_listed_as_undetermined_never_given_a_deviation() {
     // first SU sits, and how far it is turned about it, no reading tells (the gauge holds them).
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
     let data = paper_noise_data(&truth, 1);
-    let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+    let e = estimate_limb(&data, None, &MlConfig::default()).unwrap();
     // The length of `v`'s share in the span of `basis` (orthonormal).
     let share = |basis: &[[f64; 3]], v: Vector3<f64>| {
         basis
@@ -321,9 +322,10 @@ fn the_dh_form_of_the_truth_is_the_papers_table_and_the_estimate_gives_it_back()
 
     // The noise-free estimate: every row but the gauge (the first rows' θ0 and d) comes back.
     let sim = simulate(&truth, &noise_free()).unwrap();
-    let data = ChainData::new(&sim.measurements, &chain(7)).unwrap();
-    let estimate = estimate_chain(
+    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    let estimate = estimate_limb(
         &data,
+        None,
         &MlConfig {
             noise_sd: 1e-3,
             ..MlConfig::default()
@@ -368,7 +370,7 @@ fn the_dh_tables_standard_deviations_describe_the_spread_over_data_sets() {
     let mut normalised = Vec::new();
     for seed in 1..=24 {
         let data = paper_noise_data(&truth, seed);
-        let e = estimate_chain(&data, &MlConfig::default()).unwrap();
+        let e = estimate_limb(&data, None, &MlConfig::default()).unwrap();
         let dh = e.dh.unwrap();
         assert_eq!(dh.dof_dof_sd.len(), dh.dof_dof.len());
         assert_eq!(dh.dof_su_sd.len(), dh.dof_su.len());

@@ -276,7 +276,7 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
 #[test]
 fn the_motion_rows_jacobian_matches_central_differences() {
     use skincal::estimate::ml::{internals, state_of};
-    use skincal::estimate::{ChainData, SerialChain};
+    use skincal::estimate::{LimbData, SerialChain};
     use skincal::sim::Imperfections;
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
     let plan = Plan::new(
@@ -317,7 +317,7 @@ fn the_motion_rows_jacobian_matches_central_differences() {
         dofs: (1..=7).map(|k| format!("dof{k}")).collect(),
         sus: (1..=7).map(|k| format!("su{k}")).collect(),
     };
-    let data = ChainData::new(&set, &chain).unwrap();
+    let data = LimbData::serial(&set, &chain).unwrap();
     let mut state = state_of(&robot, &chain, &nalgebra::Vector3::new(0.0, 0.0, -9.81)).unwrap();
     state.skin_delay = 0.002;
     let (_, jac, _) = internals::motion_problem(&data, &record, &state, &[]);

@@ -288,6 +288,12 @@ impl LimbData {
         Ok(data)
     }
 
+    /// Extracts and checks the data of a serial chain in the paper's sense (one DoF and one SU per
+    /// segment).
+    pub fn serial(set: &MeasurementSet, chain: &SerialChain) -> Result<Self, EstimateError> {
+        Self::new(set, &LimbChain::from(chain))
+    }
+
     /// Whether the dynamic reading of chain DoF `k` is missing for SU `u` in pose `p`.
     pub fn is_missing(&self, p: usize, u: usize, k: usize) -> bool {
         self.missing
@@ -409,31 +415,6 @@ impl LimbData {
             sd,
             missing,
             ..self.clone()
-        }
-    }
-}
-
-impl From<&super::ChainData> for LimbData {
-    fn from(data: &super::ChainData) -> Self {
-        Self {
-            chain: LimbChain::from(&data.chain),
-            q: data.q.clone(),
-            su_depth: (1..=data.chain.sus.len()).collect(),
-            statics: data.static_readings.clone(),
-            dynamics: data
-                .dynamic
-                .iter()
-                .map(|per_su| {
-                    per_su
-                        .iter()
-                        .enumerate()
-                        .map(|(u, d)| d[..=u].to_vec())
-                        .collect()
-                })
-                .collect(),
-            pattern: data.pattern,
-            sd: None,
-            missing: Vec::new(),
         }
     }
 }

@@ -191,21 +191,6 @@ pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<SerialChain, Estima
     })
 }
 
-/// The training data of one chain, in chain order, in m/s².
-#[derive(Debug, Clone, PartialEq)]
-pub struct ChainData {
-    /// The chain.
-    pub chain: SerialChain,
-    /// `q[p][k]`: position of chain DoF `k` in pose `p`.
-    pub q: Vec<Vec<f64>>,
-    /// `static_readings[p][k]`: static reading of chain SU `k` in pose `p`.
-    pub static_readings: Vec<Vec<Vector3<f64>>>,
-    /// `dynamic[p][k][j]`: dynamic acceleration of chain SU `k` for the pattern of chain DoF `j`.
-    pub dynamic: Vec<Vec<Vec<Vector3<f64>>>>,
-    /// The excitation pattern.
-    pub pattern: crate::model::sensor::ExcitationPattern,
-}
-
 /// The training experiment of a valid set with at least one pose.
 pub(crate) fn checked_training(
     set: &MeasurementSet,
@@ -234,75 +219,6 @@ pub(crate) fn position(
             name: name.clone(),
             limb: limb.to_string(),
         })
-}
-
-impl ChainData {
-    /// Extracts and checks the data of `chain`.
-    pub fn new(set: &MeasurementSet, chain: &SerialChain) -> Result<Self, EstimateError> {
-        let training = checked_training(set)?;
-        let find = |what, names: &[String], name: &String| position(what, names, name, &chain.name);
-        let dof_index: Vec<usize> = chain
-            .dofs
-            .iter()
-            .map(|d| find("DoF", &set.dofs, d))
-            .collect::<Result<_, _>>()?;
-        if let Some(&d) = dof_index
-            .iter()
-            .find(|&&d| set.dof_kind(d) == DofKind::Prismatic)
-        {
-            return Err(EstimateError::UnsupportedLimb {
-                limb: chain.name.clone(),
-                reason: format!(
-                    "DoF `{}` is prismatic, and the paper's estimator models revolute DoFs only: use the maximum-likelihood estimator (the default)",
-                    set.dofs[d]
-                ),
-            });
-        }
-        let su_index: Vec<usize> = chain
-            .sus
-            .iter()
-            .map(|s| find("SU", &set.sus, s))
-            .collect::<Result<_, _>>()?;
-        let mut q = Vec::new();
-        let mut static_readings = Vec::new();
-        let mut dynamic = Vec::new();
-        for (p, pose) in training.poses.iter().enumerate() {
-            q.push(dof_index.iter().map(|&d| pose.q[d]).collect());
-            static_readings.push(
-                su_index
-                    .iter()
-                    .map(|&u| Vector3::from(pose.static_readings[u]))
-                    .collect(),
-            );
-            let mut per_su = vec![Vec::with_capacity(chain.dofs.len()); chain.sus.len()];
-            for dof in &chain.dofs {
-                let readings =
-                    pose.dynamic
-                        .get(dof)
-                        .ok_or_else(|| EstimateError::MissingDynamic {
-                            pose: p,
-                            dof: dof.clone(),
-                            limb: chain.name.clone(),
-                        })?;
-                for (k, &u) in su_index.iter().enumerate() {
-                    per_su[k].push(Vector3::from(readings[u]));
-                }
-            }
-            dynamic.push(per_su);
-        }
-        Ok(Self {
-            chain: chain.clone(),
-            q,
-            static_readings,
-            dynamic,
-            pattern: training.pattern,
-        })
-    }
-
-    /// Number of poses.
-    pub fn poses(&self) -> usize {
-        self.q.len()
-    }
 }
 
 /// A DoF-to-DoF row of the paper's table (Fig. 6): `θ0, d, a, α`, m and rad.

@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 use skincal_nlopt::{Algorithm, Optimizer};
 
 use super::{
-    chain_in_listed_order, dh_chain_robot, serial_chains, ChainData, DhRow, EstimateError,
+    chain_in_listed_order, dh_chain_robot, serial_chains, DhRow, EstimateError, LimbData,
     SerialChain, SuRow,
 };
 use crate::explore::Structure;
@@ -194,7 +194,7 @@ pub fn estimate_chains(
     let mut limbs = Vec::with_capacity(chains.len());
     for (i, chain) in chains.iter().enumerate() {
         progress(&chain.name, i, chains.len());
-        limbs.push(estimate_chain(&ChainData::new(set, chain)?, config)?);
+        limbs.push(estimate_chain(&LimbData::serial(set, chain)?, config)?);
     }
     progress("", chains.len(), chains.len());
     Ok(PaperModel::new(limbs))
@@ -203,7 +203,7 @@ pub fn estimate_chains(
 /// The paper's `e_T` of step `n` (0-based SU index) for the full step parameter vector
 /// (DoF-to-DoF rows `0…n−1` then SU `n`'s row, as laid out by [`dh_chain_robot`]).
 struct StepProblem<'a> {
-    data: &'a ChainData,
+    data: &'a LimbData,
     robot: Robot,
     n: usize,
     excited: std::ops::Range<usize>,
@@ -218,11 +218,11 @@ impl StepProblem<'_> {
         for p in 0..self.data.poses() {
             let q = &self.data.q[p][..=self.n];
             let k = forward_kinematics(model, parameters, q);
-            rotated.push(k.sus[0].rotation * (self.data.static_readings[p][self.n] / g));
+            rotated.push(k.sus[0].rotation * (self.data.statics[p][self.n] / g));
             for d in self.excited.clone() {
                 let model_a =
                     peak_dynamic_accelerations_at(model, &k, d, &self.data.pattern)[0] / g;
-                e2 += (model_a - self.data.dynamic[p][self.n][d] / g).norm_squared();
+                e2 += (model_a - self.data.dynamics[p][self.n][d] / g).norm_squared();
             }
         }
         let mean: Vector3<f64> = rotated.iter().sum::<Vector3<f64>>() / rotated.len() as f64;
@@ -245,23 +245,25 @@ fn bounds(name: &str) -> (f64, f64) {
 /// Estimates one chain progressively with the paper's method.
 ///
 /// ```
-/// use skincal::estimate::{paper, ChainData, SerialChain};
+/// use skincal::estimate::{paper, LimbData, SerialChain};
 /// use skincal::model::presets;
 /// use skincal::sim::{simulate, SimulationConfig};
 ///
 /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
 /// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
 /// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
-/// let estimate = paper::estimate_chain(&ChainData::new(&set, &chain).unwrap(), &paper::PaperConfig::default()).unwrap();
+/// let data = LimbData::serial(&set, &chain).unwrap();
+/// let estimate = paper::estimate_chain(&data, &paper::PaperConfig::default()).unwrap();
 /// assert_eq!(estimate.steps.len(), 7);
 /// assert!(estimate.steps.iter().all(|s| s.e_t <= 0.1)); // this data set: every step meets e_stop
 /// ```
 pub fn estimate_chain(
-    data: &ChainData,
+    data: &LimbData,
     config: &PaperConfig,
 ) -> Result<PaperChainEstimate, EstimateError> {
     validate(config)?;
-    let n_dofs = data.chain.dofs.len();
+    let chain = &papers_chain(data)?;
+    let n_dofs = chain.dofs.len();
     let largest = match n_dofs {
         1 => 4,
         2 => 8,
@@ -273,7 +275,6 @@ pub fn estimate_chain(
             parameters: largest,
         });
     }
-    let chain = &data.chain;
     let mut dof_dof: Vec<DhRow> = Vec::new();
     let mut dof_su: Vec<SuRow> = Vec::new();
     let mut steps = Vec::new();
@@ -293,6 +294,41 @@ pub fn estimate_chain(
         steps,
         config: *config,
     })
+}
+
+/// The chain of `data` as the paper's method takes it: one revolute DoF and one SU per segment,
+/// from the static reference, every DoF's dynamic readings in every pose.
+fn papers_chain(data: &LimbData) -> Result<SerialChain, EstimateError> {
+    let limb = &data.chain.name;
+    let chain = data
+        .chain
+        .as_serial()
+        .ok_or_else(|| EstimateError::UnsupportedLimb {
+            limb: limb.clone(),
+            reason:
+                "the paper's estimator takes a serial chain from the static reference with one \
+                     DoF and one SU per segment: use the maximum-likelihood estimator (the default)"
+                    .into(),
+        })?;
+    if let Some(d) = data.chain.prismatic.first() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: limb.clone(),
+            reason: format!(
+                "DoF `{d}` is prismatic, and the paper's estimator models revolute DoFs only: use \
+                 the maximum-likelihood estimator (the default)"
+            ),
+        });
+    }
+    for p in 0..data.poses() {
+        if let Some(k) = (0..chain.dofs.len()).find(|&k| data.is_missing(p, k, k)) {
+            return Err(EstimateError::MissingDynamic {
+                pose: p,
+                dof: chain.dofs[k].clone(),
+                limb: limb.clone(),
+            });
+        }
+    }
+    Ok(chain)
 }
 
 /// Step `n + 1` of the progressive estimation (Fig. 4): which entries of the new DoF-to-DoF row
@@ -378,7 +414,7 @@ impl<'a> Step<'a> {
     /// fixed: the report and the chain's parameters up to SU `n`.
     fn run(
         self,
-        data: &ChainData,
+        data: &LimbData,
         dof_dof: &[DhRow],
         config: &PaperConfig,
     ) -> Result<(StepReport, Vec<f64>), EstimateError> {

@@ -19,7 +19,7 @@ use super::problem::{
 };
 use super::{full_spec, readings, serial_layout, ChainState, IntrinsicsModel, MlConfig};
 use crate::estimate::limb::{LimbChain, LimbData};
-use crate::estimate::{ChainData, SerialChain};
+use crate::estimate::SerialChain;
 use crate::model::intrinsics::Intrinsics;
 use crate::model::Robot;
 
@@ -85,14 +85,15 @@ fn sequence_state_of(
 pub fn cramer_rao_bound(
     truth: &Robot,
     gravity: &Vector3<f64>,
-    data: &ChainData,
+    data: &LimbData,
     sigma: f64,
     poses: usize,
     seed: u64,
     intrinsics: IntrinsicsModel,
 ) -> Option<(f64, f64)> {
-    let state = state_of(truth, &data.chain, gravity)?;
-    let dofs = data.chain.dofs.len();
+    let chain = data.chain.su_sequence();
+    let state = state_of(truth, &chain, gravity)?;
+    let dofs = chain.dofs.len();
     let layout = serial_layout(dofs);
     let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
     if intrinsics.components() > 3 {
@@ -103,7 +104,7 @@ pub fn cramer_rao_bound(
     let plain = Readings {
         huber: None,
         gauge_prior: None,
-        ..readings(&LimbData::from(data))
+        ..readings(data)
     };
     let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);
     let columns = spec.columns();

@@ -109,7 +109,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::limb::{LimbChain, LimbData};
-use super::{ChainData, EstimateError};
+use super::EstimateError;
 use crate::model::description::RobotFile;
 use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
@@ -349,29 +349,22 @@ const INIT_TOLERANCE: f64 = 1e-6;
 /// Relative cost decrease below which the final refinement stops.
 const FINAL_TOLERANCE: f64 = 1e-10;
 
-/// Estimates one serial chain (one DoF and one SU per joint) by maximum likelihood.
+/// Estimates one limb by maximum likelihood: joints of one or more DoFs, any number of SUs per
+/// segment. With `base`, the joints of the limb's base path are held at that earlier estimate.
 ///
 /// ```
-/// use skincal::estimate::{ml, ChainData, SerialChain};
+/// use skincal::estimate::{ml, LimbData, SerialChain};
 /// use skincal::model::presets;
 /// use skincal::sim::{simulate, SimulationConfig};
 ///
 /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
 /// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
 /// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
-/// let estimate = ml::estimate_chain(&ChainData::new(&set, &chain).unwrap(), &ml::MlConfig::default()).unwrap();
+/// let data = LimbData::serial(&set, &chain).unwrap();
+/// let estimate = ml::estimate_limb(&data, None, &ml::MlConfig::default()).unwrap();
 /// assert!(estimate.converged);
 /// assert!((estimate.residual_ratio - 1.0).abs() < 0.2); // at the noise level
 /// ```
-pub fn estimate_chain(
-    data: &ChainData,
-    config: &MlConfig,
-) -> Result<MlChainEstimate, EstimateError> {
-    estimate_limb(&LimbData::from(data), None, config)
-}
-
-/// Estimates one limb by maximum likelihood: joints of one or more DoFs, any number of SUs per
-/// segment. With `base`, the joints of the limb's base path are held at that earlier estimate.
 pub fn estimate_limb(
     data: &LimbData,
     base: Option<&LimbBase>,
@@ -565,26 +558,20 @@ pub mod internals {
 
     /// Residuals and Jacobian of the full problem at `state`.
     pub fn full_problem(
-        data: &ChainData,
+        data: &LimbData,
         state: &ChainState,
         sigma: f64,
     ) -> (nalgebra::DVector<f64>, DMatrix<f64>) {
-        let layout = serial_layout(data.chain.dofs.len());
+        let layout = serial_layout(data.chain.dofs().len());
         let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
-        problem::dense_problem(
-            state,
-            &layout,
-            &readings(&LimbData::from(data)),
-            &spec,
-            sigma,
-        )
+        problem::dense_problem(state, &layout, &readings(data), &spec, sigma)
     }
 
     /// The full problem of the motion rows alone (every block of `record`, the skin's delay a
     /// column after the others): residuals, Jacobian, and the residuals after a step
     /// `delta` of its columns for each step given.
     pub fn motion_problem(
-        data: &ChainData,
+        data: &LimbData,
         record: &crate::motion::MotionRecord,
         state: &ChainState,
         deltas: &[Vec<f64>],
@@ -593,11 +580,11 @@ pub mod internals {
         DMatrix<f64>,
         Vec<nalgebra::DVector<f64>>,
     ) {
-        let limb = LimbData::from(data);
-        let layout = serial_layout(data.chain.dofs.len());
+        let limb = data;
+        let layout = serial_layout(data.chain.dofs().len());
         let mut spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
         spec.blocks.push(Block::SkinDelay);
-        let mut motion = LimbMotion::new(record, &limb, 0.05).expect("the record has the chain");
+        let mut motion = LimbMotion::new(record, limb, 0.05).expect("the record has the chain");
         motion.weigh(state, &limb.su_depth);
         let readings = Readings {
             q: Vec::new(),
@@ -607,7 +594,7 @@ pub mod internals {
             motion: Some(std::sync::Arc::new(motion)),
             // Plain least squares: Huber's weights change with the state and have no column.
             huber: None,
-            ..readings(&limb)
+            ..readings(limb)
         };
         let (r, jac) = problem::dense_problem(state, &layout, &readings, &spec, 0.05);
         let after = deltas
@@ -622,17 +609,17 @@ pub mod internals {
 
     /// Residuals after a step `delta` of the full problem's columns.
     pub fn residuals_after(
-        data: &ChainData,
+        data: &LimbData,
         state: &ChainState,
         sigma: f64,
         delta: &[f64],
     ) -> nalgebra::DVector<f64> {
-        let layout = serial_layout(data.chain.dofs.len());
+        let layout = serial_layout(data.chain.dofs().len());
         let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
         problem::dense_problem(
             &retract(state, &spec, delta),
             &layout,
-            &readings(&LimbData::from(data)),
+            &readings(data),
             &spec,
             sigma,
         )
