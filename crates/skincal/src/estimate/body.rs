@@ -26,7 +26,7 @@ use super::ml::{
     estimate_limb, order_on_motion, refine_on_motion, refine_trees, LimbBase, LimbMotion,
     MlChainEstimate, MlConfig,
 };
-use super::sublimb;
+use super::rescue::{self, Rescue};
 use super::{chain_in_listed_order, EstimateError};
 use crate::explore::{BrokenSu, Structure};
 use crate::measurements::{MeasurementSet, TrainingExperiment};
@@ -542,7 +542,8 @@ impl Fitted {
         let mut base = parent.and_then(|p| LimbBase::of(&self.estimates[p], base_dofs));
         let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
         if let (false, Some(p)) = (config.search_done(&first, parent.is_some()), parent) {
-            match self.rescue_with_parent(set, &chain, &mut first, p, config)? {
+            let (estimates, parents) = (&mut self.estimates, &self.parents);
+            match rescue::with_parent(set, &chain, &mut first, (estimates, parents, p), config)? {
                 Rescue::None => {}
                 Rescue::PathFree => chain = first.chain.clone(),
                 Rescue::ParentReplaced => {
@@ -554,7 +555,7 @@ impl Fitted {
         let broken = &mut self.broken;
         let estimate = set_aside_misfits(set, chain, base.as_ref(), config, first, keep, broken)?;
         let on = parent.map(|p| &self.estimates[p]);
-        let mut estimate = rescue_with_children(set, estimate, on, chains, config)?;
+        let mut estimate = rescue::with_children(set, estimate, on, chains, config)?;
         if let Some(record) = motion {
             estimate = on_motion(set, record, estimate, base.as_ref(), config)?;
         }
@@ -588,74 +589,6 @@ impl Fitted {
         }
         Ok(Some(p))
     }
-
-    /// A sub-limb `chain` whose fit `first` did not converge on its parent `p`'s path: the
-    /// parent fitted again from both limbs' readings searched together (and replaced, its other
-    /// sub-limbs fitted again on it), or else the sub-limb with its path free; `first` becomes
-    /// the better of its fits.
-    fn rescue_with_parent(
-        &mut self,
-        set: &MeasurementSet,
-        chain: &LimbChain,
-        first: &mut MlChainEstimate,
-        p: usize,
-        config: &MlConfig,
-    ) -> Result<Rescue, EstimateError> {
-        let grandparent = self.parents[p].map(|g| &self.estimates[g]);
-        let refitted =
-            sublimb::with_parent_refitted(set, chain, &self.estimates[p], grandparent, config)?;
-        if let Some((mut new_parent, again, note)) = refitted {
-            new_parent.retries.push(format!(
-                "fitted again from limb {}'s readings searched together with it",
-                chain.name
-            ));
-            replace_parent(set, &mut self.estimates, p, new_parent, config)?;
-            *first = better_of(first.clone(), again, note);
-            return Ok(Rescue::ParentReplaced);
-        }
-        if let Some((again, note)) =
-            sublimb::with_path_free(set, chain, &self.estimates[p], config)?
-        {
-            *first = better_of(first.clone(), again, note);
-            return Ok(Rescue::PathFree);
-        }
-        Ok(Rescue::None)
-    }
-}
-
-/// What rescuing a sub-limb did ([`Fitted::rescue_with_parent`]).
-enum Rescue {
-    /// Nothing fitted better or differently.
-    None,
-    /// The sub-limb was fitted with its path free.
-    PathFree,
-    /// The parent was fitted again with it and replaced.
-    ParentReplaced,
-}
-
-/// A limb that did not converge would take the limbs hanging on it down with it: fitted again
-/// from each of theirs (of `chains`) searched together with it, until it converges.
-fn rescue_with_children(
-    set: &MeasurementSet,
-    mut estimate: MlChainEstimate,
-    on: Option<&MlChainEstimate>,
-    chains: &[LimbChain],
-    config: &MlConfig,
-) -> Result<MlChainEstimate, EstimateError> {
-    let children: Vec<&LimbChain> = chains
-        .iter()
-        .filter(|c| hangs_on(c, &estimate.chain))
-        .collect();
-    for child in children {
-        if config.search_done(&estimate, on.is_some()) {
-            break;
-        }
-        let tried = sublimb::parent_from_child(set, &estimate.chain, on, child, config)?;
-        if let Some((again, note)) = tried {
-            estimate = better_of(estimate, again, note);
-        }
-    }
-    Ok(estimate)
 }
 
 /// The SUs on the reference segment of `structure`: each one's robust mean static reading.
@@ -718,62 +651,6 @@ fn on_motion(
         seconds: estimate.seconds + refined.seconds,
         ..refined
     })
-}
-
-/// Puts `new_parent` in place of `estimates[p]` and fits the limbs already fitted on its old path
-/// again on the new one.
-fn replace_parent(
-    set: &MeasurementSet,
-    estimates: &mut [MlChainEstimate],
-    p: usize,
-    new_parent: MlChainEstimate,
-    config: &MlConfig,
-) -> Result<(), EstimateError> {
-    estimates[p] = new_parent;
-    let (done, later) = estimates.split_at_mut(p + 1);
-    let parent = &done[p];
-    let held = LimbBase::of(parent, parent.chain.dofs().len());
-    for sibling in later
-        .iter_mut()
-        .filter(|e| hangs_on(&e.chain, &parent.chain))
-    {
-        let mut chain = sibling.chain.clone();
-        for (j, pj) in chain.joints.iter_mut().zip(&parent.chain.joints) {
-            j.dofs = pj.dofs.clone();
-        }
-        let mut again = estimate_limb(&LimbData::new(set, &chain)?, held.as_ref(), config)?;
-        again.retries.push(format!(
-            "fitted again on {}'s path as fitted again",
-            parent.chain.name
-        ));
-        *sibling = again;
-    }
-    Ok(())
-}
-
-/// Whether limb `child` hangs directly on the segment where limb `parent` ends.
-fn hangs_on(child: &LimbChain, parent: &LimbChain) -> bool {
-    child.base_joints == parent.joints.len()
-        && child
-            .joints
-            .iter()
-            .zip(&parent.joints)
-            .all(|(a, b)| a.id == b.id)
-}
-
-/// Of a limb's estimate and another fit of it, the one nearer the noise level, with what was tried
-/// (`note`) added to the first's retries.
-fn better_of(first: MlChainEstimate, again: MlChainEstimate, note: String) -> MlChainEstimate {
-    let mut retries = first.retries.clone();
-    retries.extend(again.retries.iter().cloned());
-    retries.push(note);
-    let mut best = if again.residual_ratio < first.residual_ratio {
-        again
-    } else {
-        first
-    };
-    best.retries = retries;
-    best
 }
 
 /// A residual this many times the noise, and twice the limb's median SU's, marks a broken SU.

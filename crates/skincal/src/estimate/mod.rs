@@ -10,12 +10,16 @@
 //! relative to the previous SU of the chain, over random held-out poses, against the truth. Parameters
 //! such as the first transform's `θ0` and `d`, or DH equivalences like `(θ+π, d, −a, −α)`, cannot be
 //! determined from accelerometer data and are not compared one by one.
+//!
+//! Modules: the paper's estimator (`paper`), the maximum-likelihood one (`ml`), limbs and their
+//! readings (`limb`: `LimbChain`, `LimbData`), the whole body limb by limb and tree by tree
+//! (`body`), and what is tried when a fit is not at the noise level (`rescue`).
 
 pub mod body;
 pub mod limb;
 pub mod ml;
 pub mod paper;
-mod sublimb;
+mod rescue;
 
 pub use limb::{limb_chains, LimbChain, LimbData, LimbJoint};
 

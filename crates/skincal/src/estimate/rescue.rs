@@ -1,16 +1,28 @@
-//! Limbs that hang on other limbs, when a fit is not at the noise level.
+//! What is tried when a fit is not at the noise level: the retry policy, in the order it runs.
 //!
-//! A sub-limb is fitted with its base path (the DoFs from the reference to the branching segment it
-//! hangs on) and gravity held at its parent's estimate. Two things can go wrong there:
+//! 1. **Within a limb's fit** (`ml::search`): the next orders of each multi-DoF joint's DoFs, then
+//!    a wider search (more candidates per joint, more rotation starts).
+//! 2. **A sub-limb that did not converge on its parent's path** ([`with_parent`]). A sub-limb is
+//!    fitted with its base path (the DoFs from the reference to the branching segment it hangs on)
+//!    and gravity held at its parent's estimate. Two things can go wrong there:
+//!    - *The parent's path is wrong*, which the sub-limb's readings tell: the path and the
+//!      sub-limb searched together as one limb from the reference start the parent's fit again
+//!      ([`with_parent_refitted`]); when that fits better, it replaces the parent and the limbs
+//!      already on its path are fitted again on the new one.
+//!    - *The sub-limb's search fails although its parent converged.* With the base held, the
+//!      search cannot move gravity or the path, and can settle in a degenerate minimum (a
+//!      humanoid's arms and neck on a trunk whose one yaw axis is vertical: gravity held exactly
+//!      along it). The path and the sub-limb are then searched together as one limb from the
+//!      reference ([`with_path_free`]); that fit, carried into the parent's frames, starts the
+//!      sub-limb's fit with the base held again.
+//! 3. **SUs that fit far worse than the rest** are set aside one by one (`body`), the limb fitted
+//!    again each time.
+//! 4. **A limb that still did not converge** would take the limbs hanging on it down with it:
+//!    it is fitted again from each child's readings searched together with it
+//!    ([`with_children`], via [`parent_from_child`]), before any child is fitted on its path.
 //!
-//! - **The sub-limb's search fails although its parent converged.** With the base held, the search
-//!   cannot move gravity or the path, and can settle in a degenerate minimum (a humanoid's arms and
-//!   neck on a trunk whose one yaw axis is vertical: gravity held exactly along it). The path and the
-//!   sub-limb are then searched together as one limb from the reference ([`with_path_free`]); that
-//!   fit, carried into the parent's frames, starts the sub-limb's fit with the base held again.
-//! - **The parent itself did not converge.** Its children's readings see its segments move too: the
-//!   path and a child searched together as one limb from the reference start the parent's fit again
-//!   ([`parent_from_child`]), before any child is fitted on the wrong path.
+//! Every retry keeps the better of the fits ([`better_of`]) and notes what was tried in the
+//! estimate's `retries`. Afterwards each tree is fitted again in one problem (`ml::tree`).
 //!
 //! Carrying a fit from one limb's frames into another's ([`carried_start`]): both fits see the same
 //! SUs on the path, so the rigid motion that takes one's SU frames (at the zero pose) onto the
@@ -254,4 +266,125 @@ pub(crate) fn with_parent_refitted(
         new_child.residual_ratio
     );
     Ok(Some((new_parent, new_child, note)))
+}
+
+/// A sub-limb `chain` whose fit `first` did not converge on the path of its parent `p` (of
+/// the limbs fitted so far, `estimates`, each with its parent in `parents`): the parent
+/// fitted again from both limbs' readings searched together (and replaced, its other
+/// sub-limbs fitted again on it), or else the sub-limb with its path free; `first` becomes
+/// the better of its fits.
+pub(crate) fn with_parent(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    first: &mut MlChainEstimate,
+    (estimates, parents, p): (&mut [MlChainEstimate], &[Option<usize>], usize),
+    config: &MlConfig,
+) -> Result<Rescue, EstimateError> {
+    let grandparent = parents[p].map(|g| &estimates[g]);
+    let refitted = with_parent_refitted(set, chain, &estimates[p], grandparent, config)?;
+    if let Some((mut new_parent, again, note)) = refitted {
+        new_parent.retries.push(format!(
+            "fitted again from limb {}'s readings searched together with it",
+            chain.name
+        ));
+        replace_parent(set, estimates, p, new_parent, config)?;
+        *first = better_of(first.clone(), again, note);
+        return Ok(Rescue::ParentReplaced);
+    }
+    if let Some((again, note)) = with_path_free(set, chain, &estimates[p], config)? {
+        *first = better_of(first.clone(), again, note);
+        return Ok(Rescue::PathFree);
+    }
+    Ok(Rescue::None)
+}
+
+/// What rescuing a sub-limb did ([`with_parent`]).
+pub(crate) enum Rescue {
+    /// Nothing fitted better or differently.
+    None,
+    /// The sub-limb was fitted with its path free.
+    PathFree,
+    /// The parent was fitted again with it and replaced.
+    ParentReplaced,
+}
+
+/// A limb that did not converge would take the limbs hanging on it down with it: fitted again
+/// from each of theirs (of `chains`) searched together with it, until it converges.
+pub(crate) fn with_children(
+    set: &MeasurementSet,
+    mut estimate: MlChainEstimate,
+    on: Option<&MlChainEstimate>,
+    chains: &[LimbChain],
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let children: Vec<&LimbChain> = chains
+        .iter()
+        .filter(|c| hangs_on(c, &estimate.chain))
+        .collect();
+    for child in children {
+        if config.search_done(&estimate, on.is_some()) {
+            break;
+        }
+        let tried = parent_from_child(set, &estimate.chain, on, child, config)?;
+        if let Some((again, note)) = tried {
+            estimate = better_of(estimate, again, note);
+        }
+    }
+    Ok(estimate)
+}
+
+/// Puts `new_parent` in place of `estimates[p]` and fits the limbs already fitted on its old path
+/// again on the new one.
+fn replace_parent(
+    set: &MeasurementSet,
+    estimates: &mut [MlChainEstimate],
+    p: usize,
+    new_parent: MlChainEstimate,
+    config: &MlConfig,
+) -> Result<(), EstimateError> {
+    estimates[p] = new_parent;
+    let (done, later) = estimates.split_at_mut(p + 1);
+    let parent = &done[p];
+    let held = LimbBase::of(parent, parent.chain.dofs().len());
+    for sibling in later
+        .iter_mut()
+        .filter(|e| hangs_on(&e.chain, &parent.chain))
+    {
+        let mut chain = sibling.chain.clone();
+        for (j, pj) in chain.joints.iter_mut().zip(&parent.chain.joints) {
+            j.dofs = pj.dofs.clone();
+        }
+        let mut again = estimate_limb(&LimbData::new(set, &chain)?, held.as_ref(), config)?;
+        again.retries.push(format!(
+            "fitted again on {}'s path as fitted again",
+            parent.chain.name
+        ));
+        *sibling = again;
+    }
+    Ok(())
+}
+
+/// Whether limb `child` hangs directly on the segment where limb `parent` ends.
+fn hangs_on(child: &LimbChain, parent: &LimbChain) -> bool {
+    child.base_joints == parent.joints.len()
+        && child
+            .joints
+            .iter()
+            .zip(&parent.joints)
+            .all(|(a, b)| a.id == b.id)
+}
+
+/// Of a limb's estimate and another fit of it, the one nearer the noise level, with what was tried
+/// (`note`) added to the first's retries.
+fn better_of(first: MlChainEstimate, again: MlChainEstimate, note: String) -> MlChainEstimate {
+    let mut retries = first.retries.clone();
+    retries.extend(again.retries.iter().cloned());
+    retries.push(note);
+    let mut best = if again.residual_ratio < first.residual_ratio {
+        again
+    } else {
+        first
+    };
+    best.retries = retries;
+    best
 }
