@@ -157,18 +157,28 @@ pub(crate) fn carried_start(
     ))
 }
 
-/// A sub-limb `chain` (base path held at `parent`'s estimate) fitted again: searched together with
-/// its path as one limb from the reference, then, carried into `parent`'s frames, fitted with the
-/// path held. Returns the estimate and what was tried, or `None` when the search from the
-/// reference found no start.
+/// Limb `chain` searched together with its base path as one limb from the reference (the start of
+/// both rescues of a sub-limb, searched once).
+fn searched_from_reference(
+    set: &MeasurementSet,
+    chain: &LimbChain,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    estimate_limb(&LimbData::new(set, &from_reference(chain))?, None, config)
+}
+
+/// A sub-limb `chain` (base path held at `parent`'s estimate) fitted again from `free`, its fit
+/// searched together with its path as one limb from the reference ([`searched_from_reference`]):
+/// carried into `parent`'s frames, fitted with the path held. Returns the estimate and what was
+/// tried, or `None` when `free` gives no start.
 pub(crate) fn with_path_free(
     set: &MeasurementSet,
     chain: &LimbChain,
     parent: &MlChainEstimate,
+    free: &MlChainEstimate,
     config: &MlConfig,
 ) -> Result<Option<(MlChainEstimate, String)>, EstimateError> {
-    let free = estimate_limb(&LimbData::new(set, &from_reference(chain))?, None, config)?;
-    let Some((ordered, start)) = carried_start(&free, chain, Some(parent)) else {
+    let Some((ordered, start)) = carried_start(free, chain, Some(parent)) else {
         return Ok(None);
     };
     let base_dofs = ordered.base_dofs();
@@ -210,22 +220,22 @@ pub(crate) fn parent_from_child(
 
 /// A parent limb fitted again because a limb hanging on it (`child`, not converged with its base
 /// path held at `parent`) converges when searched together with that path as one limb from the
-/// reference: the parent's own readings can leave a mirror image open (a trunk with one yaw axis
-/// and SUs near it fits with gravity along the axis either way) that the child's readings close.
-/// `grandparent`: the estimate `parent`'s base path is held at. Returns the parent and the child
+/// reference (`free`, [`searched_from_reference`]): the parent's own readings can leave a mirror
+/// image open (a trunk with one yaw axis and SUs near it fits with gravity along the axis either
+/// way) that the child's readings close. `grandparent`: the estimate `parent`'s base path is held
+/// at. Returns the parent and the child
 /// fitted again, both at the noise level, with what was done; `None` otherwise.
 pub(crate) fn with_parent_refitted(
     set: &MeasurementSet,
     child: &LimbChain,
-    parent: &MlChainEstimate,
-    grandparent: Option<&MlChainEstimate>,
+    (parent, grandparent): (&MlChainEstimate, Option<&MlChainEstimate>),
+    free: &MlChainEstimate,
     config: &MlConfig,
 ) -> Result<Option<(MlChainEstimate, MlChainEstimate, String)>, EstimateError> {
-    let free = estimate_limb(&LimbData::new(set, &from_reference(child))?, None, config)?;
     if !free.converged {
         return Ok(None);
     }
-    let Some((pchain, pstart)) = carried_start(&free, &parent.chain, grandparent) else {
+    let Some((pchain, pstart)) = carried_start(free, &parent.chain, grandparent) else {
         return Ok(None);
     };
     let held = |chain: &LimbChain, on: Option<&MlChainEstimate>| {
@@ -245,7 +255,7 @@ pub(crate) fn with_parent_refitted(
     for (j, pj) in child.joints.iter_mut().zip(&new_parent.chain.joints) {
         j.dofs = pj.dofs.clone();
     }
-    let Some((cchain, cstart)) = carried_start(&free, &child, Some(&new_parent)) else {
+    let Some((cchain, cstart)) = carried_start(free, &child, Some(&new_parent)) else {
         return Ok(None);
     };
     let new_child = refine_limb(
@@ -281,7 +291,8 @@ pub(crate) fn with_parent(
     config: &MlConfig,
 ) -> Result<Rescue, EstimateError> {
     let grandparent = parents[p].map(|g| &estimates[g]);
-    let refitted = with_parent_refitted(set, chain, &estimates[p], grandparent, config)?;
+    let free = searched_from_reference(set, chain, config)?;
+    let refitted = with_parent_refitted(set, chain, (&estimates[p], grandparent), &free, config)?;
     if let Some((mut new_parent, again, note)) = refitted {
         new_parent.retries.push(format!(
             "fitted again from limb {}'s readings searched together with it",
@@ -291,7 +302,7 @@ pub(crate) fn with_parent(
         *first = better_of(first.clone(), again, note);
         return Ok(Rescue::ParentReplaced);
     }
-    if let Some((again, note)) = with_path_free(set, chain, &estimates[p], config)? {
+    if let Some((again, note)) = with_path_free(set, chain, &estimates[p], &free, config)? {
         *first = better_of(first.clone(), again, note);
         return Ok(Rescue::PathFree);
     }
