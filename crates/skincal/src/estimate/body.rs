@@ -540,7 +540,12 @@ impl Fitted {
         let parent = self.parent_of(&mut chain)?;
         let base_dofs = chain.base_dofs();
         let mut base = parent.and_then(|p| LimbBase::of(&self.estimates[p], base_dofs));
-        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), config)?;
+        // On a parent's path, the rescues come before the limb's own retries (`rescue`).
+        let first_config = MlConfig {
+            limb_retries: config.limb_retries && parent.is_none(),
+            ..*config
+        };
+        let mut first = estimate_limb(&LimbData::new(set, &chain)?, base.as_ref(), &first_config)?;
         if let (false, Some(p)) = (config.search_done(&first, parent.is_some()), parent) {
             let (estimates, parents) = (&mut self.estimates, &self.parents);
             match rescue::with_parent(set, &chain, &mut first, (estimates, parents, p), config)? {
@@ -550,6 +555,9 @@ impl Fitted {
                     chain = first.chain.clone();
                     base = LimbBase::of(&self.estimates[p], base_dofs);
                 }
+            }
+            if config.limb_retries && !config.search_done(&first, true) {
+                first = rescue::with_own_retries(set, &chain, first, base.as_ref(), config)?;
             }
         }
         let broken = &mut self.broken;

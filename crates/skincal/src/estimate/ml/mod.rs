@@ -156,6 +156,15 @@ pub struct MlConfig {
     /// DoF's line from every SU it moves, not only from its own limb's.
     #[serde(default = "fit_whole_trees")]
     pub whole_tree: bool,
+    /// A limb's fit off the noise level tries the other orders of its joints' DoFs and then a
+    /// wider search before it is returned. The body's calibration turns this off for a sub-limb's
+    /// first fit on its parent's path, whose rescues (`estimate::rescue`) come first.
+    #[serde(default = "retry_within_limbs")]
+    pub limb_retries: bool,
+}
+
+fn retry_within_limbs() -> bool {
+    true
 }
 
 fn fit_whole_trees() -> bool {
@@ -229,6 +238,7 @@ impl Default for MlConfig {
             select_intrinsics: true,
             reading_sd: true,
             whole_tree: true,
+            limb_retries: true,
         }
     }
 }
@@ -390,8 +400,10 @@ pub fn estimate_limb(
         notes: Vec::new(),
     };
     let done = |e: &MlChainEstimate| config.search_done(e, base.is_some());
-    retries.other_orders(&mut best, data, &orders, done, |c| fit(c, config))?;
-    retries.wider_search(&mut best, data, &orders, config, done, fit)?;
+    if config.limb_retries {
+        retries.other_orders(&mut best, data, &orders, done, |c| fit(c, config))?;
+        retries.wider_search(&mut best, data, &orders, config, done, fit)?;
+    }
     best.joint_orders = joint_orders
         .into_iter()
         .map(|mut o| {
