@@ -13,14 +13,17 @@
 //!
 //! Modules: the paper's estimator (`paper`), the maximum-likelihood one (`ml`), limbs and their
 //! readings (`limb`: `LimbChain`, `LimbData`), the whole body limb by limb and tree by tree
-//! (`body`), and what is tried when a fit is not at the noise level (`rescue`).
+//! (`body`), what is tried when a fit is not at the noise level (`rescue`), and the paper's DH+2
+//! table of a chain (`dh`).
 
 pub mod body;
+pub mod dh;
 pub mod limb;
 pub mod ml;
 pub mod paper;
 mod rescue;
 
+pub use dh::{chain_frames_at_zero, dh_form, true_dh_table, ChainFrames, DhRow, SuRow};
 pub use limb::{limb_chains, LimbChain, LimbData, LimbJoint};
 
 use nalgebra::{Isometry3, Vector3};
@@ -224,11 +227,6 @@ pub(crate) fn position(
             limb: limb.to_string(),
         })
 }
-
-/// A DoF-to-DoF row of the paper's table (Fig. 6): `θ0, d, a, α`, m and rad.
-pub use crate::model::description::DhEntry as DhRow;
-/// A DoF-to-SU row of the paper's table (Fig. 6): `θ0, d, a, α, θ_acc, d_acc`, m and rad.
-pub use crate::model::description::DhSensorEntry as SuRow;
 
 /// A serial chain as a [`Robot`]: reference segment `reference`, DoF `k` (axis z of its joint frame)
 /// placed by `origins[k]` on the segment of DoF `k−1`, and SU `k` placed by `sus` entries `(k, placement)`
@@ -528,145 +526,4 @@ fn chain_accuracy(
         rotation_max: max(&later_rot),
         poses,
     }
-}
-
-/// The true DH table of `chain`, when the truth is written in the paper's DH form (DoFs placed by
-/// DH rows on the previous DoF's segment, SUs by DH-plus-sensor rows); `None` otherwise.
-pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
-    use crate::model::Parameterization as P;
-    let m = &truth.model;
-    let mut rows = Vec::new();
-    for k in 1..chain.dofs.len() {
-        let dof = &m.dofs()[m.dof_index(&chain.dofs[k])?];
-        let previous = m.dof_index(&chain.dofs[k - 1])?;
-        if dof.origin.kind != P::StandardDh || m.segments()[dof.parent].parent_dof != Some(previous)
-        {
-            return None;
-        }
-        let v = &truth.parameters[dof.origin.range()];
-        rows.push(DhRow::from_values(v));
-    }
-    let mut sus = Vec::new();
-    for (k, name) in chain.sus.iter().enumerate() {
-        let su = &m.sus()[m.su_index(name)?];
-        if su.placement.kind != P::StandardDhSensor
-            || m.segments()[su.segment].parent_dof != m.dof_index(&chain.dofs[k])
-        {
-            return None;
-        }
-        let v = &truth.parameters[su.placement.range()];
-        sus.push(SuRow::from_values(v));
-    }
-    Some((rows, sus))
-}
-
-/// The standard DH row that places the line `(point, direction)` (in `frame`'s coordinates) as the
-/// next axis: x along the common normal from `frame`'s z to the line, `a ≥ 0`. For parallel axes the
-/// normal through `frame`'s origin is taken (`d = 0`); for intersecting axes `x = z × u`.
-fn dh_to_line(point: &Vector3<f64>, direction: &Vector3<f64>) -> (DhRow, Isometry3<f64>) {
-    let u = direction.normalize();
-    let b = u.z;
-    let denominator = 1.0 - b * b;
-    let (t, foot) = if denominator > 1e-12 {
-        let t = (point.z - b * u.dot(point)) / denominator;
-        let s = (b * point.z - u.dot(point)) / denominator;
-        (t, point + u * s)
-    } else {
-        // Parallel: the foot on the line at the height of the origin.
-        let s = if u.z.abs() > 0.0 { -point.z / u.z } else { 0.0 };
-        (0.0, point + u * s)
-    };
-    let normal = foot - Vector3::new(0.0, 0.0, t);
-    let a = normal.norm();
-    let x = if a > 1e-12 {
-        normal / a
-    } else {
-        let c = Vector3::z().cross(&u);
-        if c.norm() > 1e-12 {
-            c.normalize()
-        } else {
-            Vector3::x()
-        }
-    };
-    let theta0 = x.y.atan2(x.x);
-    let alpha = Vector3::z().cross(&u).dot(&x).atan2(u.z);
-    let row = DhRow {
-        theta0,
-        d: t,
-        a,
-        alpha,
-    };
-    let frame = crate::model::transform::standard_dh(theta0, t, a, alpha);
-    (row, frame)
-}
-
-/// Frames of a chain at the zero pose: (joint frames with z along each axis, SU frames).
-pub type ChainFrames = (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>);
-
-/// The frames of a chain of any robot at the zero pose, in the robot's reference frame: every
-/// DoF's joint frame turned so that its z axis is the DoF's axis, and every chain SU's frame.
-pub fn chain_frames_at_zero(robot: &Robot, chain: &SerialChain) -> Option<ChainFrames> {
-    let m = &robot.model;
-    let dofs: Vec<usize> = chain
-        .dofs
-        .iter()
-        .map(|d| m.dof_index(d))
-        .collect::<Option<_>>()?;
-    let sus: Vec<usize> = chain
-        .sus
-        .iter()
-        .map(|s| m.su_index(s))
-        .collect::<Option<_>>()?;
-    let k = forward_kinematics(m, &robot.parameters, &vec![0.0; m.dofs().len()]);
-    let joints = dofs
-        .iter()
-        .map(|&d| {
-            let axis = m.dofs()[d].axis.into_inner();
-            let align = nalgebra::UnitQuaternion::rotation_between(&Vector3::z(), &axis)
-                .unwrap_or_else(|| {
-                    nalgebra::UnitQuaternion::from_axis_angle(
-                        &Vector3::x_axis(),
-                        std::f64::consts::PI,
-                    )
-                });
-            k.joints[d] * align
-        })
-        .collect();
-    Some((joints, sus.iter().map(|&s| k.sus[s]).collect()))
-}
-
-/// The paper's DH+2 table (Fig. 6) of a chain of any robot that names its DoFs and SUs — an estimate
-/// or the truth: DoF-to-DoF rows from the common normals between consecutive axes at the zero pose,
-/// the first DH frame being the first joint's frame (the paper's `DoF1_T_RS = I`), and DoF-to-SU
-/// rows to each SU's z axis, with `θ_acc`, `d_acc` for the rest.
-pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
-    let (joints, su_frames) = chain_frames_at_zero(robot, chain)?;
-    let base = joints[0];
-
-    let mut frames = vec![Isometry3::identity()];
-    let mut rows = Vec::new();
-    for (i, joint) in joints.iter().enumerate().skip(1) {
-        let next = base.inverse() * joint;
-        let local = frames[i - 1].inverse() * next;
-        let (row, step) = dh_to_line(&local.translation.vector, &(local.rotation * Vector3::z()));
-        rows.push(row);
-        frames.push(frames[i - 1] * step);
-    }
-    let mut su_rows = Vec::new();
-    for (i, frame) in su_frames.iter().enumerate() {
-        let su = frames[i].inverse() * (base.inverse() * frame);
-        let (row, virtual_frame) =
-            dh_to_line(&su.translation.vector, &(su.rotation * Vector3::z()));
-        let rest = virtual_frame.inverse() * su;
-        let x = rest.rotation * Vector3::x();
-        su_rows.push(SuRow {
-            theta0: row.theta0,
-            d: row.d,
-            a: row.a,
-            alpha: row.alpha,
-            theta_acc: x.y.atan2(x.x),
-            d_acc: rest.translation.vector.z,
-        });
-    }
-    Some((rows, su_rows))
 }
