@@ -161,6 +161,19 @@ impl<T: RealField> BodyMotion<T> {
         (c, n)
     }
 
+    /// [`BodyMotion::field_seen`] of a body that does not turn now (`ω = 0`, as at a pose's
+    /// static or dynamic reading): `N = [α_f]×`, so `c = Rᵀ(accel − g) + α_f × x_f`.
+    pub fn field_seen_unturning(
+        &self,
+        rt: &Matrix3<T>,
+        x: &Vector3<T>,
+        gravity: &Vector3<T>,
+    ) -> (Vector3<T>, Matrix3<T>) {
+        let alpha = rt * &self.alpha;
+        let c = rt * (self.accel.clone() - gravity.clone()) + alpha.cross(x);
+        (c, alpha.cross_matrix())
+    }
+
     /// The motion of a body that turns relative to this one about the line through `point` along
     /// the unit `axis` (both fixed in this body, in the reference frame now) at rate `rate` and
     /// acceleration `accel` (rad/s, rad/s²).

@@ -294,23 +294,29 @@ impl Precision {
         let dof_count = spec.columns().len();
         let names = column_names(&data.chain.dofs(), &data.chain.sus(), spec);
         let map = ColumnMap::new(spec);
-        let ratio_of = |normal: &problem::Normal| {
-            (normal.cost / (normal.rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
+        let ratio_of = |(cost, rows): (f64, usize)| {
+            (cost / (rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
         };
-        let normal = normal_system(state, layout, &readings, spec, &map, sigma);
-        let residual_ratio = ratio_of(&normal);
+        // The plain residual; the normal system of the weighted one when the noise was
+        // weighed by components.
+        let (mut normal, plain_rows, residual_ratio, scale) = match &weighted {
+            Some(weighted) => {
+                let plain = problem::cost_and_rows(state, layout, &readings, spec, &map, sigma);
+                let normal = normal_system(state, layout, weighted, spec, &map, sigma);
+                let ratio = ratio_of((normal.cost, normal.rows));
+                (normal, plain.1, ratio_of(plain), ratio)
+            }
+            None => {
+                let normal = normal_system(state, layout, &readings, spec, &map, sigma);
+                let ratio = ratio_of((normal.cost, normal.rows));
+                let rows = normal.rows;
+                (normal, rows, ratio, ratio)
+            }
+        };
         let band = readings
             .motion
             .is_none()
-            .then(|| ResidualBand::at(normal.rows.saturating_sub(dof_count)));
-        let (mut normal, scale) = match &weighted {
-            Some(weighted) => {
-                let normal = normal_system(state, layout, weighted, spec, &map, sigma);
-                let ratio = ratio_of(&normal);
-                (normal, ratio)
-            }
-            None => (normal, residual_ratio),
-        };
+            .then(|| ResidualBand::at(plain_rows.saturating_sub(dof_count)));
         if let Some(others) = others {
             normal.add_shared_information(others);
         }
@@ -430,7 +436,7 @@ pub(super) fn fit_with_intrinsics(
     // The residual rows that count (the same for every model: the readings do not change).
     let rows = if config.select_intrinsics && !ladder.is_empty() {
         let map = ColumnMap::new(&spec);
-        normal_system(
+        problem::cost_and_rows(
             &solved.state,
             layout,
             readings,
@@ -438,7 +444,7 @@ pub(super) fn fit_with_intrinsics(
             &map,
             config.noise_sd,
         )
-        .rows
+        .1
     } else {
         0
     };

@@ -10,6 +10,7 @@
 //! SU blocks are eliminated and only the shared system is factorised, so an iteration costs time
 //! linear in the number of SUs and memory independent of the number of readings.
 
+use std::ops::AddAssign;
 use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
@@ -453,7 +454,8 @@ struct JacobianRows<'a> {
 impl JacobianRows<'_> {
     /// Fills the rows of the reading of SU `su` from segment entry `s` of `terms` (with its
     /// bias when `bias`): along the SU's own frame (`R ← exp(ω) R`: `K Rᵀ (v × e_c)`; a shift
-    /// `K Rᵀ N e_c`) and intrinsics, and along the shared columns that move its segment.
+    /// `K Rᵀ N e_c`) and intrinsics, and along the shared columns that move its segment (the
+    /// other shared columns' rows stay zero).
     fn fill(
         &self,
         su: &SuFrame,
@@ -481,13 +483,8 @@ impl JacobianRows<'_> {
                     .copy_from(&(d * self.scale));
             }
         }
-        for (col, &(b, c)) in self.map.shared.iter().enumerate() {
-            if let Some(d) = rate(self.spec.blocks[b], c) {
-                shared
-                    .fixed_view_mut::<3, 1>(self.row, col)
-                    .copy_from(&(d * self.scale));
-            }
-        }
+        // The SU's own frame and intrinsics are its own columns, never shared ones (see
+        // `ColumnMap::new`): the shared columns are those of the terms' rates.
         for (col, dc, dn) in terms.rates(s) {
             let d = su.krt * (dc + dn * su.p);
             shared
@@ -632,6 +629,71 @@ impl SuBlock {
             rows.scale_mut(w.sqrt());
         }
         scale
+    }
+}
+
+impl SuBlock {
+    /// The block's pieces of the normal equations: its own `(A, B, g_o)`, `J_sᵀJ_s` and `J_sᵀr`.
+    ///
+    /// Most rows see a few shared columns only (a dynamic reading of DoF `d` sees the joints
+    /// between `d` and the SU), so the rows are grouped by the range of shared columns that is
+    /// not zero in them and each group multiplied on its range alone. Products of transposes:
+    /// nalgebra multiplies those by a blocked kernel (`matrixmultiply`), `tr_mul` by one dot
+    /// product per entry.
+    fn products(&self) -> (SuNormal, DMatrix<f64>, DVector<f64>) {
+        let own_t = self.own.transpose();
+        let m = self.shared.ncols();
+        let mut c = DMatrix::zeros(m, m);
+        let mut b = DMatrix::zeros(self.own.ncols(), m);
+        let mut gs = DVector::zeros(m);
+        // Rows `rows` of `m`'s columns `from..from + w`, column by column.
+        let gather = |m: &DMatrix<f64>, rows: &[usize], from: usize, w: usize| {
+            let mut out = DMatrix::zeros(rows.len(), w);
+            for (k, mut column) in out.column_iter_mut().enumerate() {
+                let source = m.column(from + k);
+                for (x, &r) in column.iter_mut().zip(rows) {
+                    *x = source[r];
+                }
+            }
+            out
+        };
+        for ((lo, hi), rows) in self.shared_ranges() {
+            let w = hi - lo;
+            let j = gather(&self.shared, &rows, lo, w);
+            let o = gather(&self.own, &rows, 0, self.own.ncols());
+            let r = DVector::from_iterator(rows.len(), rows.iter().map(|&i| self.r[i]));
+            let j_t = j.transpose();
+            c.view_mut((lo, lo), (w, w)).add_assign(&(&j_t * &j));
+            b.view_mut((0, lo), (self.own.ncols(), w))
+                .add_assign(&(o.transpose() * &j));
+            gs.rows_mut(lo, w).add_assign(&(&j_t * r));
+        }
+        let su = SuNormal {
+            a: &own_t * &self.own,
+            b,
+            go: &own_t * &self.r,
+        };
+        (su, c, gs)
+    }
+
+    /// The rows with a shared column not zero, grouped by the range of such columns
+    /// (`lo..hi`), in the order of the ranges.
+    fn shared_ranges(&self) -> std::collections::BTreeMap<(usize, usize), Vec<usize>> {
+        let rows = self.shared.nrows();
+        let (mut lo, mut hi) = (vec![usize::MAX; rows], vec![0; rows]);
+        for (k, column) in self.shared.column_iter().enumerate() {
+            for ((x, lo), hi) in column.iter().zip(&mut lo).zip(&mut hi) {
+                if *x != 0.0 {
+                    *lo = (*lo).min(k);
+                    *hi = k + 1;
+                }
+            }
+        }
+        let mut groups = std::collections::BTreeMap::<(usize, usize), Vec<usize>>::new();
+        for r in (0..rows).filter(|&r| hi[r] > 0) {
+            groups.entry((lo[r], hi[r])).or_default().push(r);
+        }
+        groups
     }
 }
 
@@ -841,20 +903,8 @@ pub(super) fn normal_system(
         .into_par_iter()
         .map(|i| {
             let block = blocks.block(i);
-            // Products of the transposes: nalgebra multiplies those by a blocked kernel
-            // (`matrixmultiply`), `tr_mul` by one dot product per entry.
-            let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
-            (
-                SuNormal {
-                    a: &own_t * &block.own,
-                    b: &own_t * &block.shared,
-                    go: &own_t * &block.r,
-                },
-                &shared_t * &block.shared,
-                &shared_t * &block.r,
-                block.cost,
-                block.count,
-            )
+            let (su, c, gs) = block.products();
+            (su, c, gs, block.cost, block.count)
         })
         .collect();
     let mut c = DMatrix::zeros(m, m);
@@ -944,18 +994,34 @@ pub(super) fn cost_of(
     map: &ColumnMap,
     sigma: f64,
 ) -> f64 {
+    cost_and_rows(state, layout, data, spec, map, sigma).0
+}
+
+/// `|r|²` at a state and the number of residuals that count (as [`normal_system`] counts them).
+pub(super) fn cost_and_rows(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    map: &ColumnMap,
+    sigma: f64,
+) -> (f64, usize) {
     let blocks = Blocks::new(state, layout, data, spec, map, sigma, false);
-    let priors: f64 = joint_priors(state, data, spec, map)
-        .iter()
-        .map(|(_, _, r)| r.norm_squared())
-        .sum();
+    let priors = joint_priors(state, data, spec, map);
+    let prior_cost: f64 = priors.iter().map(|(_, _, r)| r.norm_squared()).sum();
     // Summed in SU order: a parallel sum adds in the order its threads happened to split the
     // work, and a step the fit takes or refuses on a last bit of the cost would vary run to run.
-    let costs: Vec<f64> = (0..spec.sus.len())
+    let costs: Vec<(f64, usize)> = (0..spec.sus.len())
         .into_par_iter()
-        .map(|i| blocks.block(i).cost)
+        .map(|i| {
+            let block = blocks.block(i);
+            (block.cost, block.count)
+        })
         .collect();
-    priors + costs.iter().sum::<f64>()
+    (
+        prior_cost + costs.iter().map(|c| c.0).sum::<f64>(),
+        3 * priors.len() + costs.iter().map(|c| c.1).sum::<usize>(),
+    )
 }
 
 /// The prior rows of every free joint's position on its parent ([`Readings::gauge_prior`], for
@@ -1567,4 +1633,46 @@ pub(super) fn covariance(
         }
     }
     (cov, unobservable)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn products_by_column_range_equal_the_dense_products() {
+        // A block shaped like a chain's: each reading sees a range of the shared columns (a
+        // staircase), some readings none, some rows rejected (zero), a few own columns.
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (rows, shared, own) = (90, 24, 6);
+        let mut block = SuBlock {
+            r: DVector::from_fn(rows, |_, _| rng.random_range(-1.0..1.0)),
+            own: DMatrix::from_fn(rows, own, |_, _| rng.random_range(-1.0..1.0)),
+            shared: DMatrix::zeros(rows, shared),
+            cost: 0.0,
+            count: 0,
+        };
+        for reading in 0..rows / 3 {
+            let lo = reading % 9 * 2;
+            let hi = (lo + 1 + reading % 5 * 3).min(shared);
+            for row in 3 * reading..3 * reading + 3 {
+                if reading % 7 == 3 {
+                    continue;
+                }
+                for c in lo..hi {
+                    block.shared[(row, c)] = rng.random_range(-1.0..1.0);
+                }
+            }
+        }
+        let (su, c, gs) = block.products();
+        let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
+        let close = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).amax() < 1e-12 * (1.0 + b.amax());
+        assert!(close(&c, &(&shared_t * &block.shared)));
+        assert!(close(&su.b, &(&own_t * &block.shared)));
+        assert!(close(&su.a, &(&own_t * &block.own)));
+        assert!((&gs - &shared_t * &block.r).amax() < 1e-12);
+        assert!((&su.go - &own_t * &block.r).amax() < 1e-12);
+    }
 }

@@ -40,6 +40,10 @@ pub(super) struct Instant<'a> {
     gravity: bool,
     /// The first DoF that moves: the segments before it are still.
     moving_from: usize,
+    /// One past the last DoF that moves.
+    moving_to: usize,
+    /// Whether any DoF has a rate (else no segment turns now: `ω = 0` everywhere).
+    turning: bool,
 }
 
 impl<'a> Instant<'a> {
@@ -49,17 +53,32 @@ impl<'a> Instant<'a> {
             .zip(qdd)
             .position(|(v, a)| *v != 0.0 || *a != 0.0)
             .unwrap_or(qd.len());
+        let moving_to = qd
+            .iter()
+            .zip(qdd)
+            .rposition(|(v, a)| *v != 0.0 || *a != 0.0)
+            .map_or(moving_from, |k| k + 1);
         Self {
             qd,
             qdd,
             gravity,
             moving_from,
+            moving_to,
+            turning: qd.iter().any(|v| *v != 0.0),
         }
     }
 
     /// Whether segment `s` (turned by DoF `s − 1`) is still at this instant.
     fn still(&self, s: usize) -> bool {
         s <= self.moving_from
+    }
+
+    /// Whether no term of this instant changes with joint `k`'s frame: with gravity off and only
+    /// DoFs from `k` on moving, a change of that frame moves every moving axis and every segment
+    /// after it rigidly, and a segment's terms, seen in its own frame, do not see a rigid motion.
+    /// (A paper's dynamic reading of DoF `d` depends only on the joints after `d`.)
+    fn blind_to_joint(&self, k: usize) -> bool {
+        !self.gravity && self.moving_from >= k
     }
 }
 
@@ -121,12 +140,21 @@ impl SegmentTerms {
 /// A shared column and the rates `(∂c_s, ∂N_s)` of one segment's terms along it.
 pub(super) type ColumnRate = (usize, Vector3<f64>, Matrix3<f64>);
 
-/// Where a pass down the chain stands at segment `s`: its frame, and its motion at each instant.
+/// Where a pass down the chain stands at segment `s`: its frame, and its motion at each instant;
+/// for a pass along a joint's column, that joint (the instants blind to it are skipped).
 #[derive(Clone)]
 struct Stage<T: RealField> {
     s: usize,
     segment: Isometry3<T>,
     motions: Vec<BodyMotion<T>>,
+    along: Option<usize>,
+}
+
+impl<T: RealField> Stage<T> {
+    /// Whether this pass skips `instant`: its terms have no rate along the pass's joint.
+    fn skips(&self, instant: &Instant) -> bool {
+        self.along.is_some_and(|k| instant.blind_to_joint(k))
+    }
 }
 
 impl<T: RealField + Copy> Stage<T> {
@@ -148,13 +176,19 @@ impl<T: RealField + Copy> Stage<T> {
         let zero = Vector3::zeros();
         for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
             let g = if instant.gravity { gravity } else { &zero };
+            if self.skips(instant) {
+                continue;
+            }
             if instant.still(self.s) {
                 // A still segment with no gravity has no field, nor any rate of it.
                 if instant.gravity {
                     emit(i, -(rt * g), Matrix3::zeros());
                 }
-            } else {
+            } else if instant.turning {
                 let (c, n) = motion.field_seen(&rt, &x, g);
+                emit(i, c, n);
+            } else {
+                let (c, n) = motion.field_seen_unturning(&rt, &x, g);
                 emit(i, c, n);
             }
         }
@@ -175,10 +209,12 @@ impl<T: RealField + Copy> Stage<T> {
         let (frame, segment) = link(&self.segment, &joint, turn);
         let axis = frame.rotation * Vector3::z();
         let point = frame.translation.vector;
+        let along = self.along;
         for (motion, i) in self.motions.iter_mut().zip(instants) {
             // A DoF at rest adds nothing to the motion it carries on (exactly: every term of
             // `through` and `slide` is a multiple of its rate or acceleration).
-            if i.qd[k] != 0.0 || i.qdd[k] != 0.0 {
+            let skipped = along.is_some_and(|j| i.blind_to_joint(j));
+            if !skipped && (i.qd[k] != 0.0 || i.qdd[k] != 0.0) {
                 *motion = motion.moved_by(
                     kind,
                     &axis,
@@ -261,7 +297,7 @@ impl<'a> Chain<'a> {
             .map(|i| SegmentTerms {
                 c: vec![Vector3::zeros(); last],
                 n: vec![Matrix3::zeros(); last],
-                rates: Vec::with_capacity(self.rate_count(first, last, i.gravity)),
+                rates: Vec::with_capacity(self.rate_count(first, last, i)),
                 starts: vec![0; last + 1],
             })
             .collect();
@@ -271,7 +307,7 @@ impl<'a> Chain<'a> {
                 let k = s - 1;
                 for (col, column) in self.columns.iter().enumerate() {
                     if matches!(column, Column::Joint(j, _) if *j == k) {
-                        passes.push((col, k, lift_stage(&stage)));
+                        passes.push((col, k, lift_stage(&stage, k)));
                     }
                 }
                 let kind = self.kinds[k];
@@ -315,21 +351,29 @@ impl<'a> Chain<'a> {
         out
     }
 
-    /// The most rates one instant's terms of segments `first..=last` hold: per segment, the
-    /// gravity columns (when the instant has gravity) and the columns of the joints before it.
-    fn rate_count(&self, first: usize, last: usize, gravity: bool) -> usize {
-        (first.max(1)..=last)
-            .map(|s| {
-                self.columns
-                    .iter()
-                    .filter(|c| match c {
-                        Column::Gravity(_) => gravity,
-                        Column::Joint(k, _) => (first..s).contains(k),
-                        Column::Other => false,
-                    })
-                    .count()
-            })
-            .sum()
+    /// The most rates the terms of segments `first..=last` hold at `instant`: per segment, the
+    /// gravity columns (when the instant has gravity) and the columns of the joints before it
+    /// that the instant sees.
+    fn rate_count(&self, first: usize, last: usize, instant: &Instant) -> usize {
+        let mut per_joint = vec![0; last.max(1)];
+        let mut gravity = 0;
+        for column in &self.columns {
+            match column {
+                Column::Gravity(_) => gravity += usize::from(instant.gravity),
+                Column::Joint(k, _) if *k < per_joint.len() && !instant.blind_to_joint(*k) => {
+                    per_joint[*k] += 1;
+                }
+                _ => {}
+            }
+        }
+        let (mut seen, mut total) = (0, 0);
+        for s in first.max(1)..=last {
+            if s > first {
+                seen += per_joint[s - 1];
+            }
+            total += gravity + seen;
+        }
+        total
     }
 
     /// The first segment of a pass and its stage: the reference segment, still, or `prefix`'s
@@ -343,22 +387,26 @@ impl<'a> Chain<'a> {
                     s: 0,
                     segment: Isometry3::identity(),
                     motions: still,
+                    along: None,
                 },
             );
         };
-        let motions = prefix
+        let lines: Vec<(Vector3<f64>, Vector3<f64>)> = prefix
             .joints
             .iter()
-            .enumerate()
-            .fold(still, |motions, (k, frame)| {
-                let axis = frame.rotation * Vector3::z();
-                let point = frame.translation.vector;
-                motions
-                    .iter()
-                    .zip(instants)
-                    .map(|(m, i)| m.moved_by(self.kinds[k], &axis, &point, i.qd[k], i.qdd[k]))
-                    .collect()
-            });
+            .map(|frame| (frame.rotation * Vector3::z(), frame.translation.vector))
+            .collect();
+        let mut motions = still;
+        for (m, i) in motions.iter_mut().zip(instants) {
+            // Only the DoFs that move add to the motion (as in `Stage::advance`).
+            let moving = i.moving_from.min(lines.len())..i.moving_to.min(lines.len());
+            for (k, (axis, point)) in lines[moving.clone()].iter().enumerate() {
+                let k = moving.start + k;
+                if i.qd[k] != 0.0 || i.qdd[k] != 0.0 {
+                    *m = m.moved_by(self.kinds[k], axis, point, i.qd[k], i.qdd[k]);
+                }
+            }
+        }
         let first = prefix.joints.len();
         (
             first,
@@ -366,6 +414,7 @@ impl<'a> Chain<'a> {
                 s: first,
                 segment: prefix.segment,
                 motions,
+                along: None,
             },
         )
     }
@@ -384,12 +433,13 @@ fn lift_turn(q: &UnitQuaternion<f64>) -> UnitQuaternion<Dual64> {
     UnitQuaternion::new_unchecked(Quaternion::from(q.coords.map(Dual64::from)))
 }
 
-/// A real pass's stage as one of dual numbers (no derivative).
-fn lift_stage(stage: &Stage<f64>) -> Stage<Dual64> {
+/// A real pass's stage as one of dual numbers (no derivative), for the pass along joint `k`.
+fn lift_stage(stage: &Stage<f64>, k: usize) -> Stage<Dual64> {
     Stage {
         s: stage.s,
         segment: lift(&stage.segment),
         motions: stage.motions.iter().map(lift_motion).collect(),
+        along: Some(k),
     }
 }
 
