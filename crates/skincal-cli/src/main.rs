@@ -4,6 +4,7 @@
 
 mod bench_body;
 mod bench_calibrate;
+mod bench_chain;
 mod bench_check;
 mod bench_limbs;
 mod bench_motion;
@@ -165,6 +166,9 @@ enum BenchCommand {
     Explore(BenchExploreArgs),
     /// Kinematic estimation of paper-7dof over many noise seeds: time, evaluations, accuracy.
     Calibrate(bench_calibrate::BenchCalibrateArgs),
+    /// One long serial chain (a snake, one SU per segment) as it grows: time, LM iterations,
+    /// held-out accuracy.
+    Chain(bench_chain::BenchChainArgs),
     /// The whole pipeline (explore, calibrate every limb, validate on held-out poses) on the
     /// humanoid or a random tree: time, memory, accuracy against the truth.
     Body(bench_body::BenchBodyArgs),
@@ -318,6 +322,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCommand::Limbs(args)) => bench_limbs::bench_limbs(args),
         Command::Bench(BenchCommand::Explore(args)) => bench_explore(args),
         Command::Bench(BenchCommand::Calibrate(args)) => bench_calibrate::bench_calibrate(args),
+        Command::Bench(BenchCommand::Chain(args)) => bench_chain::bench_chain(args),
         Command::Bench(BenchCommand::Ingest(args)) => logs::bench_ingest(args),
         Command::Bench(BenchCommand::Motion(args)) => bench_motion::bench_motion(args),
         Command::Bench(BenchCommand::Report(args)) => bench_report::bench_report(args),

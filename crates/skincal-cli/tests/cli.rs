@@ -1562,6 +1562,17 @@ fn json_summaries_are_the_whole_standard_output_and_say_what_the_text_says() {
     assert_eq!(v["each"].as_array().unwrap().len(), 2);
     assert_eq!(v["converged"], 2);
     assert!(v["summary"]["residual / σ"]["median"].as_f64().unwrap() < 1.5);
+    let text = ok(skincal(&["bench", "chain", "--dofs", "3,5", "--json"], d));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("nothing but JSON");
+    let chains = v["chains"].as_array().unwrap();
+    assert_eq!(chains.len(), 2);
+    for (chain, dofs) in chains.iter().zip([3, 5]) {
+        assert_eq!(chain["dofs"], dofs);
+        assert_eq!(chain["converged"], true, "{chain}");
+        // Noise-free held-out poses: a fit at the noise level predicts them to well under the
+        // readings' noise (σ 0.057 m/s²).
+        assert!(chain["statics"].as_f64().unwrap() < 0.03, "{chain}");
+    }
     let text = ok(skincal(
         &[
             "bench",

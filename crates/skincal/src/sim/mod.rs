@@ -48,7 +48,7 @@ pub mod changes;
 mod robot_like;
 pub mod timeseries;
 
-pub use robot_like::{robot_like_limb, RobotLikeConfig};
+pub use robot_like::{robot_like_limb, snake, RobotLikeConfig};
 
 /// The largest noise or bias the simulator accepts, g.
 pub const MAX_IMPERFECTION: f64 = 10.0;

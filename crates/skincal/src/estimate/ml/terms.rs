@@ -11,7 +11,9 @@
 //! gravity on) and the paper's dynamic reading of DoF `d` at a pose (its acceleration `α` alone,
 //! gravity off: the difference of two samples at one pose). The terms' derivatives along a joint
 //! line's columns come from dual numbers through the same code, each pass starting at its joint
-//! from the real pass's state; along gravity they are `∂c_s = −R_sᵀ δg` (`N_s` does not see it).
+//! from the real pass's state and leaving out the instants that cannot see that joint (a dynamic
+//! reading of DoF `d` sees only the joints after `d`: `Instant::blind_to_joint`); along
+//! gravity they are `∂c_s = −R_sᵀ δg` (`N_s` does not see it).
 
 use nalgebra::{Isometry3, Matrix3, Quaternion, RealField, Translation3, UnitQuaternion, Vector3};
 use num_dual::Dual64;
