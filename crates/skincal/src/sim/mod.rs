@@ -986,26 +986,57 @@ fn random_skin(
 /// `d, d_acc ∈ [−1, 1]`, `a ∈ [0, 1]`), freely turning DoFs, reference = the first DoF's frame.
 /// Names as in `paper-7dof`: DoFs `dof1…`, segments `link1…`, SUs `su1…`. Seeded.
 pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError> {
-    use crate::model::{DofSpec, Limits, PlacementSpec, RobotBuilder, SuSpec};
+    use crate::model::PlacementSpec;
     use std::f64::consts::PI;
-    if dofs == 0 {
-        return Err(SimulationError::InvalidSetting {
-            setting: "dofs",
-            reason: "must be at least 1".into(),
-        });
-    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut b = RobotBuilder::new(format!("random-dh-{dofs}dof-{seed}"), "base");
-    for k in 1..=dofs {
-        let origin = if k == 1 {
-            PlacementSpec::identity()
-        } else {
+    serial_dh_chain(
+        format!("random-dh-{dofs}dof-{seed}"),
+        dofs,
+        &mut rng,
+        |rng, _| {
             PlacementSpec::dh(
                 rng.random_range(-PI..PI),
                 rng.random_range(-1.0..1.0),
                 rng.random_range(0.0..1.0),
                 rng.random_range(-PI..PI),
             )
+        },
+        |rng| {
+            PlacementSpec::dh_sensor(
+                rng.random_range(-PI..PI),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(0.0..1.0),
+                rng.random_range(-PI..PI),
+                rng.random_range(-PI..PI),
+                rng.random_range(-1.0..1.0),
+            )
+        },
+    )
+}
+
+/// A serial chain named as `paper-7dof` is (reference `base`, DoFs `dof1…` turning segments
+/// `link1…`, SU `suk` on `linkk`): freely turning DoFs (1.7 rad/s, 10 rad/s²), DoF `k ≥ 2` placed
+/// by `dof_row(rng, k)`, then every SU by `su_row(rng)`.
+pub(crate) fn serial_dh_chain(
+    name: String,
+    dofs: usize,
+    rng: &mut ChaCha8Rng,
+    dof_row: impl Fn(&mut ChaCha8Rng, usize) -> crate::model::PlacementSpec,
+    su_row: impl Fn(&mut ChaCha8Rng) -> crate::model::PlacementSpec,
+) -> Result<Robot, SimulationError> {
+    use crate::model::{DofSpec, Limits, PlacementSpec, RobotBuilder, SuSpec};
+    if dofs == 0 {
+        return Err(SimulationError::InvalidSetting {
+            setting: "dofs",
+            reason: "must be at least 1".into(),
+        });
+    }
+    let mut b = RobotBuilder::new(name, "base");
+    for k in 1..=dofs {
+        let origin = if k == 1 {
+            PlacementSpec::identity()
+        } else {
+            dof_row(rng, k)
         };
         b.dofs.push(DofSpec {
             name: format!("dof{k}"),
@@ -1027,22 +1058,14 @@ pub fn random_dh_chain(dofs: usize, seed: u64) -> Result<Robot, SimulationError>
         });
     }
     for k in 1..=dofs {
-        let placement = PlacementSpec::dh_sensor(
-            rng.random_range(-PI..PI),
-            rng.random_range(-1.0..1.0),
-            rng.random_range(0.0..1.0),
-            rng.random_range(-PI..PI),
-            rng.random_range(-PI..PI),
-            rng.random_range(-1.0..1.0),
-        );
         b.sus.push(SuSpec {
             name: format!("su{k}"),
             segment: format!("link{k}"),
-            placement,
+            placement: su_row(rng),
         });
     }
     b.build().map_err(|e| SimulationError::InvalidSetting {
-        setting: "random chain",
+        setting: "serial chain",
         reason: e.to_string(),
     })
 }

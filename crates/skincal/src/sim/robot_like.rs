@@ -306,18 +306,12 @@ fn on_link(rng: &mut ChaCha8Rng, link: &Vector3<f64>) -> Isometry3<f64> {
 /// segment a few centimetres off its link, turned at random. The longest serial chains a skin
 /// covers: what the cost of one chain grows with.
 pub fn snake(dofs: usize, seed: u64) -> Result<Robot, SimulationError> {
-    if dofs == 0 {
-        return Err(SimulationError::InvalidSetting {
-            setting: "dofs",
-            reason: "a snake needs at least one DoF".into(),
-        });
-    }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut builder = RobotBuilder::new(format!("snake-{dofs}-{seed}"), "base");
-    for k in 1..=dofs {
-        let origin = if k == 1 {
-            PlacementSpec::identity()
-        } else {
+    super::serial_dh_chain(
+        format!("snake-{dofs}-{seed}"),
+        dofs,
+        &mut rng,
+        |rng, k| {
             let twist = if k % 2 == 0 { -FRAC_PI_2 } else { FRAC_PI_2 };
             PlacementSpec::dh(
                 rng.random_range(-0.3..0.3),
@@ -325,40 +319,16 @@ pub fn snake(dofs: usize, seed: u64) -> Result<Robot, SimulationError> {
                 rng.random_range(0.08..0.12),
                 twist,
             )
-        };
-        builder.dofs.push(DofSpec {
-            name: format!("dof{k}"),
-            parent: if k == 1 {
-                "base".into()
-            } else {
-                format!("link{}", k - 1)
-            },
-            child: format!("link{k}"),
-            origin,
-            axis: Vector3::z(),
-            kind: DofKind::Revolute,
-            limits: Limits::CONTINUOUS,
-            mimic: None,
-        });
-    }
-    for k in 1..=dofs {
-        builder.sus.push(SuSpec {
-            name: format!("su{k}"),
-            segment: format!("link{k}"),
-            placement: PlacementSpec::dh_sensor(
+        },
+        |rng| {
+            PlacementSpec::dh_sensor(
                 rng.random_range(-0.5..0.5),
                 rng.random_range(-0.03..0.03),
                 rng.random_range(0.03..0.06),
                 rng.random_range(-1.5..1.5),
                 rng.random_range(-0.5..0.5),
                 rng.random_range(-0.02..0.02),
-            ),
-        });
-    }
-    builder
-        .build()
-        .map_err(|e| SimulationError::InvalidSetting {
-            setting: "snake",
-            reason: e.to_string(),
-        })
+            )
+        },
+    )
 }
