@@ -8,7 +8,7 @@ use clap::Args;
 use skincal::estimate::body::calibrate_body;
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
-use skincal::sim::{self, Imperfections, SimulationConfig};
+use skincal::sim;
 
 use crate::out::outln;
 
@@ -42,22 +42,7 @@ struct Outcome {
 
 fn run(dofs: usize, args: &BenchChainArgs) -> Result<Outcome> {
     let robot = sim::snake(dofs, args.seed)?;
-    let simulation = SimulationConfig {
-        seed: args.seed,
-        poses: args.poses,
-        ..SimulationConfig::default()
-    };
-    let set = sim::simulate(&robot, &simulation)?.measurements;
-    let held_out = sim::simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            pose_seed: Some(1000 + args.seed),
-            imperfections: Imperfections::none(),
-            ..simulation.clone()
-        },
-    )?
-    .measurements;
+    let (set, held_out) = crate::bench_limbs::training_and_held_out(&robot, args.seed, args.poses)?;
     let structure = explore(&set, &ExploreConfig::default())?;
     let start = Instant::now();
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None)?;

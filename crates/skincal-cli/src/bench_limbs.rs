@@ -10,7 +10,9 @@ use skincal::estimate::body::calibrate_body;
 use skincal::estimate::limb::LimbData;
 use skincal::estimate::ml::{self, MlConfig};
 use skincal::explore::{explore, ExploreConfig};
+use skincal::measurements::MeasurementSet;
 use skincal::model::sensor::gravity_upright;
+use skincal::model::Robot;
 use skincal::sim::{self, Imperfections, RobotLikeConfig, SimulationConfig};
 
 use crate::out::{out, outln};
@@ -68,23 +70,7 @@ fn run(seed: u64, args: &BenchLimbsArgs) -> Result<Outcome> {
         max_sus_per_segment: args.sus_per_segment,
     };
     let robot = sim::robot_like_limb(&config, seed)?;
-    let simulation = SimulationConfig {
-        seed,
-        poses: args.poses,
-        ..SimulationConfig::default()
-    };
-    let set = sim::simulate(&robot, &simulation)?.measurements;
-    // The same limb in 20 other poses within its limits, noise-free.
-    let held_out = sim::simulate(
-        &robot,
-        &SimulationConfig {
-            structure: false,
-            pose_seed: Some(1000 + seed),
-            imperfections: Imperfections::none(),
-            ..simulation.clone()
-        },
-    )?
-    .measurements;
+    let (set, held_out) = training_and_held_out(&robot, seed, args.poses)?;
     let mut outcome = Outcome {
         name: robot.model.name().to_string(),
         dofs: robot.model.dofs().len(),
@@ -147,6 +133,32 @@ fn run(seed: u64, args: &BenchLimbsArgs) -> Result<Outcome> {
         }
     }
     Ok(outcome)
+}
+
+/// `robot`'s training set (structure and `poses` training poses, seed `seed`, the default
+/// noise) and 20 other poses within its limits, noise-free, to judge its calibration by.
+pub(crate) fn training_and_held_out(
+    robot: &Robot,
+    seed: u64,
+    poses: usize,
+) -> Result<(MeasurementSet, MeasurementSet)> {
+    let simulation = SimulationConfig {
+        seed,
+        poses,
+        ..SimulationConfig::default()
+    };
+    let set = sim::simulate(robot, &simulation)?.measurements;
+    let held_out = sim::simulate(
+        robot,
+        &SimulationConfig {
+            structure: false,
+            pose_seed: Some(1000 + seed),
+            imperfections: Imperfections::none(),
+            ..simulation
+        },
+    )?
+    .measurements;
+    Ok((set, held_out))
 }
 
 fn percentile(values: &[f64], q: f64) -> f64 {

@@ -646,22 +646,11 @@ impl SuBlock {
         let mut c = DMatrix::zeros(m, m);
         let mut b = DMatrix::zeros(self.own.ncols(), m);
         let mut gs = DVector::zeros(m);
-        // Rows `rows` of `m`'s columns `from..from + w`, column by column.
-        let gather = |m: &DMatrix<f64>, rows: &[usize], from: usize, w: usize| {
-            let mut out = DMatrix::zeros(rows.len(), w);
-            for (k, mut column) in out.column_iter_mut().enumerate() {
-                let source = m.column(from + k);
-                for (x, &r) in column.iter_mut().zip(rows) {
-                    *x = source[r];
-                }
-            }
-            out
-        };
         for ((lo, hi), rows) in self.shared_ranges() {
             let w = hi - lo;
-            let j = gather(&self.shared, &rows, lo, w);
-            let o = gather(&self.own, &rows, 0, self.own.ncols());
-            let r = DVector::from_iterator(rows.len(), rows.iter().map(|&i| self.r[i]));
+            let j = self.shared.columns(lo, w).select_rows(&rows);
+            let o = self.own.select_rows(&rows);
+            let r = self.r.select_rows(&rows);
             let j_t = j.transpose();
             c.view_mut((lo, lo), (w, w)).add_assign(&(&j_t * &j));
             b.view_mut((0, lo), (self.own.ncols(), w))

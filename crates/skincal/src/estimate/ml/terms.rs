@@ -249,6 +249,9 @@ pub(super) struct Chain<'a> {
     lifted: Vec<Isometry3<Dual64>>,
     gravity: Vector3<Dual64>,
     columns: Vec<Column>,
+    /// How many of the columns are each joint's, and how many gravity's.
+    joint_columns: Vec<usize>,
+    gravity_columns: usize,
 }
 
 impl<'a> Chain<'a> {
@@ -270,13 +273,24 @@ impl<'a> Chain<'a> {
                 Block::JointFull(k) => Column::Joint(k, joint_step(true, c)),
                 _ => Column::Other,
             })
-            .collect();
+            .collect::<Vec<_>>();
+        let mut joint_columns = vec![0; state.joints.len()];
+        let mut gravity_columns = 0;
+        for column in &columns {
+            match column {
+                Column::Gravity(_) => gravity_columns += 1,
+                Column::Joint(k, _) => joint_columns[*k] += 1,
+                Column::Other => {}
+            }
+        }
         Self {
             state,
             kinds,
             lifted: state.joints.iter().map(lift).collect(),
             gravity: state.gravity.map(Dual64::from),
             columns,
+            joint_columns,
+            gravity_columns,
         }
     }
 
@@ -357,21 +371,15 @@ impl<'a> Chain<'a> {
     /// gravity columns (when the instant has gravity) and the columns of the joints before it
     /// that the instant sees.
     fn rate_count(&self, first: usize, last: usize, instant: &Instant) -> usize {
-        let mut per_joint = vec![0; last.max(1)];
-        let mut gravity = 0;
-        for column in &self.columns {
-            match column {
-                Column::Gravity(_) => gravity += usize::from(instant.gravity),
-                Column::Joint(k, _) if *k < per_joint.len() && !instant.blind_to_joint(*k) => {
-                    per_joint[*k] += 1;
-                }
-                _ => {}
-            }
-        }
+        let gravity = if instant.gravity {
+            self.gravity_columns
+        } else {
+            0
+        };
         let (mut seen, mut total) = (0, 0);
         for s in first.max(1)..=last {
-            if s > first {
-                seen += per_joint[s - 1];
+            if s > first && !instant.blind_to_joint(s - 1) {
+                seen += self.joint_columns[s - 1];
             }
             total += gravity + seen;
         }
