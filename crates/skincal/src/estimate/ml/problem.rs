@@ -13,7 +13,9 @@
 use std::ops::AddAssign;
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix3, Matrix3x6, Translation3, UnitQuaternion, Vector3,
+};
 use rayon::prelude::*;
 
 use super::motion::{segment_terms, LimbMotion, MAX_DELAY};
@@ -424,7 +426,7 @@ impl<'a> SuFrame<'a> {
 
     /// The specific force at the SU of segment entry `s` of `terms` (segment frame): `c + N p`.
     fn field(&self, terms: &SegmentTerms, s: usize) -> Vector3<f64> {
-        terms.c[s] + terms.n[s] * self.p
+        terms.c(s) + terms.n(s) * self.p
     }
 
     /// What the SU reads of the field `v`: `K Rᵀ v`, plus its bias when `bias` (a reading, not
@@ -466,7 +468,7 @@ impl JacobianRows<'_> {
         shared: &mut DMatrix<f64>,
     ) {
         let v = su.field(terms, s);
-        let n = &terms.n[s];
+        let n = terms.n(s);
         let mut partials = None;
         let mut rate = |block: Block, c: usize| match block {
             Block::Su(v_) if v_ == self.u && c < 3 => Some(su.krt * v.cross(&Vector3::ith(c, 1.0))),
@@ -490,6 +492,14 @@ impl JacobianRows<'_> {
             shared
                 .fixed_view_mut::<3, 1>(self.row, *col)
                 .copy_from(&(d * self.scale));
+        }
+        if let Some((frame, twists)) = terms.frame_rates(s) {
+            let along = Matrix3x6::from_columns(&frame.map(|(dc, dn)| su.krt * (dc + dn * su.p)));
+            for (col, twist) in twists {
+                shared
+                    .fixed_view_mut::<3, 1>(self.row, col)
+                    .copy_from(&(along * twist * self.scale));
+            }
         }
     }
 }

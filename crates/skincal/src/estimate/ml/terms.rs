@@ -9,13 +9,26 @@
 //!
 //! The instants are a motion record's samples (gravity on), a pose's static reading (rates zero,
 //! gravity on) and the paper's dynamic reading of DoF `d` at a pose (its acceleration `α` alone,
-//! gravity off: the difference of two samples at one pose). The terms' derivatives along a joint
-//! line's columns come from dual numbers through the same code, each pass starting at its joint
-//! from the real pass's state and leaving out the instants that cannot see that joint (a dynamic
-//! reading of DoF `d` sees only the joints after `d`: `Instant::blind_to_joint`); along
-//! gravity they are `∂c_s = −R_sᵀ δg` (`N_s` does not see it).
+//! gravity off: the difference of two samples at one pose). Their derivatives along gravity are
+//! `∂c_s = −R_sᵀ δg` (`N_s` does not see it); along a joint line's columns they come from dual
+//! numbers through the same code, in one of two ways:
+//! - where no DoF from joint `k` on moves at the instant, a change of joint `k`'s frame moves
+//!   every later segment rigidly, with its motion: each segment's terms change as its frame moved
+//!   by the column's world twist (`k`'s frame · step · frame⁻¹). So each segment's terms are
+//!   differentiated once along the 6 unit world twists ([`FrameRates`]), each joint column's twist
+//!   is taken once per pose ([`JointTwists`]), and a rate is their product — the paper's static
+//!   and dynamic readings need nothing else, at a cost of the square of the chain's length, not
+//!   its cube;
+//! - otherwise (a motion record's samples, where later DoFs move), a pass down the chain per
+//!   column, starting at its joint from the real pass's state and leaving out the instants that
+//!   cannot see it (a dynamic reading of DoF `d` sees only the joints after `d`:
+//!   `Instant::blind_to_joint`) or that the first way serves.
 
-use nalgebra::{Isometry3, Matrix3, Quaternion, RealField, Translation3, UnitQuaternion, Vector3};
+use std::sync::Arc;
+
+use nalgebra::{
+    Isometry3, Matrix3, Quaternion, RealField, Translation3, UnitQuaternion, Vector3, Vector6,
+};
 use num_dual::Dual64;
 
 use super::problem::{gravity_directions, Block, Prefix};
@@ -82,6 +95,27 @@ impl<'a> Instant<'a> {
     fn blind_to_joint(&self, k: usize) -> bool {
         !self.gravity && self.moving_from >= k
     }
+
+    /// Whether a change of joint `k`'s frame moves everything after it rigidly at this instant
+    /// (no DoF from `k` on moves), so that each segment's terms change as its frame moved by that
+    /// joint's twist ([`SegmentTerms::frame_rates`]): no pass down the chain is needed.
+    fn rigid_after(&self, k: usize) -> bool {
+        self.rigid_from() <= k
+    }
+
+    /// The first joint the instant is rigid after: 0 when nothing moves.
+    fn rigid_from(&self) -> usize {
+        if self.moving_from >= self.moving_to {
+            0
+        } else {
+            self.moving_to
+        }
+    }
+
+    /// Whether the terms' rates along joint `k`'s columns need a pass down the chain.
+    fn needs_pass(&self, k: usize) -> bool {
+        !self.blind_to_joint(k) && !self.rigid_after(k)
+    }
 }
 
 /// The instants of a pose's readings: the static one, then the dynamic one of each DoF (its
@@ -121,21 +155,100 @@ impl ReadingInstants {
     }
 }
 
-/// Segment `s`'s `(c_s, N_s)` at one instant (index `s − 1`) and, per shared column that moves
-/// it (gravity, and the lines of joints up to `s`; every other column's are zero), their rates.
+/// Segment `s`'s `(c_s, N_s)` at one instant (entry `s − 1`) and their rates along the shared
+/// columns that move it (gravity, and the lines of joints up to `s`; every other column's are
+/// zero). Entries before `from` (the segments before a prefix's) are zero and not stored.
+///
+/// A joint's columns are given in one of two ways. Where the instant is rigid after the joint
+/// (`Instant::rigid_after`), a change of its frame moves the segment's frame by the joint's
+/// twist and nothing else, so the rates are the segment's [`FrameRates`] times the twist
+/// ([`JointTwists`]); elsewhere they are `rates`, from passes down the chain.
 pub(super) struct SegmentTerms {
-    pub c: Vec<Vector3<f64>>,
-    pub n: Vec<Matrix3<f64>>,
-    /// Every segment's rates, segment after segment.
+    from: usize,
+    /// Entries `from..`: `(c_s, N_s)` and where their rates lie in `rates`.
+    entries: Vec<Entry>,
+    /// Every stored segment's rates, segment after segment.
     rates: Vec<ColumnRate>,
-    /// Segment entry `e`'s rates are `rates[starts[e]..starts[e + 1]]`.
-    starts: Vec<usize>,
+    /// The first joint the instant is rigid after.
+    rigid_from: usize,
+    /// The frame rates of entries `frame_from..`, where a joint's twist reaches them.
+    frame_from: usize,
+    frame: Vec<FrameRates>,
+    twists: Arc<JointTwists>,
 }
 
+/// One segment's terms at one instant, and the range of its rates.
+#[derive(Clone)]
+struct Entry {
+    c: Vector3<f64>,
+    n: Matrix3<f64>,
+    rates: (u32, u32),
+}
+
+/// The rates of a segment's `(c_s, N_s)` as its frame moves by each unit world twist: turns
+/// about the reference axes `x, y, z`, then shifts along them (`p ↦ p + φ × p + t`, `(φ, t)`).
+pub(super) type FrameRates = [(Vector3<f64>, Matrix3<f64>); 6];
+
+/// The world twists `(φ, t)` of the joint columns at one pose, by joint: `(joint, column, twist)`
+/// in the order of the joints.
+#[derive(Default)]
+pub(super) struct JointTwists(Vec<(usize, usize, Vector6<f64>)>);
+
 impl SegmentTerms {
-    /// The rates `(column, ∂c_s, ∂N_s)` of segment entry `e` (segment `e + 1`).
+    /// Zero terms of entries `from..last`, room for `(rates, frames)` rates and frame rates, for
+    /// `instant`.
+    fn zeros(from: usize, last: usize, (rates, frames): (usize, usize), instant: &Instant) -> Self {
+        let entry = Entry {
+            c: Vector3::zeros(),
+            n: Matrix3::zeros(),
+            rates: (0, 0),
+        };
+        Self {
+            from,
+            entries: vec![entry; last.saturating_sub(from)],
+            rates: Vec::with_capacity(rates),
+            rigid_from: instant.rigid_from(),
+            frame_from: usize::MAX,
+            frame: Vec::with_capacity(frames),
+            twists: Arc::default(),
+        }
+    }
+
+    /// `c_s` of segment entry `e` (segment `e + 1`).
+    pub fn c(&self, e: usize) -> Vector3<f64> {
+        e.checked_sub(self.from)
+            .map_or_else(Vector3::zeros, |i| self.entries[i].c)
+    }
+
+    /// `N_s` of segment entry `e` (segment `e + 1`).
+    pub fn n(&self, e: usize) -> Matrix3<f64> {
+        e.checked_sub(self.from)
+            .map_or_else(Matrix3::zeros, |i| self.entries[i].n)
+    }
+
+    /// The rates `(column, ∂c_s, ∂N_s)` of segment entry `e` (segment `e + 1`) from passes down
+    /// the chain.
     pub fn rates(&self, e: usize) -> &[ColumnRate] {
-        &self.rates[self.starts[e]..self.starts[e + 1]]
+        match e.checked_sub(self.from) {
+            Some(i) => {
+                let (lo, hi) = self.entries[i].rates;
+                &self.rates[lo as usize..hi as usize]
+            }
+            None => &[],
+        }
+    }
+
+    /// Segment entry `e`'s frame rates and the twists `(column, (φ, t))` of the joint columns
+    /// they serve (the joints before the segment that the instant is rigid after), if any.
+    pub fn frame_rates(
+        &self,
+        e: usize,
+    ) -> Option<(&FrameRates, impl Iterator<Item = (usize, &Vector6<f64>)>)> {
+        let rates = self.frame.get(e.checked_sub(self.frame_from)?)?;
+        let twists = &self.twists.0;
+        let lo = twists.partition_point(|t| t.0 < self.rigid_from);
+        let hi = twists.partition_point(|t| t.0 <= e);
+        Some((rates, twists[lo..hi].iter().map(|(_, col, xi)| (*col, xi))))
     }
 }
 
@@ -153,9 +266,10 @@ struct Stage<T: RealField> {
 }
 
 impl<T: RealField> Stage<T> {
-    /// Whether this pass skips `instant`: its terms have no rate along the pass's joint.
+    /// Whether this pass skips `instant`: its terms have no rate along the pass's joint, or
+    /// their rates are the segment's frame rates times the joint's twist.
     fn skips(&self, instant: &Instant) -> bool {
-        self.along.is_some_and(|k| instant.blind_to_joint(k))
+        self.along.is_some_and(|k| !instant.needs_pass(k))
     }
 }
 
@@ -175,22 +289,11 @@ impl<T: RealField + Copy> Stage<T> {
             .into_inner()
             .transpose();
         let x = rt * self.segment.translation.vector;
-        let zero = Vector3::zeros();
         for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
-            let g = if instant.gravity { gravity } else { &zero };
             if self.skips(instant) {
                 continue;
             }
-            if instant.still(self.s) {
-                // A still segment with no gravity has no field, nor any rate of it.
-                if instant.gravity {
-                    emit(i, -(rt * g), Matrix3::zeros());
-                }
-            } else if instant.turning {
-                let (c, n) = motion.field_seen(&rt, &x, g);
-                emit(i, c, n);
-            } else {
-                let (c, n) = motion.field_seen_unturning(&rt, &x, g);
+            if let Some((c, n)) = seen(self.s, instant, motion, &rt, &x, gravity) {
                 emit(i, c, n);
             }
         }
@@ -215,7 +318,7 @@ impl<T: RealField + Copy> Stage<T> {
         for (motion, i) in self.motions.iter_mut().zip(instants) {
             // A DoF at rest adds nothing to the motion it carries on (exactly: every term of
             // `through` and `slide` is a multiple of its rate or acceleration).
-            let skipped = along.is_some_and(|j| i.blind_to_joint(j));
+            let skipped = along.is_some_and(|j| !i.needs_pass(j));
             if !skipped && (i.qd[k] != 0.0 || i.qdd[k] != 0.0) {
                 *motion = motion.moved_by(
                     kind,
@@ -228,6 +331,67 @@ impl<T: RealField + Copy> Stage<T> {
         }
         self.s = k + 1;
         self.segment = segment;
+    }
+}
+
+impl Stage<f64> {
+    /// The segment's [`FrameRates`] at each instant that `wanted`, passed to `emit` with the
+    /// instant's index: the same terms through dual numbers, the segment's frame moved by each
+    /// unit world twist and the motion held.
+    fn frame_rates(
+        &self,
+        instants: &[Instant],
+        gravity: &Vector3<f64>,
+        wanted: impl Fn(&Instant) -> bool,
+        mut emit: impl FnMut(usize, FrameRates),
+    ) {
+        let mut frames = None;
+        let gravity = gravity.map(Dual64::from);
+        for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
+            if !wanted(instant) {
+                continue;
+            }
+            let frames = frames.get_or_insert_with(|| {
+                let segment = lift(&self.segment);
+                (0..6)
+                    .map(|j| {
+                        let moved = unit_motion(j) * segment;
+                        let rt = moved.rotation.to_rotation_matrix().into_inner().transpose();
+                        (rt, rt * moved.translation.vector)
+                    })
+                    .collect::<Vec<_>>()
+            });
+            let motion = lift_motion(motion);
+            let mut rates = [(Vector3::zeros(), Matrix3::zeros()); 6];
+            for (rate, (rt, x)) in rates.iter_mut().zip(frames.iter()) {
+                if let Some((c, n)) = seen(self.s, instant, &motion, rt, x, &gravity) {
+                    *rate = (c.map(|v| v.eps), n.map(|v| v.eps));
+                }
+            }
+            emit(i, rates);
+        }
+    }
+}
+
+/// What the SUs of segment `s` read at `instant` of the field of its `motion`, seen through
+/// `rt` and `x` ([`BodyMotion::field_seen`]): `None` for a still segment without gravity.
+fn seen<T: RealField + Copy>(
+    s: usize,
+    instant: &Instant,
+    motion: &BodyMotion<T>,
+    rt: &Matrix3<T>,
+    x: &Vector3<T>,
+    gravity: &Vector3<T>,
+) -> Option<(Vector3<T>, Matrix3<T>)> {
+    let zero = Vector3::zeros();
+    let g = if instant.gravity { gravity } else { &zero };
+    if instant.still(s) {
+        // A still segment with no gravity has no field, nor any rate of it.
+        instant.gravity.then(|| (-(rt * g), Matrix3::zeros()))
+    } else if instant.turning {
+        Some(motion.field_seen(rt, x, g))
+    } else {
+        Some(motion.field_seen_unturning(rt, x, g))
     }
 }
 
@@ -251,6 +415,8 @@ pub(super) struct Chain<'a> {
     columns: Vec<Column>,
     /// How many of the columns are each joint's, and how many gravity's.
     joint_columns: Vec<usize>,
+    /// How many joint columns the joints before each joint have (one entry more than joints).
+    columns_before: Vec<usize>,
     gravity_columns: usize,
 }
 
@@ -289,6 +455,12 @@ impl<'a> Chain<'a> {
             lifted: state.joints.iter().map(lift).collect(),
             gravity: state.gravity.map(Dual64::from),
             columns,
+            columns_before: std::iter::once(0)
+                .chain(joint_columns.iter().scan(0, |sum, n| {
+                    *sum += n;
+                    Some(*sum)
+                }))
+                .collect(),
             joint_columns,
             gravity_columns,
         }
@@ -298,8 +470,10 @@ impl<'a> Chain<'a> {
     /// (`Rz(q)` or `Tz(q)` per DoF), and their rates along the chain's columns. From `prefix`, the frames
     /// before its segment are taken from it, and the segments before it get zero terms.
     ///
-    /// One pass down the chain: at each joint, the passes of the columns of its line start from
-    /// the real stage (lifted to dual numbers), and every pass moves on with the real one.
+    /// One pass down the chain. At each joint, its columns' world twists are taken, and the
+    /// passes of its columns start from the real stage (lifted to dual numbers) for the instants
+    /// that are not rigid after it; every pass moves on with the real one. At each segment, its
+    /// terms, their frame rates where a twist reaches them, and the passes' rates.
     pub fn terms(
         &self,
         turns: &[Isometry3<f64>],
@@ -308,24 +482,17 @@ impl<'a> Chain<'a> {
         last: usize,
     ) -> Vec<SegmentTerms> {
         let (first, mut stage) = self.start(prefix, instants);
+        let from = first.max(1) - 1;
         let mut out: Vec<SegmentTerms> = instants
             .iter()
-            .map(|i| SegmentTerms {
-                c: vec![Vector3::zeros(); last],
-                n: vec![Matrix3::zeros(); last],
-                rates: Vec::with_capacity(self.rate_count(first, last, i)),
-                starts: vec![0; last + 1],
-            })
+            .map(|i| SegmentTerms::zeros(from, last, self.rate_count(first, last, i), i))
             .collect();
         let mut passes: Vec<(usize, usize, Stage<Dual64>)> = Vec::new();
+        let mut twists = JointTwists::default();
         for s in first.max(1)..=last {
             if s > first {
                 let k = s - 1;
-                for (col, column) in self.columns.iter().enumerate() {
-                    if matches!(column, Column::Joint(j, _) if *j == k) {
-                        passes.push((col, k, lift_stage(&stage, k)));
-                    }
-                }
+                self.begin_joint(k, &stage, instants, &mut passes, &mut twists);
                 let kind = self.kinds[k];
                 stage.advance(k, kind, &self.state.joints[k], None, &turns[k], instants);
                 let turn = lift(&turns[k]);
@@ -337,53 +504,114 @@ impl<'a> Chain<'a> {
                     pass.advance(k, kind, &self.lifted[k], step, &turn, instants);
                 }
             }
-            for o in &mut out {
-                o.starts[s - 1] = o.rates.len();
-            }
-            stage.terms(instants, &self.state.gravity, |i, c, n| {
-                out[i].c[s - 1] = c;
-                out[i].n[s - 1] = n;
-            });
-            for (col, column) in self.columns.iter().enumerate() {
-                let Column::Gravity(dir) = column else {
-                    continue;
-                };
-                let dc = -stage.segment.rotation.inverse_transform_vector(dir);
-                for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
-                    o.rates.push((col, dc, Matrix3::zeros()));
-                }
-            }
-            for (col, _, pass) in &passes {
-                pass.terms(instants, &self.gravity, |i, c, n| {
-                    out[i]
-                        .rates
-                        .push((*col, c.map(|x| x.eps), n.map(|x| x.eps)));
-                });
-            }
-            for o in &mut out {
-                o.starts[s] = o.rates.len();
-            }
+            self.segment(s - 1, first, &stage, &passes, instants, &mut out);
+        }
+        let twists = Arc::new(twists);
+        for o in &mut out {
+            o.twists = twists.clone();
         }
         out
     }
 
-    /// The most rates the terms of segments `first..=last` hold at `instant`: per segment, the
-    /// gravity columns (when the instant has gravity) and the columns of the joints before it
-    /// that the instant sees.
-    fn rate_count(&self, first: usize, last: usize, instant: &Instant) -> usize {
+    /// Joint `k`'s columns where the real pass reaches it (`stage`, on segment `k`): their world
+    /// twists, and a pass of each when an instant is not rigid after the joint.
+    fn begin_joint(
+        &self,
+        k: usize,
+        stage: &Stage<f64>,
+        instants: &[Instant],
+        passes: &mut Vec<(usize, usize, Stage<Dual64>)>,
+        twists: &mut JointTwists,
+    ) {
+        let frame = stage.segment * self.state.joints[k];
+        let pass = instants.iter().any(|i| i.needs_pass(k));
+        for (col, column) in self.columns.iter().enumerate() {
+            let Column::Joint(j, step) = column else {
+                continue;
+            };
+            if *j == k {
+                twists.0.push((k, col, twist(&frame, step)));
+                if pass {
+                    passes.push((col, k, lift_stage(stage, k)));
+                }
+            }
+        }
+    }
+
+    /// Segment entry `entry`'s terms at every instant into `out`, with their rates: along
+    /// gravity, the frame rates where a joint's twist reaches the segment, and the passes'.
+    fn segment(
+        &self,
+        entry: usize,
+        first: usize,
+        stage: &Stage<f64>,
+        passes: &[(usize, usize, Stage<Dual64>)],
+        instants: &[Instant],
+        out: &mut [SegmentTerms],
+    ) {
+        let e = entry - out.first().map_or(0, |o| o.from);
+        for o in out.iter_mut() {
+            o.entries[e].rates.0 = o.rates.len() as u32;
+        }
+        stage.terms(instants, &self.state.gravity, |i, c, n| {
+            out[i].entries[e].c = c;
+            out[i].entries[e].n = n;
+        });
+        for (col, column) in self.columns.iter().enumerate() {
+            let Column::Gravity(dir) = column else {
+                continue;
+            };
+            let dc = -stage.segment.rotation.inverse_transform_vector(dir);
+            for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
+                o.rates.push((col, dc, Matrix3::zeros()));
+            }
+        }
+        let reached = |i: &Instant| self.reached(entry, first, i);
+        stage.frame_rates(instants, &self.state.gravity, reached, |i, rates| {
+            let o = &mut out[i];
+            if o.frame.is_empty() {
+                o.frame_from = entry;
+            }
+            o.frame.push(rates);
+        });
+        for (col, _, pass) in passes {
+            pass.terms(instants, &self.gravity, |i, c, n| {
+                out[i]
+                    .rates
+                    .push((*col, c.map(|x| x.eps), n.map(|x| x.eps)));
+            });
+        }
+        for o in out.iter_mut() {
+            o.entries[e].rates.1 = o.rates.len() as u32;
+        }
+    }
+
+    /// Whether a joint twist reaches segment entry `entry` at `instant`: a joint column before
+    /// it (from `first`) that the instant is rigid after.
+    fn reached(&self, entry: usize, first: usize, instant: &Instant) -> bool {
+        let lo = instant.rigid_from().max(first).min(entry + 1);
+        self.columns_before[entry + 1] > self.columns_before[lo]
+    }
+
+    /// How many rates the passes and gravity give the terms of segments `first..=last` at
+    /// `instant` (per segment, the gravity columns when the instant has gravity, and the
+    /// columns of the joints before it that need a pass at the instant), and how many segments
+    /// get frame rates.
+    fn rate_count(&self, first: usize, last: usize, instant: &Instant) -> (usize, usize) {
         let gravity = if instant.gravity {
             self.gravity_columns
         } else {
             0
         };
-        let (mut seen, mut total) = (0, 0);
+        let (mut seen, mut total, mut frames) = (0, 0, 0);
         for s in first.max(1)..=last {
-            if s > first && !instant.blind_to_joint(s - 1) {
+            if s > first && instant.needs_pass(s - 1) {
                 seen += self.joint_columns[s - 1];
             }
             total += gravity + seen;
+            frames += usize::from(self.reached(s - 1, first, instant));
         }
-        total
+        (total, frames)
     }
 
     /// The first segment of a pass and its stage: the reference segment, still, or `prefix`'s
@@ -466,9 +694,32 @@ fn lift_motion(m: &BodyMotion<f64>) -> BodyMotion<Dual64> {
 /// retraction applies it) with the dual unit in that component: rotations as `(1, ε/2)`
 /// quaternions, exact to first order (a rotation vector's norm has no derivative at zero).
 fn joint_step(full: bool, c: usize) -> Isometry3<Dual64> {
-    let mut x = [Dual64::from(0.0); 6];
     // Joint: (rx, ry, x, y); full: (rx, ry, rz, x, y, z).
-    let slot = if full { c } else { [0, 1, 3, 4][c] };
+    unit_motion(if full { c } else { [0, 1, 3, 4][c] })
+}
+/// The world twist `(φ, t)` of the local motion `step` (dual unit in one component) of the joint
+/// frame `frame`: everything after the joint moves by `frame · step · frame⁻¹`, to first order
+/// `p ↦ p + φ × p + t`.
+fn twist(frame: &Isometry3<f64>, step: &Isometry3<Dual64>) -> Vector6<f64> {
+    let frame = lift(frame);
+    let moved = frame * step * frame.inverse();
+    let q = moved.rotation.quaternion();
+    let t = moved.translation.vector;
+    Vector6::new(
+        2.0 * q.i.eps,
+        2.0 * q.j.eps,
+        2.0 * q.k.eps,
+        t.x.eps,
+        t.y.eps,
+        t.z.eps,
+    )
+}
+
+/// The first-order motion with the dual unit in component `slot` of `(rx, ry, rz, x, y, z)`: a
+/// turn `(1, ε e_j / 2)` about axis `j = slot < 3`, a shift `ε e_{slot−3}` otherwise (the unit
+/// world twists of [`FrameRates`], and a joint column's local motion).
+fn unit_motion(slot: usize) -> Isometry3<Dual64> {
+    let mut x = [Dual64::from(0.0); 6];
     x[slot] = Dual64::new(0.0, 1.0);
     let half = Dual64::from(0.5);
     Isometry3::from_parts(
