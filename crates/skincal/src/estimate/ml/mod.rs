@@ -44,8 +44,10 @@
 //!    (a Wahba problem, solved by SVD); when gravity does not turn (a vertical axis upstream) the
 //!    rotation about the axis is searched over a low-discrepancy set of angles.
 //! 3. The joint's position follows linearly from the accelerations that upstream DoFs cause.
-//! 4. Every candidate (both signs of the axis, every searched angle) is refined by LM on the
-//!    segment's data; the best is kept. Finally the whole chain is refined jointly.
+//! 4. Every candidate (both signs of the axis, every searched angle, from each state of the beam)
+//!    is refined by LM on the segment's data, as a race: after a few iterations, those tens of
+//!    times above the best so far stop (they sit in another basin, which LM leaves slowly if at
+//!    all); the best few are kept. Finally the whole chain is refined jointly.
 //!
 //! **Convergence** (`band.rs`). A fit is at the noise level when its residual ratio lies within
 //! the band a right model stays in at the data's size (`√(χ²_ν(0.999)/ν)`: 1.02 σ at 10 000
@@ -115,8 +117,8 @@ use crate::model::intrinsics::{Intrinsics, INTRINSIC_NAMES};
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
-    covariance, frames, normal_system, prefixes, retract, retract_columns, solve, turns_of, Block,
-    ColumnMap, Layout, Prefix, Readings, Solved, Spec,
+    covariance, frames, normal_system, prefixes, resume, retract, retract_columns, solve, turns_of,
+    Block, ColumnMap, Layout, Prefix, Readings, Solved, Spec,
 };
 
 /// Settings of the maximum-likelihood estimator.

@@ -1309,6 +1309,18 @@ pub(super) struct Solved {
     pub state: ChainState,
     pub cost: f64,
     pub iterations: usize,
+    /// Where the solve stood when it reached its cap of iterations (`None` when it stopped
+    /// before): [`resume`] goes on from there as if it had not stopped.
+    pub capped: Option<Lm>,
+}
+
+/// Where Levenberg–Marquardt stands between iterations: the cost at its state, its damping and
+/// the iterations taken.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Lm {
+    cost: f64,
+    lambda: f64,
+    iterations: usize,
 }
 
 /// Levenberg–Marquardt with Marquardt scaling from `state`: stops when an accepted step lowers the
@@ -1330,12 +1342,55 @@ pub(super) fn solve(
         spec,
         shared: (0..shared).collect(),
     };
-    let (mut states, cost, iterations) =
-        solve_together(vec![member], shared, sigma, max_iterations, tolerance);
+    let (mut states, lm, stopped) = solve_members(
+        vec![member],
+        shared,
+        (sigma, tolerance),
+        max_iterations,
+        None,
+    );
     Solved {
         state: states.remove(0),
-        cost,
-        iterations,
+        cost: lm.cost,
+        iterations: lm.iterations,
+        capped: (!stopped).then_some(lm),
+    }
+}
+
+/// `solved` (from [`solve`] on the same problem) carried on to `max_iterations` in all, exactly
+/// as one solve to that cap would have gone.
+pub(super) fn resume(
+    solved: Solved,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+    max_iterations: usize,
+    tolerance: f64,
+) -> Solved {
+    let Some(lm) = solved.capped else {
+        return solved;
+    };
+    let shared = ColumnMap::new(spec).shared.len();
+    let member = Member {
+        state: solved.state,
+        layout,
+        data,
+        spec,
+        shared: (0..shared).collect(),
+    };
+    let (mut states, lm, stopped) = solve_members(
+        vec![member],
+        shared,
+        (sigma, tolerance),
+        max_iterations,
+        Some(lm),
+    );
+    Solved {
+        state: states.remove(0),
+        cost: lm.cost,
+        iterations: lm.iterations,
+        capped: (!stopped).then_some(lm),
     }
 }
 
@@ -1354,12 +1409,25 @@ pub(super) struct Member<'a> {
 /// shared columns solved as one system of `shared` columns ([`solve`] for one problem). Returns
 /// the members' states, the cost and the iterations.
 pub(super) fn solve_together(
-    mut members: Vec<Member>,
+    members: Vec<Member>,
     shared: usize,
     sigma: f64,
     max_iterations: usize,
     tolerance: f64,
 ) -> (Vec<ChainState>, f64, usize) {
+    let (states, lm, _) = solve_members(members, shared, (sigma, tolerance), max_iterations, None);
+    (states, lm.cost, lm.iterations)
+}
+
+/// [`solve_together`] from `from` (where an earlier run on the same members stood) or afresh;
+/// also whether it stopped before its cap.
+fn solve_members(
+    mut members: Vec<Member>,
+    shared: usize,
+    (sigma, tolerance): (f64, f64),
+    max_iterations: usize,
+    from: Option<Lm>,
+) -> (Vec<ChainState>, Lm, bool) {
     let maps: Vec<ColumnMap> = members.iter().map(|m| ColumnMap::new(m.spec)).collect();
     let columns: Vec<Vec<(usize, usize)>> = members.iter().map(|m| m.spec.columns()).collect();
     let normals = |members: &[Member]| -> Vec<Normal> {
@@ -1370,9 +1438,16 @@ pub(super) fn solve_together(
             .collect()
     };
     let mut normal = normals(&members);
-    let mut cost: f64 = normal.iter().map(|n| n.cost).sum();
-    let mut lambda: f64 = 1e-3;
-    let mut iterations = 0;
+    let Lm {
+        mut cost,
+        mut lambda,
+        mut iterations,
+    } = from.unwrap_or(Lm {
+        cost: normal.iter().map(|n| n.cost).sum(),
+        lambda: 1e-3,
+        iterations: 0,
+    });
+    let mut stopped = false;
     while iterations < max_iterations {
         iterations += 1;
         let mut improved = false;
@@ -1416,15 +1491,19 @@ pub(super) fn solve_together(
             }
         }
         if !improved {
+            stopped = true;
             break;
         }
-        normal = normals(&members);
+        if iterations < max_iterations {
+            normal = normals(&members);
+        }
     }
-    (
-        members.into_iter().map(|m| m.state).collect(),
+    let lm = Lm {
         cost,
+        lambda,
         iterations,
-    )
+    };
+    (members.into_iter().map(|m| m.state).collect(), lm, stopped)
 }
 
 /// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.

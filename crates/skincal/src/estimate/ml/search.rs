@@ -161,6 +161,11 @@ pub(super) const ORDER_RETRIES: usize = 5;
 pub(super) const WIDER_BEAM: usize = 16;
 pub(super) const WIDER_ANGLES: usize = 4;
 
+/// The iterations every candidate of a joint's search runs before the race drops those far
+/// behind the best ([`Search::race`]), and how far is far: times the best cost.
+pub(super) const RACE_ITERATIONS: usize = 12;
+pub(super) const RACE_MARGIN: f64 = 4.0;
+
 /// The order of the DoFs inside every joint that has several, from the closed-form axis model:
 /// per such joint its index and every order (relative to the input's) with its misfit, best first,
 /// and how it is reported. Reordering one joint permutes only its own DoF indices, so the input's
@@ -477,13 +482,7 @@ impl<'a> Search<'a> {
                 }
             }
         }
-        let solved: Vec<(Solved, f64, usize)> = candidates
-            .into_par_iter()
-            .map(|c| {
-                let (solved, its) = self.joint_then_lines(c.state, span, &caches[c.beam]);
-                (solved, c.cost, its)
-            })
-            .collect();
+        let solved = self.race(candidates, span, &caches);
         let mut iterations: usize = solved.iter().map(|s| s.2).sum();
         let ranked = solved
             .into_iter()
@@ -495,15 +494,60 @@ impl<'a> Search<'a> {
         (beam, iterations)
     }
 
+    /// Every candidate of the joint of `span` refined ([`Search::joint_then_lines`]) with its
+    /// beam entry's cost and its iterations, as a race: each runs [`RACE_ITERATIONS`] first, and
+    /// only those not done then whose cost is within [`RACE_MARGIN`] times the best so far go on
+    /// (a candidate in another basin ends tens of times above the best, after many iterations).
+    pub(super) fn race(
+        &self,
+        candidates: Vec<Candidate>,
+        span: &Span,
+        caches: &[std::sync::Arc<Vec<Prefix>>],
+    ) -> Vec<(Solved, f64, usize)> {
+        let max = self.config.max_iterations;
+        let first: Vec<(Solved, f64, usize, usize)> = candidates
+            .into_par_iter()
+            .map(|c| {
+                let (solved, its) =
+                    self.joint_then_lines(c.state, span, &caches[c.beam], RACE_ITERATIONS.min(max));
+                (solved, c.cost, its, c.beam)
+            })
+            .collect();
+        let best = first.iter().map(|s| s.0.cost).fold(f64::INFINITY, f64::min);
+        first
+            .into_par_iter()
+            .map(|(solved, cost, its, beam)| {
+                if solved.cost > RACE_MARGIN * best {
+                    return (solved, cost, its);
+                }
+                let before = solved.iterations;
+                let spec = self.lines_spec(span, &caches[beam]);
+                let solved = resume(
+                    solved,
+                    &self.layout,
+                    &self.readings,
+                    &spec,
+                    self.config.noise_sd,
+                    max,
+                    INIT_TOLERANCE,
+                );
+                let its = its + solved.iterations - before;
+                (solved, cost, its)
+            })
+            .collect()
+    }
+
     /// One candidate of the joint of `span`: first its frame alone (a few iterations), then the
-    /// joint's lines with its segment's first SU. Returns the solution and the iterations.
+    /// joint's lines with its segment's first SU (at most `max` iterations). Returns the
+    /// solution and the iterations.
     pub(super) fn joint_then_lines(
         &self,
         state: ChainState,
         span: &Span,
         cache: &std::sync::Arc<Vec<Prefix>>,
+        max: usize,
     ) -> (Solved, usize) {
-        let (k0, k1, u) = (span.k0, span.k1, span.sus[0]);
+        let (k0, u) = (span.k0, span.sus[0]);
         let frame = Spec {
             blocks: vec![Block::JointFull(k0)],
             held: vec![],
@@ -511,16 +555,81 @@ impl<'a> Search<'a> {
             prefix: Some(cache.clone()),
         };
         let first = self.solve(state, &frame, self.config.max_iterations.min(10));
-        let mut blocks: Vec<Block> = (k0..=k1).map(Block::Joint).collect();
-        blocks.push(Block::Su(u));
-        let lines = Spec {
-            blocks,
-            held: vec![],
-            sus: vec![u],
-            prefix: Some(cache.clone()),
-        };
-        let second = self.solve(first.state, &lines, self.config.max_iterations);
+        let second = self.solve(first.state, &self.lines_spec(span, cache), max);
         let iterations = first.iterations + second.iterations;
         (second, iterations)
+    }
+
+    /// The problem of the lines of the joint of `span` with its segment's first SU.
+    fn lines_spec(&self, span: &Span, cache: &std::sync::Arc<Vec<Prefix>>) -> Spec {
+        let mut blocks: Vec<Block> = (span.k0..=span.k1).map(Block::Joint).collect();
+        blocks.push(Block::Su(span.sus[0]));
+        Spec {
+            blocks,
+            held: vec![],
+            sus: vec![span.sus[0]],
+            prefix: Some(cache.clone()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimate::SerialChain;
+    use crate::sim::{simulate, SimulationConfig};
+
+    /// A solve stopped at its cap and resumed ends exactly where one solve to the larger cap
+    /// ends (so the race changes nothing for the candidates it lets go on).
+    #[test]
+    fn a_resumed_solve_equals_one_solve_to_the_same_cap() {
+        let robot = crate::model::presets::find("paper-7dof")
+            .unwrap()
+            .robot()
+            .unwrap();
+        let set = simulate(&robot, &SimulationConfig::default())
+            .unwrap()
+            .measurements;
+        let chain = SerialChain {
+            name: "arm".into(),
+            dofs: robot.model.dof_names(),
+            sus: robot.model.su_names(),
+        };
+        let data = LimbData::serial(&set, &chain).unwrap();
+        let config = MlConfig::default();
+        let search = Search::new(&data, &config);
+        // The whole chain from the empty state: far from its minimum, so no solve stops early.
+        let mut blocks = vec![Block::Gravity];
+        blocks.extend((1..7).map(Block::Joint));
+        blocks.extend((0..7).map(Block::Su));
+        let spec = Spec {
+            blocks,
+            held: vec![],
+            sus: (0..7).collect(),
+            prefix: None,
+        };
+        let mut start = search.empty.clone();
+        start.gravity = Vector3::new(0.0, 0.0, -9.81);
+        let whole = search.solve(start.clone(), &spec, 9);
+        let part = search.solve(start, &spec, 4);
+        assert_eq!(part.iterations, 4);
+        assert!(
+            part.capped.is_some(),
+            "the first part stopped before its cap"
+        );
+        let part_cost = part.cost;
+        let resumed = resume(
+            part,
+            &search.layout,
+            &search.readings,
+            &spec,
+            config.noise_sd,
+            9,
+            INIT_TOLERANCE,
+        );
+        assert_eq!(resumed.iterations, whole.iterations);
+        assert_eq!(resumed.cost, whole.cost);
+        assert_eq!(resumed.state, whole.state);
+        assert!(resumed.iterations > 4 && resumed.cost < part_cost);
     }
 }
