@@ -545,3 +545,57 @@ fn a_limb_given_a_wrong_tree_is_never_reported_converged() {
         wrong.residual_ratio
     );
 }
+
+/// A 15-DoF limb whose joints of 3 and 2 DoFs both start in a wrong order (their closed-form
+/// misfits nearly tie): one joint's better order alone leaves it at 2.5 σ, so the other's orders
+/// are tried on top of it, and the fit reaches the noise level.
+#[test]
+fn two_joints_in_a_wrong_order_are_both_put_right() {
+    let config = RobotLikeConfig {
+        min_dofs: 15,
+        max_dofs: 15,
+        max_sus_per_segment: 1,
+    };
+    let robot = robot_like_limb(&config, 1).unwrap();
+    assert!(
+        robot.model.name().starts_with("like-H1-A1-P3-I2"),
+        "{}",
+        robot.model.name()
+    );
+    let simulation = SimulationConfig {
+        seed: 1,
+        ..SimulationConfig::default()
+    };
+    let set = simulate(&robot, &simulation).unwrap().measurements;
+    let held_out = simulate(
+        &robot,
+        &SimulationConfig {
+            structure: false,
+            pose_seed: Some(1001),
+            imperfections: Imperfections::none(),
+            ..simulation
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let estimate = &model.limbs[0].estimate;
+    assert!(
+        estimate.converged,
+        "residual {:.2} σ after {:?}",
+        estimate.residual_ratio, estimate.retries
+    );
+    assert!(
+        estimate.retries.len() > 1,
+        "the orders were retried: {:?}",
+        estimate.retries
+    );
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    assert!(
+        check.static_rms < 0.05 && check.dynamic_rms < 0.05,
+        "held-out static {:.3}, dynamic {:.3} m/s²",
+        check.static_rms,
+        check.dynamic_rms
+    );
+}

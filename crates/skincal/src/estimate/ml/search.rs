@@ -62,7 +62,9 @@ pub(super) struct Retries {
 impl Retries {
     /// The closed-form order of a joint's DoFs may be wrong (joint limits narrow what its axes
     /// show): the next orders of each joint in turn ([`ORDER_RETRIES`]), each fitted by `fit`
-    /// from the choice of orders, until one is `done`; `best` the best of them.
+    /// from the choice of orders, until one is `done`; `best` the best of them. Each joint's
+    /// orders are tried with the orders that fitted best so far for the others (two joints'
+    /// orders may both be wrong).
     pub(super) fn other_orders(
         &mut self,
         best: &mut MlChainEstimate,
@@ -71,12 +73,14 @@ impl Retries {
         done: impl Fn(&MlChainEstimate) -> bool,
         fit: impl Fn(&[usize]) -> Result<MlChainEstimate, EstimateError>,
     ) -> Result<(), EstimateError> {
+        let mut best_choice = vec![0; orders.len()];
         for (n, (j, tried)) in orders.iter().enumerate() {
+            let base = best_choice.clone();
             for (c, (order, _)) in tried.iter().enumerate().skip(1).take(ORDER_RETRIES) {
                 if done(best) {
                     return Ok(());
                 }
-                let mut choice = vec![0; orders.len()];
+                let mut choice = base.clone();
                 choice[n] = c;
                 let names: Vec<String> = order
                     .iter()
@@ -88,7 +92,9 @@ impl Retries {
                     data.chain.joints[*j].id,
                     names.join(", ")
                 );
-                self.keep_better(best, alternative, what);
+                if self.keep_better(best, alternative, what) {
+                    best_choice = choice;
+                }
             }
         }
         Ok(())
@@ -135,21 +141,24 @@ impl Retries {
         Ok(())
     }
 
-    /// Notes what was tried (`what`) with its residual and keeps the better of the two.
+    /// Notes what was tried (`what`) with its residual and keeps the better of the two;
+    /// whether that is the alternative.
     pub(super) fn keep_better(
         &mut self,
         best: &mut MlChainEstimate,
         alternative: MlChainEstimate,
         what: String,
-    ) {
+    ) -> bool {
         self.iterations += alternative.iterations;
         self.notes.push(format!(
             "{what}: residual {:.2} σ (was {:.2} σ)",
             alternative.residual_ratio, best.residual_ratio
         ));
-        if alternative.residual_ratio < best.residual_ratio {
+        let better = alternative.residual_ratio < best.residual_ratio;
+        if better {
             *best = alternative;
         }
+        better
     }
 }
 
