@@ -1452,31 +1452,15 @@ fn solve_members(
         iterations += 1;
         let mut improved = false;
         for _ in 0..40 {
-            let parts: Vec<(&Normal, &ColumnMap, &[usize])> = normal
-                .iter()
-                .zip(&maps)
-                .zip(&members)
-                .map(|((n, map), m)| (n, map, m.shared.as_slice()))
-                .collect();
-            let Some(steps) = schur_step(&parts, shared, lambda) else {
+            let problems = (members.as_slice(), maps.as_slice(), columns.as_slice());
+            let Some((trials, trial_cost, step_norm)) =
+                damped_step(problems, &normal, shared, sigma, lambda)
+            else {
                 lambda *= 10.0;
                 continue;
             };
-            let trials: Vec<ChainState> = members
-                .iter()
-                .zip(&columns)
-                .zip(&steps)
-                .map(|((m, columns), step)| retract_columns(&m.state, m.spec, columns, step))
-                .collect();
-            let trial_cost: f64 = trials
-                .iter()
-                .zip(&members)
-                .zip(&maps)
-                .map(|((t, m), map)| cost_of(t, m.layout, m.data, m.spec, map, sigma))
-                .sum();
             if trial_cost < cost {
                 let relative = (cost - trial_cost) / cost.max(1e-300);
-                let step_norm = steps.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
                 for (m, t) in members.iter_mut().zip(trials) {
                     m.state = t;
                 }
@@ -1504,6 +1488,42 @@ fn solve_members(
         iterations,
     };
     (members.into_iter().map(|m| m.state).collect(), lm, stopped)
+}
+
+/// Problems solved together: the members, their column maps and the columns of their specs.
+type Problems<'a, 'b> = (&'a [Member<'b>], &'a [ColumnMap], &'a [Vec<(usize, usize)>]);
+
+/// The members' states after the step damped by `lambda` from their normal equations
+/// `normal`, their cost and the step's norm; `None` where the damped system is not positive
+/// definite.
+fn damped_step(
+    (members, maps, columns): Problems,
+    normal: &[Normal],
+    shared: usize,
+    sigma: f64,
+    lambda: f64,
+) -> Option<(Vec<ChainState>, f64, f64)> {
+    let parts: Vec<(&Normal, &ColumnMap, &[usize])> = normal
+        .iter()
+        .zip(maps)
+        .zip(members)
+        .map(|((n, map), m)| (n, map, m.shared.as_slice()))
+        .collect();
+    let steps = schur_step(&parts, shared, lambda)?;
+    let trials: Vec<ChainState> = members
+        .iter()
+        .zip(columns)
+        .zip(&steps)
+        .map(|((m, columns), step)| retract_columns(&m.state, m.spec, columns, step))
+        .collect();
+    let cost = trials
+        .iter()
+        .zip(members)
+        .zip(maps)
+        .map(|((t, m), map)| cost_of(t, m.layout, m.data, m.spec, map, sigma))
+        .sum();
+    let step_norm = steps.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+    Some((trials, cost, step_norm))
 }
 
 /// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.
