@@ -1334,27 +1334,8 @@ pub(super) fn solve(
     max_iterations: usize,
     tolerance: f64,
 ) -> Solved {
-    let shared = ColumnMap::new(spec).shared.len();
-    let member = Member {
-        state,
-        layout,
-        data,
-        spec,
-        shared: (0..shared).collect(),
-    };
-    let (mut states, lm, stopped) = solve_members(
-        vec![member],
-        shared,
-        (sigma, tolerance),
-        max_iterations,
-        None,
-    );
-    Solved {
-        state: states.remove(0),
-        cost: lm.cost,
-        iterations: lm.iterations,
-        capped: (!stopped).then_some(lm),
-    }
+    let member = Member::whole(state, layout, data, spec);
+    solve_single(member, (sigma, tolerance), max_iterations, None)
 }
 
 /// `solved` (from [`solve`] on the same problem) carried on to `max_iterations` in all, exactly
@@ -1371,21 +1352,20 @@ pub(super) fn resume(
     let Some(lm) = solved.capped else {
         return solved;
     };
-    let shared = ColumnMap::new(spec).shared.len();
-    let member = Member {
-        state: solved.state,
-        layout,
-        data,
-        spec,
-        shared: (0..shared).collect(),
-    };
-    let (mut states, lm, stopped) = solve_members(
-        vec![member],
-        shared,
-        (sigma, tolerance),
-        max_iterations,
-        Some(lm),
-    );
+    let member = Member::whole(solved.state, layout, data, spec);
+    solve_single(member, (sigma, tolerance), max_iterations, Some(lm))
+}
+
+/// One problem solved from `from` or afresh ([`solve_members`]) under `(sigma, tolerance)`.
+fn solve_single(
+    member: Member,
+    criteria: (f64, f64),
+    max_iterations: usize,
+    from: Option<Lm>,
+) -> Solved {
+    let shared = member.shared.len();
+    let (mut states, lm, stopped) =
+        solve_members(vec![member], shared, criteria, max_iterations, from);
     Solved {
         state: states.remove(0),
         cost: lm.cost,
@@ -1403,6 +1383,19 @@ pub(super) struct Member<'a> {
     pub data: &'a Readings,
     pub spec: &'a Spec,
     pub shared: Vec<usize>,
+}
+
+impl<'a> Member<'a> {
+    /// A problem solved alone at `state`: every shared column its own.
+    fn whole(state: ChainState, layout: &'a Layout, data: &'a Readings, spec: &'a Spec) -> Self {
+        Self {
+            state,
+            layout,
+            data,
+            spec,
+            shared: (0..ColumnMap::new(spec).shared.len()).collect(),
+        }
+    }
 }
 
 /// Levenberg–Marquardt on the sum of the members' costs, their SU blocks eliminated and their
