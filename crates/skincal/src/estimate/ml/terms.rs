@@ -504,7 +504,7 @@ impl<'a> Chain<'a> {
                     pass.advance(k, kind, &self.lifted[k], step, &turn, instants);
                 }
             }
-            self.segment(s - 1, first, &stage, &passes, instants, &mut out);
+            self.segment(s - 1, (first, from), &stage, &passes, instants, &mut out);
         }
         let twists = Arc::new(twists);
         for o in &mut out {
@@ -540,16 +540,17 @@ impl<'a> Chain<'a> {
 
     /// Segment entry `entry`'s terms at every instant into `out`, with their rates: along
     /// gravity, the frame rates where a joint's twist reaches the segment, and the passes'.
+    /// `first`: the chain's first segment (a prefix's); `from`: the first entry `out` stores.
     fn segment(
         &self,
         entry: usize,
-        first: usize,
+        (first, from): (usize, usize),
         stage: &Stage<f64>,
         passes: &[(usize, usize, Stage<Dual64>)],
         instants: &[Instant],
         out: &mut [SegmentTerms],
     ) {
-        let e = entry - out.first().map_or(0, |o| o.from);
+        let e = entry - from;
         for o in out.iter_mut() {
             o.entries[e].rates.0 = o.rates.len() as u32;
         }
