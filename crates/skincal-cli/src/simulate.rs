@@ -37,6 +37,10 @@ pub(crate) struct SimulateArgs {
     /// Record the structure experiment in the upright orientation only (no 90° tilt).
     #[arg(long)]
     no_tilt: bool,
+    /// Also record N training poses with the reference segment tilted 90° about x (base
+    /// orientation 1): they tell how SUs turn about a vertical first axis.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    tilted_poses: usize,
     /// Excitation pattern velocity amplitude A, rad/s.
     #[arg(long, default_value_t = 0.5)]
     amplitude: f64,
@@ -138,6 +142,7 @@ pub(crate) fn simulate(args: SimulateArgs) -> Result<()> {
         pose_range: args.pose_range,
         structure_angle: args.structure_angle,
         tilted_orientation: !args.no_tilt,
+        tilted_poses: args.tilted_poses,
         pattern: ExcitationPattern {
             amplitude: args.amplitude,
             frequency: args.frequency,

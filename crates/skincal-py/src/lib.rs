@@ -255,6 +255,7 @@ impl Measurements {
                                 .collect()
                         })
                         .unwrap_or_default(),
+                    orientation: 0,
                     extra: Default::default(),
                 }
             })

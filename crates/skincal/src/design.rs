@@ -312,6 +312,7 @@ impl Exact {
                 .collect(),
             dynamic,
             static_sd: Some(vec![noise.static_sd; nu]),
+            orientation: 0,
             extra: Default::default(),
         }
     }

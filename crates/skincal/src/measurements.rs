@@ -210,10 +210,60 @@ pub struct TrainingPose {
     /// The same for the dynamic readings, per excited DoF.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub dynamic_sd: BTreeMap<String, Vec<f64>>,
+    /// The base orientation the reference segment stood in: 0 (absent) for the set's usual one,
+    /// 1, 2, … for poses recorded with the reference segment turned otherwise (the robot's base
+    /// tilted on its mount). Each other orientation has its own gravity in the fit; its static
+    /// readings tell what gravity along the first axis cannot (a segment's turn about it).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub orientation: usize,
     /// Unknown fields, kept as written.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
+
+/// Training poses in other base orientations: fewer than [`MAX_ORIENTATIONS`], each numbered
+/// without a gap, and some poses in the usual one (0), which the fit starts from.
+fn check_orientations(t: &TrainingExperiment) -> Result<(), MeasurementError> {
+    let mut count = [0usize; MAX_ORIENTATIONS];
+    for (p, tp) in t.poses.iter().enumerate() {
+        match count.get_mut(tp.orientation) {
+            Some(n) => *n += 1,
+            None => {
+                return Err(MeasurementError::InvalidValue {
+                    field: format!("training.poses[{p}].orientation"),
+                    reason: format!(
+                        "{} is not a base orientation: number them 0 (the usual one) to {}",
+                        tp.orientation,
+                        MAX_ORIENTATIONS - 1
+                    ),
+                })
+            }
+        }
+    }
+    if count[0] == 0 {
+        return Err(MeasurementError::InvalidValue {
+            field: "training.poses".into(),
+            reason: "has no pose in base orientation 0: the usual orientation is the one the fit starts from, so number the orientation most poses were recorded in 0".into(),
+        });
+    }
+    if let Some(gap) = (1..MAX_ORIENTATIONS).find(|&o| count[o] > 0 && count[o - 1] == 0) {
+        return Err(MeasurementError::InvalidValue {
+            field: "training.poses".into(),
+            reason: format!(
+                "has poses in base orientation {gap} but none in {}: number the orientations without a gap",
+                gap - 1
+            ),
+        });
+    }
+    Ok(())
+}
+
+pub(crate) fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+/// The most base orientations a training experiment may have (the usual one and seven others).
+pub const MAX_ORIENTATIONS: usize = 8;
 
 impl MeasurementSet {
     /// An empty set for these DoFs and SUs.
@@ -451,7 +501,7 @@ impl MeasurementSet {
             }
             self.check_deviations(&base, tp)?;
         }
-        Ok(())
+        check_orientations(t)
     }
 
     /// A training pose's standard deviations: one positive number per SU, dynamic ones only for

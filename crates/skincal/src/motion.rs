@@ -482,6 +482,7 @@ impl MotionRecord {
                     dynamic: Default::default(),
                     static_sd: Some(sd),
                     dynamic_sd: Default::default(),
+                    orientation: 0,
                     extra: Default::default(),
                 })
             })

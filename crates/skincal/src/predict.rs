@@ -44,6 +44,16 @@ pub enum PredictError {
     /// The measurement set has no training experiment to compare with.
     #[error("the measurement set has no training experiment (`training`) to compare with")]
     NoTraining,
+    /// A pose of the set stood in a base orientation the model was not calibrated in.
+    #[error("{set}: training.poses[{pose}] stood in base orientation {orientation}, which the model's training had no poses in, so the gravity there is unknown: compare poses of the orientations it was calibrated in")]
+    Orientation {
+        /// The pose's index.
+        pose: usize,
+        /// Its base orientation.
+        orientation: usize,
+        /// The set compared with.
+        set: String,
+    },
 }
 
 /// Joint positions by DoF name: the `--poses` input of `skincal predict`.
@@ -157,6 +167,9 @@ pub struct Predictor {
     robot: Robot,
     /// Gravity (body frame) per SU of the robot.
     gravity: Vec<Vector3<f64>>,
+    /// `other_gravity[o − 1]`: the same in base orientation `o` of the training poses, for each
+    /// orientation every SU's calibration had.
+    other_gravity: Vec<Vec<Vector3<f64>>>,
     /// Accelerometer intrinsics per SU of the robot (ideal where the model has none).
     intrinsics: Vec<Intrinsics>,
     /// DoFs of the robot's measurement set that the model does not calibrate: a pose may name
@@ -177,6 +190,14 @@ impl Predictor {
     /// Checks the model and builds its robot.
     pub fn new(model: &BodyModel) -> Result<Self, PredictError> {
         let robot = model.check().map_err(PredictError::Model)?;
+        let names = robot.model.su_names();
+        let other_gravity = (1..)
+            .map(|o| {
+                let by_su = model.gravity_by_su_in(o);
+                names.iter().map(|s| by_su.get(s).copied()).collect()
+            })
+            .map_while(|g: Option<Vec<_>>| g)
+            .collect();
         let by_su = model.gravity_by_su();
         let gravity = robot
             .model
@@ -209,6 +230,7 @@ impl Predictor {
         Ok(Self {
             robot,
             gravity,
+            other_gravity,
             intrinsics,
             ignored,
         })
@@ -269,12 +291,36 @@ impl Predictor {
     /// }
     /// ```
     pub fn readings(&self, q: &[f64], pattern: &ExcitationPattern) -> PoseReadings {
+        self.readings_with(q, pattern, &self.gravity)
+    }
+
+    /// Readings in pose `q` with the reference segment in base orientation `o` of the training
+    /// poses (0: the usual one); `None` for an orientation the calibration had no poses in.
+    pub fn readings_in(
+        &self,
+        q: &[f64],
+        pattern: &ExcitationPattern,
+        o: usize,
+    ) -> Option<PoseReadings> {
+        let gravity = match o {
+            0 => &self.gravity,
+            _ => self.other_gravity.get(o - 1)?,
+        };
+        Some(self.readings_with(q, pattern, gravity))
+    }
+
+    fn readings_with(
+        &self,
+        q: &[f64],
+        pattern: &ExcitationPattern,
+        gravity: &[Vector3<f64>],
+    ) -> PoseReadings {
         let m = &self.robot.model;
         let k = forward_kinematics(m, &self.robot.parameters, q);
         let statics = k
             .sus
             .iter()
-            .zip(&self.gravity)
+            .zip(gravity)
             .zip(&self.intrinsics)
             .map(|((frame, g), i)| i.read(&specific_force(frame, &Vector3::zeros(), g)))
             .collect();
@@ -514,9 +560,15 @@ fn compare_readings(
     let training = set.training.as_ref().ok_or(PredictError::NoTraining)?;
     let (dofs, sus) = (predictor.dofs(), predictor.sus());
     let (dof_col, su_col) = columns_in(&dofs, &sus, set, source)?;
-    for pose in &training.poses {
+    for (p, pose) in training.poses.iter().enumerate() {
         let q: Vec<f64> = dof_col.iter().map(|&c| pose.q[c]).collect();
-        let r = predictor.readings(&q, &training.pattern);
+        let r = predictor
+            .readings_in(&q, &training.pattern, pose.orientation)
+            .ok_or_else(|| PredictError::Orientation {
+                pose: p,
+                orientation: pose.orientation,
+                set: source.to_string(),
+            })?;
         for (u, predicted) in r.statics.iter().enumerate() {
             visit(Compared {
                 su: u,

@@ -657,3 +657,57 @@ fn an_su_the_tree_puts_on_the_wrong_segment_is_named_as_misplaced_with_the_segme
     assert_eq!(model.broken.len(), 1, "{:?}", model.broken);
     assert!(model.limbs.iter().all(|l| l.estimate.converged));
 }
+
+#[test]
+fn a_humanoid_trained_upright_and_tilted_predicts_both_orientations_exactly() {
+    // 20 upright poses and 6 with the torso tilted 90°: every limb (and each tree of limbs in one
+    // fit) gets a gravity for the tilted poses; the torso's own SUs keep a reading per
+    // orientation. Noise-free, held-out poses in both orientations are predicted exactly.
+    let robot = presets::find("humanoid").unwrap().robot().unwrap();
+    let tilted = |seed: u64, structure: bool| SimulationConfig {
+        tilted_poses: 6,
+        structure,
+        ..noise_free(seed)
+    };
+    let set = simulate(&robot, &tilted(1, true)).unwrap().measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete);
+    let config = MlConfig {
+        noise_sd: 1e-6,
+        ..MlConfig::default()
+    };
+    let model = calibrate_body(&set, Some(&structure), &config, None).unwrap();
+    for limb in &model.limbs {
+        assert!(limb.estimate.converged, "{}", limb.name);
+        assert_eq!(limb.other_gravities.len(), 1, "{}", limb.name);
+    }
+    let held_out = simulate(&robot, &tilted(99, false)).unwrap().measurements;
+    let poses = &held_out.training.as_ref().unwrap().poses;
+    assert_eq!(poses.iter().filter(|p| p.orientation == 1).count(), 6);
+    let check = validate(&model, &held_out, "held-out").unwrap();
+    assert_eq!(check.poses, 26);
+    // Exactly, to the fits' tolerance (a wrong frame of a gravity would be off by m/s²).
+    assert!(check.static_max < 1e-5, "static {:e}", check.static_max);
+    assert!(check.dynamic_max < 1e-5, "dynamic {:e}", check.dynamic_max);
+    assert_eq!(check.sus.len(), robot.model.sus().len());
+    // A model trained upright alone knows no tilted gravity: such poses are refused by name.
+    let upright = calibrate_body(
+        &simulate(&robot, &noise_free(1)).unwrap().measurements,
+        Some(&structure),
+        &config,
+        None,
+    )
+    .unwrap();
+    let err = validate(&upright, &held_out, "held-out").unwrap_err();
+    assert!(
+        matches!(
+            err,
+            PredictError::Orientation {
+                pose: 20,
+                orientation: 1,
+                ..
+            }
+        ),
+        "{err}"
+    );
+}

@@ -123,6 +123,28 @@ fn every_broken_invariant_is_named() {
         e.to_string().contains("no dynamic readings of that DoF"),
         "{e}"
     );
+    // Base orientations: numbered from the usual one (0) without a gap, at most 8.
+    let e = broken(|v| v["training"]["poses"][2]["orientation"] = 8.into());
+    assert!(
+        e.to_string()
+            .starts_with("training.poses[2].orientation: 8 is not a base orientation"),
+        "{e}"
+    );
+    let e = broken(|v| v["training"]["poses"][2]["orientation"] = 2.into());
+    assert!(
+        e.to_string()
+            .contains("has poses in base orientation 2 but none in 1"),
+        "{e}"
+    );
+    let e = broken(|v| {
+        for p in v["training"]["poses"].as_array_mut().unwrap() {
+            p["orientation"] = 1.into();
+        }
+    });
+    assert!(
+        e.to_string().contains("has no pose in base orientation 0"),
+        "{e}"
+    );
 }
 
 #[test]

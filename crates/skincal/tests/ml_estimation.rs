@@ -388,3 +388,62 @@ fn the_dh_tables_standard_deviations_describe_the_spread_over_data_sets() {
     );
     assert!((0.7..1.4).contains(&rms), "{rms}");
 }
+
+#[test]
+fn training_poses_with_the_base_tilted_tell_the_turn_about_a_vertical_first_axis() {
+    // Upright, gravity runs along the paper arm's first axis: how far su1 is turned about that
+    // axis relative to su2 no reading tells. With 8 of the poses recorded with the base tilted
+    // 90° (a gravity of their own in the fit, which is not told the tilt), it is told; where
+    // along the axis su1 sits no accelerometer ever tells (a point turning about a fixed axis
+    // accelerates the same at every height along it).
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let sim = simulate(
+        &truth,
+        &SimulationConfig {
+            tilted_poses: 8,
+            ..SimulationConfig::default()
+        },
+    )
+    .unwrap();
+    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    assert_eq!(data.orientations(), 2);
+    let e = estimate_limb(&data, None, &MlConfig::default()).unwrap();
+    assert!(e.converged, "residual {}", e.residual_ratio);
+    // The tilted gravity: 9.81 m/s², a quarter turn from the upright one (the simulator's tilt).
+    assert_eq!(e.other_gravities.len(), 1);
+    let (g0, g1) = (
+        Vector3::from(e.gravity),
+        Vector3::from(e.other_gravities[0]),
+    );
+    assert!((g1.norm() - 9.81).abs() < 0.02, "{g1}");
+    let angle = g0.angle(&g1).to_degrees();
+    assert!((angle - 90.0).abs() < 0.3, "{angle}°");
+    // su1 → su2: only the position along the first axis is left undetermined.
+    let pair = &e.uncertainty[1];
+    assert_eq!(
+        (
+            pair.undetermined_position.len(),
+            pair.undetermined_orientation.len()
+        ),
+        (1, 0),
+        "{pair:?}"
+    );
+    // And the turn it now gives is the truth's: su1's frame relative to su2's at the zero pose.
+    let relative = |robot: &skincal::model::Robot| {
+        let k = skincal::model::forward_kinematics(&robot.model, &robot.parameters, &[0.0; 7]);
+        k.sus[1].rotation.inverse() * k.sus[0].rotation
+    };
+    let error = (relative(&e.to_robot()).inverse() * relative(&truth)).angle();
+    assert!(error.to_degrees() < 0.5, "{}°", error.to_degrees());
+    // Upright alone, the same turn is the gauge's choice, nowhere near the truth.
+    let upright = estimate_limb(&data.usual_orientation(), None, &MlConfig::default()).unwrap();
+    let guessed = (relative(&upright.to_robot()).inverse() * relative(&truth)).angle();
+    assert!(guessed.to_degrees() > 2.0, "{}°", guessed.to_degrees());
+    eprintln!(
+        "tilted poses: residual {:.3} σ, gravities {angle:.3}° apart, |g1| {:.4} m/s²; su1 turn relative to su2 off by {:.3}° (upright alone: {:.1}°)",
+        e.residual_ratio,
+        g1.norm(),
+        error.to_degrees(),
+        guessed.to_degrees()
+    );
+}

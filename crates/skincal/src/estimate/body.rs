@@ -79,6 +79,10 @@ pub struct BodyLimb {
     pub base_frame: Frame,
     /// Gravity in the body's reference frame, m/s².
     pub gravity: [f64; 3],
+    /// Gravity in the body's reference frame in base orientations 1, 2, … of the training poses,
+    /// m/s² (empty: every pose in the usual one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_gravities: Vec<[f64; 3]>,
     /// The DoFs it estimates, along the chain.
     pub dofs: Vec<String>,
     /// The SUs it estimates.
@@ -94,6 +98,9 @@ pub struct StaticSu {
     pub su: String,
     /// Its mean static reading over the training poses, m/s².
     pub reading: [f64; 3],
+    /// Its mean static reading in base orientations 1, 2, … of the training poses, m/s².
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_readings: Vec<[f64; 3]>,
 }
 
 /// A DoF or SU of the measurement set that the model does not calibrate.
@@ -221,17 +228,34 @@ impl BodyModel {
 
     /// Gravity (body frame) that each SU of the model reads, by SU name.
     pub fn gravity_by_su(&self) -> BTreeMap<String, Vector3<f64>> {
+        self.gravity_by_su_in(0)
+    }
+
+    /// Gravity (body frame) that each SU of the model reads in base orientation `o` of its
+    /// training poses (0: the usual one), by SU name; an SU whose calibration had no pose in
+    /// that orientation is left out.
+    pub fn gravity_by_su_in(&self, o: usize) -> BTreeMap<String, Vector3<f64>> {
         let mut out = BTreeMap::new();
         for limb in &self.limbs {
-            for su in &limb.sus {
-                out.insert(su.clone(), Vector3::from(limb.gravity));
+            let gravity = match o {
+                0 => Some(limb.gravity),
+                _ => limb.other_gravities.get(o - 1).copied(),
+            };
+            for su in gravity.iter().flat_map(|_| &limb.sus) {
+                out.insert(su.clone(), Vector3::from(gravity.unwrap_or_default()));
             }
         }
         for s in &self.static_sus {
-            out.insert(
-                s.su.clone(),
-                Vector3::new(0.0, 0.0, -Vector3::from(s.reading).norm()),
-            );
+            let usual = Vector3::from(s.reading);
+            let read = match o {
+                0 => Some(usual),
+                _ => s.other_readings.get(o - 1).map(|r| Vector3::from(*r)),
+            };
+            // The SU sits turned so that its usual reading points along z (`assemble`).
+            let turn = turn_onto(&usual, &Vector3::z());
+            if let Some(read) = read {
+                out.insert(s.su.clone(), -(turn * read));
+            }
         }
         out
     }
@@ -613,14 +637,20 @@ fn reference_sus(
         .iter()
         .filter_map(|su| {
             let u = set.sus.iter().position(|n| n == su)?;
-            let readings: Vec<Vector3<f64>> = training
-                .poses
-                .iter()
-                .map(|p| Vector3::from(p.static_readings[u]))
-                .collect();
+            let mean_in = |o: usize| {
+                let readings: Vec<Vector3<f64>> = training
+                    .poses
+                    .iter()
+                    .filter(|p| p.orientation == o)
+                    .map(|p| Vector3::from(p.static_readings[u]))
+                    .collect();
+                robust_mean(&readings, 6.0 * config.noise_sd).into()
+            };
+            let orientations = training.poses.iter().map(|p| p.orientation).max();
             Some(StaticSu {
                 su: su.clone(),
-                reading: robust_mean(&readings, 6.0 * config.noise_sd).into(),
+                reading: mean_in(0),
+                other_readings: (1..=orientations.unwrap_or(0)).map(mean_in).collect(),
             })
         })
         .collect()
@@ -997,13 +1027,22 @@ fn assemble(
     let mut builder = RobotBuilder::new("calibrated", reference);
     let mut limbs: Vec<BodyLimb> = Vec::new();
     for (estimate, parent) in estimates.into_iter().zip(parents) {
-        let (base, body_gravity) = match &parent {
-            None => upright_base(&Vector3::from(estimate.gravity)),
+        let (base, body_gravity, other_gravities) = match &parent {
+            None => {
+                let (base, gravity) = upright_base(&Vector3::from(estimate.gravity));
+                let others = estimate
+                    .other_gravities
+                    .iter()
+                    .map(|g| (base.rotation * Vector3::from(*g)).into())
+                    .collect();
+                (base, gravity, others)
+            }
             Some(p) => {
                 let parent = limbs.iter().find(|l| &l.name == p).expect("parents first");
                 (
                     parent.base_frame.to_isometry(),
                     Vector3::from(parent.gravity),
+                    parent.other_gravities.clone(),
                 )
             }
         };
@@ -1014,6 +1053,7 @@ fn assemble(
             parent,
             base_frame: Frame::from_isometry(&base),
             gravity: body_gravity.into(),
+            other_gravities,
             dofs: chain.dofs()[chain.base_dofs()..].to_vec(),
             sus: chain.sus(),
             estimate,

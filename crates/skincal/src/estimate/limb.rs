@@ -227,6 +227,9 @@ pub struct LimbData {
     /// excitation that was not recorded or not found in a log); its `dynamics` entry is zero and
     /// no fit uses it. `[p][u][0]` is always `false`. Empty: nothing is missing.
     pub missing: Vec<Vec<Vec<bool>>>,
+    /// `orientation[p]`: the base orientation of pose `p` (0 the usual one; each other one has its
+    /// own gravity). Empty: every pose in the usual one.
+    pub orientation: Vec<usize>,
 }
 
 impl LimbData {
@@ -253,7 +256,9 @@ impl LimbData {
         let mut dynamics = Vec::new();
         let mut missing = Vec::new();
         let mut sd = Some(Vec::new());
+        let mut orientation = Vec::new();
         for pose in &training.poses {
+            orientation.push(pose.orientation);
             sd = sd
                 .zip(pose_sd(pose, &su_index, &su_depth, &dofs))
                 .map(|(mut all, this)| {
@@ -281,6 +286,11 @@ impl LimbData {
             pattern: training.pattern,
             sd,
             missing,
+            orientation: if orientation.iter().any(|&o| o > 0) {
+                orientation
+            } else {
+                Vec::new()
+            },
         };
         if !training.from_motion {
             data.check_excited()?;
@@ -355,6 +365,51 @@ impl LimbData {
     /// Number of poses.
     pub fn poses(&self) -> usize {
         self.q.len()
+    }
+
+    /// The base orientation of pose `p` (0: the usual one).
+    pub fn orientation_of(&self, p: usize) -> usize {
+        self.orientation.get(p).copied().unwrap_or(0)
+    }
+
+    /// How many base orientations the poses were recorded in (1: the usual one only).
+    pub fn orientations(&self) -> usize {
+        self.orientation.iter().max().map_or(1, |&o| o + 1)
+    }
+
+    /// The poses recorded in the usual base orientation (0) alone.
+    pub fn usual_orientation(&self) -> Self {
+        self.poses_where(|o| o == 0)
+    }
+
+    /// The poses recorded in the other base orientations (1, 2, …) alone.
+    pub fn other_orientations(&self) -> Self {
+        self.poses_where(|o| o > 0)
+    }
+
+    /// The poses whose base orientation `keep` keeps.
+    fn poses_where(&self, keep: impl Fn(usize) -> bool) -> Self {
+        let keep: Vec<usize> = (0..self.poses())
+            .filter(|&p| keep(self.orientation_of(p)))
+            .collect();
+        fn pick<T: Clone>(v: &[T], keep: &[usize]) -> Vec<T> {
+            if v.is_empty() {
+                Vec::new()
+            } else {
+                keep.iter().map(|&p| v[p].clone()).collect()
+            }
+        }
+        Self {
+            chain: self.chain.clone(),
+            q: pick(&self.q, &keep),
+            su_depth: self.su_depth.clone(),
+            statics: pick(&self.statics, &keep),
+            dynamics: pick(&self.dynamics, &keep),
+            pattern: self.pattern,
+            sd: self.sd.as_ref().map(|sd| pick(sd, &keep)),
+            missing: pick(&self.missing, &keep),
+            orientation: pick(&self.orientation, &keep),
+        }
     }
 
     /// The same data with the DoFs of joint `joint` in the order `order` (indices into its DoFs).

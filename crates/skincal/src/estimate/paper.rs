@@ -262,6 +262,14 @@ pub fn estimate_chain(
     config: &PaperConfig,
 ) -> Result<PaperChainEstimate, EstimateError> {
     validate(config)?;
+    // The paper's method has one gravity: poses recorded in another base orientation are left out.
+    let usual;
+    let data = if data.orientations() > 1 {
+        usual = data.usual_orientation();
+        &usual
+    } else {
+        data
+    };
     let chain = &papers_chain(data)?;
     let n_dofs = chain.dofs.len();
     let largest = match n_dofs {

@@ -157,6 +157,7 @@ pub(crate) fn carried_start(
             sus,
             intrinsics,
             skin_delay: 0.0,
+            other_gravities: Vec::new(),
         },
     ))
 }

@@ -11,7 +11,7 @@ use super::timeline::Grid;
 use super::{base, ExcitationFit, IngestConfig, IngestError, IngestReport, Ingested, LogReport};
 use crate::measurements::{
     MeasurementSet, Move, Orientation, Reading, StructureExperiment, TrainingExperiment,
-    TrainingPose,
+    TrainingPose, MAX_ORIENTATIONS,
 };
 use crate::model::sensor::ExcitationPattern;
 
@@ -23,6 +23,8 @@ struct Station {
     pose: Vec<f64>,
     /// Index of the structure group (only for stations without excitations).
     group: Option<usize>,
+    /// The base orientation of a training station (0: the one most training poses stood in).
+    orientation: usize,
 }
 
 /// Everything the passes over the logs found, for assembling.
@@ -147,6 +149,7 @@ fn stations(segs: &[Segmentation], config: &IngestConfig) -> (Vec<Station>, usiz
                         excitations: Vec::new(),
                         pose: pose.clone(),
                         group: Some(g),
+                        orientation: 0,
                     });
                     current = Some(stations.len() - 1);
                 }
@@ -321,6 +324,7 @@ fn training_pose(
         dynamic: readings.dynamic,
         static_sd,
         dynamic_sd: readings.dynamic_sd,
+        orientation: st.orientation,
         extra: Map::new(),
     })
 }
@@ -685,7 +689,7 @@ pub(super) fn assemble(
         ));
     }
     let (stations, group_count) = stations(passes.segs, passes.config);
-    let stations = training_in_one_base(&mut passes, stations);
+    let stations = training_orientations(&mut passes, stations);
     let sample_noise = sample_noise(&mut passes);
     let orientations = orientations(&mut passes, &stations, group_count);
     let poses = training_poses(&mut passes, &stations, &pattern)?;
@@ -754,10 +758,12 @@ pub(super) fn assemble(
     })
 }
 
-/// The stations without the training poses of logs whose base stood otherwise than in the logs
-/// with most training poses (each such log warned of and marked): the training is fitted with
-/// one gravity. Their structure stations stay (another orientation of the structure part).
-fn training_in_one_base(passes: &mut Passes<'_>, stations: Vec<Station>) -> Vec<Station> {
+/// The stations with the training poses of logs whose base stood otherwise than in the logs with
+/// most training poses numbered as base orientations 1, 2, … (each such log named and marked: the
+/// fit gives each orientation a gravity of its own, and the motion record leaves their samples
+/// out). Their structure stations stay (another orientation of the structure part). Beyond
+/// [`MAX_ORIENTATIONS`], a log's training poses are left out, with a warning.
+fn training_orientations(passes: &mut Passes<'_>, mut stations: Vec<Station>) -> Vec<Station> {
     let mut trained: Vec<usize> = stations
         .iter()
         .filter(|s| !s.excitations.is_empty())
@@ -795,28 +801,45 @@ fn training_in_one_base(passes: &mut Passes<'_>, stations: Vec<Station>) -> Vec<
         return stations;
     };
     let first_kept = (0..classes.len()).find(|&l| classes[l] == Some(kept));
-    let other = |log: usize| classes[log].is_some_and(|c| c != kept);
-    for log in trained.into_iter().filter(|&l| other(l)) {
-        let left = stations
+    let others: Vec<usize> = poses.keys().copied().filter(|&c| c != kept).collect();
+    let orientation_of = |log: usize| {
+        let c = classes[log]?;
+        (c != kept).then(|| 1 + others.iter().position(|&o| o == c).unwrap_or(0))
+    };
+    for log in trained {
+        let Some(o) = orientation_of(log) else {
+            continue;
+        };
+        let count = stations
             .iter()
             .filter(|s| s.log == log && !s.excitations.is_empty())
             .count();
-        let warning = format!(
-            "{}: its {left} training poses are left out: the robot's base stood otherwise than \
-             in {} (at one joint pose held in both, the SUs' gravity readings turned by more \
-             than {:.0}°), and the training poses are fitted with one gravity. Its structure \
-             moves count as another base orientation; record the training in one orientation (`skincal record --part \
-             structure` for the others), or ingest each orientation's training on its own",
-            passes.path(log),
-            first_kept.map_or_else(|| "the other logs".into(), |l| passes.path(l)),
-            base::OTHER_BASE.to_degrees()
-        );
-        passes.warnings.push(warning);
+        let message = if o < MAX_ORIENTATIONS {
+            format!(
+                "{}: its {count} training poses stood in another base orientation than {} (at \
+                 one joint pose held in both, the SUs' gravity readings turned by more than \
+                 {:.0}°): kept as base orientation {o}, fitted with a gravity of their own; the \
+                 fit on every sample leaves this log's samples out",
+                passes.path(log),
+                first_kept.map_or_else(|| "the other logs".into(), |l| passes.path(l)),
+                base::OTHER_BASE.to_degrees()
+            )
+        } else {
+            format!(
+                "{}: its {count} training poses are left out: they stood in a base orientation \
+                 beyond the {MAX_ORIENTATIONS} a set may have; ingest fewer orientations at once",
+                passes.path(log)
+            )
+        };
+        passes.warnings.push(message);
         passes.reports[log].other_base = true;
+    }
+    for s in stations.iter_mut().filter(|s| !s.excitations.is_empty()) {
+        s.orientation = orientation_of(s.log).unwrap_or(0);
     }
     stations
         .into_iter()
-        .filter(|s| s.excitations.is_empty() || !other(s.log))
+        .filter(|s| s.excitations.is_empty() || s.orientation < MAX_ORIENTATIONS)
         .collect()
 }
 

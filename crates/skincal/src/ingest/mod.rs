@@ -319,8 +319,10 @@ pub struct LogReport {
     pub pauses: usize,
     /// Single-DoF excitations found.
     pub excitations: usize,
-    /// Its training poses were left out: the robot's base stood otherwise than in the logs whose
-    /// training poses the set holds (the fit has one gravity); its structure moves count.
+    /// Its robot's base stood otherwise than in the logs with most training poses: its training
+    /// poses are another base orientation of the set (`training.poses[p].orientation`), and
+    /// the motion record, fitted with one gravity, leaves its samples out; its structure moves
+    /// count.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub other_base: bool,
     /// Single-DoF structure moves found.

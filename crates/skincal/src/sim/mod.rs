@@ -233,6 +233,11 @@ pub struct SimulationConfig {
     pub structure_angle: f64,
     /// Repeat the structure experiment with the reference segment tilted 90° about x.
     pub tilted_orientation: bool,
+    /// Training poses recorded, after the `poses` upright ones, with the reference segment
+    /// tilted 90° about x (base orientation 1 of the set): what gravity along a vertical first
+    /// axis cannot tell, a turn about it, the tilted gravity tells.
+    #[serde(default, skip_serializing_if = "crate::measurements::is_zero")]
+    pub tilted_poses: usize,
     /// The excitation pattern.
     pub pattern: ExcitationPattern,
     /// Sensor imperfections.
@@ -304,6 +309,7 @@ impl Default for SimulationConfig {
             pose_range: 2.62,
             structure_angle: crate::plan::STRUCTURE_ANGLE,
             tilted_orientation: true,
+            tilted_poses: 0,
             pattern: ExcitationPattern::default(),
             imperfections: Imperfections::default(),
             seed: 1,
@@ -387,6 +393,10 @@ pub struct Truth {
     pub orientations: Vec<BaseOrientation>,
     /// Gravity in the reference frame during training, m/s².
     pub training_gravity: [f64; 3],
+    /// Gravity in the reference frame during the training poses recorded tilted (base
+    /// orientation 1), m/s²; absent without such poses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilted_training_gravity: Option<[f64; 3]>,
     /// Each SU's accelerometer intrinsics (bias m/s², scale, misalignment rad), in SU order.
     #[serde(default)]
     pub su_intrinsics: Vec<Intrinsics>,
@@ -612,13 +622,21 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
         ));
     }
     let training_gravity = gravity_upright();
+    let tilted_gravity = Vector3::from(BaseOrientation::tilted().gravity);
     if config.training {
-        let poses = (0..config.poses)
+        let mut poses: Vec<TrainingPose> = (0..config.poses)
             .map(|_| {
                 let q = training_angles(model, &mut pose_rng, config.pose_range);
                 training_pose(robot, &mut sensors, q, &training_gravity, config)
             })
             .collect();
+        poses.extend((0..config.tilted_poses).map(|_| {
+            let q = training_angles(model, &mut pose_rng, config.pose_range);
+            TrainingPose {
+                orientation: 1,
+                ..training_pose(robot, &mut sensors, q, &tilted_gravity, config)
+            }
+        }));
         set.training = Some(TrainingExperiment {
             from_motion: false,
             pattern: config.pattern,
@@ -632,6 +650,8 @@ pub fn simulate(robot: &Robot, config: &SimulationConfig) -> Result<Simulation, 
         robot: RobotFile::from_robot(robot, None),
         orientations,
         training_gravity: training_gravity.into(),
+        tilted_training_gravity: (config.training && config.tilted_poses > 0)
+            .then(|| tilted_gravity.into()),
         su_intrinsics: sensors.intrinsics.clone(),
         config: config.clone(),
     };
@@ -794,6 +814,7 @@ fn training_pose(
         dynamic,
         static_sd: None,
         dynamic_sd: std::collections::BTreeMap::new(),
+        orientation: 0,
         extra: Map::new(),
     }
 }

@@ -72,6 +72,7 @@ fn sequence_state_of(
         intrinsics: vec![Intrinsics::default(); su_states.len()],
         sus: su_states,
         skin_delay: 0.0,
+        other_gravities: Vec::new(),
     })
 }
 
@@ -91,6 +92,9 @@ pub fn cramer_rao_bound(
     seed: u64,
     intrinsics: IntrinsicsModel,
 ) -> Option<(f64, f64)> {
+    // `gravity` is the usual base orientation's: the bound of the poses recorded in it.
+    let usual = data.usual_orientation();
+    let data = &usual;
     let chain = data.chain.su_sequence();
     let state = state_of(truth, &chain, gravity)?;
     let dofs = chain.dofs.len();
@@ -209,6 +213,9 @@ pub fn observable_su_errors(
     poses: usize,
     seed: u64,
 ) -> Option<ObservableErrors> {
+    // `gravity` is the usual base orientation's: the errors the poses recorded in it allow.
+    let usual = data.usual_orientation();
+    let data = &usual;
     let chain = &data.chain;
     let sus = data.su_depth.len();
     if chain.base_joints != 0

@@ -23,6 +23,9 @@ pub(super) fn mirrored(state: &ChainState, su_segment: &[usize]) -> ChainState {
     );
     let mut out = state.clone();
     out.gravity = -state.gravity;
+    for g in &mut out.other_gravities {
+        *g = half_turn.rotation * *g;
+    }
     if let Some(j) = out.joints.get_mut(1) {
         *j = half_turn * *j;
     }
@@ -165,6 +168,7 @@ impl FinalFit {
             joint_orders: Vec::new(),
             retries: Vec::new(),
             gravity: state.gravity.into(),
+            other_gravities: state.other_gravities.iter().map(|&g| g.into()).collect(),
             residual_ratio,
             noise_sd_estimate: config.noise_sd * residual_ratio,
             reading_sd: readings.sd.is_some(),
@@ -238,6 +242,13 @@ pub(super) fn final_spec(
     }
     if motion {
         spec.blocks.push(Block::SkinDelay);
+    }
+    if !gauge.base {
+        // Each other base orientation's gravity, whole: the usual one's magnitude (or scales)
+        // holds the scale, and the turn about the first axis that gravity along it leaves free
+        // is held by the gauge SU, not by a gravity.
+        spec.blocks
+            .extend((1..layout.orientations).map(Block::OtherGravity));
     }
     if !gauge.base && (intrinsics.components() > 3 || config.select_intrinsics) {
         // A common scale error of every SU and a gravity as much weaker read the same: the

@@ -259,6 +259,19 @@ pub struct ChainState {
     /// How late the skin's stamps run behind the joint states', s (fitted on a motion record
     /// only; 0 otherwise).
     pub skin_delay: f64,
+    /// Gravity in the reference frame in base orientations 1, 2, … (training poses recorded
+    /// with the reference segment turned otherwise), m/s². Empty: the usual orientation only.
+    pub other_gravities: Vec<Vector3<f64>>,
+}
+
+impl ChainState {
+    /// Gravity in the reference frame in base orientation `o` (0: the usual one).
+    pub fn gravity_in(&self, o: usize) -> Vector3<f64> {
+        match o {
+            0 => self.gravity,
+            _ => self.other_gravities[o - 1],
+        }
+    }
 }
 
 /// The part of a limb that an earlier estimate fixed: the joint frames of the DoFs from the static
@@ -269,6 +282,8 @@ pub struct LimbBase {
     pub joints: Vec<Isometry3<f64>>,
     /// Gravity, m/s².
     pub gravity: Vector3<f64>,
+    /// Gravity in the other base orientations ([`ChainState::other_gravities`]), m/s².
+    pub other_gravities: Vec<Vector3<f64>>,
 }
 
 impl LimbBase {
@@ -278,6 +293,7 @@ impl LimbBase {
         (dofs <= state.joints.len()).then(|| Self {
             joints: state.joints[..dofs].to_vec(),
             gravity: state.gravity,
+            other_gravities: state.other_gravities.clone(),
         })
     }
 }
@@ -290,6 +306,7 @@ fn readings(data: &LimbData) -> Readings {
             data.q.iter().map(|q| turns_of(q, &kinds)).collect()
         },
         statics: data.statics.clone(),
+        orientation: data.orientation.clone(),
         dynamics: data.dynamics.clone(),
         alpha: data.pattern.peak_acceleration(),
         huber: Some(HUBER),
@@ -319,10 +336,6 @@ const REJECT_ROUNDS: usize = 4;
 fn screen(data: &Readings, sigma: f64) -> Vec<Vec<Vec<bool>>> {
     let poses = data.q.len();
     let sus = data.statics.first().map_or(0, Vec::len);
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0)
-    };
     let mut out: Vec<Vec<Vec<bool>>> = (0..poses)
         .map(|p| {
             (0..sus)
@@ -383,6 +396,9 @@ pub fn estimate_limb(
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
     validate(config)?;
+    if data.orientations() > 1 {
+        return with_other_orientations(data, base, config);
+    }
     let started = Instant::now();
     let base_dofs = data.chain.base_dofs();
     check_base(data, base)?;
@@ -419,6 +435,80 @@ pub fn estimate_limb(
     best.iterations = retries.iterations;
     best.seconds = started.elapsed().as_secs_f64();
     Ok(best)
+}
+
+/// A limb whose training poses stood in several base orientations: estimated from the poses of the
+/// usual one (the search assumes one gravity), then refitted on every pose from there, each
+/// other orientation with a gravity of its own, started from what the SUs read in it.
+fn with_other_orientations(
+    data: &LimbData,
+    base: Option<&LimbBase>,
+    config: &MlConfig,
+) -> Result<MlChainEstimate, EstimateError> {
+    let usual = estimate_limb(&data.usual_orientation(), base, config)?;
+    let Some(mut start) = usual.state.clone() else {
+        return Ok(usual);
+    };
+    let ordered = in_order_of(data, &usual.chain);
+    start.other_gravities = other_gravities_read(&ordered, &start);
+    let refined = refine_limb(&ordered, base, start, config)?;
+    Ok(MlChainEstimate {
+        joint_orders: usual.joint_orders,
+        retries: usual.retries,
+        iterations: usual.iterations + refined.iterations,
+        seconds: usual.seconds + refined.seconds,
+        ..refined
+    })
+}
+
+/// `data` with every joint's DoFs in the order `chain` (the same limb) has them.
+fn in_order_of(data: &LimbData, chain: &LimbChain) -> LimbData {
+    chain
+        .joints
+        .iter()
+        .enumerate()
+        .fold(data.clone(), |d, (j, joint)| {
+            let dofs = &d.chain.joints[j].dofs;
+            let order: Option<Vec<usize>> = joint
+                .dofs
+                .iter()
+                .map(|name| dofs.iter().position(|x| x == name))
+                .collect();
+            match order {
+                Some(order) if order.len() == dofs.len() => d.with_joint_order(j, &order),
+                _ => d,
+            }
+        })
+}
+
+/// Gravity in each other base orientation of `data` as its SUs read it at `state` (placed by the
+/// usual orientation's fit): per pose and SU, the static reading turned into the reference frame,
+/// and per orientation the component-wise median, which SUs whose turn the usual orientation
+/// leaves free cannot drag.
+fn other_gravities_read(data: &LimbData, state: &ChainState) -> Vec<Vector3<f64>> {
+    let layout = Layout::of(data);
+    let kinds = data.chain.kinds();
+    let mut read: Vec<[Vec<f64>; 3]> = vec![Default::default(); data.orientations() - 1];
+    for p in (0..data.poses()).filter(|&p| data.orientation_of(p) > 0) {
+        let turns = problem::turns_of(&data.q[p], &kinds);
+        let frames = problem::frames(state, &layout, &turns, None, layout.dofs);
+        for (u, frame) in frames.sus.iter().enumerate() {
+            let bias = Vector3::from(state.intrinsics[u].bias);
+            let g = -(frame.rotation * (data.statics[p][u] - bias));
+            for (c, column) in read[data.orientation_of(p) - 1].iter_mut().enumerate() {
+                column.push(g[c]);
+            }
+        }
+    }
+    read.into_iter()
+        .map(|[x, y, z]| Vector3::new(median(x), median(y), median(z)))
+        .collect()
+}
+
+/// The median of `v` (its upper middle; 0 for none).
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
 /// Refuses a base estimate that is not the limb's base path, and a sub-limb without one.
@@ -490,6 +580,19 @@ fn held_start(
     if let Some(b) = base {
         start.joints[..b.joints.len()].copy_from_slice(&b.joints);
         start.gravity = b.gravity;
+        if !b.other_gravities.is_empty() {
+            start.other_gravities = b.other_gravities.clone();
+        }
+    }
+    if start.other_gravities.len() + 1 < data.orientations() {
+        return Err(EstimateError::UnsupportedLimb {
+            limb: data.chain.name.clone(),
+            reason: format!(
+                "its poses stood in {} base orientations, but the start has a gravity for {}",
+                data.orientations(),
+                start.other_gravities.len() + 1
+            ),
+        });
     }
     let vertical = base.is_none() && start.gravity.x == 0.0 && start.gravity.y == 0.0;
     Ok((start, vertical))
@@ -561,6 +664,7 @@ fn serial_layout(dofs: usize) -> Layout {
         dofs,
         su_segment: (1..=dofs).collect(),
         kinds: vec![DofKind::Revolute; dofs],
+        orientations: 1,
     }
 }
 

@@ -53,18 +53,13 @@ pub fn refine_on_motion(
     )
 }
 
-/// A limb's readings for a fit on its motion record alone: the measurement set's readings came
-/// from the same log.
+/// A limb's readings for a fit on its motion record: the measurement set's readings of the usual
+/// base orientation came from the same log, so only those of the other orientations (recorded
+/// in logs of their own, which the record leaves out) join its rows.
 pub(super) fn motion_readings(data: &LimbData) -> Readings {
     Readings {
-        q: Vec::new(),
-        turns: Vec::new(),
-        statics: Vec::new(),
-        dynamics: Vec::new(),
-        missing: Vec::new(),
-        sd: None,
         motion: None,
-        ..readings(data)
+        ..readings(&data.other_orientations())
     }
 }
 

@@ -58,6 +58,9 @@ pub(super) struct Layout {
     pub su_segment: Vec<usize>,
     /// Per DoF: revolute or prismatic (turns about or slides along its joint frame's `z`).
     pub kinds: Vec<DofKind>,
+    /// How many base orientations the training poses stood in (each beyond the usual one has
+    /// a gravity block of its own).
+    pub orientations: usize,
 }
 
 impl Layout {
@@ -67,6 +70,7 @@ impl Layout {
             dofs: data.chain.dofs().len(),
             su_segment: data.su_depth.clone(),
             kinds: data.chain.kinds(),
+            orientations: data.orientations(),
         }
     }
 }
@@ -100,9 +104,17 @@ pub(super) struct Readings {
     /// The limb's motion record, fitted sample by sample (rows after the poses'), each block
     /// whitened by its SU's own noise; `None`: readings only.
     pub motion: Option<Arc<LimbMotion>>,
+    /// `orientation[p]`: the base orientation of pose `p`, whose gravity its static readings
+    /// read ([`ChainState::gravity_in`]). Empty: every pose in the usual one.
+    pub orientation: Vec<usize>,
 }
 
 impl Readings {
+    /// The base orientation of pose `p` (0: the usual one).
+    pub(super) fn orientation_of(&self, p: usize) -> usize {
+        self.orientation.get(p).copied().unwrap_or(0)
+    }
+
     /// Whether reading `row` of SU `u` in pose `p` is left out of the fit: wild, or missing.
     pub(super) fn is_rejected(&self, p: usize, u: usize, row: usize) -> bool {
         let marked = |mask: &Vec<Vec<Vec<bool>>>| {
@@ -132,6 +144,9 @@ pub(super) enum Block {
     Gravity,
     /// Gravity's direction alone (2 turns about its tangents; its magnitude held).
     GravityDirection,
+    /// The 3 components of gravity in base orientation `o ≥ 1`, m/s² (training poses with the
+    /// reference segment turned otherwise).
+    OtherGravity(usize),
     /// The 4 line parameters of joint `k`.
     Joint(usize),
     /// All 6 parameters of joint `k` (initialisation only).
@@ -147,7 +162,7 @@ pub(super) enum Block {
 impl Block {
     fn len(self) -> usize {
         match self {
-            Block::Gravity => 3,
+            Block::Gravity | Block::OtherGravity(_) => 3,
             Block::GravityDirection => 2,
             Block::Joint(_) => 4,
             Block::JointFull(_) | Block::Su(_) => 6,
@@ -366,12 +381,14 @@ fn pose_terms(
     let columns = shared_columns(spec, map);
     let chain = Chain::new(state, &layout.kinds, jacobian.then_some(columns.as_slice()));
     let readings = ReadingInstants::new(&layout.kinds, last, data.alpha);
-    let instants = readings.instants();
+    let orientations = data.orientation.iter().max().map_or(1, |&o| o + 1);
+    let instants: Vec<_> = (0..orientations).map(|o| readings.instants(o)).collect();
     (0..data.q.len())
         .into_par_iter()
         .map(|p| {
             let prefix = spec.prefix.as_ref().map(|v| &v[p]);
-            chain.terms(&data.turns[p], prefix, &instants, last)
+            let instants = &instants[data.orientation_of(p)];
+            chain.terms(&data.turns[p], prefix, instants, last)
         })
         .collect()
 }
@@ -1272,6 +1289,7 @@ pub(super) fn retract_columns(
         let x = full[b];
         match *block {
             Block::Gravity => next.gravity += Vector3::new(x[0], x[1], x[2]),
+            Block::OtherGravity(o) => next.other_gravities[o - 1] += Vector3::new(x[0], x[1], x[2]),
             Block::GravityDirection => next.gravity = turn_gravity(&state.gravity, x[0], x[1]),
             Block::Intrinsics(u) => next.intrinsics[u] = state.intrinsics[u].moved(&x),
             Block::SkinDelay => {

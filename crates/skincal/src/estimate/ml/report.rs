@@ -306,6 +306,10 @@ pub struct MlChainEstimate {
     pub robot: RobotFile,
     /// Gravity in the reference frame, m/s².
     pub gravity: [f64; 3],
+    /// Gravity in the reference frame in base orientations 1, 2, … of the training poses, m/s²
+    /// (empty: every pose in the usual one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_gravities: Vec<[f64; 3]>,
     /// Residual RMS relative to the noise standard deviation (≈ 1 at the noise limit).
     pub residual_ratio: f64,
     /// Estimated noise standard deviation, m/s² (with `reading_sd`: the residual in units of the

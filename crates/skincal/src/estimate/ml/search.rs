@@ -319,6 +319,7 @@ impl<'a> Search<'a> {
                 sus: vec![Isometry3::identity(); sus],
                 intrinsics: vec![Intrinsics::default(); sus],
                 skin_delay: 0.0,
+                other_gravities: Vec::new(),
             },
         }
     }
@@ -328,6 +329,7 @@ impl<'a> Search<'a> {
         let mut state = self.empty.clone();
         state.joints[..base.joints.len()].copy_from_slice(&base.joints);
         state.gravity = base.gravity;
+        state.other_gravities = base.other_gravities.clone();
         state
     }
 

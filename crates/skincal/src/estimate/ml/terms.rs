@@ -53,6 +53,8 @@ pub(super) struct Instant<'a> {
     qd: &'a [f64],
     qdd: &'a [f64],
     gravity: bool,
+    /// The base orientation whose gravity acts (0: the usual one).
+    orientation: usize,
     /// The first DoF that moves: the segments before it are still.
     moving_from: usize,
     /// One past the last DoF that moves.
@@ -77,9 +79,18 @@ impl<'a> Instant<'a> {
             qd,
             qdd,
             gravity,
+            orientation: 0,
             moving_from,
             moving_to,
             turning: qd.iter().any(|v| *v != 0.0),
+        }
+    }
+
+    /// The same instant under the gravity of base orientation `o`.
+    pub fn in_orientation(self, o: usize) -> Self {
+        Self {
+            orientation: o,
+            ..self
         }
     }
 
@@ -143,9 +154,10 @@ impl ReadingInstants {
         }
     }
 
-    /// Entry 0 the static reading's instant, entry `1 + d` DoF `d`'s dynamic one.
-    pub fn instants(&self) -> Vec<Instant<'_>> {
-        std::iter::once(Instant::new(&self.zeros, &self.zeros, true))
+    /// Entry 0 the static reading's instant (under the gravity of base orientation
+    /// `orientation`), entry `1 + d` DoF `d`'s dynamic one.
+    pub fn instants(&self, orientation: usize) -> Vec<Instant<'_>> {
+        std::iter::once(Instant::new(&self.zeros, &self.zeros, true).in_orientation(orientation))
             .chain(
                 self.kicks
                     .iter()
@@ -274,12 +286,12 @@ impl<T: RealField> Stage<T> {
 }
 
 impl<T: RealField + Copy> Stage<T> {
-    /// The segment's terms at each instant, under `gravity` where the instant has it, each
-    /// passed to `emit` with the instant's index.
+    /// The segment's terms at each instant, under its orientation's gravity (`gravity`, one per
+    /// base orientation) where the instant has it, each passed to `emit` with the instant's index.
     fn terms(
         &self,
         instants: &[Instant],
-        gravity: &Vector3<T>,
+        gravity: &[Vector3<T>],
         mut emit: impl FnMut(usize, Vector3<T>, Matrix3<T>),
     ) {
         let rt = self
@@ -341,12 +353,12 @@ impl Stage<f64> {
     fn frame_rates(
         &self,
         instants: &[Instant],
-        gravity: &Vector3<f64>,
+        gravity: &[Vector3<f64>],
         wanted: impl Fn(&Instant) -> bool,
         mut emit: impl FnMut(usize, FrameRates),
     ) {
         let mut frames = None;
-        let gravity = gravity.map(Dual64::from);
+        let gravity: Vec<Vector3<Dual64>> = gravity.iter().map(|g| g.map(Dual64::from)).collect();
         for (i, (instant, motion)) in instants.iter().zip(&self.motions).enumerate() {
             if !wanted(instant) {
                 continue;
@@ -374,17 +386,22 @@ impl Stage<f64> {
 }
 
 /// What the SUs of segment `s` read at `instant` of the field of its `motion`, seen through
-/// `rt` and `x` ([`BodyMotion::field_seen`]): `None` for a still segment without gravity.
+/// `rt` and `x` ([`BodyMotion::field_seen`]), under its orientation's gravity (`gravity`, one per
+/// base orientation): `None` for a still segment without gravity.
 fn seen<T: RealField + Copy>(
     s: usize,
     instant: &Instant,
     motion: &BodyMotion<T>,
     rt: &Matrix3<T>,
     x: &Vector3<T>,
-    gravity: &Vector3<T>,
+    gravity: &[Vector3<T>],
 ) -> Option<(Vector3<T>, Matrix3<T>)> {
     let zero = Vector3::zeros();
-    let g = if instant.gravity { gravity } else { &zero };
+    let g = if instant.gravity {
+        &gravity[instant.orientation]
+    } else {
+        &zero
+    };
     if instant.still(s) {
         // A still segment with no gravity has no field, nor any rate of it.
         instant.gravity.then(|| (-(rt * g), Matrix3::zeros()))
@@ -397,8 +414,8 @@ fn seen<T: RealField + Copy>(
 
 /// A shared column of the problem as the terms see it.
 enum Column {
-    /// Gravity moved along this direction.
-    Gravity(Vector3<f64>),
+    /// The gravity of a base orientation moved along this direction.
+    Gravity(usize, Vector3<f64>),
     /// Joint `k`'s frame followed by this local motion (the dual unit in one component).
     Joint(usize, Isometry3<Dual64>),
     /// A column the terms do not depend on.
@@ -411,13 +428,15 @@ pub(super) struct Chain<'a> {
     state: &'a ChainState,
     kinds: &'a [DofKind],
     lifted: Vec<Isometry3<Dual64>>,
-    gravity: Vector3<Dual64>,
+    /// Gravity in each base orientation, and lifted to dual numbers.
+    gravity: Vec<Vector3<f64>>,
+    lifted_gravity: Vec<Vector3<Dual64>>,
     columns: Vec<Column>,
-    /// How many of the columns are each joint's, and how many gravity's.
+    /// How many of the columns are each joint's, and how many each orientation's gravity's.
     joint_columns: Vec<usize>,
     /// How many joint columns the joints before each joint have (one entry more than joints).
     columns_before: Vec<usize>,
-    gravity_columns: usize,
+    gravity_columns: Vec<usize>,
 }
 
 impl<'a> Chain<'a> {
@@ -433,18 +452,22 @@ impl<'a> Chain<'a> {
             .unwrap_or(&[])
             .iter()
             .map(|&(block, c)| match block {
-                Block::Gravity => Column::Gravity(Vector3::ith(c, 1.0)),
-                Block::GravityDirection => Column::Gravity(directions[c]),
+                Block::Gravity => Column::Gravity(0, Vector3::ith(c, 1.0)),
+                Block::GravityDirection => Column::Gravity(0, directions[c]),
+                Block::OtherGravity(o) => Column::Gravity(o, Vector3::ith(c, 1.0)),
                 Block::Joint(k) => Column::Joint(k, joint_step(false, c)),
                 Block::JointFull(k) => Column::Joint(k, joint_step(true, c)),
                 _ => Column::Other,
             })
             .collect::<Vec<_>>();
+        let gravity: Vec<Vector3<f64>> = std::iter::once(state.gravity)
+            .chain(state.other_gravities.iter().copied())
+            .collect();
         let mut joint_columns = vec![0; state.joints.len()];
-        let mut gravity_columns = 0;
+        let mut gravity_columns = vec![0; gravity.len()];
         for column in &columns {
             match column {
-                Column::Gravity(_) => gravity_columns += 1,
+                Column::Gravity(o, _) => gravity_columns[*o] += 1,
                 Column::Joint(k, _) => joint_columns[*k] += 1,
                 Column::Other => {}
             }
@@ -453,7 +476,8 @@ impl<'a> Chain<'a> {
             state,
             kinds,
             lifted: state.joints.iter().map(lift).collect(),
-            gravity: state.gravity.map(Dual64::from),
+            lifted_gravity: gravity.iter().map(|g| g.map(Dual64::from)).collect(),
+            gravity,
             columns,
             columns_before: std::iter::once(0)
                 .chain(joint_columns.iter().scan(0, |sum, n| {
@@ -554,21 +578,22 @@ impl<'a> Chain<'a> {
         for o in out.iter_mut() {
             o.entries[e].rates.0 = o.rates.len() as u32;
         }
-        stage.terms(instants, &self.state.gravity, |i, c, n| {
+        stage.terms(instants, &self.gravity, |i, c, n| {
             out[i].entries[e].c = c;
             out[i].entries[e].n = n;
         });
         for (col, column) in self.columns.iter().enumerate() {
-            let Column::Gravity(dir) = column else {
+            let Column::Gravity(orientation, dir) = column else {
                 continue;
             };
             let dc = -stage.segment.rotation.inverse_transform_vector(dir);
-            for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| i.gravity) {
+            let under = |i: &Instant| i.gravity && i.orientation == *orientation;
+            for (o, _) in out.iter_mut().zip(instants).filter(|(_, i)| under(i)) {
                 o.rates.push((col, dc, Matrix3::zeros()));
             }
         }
         let reached = |i: &Instant| self.reached(entry, first, i);
-        stage.frame_rates(instants, &self.state.gravity, reached, |i, rates| {
+        stage.frame_rates(instants, &self.gravity, reached, |i, rates| {
             let o = &mut out[i];
             if o.frame.is_empty() {
                 o.frame_from = entry;
@@ -576,7 +601,7 @@ impl<'a> Chain<'a> {
             o.frame.push(rates);
         });
         for (col, _, pass) in passes {
-            pass.terms(instants, &self.gravity, |i, c, n| {
+            pass.terms(instants, &self.lifted_gravity, |i, c, n| {
                 out[i]
                     .rates
                     .push((*col, c.map(|x| x.eps), n.map(|x| x.eps)));
@@ -600,7 +625,7 @@ impl<'a> Chain<'a> {
     /// get frame rates.
     fn rate_count(&self, first: usize, last: usize, instant: &Instant) -> (usize, usize) {
         let gravity = if instant.gravity {
-            self.gravity_columns
+            self.gravity_columns[instant.orientation]
         } else {
             0
         };

@@ -34,6 +34,8 @@ use crate::estimate::EstimateError;
 enum Shared {
     /// A component of gravity (of the tree's one gravity block).
     Gravity(usize),
+    /// A component of gravity in another base orientation (orientation, component).
+    OtherGravity(usize, usize),
     /// A component of a DoF's joint line.
     Joint(String, usize),
     /// The skin's delay behind the joint states, per limb (each limb's fit found its own).
@@ -151,7 +153,8 @@ fn refine_tree(
 }
 
 /// The limbs of `tree` (the root first) with their base paths and gravity freed: each sub-limb's
-/// problem gains the root's gravity block (held as the root holds it) and its path's joint blocks
+/// problem gains the root's gravity blocks (the usual orientation's held as the root holds it, and
+/// each other base orientation's) and its path's joint blocks
 /// (free, as in the problems of the limbs they belong to), and starts from their values there.
 /// `None` when an estimate has no final problem or state kept.
 fn freed(estimates: &[MlChainEstimate], tree: &[usize]) -> Option<Vec<Limb>> {
@@ -187,7 +190,14 @@ fn freed(estimates: &[MlChainEstimate], tree: &[usize]) -> Option<Vec<Limb>> {
                 state.joints[k] = *owned.get(dof)?;
             }
             state.gravity = root_state.gravity;
-            with_path(&problem.spec, gravity, &root.spec, base_dofs)
+            state.other_gravities = root_state.other_gravities.clone();
+            let others = root.spec.blocks.iter().filter_map(|b| match b {
+                Block::OtherGravity(_) => Some(*b),
+                _ => None,
+            });
+            let mut spec = with_path(&problem.spec, gravity, &root.spec, base_dofs);
+            spec.blocks.extend(others);
+            spec
         };
         limbs.push(Limb {
             problem,
@@ -238,6 +248,7 @@ fn place(
         .map(|&(b, c)| {
             let key = match spec.blocks[b] {
                 Block::Gravity | Block::GravityDirection => Shared::Gravity(c),
+                Block::OtherGravity(o) => Shared::OtherGravity(o, c),
                 Block::Joint(k) => Shared::Joint(dofs[k].clone(), c),
                 Block::SkinDelay => Shared::SkinDelay(i),
                 _ => return None,

@@ -9,6 +9,7 @@ pub(super) fn column_names(dofs: &[String], sus: &[String], spec: &Spec) -> Vec<
         .map(|&(b, c)| match spec.blocks[b] {
             Block::Gravity => format!("gravity.{}", ["x", "y", "z"][c]),
             Block::GravityDirection => format!("gravity.{}", ["tilt_1", "tilt_2"][c]),
+            Block::OtherGravity(o) => format!("gravity_{o}.{}", ["x", "y", "z"][c]),
             Block::Intrinsics(u) => format!("{}.{}", sus[u], INTRINSIC_NAMES[c]),
             Block::Joint(k) => format!(
                 "{}.{}",
@@ -259,6 +260,7 @@ pub(super) fn su_uncertainty(
                 Block::Intrinsics(_)
                 | Block::Gravity
                 | Block::GravityDirection
+                | Block::OtherGravity(_)
                 | Block::SkinDelay => false,
                 Block::Joint(_) | Block::JointFull(_) => true,
             };
