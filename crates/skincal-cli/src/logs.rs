@@ -53,6 +53,9 @@ pub(crate) enum PartArg {
     Structure,
     /// The training experiment only.
     Training,
+    /// What the plan runs again with the base tilted: the structure experiment and its
+    /// `--tilted-poses` training poses.
+    Tilted,
 }
 
 #[derive(Debug, Args)]
@@ -223,6 +226,7 @@ fn log_config(args: &RecordArgs) -> LogConfig {
         part: args.part.map(|p| match p {
             PartArg::Structure => Part::Structure,
             PartArg::Training => Part::Training,
+            PartArg::Tilted => Part::Tilted,
         }),
         imperfections,
         encoder_resolution: args.encoder_resolution,

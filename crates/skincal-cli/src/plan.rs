@@ -53,6 +53,11 @@ pub(crate) struct PlanArgs {
     /// Number of training poses P [default: the protocol's].
     #[arg(long)]
     poses: Option<usize>,
+    /// Run the first N training poses again with the base tilted, after the structure part
+    /// (`goal_structure.yaml` then holds both): they tell how what a vertical first axis turns
+    /// sits about it, which no upright pose does.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    tilted_poses: usize,
     /// Use this pattern A,f (rad/s, Hz) instead of choosing one; it is checked against the limits.
     #[arg(long, value_name = "A,f")]
     pattern: Option<String>,
@@ -295,6 +300,7 @@ fn plan_config(args: &PlanArgs) -> Result<PlanConfig> {
         seed: args.seed,
         parallel: protocol.parallel && !args.one_at_a_time,
         sweep: args.sweep.unwrap_or(protocol.sweep),
+        tilted_poses: args.tilted_poses,
         ..protocol
     };
     if !(args.rate.is_finite() && args.rate >= 1.0) {
@@ -361,8 +367,9 @@ fn trajectory_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8
 }
 
 /// What a ROS 2 robot executes (`ros2/` in the output directory): the goals of the
-/// controller's FollowJointTrajectory action for the whole program, the structure part alone
-/// (for the tilted base) and the way to the first pose, and the two trajectories as MCAP.
+/// controller's FollowJointTrajectory action for the whole program, the run with the base
+/// tilted (the structure part, and the first `--tilted-poses` training poses) and the way to the
+/// first pose, and the two trajectories as MCAP.
 fn ros2_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     use skincal::log::trajectory::{goal_yaml, mcap};
     use skincal::plan::trajectory::Section;
@@ -370,10 +377,11 @@ fn ros2_files(plan: &Plan, args: &PlanArgs) -> Result<Vec<(PathBuf, Vec<u8>)>> {
     let topic = format!("/{}/joint_trajectory", args.controller.trim_matches('/'));
     let whole = plan.trajectory(Section::Whole, args.knot_step);
     let mut sections = vec![("", whole.clone())];
-    if plan.structure_duration > 0.0 && plan.structure_duration < plan.duration {
+    let tilted = plan.tilted_end();
+    if tilted > 0.0 && tilted < plan.duration {
         sections.push((
             "_structure",
-            plan.trajectory(Section::Structure, args.knot_step),
+            plan.trajectory(Section::Tilted, args.knot_step),
         ));
     }
     let mut files = vec![(
@@ -617,11 +625,25 @@ fn render_plan(plan: &Plan) -> String {
             count(&|a| matches!(a, Action::Move { .. })),
             plan.config.structure_angle
         );
+    }
+    if plan.config.structure && plan.config.tilted_poses == 0 {
         let _ = writeln!(
             s,
             "  OPERATOR: record the structure part twice, in two base orientations — upright, then \
              with the base\n  tilted by about 90° — as separate logs, and give both to `skincal \
              ingest` (a vertical axis cannot be seen in one orientation)."
+        );
+    }
+    if plan.config.tilted_poses > 0 {
+        let _ = writeln!(
+            s,
+            "  OPERATOR: record the whole program upright, then the tilted run — 0 – {:.1} s: the \
+             structure part and the first\n  {} training poses — with the base tilted by about \
+             90° (`goal_structure.yaml`; simulated: `record --part tilted --tilted`),\n  as \
+             separate logs, and give both to `skincal ingest`: the tilted poses' static readings \
+             tell what no upright pose can.",
+            plan.tilted_end(),
+            plan.config.tilted_poses.min(plan.config.poses)
         );
     }
     if plan.config.training && sweep.is_some() {
@@ -654,13 +676,13 @@ fn render_plan(plan: &Plan) -> String {
         );
     }
     if let Some(f) = &plan.forecast {
-        render_forecast(&mut s, f, sweep.is_some());
+        render_forecast(&mut s, f, sweep.is_some(), plan.config.tilted_poses);
     }
     s
 }
 
 /// What the plan's forecast expects the calibration to reach.
-fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool) {
+fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool, tilted: usize) {
     use std::fmt::Write as _;
     if sweep {
         let _ = writeln!(
@@ -687,6 +709,40 @@ fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool) {
             f.trials,
             f.held_out
         );
+    }
+    if !f.partly_measured.is_empty() {
+        let list: Vec<String> = f
+            .partly_measured
+            .iter()
+            .map(|p| {
+                let mut left = Vec::new();
+                if p.positions > 0 {
+                    left.push(format!("{} position direction(s)", p.positions));
+                }
+                if p.turns > 0 {
+                    left.push(format!("{} turn(s)", p.turns));
+                }
+                format!("{} ({})", p.su, left.join(", "))
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "  partly measured (what no reading of the plan tells, relative to the SU before): {}",
+            list.join(", ")
+        );
+        if tilted > 0 {
+            let _ = writeln!(
+                s,
+                "  (with the {tilted} tilted poses; a position along a vertical first axis no \
+                 accelerometer tells)"
+            );
+        } else if f.partly_measured.iter().any(|p| p.turns > 0) {
+            let _ = writeln!(
+                s,
+                "  `--tilted-poses N` runs N poses again with the base tilted: their readings \
+                 tell those turns"
+            );
+        }
     }
 }
 

@@ -32,7 +32,7 @@ use crate::log::{LogSource, MemoryLog};
 use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::{DofKind, Robot};
-use crate::plan::{Clearance, Part, Plan, PlanConfig, PlanDof, PlanError};
+use crate::plan::{Clearance, Part, PartlyMeasured, Plan, PlanConfig, PlanDof, PlanError};
 pub use crate::plan::{Forecast, ReadingNoise};
 use crate::predict::{validate, PredictError};
 use crate::sim::timeseries::{record, LogConfig, RecordError};
@@ -267,10 +267,10 @@ struct Exact {
 }
 
 impl Exact {
-    fn at(robot: &Robot, plan: &Plan, q: &[f64]) -> Exact {
+    fn at(robot: &Robot, plan: &Plan, q: &[f64], gravity: &Vector3<f64>) -> Exact {
         let (model, p) = (&robot.model, &robot.parameters);
         Exact {
-            static_readings: static_readings(model, p, q, &gravity_upright()),
+            static_readings: static_readings(model, p, q, gravity),
             dynamic: (0..model.dofs().len())
                 .map(|d| peak_dynamic_accelerations(model, p, q, d, &plan.pattern))
                 .collect(),
@@ -330,9 +330,29 @@ pub fn forecast(
     noise: &ReadingNoise,
     trials: usize,
 ) -> Result<Forecast, DesignError> {
-    let poses = plan.training_poses();
-    let exact: Vec<Exact> = poses.iter().map(|q| Exact::at(robot, plan, q)).collect();
+    // The plan's poses upright, then the first `tilted_poses` of them again with the base tilted
+    // (base orientation 1, as ingest numbers the tilted run's poses).
+    let upright = plan.training_poses();
+    let tilted = upright.len().min(plan.config.tilted_poses);
+    let tilted_gravity = Vector3::from(crate::sim::BaseOrientation::tilted().gravity);
+    let poses: Vec<(&Vec<f64>, usize)> = upright
+        .iter()
+        .map(|q| (q, 0))
+        .chain(upright[..tilted].iter().map(|q| (q, 1)))
+        .collect();
+    let exact: Vec<Exact> = poses
+        .iter()
+        .map(|&(q, o)| {
+            let g = if o == 0 {
+                gravity_upright()
+            } else {
+                tilted_gravity
+            };
+            Exact::at(robot, plan, q, &g)
+        })
+        .collect();
     let (mut static_ss, mut dynamic_ss) = (0.0, 0.0);
+    let mut partly_measured = Vec::new();
     for trial in 0..trials.max(1) {
         let mut rng = ChaCha8Rng::seed_from_u64(trial as u64);
         let mut set = MeasurementSet::new(robot.model.dof_names(), robot.model.su_names());
@@ -343,7 +363,10 @@ pub fn forecast(
             poses: poses
                 .iter()
                 .zip(&exact)
-                .map(|(q, e)| e.drawn(robot, q, noise, &mut rng))
+                .map(|(&(q, orientation), e)| TrainingPose {
+                    orientation,
+                    ..e.drawn(robot, q, noise, &mut rng)
+                })
                 .collect(),
             extra: Default::default(),
         });
@@ -358,16 +381,35 @@ pub fn forecast(
             validate(&calibrated, &reference.held_out, "held-out").map_err(DesignError::Predict)?;
         static_ss += check.static_rms.powi(2);
         dynamic_ss += check.dynamic_rms.powi(2);
+        if trial == 0 {
+            partly_measured = partly_measured_in(&calibrated);
+        }
     }
     let n = trials.max(1) as f64;
     Ok(Forecast {
-        poses: poses.len(),
+        poses: upright.len(),
         static_rms: (static_ss / n).sqrt(),
         dynamic_rms: (dynamic_ss / n).sqrt(),
         noise: noise.clone(),
         trials: trials.max(1),
         held_out: reference.held_out.summary().training_poses,
+        partly_measured,
     })
+}
+
+/// The SUs of `model` whose pose some direction of no reading determines.
+fn partly_measured_in(model: &crate::estimate::body::BodyModel) -> Vec<PartlyMeasured> {
+    model
+        .limbs
+        .iter()
+        .flat_map(|l| &l.estimate.uncertainty)
+        .filter(|u| u.is_partial())
+        .map(|u| PartlyMeasured {
+            su: u.su.clone(),
+            positions: u.undetermined_position.len(),
+            turns: u.undetermined_orientation.len(),
+        })
+        .collect()
 }
 
 /// The forecast of `plan` as it is (its poses, or its sweep: [`forecast_sweep`]), stored in its
@@ -447,6 +489,7 @@ pub fn forecast_sweep(
         },
         trials: 1,
         held_out: reference.held_out.summary().training_poses,
+        partly_measured: partly_measured_in(&calibrated),
     })
 }
 

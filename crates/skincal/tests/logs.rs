@@ -1169,6 +1169,94 @@ fn logs_read_inside_a_parallel_loop_over_them_give_every_sample() {
 }
 
 #[test]
+fn a_plans_tilted_run_ingests_as_a_second_orientation_and_tells_the_first_axis_turns() {
+    // `plan --tilted-poses 2`: the whole program upright, then the tilted run (the structure
+    // part and the first 2 training poses) with the base tilted. Ingested together, the tilted
+    // run's 2 poses are base orientation 1; the calibration then tells how su1 turns about the
+    // vertical first axis relative to su2, and its forecast said so beforehand.
+    let robot = robot("paper-7dof");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 4,
+            tilted_poses: 2,
+            seed: 3,
+            ..PlanConfig::default()
+        },
+    )
+    .unwrap();
+    assert!(plan.structure_duration < plan.tilted_end() && plan.tilted_end() < plan.duration);
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name);
+    record_to(
+        &robot,
+        &plan,
+        &LogConfig {
+            seed: 5,
+            ..LogConfig::default()
+        },
+        &path("upright.mcap"),
+        true,
+    );
+    record_to(
+        &robot,
+        &plan,
+        &LogConfig {
+            seed: 6,
+            orientation: BaseOrientation::tilted(),
+            part: Some(skincal::plan::Part::Tilted),
+            ..LogConfig::default()
+        },
+        &path("tilted.mcap"),
+        true,
+    );
+    let logs = [path("upright.mcap"), path("tilted.mcap")];
+    let ingested = ingest(&logs, &IngestConfig::default(), &mut |_, _, _| {}).unwrap();
+    let report = &ingested.report;
+    assert_eq!(report.orientations, 2, "{report:#?}");
+    assert_eq!(report.training_poses, 6, "{:?}", report.warnings);
+    let training = ingested.measurements.training.as_ref().unwrap();
+    assert_eq!(
+        training.poses.iter().filter(|p| p.orientation == 1).count(),
+        2
+    );
+    let set = &ingested.measurements;
+    let structure = explore(set, &ExploreConfig::default()).unwrap();
+    assert!(structure.complete, "{:?}", structure.diagnostics);
+    let model = calibrate_body(set, Some(&structure), &MlConfig::default(), None).unwrap();
+    let limb = &model.limbs[0];
+    assert!(limb.estimate.converged);
+    assert!(limb.estimate.uncertainty[1]
+        .undetermined_orientation
+        .is_empty());
+    let check = validate(&model, &crate::common::held_out(&robot, 77), "held-out").unwrap();
+    assert!(
+        check.static_rms < 0.05 && check.dynamic_rms < 0.05,
+        "{check:?}"
+    );
+    // The forecast of the same plan, and of it without the tilted run: su2's turn about the
+    // first axis relative to su1 is undetermined only without it.
+    let turns = |plan: &Plan| {
+        let mut plan = plan.clone();
+        skincal::design::forecast_plan(&robot, &mut plan, None).unwrap();
+        let f = plan.forecast.unwrap();
+        f.partly_measured
+            .iter()
+            .find(|p| p.su == "su2")
+            .map_or(0, |p| p.turns)
+    };
+    let upright_only = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            tilted_poses: 0,
+            ..plan.config.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!((turns(&plan), turns(&upright_only)), (0, 1));
+}
+
+#[test]
 fn training_recorded_in_a_second_base_orientation_is_kept_as_its_own_and_named() {
     // The whole program recorded twice, the second time on a tilted mount: the two logs' training
     // poses read two gravities, which one gravity cannot explain (it ended at 756 σ). The tilted

@@ -1,7 +1,7 @@
 //! The maximum-likelihood estimator against the simulator's ground truth, central differences and
 //! a constructed unobservable case.
 
-use nalgebra::Vector3;
+use nalgebra::{UnitQuaternion, Vector3};
 use skincal::estimate::ml::{estimate_limb, internals, state_of, MlConfig};
 use skincal::estimate::{consecutive_su_errors, LimbData, SerialChain};
 use skincal::model::description::RobotFile;
@@ -107,18 +107,27 @@ fn random_chain(seed: u64) -> skincal::model::Robot {
 fn the_readings_jacobian_matches_central_differences_on_random_chains() {
     for seed in 0..4 {
         let truth = random_chain(seed);
+        // Seeds 2 and 3 with two poses in a second base orientation (a gravity block of its own).
+        let tilted_poses = if seed >= 2 { 2 } else { 0 };
         let sim = simulate(
             &truth,
             &SimulationConfig {
                 poses: 6,
                 seed,
+                tilted_poses,
                 ..SimulationConfig::default()
             },
         )
         .unwrap();
         let data = LimbData::serial(&sim.measurements, &chain(5)).unwrap();
         // Linearised at the truth, which with noisy readings is not the optimum.
-        let state = state_of(&truth, &chain(5), &gravity_upright()).unwrap();
+        let mut state = state_of(&truth, &chain(5), &gravity_upright()).unwrap();
+        if let Some(g) = sim.truth.tilted_training_gravity {
+            // A tilted gravity in the chain's frame (its value does not matter to the check).
+            let turn = UnitQuaternion::rotation_between(&gravity_upright(), &state.gravity)
+                .unwrap_or_else(UnitQuaternion::identity);
+            state.other_gravities = vec![turn * Vector3::from(g)];
+        }
         let (_, jac) = internals::full_problem(&data, &state, 0.05);
         let h = 1e-6;
         for c in 0..jac.ncols() {

@@ -681,14 +681,7 @@ fn on_motion(
         },
         _ => *config,
     };
-    let refined = refine_on_motion(&data, base, start, motion, &config)?;
-    Ok(MlChainEstimate {
-        joint_orders: estimate.joint_orders,
-        retries: estimate.retries,
-        iterations: estimate.iterations + refined.iterations,
-        seconds: estimate.seconds + refined.seconds,
-        ..refined
-    })
+    Ok(refine_on_motion(&data, base, start, motion, &config)?.after(estimate))
 }
 
 /// A residual this many times the noise, and twice the limb's median SU's, marks a broken SU.

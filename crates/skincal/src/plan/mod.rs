@@ -236,6 +236,18 @@ pub struct PlanConfig {
     /// The highest frequency of the sweep's paths, Hz: they are the harmonics of one period over
     /// the whole sweep up to this.
     pub sweep_frequency: f64,
+    /// Training poses run again with the base tilted (the first this many the plan visits, or
+    /// all of them when it has fewer, after the structure experiment, in the tilted run:
+    /// [`Plan::tilted_end`]). Their static readings
+    /// tell what gravity along a vertical first axis cannot: how what the first DoF moves is turned
+    /// about it.
+    #[serde(skip_serializing_if = "is_none")]
+    pub tilted_poses: usize,
+}
+
+/// Whether a count is zero (a field left out of `plan.json`).
+fn is_none(n: &usize) -> bool {
+    *n == 0
 }
 
 impl Default for PlanConfig {
@@ -258,6 +270,7 @@ impl Default for PlanConfig {
             parallel: false,
             sweep: 0.0,
             sweep_frequency: 1.6,
+            tilted_poses: 0,
         }
     }
 }
@@ -321,6 +334,12 @@ impl PlanConfig {
         positive("ramp_cycles", self.ramp_cycles)?;
         positive("max_excursion", self.max_excursion)?;
         positive("max_frequency", self.max_frequency)?;
+        if self.tilted_poses > 0 && (!self.training || self.sweep > 0.0) {
+            return Err(PlanError::InvalidConfig {
+                field: "tilted_poses",
+                reason: "needs training poses (not a continuous program)".into(),
+            });
+        }
         if !(self.settle.is_finite() && self.settle >= 0.0) {
             return Err(PlanError::InvalidConfig {
                 field: "settle",
@@ -514,6 +533,10 @@ pub enum Part {
     Structure,
     /// The training experiment.
     Training,
+    /// What is run again with the base tilted: the structure experiment and the first
+    /// [`PlanConfig::tilted_poses`] training poses ([`Plan::tilted_end`]); a part of a
+    /// recording, not of a phase (whose part is one of the two above).
+    Tilted,
 }
 
 /// What the robot does during a phase.
@@ -822,6 +845,22 @@ pub struct Forecast {
     /// Held-out poses compared.
     #[serde(default)]
     pub held_out: usize,
+    /// The SUs whose pose relative to the one before no reading of the plan fully determines,
+    /// with the directions left (e.g. on a vertical first axis: its first segment's SUs' height
+    /// along it and, without tilted poses, their turn about it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub partly_measured: Vec<PartlyMeasured>,
+}
+
+/// An SU of a forecast's calibration whose pose some direction of no reading determines.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartlyMeasured {
+    /// The SU.
+    pub su: String,
+    /// Position directions undetermined (relative to the SU before).
+    pub positions: usize,
+    /// Turns undetermined.
+    pub turns: usize,
 }
 
 impl Forecast {
@@ -1206,6 +1245,18 @@ impl Plan {
                 (t, self.state(t).q)
             })
             .collect()
+    }
+
+    /// Where the run with the base tilted ends, s: after the structure experiment and the first
+    /// [`PlanConfig::tilted_poses`] training poses (their phases, the transfer to the next pose
+    /// not included).
+    pub fn tilted_end(&self) -> f64 {
+        let n = self.config.tilted_poses;
+        self.phases
+            .iter()
+            .filter(|p| p.part == Part::Training && p.pose.is_some_and(|i| i < n))
+            .map(|p| p.start + p.duration)
+            .fold(self.structure_duration, f64::max)
     }
 
     /// The training poses in the order the plan visits them.

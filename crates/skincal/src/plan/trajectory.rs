@@ -10,7 +10,7 @@
 //! period, so the robot must stand at the plan's first pose when the goal starts (send
 //! [`Trajectory::start_goal`] first).
 
-use super::{Action, Part, Plan};
+use super::{Action, Plan};
 
 /// Knot spacing inside moving phases that keeps the quintic interpolation of the planned
 /// patterns and sweeps far below the encoders' resolution, s.
@@ -21,8 +21,9 @@ pub const DEFAULT_STEP: f64 = 0.02;
 pub enum Section {
     /// The whole program (the base upright).
     Whole,
-    /// The structure experiment alone (run again with the base tilted).
-    Structure,
+    /// What is run again with the base tilted: the structure experiment, and the first
+    /// [`super::PlanConfig::tilted_poses`] training poses ([`Plan::tilted_end`]).
+    Tilted,
 }
 
 /// One knot of a joint trajectory.
@@ -57,14 +58,11 @@ impl Plan {
         assert!(step.is_finite() && step > 0.0, "knot step {step}");
         let end = match section {
             Section::Whole => self.duration,
-            Section::Structure => self.structure_duration,
+            Section::Tilted => self.tilted_end(),
         };
         let mut times: Vec<f64> = Vec::new();
         for phase in &self.phases {
             if phase.start >= end - 1e-9 {
-                break;
-            }
-            if matches!(section, Section::Structure) && phase.part != Part::Structure {
                 break;
             }
             if !matches!(phase.action, Action::Still) {
@@ -199,7 +197,7 @@ mod tests {
             let plan = plan(&config);
             for (section, end) in [
                 (Section::Whole, plan.duration),
-                (Section::Structure, plan.structure_duration),
+                (Section::Tilted, plan.tilted_end()),
             ] {
                 let trajectory = plan.trajectory(section, DEFAULT_STEP);
                 let times: Vec<f64> = trajectory.knots.iter().map(|k| k.time).collect();

@@ -172,6 +172,7 @@ pub fn record(
         None => (0.0, plan.duration),
         Some(Part::Structure) => (0.0, plan.structure_duration),
         Some(Part::Training) => (plan.structure_duration, plan.duration),
+        Some(Part::Tilted) => (0.0, plan.tilted_end()),
     };
     let mut recorder = Recorder::new(robot, config, end - begin);
     // The noise of every component, (m/s²)²: uniform ±u has variance u²/3.

@@ -451,14 +451,7 @@ fn with_other_orientations(
     };
     let ordered = in_order_of(data, &usual.chain);
     start.other_gravities = other_gravities_read(&ordered, &start);
-    let refined = refine_limb(&ordered, base, start, config)?;
-    Ok(MlChainEstimate {
-        joint_orders: usual.joint_orders,
-        retries: usual.retries,
-        iterations: usual.iterations + refined.iterations,
-        seconds: usual.seconds + refined.seconds,
-        ..refined
-    })
+    Ok(refine_limb(&ordered, base, start, config)?.after(usual))
 }
 
 /// `data` with every joint's DoFs in the order `chain` (the same limb) has them.
@@ -680,8 +673,7 @@ pub mod internals {
         state: &ChainState,
         sigma: f64,
     ) -> (nalgebra::DVector<f64>, DMatrix<f64>) {
-        let layout = serial_layout(data.chain.dofs().len());
-        let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
+        let (layout, spec) = full_of(data);
         problem::dense_problem(state, &layout, &readings(data), &spec, sigma)
     }
 
@@ -725,6 +717,19 @@ pub mod internals {
         (r, jac, after)
     }
 
+    /// The serial layout of `data` and its full problem: every block, each other base
+    /// orientation's gravity last.
+    fn full_of(data: &LimbData) -> (Layout, Spec) {
+        let layout = Layout {
+            orientations: data.orientations(),
+            ..serial_layout(data.chain.dofs().len())
+        };
+        let mut spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
+        spec.blocks
+            .extend((1..layout.orientations).map(Block::OtherGravity));
+        (layout, spec)
+    }
+
     /// Residuals after a step `delta` of the full problem's columns.
     pub fn residuals_after(
         data: &LimbData,
@@ -732,8 +737,7 @@ pub mod internals {
         sigma: f64,
         delta: &[f64],
     ) -> nalgebra::DVector<f64> {
-        let layout = serial_layout(data.chain.dofs().len());
-        let spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
+        let (layout, spec) = full_of(data);
         problem::dense_problem(
             &retract(state, &spec, delta),
             &layout,

@@ -405,6 +405,18 @@ impl std::fmt::Debug for FitProblem {
 }
 
 impl MlChainEstimate {
+    /// This estimate, a refit from `search`'s state, with `search`'s record kept: the joint
+    /// orders tried, the retries, and the iterations and time of both.
+    pub(crate) fn after(self, search: MlChainEstimate) -> Self {
+        Self {
+            joint_orders: search.joint_orders,
+            retries: search.retries,
+            iterations: search.iterations + self.iterations,
+            seconds: search.seconds + self.seconds,
+            ..self
+        }
+    }
+
     /// The estimated limb as a robot.
     pub fn to_robot(&self) -> Robot {
         self.robot
