@@ -427,6 +427,17 @@ fn training_poses_with_the_base_tilted_tell_the_turn_about_a_vertical_first_axis
     assert!((g1.norm() - 9.81).abs() < 0.02, "{g1}");
     let angle = g0.angle(&g1).to_degrees();
     assert!((angle - 90.0).abs() < 0.3, "{angle}°");
+    // su1 relative to the reference: still the screw about the axis (the tilted gravity is
+    // fitted freely, so the whole limb's turn about it is the gauge) and the height along it.
+    let first = &e.uncertainty[0];
+    assert_eq!(
+        (
+            first.undetermined_position.len(),
+            first.undetermined_orientation.len()
+        ),
+        (2, 1),
+        "{first:?}"
+    );
     // su1 → su2: only the position along the first axis is left undetermined.
     let pair = &e.uncertainty[1];
     assert_eq!(

@@ -1623,8 +1623,10 @@ pub(super) fn eliminate(
         .zip(&a_inverse)
         .map(|(su, inv)| inv * &su.b)
         .collect();
-    let weak = found.weak;
-    for (e, v) in pairs.into_iter().filter(|(e, _)| *e < weak) {
+    // A direction without information (free) or with less than `limit` allows (weak): with
+    // `limit` infinite only the free ones, whose eigenvalue rounding leaves either side of 0.
+    let (weak, floor) = (found.weak, found.floor);
+    for (e, v) in pairs.into_iter().filter(|(e, _)| *e < weak || *e <= floor) {
         // The shared direction with every SU's own columns following it.
         let mut weights: Vec<(usize, f64)> = shared_index
             .iter()
