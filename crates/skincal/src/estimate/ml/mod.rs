@@ -264,16 +264,6 @@ pub struct ChainState {
     pub other_gravities: Vec<Vector3<f64>>,
 }
 
-impl ChainState {
-    /// Gravity in the reference frame in base orientation `o` (0: the usual one).
-    pub fn gravity_in(&self, o: usize) -> Vector3<f64> {
-        match o {
-            0 => self.gravity,
-            _ => self.other_gravities[o - 1],
-        }
-    }
-}
-
 /// The part of a limb that an earlier estimate fixed: the joint frames of the DoFs from the static
 /// reference to the limb's base, and gravity, in that estimate's reference frame.
 #[derive(Debug, Clone, PartialEq)]

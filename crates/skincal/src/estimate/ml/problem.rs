@@ -105,7 +105,7 @@ pub(super) struct Readings {
     /// whitened by its SU's own noise; `None`: readings only.
     pub motion: Option<Arc<LimbMotion>>,
     /// `orientation[p]`: the base orientation of pose `p`, whose gravity its static readings
-    /// read ([`ChainState::gravity_in`]). Empty: every pose in the usual one.
+    /// read (`gravity`, or [`ChainState::other_gravities`]). Empty: every pose in the usual one.
     pub orientation: Vec<usize>,
 }
 
