@@ -4,7 +4,7 @@
 use anyhow::Result;
 use clap::Args;
 use skincal::estimate::paper::PaperConfig;
-use skincal::estimate::{self, LimbData, SerialChain};
+use skincal::estimate::{self, LimbChain, LimbData};
 use skincal::io::{self, SuPlacement};
 use skincal::sim::{self, Imperfections, SimulationConfig};
 
@@ -64,11 +64,7 @@ pub(crate) fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     }
     use skincal::estimate::ml;
     let paper = io::load_robot("paper-7dof", SuPlacement::default())?;
-    let chain = SerialChain {
-        name: "S7".into(),
-        dofs: paper.model.dof_names(),
-        sus: paper.model.su_names(),
-    };
+    let chain = LimbChain::serial("S7", &paper.model.dof_names(), &paper.model.su_names())?;
     let g = skincal::model::sensor::STANDARD_GRAVITY;
     let sd = args.noise * g / 3f64.sqrt();
     outln!(
@@ -96,7 +92,7 @@ pub(crate) fn bench_calibrate(args: BenchCalibrateArgs) -> Result<()> {
     for seed in args.first_seed..args.first_seed.saturating_add(args.seeds) {
         bar.inc(1);
         let (truth, set) = bench_set(&args, &paper, seed)?;
-        let data = LimbData::serial(&set, &chain)?;
+        let data = LimbData::new(&set, &chain)?;
         let mut seed_bound = None;
         for (model, position, rotation) in &mut bounds {
             seed_bound = ml::cramer_rao_bound(

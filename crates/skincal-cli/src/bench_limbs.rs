@@ -108,14 +108,9 @@ fn run(seed: u64, args: &BenchLimbsArgs) -> Result<Outcome> {
     let check = skincal::predict::validate(&model, &held_out, "held-out")?;
     outcome.statics = check.static_rms;
     outcome.dynamics = check.dynamic_rms;
-    outcome.pose = skincal::estimate::consecutive_su_errors(
-        &robot,
-        &e.to_robot(),
-        &e.chain.su_sequence(),
-        30,
-        seed,
-    )?
-    .position_rms;
+    outcome.pose =
+        skincal::estimate::consecutive_su_errors(&robot, &e.to_robot(), &e.chain, 30, seed)?
+            .position_rms;
     if let Some(state) = &e.state {
         let data = LimbData::new(&set, &e.chain)?;
         if let Some(errors) = ml::observable_su_errors(

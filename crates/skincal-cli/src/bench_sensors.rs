@@ -64,13 +64,7 @@ fn run(
     let (mut pose, mut pairs) = (0.0, 0usize);
     for limb in &model.limbs {
         let e = &limb.estimate;
-        let a = skincal::estimate::consecutive_su_errors(
-            robot,
-            &e.to_robot(),
-            &e.chain.su_sequence(),
-            30,
-            1,
-        )?;
+        let a = skincal::estimate::consecutive_su_errors(robot, &e.to_robot(), &e.chain, 30, 1)?;
         let n = e.chain.sus().len().saturating_sub(2);
         pose += a.position_rms.powi(2) * n as f64;
         pairs += n;

@@ -197,7 +197,7 @@ fn calibrate_paper(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
     outln!("kinematic estimation, the paper's method (MLSL-LDS + Nelder-Mead, e_stop {} g², seed {}); {source}\n", config.e_stop, config.seed);
     let mut estimates = Vec::new();
     for chain in &chains {
-        let data = LimbData::serial(set, chain)?;
+        let data = LimbData::new(set, chain)?;
         let busy = out::spinner(&format!(
             "limb {}: the paper's progressive steps",
             chain.name
@@ -208,7 +208,7 @@ fn calibrate_paper(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
         outln!(
             "limb {} ({} DoFs, {} training poses)\n",
             chain.name,
-            chain.dofs.len(),
+            chain.dofs().len(),
             data.poses()
         );
         let true_rows = truth.and_then(|t| estimate::true_dh_table(t, chain));
@@ -245,8 +245,8 @@ fn calibrate_paper(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
         "model": out.display().to_string(),
         "limbs": estimates.iter().map(|e| serde_json::json!({
             "name": e.chain.name,
-            "dofs": e.chain.dofs,
-            "sus": e.chain.sus,
+            "dofs": e.chain.dofs(),
+            "sus": e.chain.sus(),
             "converged": e.converged(),
             "evaluations": e.steps.iter().map(|s| s.evaluations).sum::<usize>(),
             "seconds": e.steps.iter().map(|s| s.seconds).sum::<f64>(),
@@ -411,7 +411,7 @@ fn limb_accuracies(
                     estimate::consecutive_su_errors(
                         t,
                         &e.to_robot(),
-                        &e.chain.su_sequence(),
+                        &e.chain,
                         estimate::ACCURACY_POSES,
                         estimate::ACCURACY_SEED,
                     )
@@ -487,14 +487,14 @@ fn limb_report(
             .map_or(String::new(), |p| format!(", on limb {p}"))
     )?;
     out.push_str(&render::ml_summary(e));
-    if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
-        let true_rows = truth.and_then(|t| estimate::dh_form(t, &serial));
+    if let (Some(dh), true) = (&e.dh, e.chain.is_serial()) {
+        let true_rows = truth.and_then(|t| estimate::dh_form(t, &e.chain));
         writeln!(
             out,
             "\nIn the paper's DH+2 form (Fig. 6; the first rows' θ0 and d are a gauge choice)\n"
         )?;
         out.push_str(&report::dh_tables(
-            &serial,
+            &e.chain,
             &dh.dof_dof,
             &dh.dof_su,
             true_rows.as_ref(),

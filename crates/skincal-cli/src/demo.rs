@@ -42,13 +42,7 @@ fn demo_rows(
         .iter()
         .map(|limb| {
             let e = &limb.estimate;
-            let accuracy = estimate::consecutive_su_errors(
-                robot,
-                &e.to_robot(),
-                &e.chain.su_sequence(),
-                30,
-                1,
-            )?;
+            let accuracy = estimate::consecutive_su_errors(robot, &e.to_robot(), &e.chain, 30, 1)?;
             Ok(render::LimbRow::new(
                 &limb.name,
                 limb.dofs.len(),

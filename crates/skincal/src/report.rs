@@ -199,31 +199,22 @@ fn abbreviate(names: &[String], keep: usize) -> String {
 /// The paper's Fig. 6 for one chain: DoF-to-DoF and DoF-to-SU tables, with the true values beside
 /// the estimates when known and deviations above 0.1 (rad or m) marked with `*`.
 pub fn dh_tables(
-    chain: &crate::estimate::SerialChain,
+    chain: &crate::estimate::LimbChain,
     dof_dof: &[crate::estimate::DhRow],
     dof_su: &[crate::estimate::SuRow],
     truth: Option<&(Vec<crate::estimate::DhRow>, Vec<crate::estimate::SuRow>)>,
 ) -> String {
     let mut out = String::new();
+    let (dofs, sus) = (chain.dofs(), chain.sus());
     let dd: Vec<(String, Vec<f64>)> = dof_dof
         .iter()
         .enumerate()
-        .map(|(k, r)| {
-            (
-                format!("{}→{}", chain.dofs[k], chain.dofs[k + 1]),
-                r.values().to_vec(),
-            )
-        })
+        .map(|(k, r)| (format!("{}→{}", dofs[k], dofs[k + 1]), r.values().to_vec()))
         .collect();
     let ds: Vec<(String, Vec<f64>)> = dof_su
         .iter()
         .enumerate()
-        .map(|(k, r)| {
-            (
-                format!("{}→{}", chain.dofs[k], chain.sus[k]),
-                r.values().to_vec(),
-            )
-        })
+        .map(|(k, r)| (format!("{}→{}", dofs[k], sus[k]), r.values().to_vec()))
         .collect();
     let true_dd: Option<Vec<Vec<f64>>> =
         truth.map(|(rows, _)| rows.iter().map(|r| r.values().to_vec()).collect());

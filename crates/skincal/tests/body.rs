@@ -408,12 +408,13 @@ fn the_report_puts_the_truth_beside_every_value_of_the_papers_table() {
         .measurements;
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
-    let chain = skincal::estimate::SerialChain {
-        name: "S7".into(),
-        dofs: robot.model.dof_names(),
-        sus: robot.model.su_names(),
-    };
-    let data = skincal::estimate::LimbData::serial(&set, &chain).unwrap();
+    let chain = skincal::estimate::LimbChain::serial(
+        "S7",
+        &robot.model.dof_names(),
+        &robot.model.su_names(),
+    )
+    .unwrap();
+    let data = skincal::estimate::LimbData::new(&set, &chain).unwrap();
     let paper = skincal::estimate::paper::estimate_chain(
         &data,
         &skincal::estimate::paper::PaperConfig::default(),

@@ -2,9 +2,7 @@
 //! ground truth and hand-made perturbations.
 
 use skincal::estimate::paper::{estimate_chain, PaperConfig};
-use skincal::estimate::{
-    consecutive_su_errors, true_dh_table, EstimateError, LimbData, SerialChain,
-};
+use skincal::estimate::{consecutive_su_errors, true_dh_table, EstimateError, LimbChain, LimbData};
 use skincal::model::description::RobotFile;
 use skincal::model::presets;
 use skincal::model::Robot;
@@ -14,12 +12,10 @@ fn paper() -> Robot {
     presets::find("paper-7dof").unwrap().robot().unwrap()
 }
 
-fn chain() -> SerialChain {
-    SerialChain {
-        name: "S7".into(),
-        dofs: (1..=7).map(|k| format!("dof{k}")).collect(),
-        sus: (1..=7).map(|k| format!("su{k}")).collect(),
-    }
+fn chain() -> LimbChain {
+    let dofs: Vec<String> = (1..=7).map(|k| format!("dof{k}")).collect();
+    let sus: Vec<String> = (1..=7).map(|k| format!("su{k}")).collect();
+    LimbChain::serial("S7", &dofs, &sus).unwrap()
 }
 
 /// The paper-7dof description with one DH value changed.
@@ -68,7 +64,7 @@ fn noise_free_data_is_fitted_to_the_truth_with_a_tight_stop() {
         },
     )
     .unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain()).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain()).unwrap();
     // e_T ≤ 1e-8 g² over 20 poses × 12 values is an RMS residual below 7e-6 g; with lever arms of
     // 0.1–0.4 m that leaves SU poses within well under a millimetre and 0.05°.
     let config = PaperConfig {
@@ -104,7 +100,7 @@ fn with_the_papers_noise_every_step_meets_the_stop_and_the_seed_repeats_the_run(
         },
     )
     .unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain()).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain()).unwrap();
     let config = PaperConfig {
         seed: 1,
         ..PaperConfig::default()
@@ -154,13 +150,13 @@ fn bad_training_data_gets_clear_errors() {
     let mut set = sim.measurements.clone();
     set.training = None;
     assert_eq!(
-        LimbData::serial(&set, &chain()).unwrap_err(),
+        LimbData::new(&set, &chain()).unwrap_err(),
         EstimateError::NoTrainingData
     );
 
     let mut set = sim.measurements.clone();
     set.training.as_mut().unwrap().poses[4].static_readings[2][1] = f64::NAN;
-    let err = LimbData::serial(&set, &chain()).unwrap_err().to_string();
+    let err = LimbData::new(&set, &chain()).unwrap_err().to_string();
     assert!(
         err.contains("training.poses[4].static") && err.contains("NaN"),
         "{err}"
@@ -170,7 +166,7 @@ fn bad_training_data_gets_clear_errors() {
     set.training.as_mut().unwrap().poses[7]
         .dynamic
         .remove("dof5");
-    let data = LimbData::serial(&set, &chain()).unwrap();
+    let data = LimbData::new(&set, &chain()).unwrap();
     let err = estimate_chain(&data, &PaperConfig::default()).unwrap_err();
     assert!(
         matches!(err, EstimateError::MissingDynamic { pose: 7, ref dof, .. } if dof == "dof5"),
@@ -179,7 +175,7 @@ fn bad_training_data_gets_clear_errors() {
 
     let mut set = sim.measurements.clone();
     set.training.as_mut().unwrap().poses.truncate(6);
-    let data = LimbData::serial(&set, &chain()).unwrap();
+    let data = LimbData::new(&set, &chain()).unwrap();
     let err = estimate_chain(&data, &PaperConfig::default()).unwrap_err();
     assert_eq!(
         err,
@@ -190,12 +186,13 @@ fn bad_training_data_gets_clear_errors() {
     );
     assert!(err.to_string().contains("at least 10 poses"));
 
-    let wrong = SerialChain {
-        sus: vec!["su1".into(), "elbow_su".into()],
-        dofs: vec!["dof1".into(), "dof2".into()],
-        name: "S2".into(),
-    };
-    let err = LimbData::serial(&sim.measurements, &wrong)
+    let wrong = LimbChain::serial(
+        "S2",
+        &["dof1".into(), "dof2".into()],
+        &["su1".into(), "elbow_su".into()],
+    )
+    .unwrap();
+    let err = LimbData::new(&sim.measurements, &wrong)
         .unwrap_err()
         .to_string();
     assert!(err.contains("elbow_su") && err.contains("S2"), "{err}");

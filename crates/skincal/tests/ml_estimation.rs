@@ -3,18 +3,16 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use skincal::estimate::ml::{estimate_limb, internals, state_of, MlConfig};
-use skincal::estimate::{consecutive_su_errors, LimbData, SerialChain};
+use skincal::estimate::{consecutive_su_errors, LimbChain, LimbData};
 use skincal::model::description::RobotFile;
 use skincal::model::presets;
 use skincal::model::sensor::gravity_upright;
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
-fn chain(n: usize) -> SerialChain {
-    SerialChain {
-        name: "chain".into(),
-        dofs: (1..=n).map(|k| format!("dof{k}")).collect(),
-        sus: (1..=n).map(|k| format!("su{k}")).collect(),
-    }
+fn chain(n: usize) -> LimbChain {
+    let dofs: Vec<String> = (1..=n).map(|k| format!("dof{k}")).collect();
+    let sus: Vec<String> = (1..=n).map(|k| format!("su{k}")).collect();
+    LimbChain::serial("chain", &dofs, &sus).unwrap()
 }
 
 /// The data of `truth` simulated with the paper's noise from `seed`, as one 7-DoF chain.
@@ -27,7 +25,7 @@ fn paper_noise_data(truth: &skincal::model::Robot, seed: u64) -> LimbData {
         },
     )
     .unwrap();
-    LimbData::serial(&sim.measurements, &chain(7)).unwrap()
+    LimbData::new(&sim.measurements, &chain(7)).unwrap()
 }
 
 fn noise_free() -> SimulationConfig {
@@ -41,7 +39,7 @@ fn noise_free() -> SimulationConfig {
 fn noise_free_data_gives_back_the_poses() {
     let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
     let sim = simulate(&truth, &noise_free()).unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain(7)).unwrap();
     let estimate = estimate_limb(
         &data,
         None,
@@ -119,7 +117,7 @@ fn the_readings_jacobian_matches_central_differences_on_random_chains() {
             },
         )
         .unwrap();
-        let data = LimbData::serial(&sim.measurements, &chain(5)).unwrap();
+        let data = LimbData::new(&sim.measurements, &chain(5)).unwrap();
         // Linearised at the truth, which with noisy readings is not the optimum.
         let mut state = state_of(&truth, &chain(5), &gravity_upright()).unwrap();
         if let Some(g) = sim.truth.tilted_training_gravity {
@@ -168,7 +166,7 @@ fn parallel_axes_leave_directions_the_data_cannot_see_and_they_are_named() {
         },
     )
     .unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain(3)).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain(3)).unwrap();
     let estimate = estimate_limb(&data, None, &MlConfig::default()).unwrap();
     assert!(estimate.converged, "{}", estimate.residual_ratio);
     let named: Vec<String> = estimate
@@ -331,7 +329,7 @@ fn the_dh_form_of_the_truth_is_the_papers_table_and_the_estimate_gives_it_back()
 
     // The noise-free estimate: every row but the gauge (the first rows' θ0 and d) comes back.
     let sim = simulate(&truth, &noise_free()).unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain(7)).unwrap();
     let estimate = estimate_limb(
         &data,
         None,
@@ -414,7 +412,7 @@ fn training_poses_with_the_base_tilted_tell_the_turn_about_a_vertical_first_axis
         },
     )
     .unwrap();
-    let data = LimbData::serial(&sim.measurements, &chain(7)).unwrap();
+    let data = LimbData::new(&sim.measurements, &chain(7)).unwrap();
     assert_eq!(data.orientations(), 2);
     let e = estimate_limb(&data, None, &MlConfig::default()).unwrap();
     assert!(e.converged, "residual {}", e.residual_ratio);

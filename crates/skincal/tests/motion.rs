@@ -276,7 +276,7 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
 #[test]
 fn the_motion_rows_jacobian_matches_central_differences() {
     use skincal::estimate::ml::{internals, state_of};
-    use skincal::estimate::{LimbData, SerialChain};
+    use skincal::estimate::{LimbChain, LimbData};
     use skincal::sim::Imperfections;
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
     let plan = Plan::new(
@@ -312,12 +312,10 @@ fn the_motion_rows_jacobian_matches_central_differences() {
         &mut |_, _, _| {},
     )
     .unwrap();
-    let chain = SerialChain {
-        name: "chain".into(),
-        dofs: (1..=7).map(|k| format!("dof{k}")).collect(),
-        sus: (1..=7).map(|k| format!("su{k}")).collect(),
-    };
-    let data = LimbData::serial(&set, &chain).unwrap();
+    let dofs: Vec<String> = (1..=7).map(|k| format!("dof{k}")).collect();
+    let sus: Vec<String> = (1..=7).map(|k| format!("su{k}")).collect();
+    let chain = LimbChain::serial("chain", &dofs, &sus).unwrap();
+    let data = LimbData::new(&set, &chain).unwrap();
     let mut state = state_of(&robot, &chain, &nalgebra::Vector3::new(0.0, 0.0, -9.81)).unwrap();
     state.skin_delay = 0.002;
     let (_, jac, _) = internals::motion_problem(&data, &record, &state, &[]);

@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use skincal::estimate::body::{calibrate_body, BodyModel};
 use skincal::estimate::limb::{limb_chains, LimbData};
-use skincal::estimate::ml::{estimate_limb, limb_state_of, observable_su_errors, MlConfig};
+use skincal::estimate::ml::{estimate_limb, observable_su_errors, state_of, MlConfig};
 use skincal::explore::{explore, ExploreConfig, Structure};
 use skincal::measurements::MeasurementSet;
 use skincal::model::sensor::gravity_upright;
@@ -422,7 +422,7 @@ fn su_pose_errors_along_what_no_reading_tells_do_not_count() {
     let g = gravity_upright();
     // Every axis parallel: nothing tells how far along them any SU or joint sits.
     let (robot, _, _, data) = limb_data(6, "like-H1-P1-P1-P1-P1");
-    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    let truth = state_of(&robot, &data.chain, &g).unwrap();
     let mut slid = truth.clone();
     for (u, su) in slid.sus.iter_mut().enumerate() {
         su.translation.z += 0.05 * u as f64 - 0.3;
@@ -439,7 +439,7 @@ fn su_pose_errors_along_what_no_reading_tells_do_not_count() {
 
     // A vertical first axis: the SUs it alone moves may sit anywhere about it and along it.
     let (robot, _, _, data) = limb_data(1, "like-V1");
-    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    let truth = state_of(&robot, &data.chain, &g).unwrap();
     let on_first = data.su_depth.iter().take_while(|&&d| d == 1).count();
     assert!(on_first >= 2, "{:?}", data.su_depth);
     let mut turned = truth.clone();
@@ -460,7 +460,7 @@ fn su_pose_errors_the_readings_tell_are_kept() {
     let config = MlConfig::default();
     let g = gravity_upright();
     let (robot, _, _, data) = limb_data(6, "like-H1-P1-P1-P1-P1");
-    let truth = limb_state_of(&robot, &data.chain, &g).unwrap();
+    let truth = state_of(&robot, &data.chain, &g).unwrap();
     // One SU in the middle 5 mm off across the axes: both its pairs are off by 5 mm.
     let u = data.su_depth.len() / 2;
     let mut moved = truth.clone();

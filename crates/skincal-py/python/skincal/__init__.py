@@ -715,8 +715,8 @@ class PaperModel:
         return [
             PaperLimb(
                 name=e["chain"]["name"],
-                dofs=list(e["chain"]["dofs"]),
-                sus=list(e["chain"]["sus"]),
+                dofs=[d for j in e["chain"]["joints"] for d in j["dofs"]],
+                sus=[u for j in e["chain"]["joints"] for u in j["sus"]],
                 dof_dof=np.array([[r[k] for k in dh] for r in e["dof_dof"]]).reshape(-1, 4),
                 dof_su=np.array([[r[k] for k in su] for r in e["dof_su"]]).reshape(-1, 6),
                 fixed=list(e["fixed"]),

@@ -502,7 +502,7 @@ fn limbs_to_calibrate(
 ) -> Result<Vec<LimbChain>, EstimateError> {
     let mut chains = match structure {
         Some(s) => limb_chains(s)?,
-        None => vec![LimbChain::from(&chain_in_listed_order(set)?)],
+        None => vec![chain_in_listed_order(set)?],
     };
     if let Some(name) = only {
         let target = chains

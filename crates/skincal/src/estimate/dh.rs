@@ -10,7 +10,7 @@
 
 use nalgebra::{Isometry3, Vector3};
 
-use super::SerialChain;
+use super::LimbChain;
 /// A DoF-to-DoF row of the paper's table (Fig. 6): `θ0, d, a, α`, m and rad.
 pub use crate::model::description::DhEntry as DhRow;
 /// A DoF-to-SU row of the paper's table (Fig. 6): `θ0, d, a, α, θ_acc, d_acc`, m and rad.
@@ -27,13 +27,14 @@ const DOF_PARALLEL_BELOW_SIN2: f64 = 1e-12;
 
 /// The true DH table of `chain`, when the truth is written in the paper's DH form (DoFs placed by
 /// DH rows on the previous DoF's segment, SUs by DH-plus-sensor rows); `None` otherwise.
-pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+pub fn true_dh_table(truth: &Robot, chain: &LimbChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
     use crate::model::Parameterization as P;
     let m = &truth.model;
+    let (dofs, su_names) = (chain.dofs(), chain.sus());
     let mut rows = Vec::new();
-    for k in 1..chain.dofs.len() {
-        let dof = &m.dofs()[m.dof_index(&chain.dofs[k])?];
-        let previous = m.dof_index(&chain.dofs[k - 1])?;
+    for k in 1..dofs.len() {
+        let dof = &m.dofs()[m.dof_index(&dofs[k])?];
+        let previous = m.dof_index(&dofs[k - 1])?;
         if dof.origin.kind != P::StandardDh || m.segments()[dof.parent].parent_dof != Some(previous)
         {
             return None;
@@ -42,10 +43,10 @@ pub fn true_dh_table(truth: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, 
         rows.push(DhRow::from_values(v));
     }
     let mut sus = Vec::new();
-    for (k, name) in chain.sus.iter().enumerate() {
+    for (k, name) in su_names.iter().enumerate() {
         let su = &m.sus()[m.su_index(name)?];
         if su.placement.kind != P::StandardDhSensor
-            || m.segments()[su.segment].parent_dof != m.dof_index(&chain.dofs[k])
+            || m.segments()[su.segment].parent_dof != m.dof_index(&dofs[k])
         {
             return None;
         }
@@ -105,15 +106,15 @@ pub type ChainFrames = (Vec<Isometry3<f64>>, Vec<Isometry3<f64>>);
 
 /// The frames of a chain of any robot at the zero pose, in the robot's reference frame: every
 /// DoF's joint frame turned so that its z axis is the DoF's axis, and every chain SU's frame.
-pub fn chain_frames_at_zero(robot: &Robot, chain: &SerialChain) -> Option<ChainFrames> {
+pub fn chain_frames_at_zero(robot: &Robot, chain: &LimbChain) -> Option<ChainFrames> {
     let m = &robot.model;
     let dofs: Vec<usize> = chain
-        .dofs
+        .dofs()
         .iter()
         .map(|d| m.dof_index(d))
         .collect::<Option<_>>()?;
     let sus: Vec<usize> = chain
-        .sus
+        .sus()
         .iter()
         .map(|s| m.su_index(s))
         .collect::<Option<_>>()?;
@@ -139,7 +140,7 @@ pub fn chain_frames_at_zero(robot: &Robot, chain: &SerialChain) -> Option<ChainF
 /// or the truth: DoF-to-DoF rows from the common normals between consecutive axes at the zero pose,
 /// the first DH frame being the first joint's frame (the paper's `DoF1_T_RS = I`), and DoF-to-SU
 /// rows to each SU's z axis, with `θ_acc`, `d_acc` for the rest.
-pub fn dh_form(robot: &Robot, chain: &SerialChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
+pub fn dh_form(robot: &Robot, chain: &LimbChain) -> Option<(Vec<DhRow>, Vec<SuRow>)> {
     let (joints, su_frames) = chain_frames_at_zero(robot, chain)?;
     let base = joints[0];
 

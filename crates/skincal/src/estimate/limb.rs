@@ -4,7 +4,7 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use super::{EstimateError, SerialChain};
+use super::EstimateError;
 use crate::explore::Structure;
 use crate::measurements::{MeasurementSet, TrainingPose};
 use crate::model::sensor::ExcitationPattern;
@@ -109,41 +109,41 @@ impl LimbChain {
         format!("segment_{k}")
     }
 
-    /// A serial chain in the paper's sense (one DoF and one SU per joint), if this limb is one.
-    pub fn as_serial(&self) -> Option<SerialChain> {
-        let single = self.base_joints == 0
+    /// Whether this is a serial chain in the paper's sense: one DoF and one SU per joint, no base
+    /// path held from another limb.
+    pub fn is_serial(&self) -> bool {
+        self.base_joints == 0
             && self
                 .joints
                 .iter()
-                .all(|j| j.dofs.len() == 1 && j.sus.len() == 1);
-        single.then(|| SerialChain {
-            name: self.name.clone(),
-            dofs: self.dofs(),
-            sus: self.sus(),
-        })
+                .all(|j| j.dofs.len() == 1 && j.sus.len() == 1)
     }
 
-    /// The chain of every SU relative to the previous one along the limb, for
-    /// [`super::consecutive_su_errors`].
-    pub fn su_sequence(&self) -> SerialChain {
-        SerialChain {
-            name: self.name.clone(),
-            dofs: self.dofs(),
-            sus: self.sus(),
+    /// A serial chain in the paper's sense: DoF `k` moves segment `segment_<dof k>`, which carries
+    /// SU `k` alone. Needs as many SUs as DoFs.
+    pub fn serial(
+        name: impl Into<String>,
+        dofs: &[String],
+        sus: &[String],
+    ) -> Result<Self, EstimateError> {
+        let name = name.into();
+        if dofs.len() != sus.len() {
+            return Err(EstimateError::UnsupportedLimb {
+                limb: name,
+                reason: format!(
+                    "a serial chain has one SU after every DoF, but {} SUs were given for {} DoFs",
+                    sus.len(),
+                    dofs.len()
+                ),
+            });
         }
-    }
-}
-
-impl From<&SerialChain> for LimbChain {
-    fn from(chain: &SerialChain) -> Self {
-        LimbChain {
-            name: chain.name.clone(),
+        Ok(LimbChain {
+            name,
             base_joints: 0,
             prismatic: Vec::new(),
-            joints: chain
-                .dofs
+            joints: dofs
                 .iter()
-                .zip(&chain.sus)
+                .zip(sus)
                 .map(|(d, s)| LimbJoint {
                     id: d.clone(),
                     dofs: vec![d.clone()],
@@ -151,7 +151,7 @@ impl From<&SerialChain> for LimbChain {
                     sus: vec![s.clone()],
                 })
                 .collect(),
-        }
+        })
     }
 }
 
@@ -296,12 +296,6 @@ impl LimbData {
             data.check_excited()?;
         }
         Ok(data)
-    }
-
-    /// Extracts and checks the data of a serial chain in the paper's sense (one DoF and one SU per
-    /// segment).
-    pub fn serial(set: &MeasurementSet, chain: &SerialChain) -> Result<Self, EstimateError> {
-        Self::new(set, &LimbChain::from(chain))
     }
 
     /// Whether the dynamic reading of chain DoF `k` is missing for SU `u` in pose `p`.

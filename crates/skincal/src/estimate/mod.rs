@@ -122,26 +122,14 @@ pub enum EstimateError {
     },
 }
 
-/// A serial chain from the static reference to an end effector, one SU per segment.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct SerialChain {
-    /// Its name: the end segment's id in the explored structure, or `chain`.
-    pub name: String,
-    /// DoFs from the reference outwards.
-    pub dofs: Vec<String>,
-    /// `sus[k]`: the SU on the segment that DoF `k` moves directly.
-    pub sus: Vec<String>,
-}
-
 /// The serial chains from the reference segment to every end effector of an explored structure,
 /// with the first SU of every segment. Every joint on them must have a single DoF (the paper's
 /// chain model); the error names the joint otherwise.
-pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, EstimateError> {
+pub fn serial_chains(structure: &Structure) -> Result<Vec<LimbChain>, EstimateError> {
     structure.check().map_err(EstimateError::InvalidStructure)?;
     let mut chains = Vec::new();
     for end in &structure.end_effectors {
-        let mut dofs = Vec::new();
-        let mut sus = Vec::new();
+        let mut joints = Vec::new();
         let mut segment = structure.segment(end).expect("end effectors are segments");
         while let Some(joint_id) = &segment.parent_joint {
             let joint = structure.joint(joint_id).expect("parent joints exist");
@@ -163,16 +151,20 @@ pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, Estimate
                     limb: end.clone(),
                     reason: format!("segment {} carries no SU", segment.id),
                 })?;
-            dofs.push(joint.dofs[0].clone());
-            sus.push(su.clone());
+            joints.push(LimbJoint {
+                id: joint.id.clone(),
+                dofs: joint.dofs.clone(),
+                segment: segment.id.clone(),
+                sus: vec![su.clone()],
+            });
             segment = structure.segment(&joint.parent).expect("parents exist");
         }
-        dofs.reverse();
-        sus.reverse();
-        chains.push(SerialChain {
+        joints.reverse();
+        chains.push(LimbChain {
             name: end.clone(),
-            dofs,
-            sus,
+            base_joints: 0,
+            joints,
+            prismatic: Vec::new(),
         });
     }
     Ok(chains)
@@ -180,7 +172,7 @@ pub fn serial_chains(structure: &Structure) -> Result<Vec<SerialChain>, Estimate
 
 /// Without a structure: the DoFs of the set in their order as one chain, the `k`-th SU on the
 /// segment after the `k`-th DoF. Needs as many SUs as DoFs.
-pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<SerialChain, EstimateError> {
+pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<LimbChain, EstimateError> {
     if set.sus.len() != set.dofs.len() {
         return Err(EstimateError::UnsupportedLimb {
             limb: "chain".into(),
@@ -191,11 +183,7 @@ pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<SerialChain, Estima
             ),
         });
     }
-    Ok(SerialChain {
-        name: "chain".into(),
-        dofs: set.dofs.clone(),
-        sus: set.sus.clone(),
-    })
+    LimbChain::serial("chain", &set.dofs, &set.sus)
 }
 
 /// The training experiment of a valid set with at least one pose.
@@ -232,15 +220,16 @@ pub(crate) fn position(
 /// placed by `origins[k]` on the segment of DoF `k−1`, and SU `k` placed by `sus` entries `(k, placement)`
 /// on the segment of DoF `k`. Only the first `origins.len()` DoFs are built.
 pub fn chain_robot(
-    chain: &SerialChain,
+    chain: &LimbChain,
     origins: Vec<PlacementSpec>,
     sus: Vec<(usize, PlacementSpec)>,
 ) -> Robot {
     let mut b = RobotBuilder::new(chain.name.clone(), "reference");
-    let segment = |k: usize| format!("segment_{}", chain.dofs[k]);
+    let (dofs, su_names) = (chain.dofs(), chain.sus());
+    let segment = |k: usize| format!("segment_{}", dofs[k]);
     for (k, origin) in origins.into_iter().enumerate() {
         b.dofs.push(DofSpec {
-            name: chain.dofs[k].clone(),
+            name: dofs[k].clone(),
             parent: if k == 0 {
                 "reference".into()
             } else {
@@ -256,7 +245,7 @@ pub fn chain_robot(
     }
     for (k, placement) in sus {
         b.sus.push(SuSpec {
-            name: chain.sus[k].clone(),
+            name: su_names[k].clone(),
             segment: segment(k),
             placement,
         });
@@ -269,7 +258,7 @@ pub fn chain_robot(
 /// by `dof_dof[k]`, SU `k` on the segment of DoF `k` by its row. `dof_su` may name only some SUs,
 /// and `dof_dof` has one row less than the DoFs used.
 pub fn dh_chain_robot(
-    chain: &SerialChain,
+    chain: &LimbChain,
     dofs: usize,
     dof_dof: &[DhRow],
     dof_su: &[(usize, SuRow)],
@@ -350,14 +339,14 @@ pub struct ChainAccuracy {
 pub fn consecutive_su_errors(
     truth: &Robot,
     estimate: &Robot,
-    chain: &SerialChain,
+    chain: &LimbChain,
     poses: usize,
     seed: u64,
 ) -> Result<ChainAccuracy, EstimateError> {
     let (t_dofs, t_sus) = (chain_dofs(truth, chain)?, chain_sus(truth, chain)?);
     let (e_dofs, e_sus) = (chain_dofs(estimate, chain)?, chain_sus(estimate, chain)?);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let n_pairs = chain.sus.len().saturating_sub(1);
+    let n_pairs = chain.sus().len().saturating_sub(1);
     let mut pos = vec![Vec::new(); n_pairs];
     let mut rot = vec![Vec::new(); n_pairs];
     let mut first: Vec<FirstPair> = Vec::new();
@@ -403,17 +392,17 @@ pub fn consecutive_su_errors(
 }
 
 /// The index in `robot` of every DoF of `chain`.
-fn chain_dofs(robot: &Robot, chain: &SerialChain) -> Result<Vec<usize>, EstimateError> {
-    indices_in(chain, "DoF", &chain.dofs, |n| robot.model.dof_index(n))
+fn chain_dofs(robot: &Robot, chain: &LimbChain) -> Result<Vec<usize>, EstimateError> {
+    indices_in(chain, "DoF", &chain.dofs(), |n| robot.model.dof_index(n))
 }
 
 /// The index in `robot` of every SU of `chain`.
-fn chain_sus(robot: &Robot, chain: &SerialChain) -> Result<Vec<usize>, EstimateError> {
-    indices_in(chain, "SU", &chain.sus, |n| robot.model.su_index(n))
+fn chain_sus(robot: &Robot, chain: &LimbChain) -> Result<Vec<usize>, EstimateError> {
+    indices_in(chain, "SU", &chain.sus(), |n| robot.model.su_index(n))
 }
 
 fn indices_in(
-    chain: &SerialChain,
+    chain: &LimbChain,
     what: &'static str,
     names: &[String],
     index: impl Fn(&str) -> Option<usize>,
@@ -499,17 +488,18 @@ impl FirstPair {
 
 /// Per pair and over the pairs after the first: RMS and largest errors.
 fn chain_accuracy(
-    chain: &SerialChain,
+    chain: &LimbChain,
     pos: &[Vec<f64>],
     rot: &[Vec<f64>],
     poses: usize,
 ) -> ChainAccuracy {
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    let sus = chain.sus();
     let pairs = (0..pos.len())
         .map(|i| PairError {
-            from: chain.sus[i].clone(),
-            to: chain.sus[i + 1].clone(),
+            from: sus[i].clone(),
+            to: sus[i + 1].clone(),
             position_rms: rms(&pos[i]),
             position_max: max(&pos[i]),
             rotation_rms: rms(&rot[i]),

@@ -31,8 +31,8 @@ use serde::{Deserialize, Serialize};
 use skincal_nlopt::{Algorithm, Optimizer};
 
 use super::{
-    chain_in_listed_order, dh_chain_robot, serial_chains, DhRow, EstimateError, LimbData,
-    SerialChain, SuRow,
+    chain_in_listed_order, dh_chain_robot, serial_chains, DhRow, EstimateError, LimbChain,
+    LimbData, SuRow,
 };
 use crate::explore::Structure;
 use crate::measurements::MeasurementSet;
@@ -93,8 +93,8 @@ pub struct StepReport {
 /// The paper's estimate of one chain: its DH table (Fig. 6) and how the steps went.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PaperChainEstimate {
-    /// The chain.
-    pub chain: SerialChain,
+    /// The chain: one DoF and one SU per joint.
+    pub chain: LimbChain,
     /// DoF-to-DoF rows `k → k+1`.
     pub dof_dof: Vec<DhRow>,
     /// DoF-to-SU rows, one per SU.
@@ -116,7 +116,7 @@ impl PaperChainEstimate {
     /// The estimated chain as a robot (names as in the chain).
     pub fn robot(&self) -> Robot {
         let sus: Vec<(usize, SuRow)> = self.dof_su.iter().copied().enumerate().collect();
-        dh_chain_robot(&self.chain, self.chain.dofs.len(), &self.dof_dof, &sus)
+        dh_chain_robot(&self.chain, self.chain.dofs().len(), &self.dof_dof, &sus)
     }
 
     /// Total evaluations over all steps.
@@ -161,7 +161,7 @@ pub fn chains(
     set: &MeasurementSet,
     structure: Option<&Structure>,
     limb: Option<&str>,
-) -> Result<Vec<SerialChain>, EstimateError> {
+) -> Result<Vec<LimbChain>, EstimateError> {
     let mut chains = match structure {
         Some(s) => serial_chains(s)?,
         None => vec![chain_in_listed_order(set)?],
@@ -187,14 +187,14 @@ pub fn chains(
 /// total)` is called before each and after the last.
 pub fn estimate_chains(
     set: &MeasurementSet,
-    chains: &[SerialChain],
+    chains: &[LimbChain],
     config: &PaperConfig,
     progress: &mut dyn FnMut(&str, usize, usize),
 ) -> Result<PaperModel, EstimateError> {
     let mut limbs = Vec::with_capacity(chains.len());
     for (i, chain) in chains.iter().enumerate() {
         progress(&chain.name, i, chains.len());
-        limbs.push(estimate_chain(&LimbData::serial(set, chain)?, config)?);
+        limbs.push(estimate_chain(&LimbData::new(set, chain)?, config)?);
     }
     progress("", chains.len(), chains.len());
     Ok(PaperModel::new(limbs))
@@ -245,14 +245,14 @@ fn bounds(name: &str) -> (f64, f64) {
 /// Estimates one chain progressively with the paper's method.
 ///
 /// ```
-/// use skincal::estimate::{paper, LimbData, SerialChain};
+/// use skincal::estimate::{paper, LimbChain, LimbData};
 /// use skincal::model::presets;
 /// use skincal::sim::{simulate, SimulationConfig};
 ///
 /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
 /// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
-/// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
-/// let data = LimbData::serial(&set, &chain).unwrap();
+/// let chain = LimbChain::serial("arm", &robot.model.dof_names(), &robot.model.su_names()).unwrap();
+/// let data = LimbData::new(&set, &chain).unwrap();
 /// let estimate = paper::estimate_chain(&data, &paper::PaperConfig::default()).unwrap();
 /// assert_eq!(estimate.steps.len(), 7);
 /// assert!(estimate.steps.iter().all(|s| s.e_t <= 0.1)); // this data set: every step meets e_stop
@@ -270,8 +270,8 @@ pub fn estimate_chain(
     } else {
         data
     };
-    let chain = &papers_chain(data)?;
-    let n_dofs = chain.dofs.len();
+    let chain = papers_chain(data)?;
+    let n_dofs = chain.dofs().len();
     let largest = match n_dofs {
         1 => 4,
         2 => 8,
@@ -306,18 +306,17 @@ pub fn estimate_chain(
 
 /// The chain of `data` as the paper's method takes it: one revolute DoF and one SU per segment,
 /// from the static reference, every DoF's dynamic readings in every pose.
-fn papers_chain(data: &LimbData) -> Result<SerialChain, EstimateError> {
-    let limb = &data.chain.name;
-    let chain = data
-        .chain
-        .as_serial()
-        .ok_or_else(|| EstimateError::UnsupportedLimb {
+fn papers_chain(data: &LimbData) -> Result<&LimbChain, EstimateError> {
+    let (chain, limb) = (&data.chain, &data.chain.name);
+    if !chain.is_serial() {
+        return Err(EstimateError::UnsupportedLimb {
             limb: limb.clone(),
             reason:
                 "the paper's estimator takes a serial chain from the static reference with one \
                      DoF and one SU per segment: use the maximum-likelihood estimator (the default)"
                     .into(),
-        })?;
+        });
+    }
     if let Some(d) = data.chain.prismatic.first() {
         return Err(EstimateError::UnsupportedLimb {
             limb: limb.clone(),
@@ -327,11 +326,12 @@ fn papers_chain(data: &LimbData) -> Result<SerialChain, EstimateError> {
             ),
         });
     }
+    let dofs = chain.dofs();
     for p in 0..data.poses() {
-        if let Some(k) = (0..chain.dofs.len()).find(|&k| data.is_missing(p, k, k)) {
+        if let Some(k) = (0..dofs.len()).find(|&k| data.is_missing(p, k, k)) {
             return Err(EstimateError::MissingDynamic {
                 pose: p,
-                dof: chain.dofs[k].clone(),
+                dof: dofs[k].clone(),
                 limb: limb.clone(),
             });
         }
@@ -342,7 +342,7 @@ fn papers_chain(data: &LimbData) -> Result<SerialChain, EstimateError> {
 /// Step `n + 1` of the progressive estimation (Fig. 4): which entries of the new DoF-to-DoF row
 /// and of SU `n`'s row are free, their names and bounds.
 struct Step<'a> {
-    chain: &'a SerialChain,
+    chain: &'a LimbChain,
     n: usize,
     row_free: &'static [&'static str],
     su_free: &'static [&'static str],
@@ -352,7 +352,8 @@ struct Step<'a> {
 }
 
 impl<'a> Step<'a> {
-    fn new(chain: &'a SerialChain, n: usize) -> Self {
+    fn new(chain: &'a LimbChain, n: usize) -> Self {
+        let (dofs, sus) = (chain.dofs(), chain.sus());
         let row_free: &[&str] = match n {
             0 => &[],
             1 => &["a", "alpha"],
@@ -369,12 +370,12 @@ impl<'a> Step<'a> {
             (
                 format!(
                     "{}-{}",
-                    chain.dofs.get(n.wrapping_sub(1)).map_or("", |s| s),
-                    chain.dofs[n]
+                    dofs.get(n.wrapping_sub(1)).map_or("", |s| s),
+                    dofs[n]
                 ),
                 row_free,
             ),
-            (format!("{}-{}", chain.dofs[n], chain.sus[n]), su_free),
+            (format!("{}-{}", dofs[n], sus[n]), su_free),
         ] {
             for &p in free {
                 names.push(format!("{prefix}.{p}"));
@@ -427,6 +428,7 @@ impl<'a> Step<'a> {
         config: &PaperConfig,
     ) -> Result<(StepReport, Vec<f64>), EstimateError> {
         let (chain, n) = (self.chain, self.n);
+        let (dofs, sus) = (chain.dofs(), chain.sus());
         let excited = n + 1 - config.excited_dofs.min(n + 1)..n + 1;
         let placeholder = SuRow {
             theta0: 0.0,
@@ -476,13 +478,13 @@ impl<'a> Step<'a> {
         if !e_t.is_finite() || v.iter().any(|p| !p.is_finite()) {
             return Err(EstimateError::NotFinite {
                 limb: chain.name.clone(),
-                reason: format!("step {} (SU {}): e_T = {}", n + 1, chain.sus[n], e_t),
+                reason: format!("step {} (SU {}): e_T = {}", n + 1, sus[n], e_t),
             });
         }
         let report = StepReport {
             step: n + 1,
-            su: chain.sus[n].clone(),
-            excited: excited.map(|d| chain.dofs[d].clone()).collect(),
+            su: sus[n].clone(),
+            excited: excited.map(|d| dofs[d].clone()).collect(),
             parameters: self.names,
             evaluations,
             seconds,
@@ -496,15 +498,16 @@ impl<'a> Step<'a> {
 
 /// The entries fixed at 0 because no reading tells them: the first SU row's and the first
 /// DoF-to-DoF row's `θ0` and `d`.
-fn gauge_of(chain: &SerialChain) -> Vec<String> {
+fn gauge_of(chain: &LimbChain) -> Vec<String> {
+    let (dofs, sus) = (chain.dofs(), chain.sus());
     let mut fixed = vec![
-        format!("{}-{}.theta0", chain.dofs[0], chain.sus[0]),
-        format!("{}-{}.d", chain.dofs[0], chain.sus[0]),
+        format!("{}-{}.theta0", dofs[0], sus[0]),
+        format!("{}-{}.d", dofs[0], sus[0]),
     ];
-    if chain.dofs.len() > 1 {
+    if dofs.len() > 1 {
         fixed.extend([
-            format!("{}-{}.theta0", chain.dofs[0], chain.dofs[1]),
-            format!("{}-{}.d", chain.dofs[0], chain.dofs[1]),
+            format!("{}-{}.theta0", dofs[0], dofs[1]),
+            format!("{}-{}.d", dofs[0], dofs[1]),
         ]);
     }
     fixed

@@ -48,7 +48,7 @@ pub(super) fn truth_errors(
     let accuracy = crate::estimate::consecutive_su_errors(
         truth,
         &e.to_robot(),
-        &e.chain.su_sequence(),
+        &e.chain,
         ACCURACY_POSES,
         ACCURACY_SEED,
     )
@@ -58,7 +58,7 @@ pub(super) fn truth_errors(
     let state = e
         .state
         .clone()
-        .or_else(|| ml::limb_state_of(&e.to_robot(), &e.chain, &gravity));
+        .or_else(|| ml::state_of(&e.to_robot(), &e.chain, &gravity));
     let bound = set
         .zip(state.as_ref())
         .filter(|_| limb.sus.len() <= BOUND_MAX_SUS)
@@ -320,9 +320,10 @@ fn dh_tables(limb: &BodyLimb, inputs: &LimbInputs) -> Markup {
     let e = &limb.estimate;
     let (truth, paper) = (inputs.truth, inputs.paper);
     html! {
-        @if let (Some(dh), Some(serial)) = (&e.dh, e.chain.as_serial()) {
-            @let true_rows = truth.and_then(|t| crate::estimate::dh_form(t, &serial));
-            @let by_paper = paper.iter().find(|p| p.chain.dofs == serial.dofs && p.chain.sus == serial.sus);
+        @if let (Some(dh), true) = (&e.dh, e.chain.is_serial()) {
+            @let (dofs, sus) = (e.chain.dofs(), e.chain.sus());
+            @let true_rows = truth.and_then(|t| crate::estimate::dh_form(t, &e.chain));
+            @let by_paper = paper.iter().find(|p| p.chain.dofs() == dofs && p.chain.sus() == sus);
             h4 { "In the paper's DH+2 form (Fig. 6; m and rad, ± 1σ; the first rows' θ0 and d are a gauge choice)"
                 @if true_rows.is_some() { "; the truth in brackets" }
                 @if by_paper.is_some() { "; the paper's method's estimate below, in italics" } }
@@ -331,7 +332,7 @@ fn dh_tables(limb: &BodyLimb, inputs: &LimbInputs) -> Markup {
                 @for (k, r) in dh.dof_dof.iter().enumerate() {
                     @let t = true_rows.as_ref().and_then(|(rows, _)| rows.get(k)).map(|r| r.values());
                     @let sd = dh.dof_dof_sd.get(k).map(|r| r.values());
-                    tr { td class="name" { (serial.dofs[k]) " → " (serial.dofs.get(k + 1).cloned().unwrap_or_default()) }
+                    tr { td class="name" { (dofs[k]) " → " (dofs.get(k + 1).cloned().unwrap_or_default()) }
                         @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]), k == 0 && i < 2)) } }
                     @if let Some(row) = by_paper.and_then(|p| p.dof_dof.get(k)) {
                         tr class="paper" { td class="name" { i { "paper's method" } }
@@ -344,7 +345,7 @@ fn dh_tables(limb: &BodyLimb, inputs: &LimbInputs) -> Markup {
                 @for (k, r) in dh.dof_su.iter().enumerate() {
                     @let t = true_rows.as_ref().and_then(|(_, rows)| rows.get(k)).map(|r| r.values());
                     @let sd = dh.dof_su_sd.get(k).map(|r| r.values());
-                    tr { td class="name" { (serial.dofs[k]) " → " (serial.sus.get(k).cloned().unwrap_or_default()) }
+                    tr { td class="name" { (dofs[k]) " → " (sus.get(k).cloned().unwrap_or_default()) }
                         @for (i, v) in r.values().iter().enumerate() { (dh_cell(*v, sd.map(|s| s[i]), t.map(|t| t[i]), k == 0 && i < 2)) } }
                     @if let Some(row) = by_paper.and_then(|p| p.dof_su.get(k)) {
                         tr class="paper" { td class="name" { i { "paper's method" } }

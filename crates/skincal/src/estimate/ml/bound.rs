@@ -19,34 +19,24 @@ use super::problem::{
 };
 use super::{full_spec, readings, serial_layout, ChainState, IntrinsicsModel, MlConfig};
 use crate::estimate::limb::{LimbChain, LimbData};
-use crate::estimate::SerialChain;
 use crate::model::intrinsics::Intrinsics;
 use crate::model::Robot;
 
-/// The chain state of a robot that names the chain's DoFs and SUs (e.g. the truth), in this
-/// estimator's frames: reference = the first DoF's joint frame with `z` along its axis.
-pub fn state_of(robot: &Robot, chain: &SerialChain, gravity: &Vector3<f64>) -> Option<ChainState> {
-    let depths: Vec<usize> = (1..=chain.sus.len()).collect();
-    sequence_state_of(robot, chain, &depths, gravity)
-}
-
-/// [`state_of`] for a limb (several SUs on a segment, joints of several DoFs, no base path).
-pub fn limb_state_of(
-    robot: &Robot,
-    chain: &LimbChain,
-    gravity: &Vector3<f64>,
-) -> Option<ChainState> {
+/// The chain state of a robot that names the limb's DoFs and SUs (e.g. the truth), in this
+/// estimator's frames: reference = the first DoF's joint frame with `z` along its axis. `None` for
+/// a limb with a base path held from another limb, or one the robot does not name.
+pub fn state_of(robot: &Robot, chain: &LimbChain, gravity: &Vector3<f64>) -> Option<ChainState> {
     if chain.base_joints != 0 {
         return None;
     }
-    sequence_state_of(robot, &chain.su_sequence(), &chain.su_depths(), gravity)
+    sequence_state_of(robot, chain, &chain.su_depths(), gravity)
 }
 
 /// The chain state of a robot for SUs anywhere along the chain: SU `u` on segment `su_depth[u]`
 /// (the number of the chain's DoFs that move it).
 fn sequence_state_of(
     robot: &Robot,
-    chain: &SerialChain,
+    chain: &LimbChain,
     su_depth: &[usize],
     gravity: &Vector3<f64>,
 ) -> Option<ChainState> {
@@ -95,9 +85,9 @@ pub fn cramer_rao_bound(
     // `gravity` is the usual base orientation's: the bound of the poses recorded in it.
     let usual = data.usual_orientation();
     let data = &usual;
-    let chain = data.chain.su_sequence();
-    let state = state_of(truth, &chain, gravity)?;
-    let dofs = chain.dofs.len();
+    let chain = &data.chain;
+    let state = state_of(truth, chain, gravity)?;
+    let dofs = chain.dofs().len();
     let layout = serial_layout(dofs);
     let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
     if intrinsics.components() > 3 {
@@ -226,10 +216,9 @@ pub fn observable_su_errors(
     {
         return None;
     }
-    let sequence = chain.su_sequence();
-    let state = sequence_state_of(truth, &sequence, &data.su_depth, gravity)?;
-    let dofs: Vec<usize> = sequence
-        .dofs
+    let state = sequence_state_of(truth, chain, &data.su_depth, gravity)?;
+    let dofs: Vec<usize> = chain
+        .dofs()
         .iter()
         .map(|d| truth.model.dof_index(d))
         .collect::<Option<_>>()?;

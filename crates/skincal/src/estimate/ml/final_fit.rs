@@ -393,9 +393,11 @@ pub(super) fn dh_table(
     cov: &DMatrix<f64>,
     data: &LimbData,
 ) -> Option<DhTable> {
-    let serial = data.chain.as_serial()?;
-    let (dof_dof, dof_su) = crate::estimate::dh_form(limb, &serial)?;
-    let (dof_dof_sd, dof_su_sd) = dh_sd(state, spec, cov, data, &serial, (&dof_dof, &dof_su));
+    if !data.chain.is_serial() {
+        return None;
+    }
+    let (dof_dof, dof_su) = crate::estimate::dh_form(limb, &data.chain)?;
+    let (dof_dof_sd, dof_su_sd) = dh_sd(state, spec, cov, data, (&dof_dof, &dof_su));
     Some(DhTable {
         dof_dof,
         dof_su,

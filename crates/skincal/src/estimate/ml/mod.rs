@@ -100,9 +100,7 @@ use segment_sus::{add_segment_sus, full_spec, positions_in_one, su_intrinsics};
 pub use tree::refine_trees;
 use uncertainty::{column_names, dh_sd, free_directions, joint_covariance, su_uncertainty};
 
-pub use bound::{
-    cramer_rao_bound, limb_state_of, observable_su_errors, state_of, ObservableErrors,
-};
+pub use bound::{cramer_rao_bound, observable_su_errors, state_of, ObservableErrors};
 
 use std::time::Instant;
 
@@ -368,14 +366,14 @@ const FINAL_TOLERANCE: f64 = 1e-10;
 /// segment. With `base`, the joints of the limb's base path are held at that earlier estimate.
 ///
 /// ```
-/// use skincal::estimate::{ml, LimbData, SerialChain};
+/// use skincal::estimate::{ml, LimbChain, LimbData};
 /// use skincal::model::presets;
 /// use skincal::sim::{simulate, SimulationConfig};
 ///
 /// let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
 /// let set = simulate(&robot, &SimulationConfig::default()).unwrap().measurements;
-/// let chain = SerialChain { name: "arm".into(), dofs: robot.model.dof_names(), sus: robot.model.su_names() };
-/// let data = LimbData::serial(&set, &chain).unwrap();
+/// let chain = LimbChain::serial("arm", &robot.model.dof_names(), &robot.model.su_names()).unwrap();
+/// let data = LimbData::new(&set, &chain).unwrap();
 /// let estimate = ml::estimate_limb(&data, None, &ml::MlConfig::default()).unwrap();
 /// assert!(estimate.converged);
 /// assert!((estimate.residual_ratio - 1.0).abs() < 0.2); // at the noise level

@@ -587,7 +587,7 @@ impl<'a> Search<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimate::SerialChain;
+    use crate::estimate::LimbChain;
     use crate::sim::{simulate, SimulationConfig};
 
     /// A solve stopped at its cap and resumed ends exactly where one solve to the larger cap
@@ -601,12 +601,9 @@ mod tests {
         let set = simulate(&robot, &SimulationConfig::default())
             .unwrap()
             .measurements;
-        let chain = SerialChain {
-            name: "arm".into(),
-            dofs: robot.model.dof_names(),
-            sus: robot.model.su_names(),
-        };
-        let data = LimbData::serial(&set, &chain).unwrap();
+        let chain =
+            LimbChain::serial("arm", &robot.model.dof_names(), &robot.model.su_names()).unwrap();
+        let data = LimbData::new(&set, &chain).unwrap();
         let config = MlConfig::default();
         let search = Search::new(&data, &config);
         // The whole chain from the empty state: far from its minimum, so no solve stops early.

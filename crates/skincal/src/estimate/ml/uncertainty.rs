@@ -37,7 +37,6 @@ pub(super) fn dh_sd(
     spec: &Spec,
     covariance: &DMatrix<f64>,
     data: &LimbData,
-    serial: &crate::estimate::SerialChain,
     table: (&[crate::estimate::DhRow], &[crate::estimate::SuRow]),
 ) -> (Vec<crate::estimate::DhRow>, Vec<crate::estimate::SuRow>) {
     // Angles sit at these places of each row's values; their differences are wrapped.
@@ -80,7 +79,7 @@ pub(super) fn dh_sd(
             let Ok(robot) = limb_robot(&data.chain, &moved, &data.su_depth) else {
                 return (Vec::new(), Vec::new());
             };
-            let Some((a, b)) = crate::estimate::dh_form(&robot, serial) else {
+            let Some((a, b)) = crate::estimate::dh_form(&robot, &data.chain) else {
                 return (Vec::new(), Vec::new());
             };
             values[side] = flatten((&a, &b));
