@@ -420,21 +420,30 @@ pub(super) fn correct_block(
         .collect()
 }
 
-/// The standard deviation of one component of SU `u`'s corrected block means, from consecutive
-/// blocks in which every DoF was still (the median of their squared differences, robust to a
-/// glitch; at least [`NOISE_FLOOR`]), or `None` when fewer than [`FEWEST_STILL_PAIRS`] such pairs
-/// exist.
+/// The standard deviation of one component of SU `u`'s corrected block means, from three
+/// consecutive ones whose raw means all came from blocks in which every DoF was still (below the
+/// still speed, and not yet accelerating away): the median of their squared second differences (robust
+/// to a glitch, and blind to a reading that drifts steadily while the robot creeps below the
+/// still speed, as a distal SU's gravity does; a first difference takes such a drift for noise),
+/// at least [`NOISE_FLOOR`]; `None` when fewer than [`FEWEST_STILL_PAIRS`] such runs exist.
 pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
-    let still =
-        |run: &MotionRun, b: usize| run.qd[b].iter().all(|v| v.abs() < config.still_velocity);
+    let still = |run: &MotionRun, b: usize| {
+        run.qd[b].iter().all(|v| v.abs() < config.still_velocity)
+            && run.qdd[b]
+                .iter()
+                .all(|a| a.abs() < 10.0 * config.still_velocity)
+    };
     let mut squares = Vec::new();
     for run in runs {
-        for b in 1..run.len() {
-            if !(still(run, b) && still(run, b - 1)) {
+        // The corrected means of b − 1 … b + 1 read the raw means of b − 2 … b + 2.
+        for b in 2..run.len().saturating_sub(2) {
+            if !(b - 2..=b + 2).all(|c| still(run, c)) {
                 continue;
             }
-            if let (Some(a), Some(c)) = (run.skin[b][u], run.skin[b - 1][u]) {
-                squares.extend((0..3).map(|i| (a[i] - c[i]).powi(2)));
+            if let (Some(a), Some(m), Some(c)) =
+                (run.skin[b - 1][u], run.skin[b][u], run.skin[b + 1][u])
+            {
+                squares.extend((0..3).map(|i| (a[i] - 2.0 * m[i] + c[i]).powi(2)));
             }
         }
     }
@@ -443,9 +452,10 @@ pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -
     }
     squares.sort_by(f64::total_cmp);
     let median = squares[squares.len() / 2];
-    // Two neighbouring corrected means differ by (27 m₀ − 27 m₋₁ − m₁ + m₋₂)/24 of independent
-    // means, a variance of 1460/576 of one mean's; one corrected mean has 678/576 of it.
-    let sd = (median / CHI2_1_MEDIAN * 678.0 / 1460.0).sqrt();
+    // In independent means, a corrected mean is (−m₋₁ + 26 m₀ − m₁)/24: a variance of 678/576 of
+    // one mean's. The second difference of three corrected means is
+    // (−m₋₂ + 28 m₋₁ − 54 m₀ + 28 m₁ − m₂)/24: 4486/576 of it.
+    let sd = (median / CHI2_1_MEDIAN * 678.0 / 4486.0).sqrt();
     Some(sd.max(NOISE_FLOOR))
 }
 
@@ -508,5 +518,44 @@ mod tests {
         // Away from the step both are the acceleration itself.
         let far = local_polynomial(&series, &mut 0, 0.8, h, 0.0, 0.01).unwrap();
         assert!((far[2] - 3.0).abs() < 1e-6);
+    }
+
+    /// A skin whose block means carry independent noise of a known deviation, read while the
+    /// arm holds still between short moves that start from rest (the speed below the still
+    /// speed for a few blocks while the acceleration, and with it the reading, already grows):
+    /// the noise comes out as the truth's, the moves' starts left out.
+    #[test]
+    fn the_still_noise_is_the_skins_own_whatever_the_moves_that_start_from_rest() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let sd = 0.02;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, sd).unwrap();
+        let mut run = MotionRun::new("test", 0.0);
+        // 1000 cycles: 5 blocks of hold, then a move from rest whose acceleration ramps at
+        // 45 rad/s³ for 5 blocks (the SU reads 0.8 q̈ more on each axis). The move's second and
+        // third blocks are below the still speed (2 and 9 mrad/s) and read 0.36 and 0.72 m/s²
+        // more.
+        for _ in 0..1000 {
+            for b in 0..10usize {
+                let t = b.saturating_sub(5) as f64 * BLOCK;
+                let (qdd, qd) = (45.0 * t, 22.5 * t * t);
+                run.q.push(vec![0.0]);
+                run.qd.push(vec![qd]);
+                run.qdd.push(vec![qdd]);
+                run.qdd_sd.push(vec![0.0]);
+                let mean = [0.8 * qdd, 0.8 * qdd, 9.81 + 0.8 * qdd];
+                run.skin.push(vec![Some(std::array::from_fn(|i| {
+                    mean[i] + noise.sample(&mut rng)
+                }))]);
+            }
+        }
+        undo_block_averaging(&mut run.skin);
+        let truth = sd * (678.0f64 / 576.0).sqrt();
+        let found = still_noise(&[run], 0, &IngestConfig::default()).unwrap();
+        assert!(
+            (found / truth - 1.0).abs() < 0.05,
+            "{found} for a truth of {truth}"
+        );
     }
 }

@@ -241,12 +241,12 @@ pub struct PlanConfig {
     /// [`Plan::tilted_end`]). Their static readings
     /// tell what gravity along a vertical first axis cannot: how what the first DoF moves is turned
     /// about it.
-    #[serde(skip_serializing_if = "is_none")]
+    #[serde(skip_serializing_if = "is_zero")]
     pub tilted_poses: usize,
 }
 
 /// Whether a count is zero (a field left out of `plan.json`).
-fn is_none(n: &usize) -> bool {
+fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
