@@ -426,6 +426,29 @@ fn fit_lines(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
         (false, None) => "NOT CONVERGED".into(),
     };
     if let Some(m) = &e.motion {
+        let verdict = match (&m.at_rest, e.converged) {
+            (Some(r), converged) => {
+                let band = r
+                    .band
+                    .map_or(String::new(), |b| format!(", band {:.3}×", b.upper));
+                format!(
+                    "{}; at rest {:.3}× over {} components{band}{}",
+                    if converged {
+                        "converged"
+                    } else {
+                        "NOT CONVERGED"
+                    },
+                    r.residual_ratio,
+                    r.rows,
+                    if converged {
+                        ""
+                    } else {
+                        ": a misfit, or noise larger than the still blocks gave"
+                    }
+                )
+            }
+            (None, _) => verdict,
+        };
         let _ = writeln!(
             out,
             "fitted on every sample of the log: {} blocks of the motion record; residual RMS {:.3}× each SU's own noise: {verdict}",

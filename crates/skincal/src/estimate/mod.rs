@@ -1,8 +1,9 @@
 //! Kinematic estimation (paper Section II-C, Algorithm 2): fitting serial-chain models of the limbs
 //! to the training experiment.
 //!
-//! A **serial chain** runs from the static reference segment through DoFs `1…N` to an end effector,
-//! with one SU on every segment (the paper's chain model). Its DH form (paper eqs. 4–7) is a table of
+//! A limb is a [`LimbChain`]: joints of one or more DoFs from the static reference segment
+//! outwards, any number of SUs on each segment. A **serial chain** is the paper's kind of limb
+//! ([`LimbChain::serial`], [`LimbChain::is_serial`]): one DoF and one SU per joint. Its DH form (paper eqs. 4–7) is a table of
 //! DoF-to-DoF rows `(θ0, d, a, α)` and DoF-to-SU rows `(θ0, d, a, α, θ_acc, d_acc)`; the reference frame
 //! is the first DoF's axis frame (`DoF1_T_RS = I`).
 //!

@@ -173,7 +173,10 @@ impl FinalFit {
             noise_sd_estimate: config.noise_sd * residual_ratio,
             reading_sd: readings.sd.is_some(),
             converged: residual_ratio <= config.converged_ratio
-                && precision.band.is_none_or(|b| b.holds(residual_ratio)),
+                && precision.band.is_none_or(|b| b.holds(residual_ratio))
+                && precision
+                    .at_rest
+                    .is_none_or(|r| r.band.is_none_or(|b| b.holds(r.residual_ratio))),
             residual_band: precision.band,
             fixed: problem.fixed.clone(),
             uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
@@ -194,6 +197,7 @@ impl FinalFit {
                     blocks: m.len(),
                     skin_delay: state.skin_delay,
                     skin_delay_sd: at.map_or(f64::NAN, |i| cov[(i, i)].max(0.0).sqrt()),
+                    at_rest: precision.at_rest,
                 }
             }),
             su_residual_ratio: su_residual_ratios(&state, layout, readings, spec, config.noise_sd),
@@ -267,13 +271,51 @@ pub(super) struct Precision {
     /// The readings the residual is measured on.
     pub(super) readings: Readings,
     pub(super) residual_ratio: f64,
-    /// The band of the residual ratio at the noise level (readings fits only: a motion
-    /// record's noise model is approximate).
+    /// The band of the residual ratio at the noise level (readings fits only: what the joint
+    /// states' derivatives leave unmatched in motion is no noise of the skin's).
     pub(super) band: Option<ResidualBand>,
+    /// A fit on a motion record: the residual of its blocks at rest.
+    pub(super) at_rest: Option<RestResidual>,
     pub(super) cov: DMatrix<f64>,
     /// The parameters' names, in the covariance's order.
     pub(super) names: Vec<String>,
     pub(super) unobservable: Vec<Unobservable>,
+}
+
+/// The residual of the blocks of `readings`' motion record in which the limb stood still, with
+/// its band: every component of theirs counts (the parameters, fitted on the whole record, take
+/// next to nothing from them). `None` without a motion record or a block at rest.
+fn rest_residual(
+    state: &ChainState,
+    problem: &FinalProblem,
+    readings: &Readings,
+    sigma: f64,
+) -> Option<RestResidual> {
+    let rest = readings.motion.as_ref()?.at_rest();
+    if rest.is_empty() {
+        return None;
+    }
+    let only_rest = Readings {
+        q: Vec::new(),
+        turns: Vec::new(),
+        statics: Vec::new(),
+        dynamics: Vec::new(),
+        rejected: Vec::new(),
+        missing: Vec::new(),
+        sd: None,
+        orientation: Vec::new(),
+        gauge_prior: None,
+        motion: Some(std::sync::Arc::new(rest)),
+        ..readings.clone()
+    };
+    let (layout, spec) = (&problem.layout, &problem.spec);
+    let map = ColumnMap::new(spec);
+    let (cost, rows) = problem::cost_and_rows(state, layout, &only_rest, spec, &map, sigma);
+    (rows > 0).then(|| RestResidual {
+        residual_ratio: (cost / rows as f64).sqrt(),
+        rows,
+        band: ResidualBand::at(rows),
+    })
 }
 
 impl Precision {
@@ -339,10 +381,12 @@ impl Precision {
             config.observable_limit,
         );
         let unobservable = positions_in_one(unobservable, data, &readings);
+        let at_rest = rest_residual(state, problem, &readings, sigma);
         Self {
             readings,
             residual_ratio,
             band: band.flatten(),
+            at_rest,
             cov,
             names,
             unobservable,

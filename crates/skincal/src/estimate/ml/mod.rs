@@ -52,7 +52,8 @@
 //! **Convergence** (`band.rs`). A fit is at the noise level when its residual ratio lies within
 //! the band a right model stays in at the data's size (`√(χ²_ν(0.999)/ν)`: 1.02 σ at 10 000
 //! degrees of freedom), not below a fixed bound; a fit off it goes on to other joint orders and
-//! a wider search.
+//! a wider search. A fit on every sample of a log is judged so on its blocks at rest, where the
+//! joint states' derivatives add nothing unmatched.
 //!
 //! **Uncertainty.** The parameter covariance is `σ̂²·(JᵀJ)⁺` by the same elimination, with
 //! symmetric eigen-decompositions of the SU blocks and of the reduced shared system (directions
@@ -90,8 +91,8 @@ pub use on_motion::{order_on_motion, refine_on_motion};
 use report::rejected_counts;
 pub use report::{
     pooled_intrinsics, DhTable, IntrinsicsTest, JointCovariance, JointOrder, MlChainEstimate,
-    MotionFit, NoiseComponents, OrderMisfit, SuIntrinsics, SuRejected, SuUncertainty, Unobservable,
-    INTRINSICS_TEST_Z,
+    MotionFit, NoiseComponents, OrderMisfit, RestResidual, SuIntrinsics, SuRejected, SuUncertainty,
+    Unobservable, INTRINSICS_TEST_Z,
 };
 use robust::{leave_out_glitches, su_residual_ratios, weigh_by_noise_components};
 use search::{fit_ordered, keep_best, order_joints, spans, Retries, Span};
@@ -129,7 +130,8 @@ pub struct MlConfig {
     /// Largest number of LM iterations per solve.
     pub max_iterations: usize,
     /// A result whose residual RMS exceeds this multiple of `noise_sd` is never converged; a
-    /// readings fit must also lie within the noise's band at its size ([`ResidualBand`]).
+    /// readings fit must also lie within the noise's band at its size ([`ResidualBand`]), a fit
+    /// on a motion record with its blocks at rest ([`RestResidual`]).
     pub converged_ratio: f64,
     /// Candidates carried from one segment to the next.
     pub beam: usize,

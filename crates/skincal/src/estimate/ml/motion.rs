@@ -232,6 +232,42 @@ impl LimbMotion {
         }
     }
 
+    /// The samples in which the limb stood so still that its motion adds less than a tenth of
+    /// the quietest SU's noise to what gravity reads (by [`QUIET_REACH`]): the rows that test a
+    /// fit's geometry, gravity and sensors against the skin's own noise, free of what the joint
+    /// states' derivatives leave unmatched in motion.
+    pub(super) fn at_rest(&self) -> Self {
+        let quietest = self.sd.iter().copied().fold(f64::INFINITY, f64::min);
+        let keep: Vec<bool> = self
+            .samples
+            .iter()
+            .map(|s| {
+                let spin: f64 = s.qd.iter().map(|v| v.abs()).sum();
+                let turn: f64 = s.qdd.iter().map(|a| a.abs()).sum();
+                QUIET_REACH * (turn + spin * spin) < 0.1 * quietest
+            })
+            .collect();
+        let kept = |values: &[f64]| -> Vec<f64> {
+            values
+                .iter()
+                .zip(&keep)
+                .filter(|(_, &k)| k)
+                .map(|(v, _)| *v)
+                .collect()
+        };
+        Self {
+            samples: self
+                .samples
+                .iter()
+                .zip(&keep)
+                .filter(|(_, &k)| k)
+                .map(|(s, _)| s.clone())
+                .collect(),
+            joint_var: self.joint_var.iter().map(|v| kept(v)).collect(),
+            ..self.clone()
+        }
+    }
+
     /// The number of blocks the fit uses.
     pub fn len(&self) -> usize {
         self.samples.len()

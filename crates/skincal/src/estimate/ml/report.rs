@@ -181,6 +181,22 @@ pub struct MotionFit {
     pub skin_delay: f64,
     /// Its standard deviation, s.
     pub skin_delay_sd: f64,
+    /// The residual of the blocks in which the limb stood still (gravity and the sensors alone,
+    /// against the skin's own noise), and its band at their size: a fit is converged only within
+    /// it. `None`: the record has no such block.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_rest: Option<RestResidual>,
+}
+
+/// The residual of a time-domain fit's blocks at rest.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RestResidual {
+    /// The RMS whitened residual per component (1: the skin's noise).
+    pub residual_ratio: f64,
+    /// Residual components counted.
+    pub rows: usize,
+    /// The band of a fit at the noise level, at that size.
+    pub band: Option<ResidualBand>,
 }
 
 /// A larger intrinsics model against the smaller one before it, fitted to the same readings: the
@@ -320,7 +336,9 @@ pub struct MlChainEstimate {
     #[serde(default)]
     pub reading_sd: bool,
     /// Whether the residual is at the noise level: within its band at the data's size
-    /// ([`ResidualBand`]; a fit on a motion record: within `MlConfig::converged_ratio`).
+    /// ([`ResidualBand`]; a fit on a motion record: its blocks at rest within theirs, and the
+    /// whole within `MlConfig::converged_ratio`, what the joint states' derivatives leave
+    /// unmatched in motion being no noise of the skin's).
     pub converged: bool,
     /// The band of the residual ratio at the noise level, at the fit's size (readings fits).
     #[serde(default, skip_serializing_if = "Option::is_none")]
