@@ -386,7 +386,7 @@ impl SkinFilter {
 }
 
 /// The fewest blocks with samples on each side of a block [`SkinFilter::smooth`] reads.
-const FEWEST_FILTERED: usize = 2;
+pub const FEWEST_FILTERED: usize = 2;
 
 /// `K` on `[−1, 1]` (zero outside): `K'' = 2 e₂ᵀ M⁻¹ φ(x)` with `M = ∫φφᵀ` the Gram matrix of
 /// the monomials `φ = (1, x, …, x^DEGREE)` on `[−1, 1]`, integrated twice from `K(−1) = K'(−1) = 0`.

@@ -40,7 +40,7 @@ pub struct ActivityMatrix {
     /// `change[u][d]`: the largest change of any axis of SU `u`'s reading when DoF `d` moved, over
     /// all orientations, m/s² (0 for a DoF that was never moved). For a prismatic DoF, which turns
     /// no gravity: the typical acceleration its pattern gave the SU, scaled so that half the
-    /// pattern's peak meets the threshold ([`prismatic_columns`]).
+    /// pattern's peak meets the threshold (`prismatic_columns`).
     pub change: Vec<Vec<f64>>,
     /// Whether each DoF was moved in at least one orientation (a prismatic one: excited in at
     /// least one training pose).
@@ -73,7 +73,7 @@ pub struct ActivityMatrix {
     /// column: its leader's moves move it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub leader_of: Vec<Option<usize>>,
-    /// SUs on bodies that mimic DoFs drive ([`super::mimic`]): set aside.
+    /// SUs on bodies that mimic DoFs drive (`explore/mimic.rs`): set aside.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub mimic_driven: Vec<super::mimic::MimicDriven>,
     /// SUs whose readings no working accelerometer gives: set aside.

@@ -18,7 +18,7 @@
 //!    from the reference or a branching segment to the next end effector or branching segment.
 //!
 //! A mimic DoF has no column (its leader's moves move it); the SUs on the bodies it drives share
-//! their leader's row and are told apart by their readings ([`mimic`]) and set aside.
+//! their leader's row and are told apart by their readings (`mimic.rs`) and set aside.
 //!
 //! Whatever does not fit a tree is reported in plain words and left out, and the largest
 //! consistent part of the tree is returned.
