@@ -85,7 +85,7 @@ pub enum EstimateError {
     },
     /// The measurement set is not valid.
     #[error("invalid measurement set: {0}")]
-    Measurements(String),
+    Measurements(crate::measurements::MeasurementError),
     /// The fit ran away from finite numbers: the data cannot be what the model assumes.
     #[error("limb {limb}: the estimate is not a finite number ({reason}); the readings cannot be what the model assumes: check them for corrupt values and record again")]
     NotFinite {
@@ -191,8 +191,7 @@ pub fn chain_in_listed_order(set: &MeasurementSet) -> Result<LimbChain, Estimate
 pub(crate) fn checked_training(
     set: &MeasurementSet,
 ) -> Result<&crate::measurements::TrainingExperiment, EstimateError> {
-    set.validate()
-        .map_err(|e| EstimateError::Measurements(e.to_string()))?;
+    set.validate().map_err(EstimateError::Measurements)?;
     let training = set.training.as_ref().ok_or(EstimateError::NoTrainingData)?;
     if training.poses.is_empty() {
         return Err(EstimateError::NoTrainingData);
