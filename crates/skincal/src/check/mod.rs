@@ -264,7 +264,7 @@ impl CheckReport {
 pub enum CheckError {
     /// The model is not a calibrated model.
     #[error("the model: {0}")]
-    Model(String),
+    Model(crate::predict::PredictError),
     /// The motion record does not fit the model.
     #[error("the motion record: {0}")]
     Record(String),
@@ -292,7 +292,7 @@ pub struct Skin {
 impl Skin {
     /// The skin of a calibrated model.
     pub fn new(model: &BodyModel, config: &CheckConfig) -> Result<Self, CheckError> {
-        let predictor = Predictor::new(model).map_err(|e| CheckError::Model(e.to_string()))?;
+        let predictor = Predictor::new(model).map_err(CheckError::Model)?;
         let (robot, gravity, intrinsics) = predictor.parts();
         let robot = robot.clone();
         let m = &robot.model;
