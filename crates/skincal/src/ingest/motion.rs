@@ -422,10 +422,11 @@ pub(super) fn correct_block(
 
 /// The standard deviation of one component of SU `u`'s corrected block means, from three
 /// consecutive ones whose raw means all came from blocks in which every DoF was still (below the
-/// still speed, and not yet accelerating away): the median of their squared second differences (robust
-/// to a glitch, and blind to a reading that drifts steadily while the robot creeps below the
-/// still speed, as a distal SU's gravity does; a first difference takes such a drift for noise),
-/// at least [`NOISE_FLOOR`]; `None` when fewer than [`FEWEST_STILL_PAIRS`] such runs exist.
+/// still speed, and not yet accelerating away): the median of their squared second differences
+/// (robust to a glitch, and blind to a reading that drifts steadily while the robot creeps below
+/// the still speed, as a distal SU's gravity does; a first difference takes such a drift for
+/// noise), at least [`NOISE_FLOOR`]; `None` when fewer than [`FEWEST_STILL_PAIRS`] such runs
+/// exist.
 pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -> Option<f64> {
     let still = |run: &MotionRun, b: usize| {
         run.qd[b].iter().all(|v| v.abs() < config.still_velocity)

@@ -40,6 +40,16 @@ pub(super) struct MotionSample {
     qdd_sd: Vec<f64>,
 }
 
+impl MotionSample {
+    /// What the motion of the first `dofs` DoFs could add to gravity at an SU they move, m/s²:
+    /// [`QUIET_REACH`] times `Σ|q̈| + (Σ|q̇|)²` over them.
+    fn reach(&self, dofs: usize) -> f64 {
+        let spin: f64 = self.qd.iter().take(dofs).map(|v| v.abs()).sum();
+        let turn: f64 = self.qdd.iter().take(dofs).map(|a| a.abs()).sum();
+        QUIET_REACH * (turn + spin * spin)
+    }
+}
+
 /// A limb's share of a motion record: its DoFs (chain order) and SUs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
@@ -201,9 +211,7 @@ impl LimbMotion {
                                 DofKind::Prismatic => sd * sd,
                             })
                             .sum();
-                        let spin: f64 = sample.qd.iter().take(s).map(|v| v.abs()).sum();
-                        let turn: f64 = sample.qdd.iter().take(s).map(|a| a.abs()).sum();
-                        joints + (kappa * QUIET_REACH * (turn + spin * spin)).powi(2)
+                        joints + (kappa * sample.reach(s)).powi(2)
                     })
                     .collect()
             })
@@ -241,11 +249,7 @@ impl LimbMotion {
         let keep: Vec<bool> = self
             .samples
             .iter()
-            .map(|s| {
-                let spin: f64 = s.qd.iter().map(|v| v.abs()).sum();
-                let turn: f64 = s.qdd.iter().map(|a| a.abs()).sum();
-                QUIET_REACH * (turn + spin * spin) < 0.1 * quietest
-            })
+            .map(|s| s.reach(s.qd.len()) < 0.1 * quietest)
             .collect();
         let kept = |values: &[f64]| -> Vec<f64> {
             values
