@@ -5,7 +5,8 @@
 //! sample), then per trial a sweep of ordinary motion from a fresh seed, recorded after one change
 //! at random — made on the robot (one SU shifted by 10 mm in a random direction or turned by 3°
 //! about a random axis, two SUs swapped, a DoF's zero moved by 2°) or on the samples as its board
-//! would send them (a 0.03 g bias step, silent, frozen within the first half, railed, 4× noisier)
+//! would send them (a 0.03 g bias step, a 3 % change of sensitivity in a random direction of the
+//! three axes, silent, frozen within the first half, railed, 4× noisier)
 //! — and an unchanged skin; every SU-check of an SU the change did not touch counts towards the
 //! false alarms. A zero of a DoF that moves one SU alone counts as named when that SU is called
 //! moved with the zero as what else it could be (`or_zero`): nothing on the robot tells more. Trials run on every core. Speed: the check alone on a record of `--sus` SUs
@@ -55,10 +56,11 @@ pub(crate) struct BenchCheckArgs {
     json: bool,
 }
 
-const KINDS: [&str; 10] = [
+const KINDS: [&str; 11] = [
     "shift",
     "turn",
     "bias",
+    "scale",
     "swap",
     "silent",
     "frozen",
@@ -175,15 +177,20 @@ fn trial_of(
             true
         }
     };
-    // A move called a bias change counts, apart, on an SU whose tilt no motion tells from a
-    // bias (one on the reference segment, which never turns).
+    // A move or a sensitivity change called a bias change counts, apart, on an SU whose tilt or
+    // sensitivity no motion tells from a bias (one on the reference segment, which never turns).
     let mut mimicked = false;
     let named = zero_named
         && target.iter().all(|(su, v)| {
             report.sus.iter().any(|s| {
-                let mimics = *v == Verdict::Moved
+                let alike = match v {
+                    Verdict::Moved => "orientation",
+                    Verdict::ScaleChanged => "sensitivity",
+                    _ => "",
+                };
+                let mimics = !alike.is_empty()
                     && s.verdict == Verdict::BiasChanged
-                    && s.never_told.contains("orientation");
+                    && s.never_told.contains(alike);
                 mimicked |= &s.su == su && mimics;
                 &s.su == su && (&s.verdict == v || mimics)
             })
@@ -251,8 +258,9 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
     }
     for (kind, r) in rows.iter().filter(|r| r.1.mimicked > 0) {
         outln!(
-            "{kind}: {} of the named were called a bias change on an SU whose tilt no motion tells from a bias",
-            r.mimicked
+            "{kind}: {} of the named were called a bias change on an SU whose {} no motion tells from a bias",
+            r.mimicked,
+            if **kind == "scale" { "sensitivity" } else { "tilt" }
         );
     }
     for (kind, r) in rows.iter().filter(|r| r.1.never_told > 0) {
@@ -302,6 +310,7 @@ fn targets(change: Option<&SkinChange>) -> Vec<(String, Verdict)> {
     match change {
         Some(SkinChange::Move { su, .. }) => vec![(su.clone(), Verdict::Moved)],
         Some(SkinChange::Bias { su, .. }) => vec![(su.clone(), Verdict::BiasChanged)],
+        Some(SkinChange::Scale { su, .. }) => vec![(su.clone(), Verdict::ScaleChanged)],
         Some(SkinChange::Swap { a, b }) => vec![
             (a.clone(), Verdict::Swapped { with: b.clone() }),
             (b.clone(), Verdict::Swapped { with: a.clone() }),
@@ -365,6 +374,10 @@ fn random_change(kind: &str, robot: &Robot, seed: u64, seconds: f64) -> Option<S
         "bias" => SkinChange::Bias {
             su,
             bias: scaled(unit(), 0.03 * STANDARD_GRAVITY),
+        },
+        "scale" => SkinChange::Scale {
+            su,
+            scale: scaled(unit(), d.detect_scale),
         },
         "swap" => {
             let other = names

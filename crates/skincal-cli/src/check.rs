@@ -25,7 +25,8 @@ pub struct CheckArgs {
     /// motion record (motion.json) that `ingest` wrote.
     #[arg(required = true)]
     logs: Vec<PathBuf>,
-    /// Write a new model with the SUs that moved, changed bias or were swapped calibrated again
+    /// Write a new model with the SUs that moved, changed bias or sensitivity or were swapped
+    /// calibrated again
     /// from the same logs (everything else kept, the changes listed in its `changes`).
     #[arg(long, value_name = "MODEL")]
     recalibrate: Option<PathBuf>,
@@ -38,6 +39,9 @@ pub struct CheckArgs {
     /// The smallest bias change to see, g.
     #[arg(long, default_value_t = 0.03)]
     bias: f64,
+    /// The smallest change of an axis' sensitivity to see (relative: 0.03 is 3 %).
+    #[arg(long, default_value_t = CheckConfig::default().detect_scale)]
+    scale: f64,
     /// Probability of calling an unchanged SU changed, per SU.
     #[arg(long, default_value_t = CheckConfig::default().false_alarm)]
     false_alarm: f64,
@@ -72,6 +76,7 @@ impl CheckArgs {
         positive("position", self.position)?;
         positive("orientation", self.orientation)?;
         positive("bias", self.bias)?;
+        positive("scale", self.scale)?;
         anyhow::ensure!(
             self.false_alarm > 0.0 && self.false_alarm < 0.5,
             "--false-alarm {}: give a probability in (0, 0.5)",
@@ -81,6 +86,7 @@ impl CheckArgs {
             detect_position: self.position,
             detect_orientation: self.orientation.to_radians(),
             detect_bias: self.bias * skincal::model::sensor::STANDARD_GRAVITY,
+            detect_scale: self.scale,
             false_alarm: self.false_alarm,
             ..CheckConfig::default()
         })
@@ -256,8 +262,13 @@ pub(crate) fn motion_of(
 
 /// An SU's line of the check's table, and the notes under it.
 fn su_lines(su: &SuCheck) -> String {
-    let (shift, turn, bias) = su.change.map_or(
-        ("—".to_string(), "—".to_string(), "—".to_string()),
+    let (shift, turn, bias, scale) = su.change.map_or(
+        (
+            "—".to_string(),
+            "—".to_string(),
+            "—".to_string(),
+            "—".to_string(),
+        ),
         |c| {
             let norm = |v: [f64; 3]| nalgebra::Vector3::from(v).norm();
             let sd = |v: Option<[f64; 3]>| {
@@ -272,17 +283,22 @@ fn su_lines(su: &SuCheck) -> String {
                     "{:.1}",
                     norm(c.bias) / skincal::model::sensor::STANDARD_GRAVITY * 1e3
                 ),
+                format!(
+                    "{:.2}",
+                    c.scale.iter().fold(0.0, |m: f64, x| m.max(x.abs())) * 1e2
+                ),
             )
         },
     );
     let mut s = format!(
-        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9.1e} {:>7.2}\n",
+        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9} {:>9.1e} {:>7.2}\n",
         su.su,
         su.verdict.word(),
         su.blocks,
         shift,
         turn,
         bias,
+        scale,
         su.p_value,
         su.residual_ratio
     );
@@ -314,16 +330,17 @@ fn su_lines(su: &SuCheck) -> String {
 /// not tell.
 fn table(report: &CheckReport) -> String {
     let mut s = format!(
-        "{:.1} s of motion checked; changes to see: {:.0} mm, {:.1}°, {:.3} g, false alarms ≤ {} per SU\n\n",
+        "{:.1} s of motion checked; changes to see: {:.0} mm, {:.1}°, {:.3} g, {:.1} % sensitivity, false alarms ≤ {} per SU\n\n",
         report.seconds,
         report.config.detect_position * 1e3,
         report.config.detect_orientation.to_degrees(),
         report.config.detect_bias / skincal::model::sensor::STANDARD_GRAVITY,
+        report.config.detect_scale * 1e2,
         report.config.false_alarm
     );
     s += &format!(
-        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9} {:>7}\n",
-        "SU", "verdict", "blocks", "shift mm", "turn °", "bias mg", "p", "resid"
+        "{:<14} {:<24} {:>7} {:>14} {:>12} {:>11} {:>9} {:>9} {:>7}\n",
+        "SU", "verdict", "blocks", "shift mm", "turn °", "bias mg", "scale %", "p", "resid"
     );
     for su in &report.sus {
         s += &su_lines(su);

@@ -519,11 +519,12 @@ class Model:
 
 @dataclass
 class SuCheck:
-    """One SU's check: ``verdict`` is ``unchanged``, ``moved``, ``bias-changed``, ``swapped``,
-    ``reads-as``, ``other-segment``, ``broken`` or ``not-enough-motion``; ``detail`` its other
-    fields (``with``, ``su``, ``segment``, ``how``: ``silent``, ``frozen``, ``railed``, ``dead``,
-    ``noisy`` or ``erratic``); ``change`` the shift (m), turn (rad) and bias
-    change (m/s²) the log estimates, with their deviations."""
+    """One SU's check: ``verdict`` is ``unchanged``, ``moved``, ``bias-changed``,
+    ``scale-changed``, ``swapped``, ``reads-as``, ``other-segment``, ``broken`` or
+    ``not-enough-motion``; ``detail`` its other fields (``with``, ``su``, ``segment``, ``how``:
+    ``silent``, ``frozen``, ``railed``, ``dead``, ``noisy`` or ``erratic``); ``change`` the shift
+    (m), turn (rad), bias change (m/s²) and relative change of each axis' sensitivity
+    (``scale``) the log estimates, with their deviations."""
 
     su: str
     verdict: str
@@ -540,8 +541,8 @@ class SuCheck:
     stretches of one repeated value and of unusable samples (``longest_repeat``,
     ``longest_unusable``, s)."""
     or_zero: Optional[dict] = None
-    """For a moved SU that alone tells a DoF's zero: that zero (``dof``, ``offset``,
-    ``offset_sd`` in rad), which reads the same as the move on this one SU."""
+    """For a moved (or scale-changed) SU that alone tells a DoF's zero: that zero (``dof``,
+    ``offset``, ``offset_sd`` in rad), which reads the same as the change on this one SU."""
 
 
 @dataclass

@@ -1,5 +1,5 @@
 //! What a calibrated model predicts an SU reads in one block of a motion record, and how that
-//! reading changes when the SU moves on its segment or its bias changes.
+//! reading changes when the SU moves on its segment or its bias or sensitivity changes.
 
 use nalgebra::{Isometry3, Matrix3, SMatrix, Vector3};
 
@@ -8,8 +8,15 @@ use crate::model::Robot;
 use crate::model::{segment_frames, segment_motion, BodyMotion};
 
 /// The parameters of a change of one SU: its shift (3, m) and turn (3, rad), both in its own frame
-/// as the model has it, and the change of its bias (3, m/s²).
-pub const CHANGE: usize = 9;
+/// as the model has it, the change of its bias (3, m/s²) and of each axis' sensitivity (3,
+/// relative: `0.03` reads 3 % more).
+pub const CHANGE: usize = 12;
+
+/// The largest change of an axis' sensitivity the check takes for a drift (relative): a larger
+/// one is no small change (a board that reads a still segment's constant gravity fits a
+/// sensitivity of zero and that gravity as its bias), and the SU is matched and fitted anew as
+/// one that no small change explains.
+pub const MAX_DRIFT: f64 = 0.2;
 
 /// The 3 × [`CHANGE`] Jacobian of one reading.
 pub type Jacobian = SMatrix<f64, 3, CHANGE>;
@@ -78,7 +85,8 @@ pub struct SuPlace {
 /// on its segment) in `block` (its segment's [`Field`]), and its Jacobian in the change
 /// parameters ([`CHANGE`]): a shift `δx` and turn `δφ` in the SU's frame move it to `p + T δx`,
 /// `T Exp(δφ)`, so `∂y/∂δx = K Tᵀ N T`, `∂y/∂δφ = K [f]×` with `f` the specific force in the
-/// SU's axes, `∂y/∂δb = I`.
+/// SU's axes, `∂y/∂δb = I`; a sensitivity change `δs` makes it `(I + diag δs) K Tᵀ (…) + b`, so
+/// `∂y/∂δs = diag(K f)`.
 pub fn reading(place: &SuPlace, block: &BlockKinematics) -> (Vector3<f64>, Jacobian) {
     reading_with(place, &place.sensor(), block)
 }
@@ -93,7 +101,8 @@ pub fn reading_with(
     let Sensor { turn, k, .. } = sensor;
     let v = c - rt * place.gravity + n * place.placement.translation.vector;
     let f = turn.tr_mul(&v);
-    let y = k * f + Vector3::from(place.intrinsics.bias);
+    let sensed = k * f;
+    let y = sensed + Vector3::from(place.intrinsics.bias);
     let mut jac = Jacobian::zeros();
     jac.fixed_view_mut::<3, 3>(0, 0)
         .copy_from(&(k * turn.tr_mul(&(n * turn))));
@@ -101,6 +110,8 @@ pub fn reading_with(
         .copy_from(&(k * f.cross_matrix()));
     jac.fixed_view_mut::<3, 3>(0, 6)
         .copy_from(&Matrix3::identity());
+    jac.fixed_view_mut::<3, 3>(0, 9)
+        .copy_from(&Matrix3::from_diagonal(&sensed));
     (y, jac)
 }
 
@@ -159,6 +170,10 @@ pub fn changed(place: &SuPlace, delta: &[f64]) -> SuPlace {
     let mut intrinsics = place.intrinsics;
     for (b, d) in intrinsics.bias.iter_mut().zip(&delta[6..9]) {
         *b += d;
+    }
+    // `K = diag(1 + s)(I + L)`: the change scales each row.
+    for (s, d) in intrinsics.scale.iter_mut().zip(&delta[9..12]) {
+        *s = (1.0 + *s) * (1.0 + d) - 1.0;
     }
     SuPlace {
         placement: place.placement * step,

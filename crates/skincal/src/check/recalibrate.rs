@@ -1,5 +1,5 @@
-//! A new model with only what changed calibrated again: each moved SU and each changed bias fitted
-//! anew from the same log, swapped SUs given back their places, everything else kept; a record of
+//! A new model with only what changed calibrated again: each moved SU and each changed bias or
+//! sensitivity fitted anew from the same log, swapped SUs given back their places, everything else kept; a record of
 //! what changed and from which log.
 
 use nalgebra::Vector3;
@@ -23,7 +23,7 @@ pub enum RecalibrateError {
 }
 
 /// `model` with the changes of `report` (a check of it against `record`) calibrated again: moved
-/// SUs and changed biases refitted from the check's estimate on the record's blocks, swapped SUs
+/// SUs and changed biases and sensitivities refitted from the check's estimate on the record's blocks, swapped SUs
 /// given each other's names. SUs on another segment, reading as another or broken are left as
 /// they are (they need the structure experiment or a repair): the report says so.
 pub fn recalibrate(
@@ -47,7 +47,12 @@ pub fn recalibrate(
     let skin = Skin::new(&out, config)?;
     let columns = Columns::new(&skin, &record.dofs, &record.sus)?;
     let refitted: Vec<usize> = (0..report.sus.len())
-        .filter(|&u| matches!(report.sus[u].verdict, Verdict::Moved | Verdict::BiasChanged))
+        .filter(|&u| {
+            matches!(
+                report.sus[u].verdict,
+                Verdict::Moved | Verdict::BiasChanged | Verdict::ScaleChanged
+            )
+        })
         .collect();
     if !refitted.is_empty() {
         let cache = Cache::new(&skin, &columns, record);
@@ -55,23 +60,28 @@ pub fn recalibrate(
             let check = &report.sus[u];
             let old = skin.places[u];
             let start = start_of(&old, check);
-            let (new, ratio) = cache.fit(&skin, u, start, check.noise_sd, config.huber);
+            // A sensitivity is fitted anew where the check found it changed; elsewhere the
+            // calibration's is kept.
+            let drifted = check.verdict == Verdict::ScaleChanged;
+            let (new, ratio) = cache.fit(&skin, u, start, check.noise_sd, config.huber, drifted);
             let tally = cache.tally(&skin, u, &new, check.noise_sd, config.huber);
             set_place(&mut out, &check.su, &new, &tally);
-            changes.push(ModelChange::Su(SuModelChange {
+            changes.push(ModelChange::Su(Box::new(SuModelChange {
                 su: check.su.clone(),
-                verdict: if check.verdict == Verdict::Moved {
-                    FoundChange::Moved
-                } else {
-                    FoundChange::BiasChanged
+                verdict: match check.verdict {
+                    Verdict::Moved => FoundChange::Moved,
+                    Verdict::ScaleChanged => FoundChange::ScaleChanged,
+                    _ => FoundChange::BiasChanged,
                 },
                 logs: logs.clone(),
                 before: Frame::from_isometry(&old.placement),
                 after: Frame::from_isometry(&new.placement),
                 bias_before: old.intrinsics.bias,
                 bias_after: new.intrinsics.bias,
+                scale_before: old.intrinsics.scale,
+                scale_after: new.intrinsics.scale,
                 residual_ratio: ratio,
-            }));
+            })));
         }
     }
     for (u, check) in report.sus.iter().enumerate() {
@@ -88,7 +98,7 @@ pub fn recalibrate(
         swap_names(&mut out, &check.su, with)?;
         for (a, b) in [(u, v), (v, u)] {
             let name = &report.sus[a].su;
-            changes.push(ModelChange::Su(SuModelChange {
+            changes.push(ModelChange::Su(Box::new(SuModelChange {
                 su: name.clone(),
                 verdict: FoundChange::Swapped {
                     with: report.sus[b].su.clone(),
@@ -98,8 +108,10 @@ pub fn recalibrate(
                 after: Frame::from_isometry(&skin.places[b].placement),
                 bias_before: skin.places[a].intrinsics.bias,
                 bias_after: skin.places[b].intrinsics.bias,
+                scale_before: skin.places[a].intrinsics.scale,
+                scale_after: skin.places[b].intrinsics.scale,
                 residual_ratio: report.sus[a].residual_ratio,
-            }));
+            })));
         }
     }
     out.changes.extend(changes.iter().cloned());
@@ -113,7 +125,7 @@ fn logs_of(record: &MotionRecord) -> Vec<String> {
 }
 
 /// Where a refit starts: the place the check found anew, else the model's moved by the check's
-/// estimate.
+/// estimate (its sensitivity changed only where the check said so).
 fn start_of(old: &SuPlace, check: &super::SuCheck) -> SuPlace {
     if let Some(refit) = &check.refit {
         let mut place = *old;
@@ -134,11 +146,18 @@ fn start_of(old: &SuPlace, check: &super::SuCheck) -> SuPlace {
         .chain(&change.turn)
         .chain(&change.bias)
         .copied()
+        .chain(change.scale.map(|s| {
+            if check.verdict == Verdict::ScaleChanged {
+                s
+            } else {
+                0.0
+            }
+        }))
         .collect();
     super::kin::changed(old, &delta)
 }
 
-/// Writes SU `su`'s new place and bias into the model (the body's robot, its limb's robot, its
+/// Writes SU `su`'s new place, bias and sensitivity into the model (the body's robot, its limb's robot, its
 /// intrinsics and its deviations from the refit's information).
 fn set_place(model: &mut BodyModel, su: &str, place: &SuPlace, tally: &Tally) {
     let frame = Frame::from_isometry(&place.placement);
@@ -159,8 +178,13 @@ fn set_place(model: &mut BodyModel, su: &str, place: &SuPlace, tally: &Tally) {
     {
         let estimate = &mut limb.estimate;
         match estimate.intrinsics.iter_mut().find(|i| i.su == su) {
-            Some(i) => i.value.bias = place.intrinsics.bias,
-            None if Vector3::from(place.intrinsics.bias).norm() > 0.0 => {
+            Some(i) => {
+                i.value.bias = place.intrinsics.bias;
+                i.value.scale = place.intrinsics.scale;
+            }
+            None if Vector3::from(place.intrinsics.bias).norm() > 0.0
+                || Vector3::from(place.intrinsics.scale).norm() > 0.0 =>
+            {
                 estimate.intrinsics.push(SuIntrinsics {
                     su: su.to_string(),
                     value: place.intrinsics,

@@ -115,8 +115,9 @@ impl Cache {
         tally
     }
 
-    /// SU `u`'s readings fitted from `start` (pose and bias), by Gauss–Newton with a little
-    /// damping; the place found and its RMS whitened residual.
+    /// SU `u`'s readings fitted from `start` (pose and bias, and with `sensitivity` its
+    /// sensitivity too), by Gauss–Newton with a little damping; the place found and its RMS
+    /// whitened residual.
     pub(super) fn fit(
         &self,
         skin: &Skin,
@@ -124,16 +125,26 @@ impl Cache {
         start: SuPlace,
         noise: f64,
         huber: f64,
+        sensitivity: bool,
     ) -> (SuPlace, f64) {
         let mut place = start;
         for _ in 0..FIT_STEPS {
             let tally = self.tally(skin, u, &place, noise, huber);
-            let mut a = tally.information;
+            let (mut a, mut g) = (tally.information, tally.gradient);
+            if !sensitivity {
+                // Held: its rows and columns of the normal equations are the identity's.
+                for k in 9..kin::CHANGE {
+                    a.row_mut(k).fill(0.0);
+                    a.column_mut(k).fill(0.0);
+                    a[(k, k)] = 1.0;
+                    g[k] = 0.0;
+                }
+            }
             for i in 0..kin::CHANGE {
                 a[(i, i)] *= 1.0 + 1e-6;
                 a[(i, i)] += 1e-9;
             }
-            let Some(step) = a.cholesky().map(|c| c.solve(&tally.gradient)) else {
+            let Some(step) = a.cholesky().map(|c| c.solve(&g)) else {
                 break;
             };
             place = kin::changed(&place, step.as_slice());
@@ -270,9 +281,10 @@ fn relocate(check: &SkinCheck, cache: &Cache, u: usize, misfit: f64, report: &mu
     let noise = check.noise[u];
     let huber = check.config.huber;
     let own = skin.places[u];
-    let mut best = cache.fit(skin, u, own, noise, huber);
+    let mut best = cache.fit(skin, u, own, noise, huber, false);
     if best.1 > misfit {
-        let fresh = cache.fit(skin, u, cache.start_on(u, own.segment, &own), noise, huber);
+        let start = cache.start_on(u, own.segment, &own);
+        let fresh = cache.fit(skin, u, start, noise, huber, false);
         if fresh.1 < best.1 {
             best = fresh;
         }
@@ -289,7 +301,7 @@ fn relocate(check: &SkinCheck, cache: &Cache, u: usize, misfit: f64, report: &mu
     let segments = skin.robot.model.segments();
     let elsewhere = (0..segments.len())
         .filter(|&s| s != own.segment && !skin.chains[s].is_empty())
-        .map(|s| cache.fit(skin, u, cache.start_on(u, s, &own), noise, huber))
+        .map(|s| cache.fit(skin, u, cache.start_on(u, s, &own), noise, huber, false))
         .filter(|(_, ratio)| *ratio <= misfit)
         .min_by(|a, b| a.1.total_cmp(&b.1));
     if let Some((place, ratio)) = elsewhere {
@@ -314,5 +326,9 @@ fn whole_change(old: &SuPlace, new: &SuPlace) -> SuChange {
         turn_sd: None,
         bias: bias.into(),
         bias_sd: None,
+        scale: std::array::from_fn(|k| {
+            (1.0 + new.intrinsics.scale[k]) / (1.0 + old.intrinsics.scale[k]) - 1.0
+        }),
+        scale_sd: None,
     }
 }

@@ -66,7 +66,7 @@ impl Tally {
     }
 
     /// The RMS whitened residual per component after the best change is taken out (≈ 1 when a
-    /// small change of pose and bias explains the readings).
+    /// small change of pose, bias and sensitivity explains the readings).
     pub fn residual_ratio(&self, change: &Change) -> f64 {
         let dof = (3 * self.blocks).saturating_sub(CHANGE).max(1) as f64;
         ((self.chi2 - change.dot(&self.gradient)).max(0.0) / dof).sqrt()
@@ -87,12 +87,14 @@ pub struct ChangeTest {
     pub dof: usize,
     /// `P(χ²_dof ≥ statistic)`.
     pub p_value: f64,
-    /// What is left of the change when a move alone (shift and turn) or a bias change alone
-    /// explains as much of it as it can: the statistic of the rest and its degrees of freedom.
-    pub left_by: [(f64, usize); 2],
-    /// Per block: whether some direction of it that motion can tell is not told by this log (a
-    /// change of the size to see would be missed there).
-    pub untold: [bool; 3],
+    /// What is left of the change when a move alone (shift and turn), a bias change alone or a
+    /// change of bias and sensitivity explains as much of it as it can: the statistic of the rest
+    /// and its degrees of freedom.
+    pub left_by: [(f64, usize); 3],
+    /// Per block (position, orientation, bias, sensitivity): whether some direction of it that
+    /// motion can tell is not told by this log (a change of the size to see would be missed
+    /// there).
+    pub untold: [bool; 4],
     /// Those directions, scaled units.
     pub untold_directions: Vec<Change>,
 }
@@ -128,13 +130,14 @@ pub fn change_test(
         ChangeMatrix::from_diagonal(&prior.component_div(&scale.component_mul(scale)));
     let covariance_scaled = noise + projector * prior_scaled * projector;
     let (statistic, dof) = wald(&change_scaled, &covariance_scaled, 0..CHANGE);
-    let left_by = [0..6, 6..9].map(|keep| left(&change_scaled, &covariance_scaled, keep));
+    let left_by =
+        [0..6, 6..9, 6..CHANGE].map(|keep| left(&change_scaled, &covariance_scaled, keep));
     let untold_directions: Vec<Change> = (0..CHANGE)
         .filter(|i| !told.contains(i))
         .map(|i| eigen.eigenvectors.column(i).into_owned())
         .filter(|e| (tellable * e).norm_squared() > 0.5)
         .collect();
-    let untold = [0, 3, 6].map(|k| {
+    let untold = [0, 3, 6, 9].map(|k| {
         untold_directions
             .iter()
             .any(|e| (k..k + 3).any(|c| e[c].abs() > 0.3))

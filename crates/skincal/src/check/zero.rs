@@ -3,19 +3,19 @@
 //! with each DoF's angle, to second order (central differences of the kinematics); per SU and DoF
 //! of its chain, the sums of that angle's quadratic model of the readings with the SU's own
 //! change; a DoF is taken to have moved when its one angle explains about as much of its SUs'
-//! readings as their nine changes each would (the Bayesian information criterion), and its angle
+//! readings as their twelve changes each would (the Bayesian information criterion), and its angle
 //! is then taken out of their sums.
 //!
 //! The second order matters: a 2° zero moves a reading by about `0.035 g`, and the first-order
 //! model misses the square of that angle's share — on two head SUs, a few hundred of a χ² of
-//! 10⁶, more than the criterion's price of their eighteen numbers.
+//! 10⁶, more than the criterion's price of their two dozen numbers.
 
 use std::ops::AddAssign;
 
 use nalgebra::{Matrix3, Matrix3x2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::kin::{BlockKinematics, Field, Jacobian, SuPlace};
+use super::kin::{BlockKinematics, Field, Jacobian, SuPlace, CHANGE};
 use super::test::{self, Change, Tally};
 use crate::model::Robot;
 
@@ -130,7 +130,8 @@ impl ZeroSums {
 }
 
 /// Adds one block of SU `place` (its `K Tᵀ` `kt`, residual `r`, Jacobian `jac` of
-/// [`super::kin::reading`], whose bias block is the identity, weight `w`) to its sums for every
+/// [`super::kin::reading`], whose bias block is the identity and sensitivity block diagonal,
+/// weight `w`) to its sums for every
 /// DoF of `chain`.
 #[allow(clippy::too_many_arguments)]
 pub fn add(
@@ -152,9 +153,10 @@ pub fn add(
     for s in sums.iter_mut() {
         if let Some(jk) = rates.of(s.dof, place, kt) {
             let (j, k) = (jk.column(0), jk.column(1));
-            // `Jᵀ W [j k]`: the bias block of `J` is the identity.
+            // `Jᵀ W [j k]`: the bias block of `J` is the identity, the sensitivity block diagonal.
             let jkw = jk * w;
             let pose = jac.fixed_columns::<6>(0).tr_mul(&jkw);
+            let sensed = jac.fixed_view::<3, 3>(0, 9).diagonal();
             s.information += j.dot(&jkw.column(0));
             s.gradient += r.dot(&jkw.column(0));
             s.curvature[0] += k.dot(&jkw.column(1));
@@ -163,6 +165,8 @@ pub fn add(
             for (sum, c) in [(&mut s.cross, 0), (&mut s.cross_curvature, 1)] {
                 sum.fixed_rows_mut::<6>(0).add_assign(&pose.column(c));
                 sum.fixed_rows_mut::<3>(6).add_assign(&jkw.column(c));
+                sum.fixed_rows_mut::<3>(9)
+                    .add_assign(&sensed.component_mul(&jkw.column(c)));
             }
         }
     }
@@ -317,8 +321,9 @@ fn judge(
     if test::survival(offset * offset / variance, 1) >= alpha {
         return None;
     }
-    // One angle against nine numbers per SU: the information criterion's price of the others.
-    let price = (9 * count - 1) as f64 * ((3 * blocks.max(1)) as f64).ln() / 2.0;
+    // One angle against the change's numbers per SU: the information criterion's price of the
+    // others.
+    let price = (CHANGE * count - 1) as f64 * ((3 * blocks.max(1)) as f64).ln() / 2.0;
     (rest < price).then_some((d, explained, offset, variance.sqrt()))
 }
 

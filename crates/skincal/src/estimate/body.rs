@@ -118,8 +118,8 @@ pub struct NotCalibrated {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum ModelChange {
-    /// An SU given a new place or bias.
-    Su(SuModelChange),
+    /// An SU given a new place, bias or sensitivity.
+    Su(Box<SuModelChange>),
     /// A DoF given a new zero.
     Zero {
         /// The DoF.
@@ -131,7 +131,7 @@ pub enum ModelChange {
     },
 }
 
-/// An SU given a new place or bias.
+/// An SU given a new place, bias or sensitivity.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SuModelChange {
     /// The SU.
@@ -148,6 +148,13 @@ pub struct SuModelChange {
     pub bias_before: [f64; 3],
     /// After.
     pub bias_after: [f64; 3],
+    /// Each axis' relative sensitivity error before and after (as `Intrinsics::scale`; absent
+    /// in models written before it was recalibrated).
+    #[serde(default)]
+    pub scale_before: [f64; 3],
+    /// After.
+    #[serde(default)]
+    pub scale_after: [f64; 3],
     /// RMS whitened residual of its readings in the log against its new place.
     pub residual_ratio: f64,
 }
@@ -160,6 +167,8 @@ pub enum FoundChange {
     Moved,
     /// Its bias changed.
     BiasChanged,
+    /// Its sensitivity changed (with or without its bias).
+    ScaleChanged,
     /// It and `with` exchanged identities.
     Swapped {
         /// The other SU.
@@ -173,6 +182,7 @@ impl FoundChange {
         match self {
             Self::Moved => "MOVED".into(),
             Self::BiasChanged => "BIAS CHANGED".into(),
+            Self::ScaleChanged => "SCALE CHANGED".into(),
             Self::Swapped { with } => format!("SWAPPED with {with}"),
         }
     }

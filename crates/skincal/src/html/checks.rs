@@ -204,8 +204,9 @@ pub(super) fn skin_check(r: &CheckReport, name: &str) -> Markup {
         section id="skin-check" {
             h2 { "The skin checked against " (name) }
             p { (format!("{:.1}", r.seconds)) " s of motion; changes looked for: "
-                (format!("{:.0} mm, {:.1}°, {:.3} g", r.config.detect_position * 1e3,
-                    r.config.detect_orientation.to_degrees(), r.config.detect_bias / STANDARD_GRAVITY))
+                (format!("{:.0} mm, {:.1}°, {:.3} g, {:.1} % sensitivity", r.config.detect_position * 1e3,
+                    r.config.detect_orientation.to_degrees(), r.config.detect_bias / STANDARD_GRAVITY,
+                    r.config.detect_scale * 1e2))
                 ", at most " (r.config.false_alarm) " false alarms per SU. "
                 (r.sus.len() - changed.len() - untold.len()) " SUs read what the model predicts, "
                 (untold.len()) " the motion does not tell. "
@@ -215,10 +216,10 @@ pub(super) fn skin_check(r: &CheckReport, name: &str) -> Markup {
                 p.bad { "The zero of " (z.dof) " moved: it stands " (format!("{:.3}° ± {:.3}°", z.offset.to_degrees(), z.offset_sd.to_degrees()))
                     " from what its encoder says; every SU beyond it (" (z.sus.join(", ")) ") tells the same. `check --recalibrate` sets it again." }
             }
-            (chart.figure(html! { "Per SU, how strongly its readings call for a change of its place or bias (the Wald test over the directions the motion tells); above the dashed line it changed." }))
+            (chart.figure(html! { "Per SU, how strongly its readings call for a change of its place, bias or sensitivity (the Wald test over the directions the motion tells); above the dashed line it changed." }))
             @if !changed.is_empty() {
                 table {
-                    tr { th.name { "SU" } th.name { "verdict" } th { "shift (mm)" } th { "turn (°)" } th { "bias (mg)" } th { "residual" } th.name { "what to do" } }
+                    tr { th.name { "SU" } th.name { "verdict" } th { "shift (mm)" } th { "turn (°)" } th { "bias (mg)" } th { "scale (%)" } th { "residual" } th.name { "what to do" } }
                     @for s in &changed {
                         tr {
                             td.name { (s.su) }
@@ -227,7 +228,8 @@ pub(super) fn skin_check(r: &CheckReport, name: &str) -> Markup {
                                 td { (format!("{:.1}", norm(c.shift) * 1e3)) }
                                 td { (format!("{:.2}", norm(c.turn).to_degrees())) }
                                 td { (format!("{:.1}", norm(c.bias) / STANDARD_GRAVITY * 1e3)) }
-                            } @else { td {} td {} td {} }
+                                td { (format!("{:.2}", largest(c.scale) * 1e2)) }
+                            } @else { td {} td {} td {} td {} }
                             td { (format!("{:.2}", s.residual_ratio)) }
                             td.name { (s.advice) }
                         }
@@ -250,7 +252,7 @@ pub(super) fn model_changes(changes: &[ModelChange]) -> Markup {
             h2 { "Changes since the calibration" }
             p { "What `check --recalibrate` changed, oldest first; everything else is as calibrated." }
             table {
-                tr { th.name { "what" } th.name { "found" } th { "moved (mm)" } th { "bias change (mg)" } th.name { "from the log(s)" } }
+                tr { th.name { "what" } th.name { "found" } th { "moved (mm)" } th { "bias change (mg)" } th { "scale change (%)" } th.name { "from the log(s)" } }
                 @for c in changes {
                     tr {
                         @match c {
@@ -259,12 +261,13 @@ pub(super) fn model_changes(changes: &[ModelChange]) -> Markup {
                                 td.name { (s.verdict.word()) }
                                 td { (format!("{:.1}", distance(s.after.xyz, s.before.xyz) * 1e3)) }
                                 td { (format!("{:.1}", distance(s.bias_after, s.bias_before) / STANDARD_GRAVITY * 1e3)) }
+                                td { (format!("{:.2}", largest(std::array::from_fn(|k| s.scale_after[k] - s.scale_before[k])) * 1e2)) }
                                 td.name { (s.logs.join(", ")) }
                             }
                             ModelChange::Zero { dof, offset, logs } => {
                                 td.name { (dof) }
                                 td.name { "zero set again by " (format!("{:.3}°", offset.to_degrees())) }
-                                td {} td {}
+                                td {} td {} td {}
                                 td.name { (logs.join(", ")) }
                             }
                         }
@@ -273,4 +276,9 @@ pub(super) fn model_changes(changes: &[ModelChange]) -> Markup {
             }
         }
     }
+}
+
+/// The largest of three components in magnitude.
+fn largest(v: [f64; 3]) -> f64 {
+    v.iter().fold(0.0, |m: f64, x| m.max(x.abs()))
 }

@@ -1,7 +1,7 @@
 //! Changes of a skin after its calibration, for checking `check`: an SU shifted or turned on its
 //! segment, two SUs' identities exchanged, a DoF's zero moved (made on the robot, before
-//! recording), a bias step or a broken board (made on the log's samples as the board sends them,
-//! [`SkinChange::on_log`]).
+//! recording), a bias step, a drift of sensitivity or a broken board (made on the log's samples as
+//! the board sends them, [`SkinChange::on_log`]).
 
 use std::path::PathBuf;
 
@@ -42,6 +42,14 @@ pub enum SkinChange {
         su: String,
         /// The step, m/s².
         bias: [f64; 3],
+    },
+    /// SU `su`'s sensitivity drifted: each axis sends `1 + scale[k]` times what it sent before
+    /// (its zero-g offset scaled with it).
+    Scale {
+        /// The SU.
+        su: String,
+        /// The relative change of each axis' sensitivity (`0.03`: reads 3 % more).
+        scale: [f64; 3],
     },
     /// DoF `dof`'s encoder homed anew: it now reads `offset` (rad) less than before in the same
     /// posture (made on the robot: its joint frame turned about its axis by `offset`).
@@ -119,9 +127,9 @@ impl SkinChange {
         builder.build()
     }
 
-    /// `sink` fed what the boards send after the change: a bias step, no samples, a frozen
-    /// board's repeated value, a railed axis, added noise (changes made on the robot pass every
-    /// sample through).
+    /// `sink` fed what the boards send after the change: a bias step, scaled axes, no samples, a
+    /// frozen board's repeated value, a railed axis, added noise (changes made on the robot pass
+    /// every sample through).
     pub fn on_log<'a>(&'a self, sink: &'a mut dyn LogSink) -> ChangedLog<'a> {
         ChangedLog::new(Some(self), sink)
     }
@@ -130,6 +138,7 @@ impl SkinChange {
     fn sensor(&self) -> Option<&str> {
         match self {
             SkinChange::Bias { su, .. }
+            | SkinChange::Scale { su, .. }
             | SkinChange::Silent { su }
             | SkinChange::Frozen { su, .. }
             | SkinChange::Railed { su }
@@ -213,6 +222,11 @@ impl LogSink for ChangedLog<'_> {
             SkinChange::Bias { bias, .. } => {
                 for (x, b) in a.iter_mut().zip(bias) {
                     *x += b;
+                }
+            }
+            SkinChange::Scale { scale, .. } => {
+                for (x, s) in a.iter_mut().zip(scale) {
+                    *x *= 1.0 + s;
                 }
             }
             SkinChange::Silent { .. } => return Ok(()),
