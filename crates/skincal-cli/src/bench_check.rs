@@ -9,7 +9,11 @@
 //! three axes, silent, frozen within the first half, railed, 4× noisier)
 //! — and an unchanged skin; every SU-check of an SU the change did not touch counts towards the
 //! false alarms. A zero of a DoF that moves one SU alone counts as named when that SU is called
-//! moved with the zero as what else it could be (`or_zero`): nothing on the robot tells more. Trials run on every core. Speed: the check alone on a record of `--sus` SUs
+//! moved with the zero as what else it could be (`or_zero`): nothing on the robot tells more. A
+//! change not named whose part that any motion tells is smaller than the size the check must see
+//! (`Skin::told_part`: the height of an SU along a vertical axis that alone carries it, a tilt or
+//! a sensitivity its bias mimics) is counted apart with that part, as one the report says no
+//! motion tells is. Trials run on every core. Speed: the check alone on a record of `--sus` SUs
 //! (random places on the paper's arm, calibrated from a simulated set) at 1 kHz, on one thread.
 
 use std::time::Instant;
@@ -18,7 +22,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
-use skincal::check::{check_skin, CheckConfig, LiveCheck, Verdict};
+use skincal::check::{check_skin, CheckConfig, CheckReport, LiveCheck, Verdict};
 use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
@@ -48,6 +52,10 @@ pub(crate) struct BenchCheckArgs {
     /// Seconds of ordinary motion per trial.
     #[arg(long, default_value_t = 60.0)]
     seconds: f64,
+    /// Only these kinds of change (repeat for several; every kind when none is given). Each
+    /// kind's trials draw the same changes whichever others run.
+    #[arg(long = "change", value_name = "KIND", value_parser = clap::builder::PossibleValuesParser::new(KINDS))]
+    changes: Vec<String>,
     /// SUs of the speed measurement.
     #[arg(long, default_value_t = 1000)]
     sus: usize,
@@ -81,8 +89,10 @@ pub(crate) fn bench_check(args: BenchCheckArgs) -> Result<()> {
     let robot = skincal::io::load_robot(&args.robot, Default::default())?;
     let model = calibrated(&robot, scratch.path())?;
     let mut rows = Vec::new();
-    let bar = out::progress_bar((KINDS.len() * args.trials) as u64, "bench check: trials");
-    for (k, kind) in KINDS.iter().enumerate() {
+    let chosen = |kind: &str| args.changes.is_empty() || args.changes.iter().any(|c| c == kind);
+    let kinds = KINDS.iter().filter(|k| chosen(k)).count();
+    let bar = out::progress_bar((kinds * args.trials) as u64, "bench check: trials");
+    for (k, kind) in KINDS.iter().enumerate().filter(|(_, k)| chosen(k)) {
         // The trials run on every core; each one's check is timed on its own.
         let trials = (0..args.trials)
             .into_par_iter()
@@ -112,6 +122,9 @@ struct Row {
     /// Changes the report said no motion tells (not named, and no miss): a zero there, a shift
     /// of an SU whose position nothing tells.
     never_told: usize,
+    /// Changes not named whose part that any motion tells is smaller than the size to see (the
+    /// rest lies where the physics hides it), with that part in units of the size to see.
+    hidden: Vec<f64>,
     alarms: usize,
     checks: usize,
     seconds: f64,
@@ -123,6 +136,7 @@ impl Row {
         self.named += other.named;
         self.mimicked += other.mimicked;
         self.never_told += other.never_told;
+        self.hidden.extend(other.hidden);
         self.alarms += other.alarms;
         self.checks += other.checks;
         self.seconds += other.seconds;
@@ -218,14 +232,22 @@ fn trial_of(
             _ => false,
         };
     row.never_told += usize::from(never_told);
-    if !named && !never_told {
+    let told = (!named && !never_told)
+        .then(|| told_part(model, &report, change.as_ref()))
+        .flatten();
+    let hidden = told.is_some_and(|t| t < 1.0);
+    if hidden {
+        row.hidden.extend(told);
+    }
+    if !named && !never_told && !hidden {
         let found: Vec<String> = target
             .iter()
             .filter_map(|(su, _)| report.sus.iter().find(|s| &s.su == su))
             .map(|s| format!("{} {} (p {:.1e})", s.su, s.verdict.word(), s.p_value))
             .collect();
+        let told = told.map_or(String::new(), |t| format!(", told part {t:.2}"));
         row.misses.push(format!(
-            "{change:?}: found {} {:?}",
+            "{change:?}: found {} {:?}{told}",
             found.join(", "),
             report.zero
         ));
@@ -263,6 +285,15 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
             if **kind == "scale" { "sensitivity" } else { "tilt" }
         );
     }
+    for (kind, r) in rows.iter().filter(|r| !r.1.hidden.is_empty()) {
+        let parts: Vec<String> = r.hidden.iter().map(|t| format!("{t:.2}")).collect();
+        outln!(
+            "{kind}: {} trials not named made a change whose part that any motion tells is smaller than the size to see ({} of it; the rest lies where no motion of the robot tells), rate of the others {:.1}%",
+            r.hidden.len(),
+            parts.join(", "),
+            100.0 * r.named as f64 / (args.trials - r.never_told - r.hidden.len()).max(1) as f64
+        );
+    }
     for (kind, r) in rows.iter().filter(|r| r.1.never_told > 0) {
         outln!(
             "{kind}: {} trials made a change the report said no motion tells (rate of the others {:.1}%)",
@@ -293,7 +324,7 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
         .iter()
         .map(|(kind, r)| {
             serde_json::json!({
-                "change": kind, "trials": args.trials, "named": r.named, "named_as_bias": r.mimicked, "never_told": r.never_told,
+                "change": kind, "trials": args.trials, "named": r.named, "named_as_bias": r.mimicked, "never_told": r.never_told, "told_part_below_size": r.hidden,
                 "false_alarms": r.alarms, "checks": r.checks,
                 "check_seconds": r.seconds / args.trials as f64, "missed": r.misses,
             })
@@ -303,6 +334,32 @@ fn print_table(args: &BenchCheckArgs, rows: &[(&&str, Row)], speed: &Speed) {
         "command": "bench check", "rows": json_rows,
         "speed": {"sus": speed.sus, "seconds": speed.seconds, "blocks": speed.blocks, "read_seconds": speed.read, "check_seconds": speed.check, "check_seconds_slowest": speed.check_slowest, "check_runs": CHECK_RUNS, "live_seconds": speed.live},
     }));
+}
+
+/// The part of `change` (a move, a bias or a sensitivity change of one SU) that any motion tells,
+/// in units of the size the check must see ([`skincal::check::Skin::told_part`]).
+fn told_part(model: &BodyModel, report: &CheckReport, change: Option<&SkinChange>) -> Option<f64> {
+    let mut numbers = [0.0; skincal::check::CHANGE];
+    let su = match change? {
+        SkinChange::Move { su, shift, turn } => {
+            numbers[..3].copy_from_slice(shift);
+            numbers[3..6].copy_from_slice(turn);
+            su
+        }
+        SkinChange::Bias { su, bias } => {
+            numbers[6..9].copy_from_slice(bias);
+            su
+        }
+        SkinChange::Scale { su, scale } => {
+            numbers[9..12].copy_from_slice(scale);
+            su
+        }
+        _ => return None,
+    };
+    let noise = report.sus.iter().find(|s| &s.su == su)?.noise_sd;
+    let config = CheckConfig::default();
+    let skin = skincal::check::Skin::new(model, &config).ok()?;
+    skin.told_part(su, &numbers, noise, &config)
 }
 
 /// The SUs a change touches and the verdict each should get.

@@ -658,3 +658,35 @@ fn a_drifted_sensitivity_is_named_measured_and_recalibrated() {
     let again = check_skin(&new, &record, &CheckConfig::default()).unwrap();
     others_quiet(&again, &[]);
 }
+
+/// What the check promises to see is what some motion tells: the arm's su1, carried by the
+/// vertical dof1 alone, never tells its height along that axis (a 10 mm shift there has no part
+/// any motion tells), while a shift of the hand's SU in any direction is told whole. The truth is
+/// the physics: a point turned about a vertical axis reads the same wherever it sits along it.
+#[test]
+fn the_part_of_a_change_any_motion_tells_follows_the_physics() {
+    let (robot, model) = paper_arm();
+    let config = CheckConfig::default();
+    let skin = skincal::check::Skin::new(model, &config).unwrap();
+    let q = vec![0.0; robot.model.dofs().len()];
+    let frames = skincal::model::segment_frames(&robot.model, &robot.parameters, &q);
+    let axis = frames.axis(&robot.model, 0);
+    assert!(axis.cross(&Vector3::z()).norm() < 1e-9, "dof1 is vertical");
+    let shift = |su: &str, world: Vector3<f64>| {
+        let u = robot.model.su_index(su).unwrap();
+        let s = &robot.model.sus()[u];
+        let frame = frames.segments[s.segment] * s.placement.transform(&robot.parameters);
+        let local = frame.rotation.inverse() * world * config.detect_position;
+        let mut change = [0.0; skincal::check::CHANGE];
+        change[..3].copy_from_slice(local.as_slice());
+        skin.told_part(su, &change, 0.02, &config).unwrap()
+    };
+    let along = shift("su1", axis);
+    eprintln!("su1 along dof1: {along:.3}");
+    assert!(along < 0.05, "{along}");
+    for world in [Vector3::x(), Vector3::y(), Vector3::z()] {
+        let told = shift("su7", world);
+        eprintln!("su7 along {world:?}: {told:.3}");
+        assert!(told > 0.95, "{told}");
+    }
+}

@@ -370,6 +370,26 @@ impl Skin {
         })
     }
 
+    /// How much of `change` ([`CHANGE`] numbers in physical units: shift, turn, bias,
+    /// sensitivity) of SU `su` a minute of rich motion tells at block noise `noise` (m/s²) with
+    /// the power of `config`: the length of its part in the directions some motion tells, in
+    /// units of the change the check must see. Below 1, what the physics hides (a height along
+    /// a vertical axis that alone carries the SU, a tilt or a sensitivity its bias mimics) leaves
+    /// less than that to see. `None` for an SU the model does not have.
+    pub fn told_part(
+        &self,
+        su: &str,
+        change: &[f64; CHANGE],
+        noise: f64,
+        config: &CheckConfig,
+    ) -> Option<f64> {
+        let u = self.robot.model.su_index(su)?;
+        let lambda = non_centrality(config.false_alarm, config.power, CHANGE);
+        let tellable = self.reach.tellable(u, noise.max(1e-6), lambda);
+        let scaled = test::Change::from_row_slice(change).component_div(&self.scale);
+        Some((tellable * scaled).norm())
+    }
+
     /// The robot of the model.
     pub fn robot(&self) -> &Robot {
         &self.robot
