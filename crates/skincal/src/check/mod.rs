@@ -3,13 +3,13 @@
 //! what changed.
 //!
 //! For every block of the record the model gives each SU's reading and how that reading would
-//! change if the SU had shifted or turned on its segment or its bias or sensitivity had changed (a
-//! change of 12 numbers, [`kin::CHANGE`]). The blocks' normal equations are summed per SU ([`Tally`], bounded
-//! memory, fed a run at a time, so a live stream can be checked as it comes); their solution is
-//! the change the log estimates, tested by a Wald test against what the noise and the model's
-//! own uncertainty allow (`test::change_test`). An SU that no small change explains is then
-//! matched against every other SU's place (swapped, or reading another's), fitted anew on its
-//! segment (moved far) and on the others (the tree changed), or named broken
+//! change if the SU had shifted or turned on its segment or its bias or sensitivity had changed
+//! (a change of 12 numbers, [`kin::CHANGE`]). The blocks' normal equations are summed per SU
+//! ([`Tally`], bounded memory, fed a run at a time, so a live stream can be checked as it comes);
+//! their solution is the change the log estimates, tested by a Wald test against what the noise
+//! and the model's own uncertainty allow (`test::change_test`). An SU that no small change
+//! explains is then matched against every other SU's place (swapped, or reading another's),
+//! fitted anew on its segment (moved far) and on the others (the tree changed), or named broken
 //! (`refit`). [`recalibrate`] writes the changes into a new model.
 
 mod kin;
@@ -691,10 +691,10 @@ impl SkinCheck {
     /// DoF that moves it alone, with another DoF between them: the hand's SU past a wrist's yaw
     /// and pitch), where that zero does: the zero, and the SU judged again with it taken out. An
     /// SU whose own change explains its readings only loosely (called moved or drifted, with the
-    /// zero beside it) is given the zero too when the zero leaves it unchanged and explains clearly more (a
-    /// tenth of its residual: on thousands of blocks the ratio varies by about a hundredth);
-    /// where the zero is just its turn about the DoF's axis, both explain alike and the zero
-    /// stays beside the move.
+    /// zero beside it) is given the zero too when the zero leaves it unchanged and explains
+    /// clearly more (a tenth of its residual: on thousands of blocks the ratio varies by about a
+    /// hundredth); where the zero is just its turn about the DoF's axis, both explain alike and
+    /// the zero stays beside the move.
     fn lone_zero(
         &self,
         sus: &mut [SuCheck],

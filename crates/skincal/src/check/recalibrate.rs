@@ -1,6 +1,6 @@
 //! A new model with only what changed calibrated again: each moved SU and each changed bias or
-//! sensitivity fitted anew from the same log, swapped SUs given back their places, everything else kept; a record of
-//! what changed and from which log.
+//! sensitivity fitted anew from the same log, swapped SUs given back their places, everything
+//! else kept; a record of what changed and from which log.
 
 use nalgebra::Vector3;
 
@@ -23,9 +23,10 @@ pub enum RecalibrateError {
 }
 
 /// `model` with the changes of `report` (a check of it against `record`) calibrated again: moved
-/// SUs and changed biases and sensitivities refitted from the check's estimate on the record's blocks, swapped SUs
-/// given each other's names. SUs on another segment, reading as another or broken are left as
-/// they are (they need the structure experiment or a repair): the report says so.
+/// SUs and changed biases and sensitivities refitted from the check's estimate on the record's
+/// blocks, swapped SUs given each other's names. SUs on another segment, reading as another or
+/// broken are left as they are (they need the structure experiment or a repair): the report says
+/// so.
 pub fn recalibrate(
     model: &BodyModel,
     record: &MotionRecord,
@@ -157,8 +158,8 @@ fn start_of(old: &SuPlace, check: &super::SuCheck) -> SuPlace {
     super::kin::changed(old, &delta)
 }
 
-/// Writes SU `su`'s new place, bias and sensitivity into the model (the body's robot, its limb's robot, its
-/// intrinsics and its deviations from the refit's information).
+/// Writes SU `su`'s new place, bias and sensitivity into the model (the body's robot, its limb's
+/// robot, its intrinsics and its deviations from the refit's information).
 fn set_place(model: &mut BodyModel, su: &str, place: &SuPlace, tally: &Tally) {
     let frame = Frame::from_isometry(&place.placement);
     let robots = std::iter::once(&mut model.robot)
