@@ -120,7 +120,7 @@ struct Row {
     /// Of those, moves called a bias change on an SU whose tilt a bias mimics.
     mimicked: usize,
     /// Changes the report said no motion tells (not named, and no miss): a zero there, a shift
-    /// of an SU whose position nothing tells.
+    /// of an SU whose position nothing tells, a swap of two SUs that read alike.
     never_told: usize,
     /// Changes not named whose part that any motion tells is smaller than the size to see (the
     /// rest lies where the physics hides it), with that part in units of the size to see.
@@ -212,7 +212,8 @@ fn trial_of(
     row.named += usize::from(named);
     row.mimicked += usize::from(named && mimicked);
     // A change the report says no motion tells: a zero there, a shift of an SU on the still
-    // reference segment (segment 0), whose position nothing tells.
+    // reference segment (segment 0), whose position nothing tells, a swap of two SUs that read
+    // alike in every pose.
     let position_never_told = |su: &String| {
         let on_reference = robot
             .model
@@ -229,6 +230,10 @@ fn trial_of(
         && match &change {
             Some(SkinChange::Zero { dof, .. }) => report.zeros_never_told.contains(dof),
             Some(SkinChange::Move { su, turn, .. }) => *turn == [0.0; 3] && position_never_told(su),
+            Some(SkinChange::Swap { a, b }) => report
+                .alike
+                .iter()
+                .any(|pair| pair.contains(a) && pair.contains(b)),
             _ => false,
         };
     row.never_told += usize::from(never_told);

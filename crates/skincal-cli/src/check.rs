@@ -367,6 +367,17 @@ fn table(report: &CheckReport) -> String {
             report.zeros_never_told.join(", ")
         );
     }
+    if !report.alike.is_empty() {
+        let pairs: Vec<String> = report
+            .alike
+            .iter()
+            .map(|[a, b]| format!("{a} and {b}"))
+            .collect();
+        s += &format!(
+            "\n{} read alike in every pose (turned alike on a segment that never moves): no motion tells an exchange of the two, so a swap there is never seen\n",
+            pairs.join(", ")
+        );
+    }
     let todo: Vec<&SuCheck> = report.sus.iter().filter(|s| !s.advice.is_empty()).collect();
     if !todo.is_empty() || report.zero.is_some() {
         s += "\nwhat to do:\n";

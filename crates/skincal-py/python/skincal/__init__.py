@@ -559,6 +559,9 @@ class CheckReport:
     that the model still explains)."""
     zeros_never_told: List[str] = field(default_factory=list)
     """DoFs whose zero no motion tells (a vertical axis on the still reference segment)."""
+    alike: List[List[str]] = field(default_factory=list)
+    """Pairs of SUs that read alike in every pose (turned alike on the still reference segment):
+    no motion tells an exchange of the two."""
 
     def changed(self) -> List[SuCheck]:
         """The SUs that do not read what the model predicts."""
@@ -594,6 +597,7 @@ def _check_report(text: str) -> CheckReport:
         zero=data.get("zero"),
         zeros_untold=data.get("zeros_untold", []),
         zeros_never_told=data.get("zeros_never_told", []),
+        alike=data.get("alike", []),
     )
 
 

@@ -257,6 +257,10 @@ pub struct CheckReport {
     /// and changes no prediction).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub zeros_never_told: Vec<String>,
+    /// Pairs of SUs that read alike in every pose (turned alike on the still reference segment):
+    /// no motion tells an exchange of the two, and the check cannot see one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub alike: Vec<[String; 2]>,
     /// The smallest changes the check promised to see and its false-alarm rate.
     pub config: CheckConfig,
     /// Remarks about the log as a whole.
@@ -388,6 +392,48 @@ impl Skin {
         let tellable = self.reach.tellable(u, noise.max(1e-6), lambda);
         let scaled = test::Change::from_row_slice(change).component_div(&self.scale);
         Some((tellable * scaled).norm())
+    }
+
+    /// The pairs of SUs (`u < v`) on one segment that read alike in every pose: what the first
+    /// reads apart from the second's place, taken as a change of the first, is below what the
+    /// check must see in every direction that some motion tells (at the larger of the two
+    /// SUs' block noise `noise[u]`, `noise[v]`, with non-centrality `lambda`). Turned alike on a
+    /// segment that never moves, or set apart only along a vertical axis that alone carries
+    /// them: an exchange of the two (their cables swapped) is told by no motion.
+    fn alike(&self, noise: &[f64], lambda: f64) -> Vec<(usize, usize)> {
+        let mut by_segment: Vec<Vec<usize>> = Vec::new();
+        for (u, place) in self.places.iter().enumerate() {
+            if by_segment.len() <= place.segment {
+                by_segment.resize(place.segment + 1, Vec::new());
+            }
+            by_segment[place.segment].push(u);
+        }
+        let mut pairs = Vec::new();
+        for sus in &by_segment {
+            for (i, &u) in sus.iter().enumerate() {
+                for &v in &sus[i + 1..] {
+                    // Beyond this a small change describes the difference poorly, and a
+                    // difference that size is seen anyway.
+                    if self.reach.apart(u, v) > ALIKE_GATE {
+                        continue;
+                    }
+                    let c = refit::whole_change(&self.places[u], &self.places[v]);
+                    let change = test::Change::from_iterator(
+                        c.shift
+                            .into_iter()
+                            .chain(c.turn)
+                            .chain(c.bias)
+                            .chain(c.scale),
+                    );
+                    let sd = noise[u].max(noise[v]).max(1e-6);
+                    let tellable = self.reach.tellable(u, sd, lambda);
+                    if (tellable * change.component_div(&self.scale)).norm() < 1.0 {
+                        pairs.push((u, v));
+                    }
+                }
+            }
+        }
+        pairs
     }
 
     /// The robot of the model.
@@ -676,12 +722,18 @@ impl SkinCheck {
         if zero.is_none() {
             zero = self.lone_zero(&mut sus, &tallies, &judged);
         }
+        let alike = skin
+            .alike(&self.noise, lambda)
+            .into_iter()
+            .map(|(u, v)| [names[u].clone(), names[v].clone()])
+            .collect();
         CheckReport {
             seconds: self.blocks as f64 * self.period,
             sus,
             zero,
             zeros_untold,
             zeros_never_told,
+            alike,
             config: self.config,
             notes: Vec::new(),
         }
@@ -888,6 +940,10 @@ struct Typical {
     /// The median of each SU's longest stretch without a fresh reading, s.
     quiet: f64,
 }
+
+/// Two SUs whose readings over rich motion lie further apart than this (RMS, m/s²) are told
+/// apart by the check: a difference so large is no small change.
+const ALIKE_GATE: f64 = 1.0;
 
 /// How long an SU may go without a fresh reading, while the rest of the skin sends, before it is
 /// taken for broken, s.

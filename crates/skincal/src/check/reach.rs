@@ -4,6 +4,7 @@
 //! height of an SU along a vertical first axis that alone carries it, a tilt that its bias
 //! mimics) is no reason to ask for more motion.
 
+use nalgebra::Vector3;
 use rand::Rng;
 use rand_chacha::rand_core::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -35,6 +36,8 @@ pub struct Reach {
     /// unit noise, rad⁻² (none: no motion tells it — a vertical axis on the still reference
     /// segment turns what it carries about gravity, and no reading changes).
     pub zero: Vec<f64>,
+    /// Per SU: what it reads in each block of rich motion, m/s².
+    readings: Vec<Vec<Vector3<f64>>>,
 }
 
 impl Reach {
@@ -45,9 +48,13 @@ impl Reach {
         let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
         let mut rich = vec![ChangeMatrix::zeros(); places.len()];
         let mut zero = vec![0.0; n];
+        let mut readings = vec![Vec::with_capacity(RICH_BLOCKS); places.len()];
         for _ in 0..RICH_BLOCKS {
             let (q, block) = random_block(robot, &mut rng, &|_| true);
             add_information(&mut rich, places, &block, &d);
+            for (r, place) in readings.iter_mut().zip(places) {
+                r.push(kin::reading(place, &block).0);
+            }
             let rates = Rates::new(robot, &block, &q[0], &q[1], &q[2]);
             for (place, chain) in places.iter().map(|p| (p, &chains[p.segment])) {
                 for &dof in chain {
@@ -75,7 +82,23 @@ impl Reach {
         for info in &mut rich {
             *info /= RICH_BLOCKS as f64;
         }
-        Self { rich, by_dof, zero }
+        Self {
+            rich,
+            by_dof,
+            zero,
+            readings,
+        }
+    }
+
+    /// The root mean square over a block of rich motion of what SUs `u` and `v` read apart,
+    /// m/s².
+    pub fn apart(&self, u: usize, v: usize) -> f64 {
+        let squares: f64 = self.readings[u]
+            .iter()
+            .zip(&self.readings[v])
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum();
+        (squares / RICH_BLOCKS as f64).sqrt()
     }
 
     /// Whether a minute of rich motion tells DoF `dof`'s zero to within `angle` (rad) at block

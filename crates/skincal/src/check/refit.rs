@@ -316,7 +316,7 @@ fn relocate(check: &SkinCheck, cache: &Cache, u: usize, misfit: f64, report: &mu
 }
 
 /// The change from `old` to `new` on the same segment, in `old`'s frame.
-fn whole_change(old: &SuPlace, new: &SuPlace) -> SuChange {
+pub(super) fn whole_change(old: &SuPlace, new: &SuPlace) -> SuChange {
     let step = old.placement.inverse() * new.placement;
     let bias = Vector3::from(new.intrinsics.bias) - Vector3::from(old.intrinsics.bias);
     SuChange {

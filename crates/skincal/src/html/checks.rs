@@ -236,6 +236,10 @@ pub(super) fn skin_check(r: &CheckReport, name: &str) -> Markup {
                     }
                 }
             }
+            @if !r.alike.is_empty() {
+                p.note { "Read alike in every pose, so that no motion tells an exchange of the two: "
+                    @for (i, [a, b]) in r.alike.iter().enumerate() { @if i > 0 { "; " } (a) " and " (b) } "." }
+            }
             @if !untold.is_empty() {
                 p.note { "Not told by this motion: " @for (i, s) in untold.iter().enumerate() { @if i > 0 { "; " } (s.su) " — " (s.untold) } "." }
             }
