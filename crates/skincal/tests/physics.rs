@@ -46,6 +46,23 @@ fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
     assert!(output.status.success(), "{stderr}");
 }
 
+/// The physics simulator's options for position servos of `bandwidth` Hz at `damping`, tuned at
+/// the largest inertia, with gravity compensation and ±0.01 g skin noise; then `extra`.
+fn servos<'a>(bandwidth: &'a str, damping: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let servo = [
+        "--tune",
+        "largest",
+        "--gravcomp",
+        "--bandwidth",
+        bandwidth,
+        "--damping",
+        damping,
+        "--noise",
+        "0.0981",
+    ];
+    [&servo[..], extra].concat()
+}
+
 /// The physics simulation of `plan` on `robot` into `dir`: the whole plan upright (seed 1) and
 /// its structure part tilted (seed 2), each with `extra` options; returns the two log directories.
 fn physics_logs(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> (PathBuf, PathBuf) {
@@ -371,21 +388,7 @@ fn kinova_on_soft_servos(extra: &[&str]) {
         assert!(backwards >= 2, "{backwards} patterns run backwards");
     }
     let dir = tempfile::tempdir().unwrap();
-    let servo = [
-        &[
-            "--tune",
-            "largest",
-            "--gravcomp",
-            "--bandwidth",
-            "6",
-            "--damping",
-            "0.5",
-            "--noise",
-            "0.0981",
-        ][..],
-        extra,
-    ]
-    .concat();
+    let servo = servos("6", "0.5", extra);
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servo);
     let ingested = ingest(
         &[upright.clone(), tilted],
@@ -494,17 +497,7 @@ fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let servo = [
-        "--tune",
-        "largest",
-        "--gravcomp",
-        "--bandwidth",
-        "6",
-        "--damping",
-        "0.8",
-        "--noise",
-        "0.0981",
-    ];
+    let servo = servos("6", "0.8", &[]);
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servo);
     let ingested = ingest(
         &[upright.clone(), tilted],
@@ -550,19 +543,7 @@ fn servos_too_slow_for_the_programs_pauses_calibrate_from_the_motion() {
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let servo = [
-        "--tune",
-        "largest",
-        "--gravcomp",
-        "--bandwidth",
-        "3",
-        "--damping",
-        "0.5",
-        "--pause",
-        "0.3",
-        "--noise",
-        "0.0981",
-    ];
+    let servo = servos("3", "0.5", &["--pause", "0.3"]);
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servo);
     let config = IngestConfig::default();
     let ingested = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {}).unwrap();
@@ -611,20 +592,11 @@ fn thirteen_bit_encoders_calibrate_at_the_noise_level() {
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let servo = [
-        "--tune",
-        "largest",
-        "--gravcomp",
-        "--bandwidth",
+    let servo = servos(
         "6",
-        "--damping",
         "0.8",
-        "--noise",
-        "0.0981",
-        "--encoder-bits",
-        "13",
-        "--away-from-nearer-limit",
-    ];
+        &["--encoder-bits", "13", "--away-from-nearer-limit"],
+    );
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servo);
     let config = IngestConfig::default();
     let ingested = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {}).unwrap();
