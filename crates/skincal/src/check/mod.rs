@@ -401,11 +401,8 @@ impl Skin {
     /// segment that never moves, or set apart only along a vertical axis that alone carries
     /// them: an exchange of the two (their cables swapped) is told by no motion.
     fn alike(&self, noise: &[f64], lambda: f64) -> Vec<(usize, usize)> {
-        let mut by_segment: Vec<Vec<usize>> = Vec::new();
+        let mut by_segment: Vec<Vec<usize>> = vec![Vec::new(); self.chains.len()];
         for (u, place) in self.places.iter().enumerate() {
-            if by_segment.len() <= place.segment {
-                by_segment.resize(place.segment + 1, Vec::new());
-            }
             by_segment[place.segment].push(u);
         }
         let mut pairs = Vec::new();

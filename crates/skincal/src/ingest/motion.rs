@@ -389,7 +389,14 @@ pub(super) fn local_polynomial(
         / (window.len() - N).max(1) as f64;
     let inverse = cholesky.inverse();
     let white = 2.0 / (h * h) * (misfit.max(rounding * rounding) * inverse[(2, 2)]).sqrt();
-    let qdd_sd = if rounding > 0.0 {
+    let count = rounding * 12f64.sqrt();
+    let (lowest, highest) = window
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, q)| {
+            (lo.min(q), hi.max(q))
+        });
+    // Crossing many counts, the readings' rounding errors are as good as independent: `white`.
+    let qdd_sd = if rounding > 0.0 && highest - lowest <= MANY_COUNTS * count {
         let weights: Vec<(f64, f64)> = window
             .iter()
             .map(|&(t, _)| {
@@ -397,7 +404,7 @@ pub(super) fn local_polynomial(
                 (2.0 / (h * h) * (inverse * phi)[2], phi.dot(&c))
             })
             .collect();
-        white.max(rounded_acceleration_sd(&weights, rounding * 12f64.sqrt()))
+        white.max(rounded_acceleration_sd(&weights, count))
     } else {
         white
     };
@@ -408,7 +415,7 @@ pub(super) fn local_polynomial(
 /// leave out is at most 4 % of the whole.
 const SAWTOOTH_TERMS: usize = 16;
 /// Beyond this many counts crossed within the window, readings' rounding errors are as good as
-/// independent, and [`rounded_acceleration_sd`] is the white-noise value.
+/// independent, and [`rounded_acceleration_sd`] would give the white-noise value.
 const MANY_COUNTS: f64 = 64.0;
 
 /// The standard deviation that an encoder's rounding to whole counts of `count` (rad) leaves in
@@ -422,15 +429,6 @@ const MANY_COUNTS: f64 = 64.0;
 /// errors independent), and several times that for a joint creeping across a few, whose
 /// staircase the polynomial bends to follow.
 fn rounded_acceleration_sd(weights: &[(f64, f64)], count: f64) -> f64 {
-    let (lowest, highest) = weights
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &(_, x)| {
-            (lo.min(x), hi.max(x))
-        });
-    if highest - lowest > MANY_COUNTS * count {
-        let white: f64 = weights.iter().map(|(w, _)| w * w).sum();
-        return count * (white / 12.0).sqrt();
-    }
     let mut sums = [nalgebra::Complex::new(0.0, 0.0); SAWTOOTH_TERMS];
     for &(w, x) in weights {
         // e^{2πikx/count} for k = 1, 2, … by repeated multiplication.
