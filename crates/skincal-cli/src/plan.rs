@@ -710,6 +710,23 @@ fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool, til
             f.held_out
         );
     }
+    let weak = f.weakest_dofs(WEAK_DOF);
+    if !weak.is_empty() {
+        let list: Vec<String> = weak
+            .iter()
+            .take(4)
+            .map(|(d, r)| format!("{} {:.4} m/s² ({r:.2}×)", d.dof, d.dynamic_rms))
+            .collect();
+        let more = weak.len().saturating_sub(4);
+        let _ = writeln!(
+            s,
+            "  DoFs forecast above {WEAK_DOF}× the median DoF's dynamic error: {}{}\n  (each: every SU \
+             it moves; a DoF read only by SUs near its axis or on a limb's first segments predicts \
+             worse; more poses lower every DoF alike)",
+            list.join(", "),
+            if more > 0 { format!(" and {more} more") } else { String::new() }
+        );
+    }
     if !f.partly_measured.is_empty() {
         let list: Vec<String> = f
             .partly_measured
@@ -745,6 +762,9 @@ fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool, til
         }
     }
 }
+
+/// How many times the median DoF's forecast dynamic error a DoF's must exceed to be named.
+const WEAK_DOF: f64 = 1.3;
 
 /// The excitation pattern and its window.
 fn render_pattern(s: &mut String, plan: &Plan) {

@@ -33,7 +33,7 @@ use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::{DofKind, Robot};
 use crate::plan::{Clearance, Part, PartlyMeasured, Plan, PlanConfig, PlanDof, PlanError};
-pub use crate::plan::{Forecast, ReadingNoise};
+pub use crate::plan::{DofForecast, Forecast, ReadingNoise};
 use crate::predict::{validate, PredictError};
 use crate::sim::timeseries::{record, LogConfig, RecordError};
 use crate::sim::{simulate, Imperfections, SimulationConfig, SimulationError};
@@ -352,6 +352,7 @@ pub fn forecast(
         })
         .collect();
     let (mut static_ss, mut dynamic_ss) = (0.0, 0.0);
+    let mut dof_ss: BTreeMap<String, f64> = BTreeMap::new();
     let mut partly_measured = Vec::new();
     for trial in 0..trials.max(1) {
         let mut rng = ChaCha8Rng::seed_from_u64(trial as u64);
@@ -381,6 +382,9 @@ pub fn forecast(
             validate(&calibrated, &reference.held_out, "held-out").map_err(DesignError::Predict)?;
         static_ss += check.static_rms.powi(2);
         dynamic_ss += check.dynamic_rms.powi(2);
+        for d in &check.dofs {
+            *dof_ss.entry(d.dof.clone()).or_default() += d.dynamic_rms.powi(2);
+        }
         if trial == 0 {
             partly_measured = partly_measured_in(&calibrated);
         }
@@ -394,6 +398,18 @@ pub fn forecast(
         trials: trials.max(1),
         held_out: reference.held_out.summary().training_poses,
         partly_measured,
+        dofs: robot
+            .model
+            .dof_names()
+            .into_iter()
+            .filter_map(|dof| {
+                let ss = dof_ss.get(&dof)?;
+                Some(DofForecast {
+                    dynamic_rms: (ss / n).sqrt(),
+                    dof,
+                })
+            })
+            .collect(),
     })
 }
 
@@ -490,6 +506,14 @@ pub fn forecast_sweep(
         trials: 1,
         held_out: reference.held_out.summary().training_poses,
         partly_measured: partly_measured_in(&calibrated),
+        dofs: check
+            .dofs
+            .iter()
+            .map(|d| DofForecast {
+                dof: d.dof.clone(),
+                dynamic_rms: d.dynamic_rms,
+            })
+            .collect(),
     })
 }
 

@@ -463,6 +463,23 @@ pub struct SuError {
     pub dynamic_count: usize,
 }
 
+/// Prediction errors of the dynamic readings of one excited DoF: every SU it moves, in every
+/// pose whose set gives its excitation; norm of the 3-vector difference, m/s².
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DofError {
+    /// The DoF.
+    pub dof: String,
+    /// RMS over poses and the SUs it moves of the dynamic acceleration error.
+    pub dynamic_rms: f64,
+    /// Largest dynamic acceleration error.
+    pub dynamic_max: f64,
+    /// Dynamic readings compared.
+    pub dynamic_count: usize,
+    /// The error a perfect model would show on these readings: their own noise (as
+    /// [`Validation::dynamic_floor`]).
+    pub floor: f64,
+}
+
 /// A model checked against a measurement set.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Validation {
@@ -478,6 +495,11 @@ pub struct Validation {
     pub dynamic_rms: f64,
     /// Largest dynamic error, m/s².
     pub dynamic_max: f64,
+    /// Per model DoF whose excitation the set gives (model order): its dynamic readings' errors.
+    /// A DoF whose excitation few SUs read, all of them near its axis or on the first segments
+    /// of a limb (few DoFs tell their pose), predicts worse than the rest.
+    #[serde(default)]
+    pub dofs: Vec<DofError>,
     /// SUs of the set that the model does not cover (not compared).
     pub not_in_model: Vec<String>,
     /// The static error a perfect model would show, m/s² RMS: the readings' own noise (the norm
@@ -540,8 +562,8 @@ pub struct SuResiduals {
 struct Compared {
     /// The SU, in the model's order.
     su: usize,
-    /// Whether it is a dynamic reading.
-    dynamic: bool,
+    /// The excited DoF of a dynamic reading (model order); `None`: the static reading.
+    dof: Option<usize>,
     /// Predicted minus read, m/s².
     error: Vector3<f64>,
     /// The standard deviation of each component that the set gives, if it does.
@@ -572,7 +594,7 @@ fn compare_readings(
         for (u, predicted) in r.statics.iter().enumerate() {
             visit(Compared {
                 su: u,
-                dynamic: false,
+                dof: None,
                 error: predicted - Vector3::from(pose.static_readings[su_col[u]]),
                 sd: pose.static_sd.as_ref().map(|sd| sd[su_col[u]]),
             });
@@ -585,7 +607,7 @@ fn compare_readings(
             for (u, a) in moved {
                 visit(Compared {
                     su: *u,
-                    dynamic: true,
+                    dof: Some(d),
                     error: a - Vector3::from(measured[su_col[*u]]),
                     sd: sd.map(|sd| sd[su_col[*u]]),
                 });
@@ -635,7 +657,7 @@ pub fn whitened_residuals(
         .collect();
     compare_readings(&predictor, set, source, |c| {
         let (r, (static_sd, dynamic_sd)) = &mut out[c.su];
-        let (into, sd) = if c.dynamic {
+        let (into, sd) = if c.dof.is_some() {
             (&mut r.dynamics, c.sd.unwrap_or(*dynamic_sd))
         } else {
             (&mut r.statics, c.sd.unwrap_or(*static_sd))
@@ -643,6 +665,45 @@ pub fn whitened_residuals(
         into.extend(c.error.iter().map(|e| e / sd));
     })?;
     Ok(out.into_iter().map(|(r, _)| r).collect())
+}
+
+/// Errors of a group of readings (an SU's static or dynamic ones, a DoF's): norms of the 3-vector
+/// differences, and the noise variance of the same readings.
+#[derive(Debug, Clone, Copy, Default)]
+struct Errors {
+    squares: f64,
+    max: f64,
+    count: usize,
+    noise: f64,
+}
+
+impl Errors {
+    fn add(&mut self, error: f64, noise_variance: f64) {
+        self.squares += error * error;
+        self.max = self.max.max(error);
+        self.count += 1;
+        self.noise += noise_variance;
+    }
+
+    /// The groups taken as one.
+    fn total(groups: &[Errors]) -> Errors {
+        groups.iter().fold(Errors::default(), |a, g| Errors {
+            squares: a.squares + g.squares,
+            max: a.max.max(g.max),
+            count: a.count + g.count,
+            noise: a.noise + g.noise,
+        })
+    }
+
+    /// RMS error (0 for no reading).
+    fn rms(&self) -> f64 {
+        (self.squares / self.count.max(1) as f64).sqrt()
+    }
+
+    /// What a perfect model would show: the readings' own noise, RMS.
+    fn floor(&self) -> f64 {
+        (self.noise / self.count.max(1) as f64).sqrt()
+    }
 }
 
 /// Compares the model's predictions with the training experiment of `set` (its poses, its pattern).
@@ -677,16 +738,13 @@ pub fn validate(
     source: &str,
 ) -> Result<Validation, PredictError> {
     let predictor = Predictor::new(model)?;
-    let sus = predictor.sus();
-    let n = sus.len();
-    let (mut s_noise, mut d_noise, mut own_sd) = (0.0, 0.0, true);
-    let (mut s_sum, mut s_max, mut d_sum, mut d_max, mut d_count) = (
-        vec![0.0; n],
-        vec![0.0f64; n],
-        vec![0.0; n],
-        vec![0.0f64; n],
-        vec![0usize; n],
+    let (dofs, sus) = (predictor.dofs(), predictor.sus());
+    let mut own_sd = true;
+    let (mut statics, mut dynamics) = (
+        vec![Errors::default(); sus.len()],
+        vec![Errors::default(); sus.len()],
     );
+    let mut per_dof = vec![Errors::default(); dofs.len()];
     let poses = compare_readings(&predictor, set, source, |c| {
         let e = c.error.norm();
         // The reading's own noise: a component's variance, summed over the 3 components.
@@ -694,44 +752,56 @@ pub fn validate(
             own_sd = false;
             model.noise_sd
         });
-        let u = c.su;
-        if c.dynamic {
-            d_noise += 3.0 * sd * sd;
-            d_sum[u] += e * e;
-            d_max[u] = d_max[u].max(e);
-            d_count[u] += 1;
-        } else {
-            s_noise += 3.0 * sd * sd;
-            s_sum[u] += e * e;
-            s_max[u] = s_max[u].max(e);
+        let variance = 3.0 * sd * sd;
+        match c.dof {
+            Some(d) => {
+                dynamics[c.su].add(e, variance);
+                per_dof[d].add(e, variance);
+            }
+            None => statics[c.su].add(e, variance),
         }
     })?;
-    let per_su = (0..n)
-        .map(|u| SuError {
-            su: sus[u].clone(),
-            static_rms: (s_sum[u] / poses.max(1) as f64).sqrt(),
-            static_max: s_max[u],
-            dynamic_rms: (d_sum[u] / d_count[u].max(1) as f64).sqrt(),
-            dynamic_max: d_max[u],
-            dynamic_count: d_count[u],
+    let per_su = sus
+        .iter()
+        .zip(statics.iter().zip(&dynamics))
+        .map(|(su, (s, d))| SuError {
+            su: su.clone(),
+            static_rms: s.rms(),
+            static_max: s.max,
+            dynamic_rms: d.rms(),
+            dynamic_max: d.max,
+            dynamic_count: d.count,
         })
         .collect();
-    let total_d: usize = d_count.iter().sum();
+    let dofs = dofs
+        .into_iter()
+        .zip(&per_dof)
+        .filter(|(_, e)| e.count > 0)
+        .map(|(dof, e)| DofError {
+            dof,
+            dynamic_rms: e.rms(),
+            dynamic_max: e.max,
+            dynamic_count: e.count,
+            floor: e.floor(),
+        })
+        .collect();
+    let (all_static, all_dynamic) = (Errors::total(&statics), Errors::total(&dynamics));
     Ok(Validation {
         poses,
         sus: per_su,
-        static_rms: (s_sum.iter().sum::<f64>() / (poses * n).max(1) as f64).sqrt(),
-        static_max: s_max.iter().copied().fold(0.0, f64::max),
-        dynamic_rms: (d_sum.iter().sum::<f64>() / total_d.max(1) as f64).sqrt(),
-        dynamic_max: d_max.iter().copied().fold(0.0, f64::max),
+        static_rms: all_static.rms(),
+        static_max: all_static.max,
+        dynamic_rms: all_dynamic.rms(),
+        dynamic_max: all_dynamic.max,
+        dofs,
         not_in_model: set
             .sus
             .iter()
             .filter(|s| !sus.contains(s))
             .cloned()
             .collect(),
-        static_floor: (s_noise / (poses * n).max(1) as f64).sqrt(),
-        dynamic_floor: (d_noise / total_d.max(1) as f64).sqrt(),
+        static_floor: all_static.floor(),
+        dynamic_floor: all_dynamic.floor(),
         floor_source: if own_sd {
             "the readings' standard deviations"
         } else {

@@ -712,3 +712,59 @@ fn a_humanoid_trained_upright_and_tilted_predicts_both_orientations_exactly() {
         "{err}"
     );
 }
+
+#[test]
+fn a_dofs_dynamic_error_counts_the_readings_of_every_su_it_moves_and_no_other() {
+    // Physics: an SU reads the excitation of the DoFs before it only. A noise-free calibration
+    // predicts every held-out reading exactly; moving one SU that one DoF alone carries then
+    // changes that DoF's dynamic error, by exactly that SU's share, and no other DoF's.
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let set = simulate(&robot, &noise_free(3)).unwrap().measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    let config = MlConfig {
+        noise_sd: 1e-6,
+        ..MlConfig::default()
+    };
+    let mut model = calibrate_body(&set, Some(&structure), &config, None).unwrap();
+    let truth = held_out(&robot, 5);
+    let exact = validate(&model, &truth, "held-out").unwrap();
+    assert_eq!(exact.dofs.len(), robot.model.dof_names().len());
+    assert!(
+        exact.dofs.iter().all(|d| d.dynamic_rms < 1e-6),
+        "{:?}",
+        exact.dofs
+    );
+    // Every dynamic reading is counted once by its SU and once by its DoF.
+    let by_su: usize = exact.sus.iter().map(|s| s.dynamic_count).sum();
+    let by_dof: usize = exact.dofs.iter().map(|d| d.dynamic_count).sum();
+    assert_eq!(by_su, by_dof);
+    // The SU that one DoF alone moves: one dynamic reading per pose.
+    let lone = exact
+        .sus
+        .iter()
+        .find(|s| s.dynamic_count == exact.poses)
+        .expect("an SU on the first segment")
+        .su
+        .clone();
+    let entry = model.robot.sus.iter_mut().find(|s| s.name == lone).unwrap();
+    let xyz = entry.xyz.as_mut().expect("a placed SU");
+    for c in xyz.iter_mut() {
+        *c += 0.02;
+    }
+    let moved = validate(&model, &truth, "held-out").unwrap();
+    let su = moved.sus.iter().find(|s| s.su == lone).unwrap();
+    assert!(su.dynamic_rms > 1e-3, "{su:?}");
+    let changed: Vec<_> = moved.dofs.iter().filter(|d| d.dynamic_rms > 1e-6).collect();
+    assert_eq!(changed.len(), 1, "{:?}", moved.dofs);
+    let first = &model.limbs[0].dofs[0];
+    assert_eq!(&changed[0].dof, first);
+    // Its squared errors are the SU's, over the DoF's readings.
+    let d = changed[0];
+    let share = su.dynamic_rms.powi(2) * su.dynamic_count as f64;
+    let whole = d.dynamic_rms.powi(2) * d.dynamic_count as f64;
+    assert!(
+        (whole - share).abs() < 1e-9 * share,
+        "{whole} against {share}"
+    );
+    assert!((d.dynamic_max - su.dynamic_max).abs() < 1e-12);
+}

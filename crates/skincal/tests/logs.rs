@@ -1104,6 +1104,31 @@ fn the_forecast_follows_the_laws_of_noise_and_poses() {
     ] {
         assert!((0.35..0.7).contains(&(b / a)), "{a} → {b} (1/√4 = 0.5)");
     }
+    // Every DoF's own forecast falls with the poses too, and their median as 1/√P.
+    let names = robot.model.dof_names();
+    for f in [&small, &large] {
+        let dofs: Vec<&String> = f.dofs.iter().map(|d| &d.dof).collect();
+        assert_eq!(dofs, names.iter().collect::<Vec<_>>());
+    }
+    let mut ratios: Vec<f64> = small
+        .dofs
+        .iter()
+        .zip(&large.dofs)
+        .map(|(a, b)| {
+            let ratio = b.dynamic_rms / a.dynamic_rms;
+            assert!(
+                ratio < 0.9,
+                "{}: {} → {}",
+                a.dof,
+                a.dynamic_rms,
+                b.dynamic_rms
+            );
+            ratio
+        })
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    assert!((0.35..0.7).contains(&median), "{ratios:?} (1/√4 = 0.5)");
     // Without SUs there is nothing to forecast, and it says so.
     let bare = skincal::io::load_robot(
         &crate::common::fixture("arm.urdf").display().to_string(),

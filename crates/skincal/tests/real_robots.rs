@@ -7,13 +7,12 @@
 use std::path::PathBuf;
 
 use skincal::estimate::body::calibrate_body;
-use skincal::estimate::body::BodyModel;
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig, Structure};
 use skincal::io::{load_robot, SuPlacement};
 use skincal::measurements::MeasurementSet;
 use skincal::model::Robot;
-use skincal::predict::{validate, Predictor};
+use skincal::predict::validate;
 use skincal::sim::{simulate, Imperfections, SimulationConfig};
 
 pub(crate) fn description(path: &str) -> PathBuf {
@@ -215,38 +214,6 @@ fn talos_humanoid() {
     calibrates("talos_data/robots/talos_reduced.urdf", &[1, 2]);
 }
 
-/// The held-out dynamic RMS error per DoF, m/s²: every SU's dynamic reading of the DoF's
-/// excitation in every pose of `held_out`, against the model's prediction.
-fn dynamic_error_per_dof(
-    model: &BodyModel,
-    held_out: &MeasurementSet,
-) -> std::collections::BTreeMap<String, f64> {
-    let predictor = Predictor::new(model).unwrap();
-    let (dofs, sus) = (predictor.dofs(), predictor.sus());
-    let column = |names: &[String], name: &String| names.iter().position(|n| n == name).unwrap();
-    let training = held_out.training.as_ref().unwrap();
-    let mut sums = std::collections::BTreeMap::<String, (f64, usize)>::new();
-    for pose in &training.poses {
-        let q: Vec<f64> = dofs
-            .iter()
-            .map(|d| pose.q[column(&held_out.dofs, d)])
-            .collect();
-        let predicted = predictor.readings(&q, &training.pattern);
-        for (d, moved) in predicted.dynamic.iter().enumerate() {
-            let read = &pose.dynamic[&dofs[d]];
-            for (u, a) in moved {
-                let measured = nalgebra::Vector3::from(read[column(&held_out.sus, &sus[*u])]);
-                let sum = sums.entry(dofs[d].clone()).or_default();
-                sum.0 += (a - measured).norm_squared();
-                sum.1 += 1;
-            }
-        }
-    }
-    sums.into_iter()
-        .map(|(dof, (sum, n))| (dof, (sum / n as f64).sqrt()))
-        .collect()
-}
-
 #[test]
 fn a_trunk_is_fitted_from_every_su_it_moves() {
     // TALOS's trunk (2 DoFs) carries 4 SUs of its own, and both arms and the head on it. Fitted
@@ -257,7 +224,13 @@ fn a_trunk_is_fitted_from_every_su_it_moves() {
     for seed in [1, 2] {
         let (_, set, structure, held_out) = simulated(&file, seed);
         let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
-        let errors = dynamic_error_per_dof(&model, &held_out);
+        let errors: std::collections::BTreeMap<String, f64> =
+            validate(&model, &held_out, "held-out")
+                .unwrap()
+                .dofs
+                .into_iter()
+                .map(|d| (d.dof, d.dynamic_rms))
+                .collect();
         let mut sorted: Vec<f64> = errors.values().copied().collect();
         sorted.sort_by(f64::total_cmp);
         let median = sorted[sorted.len() / 2];

@@ -374,7 +374,8 @@ class Limb:
 @dataclass(frozen=True)
 class Validation:
     """Predictions against a second measurement set: RMS and largest errors (norm of the
-    3-vector difference, m/s²), and the per-SU table."""
+    3-vector difference, m/s²), the per-SU table, and per excited DoF its dynamic readings'
+    errors (``dofs``: ``dof``, ``dynamic_rms``, ``dynamic_max``, ``dynamic_count``, ``floor``)."""
 
     poses: int
     static_rms: float
@@ -382,6 +383,7 @@ class Validation:
     dynamic_rms: float
     dynamic_max: float
     sus: List[dict]
+    dofs: List[dict] = field(default_factory=list)
 
 
 def _dh_arrays(dh: Optional[dict]) -> Optional[Dict[str, Dict[str, np.ndarray]]]:
@@ -506,6 +508,7 @@ class Model:
             dynamic_rms=v["dynamic_rms"],
             dynamic_max=v["dynamic_max"],
             sus=v["sus"],
+            dofs=v.get("dofs", []),
         )
 
     def to_urdf(self) -> str:

@@ -34,6 +34,15 @@ pub(super) fn validation(v: &Validation, name: &str) -> Markup {
     let dynamics = Chart::categories(labels, "SU", "m/s² RMS")
         .with(dynamic)
         .with(Series::level("noise floor", v.dynamic_floor, n));
+    let dof_labels: Vec<String> = v.dofs.iter().map(|d| d.dof.clone()).collect();
+    let per_dof = Chart::categories(dof_labels, "excited DoF", "m/s² RMS")
+        .with(Series::new(
+            "dynamic error",
+            Mark::Bars,
+            "#e15759",
+            v.dofs.iter().map(|d| d.dynamic_rms).collect(),
+        ))
+        .with(Series::level("noise floor", v.dynamic_floor, v.dofs.len()));
     let without: Vec<&str> = v
         .sus
         .iter()
@@ -50,6 +59,9 @@ pub(super) fn validation(v: &Validation, name: &str) -> Markup {
             (statics.figure(html! { "Static error per SU, m/s² RMS; dashed: the noise floor." }))
             (dynamics.figure(html! { "Dynamic error per SU, m/s² RMS; dashed: the noise floor."
                 @if !without.is_empty() { " No DoF excited in the set moves " (without.join(", ")) ": no dynamic reading, no bar." } }))
+            @if !v.dofs.is_empty() {
+                (per_dof.figure(html! { "Dynamic error per excited DoF (every SU it moves, in every pose), m/s² RMS; dashed: the noise floor. A DoF read only by SUs near its axis or on the first segments of a limb predicts worse; more poses lower every DoF alike." }))
+            }
         }
     }
 }

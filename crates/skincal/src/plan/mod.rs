@@ -850,6 +850,19 @@ pub struct Forecast {
     /// along it and, without tilted poses, their turn about it).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub partly_measured: Vec<PartlyMeasured>,
+    /// Per excited DoF (the description's order): the expected RMS error of its dynamic readings
+    /// on held-out poses (every SU it moves), m/s².
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dofs: Vec<DofForecast>,
+}
+
+/// The forecast error of one DoF's dynamic readings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DofForecast {
+    /// The DoF.
+    pub dof: String,
+    /// Expected RMS error of its dynamic readings on held-out poses, m/s².
+    pub dynamic_rms: f64,
 }
 
 /// An SU of a forecast's calibration whose pose some direction of no reading determines.
@@ -867,6 +880,24 @@ impl Forecast {
     /// The larger of the two RMS errors, m/s².
     pub fn worst(&self) -> f64 {
         self.static_rms.max(self.dynamic_rms)
+    }
+
+    /// The DoFs whose forecast dynamic error is above `ratio` times the median DoF's, worst
+    /// first, each with its multiple of the median.
+    pub fn weakest_dofs(&self, ratio: f64) -> Vec<(&DofForecast, f64)> {
+        let mut sorted: Vec<f64> = self.dofs.iter().map(|d| d.dynamic_rms).collect();
+        sorted.sort_by(f64::total_cmp);
+        let Some(&median) = sorted.get(sorted.len() / 2).filter(|m| **m > 0.0) else {
+            return Vec::new();
+        };
+        let mut weak: Vec<(&DofForecast, f64)> = self
+            .dofs
+            .iter()
+            .map(|d| (d, d.dynamic_rms / median))
+            .filter(|&(_, r)| r > ratio)
+            .collect();
+        weak.sort_by(|a, b| b.1.total_cmp(&a.1));
+        weak
     }
 }
 
@@ -1734,5 +1765,46 @@ impl Builder<'_> {
             here,
             Some(pose),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_weakest_dofs_are_those_above_the_median_dofs_error() {
+        let forecast = Forecast {
+            poses: 6,
+            static_rms: 0.0,
+            dynamic_rms: 0.0,
+            noise: ReadingNoise {
+                static_sd: 0.0,
+                dynamic_sd: 0.0,
+                sample_sd: 0.0,
+            },
+            trials: 1,
+            held_out: 20,
+            partly_measured: Vec::new(),
+            dofs: [("a", 1.0), ("b", 2.0), ("c", 3.0), ("d", 1.5), ("e", 2.7)]
+                .map(|(dof, dynamic_rms)| DofForecast {
+                    dof: dof.into(),
+                    dynamic_rms,
+                })
+                .to_vec(),
+        };
+        // Sorted 1, 1.5, 2, 2.7, 3: the median is 2; above 1.3 × 2 = 2.6 lie c (1.5×) and e.
+        let weak: Vec<(&str, f64)> = forecast
+            .weakest_dofs(1.3)
+            .into_iter()
+            .map(|(d, r)| (d.dof.as_str(), r))
+            .collect();
+        assert_eq!(weak, vec![("c", 1.5), ("e", 1.35)]);
+        assert!(forecast.weakest_dofs(1.5).is_empty());
+        let none = Forecast {
+            dofs: Vec::new(),
+            ..forecast
+        };
+        assert!(none.weakest_dofs(1.0).is_empty());
     }
 }
