@@ -69,6 +69,12 @@ def test_the_paper_arm_end_to_end_against_the_truth():
     errors = np.linalg.norm(static - t.static, axis=2)
     assert np.sqrt(np.mean(errors**2)) < 0.06 and errors.max() < 0.2
     assert dynamic.shape == t.dynamic.shape
+    # Per excited DoF, the error of its dynamic readings over every SU it moves (the others are
+    # read and predicted zero), as the arrays give it.
+    assert [d["dof"] for d in check.dofs] == model.dofs == held.dofs
+    for k, d in enumerate(check.dofs):
+        squares = np.sum((dynamic[:, k] - t.dynamic[:, k]) ** 2)
+        assert np.isclose(np.sqrt(squares / d["dynamic_count"]), d["dynamic_rms"], rtol=1e-9), d
     # One pose alone gives the same numbers.
     one_static, _ = model.predict(t.poses[0], t.pattern)
     assert np.array_equal(one_static, static[0])
