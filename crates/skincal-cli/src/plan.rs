@@ -721,10 +721,10 @@ fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool, til
         let _ = writeln!(
             s,
             "  DoFs forecast above {WEAK_DOF}× the median DoF's dynamic error: {}{}\n  (each: every SU \
-             it moves; a DoF read only by SUs near its axis or on a limb's first segments predicts \
-             worse; more poses lower every DoF alike)",
+             it moves; {})",
             list.join(", "),
-            if more > 0 { format!(" and {more} more") } else { String::new() }
+            if more > 0 { format!(" and {more} more") } else { String::new() },
+            skincal::predict::UNEVEN_DOFS
         );
     }
     if !f.partly_measured.is_empty() {

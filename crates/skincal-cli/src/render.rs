@@ -676,9 +676,8 @@ fn dof_table(v: &skincal::predict::Validation) -> String {
     if v.dofs.is_empty() {
         return out;
     }
-    let mut sorted: Vec<f64> = v.dofs.iter().map(|d| d.dynamic_rms).collect();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
+    let errors: Vec<f64> = v.dofs.iter().map(|d| d.dynamic_rms).collect();
+    let ratios = skincal::predict::over_median(&errors);
     let w = v
         .dofs
         .iter()
@@ -689,12 +688,10 @@ fn dof_table(v: &skincal::predict::Validation) -> String {
         "\n{:<w$} {:>12} {:>12} {:>9} {:>9} {:>12}",
         "excited DoF", "dynamic RMS", "dynamic max", "dynamic n", "× median", "noise floor"
     );
-    for d in &v.dofs {
-        let ratio = if median > 0.0 {
-            format!("{:.2}", d.dynamic_rms / median)
-        } else {
-            "-".into()
-        };
+    for (i, d) in v.dofs.iter().enumerate() {
+        let ratio = ratios
+            .as_ref()
+            .map_or_else(|| "-".to_string(), |r| format!("{:.2}", r[i]));
         let _ = writeln!(
             out,
             "{:<w$} {:>12.4} {:>12.4} {:>9} {:>9} {:>12.4}",
@@ -703,8 +700,8 @@ fn dof_table(v: &skincal::predict::Validation) -> String {
     }
     let _ = writeln!(
         out,
-        "(every SU a DoF moves, in every pose; a DoF read only by SUs near its axis or on the first \
-         segments of a limb predicts worse: more poses lower every DoF alike)"
+        "(every SU a DoF moves, in every pose; {})",
+        skincal::predict::UNEVEN_DOFS
     );
     out
 }

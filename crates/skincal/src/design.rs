@@ -382,8 +382,8 @@ pub fn forecast(
             validate(&calibrated, &reference.held_out, "held-out").map_err(DesignError::Predict)?;
         static_ss += check.static_rms.powi(2);
         dynamic_ss += check.dynamic_rms.powi(2);
-        for d in &check.dofs {
-            *dof_ss.entry(d.dof.clone()).or_default() += d.dynamic_rms.powi(2);
+        for (dof, ss) in dof_squares(&check) {
+            *dof_ss.entry(dof).or_default() += ss;
         }
         if trial == 0 {
             partly_measured = partly_measured_in(&calibrated);
@@ -398,19 +398,34 @@ pub fn forecast(
         trials: trials.max(1),
         held_out: reference.held_out.summary().training_poses,
         partly_measured,
-        dofs: robot
-            .model
-            .dof_names()
-            .into_iter()
-            .filter_map(|dof| {
-                let ss = dof_ss.get(&dof)?;
-                Some(DofForecast {
-                    dynamic_rms: (ss / n).sqrt(),
-                    dof,
-                })
-            })
-            .collect(),
+        dofs: dof_forecasts(robot, &dof_ss, n),
     })
+}
+
+/// Each DoF's dynamic RMS error squared in `check`.
+fn dof_squares(check: &crate::predict::Validation) -> BTreeMap<String, f64> {
+    check
+        .dofs
+        .iter()
+        .map(|d| (d.dof.clone(), d.dynamic_rms.powi(2)))
+        .collect()
+}
+
+/// Per DoF of `robot` (its order) with a sum in `squares` (of its dynamic RMS errors squared over
+/// `draws` draws): the RMS over the draws.
+fn dof_forecasts(robot: &Robot, squares: &BTreeMap<String, f64>, draws: f64) -> Vec<DofForecast> {
+    robot
+        .model
+        .dof_names()
+        .into_iter()
+        .filter_map(|dof| {
+            let ss = squares.get(&dof)?;
+            Some(DofForecast {
+                dynamic_rms: (ss / draws).sqrt(),
+                dof,
+            })
+        })
+        .collect()
 }
 
 /// The SUs of `model` whose pose some direction of no reading determines.
@@ -506,14 +521,7 @@ pub fn forecast_sweep(
         trials: 1,
         held_out: reference.held_out.summary().training_poses,
         partly_measured: partly_measured_in(&calibrated),
-        dofs: check
-            .dofs
-            .iter()
-            .map(|d| DofForecast {
-                dof: d.dof.clone(),
-                dynamic_rms: d.dynamic_rms,
-            })
-            .collect(),
+        dofs: dof_forecasts(robot, &dof_squares(&check), 1.0),
     })
 }
 

@@ -480,6 +480,19 @@ pub struct DofError {
     pub floor: f64,
 }
 
+/// Why some DoFs' dynamic readings predict worse than others', for tables and the report.
+pub const UNEVEN_DOFS: &str = "a DoF read only by SUs near its axis or on the first segments of a \
+     limb predicts worse; more poses lower every DoF alike";
+
+/// Each of `errors` (one per DoF) as a multiple of their median; `None` when there are none or
+/// the median is zero.
+pub fn over_median(errors: &[f64]) -> Option<Vec<f64>> {
+    let mut sorted = errors.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let median = *sorted.get(sorted.len() / 2).filter(|m| **m > 0.0)?;
+    Some(errors.iter().map(|e| e / median).collect())
+}
+
 /// A model checked against a measurement set.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Validation {

@@ -60,7 +60,7 @@ pub(super) fn validation(v: &Validation, name: &str) -> Markup {
             (dynamics.figure(html! { "Dynamic error per SU, m/s² RMS; dashed: the noise floor."
                 @if !without.is_empty() { " No DoF excited in the set moves " (without.join(", ")) ": no dynamic reading, no bar." } }))
             @if !v.dofs.is_empty() {
-                (per_dof.figure(html! { "Dynamic error per excited DoF (every SU it moves, in every pose), m/s² RMS; dashed: the noise floor. A DoF read only by SUs near its axis or on the first segments of a limb predicts worse; more poses lower every DoF alike." }))
+                (per_dof.figure(html! { "Dynamic error per excited DoF (every SU it moves, in every pose), m/s² RMS; dashed: the noise floor; " (crate::predict::UNEVEN_DOFS) "." }))
             }
         }
     }

@@ -885,15 +885,14 @@ impl Forecast {
     /// The DoFs whose forecast dynamic error is above `ratio` times the median DoF's, worst
     /// first, each with its multiple of the median.
     pub fn weakest_dofs(&self, ratio: f64) -> Vec<(&DofForecast, f64)> {
-        let mut sorted: Vec<f64> = self.dofs.iter().map(|d| d.dynamic_rms).collect();
-        sorted.sort_by(f64::total_cmp);
-        let Some(&median) = sorted.get(sorted.len() / 2).filter(|m| **m > 0.0) else {
+        let errors: Vec<f64> = self.dofs.iter().map(|d| d.dynamic_rms).collect();
+        let Some(ratios) = crate::predict::over_median(&errors) else {
             return Vec::new();
         };
         let mut weak: Vec<(&DofForecast, f64)> = self
             .dofs
             .iter()
-            .map(|d| (d, d.dynamic_rms / median))
+            .zip(ratios)
             .filter(|&(_, r)| r > ratio)
             .collect();
         weak.sort_by(|a, b| b.1.total_cmp(&a.1));
