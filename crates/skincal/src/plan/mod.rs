@@ -885,14 +885,16 @@ impl Forecast {
     /// The DoFs whose forecast dynamic error is above `ratio` times the median DoF's, worst
     /// first, each with its multiple of the median.
     pub fn weakest_dofs(&self, ratio: f64) -> Vec<(&DofForecast, f64)> {
-        let errors: Vec<f64> = self.dofs.iter().map(|d| d.dynamic_rms).collect();
-        let Some(ratios) = crate::predict::over_median(&errors) else {
+        // `predict::over_median` does this for a validation; `plan` sits below `predict`.
+        let mut sorted: Vec<f64> = self.dofs.iter().map(|d| d.dynamic_rms).collect();
+        sorted.sort_by(f64::total_cmp);
+        let Some(&median) = sorted.get(sorted.len() / 2).filter(|m| **m > 0.0) else {
             return Vec::new();
         };
         let mut weak: Vec<(&DofForecast, f64)> = self
             .dofs
             .iter()
-            .zip(ratios)
+            .map(|d| (d, d.dynamic_rms / median))
             .filter(|&(_, r)| r > ratio)
             .collect();
         weak.sort_by(|a, b| b.1.total_cmp(&a.1));
