@@ -38,8 +38,8 @@ enum Shared {
     OtherGravity(usize, usize),
     /// A component of a DoF's joint line.
     Joint(String, usize),
-    /// The skin's delay behind the joint states, per limb (each limb's fit found its own).
-    SkinDelay(usize),
+    /// The skin's delay behind the joint states: one clock, whichever limb an SU is on.
+    SkinDelay,
 }
 
 /// Every limb of `estimates` that hangs on a limb starting at the reference segment fitted again
@@ -91,8 +91,8 @@ fn refine_tree(
     };
     let mut columns: HashMap<Shared, usize> = HashMap::new();
     let mut shared_of = Vec::with_capacity(limbs.len());
-    for (i, limb) in limbs.iter().enumerate() {
-        let Some(at) = place(&limb.spec, &limb.problem, i, &mut columns) else {
+    for limb in &limbs {
+        let Some(at) = place(&limb.spec, &limb.problem, &mut columns) else {
             return Ok(());
         };
         shared_of.push(at);
@@ -205,7 +205,28 @@ fn freed(estimates: &[MlChainEstimate], tree: &[usize]) -> Option<Vec<Limb>> {
             spec,
         });
     }
+    // The skin has one clock: every limb starts from the delay its limbs found together (each
+    // limb's weighed by its precision), and the tree fits it as one.
+    if let Some(delay) = common_delay(tree.iter().map(|&i| &estimates[i])) {
+        for limb in &mut limbs {
+            limb.state.skin_delay = delay;
+        }
+    }
     Some(limbs)
+}
+
+/// The mean of the skin delays that the limbs of `estimates` fitted on a motion record found,
+/// each weighed by the inverse of its variance (equally where one has none); `None` when none
+/// was fitted on a record.
+fn common_delay<'a>(estimates: impl Iterator<Item = &'a MlChainEstimate>) -> Option<f64> {
+    let delays: Vec<(f64, f64)> = estimates
+        .filter_map(|e| e.motion.as_ref())
+        .map(|m| (m.skin_delay, m.skin_delay_sd))
+        .collect();
+    let precise = delays.iter().all(|(_, sd)| sd.is_finite() && *sd > 0.0);
+    let weight = |sd: f64| if precise { sd.powi(-2) } else { 1.0 };
+    let total: f64 = delays.iter().map(|&(_, sd)| weight(sd)).sum();
+    (!delays.is_empty()).then(|| delays.iter().map(|&(d, sd)| d * weight(sd)).sum::<f64>() / total)
 }
 
 /// `spec` (a sub-limb's, its base path held) with gravity (`gravity`, held as `root` holds it)
@@ -233,12 +254,11 @@ fn with_path(spec: &Spec, gravity: Option<Block>, root: &Spec, base_dofs: usize)
     }
 }
 
-/// Where each shared column of `spec` (limb `i`'s problem) sits among the tree's `columns`, which
+/// Where each shared column of `spec` (a limb's problem) sits among the tree's `columns`, which
 /// gain the parameters not yet placed; `None` for a block a final problem does not share.
 fn place(
     spec: &Spec,
     problem: &FinalProblem,
-    i: usize,
     columns: &mut HashMap<Shared, usize>,
 ) -> Option<Vec<usize>> {
     let dofs = problem.data.chain.dofs();
@@ -250,7 +270,7 @@ fn place(
                 Block::Gravity | Block::GravityDirection => Shared::Gravity(c),
                 Block::OtherGravity(o) => Shared::OtherGravity(o, c),
                 Block::Joint(k) => Shared::Joint(dofs[k].clone(), c),
-                Block::SkinDelay => Shared::SkinDelay(i),
+                Block::SkinDelay => Shared::SkinDelay,
                 _ => return None,
             };
             let next = columns.len();
@@ -298,7 +318,7 @@ fn what_others_tell(
         .iter()
         .enumerate()
         .map(|(i, limb)| {
-            let mine = place(&limb.problem.spec, &limb.problem, i, columns)?;
+            let mine = place(&limb.problem.spec, &limb.problem, columns)?;
             let freed = &shared_of[i];
             let rest: Vec<usize> = (0..n)
                 .filter(|g| !freed.contains(g) && !mine.contains(g))
