@@ -42,6 +42,11 @@ pub struct MotionRecord {
     /// (`null`: a record written before this was kept, read as narrow).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub half_width: Option<f64>,
+    /// Per DoF: the standard deviation of its encoder's rounding to whole counts (a count over
+    /// √12), rad (m for a prismatic DoF); 0 where the readings are not rounded. Empty: a record
+    /// written before this was kept, read as unrounded.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rounding: Vec<f64>,
     /// Stretches of consecutive blocks (a log, or the part of one between gaps in the joint
     /// states).
     pub runs: Vec<MotionRun>,
@@ -221,6 +226,23 @@ impl MotionRecord {
                 "`noise_sd` has {} entries for {} SUs",
                 self.noise_sd.len(),
                 self.sus.len()
+            ));
+        }
+        if !self.rounding.is_empty() && self.rounding.len() != self.dofs.len() {
+            return Err(format!(
+                "`rounding` has {} entries for {} DoFs",
+                self.rounding.len(),
+                self.dofs.len()
+            ));
+        }
+        if let Some((d, x)) = self
+            .rounding
+            .iter()
+            .enumerate()
+            .find(|(_, x)| !(x.is_finite() && **x >= 0.0))
+        {
+            return Err(format!(
+                "`rounding[{d}]` is {x}, expected a standard deviation ≥ 0"
             ));
         }
         if !self.samples.is_empty() && self.samples.len() != self.sus.len() {

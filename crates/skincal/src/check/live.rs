@@ -198,6 +198,7 @@ impl LiveCheck {
             sus: self.sus.clone(),
             noise_sd,
             half_width: self.stream.half_width(),
+            rounding: self.stream.roundings(),
             runs,
             samples: self.stream.samples(),
         }

@@ -138,6 +138,16 @@ pub fn motion_record_from(
         .iter()
         .flat_map(|g| g.joints.iter().map(|s| half_width(s)))
         .fold(HALF_WIDTHS[0], f64::max);
+    // Each DoF's coarsest rounding over the logs (one encoder; a log in which it never moved
+    // tells none).
+    let rounding = (0..dofs.len())
+        .map(|d| {
+            gathered
+                .iter()
+                .map(|g| encoder_rounding(&g.joints[d]))
+                .fold(0.0, f64::max)
+        })
+        .collect();
     let mut runs = Vec::new();
     let mut samples = vec![SampleCount::default(); sus.len()];
     for (log, gathered) in logs.iter().zip(&gathered) {
@@ -167,6 +177,7 @@ pub fn motion_record_from(
         sus: sus.to_vec(),
         noise_sd,
         half_width: Some(h),
+        rounding,
         runs,
         samples,
     };

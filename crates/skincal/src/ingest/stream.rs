@@ -289,6 +289,14 @@ impl MotionStream {
         self.done
     }
 
+    /// Each DoF's encoder rounding ([`crate::motion::MotionRecord::rounding`]), 0 until learnt.
+    pub fn roundings(&self) -> Vec<f64> {
+        self.widths
+            .iter()
+            .map(|w| w.map_or(0.0, |(_, r)| r))
+            .collect()
+    }
+
     /// The half-width of every DoF's polynomial: the widest any DoF's encoder needs, once every
     /// DoF's is learnt.
     pub fn half_width(&self) -> Option<f64> {

@@ -77,6 +77,9 @@ pub(super) fn final_fit(
     let (solved, weighted, its, noise_components) =
         weigh_by_noise_components(solved, &layout, readings, &spec, config);
     iterations += its;
+    let (solved, weighted, its) =
+        super::joint_states::with_joint_states(solved, &layout, weighted, &spec, config);
+    iterations += its;
     let fixed = gauge_statement(data, base, gauge_su, vertical, &spec);
     let problem = FinalProblem {
         data: data.clone(),

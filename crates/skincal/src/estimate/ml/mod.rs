@@ -73,6 +73,7 @@ mod band;
 mod bound;
 mod final_fit;
 mod init;
+pub mod joint_states;
 mod motion;
 mod on_motion;
 mod problem;
@@ -163,6 +164,14 @@ pub struct MlConfig {
     /// first fit on its parent's path, whose rescues (`estimate::rescue`) come first.
     #[serde(default = "retry_within_limbs")]
     pub limb_retries: bool,
+    /// On a motion record whose encoders round coarsely, fit the joint states of those DoFs as
+    /// unknowns held at what the encoders read ([`joint_states`]).
+    #[serde(default = "fit_joint_states")]
+    pub joint_states: bool,
+}
+
+fn fit_joint_states() -> bool {
+    true
 }
 
 fn retry_within_limbs() -> bool {
@@ -241,6 +250,7 @@ impl Default for MlConfig {
             reading_sd: true,
             whole_tree: true,
             limb_retries: true,
+            joint_states: true,
         }
     }
 }

@@ -6,7 +6,7 @@
 //! Each sample is one instant of the chain's motion: its segments' terms and their derivatives
 //! come from the limb's one kinematics ([`super::terms`]), as the readings' do.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 use rayon::prelude::*;
 
 use super::problem::Block;
@@ -14,6 +14,7 @@ use super::terms::{link, Chain, Instant, SegmentTerms};
 use super::ChainState;
 use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
+use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::DofKind;
 use crate::motion::{MotionRecord, SkinFilter, QUIET_REACH};
 
@@ -27,25 +28,32 @@ pub const MAX_DELAY: f64 = 0.05;
 pub const MAX_ACCELERATION_SD: f64 = 0.05;
 /// How many times its median uncertainty makes a DoF's acceleration too uncertain to fit.
 pub const SUDDEN: f64 = 3.0;
+/// The least standard deviation of the prior that holds a joint's corrected acceleration at what
+/// the record read ([`LimbMotion::correct_joint_states`]), rad/s².
+pub const ACCELERATION_PRIOR: f64 = 0.005;
 
 /// One block of the record that the limb's fit uses.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct MotionSample {
     run: usize,
     block: usize,
-    /// The motion of every DoF: `Rz(q)`, or `Tz(q)` for a prismatic one.
+    /// The position of every DoF, and its motion: `Rz(q)`, or `Tz(q)` for a prismatic one.
+    q: Vec<f64>,
     turns: Vec<Isometry3<f64>>,
     qd: Vec<f64>,
     qdd: Vec<f64>,
     qdd_sd: Vec<f64>,
+    /// What the record read of every DoF's position and acceleration, before any correction
+    /// ([`LimbMotion::correct_joint_states`]).
+    read: (Vec<f64>, Vec<f64>),
 }
 
 impl MotionSample {
     /// What the motion of the first `dofs` DoFs could add to gravity at an SU they move, m/s²:
-    /// [`QUIET_REACH`] times `Σ|q̈| + (Σ|q̇|)²` over them.
+    /// [`QUIET_REACH`] times `Σ|q̈| + (Σ|q̇|)²` over them, as the record read them.
     fn reach(&self, dofs: usize) -> f64 {
         let spin: f64 = self.qd.iter().take(dofs).map(|v| v.abs()).sum();
-        let turn: f64 = self.qdd.iter().take(dofs).map(|a| a.abs()).sum();
+        let turn: f64 = self.read.1.iter().take(dofs).map(|a| a.abs()).sum();
         QUIET_REACH * (turn + spin * spin)
     }
 }
@@ -67,6 +75,8 @@ pub struct LimbMotion {
     /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
     /// prediction at sample `i`, (m/s²)² (empty until [`LimbMotion::weigh`]).
     joint_var: Vec<Vec<f64>>,
+    /// Per chain DoF: its encoder's rounding ([`MotionRecord::rounding`]), rad.
+    rounding: Vec<f64>,
 }
 
 impl LimbMotion {
@@ -123,12 +133,15 @@ impl LimbMotion {
                 {
                     continue;
                 }
+                let (q, qdd) = (pick(&run.q[b]), pick(&run.qdd[b]));
                 samples.push(MotionSample {
                     run: r,
                     block: b,
-                    turns: super::problem::turns_of(&pick(&run.q[b]), &kinds),
+                    turns: super::problem::turns_of(&q, &kinds),
+                    read: (q.clone(), qdd.clone()),
+                    q,
                     qd: pick(&run.qd[b]),
-                    qdd: pick(&run.qdd[b]),
+                    qdd,
                     qdd_sd: pick(&run.qdd_sd[b]),
                 });
             }
@@ -154,6 +167,10 @@ impl LimbMotion {
             .iter()
             .map(|&u| factor * record.noise_sd[u].unwrap_or(fallback_sd / per_block.sqrt()))
             .collect();
+        let rounding = dofs
+            .iter()
+            .map(|&d| record.rounding.get(d).copied().unwrap_or(0.0))
+            .collect();
         Ok(Self {
             period: record.period,
             kinds,
@@ -162,7 +179,111 @@ impl LimbMotion {
             skin,
             sd,
             joint_var: Vec::new(),
+            rounding,
         })
+    }
+
+    /// The revolute DoFs (chain indices) whose encoders round coarsely enough to matter: one
+    /// rounding's deviation turns gravity by more than a tenth of the quietest SU's noise.
+    pub(super) fn coarse_dofs(&self) -> Vec<usize> {
+        let quietest = self.sd.iter().copied().fold(f64::INFINITY, f64::min);
+        (0..self.kinds.len())
+            .filter(|&d| {
+                self.kinds[d] == DofKind::Revolute
+                    && self.rounding[d] * STANDARD_GRAVITY > 0.1 * quietest
+            })
+            .collect()
+    }
+
+    /// One pass of the joint states' correction ([`super::joint_states`]): at every sample, the
+    /// positions and accelerations of `dofs` moved by `relaxation` times the Gauss–Newton step
+    /// that best explains what every SU read there (with the skin `delay` s late), each SU
+    /// whitened by its noise, against `predict` (every SU's reading at an instant: turns, rates,
+    /// accelerations; `None` for one no DoF moves), and the corrections held at what the record
+    /// read by priors: the encoder's rounding for a position, the record's uncertainty (at least
+    /// [`ACCELERATION_PRIOR`]) for an acceleration.
+    pub(super) fn correct_joint_states<F>(
+        &mut self,
+        dofs: &[usize],
+        delay: f64,
+        relaxation: f64,
+        predict: F,
+    ) where
+        F: Fn(&[Isometry3<f64>], &[f64], &[f64]) -> Vec<Option<Vector3<f64>>> + Sync,
+    {
+        let n = dofs.len();
+        let steps: Vec<Option<DVector<f64>>> = (0..self.samples.len())
+            .into_par_iter()
+            .map(|i| {
+                let sample = &self.samples[i];
+                let measured: Vec<(usize, Vector3<f64>)> = (0..self.sd.len())
+                    .filter_map(|u| Some((u, self.measured(u, i, delay)?)))
+                    .collect();
+                let at = |x: &[f64]| {
+                    let (mut q, mut qdd) = (sample.q.clone(), sample.qdd.clone());
+                    for (k, &d) in dofs.iter().enumerate() {
+                        q[d] += x[k];
+                        qdd[d] += x[n + k];
+                    }
+                    predict(&super::problem::turns_of(&q, &self.kinds), &sample.qd, &qdd)
+                };
+                let mut x = vec![0.0; 2 * n];
+                let base = at(&x);
+                let rows: Vec<(usize, Vector3<f64>, Vector3<f64>)> = measured
+                    .into_iter()
+                    .filter_map(|(u, m)| Some((u, base[u]?, m)))
+                    .collect();
+                let mut jac = DMatrix::zeros(3 * rows.len(), 2 * n);
+                let mut r = DVector::zeros(3 * rows.len());
+                for (k, (u, p, m)) in rows.iter().enumerate() {
+                    r.fixed_rows_mut::<3>(3 * k)
+                        .copy_from(&((p - m) / self.sd[*u]));
+                }
+                for j in 0..2 * n {
+                    // A position by a microradian; the reading is linear in an acceleration.
+                    let h = if j < n { 1e-6 } else { 1e-3 };
+                    x[j] = h;
+                    let moved = at(&x);
+                    x[j] = 0.0;
+                    for (k, (u, p, _)) in rows.iter().enumerate() {
+                        if let Some(m) = moved[*u] {
+                            jac.fixed_view_mut::<3, 1>(3 * k, j)
+                                .copy_from(&((m - p) / (h * self.sd[*u])));
+                        }
+                    }
+                }
+                let mut a = jac.transpose() * &jac;
+                let mut g = jac.transpose() * &r;
+                for (k, &d) in dofs.iter().enumerate() {
+                    let priors = [
+                        (k, self.rounding[d], sample.q[d] - sample.read.0[d]),
+                        (
+                            n + k,
+                            sample.qdd_sd[d].max(ACCELERATION_PRIOR),
+                            sample.qdd[d] - sample.read.1[d],
+                        ),
+                    ];
+                    for (c, sd, moved) in priors {
+                        a[(c, c)] += sd.powi(-2);
+                        g[c] += moved * sd.powi(-2);
+                    }
+                }
+                Some(a.cholesky()?.solve(&(-g)) * relaxation)
+            })
+            .collect();
+        let kinds = &self.kinds;
+        self.samples
+            .par_iter_mut()
+            .zip(steps)
+            .for_each(|(sample, step)| {
+                if let Some(step) = step {
+                    for (k, &d) in dofs.iter().enumerate() {
+                        sample.q[d] += step[k];
+                        sample.qdd[d] += step[n + k];
+                    }
+                    sample.turns = super::problem::turns_of(&sample.q, kinds);
+                }
+            });
     }
 
     /// Sets what each sample's joint accelerations add to the variance of each SU's prediction,

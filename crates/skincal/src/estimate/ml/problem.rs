@@ -19,7 +19,7 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::motion::{segment_terms, LimbMotion, MAX_DELAY};
-use super::terms::{link, Chain, ReadingInstants, SegmentTerms};
+use super::terms::{link, Chain, Instant, ReadingInstants, SegmentTerms};
 use super::{ChainState, Unobservable};
 use crate::estimate::limb::LimbData;
 use crate::model::intrinsics::Intrinsics;
@@ -455,6 +455,50 @@ impl<'a> SuFrame<'a> {
         } else {
             read
         }
+    }
+}
+
+/// What every SU of a limb reads at any instant of motion at one state, gravity on (the chain's
+/// one kinematics, [`Chain`], and each SU's frame and sensor).
+pub(super) struct Predictor<'a> {
+    chain: Chain<'a>,
+    /// Per SU: its segment and frame.
+    sus: Vec<(usize, SuFrame<'a>)>,
+    last: usize,
+}
+
+impl<'a> Predictor<'a> {
+    pub(super) fn new(state: &'a ChainState, layout: &'a Layout) -> Self {
+        let sus: Vec<(usize, SuFrame)> = layout
+            .su_segment
+            .iter()
+            .enumerate()
+            .map(|(u, &s)| (s, SuFrame::new(state, u)))
+            .collect();
+        Self {
+            chain: Chain::new(state, &layout.kinds, None),
+            last: layout.su_segment.iter().copied().max().unwrap_or(0),
+            sus,
+        }
+    }
+
+    /// Every SU's reading with the DoFs turned by `turns` (`Rz(q)` or `Tz(q)`), at rates `qd`
+    /// and accelerations `qdd`; `None` for an SU on the reference segment.
+    pub(super) fn readings(
+        &self,
+        turns: &[Isometry3<f64>],
+        qd: &[f64],
+        qdd: &[f64],
+    ) -> Vec<Option<Vector3<f64>>> {
+        let instant = [Instant::new(qd, qdd, true)];
+        let terms = self.chain.terms(turns, None, &instant, self.last);
+        self.sus
+            .iter()
+            .map(|(s, su)| {
+                let e = s.checked_sub(1)?;
+                Some(su.reading(&su.field(&terms[0], e), true))
+            })
+            .collect()
     }
 }
 

@@ -1,0 +1,68 @@
+//! Encoders that round to whole counts: the joint states of a motion record as unknowns.
+//!
+//! A joint that stands still, or creeps across a few counts, is read only to within a count, and
+//! its acceleration from the staircase that the record's local polynomial bends to follow. Those
+//! errors are the same for every SU the joint moves, so every SU's residual tells them: a fit
+//! that takes the joint states as read puts them into the geometry (on a Kinova Jaco with
+//! 13-bit encoders, 0.0106 m/s² held-out static where its exact encoders give 0.0008). Here the
+//! positions and accelerations of the coarse DoFs at every sample are unknowns too, each held at
+//! what the record read by a prior (the encoder's rounding; the record's uncertainty of the
+//! acceleration) — errors in variables. They are solved by alternation: per sample, the
+//! corrections that best explain all its SUs' residuals at the fit
+//! ([`LimbMotion::correct_joint_states`]), over-relaxed by [`RELAXATION`]; then the fit again on
+//! the corrected record, from where it stood; [`PASSES`] times. On the Kinova the held-out error
+//! settles by the fourth pass: 0.0106 / 0.0076 m/s² static / dynamic, then 0.0084 / 0.0078,
+//! 0.0077 / 0.0072, 0.0072 / 0.0063 after four, 0.0071 / 0.0062 after six, 0.0070 / 0.0065 after
+//! ten. Over-relaxed, the whole cost does not fall pass by pass, so the passes are counted, not
+//! tested.
+
+use std::sync::Arc;
+
+use super::final_fit::refit;
+use super::motion::LimbMotion;
+use super::problem::{Layout, Predictor, Readings, Solved, Spec};
+use super::MlConfig;
+
+/// The over-relaxation of the corrections: alternation creeps along the direction in which the
+/// geometry takes up what the corrections leave (a pass without it gains a fifth of what is left
+/// on the Kinova); 2 would oscillate.
+pub const RELAXATION: f64 = 1.6;
+/// The passes of corrections and fits.
+pub const PASSES: usize = 6;
+
+/// `solved` (the fit on `readings` with `spec`) with the joint states of its motion record's
+/// coarse DoFs corrected and the fit repeated, as the module says; the readings with the
+/// corrected record, and the LM iterations taken. Unchanged without a motion record or a coarse
+/// DoF, or with [`MlConfig::joint_states`] off.
+pub(super) fn with_joint_states(
+    solved: Solved,
+    layout: &Layout,
+    readings: Readings,
+    spec: &Spec,
+    config: &MlConfig,
+) -> (Solved, Readings, usize) {
+    let Some(record) = readings.motion.as_ref().filter(|_| config.joint_states) else {
+        return (solved, readings, 0);
+    };
+    let dofs = record.coarse_dofs();
+    if dofs.is_empty() {
+        return (solved, readings, 0);
+    }
+    let mut motion = LimbMotion::clone(record);
+    let (mut solved, mut readings, mut iterations) = (solved, readings, 0);
+    for _ in 0..PASSES {
+        let state = &solved.state;
+        let predictor = Predictor::new(state, layout);
+        motion.correct_joint_states(&dofs, state.skin_delay, RELAXATION, |t, v, a| {
+            predictor.readings(t, v, a)
+        });
+        let corrected = Readings {
+            motion: Some(Arc::new(motion.clone())),
+            ..readings.clone()
+        };
+        let next = refit(solved.state.clone(), layout, &corrected, spec, config);
+        iterations += next.iterations;
+        (solved, readings) = (next, corrected);
+    }
+    (solved, readings, iterations)
+}
