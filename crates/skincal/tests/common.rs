@@ -80,6 +80,25 @@ pub fn calibrated(
     .unwrap()
 }
 
+/// `set` with the tree `structure` calibrated on every sample of `record` with `config`.
+pub fn on_motion(
+    set: &skincal::measurements::MeasurementSet,
+    record: &skincal::motion::MotionRecord,
+    structure: &skincal::explore::Structure,
+    config: &skincal::estimate::ml::MlConfig,
+) -> skincal::estimate::body::BodyModel {
+    skincal::estimate::body::calibrate_body_on_motion(
+        set,
+        record,
+        Some(structure),
+        config,
+        None,
+        &[],
+        &mut |_, _, _| {},
+    )
+    .unwrap()
+}
+
 /// `set` explored (the tree must be complete) and calibrated on every sample of `record` with
 /// the default settings; every limb must converge below `max_ratio` times its noise.
 pub fn calibrated_on_motion(
@@ -90,16 +109,12 @@ pub fn calibrated_on_motion(
     use skincal::explore::{explore, ExploreConfig};
     let structure = explore(set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
-    let model = skincal::estimate::body::calibrate_body_on_motion(
+    let model = on_motion(
         set,
         record,
-        Some(&structure),
+        &structure,
         &skincal::estimate::ml::MlConfig::default(),
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
+    );
     for limb in &model.limbs {
         let e = &limb.estimate;
         assert!(

@@ -474,26 +474,10 @@ fn continuous_late(
 #[test]
 fn the_limbs_of_a_tree_share_one_skin_delay() {
     let file = crate::real_robots::description("talos_data/robots/talos_reduced.urdf");
-    let robot = skincal::io::load_robot(
-        file.to_str().unwrap(),
-        skincal::io::SuPlacement {
-            per_link: Some(2),
-            seed: 1,
-        },
-    )
-    .unwrap();
+    let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
     let dir = tempfile::tempdir().unwrap();
     let (set, structure, record) = continuous_late(&robot, dir.path(), 0.008);
-    let model = calibrate_body_on_motion(
-        &set,
-        &record,
-        Some(&structure),
-        &MlConfig::default(),
-        None,
-        &[],
-        &mut |_, _, _| {},
-    )
-    .unwrap();
+    let model = crate::common::on_motion(&set, &record, &structure, &MlConfig::default());
     let mut together = Vec::new();
     for limb in &model.limbs {
         let fit = limb.estimate.motion.as_ref().unwrap();

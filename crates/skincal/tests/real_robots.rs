@@ -80,7 +80,7 @@ fn placed_sus_are_exact(truth: &Robot, s: &Structure) -> bool {
 }
 
 /// The description in `file` with 2 random SUs on every link (placed by `seed`).
-fn with_two_sus_per_link(file: &std::path::Path, seed: u64) -> Robot {
+pub(crate) fn with_two_sus_per_link(file: &std::path::Path, seed: u64) -> Robot {
     load_robot(
         file.to_str().unwrap(),
         SuPlacement {
