@@ -61,6 +61,11 @@ pub(crate) struct CalibrateArgs {
     /// that a trunk's DoFs are estimated from every SU they move; method ml).
     #[arg(long)]
     limb_by_limb: bool,
+    /// Take the joint states of the directory's motion record as its encoders read them, even
+    /// where they round coarsely (by default those DoFs' positions and accelerations at every
+    /// sample are fitted too, held at what the encoders read: docs/logs.md).
+    #[arg(long)]
+    encoders_as_read: bool,
 }
 
 /// The structure to calibrate: DIR/structure.json, else from exploring the set, else none (the
@@ -274,6 +279,7 @@ fn calibrate_ml(args: &CalibrateArgs, inputs: &Inputs<'_>) -> Result<()> {
         select_intrinsics: args.intrinsics.selects(),
         reading_sd: args.noise.is_none(),
         whole_tree: !args.limb_by_limb,
+        joint_states: !args.encoders_as_read,
         ..MlConfig::default()
     };
     let own = config.reading_sd
