@@ -347,7 +347,9 @@ impl Precision {
         } else {
             (weighted, None)
         };
-        let dof_count = spec.columns().len();
+        // The parameters, and what the corrections of a coarse encoder's joint states took.
+        let corrected = readings.motion.as_ref().map_or(0.0, |m| m.corrected_dof());
+        let dof_count = spec.columns().len() + corrected.round() as usize;
         let names = column_names(&data.chain.dofs(), &data.chain.sus(), spec);
         let map = ColumnMap::new(spec);
         let ratio_of = |(cost, rows): (f64, usize)| {

@@ -77,6 +77,9 @@ pub struct LimbMotion {
     joint_var: Vec<Vec<f64>>,
     /// Per chain DoF: its encoder's rounding ([`MotionRecord::rounding`]), rad.
     rounding: Vec<f64>,
+    /// How many of the residual's degrees of freedom the last correction of the joint states
+    /// took ([`LimbMotion::correct_joint_states`]): per sample, the trace of its hat matrix.
+    corrected: f64,
 }
 
 impl LimbMotion {
@@ -180,7 +183,14 @@ impl LimbMotion {
             sd,
             joint_var: Vec::new(),
             rounding,
+            corrected: 0.0,
         })
+    }
+
+    /// How many of the residual's degrees of freedom the joint states' corrections took: the sum
+    /// over the samples of `tr((JᵀJ + P)⁻¹ JᵀJ)` of their last solve (0 before any).
+    pub(super) fn corrected_dof(&self) -> f64 {
+        self.corrected
     }
 
     /// The revolute DoFs (chain indices) whose encoders round coarsely enough to matter: one
@@ -201,7 +211,8 @@ impl LimbMotion {
     /// whitened by its noise, against `predict` (every SU's reading at an instant: turns, rates,
     /// accelerations; `None` for one no DoF moves), and the corrections held at what the record
     /// read by priors: the encoder's rounding for a position, the record's uncertainty (at least
-    /// [`ACCELERATION_PRIOR`]) for an acceleration.
+    /// [`ACCELERATION_PRIOR`]) for an acceleration. Keeps how many of the residual's degrees of
+    /// freedom the corrections took ([`LimbMotion::corrected_dof`]).
     pub(super) fn correct_joint_states<F>(
         &mut self,
         dofs: &[usize],
@@ -212,7 +223,7 @@ impl LimbMotion {
         F: Fn(&[Isometry3<f64>], &[f64], &[f64]) -> Vec<Option<Vector3<f64>>> + Sync,
     {
         let n = dofs.len();
-        let steps: Vec<Option<DVector<f64>>> = (0..self.samples.len())
+        let steps: Vec<Option<(DVector<f64>, f64)>> = (0..self.samples.len())
             .into_par_iter()
             .map(|i| {
                 let sample = &self.samples[i];
@@ -268,15 +279,19 @@ impl LimbMotion {
                         g[c] += moved * sd.powi(-2);
                     }
                 }
-                Some(a.cholesky()?.solve(&(-g)) * relaxation)
+                let information = jac.transpose() * &jac;
+                let cholesky = a.cholesky()?;
+                let taken = cholesky.solve(&information).trace();
+                Some((cholesky.solve(&(-g)) * relaxation, taken))
             })
             .collect();
+        self.corrected = steps.iter().flatten().map(|(_, taken)| taken).sum();
         let kinds = &self.kinds;
         self.samples
             .par_iter_mut()
             .zip(steps)
             .for_each(|(sample, step)| {
-                if let Some(step) = step {
+                if let Some((step, _)) = step {
                     for (k, &d) in dofs.iter().enumerate() {
                         sample.q[d] += step[k];
                         sample.qdd[d] += step[n + k];
