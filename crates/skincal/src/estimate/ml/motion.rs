@@ -193,10 +193,15 @@ impl LimbMotion {
         self.corrected
     }
 
+    /// The quietest SU's standard deviation of one component of a sample, m/s².
+    fn quietest(&self) -> f64 {
+        self.sd.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
     /// The revolute DoFs (chain indices) whose encoders round coarsely enough to matter: one
     /// rounding's deviation turns gravity by more than a tenth of the quietest SU's noise.
     pub(super) fn coarse_dofs(&self) -> Vec<usize> {
-        let quietest = self.sd.iter().copied().fold(f64::INFINITY, f64::min);
+        let quietest = self.quietest();
         (0..self.kinds.len())
             .filter(|&d| {
                 self.kinds[d] == DofKind::Revolute
@@ -263,7 +268,8 @@ impl LimbMotion {
                         }
                     }
                 }
-                let mut a = jac.transpose() * &jac;
+                let information = jac.transpose() * &jac;
+                let mut a = information.clone();
                 let mut g = jac.transpose() * &r;
                 for (k, &d) in dofs.iter().enumerate() {
                     let priors = [
@@ -279,7 +285,6 @@ impl LimbMotion {
                         g[c] += moved * sd.powi(-2);
                     }
                 }
-                let information = jac.transpose() * &jac;
                 let cholesky = a.cholesky()?;
                 let taken = cholesky.solve(&information).trace();
                 Some((cholesky.solve(&(-g)) * relaxation, taken))
@@ -381,7 +386,7 @@ impl LimbMotion {
     /// fit's geometry, gravity and sensors against the skin's own noise, free of what the joint
     /// states' derivatives leave unmatched in motion.
     pub(super) fn at_rest(&self) -> Self {
-        let quietest = self.sd.iter().copied().fold(f64::INFINITY, f64::min);
+        let quietest = self.quietest();
         let keep: Vec<bool> = self
             .samples
             .iter()
