@@ -14,7 +14,8 @@
 //! **Order.** Each limb is searched and fitted on its own, parent first, a sub-limb with its base
 //! path and gravity held at its parent's estimate; then the limbs of each tree (a limb on the
 //! reference segment and every limb on it) are fitted again together ([`refine_trees`]), so that
-//! a trunk's DoFs are estimated from every SU they move (`MlConfig::whole_tree`).
+//! a trunk's DoFs are estimated from every SU they move (`MlConfig::whole_tree`) — on a motion
+//! record every tree of the body in one problem, with the skin's one delay.
 
 use std::collections::BTreeMap;
 

@@ -156,7 +156,8 @@ pub struct MlConfig {
     #[serde(default = "weigh_by_reading_sd")]
     pub reading_sd: bool,
     /// Fit the limbs of each tree together after the limb-by-limb fits ([`refine_trees`]): a
-    /// DoF's line from every SU it moves, not only from its own limb's.
+    /// DoF's line from every SU it moves, not only from its own limb's; on a motion record, every
+    /// tree in one problem with the skin's one delay.
     #[serde(default = "fit_whole_trees")]
     pub whole_tree: bool,
     /// A limb's fit off the noise level tries the other orders of its joints' DoFs and then a

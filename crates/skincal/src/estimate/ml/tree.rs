@@ -6,7 +6,10 @@
 //! ended: gravity and every DoF's line shared by all the SUs they move, each SU block eliminated
 //! as in a limb's own fit (time linear in the number of SUs), the gauge that the root limb holds
 //! holding the whole tree. Limbs that start at the reference segment share nothing that a reading
-//! tells (how each sits on the segment, and so its gravity, is its own): each is a tree of its own.
+//! of gravity tells (how each sits on the segment, and so its gravity, is its own): each is a
+//! tree of its own. They share the skin's clock: where the limbs were fitted on a motion record
+//! with the skin's delay free, every tree of the body is fitted in one problem whose one delay
+//! every SU tells, and each tree alone only where that fit is not kept.
 //!
 //! What is reported of each limb afterwards (residual, covariance, undetermined directions) is
 //! computed from its own readings, as before, at the shared solution: a trunk's covariance does
@@ -32,30 +35,43 @@ use crate::estimate::EstimateError;
 /// A parameter by what it is, so that the limbs that share it give it one column.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 enum Shared {
-    /// A component of gravity (of the tree's one gravity block).
-    Gravity(usize),
-    /// A component of gravity in another base orientation (orientation, component).
-    OtherGravity(usize, usize),
+    /// A component of a tree's gravity (tree, component).
+    Gravity(usize, usize),
+    /// A component of a tree's gravity in another base orientation (tree, orientation,
+    /// component).
+    OtherGravity(usize, usize, usize),
     /// A component of a DoF's joint line.
     Joint(String, usize),
-    /// The skin's delay behind the joint states: one clock, whichever limb an SU is on.
+    /// The skin's delay behind the joint states: one clock, whichever limb or tree an SU is on.
     SkinDelay,
 }
 
 /// Every limb of `estimates` that hangs on a limb starting at the reference segment fitted again
 /// with that limb and every other limb of its tree in one problem (`parents[i]`: the index of the
-/// limb that limb `i` hangs on). A tree is left as it was when a limb's final problem is not kept,
-/// or when the joint fit leaves a limb that converged on its own above the noise.
+/// limb that limb `i` hangs on); where the limbs fitted the skin's delay and the body has more
+/// than one tree, every tree in one problem with one delay first. A group is left as it was when
+/// a limb's final problem is not kept, or when the joint fit leaves a limb that converged on its
+/// own above the noise.
 pub fn refine_trees(
     estimates: &mut [MlChainEstimate],
     parents: &[Option<usize>],
     config: &MlConfig,
 ) -> Result<(), EstimateError> {
-    for root in (0..estimates.len()).filter(|&i| parents[i].is_none()) {
-        let tree = tree_of(root, parents);
-        if tree.len() > 1 {
-            refine_tree(estimates, &tree, config)?;
-        }
+    let trees: Vec<Vec<usize>> = (0..estimates.len())
+        .filter(|&i| parents[i].is_none())
+        .map(|root| tree_of(root, parents))
+        .collect();
+    let delayed = estimates.iter().any(|e| {
+        e.problem
+            .0
+            .as_ref()
+            .is_some_and(|p| p.spec.blocks.contains(&Block::SkinDelay))
+    });
+    if trees.len() > 1 && delayed && refine_group(estimates, &trees, config)? {
+        return Ok(());
+    }
+    for tree in trees.into_iter().filter(|t| t.len() > 1) {
+        refine_group(estimates, &[tree], config)?;
     }
     Ok(())
 }
@@ -80,20 +96,35 @@ struct Limb {
     spec: Spec,
 }
 
-fn refine_tree(
+/// The limbs of `trees` (each its root first) fitted in one problem; whether the fit was kept.
+fn refine_group(
     estimates: &mut [MlChainEstimate],
-    tree: &[usize],
+    trees: &[Vec<usize>],
     config: &MlConfig,
-) -> Result<(), EstimateError> {
+) -> Result<bool, EstimateError> {
     let started = Instant::now();
-    let Some(limbs) = freed(estimates, tree) else {
-        return Ok(());
-    };
+    let mut limbs = Vec::new();
+    let mut tree_of_limb = Vec::new();
+    for (t, tree) in trees.iter().enumerate() {
+        let Some(freed) = freed(estimates, tree) else {
+            return Ok(false);
+        };
+        tree_of_limb.extend(std::iter::repeat_n(t, freed.len()));
+        limbs.extend(freed);
+    }
+    // The skin has one clock: every limb starts from the delay the limbs found together (each
+    // limb's weighed by its precision), and the group fits it as one.
+    let group: Vec<usize> = trees.concat();
+    if let Some(delay) = common_delay(group.iter().map(|&i| &estimates[i])) {
+        for limb in &mut limbs {
+            limb.state.skin_delay = delay;
+        }
+    }
     let mut columns: HashMap<Shared, usize> = HashMap::new();
     let mut shared_of = Vec::with_capacity(limbs.len());
-    for limb in &limbs {
-        let Some(at) = place(&limb.spec, &limb.problem, &mut columns) else {
-            return Ok(());
+    for (limb, &t) in limbs.iter().zip(&tree_of_limb) {
+        let Some(at) = place(&limb.spec, &limb.problem, t, &mut columns) else {
+            return Ok(false);
         };
         shared_of.push(at);
     }
@@ -115,12 +146,32 @@ fn refine_tree(
         config.max_iterations,
         JOINT_TOLERANCE,
     );
-    let others = what_others_tell(&limbs, &states, &shared_of, &mut columns, config);
-    // The joint fit's iterations and time are the root limb's; each limb adds its own report.
+    let others = what_others_tell(
+        &limbs,
+        &tree_of_limb,
+        &states,
+        &shared_of,
+        &mut columns,
+        config,
+    );
+    // The joint fit's iterations and time are the first limb's; each limb adds its own report.
     let joint_s = started.elapsed().as_secs_f64();
-    let mut refined = Vec::with_capacity(tree.len());
-    for (m, (((&i, limb), state), others)) in
-        tree.iter().zip(&limbs).zip(states).zip(&others).enumerate()
+    let what = if trees.len() == 1 {
+        format!("the {} limbs of its tree", group.len())
+    } else {
+        format!(
+            "the {} limbs of the body's {} trees (one skin delay)",
+            group.len(),
+            trees.len()
+        )
+    };
+    let mut refined = Vec::with_capacity(group.len());
+    for (m, (((&i, limb), state), others)) in group
+        .iter()
+        .zip(&limbs)
+        .zip(states)
+        .zip(&others)
+        .enumerate()
     {
         let before = &estimates[i];
         let problem = FinalProblem::clone(&limb.problem);
@@ -131,14 +182,13 @@ fn refine_tree(
         };
         let mut after = problem.report(state, others.as_ref(), (its, Instant::now()), config)?;
         if before.converged && !after.converged {
-            return Ok(());
+            return Ok(false);
         }
         after.seconds += earlier;
         after.joint_orders.clone_from(&before.joint_orders);
         after.retries.clone_from(&before.retries);
         after.retries.push(format!(
-            "fitted with the {} limbs of its tree in one problem (every DoF's line shared by the SUs it moves; {iterations} LM iterations in {:.0} ms, counted with limb {}): residual {:.2} σ, {:.2} σ alone",
-            tree.len(),
+            "fitted with {what} in one problem (every DoF's line shared by the SUs it moves; {iterations} LM iterations in {:.0} ms, counted with limb {}): residual {:.2} σ, {:.2} σ alone",
             joint_s * 1e3,
             limbs[0].problem.data.chain.name,
             after.residual_ratio,
@@ -146,10 +196,10 @@ fn refine_tree(
         ));
         refined.push(after);
     }
-    for (&i, after) in tree.iter().zip(refined) {
+    for (&i, after) in group.iter().zip(refined) {
         estimates[i] = after;
     }
-    Ok(())
+    Ok(true)
 }
 
 /// The limbs of `tree` (the root first) with their base paths and gravity freed: each sub-limb's
@@ -205,13 +255,6 @@ fn freed(estimates: &[MlChainEstimate], tree: &[usize]) -> Option<Vec<Limb>> {
             spec,
         });
     }
-    // The skin has one clock: every limb starts from the delay its limbs found together (each
-    // limb's weighed by its precision), and the tree fits it as one.
-    if let Some(delay) = common_delay(tree.iter().map(|&i| &estimates[i])) {
-        for limb in &mut limbs {
-            limb.state.skin_delay = delay;
-        }
-    }
     Some(limbs)
 }
 
@@ -254,11 +297,13 @@ fn with_path(spec: &Spec, gravity: Option<Block>, root: &Spec, base_dofs: usize)
     }
 }
 
-/// Where each shared column of `spec` (a limb's problem) sits among the tree's `columns`, which
-/// gain the parameters not yet placed; `None` for a block a final problem does not share.
+/// Where each shared column of `spec` (a limb's problem, on tree `tree` of the group) sits among
+/// the group's `columns`, which gain the parameters not yet placed; `None` for a block a final
+/// problem does not share.
 fn place(
     spec: &Spec,
     problem: &FinalProblem,
+    tree: usize,
     columns: &mut HashMap<Shared, usize>,
 ) -> Option<Vec<usize>> {
     let dofs = problem.data.chain.dofs();
@@ -267,8 +312,8 @@ fn place(
         .iter()
         .map(|&(b, c)| {
             let key = match spec.blocks[b] {
-                Block::Gravity | Block::GravityDirection => Shared::Gravity(c),
-                Block::OtherGravity(o) => Shared::OtherGravity(o, c),
+                Block::Gravity | Block::GravityDirection => Shared::Gravity(tree, c),
+                Block::OtherGravity(o) => Shared::OtherGravity(tree, o, c),
                 Block::Joint(k) => Shared::Joint(dofs[k].clone(), c),
                 Block::SkinDelay => Shared::SkinDelay,
                 _ => return None,
@@ -279,12 +324,13 @@ fn place(
         .collect()
 }
 
-/// Per limb at the tree's solution: the information that the other limbs' readings give of its
-/// own problem's shared columns (in their order), given its base path — the tree's information
+/// Per limb at the group's solution: the information that the other limbs' readings give of its
+/// own problem's shared columns (in their order), given its base path — the group's information
 /// (every SU block eliminated) with the path held and the columns of no concern to the limb
 /// marginalised, less the limb's own. `None` for a limb no other limb tells anything more.
 fn what_others_tell(
     limbs: &[Limb],
+    tree_of_limb: &[usize],
     states: &[ChainState],
     shared_of: &[Vec<usize>],
     columns: &mut HashMap<Shared, usize>,
@@ -318,7 +364,7 @@ fn what_others_tell(
         .iter()
         .enumerate()
         .map(|(i, limb)| {
-            let mine = place(&limb.problem.spec, &limb.problem, columns)?;
+            let mine = place(&limb.problem.spec, &limb.problem, tree_of_limb[i], columns)?;
             let freed = &shared_of[i];
             let rest: Vec<usize> = (0..n)
                 .filter(|g| !freed.contains(g) && !mine.contains(g))
