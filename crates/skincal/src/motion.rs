@@ -10,7 +10,8 @@
 //!
 //! A coarse encoder needs a wide polynomial, which sees the joint's acceleration through a
 //! kernel of its half-width ([`SkinFilter`]); the time-domain fit then reads the skin through the
-//! same kernel, so that neither side is smoothed alone.
+//! same kernel, and the record holds the joint positions and velocities through it too, so that
+//! neither side is smoothed alone.
 
 use nalgebra::{SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
@@ -127,7 +128,9 @@ pub struct MotionRun {
     pub log: String,
     /// Centre of the first block on the joint states' clock, s.
     pub start: f64,
-    /// `q[b][d]`: position of DoF `d` at the centre of block `b`, rad.
+    /// `q[b][d]`: position of DoF `d` at the centre of block `b`, rad (read through the record's
+    /// [`SkinFilter`] kernel where it has one, as the velocities are; the accelerations are the
+    /// polynomial's, which is the same kernel).
     pub q: Vec<Vec<f64>>,
     /// Velocities, rad/s.
     pub qd: Vec<Vec<f64>>,
@@ -338,7 +341,9 @@ pub const SKIN_FILTER_BLOCKS: usize = 8;
 /// polynomial's second-coefficient weight, `K` and `K'` vanish at ±h; `∫K = 1` and, degree 4
 /// fitting `t⁴` exactly, `∫K t² = 0`). Reading the skin through the same kernel puts both sides
 /// of the fit through one filter: a servo's jerk or its ringing, which a wide polynomial smooths,
-/// is smoothed alike in what the skin read, and what stays unmatched is of fourth order in `h`.
+/// is smoothed alike in what the skin read. Such a record's positions and velocities are read
+/// through the kernel too ([`Kernel`]), so that what stays unmatched is only of second order in
+/// the motion's deviation within the window.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SkinFilter {
     /// `K(j·period/h)` for the blocks `j = −n..=n` about the centre.
@@ -354,10 +359,10 @@ impl SkinFilter {
             return None;
         }
         let n = n as i64;
-        let k = kernel();
+        let k = Kernel::new();
         Some(Self {
             weights: (-n..=n)
-                .map(|j| k(j as f64 * period / half_width))
+                .map(|j| k.value(j as f64 * period / half_width))
                 .collect(),
         })
     }
@@ -410,33 +415,70 @@ impl SkinFilter {
 /// The fewest blocks with samples on each side of a block [`SkinFilter::smooth`] reads.
 pub const FEWEST_FILTERED: usize = 2;
 
-/// `K` on `[−1, 1]` (zero outside): `K'' = 2 e₂ᵀ M⁻¹ φ(x)` with `M = ∫φφᵀ` the Gram matrix of
-/// the monomials `φ = (1, x, …, x^DEGREE)` on `[−1, 1]`, integrated twice from `K(−1) = K'(−1) = 0`.
-fn kernel() -> impl Fn(f64) -> f64 {
-    const N: usize = DEGREE + 1;
-    let gram = SMatrix::<f64, N, N>::from_fn(|i, j| {
-        if (i + j) % 2 == 0 {
-            2.0 / (i + j + 1) as f64
+/// The kernel of [`SkinFilter`], `K` on `[−1, 1]` (zero outside): `K'' = 2 e₂ᵀ M⁻¹ φ(x)` with
+/// `M = ∫φφᵀ` the Gram matrix of the monomials `φ = (1, x, …, x^DEGREE)` on `[−1, 1]`,
+/// integrated twice from `K(−1) = K'(−1) = 0`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kernel {
+    /// Its coefficients, lowest power first.
+    c: [f64; DEGREE + 3],
+}
+
+impl Default for Kernel {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Kernel {
+    /// The kernel of a polynomial of degree [`DEGREE`].
+    pub fn new() -> Self {
+        const N: usize = DEGREE + 1;
+        let gram = SMatrix::<f64, N, N>::from_fn(|i, j| {
+            if (i + j) % 2 == 0 {
+                2.0 / (i + j + 1) as f64
+            } else {
+                0.0
+            }
+        });
+        let second: SVector<f64, N> = gram
+            .try_inverse()
+            .expect("the monomials' Gram matrix is positive definite")
+            .column(2)
+            * 2.0;
+        let mut c = [0.0; N + 2];
+        for (k, a) in second.iter().enumerate() {
+            c[k + 2] = a / ((k + 1) * (k + 2)) as f64;
+        }
+        let mut kernel = Self { c };
+        kernel.c[1] -= kernel.polynomial_slope(-1.0);
+        kernel.c[0] -= kernel.polynomial(-1.0);
+        kernel
+    }
+
+    fn polynomial(&self, x: f64) -> f64 {
+        self.c.iter().rev().fold(0.0, |acc, c| acc * x + c)
+    }
+
+    fn polynomial_slope(&self, x: f64) -> f64 {
+        (1..self.c.len())
+            .rev()
+            .fold(0.0, |acc, k| acc * x + k as f64 * self.c[k])
+    }
+
+    /// `K(x)` (zero outside `(−1, 1)`).
+    pub fn value(&self, x: f64) -> f64 {
+        if x.abs() < 1.0 {
+            self.polynomial(x)
         } else {
             0.0
         }
-    });
-    let second: SVector<f64, N> = gram
-        .try_inverse()
-        .expect("the monomials' Gram matrix is positive definite")
-        .column(2)
-        * 2.0;
-    let mut c = [0.0; N + 2];
-    for (k, a) in second.iter().enumerate() {
-        c[k + 2] = a / ((k + 1) * (k + 2)) as f64;
     }
-    let value = |c: &[f64; N + 2], x: f64| c.iter().rev().fold(0.0, |acc, c| acc * x + c);
-    let slope = (1..N + 2).rev().fold(0.0, |acc, k| -acc + k as f64 * c[k]);
-    c[1] -= slope;
-    c[0] -= value(&c, -1.0);
-    move |x: f64| {
+
+    /// `K'(x)` (zero outside `(−1, 1)`).
+    pub fn slope(&self, x: f64) -> f64 {
         if x.abs() < 1.0 {
-            value(&c, x)
+            self.polynomial_slope(x)
         } else {
             0.0
         }

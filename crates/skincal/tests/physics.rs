@@ -604,8 +604,8 @@ fn thirteen_bit_encoders_calibrate_at_the_noise_level() {
 /// poses): a still joint is read only to within a count, and a creeping one's acceleration from
 /// the staircase the polynomial bends to follow. Taken as read, the joint states put those errors
 /// into the geometry; fitted as unknowns held at the encoders' readings (`MlConfig::joint_states`,
-/// the default) the held-out error falls, static by a third and dynamic by a sixth (0.0106 /
-/// 0.0076 to 0.0071 / 0.0062 m/s² when written; exact encoders give 0.0008 / 0.0026).
+/// the default) the held-out error falls, static by a third and dynamic by a quarter (0.0105 /
+/// 0.0063 to 0.0070 / 0.0048 m/s²; exact encoders give 0.0008 / 0.0026).
 #[test]
 fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
     let robot = kinova();
@@ -637,7 +637,7 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
     };
     let (read, fitted) = (fit(false, "joint states as read: "), fit(true, "fitted: "));
     assert!(
-        fitted.static_rms < 0.8 * read.static_rms && fitted.dynamic_rms < 0.9 * read.dynamic_rms,
+        fitted.static_rms < 0.8 * read.static_rms && fitted.dynamic_rms < 0.85 * read.dynamic_rms,
         "static {} vs {}, dynamic {} vs {}",
         fitted.static_rms,
         read.static_rms,
@@ -645,7 +645,7 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
         read.dynamic_rms
     );
     assert!(
-        fitted.static_rms < 0.008 && fitted.dynamic_rms < 0.007,
+        fitted.static_rms < 0.008 && fitted.dynamic_rms < 0.0055,
         "{fitted:?}"
     );
 }

@@ -6,11 +6,11 @@
 
 use std::collections::{HashMap, VecDeque};
 
-use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WIDTHS};
+use super::motion::{correct_block, half_width, joint_state, BLOCK, HALF_WIDTHS};
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
-use crate::motion::{MotionRun, SampleCount, SampleCounter};
+use crate::motion::{Kernel, MotionRun, SampleCount, SampleCounter, SkinFilter};
 
 /// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
 /// rounding are judged before any block is given out.
@@ -180,19 +180,21 @@ impl MotionStream {
     fn compute(&mut self, centre: f64) {
         let max_gap = self.config.max_gap;
         let h = self.half_width().expect("widths learnt before any block");
+        let kernel = SkinFilter::new(h, BLOCK).map(|_| Kernel::new());
         let fitted: Option<Vec<[f64; 4]>> = self
             .joints
             .iter_mut()
             .zip(&self.widths)
             .map(|(series, w)| {
                 let (_, rounding) = w.expect("widths learnt before any block");
-                local_polynomial(
+                joint_state(
                     series.make_contiguous(),
                     &mut 0,
                     centre,
                     h,
                     rounding,
                     max_gap,
+                    kernel.as_ref(),
                 )
             })
             .collect();

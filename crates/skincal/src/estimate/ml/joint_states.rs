@@ -11,10 +11,11 @@
 //! corrections that best explain all its SUs' residuals at the fit
 //! ([`LimbMotion::correct_joint_states`]), over-relaxed by [`RELAXATION`]; then the fit again on
 //! the corrected record, from where it stood; [`PASSES`] times. On the Kinova the held-out error
-//! settles by the fourth pass: 0.0106 / 0.0076 m/s² static / dynamic, then 0.0084 / 0.0078,
-//! 0.0077 / 0.0072, 0.0072 / 0.0063 after four, 0.0071 / 0.0062 after six, 0.0070 / 0.0065 after
-//! ten. Over-relaxed, the whole cost does not fall pass by pass, so the passes are counted, not
-//! tested.
+//! settled by the fourth pass when this was written: 0.0106 / 0.0076 m/s² static / dynamic, then
+//! 0.0084 / 0.0078, 0.0077 / 0.0072, 0.0072 / 0.0063 after four, 0.0071 / 0.0062 after six,
+//! 0.0070 / 0.0065 after ten (with the record's positions read through the skin's kernel: 0.0105 /
+//! 0.0063 as read, 0.0070 / 0.0048 after six). Over-relaxed, the whole cost does not fall pass by
+//! pass, so the passes are counted, not tested.
 
 use std::sync::Arc;
 
