@@ -6,7 +6,7 @@
 //! and lost messages need no resampling first; an encoder's rounding is averaged over a window as
 //! wide as the coarsest encoder needs, [`HALF_WIDTHS`], one for every DoF so that the skin can be
 //! read through the same kernel, [`crate::motion::SkinFilter`], through which the positions and
-//! velocities are then read too, [`joint_state`]; the rounding's share of the
+//! velocities are then read too; the rounding's share of the
 //! acceleration's uncertainty is a staircase's, [`rounded_acceleration_sd`]); the skin's fresh
 //! samples are averaged per block and corrected for the block's averaging.
 
@@ -287,7 +287,7 @@ fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> V
             .zip(&mut cursors)
             .zip(&roundings)
             .map(|((series, cursor), &rounding)| {
-                joint_state(
+                local_polynomial(
                     series,
                     cursor,
                     centre,
@@ -361,6 +361,12 @@ fn powers(x: f64) -> SVector<f64, { DEGREE + 1 }> {
 /// encoder's); `None` where too few lie on either side or a gap
 /// longer than `max_gap` lies among them. `cursor`: the first state not before the window of the
 /// previous (earlier) centre.
+///
+/// With `kernel` (a record whose skin is read through it, [`crate::motion::SkinFilter`]), the
+/// position and velocity are read through the kernel too: the polynomial's acceleration is the
+/// true one through the kernel, and the skin is read through it, so the position and velocity
+/// must be — the polynomial's own are exact to a higher order (`∫K t⁴ ≠ 0`), and on a 6 Hz servo
+/// at 160 ms the difference turns gravity by about 1 mrad in the fastest blocks.
 pub(super) fn local_polynomial(
     series: &[(f64, f64)],
     cursor: &mut usize,
@@ -368,6 +374,7 @@ pub(super) fn local_polynomial(
     h: f64,
     rounding: f64,
     max_gap: f64,
+    kernel: Option<&Kernel>,
 ) -> Option<[f64; 4]> {
     const N: usize = DEGREE + 1;
     while *cursor < series.len() && series[*cursor].0 < centre - h {
@@ -430,50 +437,37 @@ pub(super) fn local_polynomial(
     } else {
         white
     };
-    Some([q0 + c[0], c[1] / h, 2.0 * c[2] / (h * h), qdd_sd])
+    let own = (q0 + c[0], c[1] / h);
+    let (q, qd) = kernel.map_or(own, |k| {
+        through_kernel(k, &window, centre, h).unwrap_or(own)
+    });
+    Some([q, qd, 2.0 * c[2] / (h * h), qdd_sd])
 }
 
-/// [`local_polynomial`] at `centre`, with the position and velocity read through `kernel` where
-/// the record's skin is (a record whose half-width spans [`crate::motion::SKIN_FILTER_BLOCKS`]):
-/// the polynomial's acceleration is the true one through the kernel, and the skin is read
-/// through it, so the position and velocity must be too — the polynomial's own are exact to a
-/// higher order (`∫K t⁴ ≠ 0`), and on a 6 Hz servo at 160 ms the difference turns gravity by
-/// about 1 mrad in the fastest blocks.
-pub(super) fn joint_state(
-    series: &[(f64, f64)],
-    cursor: &mut usize,
+/// The position and velocity of the joint states `window` (stamp, position) about `centre`
+/// read through `kernel` of half-width `h`: `Σ K(xᵢ)Δxᵢ qᵢ / Σ K(xᵢ)Δxᵢ` and `−(1/h)∫K′q`,
+/// normalised so that a line is exact, each reading standing for the half-gaps on either side of
+/// it (trapezoids); `None` where the window carries no weight.
+fn through_kernel(
+    kernel: &Kernel,
+    window: &[(f64, f64)],
     centre: f64,
     h: f64,
-    rounding: f64,
-    max_gap: f64,
-    kernel: Option<&Kernel>,
-) -> Option<[f64; 4]> {
-    let mut fitted = local_polynomial(series, cursor, centre, h, rounding, max_gap)?;
-    if let Some(kernel) = kernel {
-        let window: Vec<(f64, f64)> = series[*cursor..]
-            .iter()
-            .take_while(|s| s.0 <= centre + h)
-            .map(|&(t, q)| ((t - centre) / h, q))
-            .collect();
-        let q0 = window[0].1;
-        let (mut value, mut weight, mut slope, mut scale) = (0.0, 0.0, 0.0, 0.0);
-        for (i, &(x, q)) in window.iter().enumerate() {
-            // Each reading stands for the half-gaps on either side of it (trapezoids).
-            let before = if i == 0 { -1.0 } else { window[i - 1].0 };
-            let after = window.get(i + 1).map_or(1.0, |s| s.0);
-            let dx = 0.5 * (after - before);
-            let (k, k1) = (kernel.value(x) * dx, kernel.slope(x) * dx);
-            value += k * (q - q0);
-            weight += k;
-            slope += k1 * (q - q0);
-            scale += k1 * x;
-        }
-        if weight > 0.0 && scale != 0.0 {
-            fitted[0] = q0 + value / weight;
-            fitted[1] = slope / (h * scale);
-        }
+) -> Option<(f64, f64)> {
+    let x = |i: usize| (window[i].0 - centre) / h;
+    let q0 = window[0].1;
+    let (mut value, mut weight, mut slope, mut scale) = (0.0, 0.0, 0.0, 0.0);
+    for (i, &(_, q)) in window.iter().enumerate() {
+        let before = if i == 0 { -1.0 } else { x(i - 1) };
+        let after = if i + 1 < window.len() { x(i + 1) } else { 1.0 };
+        let dx = 0.5 * (after - before);
+        let (k, k1) = (kernel.value(x(i)) * dx, kernel.slope(x(i)) * dx);
+        value += k * (q - q0);
+        weight += k;
+        slope += k1 * (q - q0);
+        scale += k1 * x(i);
     }
-    Some(fitted)
+    (weight > 0.0 && scale != 0.0).then(|| (q0 + value / weight, slope / (h * scale)))
 }
 
 /// Terms of the sawtooth's Fourier series in [`rounded_acceleration_sd`]: the variance they
@@ -629,7 +623,8 @@ mod tests {
             .collect();
         for centre in [0.40, 0.45, 0.47, 0.50, 0.53, 0.58, 0.65] {
             let b = (centre * rate) as usize;
-            let fitted = local_polynomial(&series, &mut 0, b as f64 / rate, h, 0.0, 0.01).unwrap();
+            let fitted =
+                local_polynomial(&series, &mut 0, b as f64 / rate, h, 0.0, 0.01, None).unwrap();
             let filtered = filter.smooth(&qdd, b).unwrap().x;
             assert!(
                 (fitted[2] - filtered).abs() < 0.02,
@@ -638,12 +633,12 @@ mod tests {
             );
         }
         // Away from the step both are the acceleration itself.
-        let far = local_polynomial(&series, &mut 0, 0.8, h, 0.0, 0.01).unwrap();
+        let far = local_polynomial(&series, &mut 0, 0.8, h, 0.0, 0.01, None).unwrap();
         assert!((far[2] - 3.0).abs() < 1e-6);
     }
 
     /// A fast joint motion read at 1 kHz through a wide polynomial: the position and velocity
-    /// [`joint_state`] gives are the true ones through the skin's kernel, as its acceleration is
+    /// [`local_polynomial`] gives with the kernel are the true ones through the skin's kernel, as its acceleration is
     /// (truth: the kernel integrated against the analytic motion on a fine grid), within a
     /// hundredth of what the polynomial's own differ from them.
     #[test]
@@ -666,8 +661,9 @@ mod tests {
                 .sum::<f64>()
         };
         for centre in [0.5, 0.7321, 1.1] {
-            let read = joint_state(&series, &mut 0, centre, h, 0.0, 0.01, Some(&kernel)).unwrap();
-            let own = local_polynomial(&series, &mut 0, centre, h, 0.0, 0.01).unwrap();
+            let read =
+                local_polynomial(&series, &mut 0, centre, h, 0.0, 0.01, Some(&kernel)).unwrap();
+            let own = local_polynomial(&series, &mut 0, centre, h, 0.0, 0.01, None).unwrap();
             let (q_k, qd_k) = (through(&q, centre), through(&qd, centre));
             for (k, truth) in [(0, q_k), (1, qd_k)] {
                 let (kernel_error, own_error) = ((read[k] - truth).abs(), (own[k] - truth).abs());
@@ -724,8 +720,8 @@ mod tests {
         let mut bins = [(0.0, 0usize); 5];
         let (mut a, mut b) = (0, 0);
         for centre in (20..5980).map(|k| f64::from(k) * 0.01) {
-            let truth = local_polynomial(&exact, &mut a, centre, h, 0.0, 0.01).unwrap();
-            let read = local_polynomial(&rounded, &mut b, centre, h, rounding, 0.01).unwrap();
+            let truth = local_polynomial(&exact, &mut a, centre, h, 0.0, 0.01, None).unwrap();
+            let read = local_polynomial(&rounded, &mut b, centre, h, rounding, 0.01, None).unwrap();
             let window = rounded.iter().filter(|s| (s.0 - centre).abs() <= h);
             let (lo, hi) = window.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
                 (lo.min(s.1), hi.max(s.1))

@@ -6,7 +6,7 @@
 
 use std::collections::{HashMap, VecDeque};
 
-use super::motion::{correct_block, half_width, joint_state, BLOCK, HALF_WIDTHS};
+use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WIDTHS};
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
@@ -187,7 +187,7 @@ impl MotionStream {
             .zip(&self.widths)
             .map(|(series, w)| {
                 let (_, rounding) = w.expect("widths learnt before any block");
-                joint_state(
+                local_polynomial(
                     series.make_contiguous(),
                     &mut 0,
                     centre,
