@@ -354,11 +354,7 @@ impl SkinFilter {
     /// The kernel of half-width `half_width` on blocks of `period`; `None` when it spans fewer
     /// than [`SKIN_FILTER_BLOCKS`] blocks on each side.
     pub fn new(half_width: f64, period: f64) -> Option<Self> {
-        let n = (half_width / period).floor();
-        if !(n.is_finite() && n >= SKIN_FILTER_BLOCKS as f64) {
-            return None;
-        }
-        let n = n as i64;
+        let n = filtered_reach(half_width, period)?;
         let k = Kernel::new();
         Some(Self {
             weights: (-n..=n)
@@ -410,6 +406,13 @@ impl SkinFilter {
         (before >= FEWEST_FILTERED && after >= FEWEST_FILTERED && weight >= 0.5 * total)
             .then(|| sum / weight)
     }
+}
+
+/// The blocks on each side of the centre that a record of `half_width` on blocks of `period`
+/// reads its skin through; `None` below [`SKIN_FILTER_BLOCKS`] (it reads the block means).
+fn filtered_reach(half_width: f64, period: f64) -> Option<i64> {
+    let n = (half_width / period).floor();
+    (n.is_finite() && n >= SKIN_FILTER_BLOCKS as f64).then_some(n as i64)
 }
 
 /// The fewest blocks with samples on each side of a block [`SkinFilter::smooth`] reads.
@@ -464,6 +467,13 @@ impl Kernel {
         (1..self.c.len())
             .rev()
             .fold(0.0, |acc, k| acc * x + k as f64 * self.c[k])
+    }
+
+    /// The kernel through which a record of `half_width` on blocks of `period` reads its skin,
+    /// and so its joint positions and velocities ([`SkinFilter::new`]); `None` where it reads the
+    /// block means.
+    pub fn of_record(half_width: f64, period: f64) -> Option<Self> {
+        filtered_reach(half_width, period).map(|_| Self::new())
     }
 
     /// `K(x)` (zero outside `(−1, 1)`).

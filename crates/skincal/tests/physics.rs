@@ -580,8 +580,9 @@ fn servos_too_slow_for_the_programs_pauses_calibrate_from_the_motion() {
 /// across a few counts, the readings within one count share their error. Taken as independent
 /// per reading, it was stated 3–4 times too small there, and the fit ended at 1.49 σ (0.0024 /
 /// 0.0048 m/s² held-out); with it, 1.01 σ (0.0018 / 0.0040); with the joint states fitted as
-/// unknowns too (`coarse_encoders_joint_states_are_fitted_as_unknowns`), 0.0016 / 0.0029 at
-/// 0.70 σ, which the corrections' share of the residual's degrees of freedom leaves below 1.
+/// unknowns too (`coarse_encoders_joint_states_are_fitted_as_unknowns`) and the positions and
+/// velocities read through the skin's kernel, 0.0017 / 0.0022 at 0.72 σ, which the corrections'
+/// share of the residual's degrees of freedom leaves below 1.
 #[test]
 fn thirteen_bit_encoders_calibrate_at_the_noise_level() {
     let file = crate::real_robots::description("ur_description/urdf/ur5_robot.urdf");

@@ -19,8 +19,7 @@ use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
 use crate::motion::{
-    Kernel, MotionRecord, MotionRun, SampleCount, SampleCounter, SkinFilter, MOTION_FORMAT,
-    MOTION_VERSION,
+    Kernel, MotionRecord, MotionRun, SampleCount, SampleCounter, MOTION_FORMAT, MOTION_VERSION,
 };
 
 /// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
@@ -273,7 +272,7 @@ fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> V
     let mut runs: Vec<MotionRun> = Vec::new();
     let mut open = false;
     let mut cursors = vec![0usize; gathered.joints.len()];
-    let kernel = SkinFilter::new(h, BLOCK).map(|_| Kernel::new());
+    let kernel = Kernel::of_record(h, BLOCK);
     let roundings: Vec<f64> = gathered
         .joints
         .iter()

@@ -10,7 +10,7 @@ use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WID
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
-use crate::motion::{Kernel, MotionRun, SampleCount, SampleCounter, SkinFilter};
+use crate::motion::{Kernel, MotionRun, SampleCount, SampleCounter};
 
 /// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
 /// rounding are judged before any block is given out.
@@ -34,6 +34,9 @@ pub struct MotionStream {
     widths: Vec<Option<(f64, f64)>>,
     /// Per DoF: its first states, until the widths are learnt.
     learning: Vec<Vec<(f64, f64)>>,
+    /// Once the widths are learnt: the kernel the joint states are read through (`None` inside:
+    /// the record reads the block means, [`Kernel::of_record`]).
+    kernel: Option<Option<Kernel>>,
     /// Per block from `base`: per SU `[Σx, Σy, Σz, n]` of its fresh samples.
     skin: VecDeque<Vec<[f64; 4]>>,
     base: usize,
@@ -72,6 +75,7 @@ impl MotionStream {
             origin: None,
             joints: vec![VecDeque::new(); dofs.len()],
             widths: vec![None; dofs.len()],
+            kernel: None,
             learning: vec![Vec::new(); dofs.len()],
             skin: VecDeque::new(),
             base: 0,
@@ -180,7 +184,9 @@ impl MotionStream {
     fn compute(&mut self, centre: f64) {
         let max_gap = self.config.max_gap;
         let h = self.half_width().expect("widths learnt before any block");
-        let kernel = SkinFilter::new(h, BLOCK).map(|_| Kernel::new());
+        let kernel = *self
+            .kernel
+            .get_or_insert_with(|| Kernel::of_record(h, BLOCK));
         let fitted: Option<Vec<[f64; 4]>> = self
             .joints
             .iter_mut()
