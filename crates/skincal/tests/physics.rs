@@ -11,7 +11,7 @@ use std::process::Command;
 
 use nalgebra::Vector3;
 use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion};
-use skincal::estimate::ml::MlConfig;
+use skincal::estimate::ml::{IntrinsicsModel, MlConfig};
 use skincal::explore::{explore, ExploreConfig};
 use skincal::ingest::motion::motion_record;
 use skincal::ingest::{ingest, IngestConfig};
@@ -529,8 +529,21 @@ fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
     )
     .unwrap();
     let model = crate::common::calibrated_on_motion(set, &record, 1.1);
+    // The skin is ideal but for its noise and quantisation: the data must not ask for biases
+    // (they were taken at z = 202 when the "none" they were tested against held the biases of the
+    // quiet readings' fit, and cost the static prediction a fifth: 0.0039 against 0.0032).
+    for limb in &model.limbs {
+        let e = &limb.estimate;
+        assert_eq!(
+            e.intrinsics_model,
+            Some(IntrinsicsModel::None),
+            "{}: {:?}",
+            limb.name,
+            e.intrinsics_tests
+        );
+    }
     let v = held_out_rms(&model, &robot, "continuous program: ");
-    assert!(v.static_rms < 0.008 && v.dynamic_rms < 0.005, "{v:?}");
+    assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
 }
 
 /// The slow corner of the servo matrix: the Kinova arm on 3 Hz servos at damping 0.5 with 0.3 s

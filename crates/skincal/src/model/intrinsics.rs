@@ -89,6 +89,16 @@ impl Intrinsics {
         }
     }
 
+    /// These intrinsics with only their first `components` ([`INTRINSIC_NAMES`] order) kept, the
+    /// rest ideal: what a fit of a smaller sensor model starts from.
+    pub fn truncated(&self, components: usize) -> Self {
+        let mut x = self.to_array();
+        for v in x.iter_mut().skip(components) {
+            *v = 0.0;
+        }
+        Self::from_array(&x)
+    }
+
     /// These intrinsics changed by `delta` (9 numbers, [`INTRINSIC_NAMES`] order).
     pub fn moved(&self, delta: &[f64]) -> Self {
         let mut x = self.to_array();
