@@ -488,8 +488,14 @@ fn fit_lines(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
             .intrinsics_tests
             .iter()
             .map(|t| {
+                // A filtered record's correlated samples: F is divided by their overcount.
+                let correlated = if t.overcount > 1.0 {
+                    format!(", samples' overcount {:.2}", t.overcount)
+                } else {
+                    String::new()
+                };
                 format!(
-                    "{} against {}: F = {:.2} (+{} parameters), z = {:.1} → {}",
+                    "{} against {}: F = {:.2} (+{} parameters{correlated}), z = {:.1} → {}",
                     t.model.name(),
                     t.against.name(),
                     t.f,

@@ -382,6 +382,39 @@ impl SkinFilter {
         self.weights.iter().map(|w| w * w).sum::<f64>().sqrt() / sum
     }
 
+    /// How many times more a slowly varying direction's sum over the values a fit takes (every
+    /// `stride`-th block) varies than [`SkinFilter::noise_factor`] says if they were
+    /// independent: `1 + 2 Σ_m ρ(m·stride)` over the filtered noise's autocorrelation `ρ`
+    /// (≈ `1 / (stride · noise_factor²)`; 2.8 for every half-width read through the kernel at
+    /// [`SkinFilter::stride`]). A fit that weighs each value alone takes this much more
+    /// information from the record than it holds along such directions (a sensor's bias, a
+    /// frame's pose): their variances and the intrinsics' tests are scaled by it.
+    pub fn overcount(&self, stride: usize) -> f64 {
+        self.correlation_sum(stride, 1)
+    }
+
+    /// How many times more the sum of squares of the values a fit takes (every `stride`-th
+    /// block) varies than if they were independent: `1 + 2 Σ_m ρ(m·stride)²`. A residual's
+    /// band at its size counts its degrees of freedom divided by this.
+    pub fn square_overcount(&self, stride: usize) -> f64 {
+        self.correlation_sum(stride, 2)
+    }
+
+    /// `1 + 2 Σ_{m ≥ 1} ρ(m·stride)^power`.
+    fn correlation_sum(&self, stride: usize, power: i32) -> f64 {
+        let w = &self.weights;
+        let power_sum: f64 = w.iter().map(|x| x * x).sum();
+        let rho = |lag: usize| -> f64 {
+            w.iter().zip(&w[lag..]).map(|(a, b)| a * b).sum::<f64>() / power_sum
+        };
+        let beyond: f64 = (1..)
+            .map(|m| m * stride.max(1))
+            .take_while(|&lag| lag < w.len())
+            .map(|lag| rho(lag).powi(power))
+            .sum();
+        1.0 + 2.0 * beyond
+    }
+
     /// `series` read through the kernel at block `b`: the weighted mean of the blocks present,
     /// `None` where fewer than [`FEWEST_FILTERED`] blocks on either side are, or the present
     /// ones carry less than half the kernel's weight.
@@ -574,4 +607,60 @@ fn nearest_sample(run: &MotionRun, u: usize, b: usize) -> Option<([f64; 3], usiz
             .find_map(|i| run.skin.get(i).and_then(|row| row[u]))
             .map(|s| (s, off))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    #[test]
+    fn the_overcount_is_what_the_filtered_noise_does() {
+        // White block means through the kernel, every stride-th value taken: the variance of their
+        // sum over many independent records against what independent values would give.
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        for (half_width, period) in [(0.08, 0.01), (0.1, 0.01), (0.16, 0.01), (0.2, 0.01)] {
+            let filter = SkinFilter::new(half_width, period).unwrap();
+            let (n, taken_per_record, records) = (filter.reach(), 300, 2000);
+            let stride = filter.stride();
+            let blocks = 2 * n + 1 + stride * taken_per_record;
+            let (mut sums, mut squares) = (Vec::new(), Vec::new());
+            for _ in 0..records {
+                let noise: Vec<Option<Vector3<f64>>> = (0..blocks)
+                    .map(|_| Some(Vector3::new(normal.sample(&mut rng), 0.0, 0.0)))
+                    .collect();
+                let taken: Vec<f64> = (0..taken_per_record)
+                    .map(|i| filter.smooth(&noise, n + i * stride).unwrap().x)
+                    .collect();
+                sums.push(taken.iter().sum::<f64>());
+                squares.push(taken.iter().map(|x| x * x).sum::<f64>());
+            }
+            let variance = |x: &[f64]| {
+                let mean = x.iter().sum::<f64>() / x.len() as f64;
+                x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (x.len() - 1) as f64
+            };
+            let f2 = filter.noise_factor().powi(2);
+            let independent = taken_per_record as f64 * f2;
+            let measured = variance(&sums) / independent;
+            // Independent values' sum of squares varies by 2 N f⁴.
+            let of_squares = variance(&squares) / (2.0 * independent * f2);
+            assert!(
+                (of_squares / filter.square_overcount(stride) - 1.0).abs() < 0.12,
+                "{half_width} s: sum of squares measured {of_squares:.3}, stated {:.3}",
+                filter.square_overcount(stride)
+            );
+            // 2000 records: the variance is known to ±3.2 % (1 sd); the records' ends, where a value
+            // has neighbours on one side only, take under 1 %.
+            assert!(
+                (measured / filter.overcount(stride) - 1.0).abs() < 0.12,
+                "{half_width} s: measured {measured:.3}, stated {:.3}",
+                filter.overcount(stride)
+            );
+            let approximate = 1.0 / (stride as f64 * filter.noise_factor().powi(2));
+            assert!((filter.overcount(stride) / approximate - 1.0).abs() < 0.1);
+        }
+    }
 }

@@ -314,10 +314,13 @@ fn rest_residual(
     let (layout, spec) = (&problem.layout, &problem.spec);
     let map = ColumnMap::new(spec);
     let (cost, rows) = problem::cost_and_rows(state, layout, &only_rest, spec, &map, sigma);
+    // The filtered samples' noise is correlated: their sum of squares varies as that of fewer
+    // independent ones.
+    let independent = rows as f64 / readings.motion.as_ref()?.square_overcount();
     (rows > 0).then(|| RestResidual {
         residual_ratio: (cost / rows as f64).sqrt(),
         rows,
-        band: ResidualBand::at(rows),
+        band: ResidualBand::at(independent.round() as usize),
     })
 }
 
@@ -378,10 +381,12 @@ impl Precision {
         if let Some(others) = others {
             normal.add_shared_information(others);
         }
+        // A filtered record's samples hold less than each weighed alone says.
+        let overcount = readings.motion.as_ref().map_or(1.0, |m| m.overcount());
         let (cov, unobservable) = covariance(
             &normal,
             &map,
-            scale.max(1.0),
+            scale.max(1.0) * overcount.sqrt(),
             &names,
             config.observable_limit,
         );
@@ -519,6 +524,9 @@ pub(super) fn fit_with_intrinsics(
     } else {
         0
     };
+    // A filtered record's samples hold less along an intrinsic's direction than each weighed
+    // alone says: the test divides what the larger model gains by it.
+    let overcount = readings.motion.as_ref().map_or(1.0, |m| m.overcount());
     // Every model of the ladder is fitted (each from the one before) so that the tests can be
     // pooled over a skin; the one kept is the last of those taken in a row.
     let mut climbing = true;
@@ -532,10 +540,10 @@ pub(super) fn fit_with_intrinsics(
             let test = IntrinsicsTest::new(
                 next,
                 current.2,
-                current.0.cost,
-                larger.cost,
+                [current.0.cost, larger.cost],
                 after.saturating_sub(before),
                 rows.saturating_sub(after),
+                overcount,
             );
             tests.push(test);
             climbing &= test.taken;

@@ -66,6 +66,8 @@ pub struct LimbMotion {
     kinds: Vec<DofKind>,
     /// Blocks between two samples the fit takes in a run.
     stride: usize,
+    /// The kernel the skin was read through, where it was ([`SkinFilter`]).
+    filter: Option<SkinFilter>,
     pub(super) samples: Vec<MotionSample>,
     /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
     /// [`SkinFilter`] where it has one.
@@ -178,6 +180,7 @@ impl LimbMotion {
             period: record.period,
             kinds,
             stride,
+            filter,
             samples,
             skin,
             sd,
@@ -191,6 +194,23 @@ impl LimbMotion {
     /// over the samples of `tr((JᵀJ + P)⁻¹ JᵀJ)` of their last solve (0 before any).
     pub(super) fn corrected_dof(&self) -> f64 {
         self.corrected
+    }
+
+    /// How much more information along a slowly varying direction the samples seem to hold,
+    /// weighed each alone, than they do: their filtered noise is correlated
+    /// ([`SkinFilter::overcount`]; 1 where the skin is read as block means).
+    pub(super) fn overcount(&self) -> f64 {
+        self.filter
+            .as_ref()
+            .map_or(1.0, |f| f.overcount(self.stride))
+    }
+
+    /// The degrees of freedom of a residual over the samples per independent one
+    /// ([`SkinFilter::square_overcount`]; 1 where the skin is read as block means).
+    pub(super) fn square_overcount(&self) -> f64 {
+        self.filter
+            .as_ref()
+            .map_or(1.0, |f| f.square_overcount(self.stride))
     }
 
     /// The quietest SU's standard deviation of one component of a sample, m/s².

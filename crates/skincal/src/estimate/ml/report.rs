@@ -220,6 +220,11 @@ pub struct IntrinsicsTest {
     /// χ² of the smaller and of the larger model.
     #[serde(default)]
     pub chi2: [f64; 2],
+    /// How many times more information the rows seem to hold along the added parameters than
+    /// they do (a filtered motion record's correlated samples, [`crate::motion::SkinFilter::overcount`];
+    /// 1 for independent readings): `f` is divided by it.
+    #[serde(default = "one")]
+    pub overcount: f64,
     /// The F statistic.
     pub f: f64,
     /// Paulson's normal deviate of `f` (≈ N(0, 1) when the larger model adds nothing).
@@ -237,11 +242,21 @@ pub const INTRINSICS_TEST_Z: f64 = 5.0;
 pub fn pooled_intrinsics<'a>(
     tests: impl IntoIterator<Item = &'a [IntrinsicsTest]>,
 ) -> Option<(IntrinsicsModel, Vec<IntrinsicsTest>)> {
-    let mut steps: Vec<(IntrinsicsModel, IntrinsicsModel, [f64; 2], usize, usize)> = Vec::new();
+    // Per step: the models, χ², parameters, degrees of freedom and the overcounts weighed by
+    // the degrees of freedom.
+    type Step = (
+        IntrinsicsModel,
+        IntrinsicsModel,
+        [f64; 2],
+        usize,
+        usize,
+        f64,
+    );
+    let mut steps: Vec<Step> = Vec::new();
     for limb in tests {
         for (i, t) in limb.iter().enumerate() {
             if steps.len() <= i {
-                steps.push((t.model, t.against, [0.0; 2], 0, 0));
+                steps.push((t.model, t.against, [0.0; 2], 0, 0, 0.0));
             }
             let step = &mut steps[i];
             if step.0 != t.model {
@@ -251,13 +266,15 @@ pub fn pooled_intrinsics<'a>(
             step.2[1] += t.chi2[1];
             step.3 += t.parameters;
             step.4 += t.degrees_of_freedom;
+            step.5 += t.overcount * t.degrees_of_freedom as f64;
         }
     }
     let first = steps.first()?.1;
     let pooled: Vec<IntrinsicsTest> = steps
         .into_iter()
-        .map(|(model, against, chi2, k, nu)| {
-            IntrinsicsTest::new(model, against, chi2[0], chi2[1], k, nu)
+        .map(|(model, against, chi2, k, nu, weighed)| {
+            let overcount = if nu > 0 { weighed / nu as f64 } else { 1.0 };
+            IntrinsicsTest::new(model, against, chi2, k, nu, overcount)
         })
         .collect();
     let chosen = pooled
@@ -269,20 +286,22 @@ pub fn pooled_intrinsics<'a>(
 }
 
 impl IntrinsicsTest {
-    /// The test of `model` against `against` from their χ² (`small`, `large`), the parameters
-    /// `model` adds and its residual degrees of freedom.
+    /// The test of `model` against `against` from their χ² (`[small, large]`), the parameters
+    /// `model` adds, its residual degrees of freedom and the rows' `overcount` (1 for
+    /// independent rows).
     pub fn new(
         model: IntrinsicsModel,
         against: IntrinsicsModel,
-        small: f64,
-        large: f64,
+        [small, large]: [f64; 2],
         parameters: usize,
         degrees_of_freedom: usize,
+        overcount: f64,
     ) -> Self {
         let (k, nu) = (parameters.max(1) as f64, degrees_of_freedom.max(1) as f64);
-        let f = ((small - large).max(0.0) / k) / (large / nu).max(1e-300);
+        let overcount = overcount.max(1.0);
+        let f = ((small - large).max(0.0) / k) / (large / nu).max(1e-300) / overcount;
         // Paulson (1942): F^(1/3) is nearly normal.
-        let (a, b) = (2.0 / (9.0 * k), 2.0 / (9.0 * nu));
+        let (a, b) = (2.0 / (9.0 * k), 2.0 / (9.0 * nu / overcount));
         let root = f.cbrt();
         let z = ((1.0 - b) * root - (1.0 - a)) / (a + root * root * b).sqrt();
         Self {
@@ -291,6 +310,7 @@ impl IntrinsicsTest {
             parameters,
             degrees_of_freedom,
             chi2: [small, large],
+            overcount,
             f,
             z,
             taken: z > INTRINSICS_TEST_Z,
@@ -441,4 +461,9 @@ impl MlChainEstimate {
             .build()
             .expect("an estimated chain is a valid robot")
     }
+}
+
+/// 1, the default of a count that files written before it lack.
+fn one() -> f64 {
+    1.0
 }
