@@ -328,11 +328,12 @@ impl MotionRecord {
 /// Degree of the local polynomial through which a record's joint states are read: 4 leaves a
 /// bias of 0.03 % of the acceleration of a 2 Hz motion at 40 ms half-width (2: 1 %).
 pub const DEGREE: usize = 4;
-/// The fewest blocks on each side of its centre over which [`SkinFilter`] reads the skin: a
-/// narrower polynomial follows a servo's motion so closely that the block means fit better than
-/// filtered ones (physics logs of a Kinova arm, 17-bit encoders, 50 ms: held-out dynamic error
-/// 0.0020 m/s² from the block means, 0.0032 filtered; exact encoders read at 80 ms: 0.0092 from
-/// the block means, 0.0020 filtered).
+/// The fewest blocks on each side of its centre over which [`SkinFilter`] reads the skin: the
+/// record's polynomial is then wide enough to be worth matching on the skin's side. Narrower ones
+/// are the narrowest of the half-widths, which follows a servo's motion so closely that the block
+/// means fit as they are (exact encoders: the paper arm's held-out dynamic error 0.0018 m/s²);
+/// a record whose encoder asks for more is read at 80 ms or wider, both sides through the kernel
+/// ([`crate::ingest::motion::HALF_WIDTHS`]).
 pub const SKIN_FILTER_BLOCKS: usize = 8;
 
 /// The kernel `K` through which a local polynomial of degree [`DEGREE`] and half-width `h`,
