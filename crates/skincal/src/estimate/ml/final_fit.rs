@@ -382,7 +382,7 @@ impl Precision {
             normal.add_shared_information(others);
         }
         // A filtered record's samples hold less than each weighed alone says.
-        let overcount = readings.motion.as_ref().map_or(1.0, |m| m.overcount());
+        let overcount = readings.overcount();
         let (cov, unobservable) = covariance(
             &normal,
             &map,
@@ -526,7 +526,7 @@ pub(super) fn fit_with_intrinsics(
     };
     // A filtered record's samples hold less along an intrinsic's direction than each weighed
     // alone says: the test divides what the larger model gains by it.
-    let overcount = readings.motion.as_ref().map_or(1.0, |m| m.overcount());
+    let overcount = readings.overcount();
     // Every model of the ladder is fitted (each from the one before) so that the tests can be
     // pooled over a skin; the one kept is the last of those taken in a row.
     let mut climbing = true;

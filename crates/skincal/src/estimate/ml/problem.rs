@@ -110,6 +110,12 @@ pub(super) struct Readings {
 }
 
 impl Readings {
+    /// How much more information its rows seem to hold along a slowly varying direction than
+    /// they do ([`LimbMotion::overcount`]; 1 without a motion record).
+    pub(super) fn overcount(&self) -> f64 {
+        self.motion.as_ref().map_or(1.0, |m| m.overcount())
+    }
+
     /// The base orientation of pose `p` (0: the usual one).
     pub(super) fn orientation_of(&self, p: usize) -> usize {
         self.orientation.get(p).copied().unwrap_or(0)
