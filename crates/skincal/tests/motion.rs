@@ -377,7 +377,8 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
 /// The motion rows' Jacobian (the SU's own frame and intrinsics by the chain rule, joint lines
 /// by dual numbers, gravity in closed form) against central differences of the residuals through
 /// the retraction, at the truth of a noise-free log with a skin 3 ms late (plain least squares);
-/// the delay's column (the prediction's rate standing for the measured one's) within 10 % RMS.
+/// the delay's column (the prediction's rate standing for the measured one's) within 10 % RMS;
+/// the normal equations the fit forms are the dense Jacobian's.
 #[test]
 fn the_motion_rows_jacobian_matches_central_differences() {
     use skincal::estimate::ml::{internals, state_of};
@@ -423,7 +424,23 @@ fn the_motion_rows_jacobian_matches_central_differences() {
     let data = LimbData::new(&set, &chain).unwrap();
     let mut state = state_of(&robot, &chain, &nalgebra::Vector3::new(0.0, 0.0, -9.81)).unwrap();
     state.skin_delay = 0.002;
-    let (_, jac, _) = internals::motion_problem(&data, &record, &state, &[]);
+    let (r, jac, _) = internals::motion_problem(&data, &record, &state, &[]);
+    // The fit forms its normal equations by other code (SU blocks apart, the record's rows a
+    // chunk at a time): they must be the dense Jacobian's.
+    let (information, gradient) = internals::motion_normal(&data, &record, &state);
+    let dense = jac.transpose() * &jac;
+    let apart = (&information - &dense).amax() / dense.amax();
+    assert!(apart < 1e-12, "JᵀJ apart by {apart} of its largest entry");
+    // At the truth the gradient is a sum of terms that cancel: measured against the largest
+    // that any column's could be, |J_c|·|r|.
+    let scale = jac.column_iter().map(|c| c.norm()).fold(0.0, f64::max) * r.norm();
+    let apart = (&gradient - jac.transpose() * &r).amax() / scale;
+    assert!(apart < 1e-12, "Jᵀr apart by {apart} of |J_c|·|r|");
+    assert!(
+        r.len() > 3 * 7 * 200,
+        "{} rows: more than a few chunks",
+        r.len()
+    );
     let h = 1e-6;
     let steps: Vec<Vec<f64>> = (0..jac.ncols())
         .flat_map(|c| {

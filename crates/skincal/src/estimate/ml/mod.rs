@@ -691,22 +691,7 @@ pub mod internals {
         DMatrix<f64>,
         Vec<nalgebra::DVector<f64>>,
     ) {
-        let limb = data;
-        let layout = serial_layout(data.chain.dofs().len());
-        let mut spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
-        spec.blocks.push(Block::SkinDelay);
-        let mut motion = LimbMotion::new(record, limb, 0.05).expect("the record has the chain");
-        motion.weigh(state, &limb.su_depth);
-        let readings = Readings {
-            q: Vec::new(),
-            turns: Vec::new(),
-            statics: Vec::new(),
-            dynamics: Vec::new(),
-            motion: Some(std::sync::Arc::new(motion)),
-            // Plain least squares: Huber's weights change with the state and have no column.
-            huber: None,
-            ..readings(limb)
-        };
+        let (layout, spec, readings) = motion_rows_only(data, record, state);
         let (r, jac) = problem::dense_problem(state, &layout, &readings, &spec, 0.05);
         let after = deltas
             .iter()
@@ -716,6 +701,47 @@ pub mod internals {
             })
             .collect();
         (r, jac, after)
+    }
+
+    /// The normal equations of [`motion_problem`]'s problem at `state` as the fit forms them
+    /// (SU blocks apart, a record's rows taken a chunk at a time), put together in its columns'
+    /// order: the information `JᵀJ` and the gradient `Jᵀr`.
+    pub fn motion_normal(
+        data: &LimbData,
+        record: &crate::motion::MotionRecord,
+        state: &ChainState,
+    ) -> (DMatrix<f64>, nalgebra::DVector<f64>) {
+        let (layout, spec, readings) = motion_rows_only(data, record, state);
+        let map = problem::ColumnMap::new(&spec);
+        let normal = problem::normal_system(state, &layout, &readings, &spec, &map, 0.05);
+        (
+            problem::information(&normal, &map),
+            problem::gradient(&normal, &map),
+        )
+    }
+
+    /// The layout, the spec and the readings of [`motion_problem`].
+    fn motion_rows_only(
+        data: &LimbData,
+        record: &crate::motion::MotionRecord,
+        state: &ChainState,
+    ) -> (Layout, Spec, Readings) {
+        let layout = serial_layout(data.chain.dofs().len());
+        let mut spec = full_spec(&layout, 1, true, Some(0), IntrinsicsModel::Full);
+        spec.blocks.push(Block::SkinDelay);
+        let mut motion = LimbMotion::new(record, data, 0.05).expect("the record has the chain");
+        motion.weigh(state, &data.su_depth);
+        let readings = Readings {
+            q: Vec::new(),
+            turns: Vec::new(),
+            statics: Vec::new(),
+            dynamics: Vec::new(),
+            motion: Some(std::sync::Arc::new(motion)),
+            // Plain least squares: Huber's weights change with the state and have no column.
+            huber: None,
+            ..readings(data)
+        };
+        (layout, spec, readings)
     }
 
     /// The serial layout of `data` and its full problem: every block, each other base

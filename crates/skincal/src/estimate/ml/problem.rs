@@ -10,7 +10,7 @@
 //! SU blocks are eliminated and only the shared system is factorised, so an iteration costs time
 //! linear in the number of SUs and memory independent of the number of readings.
 
-use std::ops::AddAssign;
+use std::ops::{AddAssign, Range};
 use std::sync::Arc;
 
 use nalgebra::{
@@ -586,31 +586,34 @@ struct MotionRows<'a> {
 }
 
 impl MotionRows<'_> {
-    /// Fills the SU's motion rows of `r` (and of its Jacobian blocks `(own, shared)` when given):
-    /// `(K Rᵀ (c + N p) + b − measured) / sd` per sample, Huber-weighted. Returns the cost and the
-    /// number of rows that count.
+    /// Fills the SU's motion rows of `samples` (from row `at`, 3 per sample) of `r` (and of its
+    /// Jacobian blocks `(own, shared)` when given): `(K Rᵀ (c + N p) + b − measured) / sd` per
+    /// sample, Huber-weighted, with `predicted` ([`MotionRows::predicted`]) the first part.
+    /// Returns the cost and the number of rows that count.
     fn fill(
         &self,
         state: &ChainState,
         data: &Readings,
+        (samples, predicted): (Range<usize>, &[Vector3<f64>]),
         r: &mut DVector<f64>,
         mut jacobian: Option<(&mut DMatrix<f64>, &mut DMatrix<f64>)>,
     ) -> (f64, usize) {
         let (u, motion, s) = (self.u, self.motion, self.segment);
         let su = SuFrame::new(state, u);
         let (mut cost, mut count) = (0.0, 0);
-        let predicted: Vec<Vector3<f64>> = self
-            .terms
-            .iter()
-            .map(|t| su.reading(&su.field(t, s), true))
-            .collect();
         let delay_column = self
             .map
             .shared
             .iter()
             .position(|&(b, _)| self.spec.blocks[b] == Block::SkinDelay);
-        for (j, terms) in self.terms.iter().enumerate() {
-            let row = self.at + 3 * j;
+        for (j, terms) in self
+            .terms
+            .iter()
+            .enumerate()
+            .take(samples.end)
+            .skip(samples.start)
+        {
+            let row = self.at + 3 * (j - samples.start);
             let Some(measured) = motion.measured(u, j, state.skin_delay) else {
                 continue;
             };
@@ -636,13 +639,22 @@ impl MotionRows<'_> {
             if let Some(col) = delay_column {
                 // The residual's rate with the delay: minus the rate of what is measured, which
                 // the prediction's own rate stands for (smooth where the samples are noisy).
-                let d = self.rate(&predicted, j);
+                let d = self.rate(predicted, j);
                 shared
                     .fixed_view_mut::<3, 1>(row, col)
                     .copy_from(&(-d * scale));
             }
         }
         (cost, count)
+    }
+
+    /// What the SU is predicted to read at every sample of the record.
+    fn predicted(&self, state: &ChainState) -> Vec<Vector3<f64>> {
+        let su = SuFrame::new(state, self.u);
+        self.terms
+            .iter()
+            .map(|t| su.reading(&su.field(t, self.segment), true))
+            .collect()
     }
 
     /// The rate of `predicted` at sample `j`: a central difference where both neighbouring
@@ -742,6 +754,48 @@ impl SuBlock {
         (su, c, gs)
     }
 
+    /// [`SuBlock::products`] for rows that all see about the same shared columns (a motion
+    /// record's: the joints before the SU's segment, gravity, the delay): one product on the
+    /// range of shared columns not zero in any row, without grouping the rows.
+    fn products_on_one_range(&self) -> (SuNormal, DMatrix<f64>, DVector<f64>) {
+        let (m, n) = (self.shared.ncols(), self.own.ncols());
+        let nonzero = |k: &usize| self.shared.column(*k).iter().any(|x| *x != 0.0);
+        let lo = (0..m).find(nonzero).unwrap_or(m);
+        let hi = (lo..m).rev().find(nonzero).map_or(lo, |k| k + 1);
+        // Entry by entry, each a dot product of two columns (contiguous: the blocks are
+        // column-major), the symmetric ones once: on a chunk's few hundred rows this is faster
+        // than a transposed copy and a blocked product.
+        let (shared, own) = (
+            |k: usize| self.shared.column(k),
+            |k: usize| self.own.column(k),
+        );
+        let mut c = DMatrix::zeros(m, m);
+        let mut gs = DVector::zeros(m);
+        let mut b = DMatrix::zeros(n, m);
+        for k in lo..hi {
+            for l in k..hi {
+                let x = shared(k).dot(&shared(l));
+                c[(k, l)] = x;
+                c[(l, k)] = x;
+            }
+            gs[k] = shared(k).dot(&self.r);
+            for o in 0..n {
+                b[(o, k)] = own(o).dot(&shared(k));
+            }
+        }
+        let mut a = DMatrix::zeros(n, n);
+        let mut go = DVector::zeros(n);
+        for o in 0..n {
+            for p in o..n {
+                let x = own(o).dot(&own(p));
+                a[(o, p)] = x;
+                a[(p, o)] = x;
+            }
+            go[o] = own(o).dot(&self.r);
+        }
+        (SuNormal { a, b, go }, c, gs)
+    }
+
     /// The rows with a shared column not zero, grouped by the range of such columns
     /// (`lo..hi`), in the order of the ranges.
     fn shared_ranges(&self) -> std::collections::BTreeMap<(usize, usize), Vec<usize>> {
@@ -803,46 +857,29 @@ impl<'a> Blocks<'a> {
 
     /// The block of SU `spec.sus[i]`: its pose rows, its motion rows, its priors.
     fn block(&self, i: usize) -> SuBlock {
+        self.block_with(i, true)
+    }
+
+    /// The block of SU `spec.sus[i]`, with its motion rows or without.
+    fn block_with(&self, i: usize, with_motion: bool) -> SuBlock {
         let u = self.spec.sus[i];
         let s = self.layout.su_segment[u];
         let priors = self.prior_columns(i);
         let pose_rows = 3 * (1 + s) * self.data.q.len();
-        let motion_rows = self.data.motion.as_ref().map_or(0, |m| 3 * m.len());
-        let rows = pose_rows + motion_rows + priors.len();
-        let (own, shared) = if self.jacobian {
-            (
-                DMatrix::zeros(rows, self.map.own[i].len()),
-                DMatrix::zeros(rows, self.map.shared.len()),
-            )
-        } else {
-            (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
-        };
-        let mut block = SuBlock {
-            r: DVector::zeros(rows),
-            own,
-            shared,
-            cost: 0.0,
-            count: 0,
-        };
+        let motion = self.motion_rows(i, pose_rows).filter(|_| with_motion);
+        let motion_rows = motion.as_ref().map_or(0, |m| 3 * m.motion.len());
+        let mut block = self.zeros(i, pose_rows + motion_rows + priors.len());
         let su = SuFrame::new(self.state, u);
         for p in 0..self.poses.len() {
             self.pose_rows(i, p, &su, &mut block);
         }
-        if let (Some(motion), Some(terms)) = (&self.data.motion, &self.terms) {
-            let rows = MotionRows {
-                spec: self.spec,
-                map: self.map,
-                motion,
-                terms,
-                u,
-                i,
-                segment: s - 1,
-                at: pose_rows,
-            };
+        if let Some(rows) = motion {
+            let predicted = rows.predicted(self.state);
             let SuBlock { r, own, shared, .. } = &mut block;
             let (c, n) = rows.fill(
                 self.state,
                 self.data,
+                (0..rows.motion.len(), &predicted),
                 r,
                 self.jacobian.then_some((own, shared)),
             );
@@ -851,6 +888,104 @@ impl<'a> Blocks<'a> {
         }
         self.prior_rows(i, &priors, pose_rows + motion_rows, &mut block);
         block
+    }
+
+    /// A block of `rows` zero rows for SU `spec.sus[i]` (with its Jacobian's columns when the
+    /// blocks carry one).
+    fn zeros(&self, i: usize, rows: usize) -> SuBlock {
+        let (own, shared) = if self.jacobian {
+            (
+                DMatrix::zeros(rows, self.map.own[i].len()),
+                DMatrix::zeros(rows, self.map.shared.len()),
+            )
+        } else {
+            (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))
+        };
+        SuBlock {
+            r: DVector::zeros(rows),
+            own,
+            shared,
+            cost: 0.0,
+            count: 0,
+        }
+    }
+
+    /// The motion rows of SU `spec.sus[i]` from row `at`, when the readings hold a record.
+    fn motion_rows(&self, i: usize, at: usize) -> Option<MotionRows<'_>> {
+        let (motion, terms) = (self.data.motion.as_deref()?, self.terms.as_deref()?);
+        let u = self.spec.sus[i];
+        Some(MotionRows {
+            spec: self.spec,
+            map: self.map,
+            motion,
+            terms,
+            u,
+            i,
+            segment: self.layout.su_segment[u] - 1,
+            at,
+        })
+    }
+
+    /// The pieces of the normal equations ([`SuBlock::products`]), the cost and the rows that
+    /// count of SUs `spec.sus[i]`, `i` in `group` (SUs of one segment). A motion record's rows are
+    /// taken [`MOTION_CHUNK`] samples at a time, every SU of the group in turn: the same sums as
+    /// one block of every row, without a block of a whole record's rows per SU (a minute at
+    /// 100 Hz is 18 000 rows) written and read back through memory, and with the segment's terms
+    /// at those samples read from memory once for all its SUs.
+    fn normals(&self, group: &[usize]) -> Vec<NormalPart> {
+        let mut parts: Vec<NormalPart> = group
+            .iter()
+            .map(|&i| {
+                let block = self.block_with(i, false);
+                let (su, c, gs) = block.products();
+                (su, c, gs, block.cost, block.count)
+            })
+            .collect();
+        let motions: Vec<MotionRows> = group
+            .iter()
+            .filter_map(|&i| self.motion_rows(i, 0))
+            .collect();
+        let Some(samples) = motions.first().map(|rows| rows.motion.len()) else {
+            return parts;
+        };
+        let predicted: Vec<Vec<Vector3<f64>>> = motions
+            .iter()
+            .map(|rows| rows.predicted(self.state))
+            .collect();
+        let mut chunks: Vec<SuBlock> = group
+            .iter()
+            .map(|&i| self.zeros(i, 3 * MOTION_CHUNK))
+            .collect();
+        for lo in (0..samples).step_by(MOTION_CHUNK) {
+            let range = lo..(lo + MOTION_CHUNK).min(samples);
+            for (((rows, predicted), chunk), part) in motions
+                .iter()
+                .zip(&predicted)
+                .zip(&mut chunks)
+                .zip(&mut parts)
+            {
+                chunk.r.as_mut_slice().fill(0.0);
+                chunk.own.as_mut_slice().fill(0.0);
+                chunk.shared.as_mut_slice().fill(0.0);
+                let SuBlock { r, own, shared, .. } = chunk;
+                let (cost, count) = rows.fill(
+                    self.state,
+                    self.data,
+                    (range.clone(), predicted),
+                    r,
+                    Some((own, shared)),
+                );
+                let (su, c, gs) = chunk.products_on_one_range();
+                part.0.a += su.a;
+                part.0.b += su.b;
+                part.0.go += su.go;
+                part.1 += c;
+                part.2 += gs;
+                part.3 += cost;
+                part.4 += count;
+            }
+        }
+        parts
     }
 
     /// The free intrinsics of SU `spec.sus[i]` (and its position's components under a gauge
@@ -931,6 +1066,12 @@ impl<'a> Blocks<'a> {
     }
 }
 
+/// Per SU: its own pieces, `J_sᵀJ_s`, `J_sᵀr`, `|r|²` and the number of residuals.
+type NormalPart = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
+
+/// The motion samples whose rows [`Blocks::normal`] fills and multiplies at a time.
+const MOTION_CHUNK: usize = 64;
+
 /// One SU's pieces of the normal equations: `A = J_oᵀJ_o`, `B = J_oᵀJ_s`, `g_o = J_oᵀr`.
 #[derive(Debug, Clone)]
 struct SuNormal {
@@ -963,16 +1104,21 @@ pub(super) fn normal_system(
 ) -> Normal {
     let blocks = Blocks::new(state, layout, data, spec, map, sigma, true);
     let m = map.shared.len();
-    // Per SU: its own pieces, J_sᵀJ_s, J_sᵀr, |r|² and the number of residuals.
-    type Part = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
-    let parts: Vec<Part> = (0..spec.sus.len())
-        .into_par_iter()
-        .map(|i| {
-            let block = blocks.block(i);
-            let (su, c, gs) = block.products();
-            (su, c, gs, block.cost, block.count)
-        })
+    // The SUs by segment (their motion rows read the same terms), in the SUs' order.
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut group_of = std::collections::HashMap::new();
+    for (i, &u) in spec.sus.iter().enumerate() {
+        let g = *group_of.entry(layout.su_segment[u]).or_insert_with(|| {
+            groups.push(Vec::new());
+            groups.len() - 1
+        });
+        groups[g].push(i);
+    }
+    let mut parts: Vec<(usize, NormalPart)> = groups
+        .par_iter()
+        .flat_map_iter(|group| group.iter().copied().zip(blocks.normals(group)))
         .collect();
+    parts.sort_by_key(|(i, _)| *i);
     let mut c = DMatrix::zeros(m, m);
     let mut gs = DVector::zeros(m);
     let (mut cost, mut rows) = (0.0, 0);
@@ -987,7 +1133,7 @@ pub(super) fn normal_system(
         rows += 3;
     }
     let mut sus = Vec::with_capacity(parts.len());
-    for (su, ci, gi, cost_i, rows_i) in parts {
+    for (_, (su, ci, gi, cost_i, rows_i)) in parts {
         c += ci;
         gs += gi;
         cost += cost_i;
@@ -1049,6 +1195,17 @@ pub(super) fn information(normal: &Normal, map: &ColumnMap) -> DMatrix<f64> {
         }
     }
     f
+}
+
+/// The gradient `Jᵀr` (columns in `spec.columns()` order) of a normal system.
+pub(super) fn gradient(normal: &Normal, map: &ColumnMap) -> DVector<f64> {
+    DVector::from_iterator(
+        map.slots.len(),
+        map.slots.iter().map(|slot| match *slot {
+            Slot::Shared(a) => normal.gs[a],
+            Slot::Own(u, a) => normal.sus[u].go[a],
+        }),
+    )
 }
 
 /// `|r|²` at a state.
@@ -1207,7 +1364,8 @@ pub(super) fn motion_sums(
     out
 }
 
-/// Residuals and the dense Jacobian (columns in `spec.columns()` order, rows SU by SU).
+/// Residuals and the dense Jacobian (columns in `spec.columns()` order; rows SU by SU, then the
+/// joints' priors).
 pub(super) fn dense_problem(
     state: &ChainState,
     layout: &Layout,
@@ -1218,7 +1376,8 @@ pub(super) fn dense_problem(
     let map = ColumnMap::new(spec);
     let inputs = Blocks::new(state, layout, data, spec, &map, sigma, true);
     let blocks: Vec<SuBlock> = (0..spec.sus.len()).map(|i| inputs.block(i)).collect();
-    let rows: usize = blocks.iter().map(|b| b.r.len()).sum();
+    let priors = joint_priors(state, data, spec, &map);
+    let rows: usize = blocks.iter().map(|b| b.r.len()).sum::<usize>() + 3 * priors.len();
     let mut r = DVector::zeros(rows);
     let mut jac = DMatrix::zeros(rows, map.slots.len());
     let mut row = 0;
@@ -1237,6 +1396,21 @@ pub(super) fn dense_problem(
             }
         }
         row += n;
+    }
+    let shared_at: Vec<usize> = map
+        .slots
+        .iter()
+        .enumerate()
+        .filter(|(_, slot)| matches!(slot, Slot::Shared(_)))
+        .map(|(col, _)| col)
+        .collect();
+    for (columns, jacobian, residual) in priors {
+        r.fixed_rows_mut::<3>(row).copy_from(&residual);
+        for (k, &c) in columns.iter().enumerate() {
+            jac.fixed_view_mut::<3, 1>(row, shared_at[c])
+                .copy_from(&jacobian.column(k));
+        }
+        row += 3;
     }
     (r, jac)
 }
@@ -1803,7 +1977,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     #[test]
-    fn products_by_column_range_equal_the_dense_products() {
+    fn products_by_column_range_and_on_one_range_equal_the_dense_products() {
         // A block shaped like a chain's: each reading sees a range of the shared columns (a
         // staircase), some readings none, some rows rejected (zero), a few own columns.
         let mut rng = ChaCha8Rng::seed_from_u64(7);
@@ -1827,13 +2001,14 @@ mod tests {
                 }
             }
         }
-        let (su, c, gs) = block.products();
         let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
         let close = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).amax() < 1e-12 * (1.0 + b.amax());
-        assert!(close(&c, &(&shared_t * &block.shared)));
-        assert!(close(&su.b, &(&own_t * &block.shared)));
-        assert!(close(&su.a, &(&own_t * &block.own)));
-        assert!((&gs - &shared_t * &block.r).amax() < 1e-12);
-        assert!((&su.go - &own_t * &block.r).amax() < 1e-12);
+        for (su, c, gs) in [block.products(), block.products_on_one_range()] {
+            assert!(close(&c, &(&shared_t * &block.shared)));
+            assert!(close(&su.b, &(&own_t * &block.shared)));
+            assert!(close(&su.a, &(&own_t * &block.own)));
+            assert!((&gs - &shared_t * &block.r).amax() < 1e-12);
+            assert!((&su.go - &own_t * &block.r).amax() < 1e-12);
+        }
     }
 }
