@@ -10,7 +10,7 @@
 //! SU blocks are eliminated and only the shared system is factorised, so an iteration costs time
 //! linear in the number of SUs and memory independent of the number of readings.
 
-use std::ops::{AddAssign, Range};
+use std::ops::Range;
 use std::sync::Arc;
 
 use nalgebra::{
@@ -690,6 +690,15 @@ struct SuBlock {
 }
 
 impl SuBlock {
+    /// Every row zero again, no cost.
+    fn clear(&mut self) {
+        self.r.as_mut_slice().fill(0.0);
+        self.own.as_mut_slice().fill(0.0);
+        self.shared.as_mut_slice().fill(0.0);
+        self.cost = 0.0;
+        self.count = 0;
+    }
+
     /// Adds one reading's cost to the block's and weighs its 3 rows from `at`: by its own
     /// deviation where it has one, and by the robust weight of its whitened norm. Returns the
     /// factor its Jacobian rows must take (0 for a rejected reading).
@@ -722,84 +731,84 @@ impl SuBlock {
 }
 
 impl SuBlock {
-    /// The block's pieces of the normal equations: its own `(A, B, g_o)`, `J_sᵀJ_s` and `J_sᵀr`.
+    /// Adds the block's pieces of the normal equations to `part`: its own `(A, B, g_o)`,
+    /// `J_sᵀJ_s` and `J_sᵀr`, its cost and its rows that count.
     ///
     /// Most rows see a few shared columns only (a dynamic reading of DoF `d` sees the joints
     /// between `d` and the SU), so the rows are grouped by the range of shared columns that is
     /// not zero in them and each group multiplied on its range alone. Products of transposes:
     /// nalgebra multiplies those by a blocked kernel (`matrixmultiply`), `tr_mul` by one dot
     /// product per entry.
-    fn products(&self) -> (SuNormal, DMatrix<f64>, DVector<f64>) {
-        let own_t = self.own.transpose();
-        let m = self.shared.ncols();
-        let mut c = DMatrix::zeros(m, m);
-        let mut b = DMatrix::zeros(self.own.ncols(), m);
-        let mut gs = DVector::zeros(m);
+    fn add_to(&self, part: &mut SuPart) {
         for ((lo, hi), rows) in self.shared_ranges() {
             let w = hi - lo;
             let j = self.shared.columns(lo, w).select_rows(&rows);
-            let o = self.own.select_rows(&rows);
+            let o_t = self.own.select_rows(&rows).transpose();
             let r = self.r.select_rows(&rows);
             let j_t = j.transpose();
-            c.view_mut((lo, lo), (w, w)).add_assign(&(&j_t * &j));
-            b.view_mut((0, lo), (self.own.ncols(), w))
-                .add_assign(&(o.transpose() * &j));
-            gs.rows_mut(lo, w).add_assign(&(&j_t * r));
+            part.c.view_mut((lo, lo), (w, w)).gemm(1.0, &j_t, &j, 1.0);
+            let n = self.own.ncols();
+            part.su.b.view_mut((0, lo), (n, w)).gemm(1.0, &o_t, &j, 1.0);
+            part.gs.rows_mut(lo, w).gemv(1.0, &j_t, &r, 1.0);
         }
-        let su = SuNormal {
-            a: &own_t * &self.own,
-            b,
-            go: &own_t * &self.r,
-        };
-        (su, c, gs)
+        self.add_own_to(part);
     }
 
-    /// [`SuBlock::products`] for rows that all see about the same shared columns (a motion
-    /// record's: the joints before the SU's segment, gravity, the delay): one product on the
-    /// range of shared columns not zero in any row, without grouping the rows.
-    fn products_on_one_range(&self) -> (SuNormal, DMatrix<f64>, DVector<f64>) {
+    /// [`SuBlock::add_to`] for rows that all see about the same shared columns (a motion
+    /// record's: the joints before the SU's segment, gravity, the delay): the range of shared
+    /// columns not zero in any row, without grouping the rows, entry by entry, each a dot
+    /// product of two columns (contiguous: the blocks are column-major), the symmetric ones
+    /// once. On a chunk's few hundred rows this is faster than a transposed copy and a blocked
+    /// product.
+    fn add_on_one_range_to(&self, part: &mut SuPart) {
         let (m, n) = (self.shared.ncols(), self.own.ncols());
         let nonzero = |k: &usize| self.shared.column(*k).iter().any(|x| *x != 0.0);
         let lo = (0..m).find(nonzero).unwrap_or(m);
         let hi = (lo..m).rev().find(nonzero).map_or(lo, |k| k + 1);
-        // Entry by entry, each a dot product of two columns (contiguous: the blocks are
-        // column-major), the symmetric ones once: on a chunk's few hundred rows this is faster
-        // than a transposed copy and a blocked product.
         let (shared, own) = (
             |k: usize| self.shared.column(k),
             |k: usize| self.own.column(k),
         );
-        let mut c = DMatrix::zeros(m, m);
-        let mut gs = DVector::zeros(m);
-        let mut b = DMatrix::zeros(n, m);
         for k in lo..hi {
             for l in k..hi {
                 let x = shared(k).dot(&shared(l));
-                c[(k, l)] = x;
-                c[(l, k)] = x;
+                part.c[(k, l)] += x;
+                if l != k {
+                    part.c[(l, k)] += x;
+                }
             }
-            gs[k] = shared(k).dot(&self.r);
+            part.gs[k] += shared(k).dot(&self.r);
             for o in 0..n {
-                b[(o, k)] = own(o).dot(&shared(k));
+                part.su.b[(o, k)] += own(o).dot(&shared(k));
             }
         }
-        let mut a = DMatrix::zeros(n, n);
-        let mut go = DVector::zeros(n);
-        for o in 0..n {
-            for p in o..n {
+        self.add_own_to(part);
+    }
+
+    /// Adds the products of the own columns (`A`, `g_o`), the cost and the count to `part`.
+    fn add_own_to(&self, part: &mut SuPart) {
+        let own = |k: usize| self.own.column(k);
+        for o in 0..self.own.ncols() {
+            for p in o..self.own.ncols() {
                 let x = own(o).dot(&own(p));
-                a[(o, p)] = x;
-                a[(p, o)] = x;
+                part.su.a[(o, p)] += x;
+                if p != o {
+                    part.su.a[(p, o)] += x;
+                }
             }
-            go[o] = own(o).dot(&self.r);
+            part.su.go[o] += own(o).dot(&self.r);
         }
-        (SuNormal { a, b, go }, c, gs)
+        part.cost += self.cost;
+        part.count += self.count;
     }
 
     /// The rows with a shared column not zero, grouped by the range of such columns
     /// (`lo..hi`), in the order of the ranges.
     fn shared_ranges(&self) -> std::collections::BTreeMap<(usize, usize), Vec<usize>> {
         let rows = self.shared.nrows();
+        // Rows sorted by the first and last of their shared columns not zero. Through the
+        // columns in order: a row's first is where its `lo` is first set, its last where `hi`
+        // was set last.
         let (mut lo, mut hi) = (vec![usize::MAX; rows], vec![0; rows]);
         for (k, column) in self.shared.column_iter().enumerate() {
             for ((x, lo), hi) in column.iter().zip(&mut lo).zip(&mut hi) {
@@ -926,21 +935,21 @@ impl<'a> Blocks<'a> {
         })
     }
 
-    /// The pieces of the normal equations ([`SuBlock::products`]), the cost and the rows that
-    /// count of SUs `spec.sus[i]`, `i` in `group` (SUs of one segment). A motion record's rows are
-    /// taken [`MOTION_CHUNK`] samples at a time, every SU of the group in turn: the same sums as
-    /// one block of every row, without a block of a whole record's rows per SU (a minute at
-    /// 100 Hz is 18 000 rows) written and read back through memory, and with the segment's terms
-    /// at those samples read from memory once for all its SUs.
-    fn normals(&self, group: &[usize]) -> Vec<NormalPart> {
-        let mut parts: Vec<NormalPart> = group
+    /// The pieces of the normal equations of SUs `spec.sus[i]`, `i` in `group` (SUs of one
+    /// segment): the pose rows and the priors of each SU as one block, then a motion record's
+    /// rows [`MOTION_CHUNK`] samples at a time, every SU of the group in turn. The same sums as
+    /// one block of all the SU's rows, without a block of a whole record's rows (a minute at
+    /// 100 Hz is 18 000 rows per SU) written and read back through memory, and with the
+    /// segment's terms at those samples read once for all its SUs.
+    fn normals(&self, group: &[usize]) -> Vec<SuPart> {
+        let shared = self.map.shared.len();
+        let mut parts: Vec<SuPart> = group
             .iter()
-            .map(|&i| {
-                let block = self.block_with(i, false);
-                let (su, c, gs) = block.products();
-                (su, c, gs, block.cost, block.count)
-            })
+            .map(|&i| SuPart::zeros(self.map.own[i].len(), shared))
             .collect();
+        for (&i, part) in group.iter().zip(&mut parts) {
+            self.block_with(i, false).add_to(part);
+        }
         let motions: Vec<MotionRows> = group
             .iter()
             .filter_map(|&i| self.motion_rows(i, 0))
@@ -964,9 +973,7 @@ impl<'a> Blocks<'a> {
                 .zip(&mut chunks)
                 .zip(&mut parts)
             {
-                chunk.r.as_mut_slice().fill(0.0);
-                chunk.own.as_mut_slice().fill(0.0);
-                chunk.shared.as_mut_slice().fill(0.0);
+                chunk.clear();
                 let SuBlock { r, own, shared, .. } = chunk;
                 let (cost, count) = rows.fill(
                     self.state,
@@ -975,14 +982,9 @@ impl<'a> Blocks<'a> {
                     r,
                     Some((own, shared)),
                 );
-                let (su, c, gs) = chunk.products_on_one_range();
-                part.0.a += su.a;
-                part.0.b += su.b;
-                part.0.go += su.go;
-                part.1 += c;
-                part.2 += gs;
-                part.3 += cost;
-                part.4 += count;
+                chunk.cost = cost;
+                chunk.count = count;
+                chunk.add_on_one_range_to(part);
             }
         }
         parts
@@ -1066,8 +1068,31 @@ impl<'a> Blocks<'a> {
     }
 }
 
-/// Per SU: its own pieces, `J_sᵀJ_s`, `J_sᵀr`, `|r|²` and the number of residuals.
-type NormalPart = (SuNormal, DMatrix<f64>, DVector<f64>, f64, usize);
+/// One SU's share of the normal equations: its own pieces, `J_sᵀJ_s`, `J_sᵀr`, `|r|²` and the
+/// number of residuals that count.
+struct SuPart {
+    su: SuNormal,
+    c: DMatrix<f64>,
+    gs: DVector<f64>,
+    cost: f64,
+    count: usize,
+}
+
+impl SuPart {
+    fn zeros(own: usize, shared: usize) -> Self {
+        Self {
+            su: SuNormal {
+                a: DMatrix::zeros(own, own),
+                b: DMatrix::zeros(own, shared),
+                go: DVector::zeros(own),
+            },
+            c: DMatrix::zeros(shared, shared),
+            gs: DVector::zeros(shared),
+            cost: 0.0,
+            count: 0,
+        }
+    }
+}
 
 /// The motion samples whose rows [`Blocks::normal`] fills and multiplies at a time.
 const MOTION_CHUNK: usize = 64;
@@ -1114,7 +1139,7 @@ pub(super) fn normal_system(
         });
         groups[g].push(i);
     }
-    let mut parts: Vec<(usize, NormalPart)> = groups
+    let mut parts: Vec<(usize, SuPart)> = groups
         .par_iter()
         .flat_map_iter(|group| group.iter().copied().zip(blocks.normals(group)))
         .collect();
@@ -1133,12 +1158,12 @@ pub(super) fn normal_system(
         rows += 3;
     }
     let mut sus = Vec::with_capacity(parts.len());
-    for (_, (su, ci, gi, cost_i, rows_i)) in parts {
-        c += ci;
-        gs += gi;
-        cost += cost_i;
-        rows += rows_i;
-        sus.push(su);
+    for (_, part) in parts {
+        c += part.c;
+        gs += part.gs;
+        cost += part.cost;
+        rows += part.count;
+        sus.push(part.su);
     }
     Normal {
         sus,
@@ -2003,7 +2028,11 @@ mod tests {
         }
         let (own_t, shared_t) = (block.own.transpose(), block.shared.transpose());
         let close = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).amax() < 1e-12 * (1.0 + b.amax());
-        for (su, c, gs) in [block.products(), block.products_on_one_range()] {
+        let (m, n) = (block.shared.ncols(), block.own.ncols());
+        let (mut grouped, mut one_range) = (SuPart::zeros(n, m), SuPart::zeros(n, m));
+        block.add_to(&mut grouped);
+        block.add_on_one_range_to(&mut one_range);
+        for SuPart { su, c, gs, .. } in [grouped, one_range] {
             assert!(close(&c, &(&shared_t * &block.shared)));
             assert!(close(&su.b, &(&own_t * &block.shared)));
             assert!(close(&su.a, &(&own_t * &block.own)));
