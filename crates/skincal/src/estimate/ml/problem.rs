@@ -1094,8 +1094,11 @@ impl SuPart {
     }
 }
 
-/// The motion samples whose rows [`Blocks::normal`] fills and multiplies at a time.
+/// The motion samples whose rows [`Blocks::normals`] fills and multiplies at a time.
 const MOTION_CHUNK: usize = 64;
+
+/// The SUs of one segment whose normal equations [`Blocks::normals`] forms together at most.
+const SU_GROUP: usize = 8;
 
 /// One SU's pieces of the normal equations: `A = J_oᵀJ_o`, `B = J_oᵀJ_s`, `g_o = J_oᵀr`.
 #[derive(Debug, Clone)]
@@ -1129,16 +1132,21 @@ pub(super) fn normal_system(
 ) -> Normal {
     let blocks = Blocks::new(state, layout, data, spec, map, sigma, true);
     let m = map.shared.len();
-    // The SUs by segment (their motion rows read the same terms), in the SUs' order.
-    let mut groups: Vec<Vec<usize>> = Vec::new();
+    // The SUs by segment (their motion rows read the same terms), in the SUs' order, at most
+    // [`SU_GROUP`] together (a segment of many SUs still shares out among the threads).
+    let mut by_segment: Vec<Vec<usize>> = Vec::new();
     let mut group_of = std::collections::HashMap::new();
     for (i, &u) in spec.sus.iter().enumerate() {
         let g = *group_of.entry(layout.su_segment[u]).or_insert_with(|| {
-            groups.push(Vec::new());
-            groups.len() - 1
+            by_segment.push(Vec::new());
+            by_segment.len() - 1
         });
-        groups[g].push(i);
+        by_segment[g].push(i);
     }
+    let groups: Vec<&[usize]> = by_segment
+        .iter()
+        .flat_map(|sus| sus.chunks(SU_GROUP))
+        .collect();
     let mut parts: Vec<(usize, SuPart)> = groups
         .par_iter()
         .flat_map_iter(|group| group.iter().copied().zip(blocks.normals(group)))
