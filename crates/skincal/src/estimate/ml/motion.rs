@@ -498,17 +498,17 @@ fn sudden_limits(record: &MotionRecord, dofs: &[usize]) -> Vec<f64> {
         .collect()
 }
 
-/// The segment terms of every sample at `state`, for segments `1..=last`; with `columns` (the
+/// The segment terms of `samples` at `state`, for segments `1..=last`; with `columns` (the
 /// shared columns of the problem: block and component), their derivatives too.
 pub(super) fn segment_terms(
     state: &ChainState,
     motion: &LimbMotion,
     last: usize,
     columns: Option<&[(Block, usize)]>,
+    samples: std::ops::Range<usize>,
 ) -> Vec<SegmentTerms> {
     let chain = Chain::new(state, &motion.kinds, columns);
-    motion
-        .samples
+    motion.samples[samples]
         .par_iter()
         .map(|sample| {
             let instant = [Instant::new(&sample.qd, &sample.qdd, true)];

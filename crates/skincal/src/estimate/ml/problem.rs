@@ -400,24 +400,24 @@ fn pose_terms(
 }
 
 /// The motion rows' segment terms at `state` for the SUs of `spec` (with their derivatives along
-/// the shared columns when `jacobian`); `None` without a motion record.
+/// the shared columns when `jacobian`), at `samples` of `motion`.
 fn motion_terms(
     state: &ChainState,
     layout: &Layout,
-    data: &Readings,
     spec: &Spec,
     map: &ColumnMap,
     jacobian: bool,
-) -> Option<Vec<SegmentTerms>> {
-    let motion = data.motion.as_ref()?;
+    (motion, samples): (&LimbMotion, Range<usize>),
+) -> Vec<SegmentTerms> {
     let last = last_segment(layout, spec);
     let columns = shared_columns(spec, map);
-    Some(segment_terms(
+    segment_terms(
         state,
         motion,
         last,
         jacobian.then_some(columns.as_slice()),
-    ))
+        samples,
+    )
 }
 
 /// What an SU's rows need of its state: its intrinsics, `Rᵀ` and `K Rᵀ` of its rotation on its
@@ -576,7 +576,9 @@ struct MotionRows<'a> {
     spec: &'a Spec,
     map: &'a ColumnMap,
     motion: &'a LimbMotion,
+    /// The segment terms of samples `first..first + terms.len()` of the record.
     terms: &'a [SegmentTerms],
+    first: usize,
     /// The SU, its place in `spec.sus`, and its segment's entry in the terms (segment − 1).
     u: usize,
     i: usize,
@@ -586,10 +588,11 @@ struct MotionRows<'a> {
 }
 
 impl MotionRows<'_> {
-    /// Fills the SU's motion rows of `samples` (from row `at`, 3 per sample) of `r` (and of its
-    /// Jacobian blocks `(own, shared)` when given): `(K Rᵀ (c + N p) + b − measured) / sd` per
-    /// sample, Huber-weighted, with `predicted` ([`MotionRows::predicted`]) the first part.
-    /// Returns the cost and the number of rows that count.
+    /// Fills the SU's motion rows of `samples` (within the terms' samples; from row `at`, 3 per
+    /// sample) of `r` (and of its Jacobian blocks `(own, shared)` when given):
+    /// `(K Rᵀ (c + N p) + b − measured) / sd` per sample, Huber-weighted, with `predicted`
+    /// ([`MotionRows::predicted`]) the first part. Returns the cost and the number of rows that
+    /// count.
     fn fill(
         &self,
         state: &ChainState,
@@ -606,19 +609,14 @@ impl MotionRows<'_> {
             .shared
             .iter()
             .position(|&(b, _)| self.spec.blocks[b] == Block::SkinDelay);
-        for (j, terms) in self
-            .terms
-            .iter()
-            .enumerate()
-            .take(samples.end)
-            .skip(samples.start)
-        {
+        for j in samples.clone() {
+            let terms = &self.terms[j - self.first];
             let row = self.at + 3 * (j - samples.start);
             let Some(measured) = motion.measured(u, j, state.skin_delay) else {
                 continue;
             };
             let sd = motion.residual_sd(u, j);
-            let residual = (predicted[j] - measured) / sd;
+            let residual = (predicted[j - self.first] - measured) / sd;
             let (w, c) = data.robust(residual.norm());
             cost += c;
             count += 3;
@@ -648,7 +646,7 @@ impl MotionRows<'_> {
         (cost, count)
     }
 
-    /// What the SU is predicted to read at every sample of the record.
+    /// What the SU is predicted to read at every sample of the terms.
     fn predicted(&self, state: &ChainState) -> Vec<Vector3<f64>> {
         let su = SuFrame::new(state, self.u);
         self.terms
@@ -658,14 +656,15 @@ impl MotionRows<'_> {
     }
 
     /// The rate of `predicted` at sample `j`: a central difference where both neighbouring
-    /// blocks are in its run, one-sided at a run's end, zero for a run of one block.
+    /// blocks are in its run, one-sided at a run's end, zero for a run of one block. The
+    /// neighbours must be among the terms' samples where the record has them.
     fn rate(&self, predicted: &[Vector3<f64>], j: usize) -> Vector3<f64> {
-        let motion = self.motion;
+        let (motion, first) = (self.motion, self.first);
         let rate = |a: usize, b: usize| {
-            (predicted[b] - predicted[a]) / (motion.spacing() * (b - a) as f64)
+            (predicted[b - first] - predicted[a - first]) / (motion.spacing() * (b - a) as f64)
         };
         let before = (j > 0 && motion.adjacent(j - 1, j)).then(|| j - 1);
-        let after = (j + 1 < predicted.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
+        let after = (j + 1 < motion.len() && motion.adjacent(j, j + 1)).then(|| j + 1);
         match (before, after) {
             (Some(a), Some(b)) => rate(a, b),
             (Some(a), None) => rate(a, j),
@@ -842,6 +841,10 @@ struct Blocks<'a> {
 }
 
 impl<'a> Blocks<'a> {
+    /// The blocks at `state`, with the segment terms of every sample of a motion record when
+    /// `whole_record` (else the motion rows are formed a window at a time:
+    /// [`Blocks::add_motion`]).
+    #[allow(clippy::too_many_arguments)]
     fn new(
         state: &'a ChainState,
         layout: &'a Layout,
@@ -850,7 +853,18 @@ impl<'a> Blocks<'a> {
         map: &'a ColumnMap,
         sigma: f64,
         jacobian: bool,
+        whole_record: bool,
     ) -> Self {
+        let terms = data.motion.as_ref().filter(|_| whole_record).map(|motion| {
+            motion_terms(
+                state,
+                layout,
+                spec,
+                map,
+                jacobian,
+                (motion, 0..motion.len()),
+            )
+        });
         Self {
             state,
             layout,
@@ -860,7 +874,7 @@ impl<'a> Blocks<'a> {
             sigma,
             jacobian,
             poses: pose_terms(state, layout, data, spec, map, jacobian),
-            terms: motion_terms(state, layout, data, spec, map, jacobian),
+            terms,
         }
     }
 
@@ -875,7 +889,11 @@ impl<'a> Blocks<'a> {
         let s = self.layout.su_segment[u];
         let priors = self.prior_columns(i);
         let pose_rows = 3 * (1 + s) * self.data.q.len();
-        let motion = self.motion_rows(i, pose_rows).filter(|_| with_motion);
+        let motion = self
+            .terms
+            .as_deref()
+            .and_then(|terms| self.motion_rows(i, pose_rows, (terms, 0)))
+            .filter(|_| with_motion);
         let motion_rows = motion.as_ref().map_or(0, |m| 3 * m.motion.len());
         let mut block = self.zeros(i, pose_rows + motion_rows + priors.len());
         let su = SuFrame::new(self.state, u);
@@ -919,15 +937,22 @@ impl<'a> Blocks<'a> {
         }
     }
 
-    /// The motion rows of SU `spec.sus[i]` from row `at`, when the readings hold a record.
-    fn motion_rows(&self, i: usize, at: usize) -> Option<MotionRows<'_>> {
-        let (motion, terms) = (self.data.motion.as_deref()?, self.terms.as_deref()?);
+    /// The motion rows of SU `spec.sus[i]` from row `at`, when the readings hold a record, on
+    /// the segment terms of its samples `first..first + terms.len()`.
+    fn motion_rows<'t>(
+        &'t self,
+        i: usize,
+        at: usize,
+        (terms, first): (&'t [SegmentTerms], usize),
+    ) -> Option<MotionRows<'t>> {
+        let motion = self.data.motion.as_deref()?;
         let u = self.spec.sus[i];
         Some(MotionRows {
             spec: self.spec,
             map: self.map,
             motion,
             terms,
+            first,
             u,
             i,
             segment: self.layout.su_segment[u] - 1,
@@ -935,28 +960,37 @@ impl<'a> Blocks<'a> {
         })
     }
 
-    /// The pieces of the normal equations of SUs `spec.sus[i]`, `i` in `group` (SUs of one
-    /// segment): the pose rows and the priors of each SU as one block, then a motion record's
-    /// rows [`MOTION_CHUNK`] samples at a time, every SU of the group in turn. The same sums as
-    /// one block of all the SU's rows, without a block of a whole record's rows (a minute at
-    /// 100 Hz is 18 000 rows per SU) written and read back through memory, and with the
-    /// segment's terms at those samples read once for all its SUs.
-    fn normals(&self, group: &[usize]) -> Vec<SuPart> {
-        let shared = self.map.shared.len();
-        let mut parts: Vec<SuPart> = group
+    /// The pieces of the normal equations of the pose rows and the priors of SUs `spec.sus[i]`,
+    /// `i` in `group`, each SU's as one block.
+    fn pose_parts(&self, group: &[usize]) -> Vec<SuPart> {
+        group
             .iter()
-            .map(|&i| SuPart::zeros(self.map.own[i].len(), shared))
-            .collect();
-        for (&i, part) in group.iter().zip(&mut parts) {
-            self.block_with(i, false).add_to(part);
-        }
+            .map(|&i| {
+                let mut part = SuPart::zeros(self.map.own[i].len(), self.map.shared.len());
+                self.block_with(i, false).add_to(&mut part);
+                part
+            })
+            .collect()
+    }
+
+    /// Adds to `parts` the motion rows of `samples` of SUs `spec.sus[i]`, `i` in `group` (SUs of
+    /// one segment), from `window`: the segment terms of samples `first..first + terms.len()`
+    /// (one more on each side of `samples` where the record has it, for the delay's rate).
+    /// [`MOTION_CHUNK`] samples at a time, every SU of the group in turn: the same sums as one
+    /// block of all the SU's rows, without a block of a whole record's rows (a minute at 100 Hz
+    /// is 18 000 rows per SU) written and read back through memory, and with the segment's terms
+    /// at those samples read once for all its SUs.
+    fn add_motion(
+        &self,
+        group: &[usize],
+        parts: &mut [SuPart],
+        window: (&[SegmentTerms], usize),
+        samples: Range<usize>,
+    ) {
         let motions: Vec<MotionRows> = group
             .iter()
-            .filter_map(|&i| self.motion_rows(i, 0))
+            .filter_map(|&i| self.motion_rows(i, 0, window))
             .collect();
-        let Some(samples) = motions.first().map(|rows| rows.motion.len()) else {
-            return parts;
-        };
         let predicted: Vec<Vec<Vector3<f64>>> = motions
             .iter()
             .map(|rows| rows.predicted(self.state))
@@ -965,13 +999,13 @@ impl<'a> Blocks<'a> {
             .iter()
             .map(|&i| self.zeros(i, 3 * MOTION_CHUNK))
             .collect();
-        for lo in (0..samples).step_by(MOTION_CHUNK) {
-            let range = lo..(lo + MOTION_CHUNK).min(samples);
+        for lo in samples.clone().step_by(MOTION_CHUNK) {
+            let range = lo..(lo + MOTION_CHUNK).min(samples.end);
             for (((rows, predicted), chunk), part) in motions
                 .iter()
                 .zip(&predicted)
                 .zip(&mut chunks)
-                .zip(&mut parts)
+                .zip(parts.iter_mut())
             {
                 chunk.clear();
                 let SuBlock { r, own, shared, .. } = chunk;
@@ -987,7 +1021,6 @@ impl<'a> Blocks<'a> {
                 chunk.add_on_one_range_to(part);
             }
         }
-        parts
     }
 
     /// The free intrinsics of SU `spec.sus[i]` (and its position's components under a gauge
@@ -1094,10 +1127,13 @@ impl SuPart {
     }
 }
 
-/// The motion samples whose rows [`Blocks::normals`] fills and multiplies at a time.
+/// The motion samples whose rows [`Blocks::add_motion`] fills and multiplies at a time.
 const MOTION_CHUNK: usize = 64;
 
-/// The SUs of one segment whose normal equations [`Blocks::normals`] forms together at most.
+/// The motion samples whose segment terms [`normal_system`] holds at a time.
+const MOTION_WINDOW: usize = 512;
+
+/// The SUs of one segment whose motion rows [`Blocks::add_motion`] forms together at most.
 const SU_GROUP: usize = 8;
 
 /// One SU's pieces of the normal equations: `A = J_oᵀJ_o`, `B = J_oᵀJ_s`, `g_o = J_oᵀr`.
@@ -1130,7 +1166,7 @@ pub(super) fn normal_system(
     map: &ColumnMap,
     sigma: f64,
 ) -> Normal {
-    let blocks = Blocks::new(state, layout, data, spec, map, sigma, true);
+    let blocks = Blocks::new(state, layout, data, spec, map, sigma, true, false);
     let m = map.shared.len();
     // The SUs by segment (their motion rows read the same terms), in the SUs' order, at most
     // [`SU_GROUP`] together (a segment of many SUs still shares out among the threads).
@@ -1147,9 +1183,25 @@ pub(super) fn normal_system(
         .iter()
         .flat_map(|sus| sus.chunks(SU_GROUP))
         .collect();
+    let mut by_group: Vec<Vec<SuPart>> = groups.par_iter().map(|g| blocks.pose_parts(g)).collect();
+    // A motion record's rows a window of samples at a time: the segment terms (with their rates,
+    // kilobytes per sample) of one window held at once, not of the whole record.
+    if let Some(motion) = data.motion.as_deref() {
+        for lo in (0..motion.len()).step_by(MOTION_WINDOW) {
+            let hi = (lo + MOTION_WINDOW).min(motion.len());
+            let first = lo.saturating_sub(1);
+            let reach = first..(hi + 1).min(motion.len());
+            let terms = motion_terms(state, layout, spec, map, true, (motion, reach));
+            groups
+                .par_iter()
+                .zip(by_group.par_iter_mut())
+                .for_each(|(g, parts)| blocks.add_motion(g, parts, (&terms, first), lo..hi));
+        }
+    }
     let mut parts: Vec<(usize, SuPart)> = groups
-        .par_iter()
-        .flat_map_iter(|group| group.iter().copied().zip(blocks.normals(group)))
+        .iter()
+        .zip(by_group)
+        .flat_map(|(g, parts)| g.iter().copied().zip(parts))
         .collect();
     parts.sort_by_key(|(i, _)| *i);
     let mut c = DMatrix::zeros(m, m);
@@ -1262,7 +1314,7 @@ pub(super) fn cost_and_rows(
     map: &ColumnMap,
     sigma: f64,
 ) -> (f64, usize) {
-    let blocks = Blocks::new(state, layout, data, spec, map, sigma, false);
+    let blocks = Blocks::new(state, layout, data, spec, map, sigma, false, true);
     let priors = joint_priors(state, data, spec, map);
     let prior_cost: f64 = priors.iter().map(|(_, _, r)| r.norm_squared()).sum();
     // Summed in SU order: a parallel sum adds in the order its threads happened to split the
@@ -1342,7 +1394,7 @@ pub(super) fn reading_norms(
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false);
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, true);
     let blocks: Vec<(usize, SuBlock)> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| (spec.sus[i], inputs.block(i)))
@@ -1377,7 +1429,7 @@ pub(super) fn motion_sums(
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false);
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, true);
     let sums: Vec<(usize, (f64, usize))> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
@@ -1407,7 +1459,7 @@ pub(super) fn dense_problem(
     sigma: f64,
 ) -> (DVector<f64>, DMatrix<f64>) {
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, data, spec, &map, sigma, true);
+    let inputs = Blocks::new(state, layout, data, spec, &map, sigma, true, true);
     let blocks: Vec<SuBlock> = (0..spec.sus.len()).map(|i| inputs.block(i)).collect();
     let priors = joint_priors(state, data, spec, &map);
     let rows: usize = blocks.iter().map(|b| b.r.len()).sum::<usize>() + 3 * priors.len();
