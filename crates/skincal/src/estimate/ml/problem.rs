@@ -837,6 +837,8 @@ struct Blocks<'a> {
     sigma: f64,
     jacobian: bool,
     poses: Vec<Vec<SegmentTerms>>,
+    /// The motion rows' terms at every sample of the record; `None` without a record, or when
+    /// the rows are formed a window at a time ([`Blocks::add_motion`], [`normal_system`]).
     terms: Option<Vec<SegmentTerms>>,
 }
 
