@@ -51,13 +51,20 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
     record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {})?;
     let config = IngestConfig::default();
+    // Each stage's peak memory apart (the simulator's log is written to disk as it goes).
+    crate::reset_peak_memory();
     let started = Instant::now();
     let set = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?.measurements;
     let ingest_s = started.elapsed().as_secs_f64();
+    let ingest_mb = crate::peak_memory_mb();
+    crate::reset_peak_memory();
     let started = Instant::now();
     let motion = motion_record(&[log], &set.dofs, &set.sus, &config, &mut |_, _, _| {})?;
     let record_s = started.elapsed().as_secs_f64();
+    let record_mb = crate::peak_memory_mb();
+    crate::reset_peak_memory();
     let fits = Fits::of(&robot, &set, &motion, args.threads)?;
+    let fits_mb = crate::peak_memory_mb();
     let held_out = simulate(
         &robot,
         &SimulationConfig {
@@ -86,12 +93,11 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
         motion.period * 1e3,
         args.threads
     );
-    let peak = crate::peak_memory_mb();
     let row = Row {
         times: [ingest_s, record_s, fits.readings_s, fits.samples_s],
         blocks,
         held_out: [r.static_rms, r.dynamic_rms, s.static_rms, s.dynamic_rms],
-        peak,
+        peaks: [ingest_mb, record_mb, fits_mb],
     };
     row.print();
     out::json(&serde_json::json!({
@@ -108,7 +114,11 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
             "readings": [r.static_rms, r.dynamic_rms],
             "samples": [s.static_rms, s.dynamic_rms],
         },
-        "peak_mb": peak,
+        "peak_mb": {
+            "ingest": ingest_mb,
+            "record": record_mb,
+            "fits": fits_mb,
+        },
     }));
     Ok(())
 }
@@ -161,18 +171,20 @@ impl Fits {
 }
 
 /// The table's one row: ingest, record, readings' fit and samples' fit times (s), the blocks
-/// fitted, the held-out static and dynamic RMS of both fits (m/s²) and the peak memory (MB).
+/// fitted, the held-out static and dynamic RMS of both fits (m/s²) and the peak memory (MB) of
+/// the ingest, the record's pass and the fits (each stage's own peak, what the stages before it
+/// left included).
 struct Row {
     times: [f64; 4],
     blocks: usize,
     held_out: [f64; 4],
-    peak: f64,
+    peaks: [f64; 3],
 }
 
 impl Row {
     fn print(&self) {
         outln!(
-            "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>9}",
+            "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>10} {:>10} {:>8}",
             "ingest s",
             "record s",
             "readings s",
@@ -182,12 +194,14 @@ impl Row {
             "readings dyn",
             "samples stat",
             "samples dyn",
-            "peak MB"
+            "ingest MB",
+            "record MB",
+            "fits MB"
         );
         let [ingest, record, readings, samples] = self.times;
         let [rs, rd, ss, sd] = self.held_out;
         outln!(
-            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>9.0}",
+            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>10.0} {:>10.0} {:>8.0}",
             ingest,
             record,
             readings,
@@ -197,7 +211,9 @@ impl Row {
             rd,
             ss,
             sd,
-            self.peak
+            self.peaks[0],
+            self.peaks[1],
+            self.peaks[2]
         );
     }
 }

@@ -50,47 +50,62 @@ const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_7;
 /// would otherwise weigh its still blocks without bound.
 pub const NOISE_FLOOR: f64 = 1e-4;
 
-/// One SU's fresh samples, summed per block: `[Σx, Σy, Σz, n]`.
+/// One SU's samples: what it sent last and their count.
 #[derive(Default)]
-struct SkinBlocks {
-    sums: Vec<[f64; 4]>,
+struct SkinSeries {
     last: Option<[f64; 3]>,
     count: SampleCounter,
-}
-
-impl SkinBlocks {
-    /// Takes sample `a` stamped `stamp` (`usable`: finite and within range) of block `block`.
-    fn add(&mut self, block: usize, stamp: f64, a: [f64; 3], usable: bool) {
-        let repeat = self.last == Some(a);
-        self.count.add(stamp, usable, repeat);
-        if !usable || repeat {
-            // A repeat is exactly the sample before: a slower board's value held by its port.
-            return;
-        }
-        self.last = Some(a);
-        if self.sums.len() <= block {
-            self.sums.resize(block + 1, [0.0; 4]);
-        }
-        let s = &mut self.sums[block];
-        s[0] += a[0];
-        s[1] += a[1];
-        s[2] += a[2];
-        s[3] += 1.0;
-    }
-
-    fn mean(&self, block: usize) -> Option<[f64; 3]> {
-        let s = self.sums.get(block)?;
-        (s[3] > 0.0).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
-    }
 }
 
 /// What one pass over a log gathers: every DoF's joint states and the skin's block sums.
 struct Gathered {
     /// `(stamp, position)` per DoF, in stamp order.
     joints: Vec<Vec<(f64, f64)>>,
-    skin: Vec<SkinBlocks>,
+    skin: Vec<SkinSeries>,
+    /// `sums[block][u]`: `[Σx, Σy, Σz, n]` of SU `u`'s fresh samples in the block. Block-major,
+    /// so that the record's runs take them a block at a time and free each as they go: a minute
+    /// of 100 SUs is 20 MB, and is not held twice.
+    sums: Vec<Vec<[f64; 4]>>,
     /// The first stamp of the log (block 0 starts there).
     origin: f64,
+}
+
+impl Gathered {
+    /// Takes sample `a` of SU `u` stamped `stamp` (`usable`: finite and within range) of block
+    /// `block`.
+    fn add_skin(&mut self, u: usize, block: usize, stamp: f64, a: [f64; 3], usable: bool) {
+        let series = &mut self.skin[u];
+        let repeat = series.last == Some(a);
+        series.count.add(stamp, usable, repeat);
+        if !usable || repeat {
+            // A repeat is exactly the sample before: a slower board's value held by its port.
+            return;
+        }
+        series.last = Some(a);
+        if self.sums.len() <= block {
+            self.sums.resize_with(block + 1, Vec::new);
+        }
+        let row = &mut self.sums[block];
+        if row.is_empty() {
+            row.resize(self.skin.len(), [0.0; 4]);
+        }
+        let s = &mut row[u];
+        s[0] += a[0];
+        s[1] += a[1];
+        s[2] += a[2];
+        s[3] += 1.0;
+    }
+
+    /// Every SU's mean of block `block`, its sums freed.
+    fn take_means(&mut self, block: usize) -> Vec<Option<[f64; 3]>> {
+        let row = self.sums.get_mut(block).map(std::mem::take);
+        (0..self.skin.len())
+            .map(|u| {
+                let s = row.as_ref()?.get(u)?;
+                (s[3] > 0.0).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
+            })
+            .collect()
+    }
 }
 
 /// The logs whose every sample the time-domain fit takes, all in one base orientation: those with
@@ -136,7 +151,7 @@ pub fn motion_record_from(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
-    let gathered: Vec<Gathered> = logs
+    let mut gathered: Vec<Gathered> = logs
         .iter()
         .map(|log| gather(log, dofs, sus, config, progress))
         .collect::<Result<_, _>>()?;
@@ -156,7 +171,7 @@ pub fn motion_record_from(
         .collect();
     let mut runs = Vec::new();
     let mut samples = vec![SampleCount::default(); sus.len()];
-    for (log, gathered) in logs.iter().zip(&gathered) {
+    for (log, gathered) in logs.iter().zip(&mut gathered) {
         runs.extend(runs_of(log.path(), gathered, h, config));
         for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
             *total = total.plus(skin.count.count);
@@ -210,7 +225,8 @@ fn gather(
         .collect();
     let mut gathered = Gathered {
         joints: vec![Vec::new(); dofs.len()],
-        skin: (0..sus.len()).map(|_| SkinBlocks::default()).collect(),
+        skin: (0..sus.len()).map(|_| SkinSeries::default()).collect(),
+        sums: Vec::new(),
         origin: f64::NAN,
     };
     let total = source.size(Stream::Both);
@@ -246,7 +262,7 @@ fn gather(
                     let block = (stamp - gathered.origin) / BLOCK;
                     let usable = a.iter().all(|x| x.is_finite()) && !config.saturated(&a);
                     if let (Some(&u), true) = (su_index.get(frame_id), block >= 0.0) {
-                        gathered.skin[u].add(block as usize, stamp, a, usable);
+                        gathered.add_skin(u, block as usize, stamp, a, usable);
                     }
                 }
             }
@@ -263,7 +279,7 @@ fn gather(
 
 /// The runs of consecutive blocks at whose centres every DoF's local polynomial of half-width `h`
 /// can be fitted.
-fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> Vec<MotionRun> {
+fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) -> Vec<MotionRun> {
     let Some(last) = gathered
         .joints
         .iter()
@@ -302,6 +318,7 @@ fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> V
                 )
             })
             .collect();
+        let means = gathered.take_means(b);
         let Some(fitted) = fitted else {
             open = false;
             continue;
@@ -311,7 +328,7 @@ fn runs_of(path: &Path, gathered: &Gathered, h: f64, config: &IngestConfig) -> V
             open = true;
         }
         let run = runs.last_mut().expect("a run was opened");
-        run.push(&fitted, gathered.skin.iter().map(|s| s.mean(b)).collect());
+        run.push(&fitted, means);
     }
     runs.retain(|r| r.len() >= 3);
     for run in &mut runs {
@@ -513,10 +530,16 @@ fn rounded_acceleration_sd(weights: &[(f64, f64)], count: f64) -> f64 {
 /// Each block mean minus `1/24` of its second difference: the mean of a smooth signal over a block
 /// is its value at the centre plus `Δ²/24` of its second derivative. Blocks without both
 /// neighbours keep their mean.
+/// In place: only the raw means of the block before are kept aside (a copy of the whole record's
+/// skin would double the record stage's memory).
 fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
-    let means = skin.to_vec();
-    for b in 1..means.len().saturating_sub(1) {
-        skin[b] = correct_block(&means[b - 1], &means[b], &means[b + 1]);
+    let Some(first) = skin.first() else {
+        return;
+    };
+    let mut before = first.clone();
+    for b in 1..skin.len().saturating_sub(1) {
+        let corrected = correct_block(&before, &skin[b], &skin[b + 1]);
+        before = std::mem::replace(&mut skin[b], corrected);
     }
 }
 

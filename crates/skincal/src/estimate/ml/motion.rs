@@ -6,6 +6,8 @@
 //! Each sample is one instant of the chain's motion: its segments' terms and their derivatives
 //! come from the limb's one kinematics ([`super::terms`]), as the readings' do.
 
+use std::sync::Arc;
+
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 use rayon::prelude::*;
 
@@ -70,8 +72,9 @@ pub struct LimbMotion {
     filter: Option<SkinFilter>,
     pub(super) samples: Vec<MotionSample>,
     /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
-    /// [`SkinFilter`] where it has one.
-    skin: Vec<Vec<Vec<Option<Vector3<f64>>>>>,
+    /// [`SkinFilter`] where it has one. Shared by the limb's coarse and at-rest versions
+    /// ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]): a minute of 100 SUs is 20 MB.
+    skin: Arc<Vec<Vec<Vec<Option<Vector3<f64>>>>>>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
     /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
@@ -182,7 +185,7 @@ impl LimbMotion {
             stride,
             filter,
             samples,
-            skin,
+            skin: Arc::new(skin),
             sd,
             joint_var: Vec::new(),
             rounding,

@@ -1396,10 +1396,12 @@ pub(super) fn reading_norms(
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, true);
+    // The readings' rows alone: a motion record's rows are not readings, and every SU's block of
+    // them held at once would grow with the record (30 MB for two minutes of 100 SUs).
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, false);
     let blocks: Vec<(usize, SuBlock)> = (0..spec.sus.len())
         .into_par_iter()
-        .map(|i| (spec.sus[i], inputs.block(i)))
+        .map(|i| (spec.sus[i], inputs.block_with(i, false)))
         .collect();
     let mut out = vec![vec![Vec::new(); layout.su_segment.len()]; data.q.len()];
     for (u, block) in blocks {
