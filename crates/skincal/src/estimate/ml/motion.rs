@@ -60,6 +60,9 @@ impl MotionSample {
     }
 }
 
+/// One run's skin: `[u][block]`, `None` where the SU sent no sample in the block.
+type RunSkin = Vec<Vec<Option<Vector3<f64>>>>;
+
 /// A limb's share of a motion record: its DoFs (chain order) and SUs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
@@ -74,7 +77,7 @@ pub struct LimbMotion {
     /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
     /// [`SkinFilter`] where it has one. Shared by the limb's coarse and at-rest versions
     /// ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]): a minute of 100 SUs is 20 MB.
-    skin: Arc<Vec<Vec<Vec<Option<Vector3<f64>>>>>>,
+    skin: Arc<Vec<RunSkin>>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
     /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
