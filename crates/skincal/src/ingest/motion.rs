@@ -530,6 +530,7 @@ fn rounded_acceleration_sd(weights: &[(f64, f64)], count: f64) -> f64 {
 /// Each block mean minus `1/24` of its second difference: the mean of a smooth signal over a block
 /// is its value at the centre plus `Δ²/24` of its second derivative. Blocks without both
 /// neighbours keep their mean.
+///
 /// In place: only the raw means of the block before are kept aside (a copy of the whole record's
 /// skin would double the record stage's memory).
 fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
@@ -780,6 +781,39 @@ mod tests {
     /// arm holds still between short moves that start from rest (the speed below the still
     /// speed for a few blocks while the acceleration, and with it the reading, already grows):
     /// the noise comes out as the truth's, the moves' starts left out.
+    #[test]
+    fn undoing_the_block_averaging_gives_a_quadratics_value_at_each_centre() {
+        // The mean of t² over a block of width Δ about c is c² + Δ²/12, exactly: corrected by
+        // 1/24 of the means' second difference (2Δ² for t²), it is c². Each correction must read
+        // the raw neighbours, not the one corrected before it.
+        let delta = BLOCK;
+        let centre = |b: usize| (b as f64 + 0.5) * delta;
+        let mean = |b: usize| centre(b).powi(2) + delta * delta / 12.0;
+        let mut skin: Vec<Vec<Option<[f64; 3]>>> = (0..8)
+            .map(|b| vec![Some([mean(b), 2.0 * mean(b), -mean(b)]), Some([1.0; 3])])
+            .collect();
+        // SU 1 sent nothing in block 4: blocks 3–5 keep its mean.
+        skin[4][1] = None;
+        undo_block_averaging(&mut skin);
+        for (b, row) in skin.iter().enumerate() {
+            let m = row[0].unwrap();
+            let want = if b == 0 || b == 7 {
+                mean(b)
+            } else {
+                centre(b).powi(2)
+            };
+            for (got, scale) in m.iter().zip([1.0, 2.0, -1.0]) {
+                assert!(
+                    (got - scale * want).abs() < 1e-15,
+                    "block {b}: {got} for {}",
+                    scale * want
+                );
+            }
+            let constant = if b == 4 { None } else { Some([1.0; 3]) };
+            assert_eq!(row[1], constant, "block {b}");
+        }
+    }
+
     #[test]
     fn the_still_noise_is_the_skins_own_whatever_the_moves_that_start_from_rest() {
         use rand::SeedableRng;
