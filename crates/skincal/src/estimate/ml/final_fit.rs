@@ -472,7 +472,7 @@ pub(super) fn fit_with_intrinsics(
     final_spec: impl Fn(IntrinsicsModel) -> Spec,
     config: &MlConfig,
 ) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
-    let fit = |state: ChainState, spec: &Spec| refit(state, layout, readings, spec, config);
+    let fit = |from: (ChainState, f64), spec: &Spec| refit(from, layout, readings, spec, config);
     // A start for `model`'s `spec`: gravity at 9.81 m/s² when only its direction is free; when
     // the data choose the model, the intrinsics that `model` does not fit ideal (a start from an
     // earlier fit of a larger model keeps its biases, and the smaller model would be tested with
@@ -491,7 +491,8 @@ pub(super) fn fit_with_intrinsics(
         start
     };
     let spec = final_spec(IntrinsicsModel::None);
-    let mut solved = fit(from(&state, &spec, IntrinsicsModel::None), &spec);
+    let start = from(&state, &spec, IntrinsicsModel::None);
+    let mut solved = fit((start, problem::INITIAL_DAMPING), &spec);
     let mut iterations = solved.iterations;
     let (mut spec, mut model) = (spec, IntrinsicsModel::None);
     let mut tests = Vec::new();
@@ -533,7 +534,9 @@ pub(super) fn fit_with_intrinsics(
     let mut current = (solved.clone(), spec.clone(), model);
     for next in ladder {
         let next_spec = final_spec(next);
-        let larger = fit(from(&current.0.state, &next_spec, next), &next_spec);
+        // From the smaller model's solution: each larger model adds columns to it.
+        let start = from(&current.0.state, &next_spec, next);
+        let larger = fit((start, current.0.damping), &next_spec);
         iterations += larger.iterations;
         if config.select_intrinsics {
             let (before, after) = (current.1.columns().len(), next_spec.columns().len());
@@ -556,21 +559,23 @@ pub(super) fn fit_with_intrinsics(
     (solved, spec, model, tests, iterations)
 }
 
-/// The final fit's solve: from `state` to [`FINAL_TOLERANCE`].
+/// The final fit's solve: from `state` to [`FINAL_TOLERANCE`], its first step damped by
+/// `damping` ([`problem::INITIAL_DAMPING`] from a state off the minimum; from a solution of a
+/// nearby problem, the damping that solve ended with: [`problem::solve_near`]).
 pub(super) fn refit(
-    state: ChainState,
+    (state, damping): (ChainState, f64),
     layout: &Layout,
     readings: &Readings,
     spec: &Spec,
     config: &MlConfig,
 ) -> Solved {
-    solve(
+    problem::solve_near(
         state,
         layout,
         readings,
         spec,
-        config.noise_sd,
+        (config.noise_sd, FINAL_TOLERANCE),
         config.max_iterations,
-        FINAL_TOLERANCE,
+        damping,
     )
 }

@@ -61,7 +61,8 @@ pub(super) fn with_joint_states(
             motion: Some(Arc::new(motion.clone())),
             ..readings.clone()
         };
-        let next = refit(solved.state.clone(), layout, &corrected, spec, config);
+        let from = (solved.state.clone(), solved.damping);
+        let next = refit(from, layout, &corrected, spec, config);
         iterations += next.iterations;
         (solved, readings) = (next, corrected);
     }

@@ -116,6 +116,8 @@ impl Lead<'_> {
             spec.held.extend([(0, 0), (0, 1)]);
         }
         let (mut state, mut cost, mut iterations) = (start, f64::INFINITY, 0);
+        // Each step starts from the one before, with the damping it ended with.
+        let mut damping = problem::INITIAL_DAMPING;
         let coarse = motion.thinned(LEAD_THINNING);
         for kappa in QUASI_STATIC_STEPS {
             let mut weighed = coarse.clone();
@@ -125,17 +127,18 @@ impl Lead<'_> {
                 motion: Some(std::sync::Arc::new(weighed)),
                 ..readings.clone()
             };
-            let solved = solve(
+            let solved = problem::solve_near(
                 state,
                 &layout,
                 &stage,
                 &spec,
-                config.noise_sd,
+                (config.noise_sd, LEAD_TOLERANCE),
                 config.max_iterations,
-                LEAD_TOLERANCE,
+                damping,
             );
             state = solved.state;
             cost = solved.cost;
+            damping = solved.damping;
             iterations += solved.iterations;
         }
         ((state, cost), iterations)

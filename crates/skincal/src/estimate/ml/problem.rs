@@ -1507,14 +1507,15 @@ pub(super) fn dense_problem(
 /// The damped Gauss–Newton step `(JᵀJ + λ·diag(JᵀJ))·δ = −Jᵀr` of problems that share parameters,
 /// with every problem's SU blocks eliminated: `parts[i]` is a problem's normal system, its
 /// columns, and where each of its shared columns sits among the `shared` columns of all (the
-/// shared systems are summed there). Returns each problem's step in its columns' order; `None`
-/// when a factorisation fails (the caller raises λ).
+/// shared systems are summed there). Returns each problem's step in its columns' order and the
+/// decrease of the cost (`|r|²`) the linearised problem predicts for it, `−δᵀJᵀr + λ·δᵀdiag·δ`;
+/// `None` when a factorisation fails (the caller raises λ).
 fn schur_step(
     parts: &[(&Normal, &ColumnMap, &[usize])],
     shared: usize,
     lambda: f64,
-) -> Option<Vec<Vec<f64>>> {
-    let mut s = DMatrix::zeros(shared, shared);
+) -> Option<(Vec<Vec<f64>>, f64)> {
+    let mut s = DMatrix::<f64>::zeros(shared, shared);
     let mut rhs = DVector::zeros(shared);
     for (normal, _, at) in parts {
         for (i, &gi) in at.iter().enumerate() {
@@ -1524,9 +1525,10 @@ fn schur_step(
             }
         }
     }
-    let diagonal: Vec<f64> = (0..shared).map(|j| s[(j, j)]).collect();
+    let gradient = -rhs.clone();
+    let diagonal: Vec<f64> = (0..shared).map(|j| s[(j, j)].max(1e-24)).collect();
     for (j, d) in diagonal.iter().enumerate() {
-        s[(j, j)] += lambda * d.max(1e-24);
+        s[(j, j)] += lambda * d;
     }
     let mut reduced = Vec::with_capacity(parts.len());
     for (normal, _, at) in parts {
@@ -1560,14 +1562,26 @@ fn schur_step(
     } else {
         DVector::zeros(0)
     };
+    // The predicted decrease, term by term: column `j` with gradient `g`, diagonal `d`, step `x`.
+    let decrease = |g: f64, d: f64, x: f64| -g * x + lambda * d * x * x;
+    let mut predicted: f64 = (0..shared)
+        .map(|j| decrease(gradient[j], diagonal[j], ds[j]))
+        .sum();
     let steps = parts
         .iter()
         .zip(reduced)
-        .map(|((_, map, at), own)| {
+        .map(|((normal, map, at), own)| {
             let local = DVector::from_iterator(at.len(), at.iter().map(|&g| ds[g]));
             let own: Vec<Option<DVector<f64>>> = own
                 .into_iter()
-                .map(|part| part.map(|(w, wv)| -(wv + w * &local)))
+                .zip(&normal.sus)
+                .map(|(part, su)| {
+                    let step = part.map(|(w, wv)| -(wv + w * &local))?;
+                    predicted += (0..step.len())
+                        .map(|l| decrease(su.go[l], su.a[(l, l)].max(1e-24), step[l]))
+                        .sum::<f64>();
+                    Some(step)
+                })
                 .collect();
             map.slots
                 .iter()
@@ -1578,7 +1592,7 @@ fn schur_step(
                 .collect()
         })
         .collect();
-    Some(steps)
+    Some((steps, predicted))
 }
 
 /// Applies a step of the free columns to the state (the retraction).
@@ -1640,6 +1654,9 @@ pub(super) struct Solved {
     pub state: ChainState,
     pub cost: f64,
     pub iterations: usize,
+    /// The damping after its last step taken: where a solve of a nearby problem from this
+    /// state may start ([`solve_near`]).
+    pub damping: f64,
     /// Where the solve stood when it reached its cap of iterations (`None` when it stopped
     /// before): [`resume`] goes on from there as if it had not stopped.
     pub capped: Option<Lm>,
@@ -1651,6 +1668,8 @@ pub(super) struct Solved {
 pub(super) struct Lm {
     cost: f64,
     lambda: f64,
+    /// The damping after the last step taken (`lambda` is higher after steps refused).
+    settled: f64,
     iterations: usize,
 }
 
@@ -1666,7 +1685,47 @@ pub(super) fn solve(
     tolerance: f64,
 ) -> Solved {
     let member = Member::whole(state, layout, data, spec);
-    solve_single(member, (sigma, tolerance), max_iterations, None)
+    solve_single(
+        member,
+        (sigma, tolerance),
+        max_iterations,
+        Start::Damped(INITIAL_DAMPING),
+    )
+}
+
+/// [`solve`] from the damping `damping` instead of [`INITIAL_DAMPING`]: for a state at the
+/// minimum of a nearby problem (the same readings with more intrinsics, or weighed otherwise),
+/// with the damping that solve ended with. From the initial damping, the directions the new
+/// columns make weak (a bias against its SU's turn) would move only as the damping decays, a
+/// third per iteration: a motion record's bias-scale fit took 13 iterations for what 3 do.
+pub(super) fn solve_near(
+    state: ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    (sigma, tolerance): (f64, f64),
+    max_iterations: usize,
+    damping: f64,
+) -> Solved {
+    let member = Member::whole(state, layout, data, spec);
+    solve_single(
+        member,
+        (sigma, tolerance),
+        max_iterations,
+        Start::Damped(damping),
+    )
+}
+
+/// The damping of Levenberg–Marquardt's first step from a state that is not at a minimum
+/// (relative to the normal matrix's diagonal).
+pub(super) const INITIAL_DAMPING: f64 = 1e-3;
+
+/// Where a solve starts: afresh with a damping, or where an earlier run on the same problem
+/// stood.
+#[derive(Debug, Clone, Copy)]
+enum Start {
+    Damped(f64),
+    Resumed(Lm),
 }
 
 /// `solved` (from [`solve`] on the same problem) carried on to `max_iterations` in all, exactly
@@ -1684,23 +1743,29 @@ pub(super) fn resume(
         return solved;
     };
     let member = Member::whole(solved.state, layout, data, spec);
-    solve_single(member, (sigma, tolerance), max_iterations, Some(lm))
+    solve_single(
+        member,
+        (sigma, tolerance),
+        max_iterations,
+        Start::Resumed(lm),
+    )
 }
 
-/// One problem solved from `from` or afresh ([`solve_members`]) under `(sigma, tolerance)`.
+/// One problem solved from `start` ([`solve_members`]) under `(sigma, tolerance)`.
 fn solve_single(
     member: Member,
     criteria: (f64, f64),
     max_iterations: usize,
-    from: Option<Lm>,
+    start: Start,
 ) -> Solved {
     let shared = member.shared.len();
     let (mut states, lm, stopped) =
-        solve_members(vec![member], shared, criteria, max_iterations, from);
+        solve_members(vec![member], shared, criteria, max_iterations, start);
     Solved {
         state: states.remove(0),
         cost: lm.cost,
         iterations: lm.iterations,
+        damping: lm.settled,
         capped: (!stopped).then_some(lm),
     }
 }
@@ -1739,18 +1804,18 @@ pub(super) fn solve_together(
     max_iterations: usize,
     tolerance: f64,
 ) -> (Vec<ChainState>, f64, usize) {
-    let (states, lm, _) = solve_members(members, shared, (sigma, tolerance), max_iterations, None);
+    let start = Start::Damped(INITIAL_DAMPING);
+    let (states, lm, _) = solve_members(members, shared, (sigma, tolerance), max_iterations, start);
     (states, lm.cost, lm.iterations)
 }
 
-/// [`solve_together`] from `from` (where an earlier run on the same members stood) or afresh;
-/// also whether it stopped before its cap.
+/// [`solve_together`] from `start`; also whether it stopped before its cap.
 fn solve_members(
     mut members: Vec<Member>,
     shared: usize,
     (sigma, tolerance): (f64, f64),
     max_iterations: usize,
-    from: Option<Lm>,
+    start: Start,
 ) -> (Vec<ChainState>, Lm, bool) {
     let maps: Vec<ColumnMap> = members.iter().map(|m| ColumnMap::new(m.spec)).collect();
     let columns: Vec<Vec<(usize, usize)>> = members.iter().map(|m| m.spec.columns()).collect();
@@ -1765,24 +1830,41 @@ fn solve_members(
     let Lm {
         mut cost,
         mut lambda,
+        mut settled,
         mut iterations,
-    } = from.unwrap_or(Lm {
-        cost: normal.iter().map(|n| n.cost).sum(),
-        lambda: 1e-3,
-        iterations: 0,
-    });
+    } = match start {
+        Start::Resumed(lm) => lm,
+        Start::Damped(lambda) => Lm {
+            cost: normal.iter().map(|n| n.cost).sum(),
+            lambda,
+            settled: lambda,
+            iterations: 0,
+        },
+    };
     let mut stopped = false;
     while iterations < max_iterations {
         iterations += 1;
-        let mut improved = false;
+        let (mut improved, mut refused) = (false, false);
         for _ in 0..40 {
             let problems = (members.as_slice(), maps.as_slice(), columns.as_slice());
-            let Some((trials, trial_cost, step_norm)) =
-                damped_step(problems, &normal, shared, sigma, lambda)
-            else {
-                lambda *= 10.0;
-                continue;
+            // After a step refused, the least decrease that counts as one (relative and
+            // absolute): where the linearised problem predicts less, no shorter step would
+            // count either. (Not before: a robust cost falls more than its linearisation, the
+            // weights following the residuals.)
+            let wanted = if refused {
+                (tolerance * cost).max(MIN_DECREASE)
+            } else {
+                f64::NEG_INFINITY
             };
+            let (trials, trial_cost, step_norm) =
+                match damped_step(problems, &normal, shared, (sigma, lambda), wanted) {
+                    Trial::Taken(trials, trial_cost, step_norm) => (trials, trial_cost, step_norm),
+                    Trial::Singular => {
+                        lambda *= 10.0;
+                        continue;
+                    }
+                    Trial::Negligible => break,
+                };
             if trial_cost < cost {
                 let relative = (cost - trial_cost) / cost.max(1e-300);
                 for (m, t) in members.iter_mut().zip(trials) {
@@ -1790,9 +1872,12 @@ fn solve_members(
                 }
                 cost = trial_cost;
                 lambda = (lambda / 3.0).max(1e-12);
-                improved = relative > tolerance && cost * relative > 1e-6 && step_norm > 1e-10;
+                settled = lambda;
+                improved =
+                    relative > tolerance && cost * relative > MIN_DECREASE && step_norm > 1e-10;
                 break;
             }
+            refused = true;
             lambda *= 4.0;
             if lambda > 1e12 {
                 break;
@@ -1809,31 +1894,50 @@ fn solve_members(
     let lm = Lm {
         cost,
         lambda,
+        settled,
         iterations,
     };
     (members.into_iter().map(|m| m.state).collect(), lm, stopped)
 }
 
+/// The least decrease of the cost (`|r|²`, whitened) that an LM step counts as progress.
+const MIN_DECREASE: f64 = 1e-6;
+
 /// Problems solved together: the members, their column maps and the columns of their specs.
 type Problems<'a, 'b> = (&'a [Member<'b>], &'a [ColumnMap], &'a [Vec<(usize, usize)>]);
 
-/// The members' states after the step damped by `lambda` from their normal equations
-/// `normal`, their cost and the step's norm; `None` where the damped system is not positive
-/// definite.
+/// A step damped by λ, tried.
+enum Trial {
+    /// The damped system is not positive definite.
+    Singular,
+    /// The linearised problem predicts a smaller decrease than the solve's stop asks for: no
+    /// step from here would count, whatever λ (a larger one shortens it).
+    Negligible,
+    /// The members' states after the step, their cost and the step's norm.
+    Taken(Vec<ChainState>, f64, f64),
+}
+
+/// The step damped by `lambda` from the members' normal equations `normal`, tried where the
+/// linearised problem predicts a decrease of the cost of at least `wanted`.
 fn damped_step(
     (members, maps, columns): Problems,
     normal: &[Normal],
     shared: usize,
-    sigma: f64,
-    lambda: f64,
-) -> Option<(Vec<ChainState>, f64, f64)> {
+    (sigma, lambda): (f64, f64),
+    wanted: f64,
+) -> Trial {
     let parts: Vec<(&Normal, &ColumnMap, &[usize])> = normal
         .iter()
         .zip(maps)
         .zip(members)
         .map(|((n, map), m)| (n, map, m.shared.as_slice()))
         .collect();
-    let steps = schur_step(&parts, shared, lambda)?;
+    let Some((steps, predicted)) = schur_step(&parts, shared, lambda) else {
+        return Trial::Singular;
+    };
+    if predicted < wanted {
+        return Trial::Negligible;
+    }
     let trials: Vec<ChainState> = members
         .iter()
         .zip(columns)
@@ -1847,7 +1951,7 @@ fn damped_step(
         .map(|((t, m), map)| cost_of(t, m.layout, m.data, m.spec, map, sigma))
         .sum();
     let step_norm = steps.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
-    Some((trials, cost, step_norm))
+    Trial::Taken(trials, cost, step_norm)
 }
 
 /// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.
@@ -2102,6 +2206,78 @@ mod tests {
             assert!(close(&su.a, &(&own_t * &block.own)));
             assert!((&gs - &shared_t * &block.r).amax() < 1e-12);
             assert!((&su.go - &own_t * &block.r).amax() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn the_damped_step_solves_the_damped_normal_equations_and_predicts_a_linear_problems_decrease()
+    {
+        // A linear problem r(δ) = r + Jδ: two SUs of 3 own columns each and 4 shared columns,
+        // one random block of rows per SU. The Schur step must be the dense damped step, and
+        // its predicted decrease |r|² − |r + Jδ|² exactly.
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let (rows, shared, own) = (12, 4, 3);
+        let mut random =
+            |r: usize, c: usize| DMatrix::from_fn(r, c, |_, _| rng.random_range(-1.0..1.0));
+        let blocks: Vec<SuBlock> = (0..2)
+            .map(|_| SuBlock {
+                r: random(rows, 1).column(0).into_owned(),
+                own: random(rows, own),
+                shared: random(rows, shared),
+                cost: 0.0,
+                count: 0,
+            })
+            .collect();
+        let mut normal = Normal {
+            sus: Vec::new(),
+            c: DMatrix::zeros(shared, shared),
+            gs: DVector::zeros(shared),
+            cost: blocks.iter().map(|b| b.r.norm_squared()).sum(),
+            rows: 2 * rows,
+        };
+        for block in &blocks {
+            let mut part = SuPart::zeros(own, shared);
+            block.add_to(&mut part);
+            normal.c += &part.c;
+            normal.gs += &part.gs;
+            normal.sus.push(part.su);
+        }
+        // Columns: the shared ones, then each SU's own.
+        let mut slots: Vec<Slot> = (0..shared).map(Slot::Shared).collect();
+        slots.extend((0..2).flat_map(|i| (0..own).map(move |l| Slot::Own(i, l))));
+        let map = ColumnMap {
+            slots,
+            shared: (0..shared).map(|c| (0, c)).collect(),
+            own: vec![(0..own).map(|c| (1, c)).collect(); 2],
+        };
+        // The dense Jacobian in the same column order, and the residual.
+        let n = shared + 2 * own;
+        let mut jacobian = DMatrix::zeros(2 * rows, n);
+        let mut r = DVector::zeros(2 * rows);
+        for (i, block) in blocks.iter().enumerate() {
+            let at = i * rows;
+            jacobian
+                .view_mut((at, 0), (rows, shared))
+                .copy_from(&block.shared);
+            jacobian
+                .view_mut((at, shared + i * own), (rows, own))
+                .copy_from(&block.own);
+            r.rows_mut(at, rows).copy_from(&block.r);
+        }
+        let at: Vec<usize> = (0..shared).collect();
+        for lambda in [1e-6, 0.1, 10.0] {
+            let (steps, predicted) =
+                schur_step(&[(&normal, &map, at.as_slice())], shared, lambda).unwrap();
+            let step = DVector::from_vec(steps[0].clone());
+            let h = jacobian.tr_mul(&jacobian);
+            let damped = &h + DMatrix::from_diagonal(&(h.diagonal() * lambda));
+            let dense = damped.cholesky().unwrap().solve(&-jacobian.tr_mul(&r));
+            assert!((&step - &dense).amax() < 1e-10 * dense.amax(), "λ {lambda}");
+            let decrease = r.norm_squared() - (&r + &jacobian * &step).norm_squared();
+            assert!(
+                (predicted - decrease).abs() < 1e-10 * decrease.abs().max(1e-12),
+                "λ {lambda}: predicted {predicted}, decrease {decrease}"
+            );
         }
     }
 }

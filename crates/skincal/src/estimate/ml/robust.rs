@@ -56,7 +56,13 @@ pub(super) fn weigh_by_noise_components(
         sd: Some(std::sync::Arc::new(sd)),
         ..readings
     };
-    let solved = refit(solved.state, layout, &readings, spec, config);
+    let solved = refit(
+        (solved.state, solved.damping),
+        layout,
+        &readings,
+        spec,
+        config,
+    );
     let iterations = solved.iterations;
     (
         solved,
@@ -95,7 +101,13 @@ pub(super) fn leave_out_glitches(
         if unchanged {
             break;
         }
-        solved = refit(solved.state, layout, &readings, spec, config);
+        solved = refit(
+            (solved.state, solved.damping),
+            layout,
+            &readings,
+            spec,
+            config,
+        );
         iterations += solved.iterations;
     }
     (solved, readings, iterations)
