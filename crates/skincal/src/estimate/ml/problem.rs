@@ -1684,12 +1684,15 @@ pub(super) fn solve(
     max_iterations: usize,
     tolerance: f64,
 ) -> Solved {
-    let member = Member::whole(state, layout, data, spec);
-    solve_single(
-        member,
-        (sigma, tolerance),
+    let criteria = (sigma, tolerance);
+    solve_near(
+        state,
+        layout,
+        data,
+        spec,
+        criteria,
         max_iterations,
-        Start::Damped(INITIAL_DAMPING),
+        INITIAL_DAMPING,
     )
 }
 
@@ -1697,7 +1700,8 @@ pub(super) fn solve(
 /// minimum of a nearby problem (the same readings with more intrinsics, or weighed otherwise),
 /// with the damping that solve ended with. From the initial damping, the directions the new
 /// columns make weak (a bias against its SU's turn) would move only as the damping decays, a
-/// third per iteration: a motion record's bias-scale fit took 13 iterations for what 3 do.
+/// third per iteration: on a motion record, the bias rung of the intrinsics' ladder took 11
+/// iterations for what 3 do.
 pub(super) fn solve_near(
     state: ChainState,
     layout: &Layout,
