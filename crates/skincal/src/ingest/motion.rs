@@ -777,10 +777,6 @@ mod tests {
         }
     }
 
-    /// A skin whose block means carry independent noise of a known deviation, read while the
-    /// arm holds still between short moves that start from rest (the speed below the still
-    /// speed for a few blocks while the acceleration, and with it the reading, already grows):
-    /// the noise comes out as the truth's, the moves' starts left out.
     #[test]
     fn undoing_the_block_averaging_gives_a_quadratics_value_at_each_centre() {
         // The mean of t² over a block of width Δ about c is c² + Δ²/12, exactly: corrected by
@@ -814,6 +810,10 @@ mod tests {
         }
     }
 
+    /// A skin whose block means carry independent noise of a known deviation, read while the
+    /// arm holds still between short moves that start from rest (the speed below the still
+    /// speed for a few blocks while the acceleration, and with it the reading, already grows):
+    /// the noise comes out as the truth's, the moves' starts left out.
     #[test]
     fn the_still_noise_is_the_skins_own_whatever_the_moves_that_start_from_rest() {
         use rand::SeedableRng;
