@@ -401,13 +401,22 @@ impl SkinFilter {
         self.correlation_sum(stride, 2)
     }
 
+    /// The correlation of the filtered noise of two blocks `lag` apart (independent block means
+    /// read through the kernel).
+    pub fn correlation(&self, lag: usize) -> f64 {
+        let w = &self.weights;
+        let power_sum: f64 = w.iter().map(|x| x * x).sum();
+        w.iter()
+            .zip(w.get(lag..).unwrap_or(&[]))
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+            / power_sum
+    }
+
     /// `1 + 2 Σ_{m ≥ 1} ρ(m·stride)^power`.
     fn correlation_sum(&self, stride: usize, power: i32) -> f64 {
         let w = &self.weights;
-        let power_sum: f64 = w.iter().map(|x| x * x).sum();
-        let rho = |lag: usize| -> f64 {
-            w.iter().zip(&w[lag..]).map(|(a, b)| a * b).sum::<f64>() / power_sum
-        };
+        let rho = |lag: usize| self.correlation(lag);
         let beyond: f64 = (1..)
             .map(|m| m * stride.max(1))
             .take_while(|&lag| lag < w.len())

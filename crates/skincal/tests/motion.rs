@@ -376,9 +376,8 @@ fn the_records_joint_derivatives_are_the_trajectorys() {
 
 /// The motion rows' Jacobian (the SU's own frame and intrinsics by the chain rule, joint lines
 /// by dual numbers, gravity in closed form) against central differences of the residuals through
-/// the retraction, at the truth of a noise-free log with a skin 3 ms late (plain least squares);
-/// the delay's column (the prediction's rate standing for the measured one's) within 10 % RMS;
-/// the normal equations the fit forms are the dense Jacobian's.
+/// the retraction, at the truth of a noise-free log with a skin 3 ms late (plain least squares),
+/// the delay's column too; the normal equations the fit forms are the dense Jacobian's.
 #[test]
 fn the_motion_rows_jacobian_matches_central_differences() {
     use skincal::estimate::ml::{internals, state_of};
@@ -453,18 +452,12 @@ fn the_motion_rows_jacobian_matches_central_differences() {
         })
         .collect();
     let (_, _, after) = internals::motion_problem(&data, &record, &state, &steps);
+    // Every column, the delay's last (the rate of the interpolated block means and of their
+    // noise's weight), is the cost's own derivative.
     for c in 0..jac.ncols() {
         let numeric = (&after[2 * c] - &after[2 * c + 1]) / (2.0 * h);
-        let error = &numeric - jac.column(c);
-        if c + 1 == jac.ncols() {
-            // The delay: the prediction's rate over two blocks stands for the measured rate of
-            // the interpolated block means (noisy on a real skin); 7 % apart here.
-            let relative = error.norm() / numeric.norm();
-            assert!(relative < 0.1, "the delay's column: {relative}");
-        } else {
-            let diff = error.amax();
-            assert!(diff < 1e-3 * (1.0 + numeric.amax()), "column {c}: {diff}");
-        }
+        let diff = (&numeric - jac.column(c)).amax();
+        assert!(diff < 1e-3 * (1.0 + numeric.amax()), "column {c}: {diff}");
     }
 }
 

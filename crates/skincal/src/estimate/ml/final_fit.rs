@@ -339,6 +339,7 @@ impl Precision {
         let sigma = config.noise_sd;
         let weighted = Readings {
             gauge_prior: None,
+            expected_delay_rate: true,
             ..weighted
         };
         let (readings, weighted) = if components {
@@ -472,6 +473,11 @@ pub(super) fn fit_with_intrinsics(
     final_spec: impl Fn(IntrinsicsModel) -> Spec,
     config: &MlConfig,
 ) -> (Solved, Spec, IntrinsicsModel, Vec<IntrinsicsTest>, usize) {
+    // A long motion record climbs the ladder on every few of its blocks; the model chosen is then
+    // fitted on every block, from there.
+    let whole = readings;
+    let coarse = coarse_readings(readings);
+    let readings = coarse.as_ref().unwrap_or(readings);
     let fit = |from: (ChainState, f64), spec: &Spec| refit(from, layout, readings, spec, config);
     // A start for `model`'s `spec`: gravity at 9.81 m/s² when only its direction is free; when
     // the data choose the model, the intrinsics that `model` does not fit ideal (a start from an
@@ -556,8 +562,30 @@ pub(super) fn fit_with_intrinsics(
             (solved, spec, model) = current.clone();
         }
     }
+    if coarse.is_some() {
+        solved = refit((solved.state, solved.damping), layout, whole, &spec, config);
+        iterations += solved.iterations;
+    }
     (solved, spec, model, tests, iterations)
 }
+
+/// `readings` with every few blocks of their motion record, where it holds more than
+/// [`LADDER_BLOCKS`] times [`LADDER_THINNING`]: what [`fit_with_intrinsics`] climbs its ladder on.
+/// The tests stay valid on the blocks kept (their noise is independent, and correlated filtered
+/// noise is counted at their spacing); they lose power only where a sensor's error is within a
+/// few block means' noise of nothing.
+fn coarse_readings(readings: &Readings) -> Option<Readings> {
+    let motion = readings.motion.as_ref()?;
+    (motion.len() >= LADDER_BLOCKS * LADDER_THINNING).then(|| Readings {
+        motion: Some(std::sync::Arc::new(motion.thinned(LADDER_THINNING))),
+        ..readings.clone()
+    })
+}
+
+/// [`fit_with_intrinsics`] climbs its ladder on every this many blocks of a long motion record.
+const LADDER_THINNING: usize = 5;
+/// The fewest blocks [`fit_with_intrinsics`] climbs its ladder on.
+const LADDER_BLOCKS: usize = 1000;
 
 /// The final fit's solve: from `state` to [`FINAL_TOLERANCE`], its first step damped by
 /// `damping` ([`problem::INITIAL_DAMPING`] from a state off the minimum; from a solution of a

@@ -316,6 +316,7 @@ fn readings(data: &LimbData) -> Readings {
         gauge_prior: Some(problem::POSITION_PRIOR_SD),
         sd: data.sd.clone().map(std::sync::Arc::new),
         motion: None,
+        expected_delay_rate: false,
     }
 }
 

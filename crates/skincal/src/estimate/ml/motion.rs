@@ -63,6 +63,21 @@ impl MotionSample {
 /// One run's skin: `[u][block]`, `None` where the SU sent no sample in the block.
 type RunSkin = Vec<Vec<Option<Vector3<f64>>>>;
 
+/// An SU's skin interpolated between its blocks ([`LimbMotion::interpolated`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Interpolated {
+    pub value: Vector3<f64>,
+    /// The value's rate with the delay, per s.
+    pub rate: Vector3<f64>,
+    /// The variance of its noise over a block's: between blocks the interpolation averages
+    /// their noise (to 0.64 midway between independent block means), so that a cost of the
+    /// interpolated skin weighed as a block would fall wherever the delay puts the skin between
+    /// blocks, whatever the motion.
+    pub variance: f64,
+    /// That variance's rate with the delay, per s.
+    pub variance_rate: f64,
+}
+
 /// A limb's share of a motion record: its DoFs (chain order) and SUs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
@@ -73,6 +88,9 @@ pub struct LimbMotion {
     stride: usize,
     /// The kernel the skin was read through, where it was ([`SkinFilter`]).
     filter: Option<SkinFilter>,
+    /// The correlation of the skin's noise between blocks 0 to 3 apart (1, 0, 0, 0 for block
+    /// means): what [`LimbMotion::interpolated`] averages.
+    noise_correlation: [f64; 4],
     pub(super) samples: Vec<MotionSample>,
     /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
     /// [`SkinFilter`] where it has one. Shared by the limb's coarse and at-rest versions
@@ -182,11 +200,16 @@ impl LimbMotion {
             .iter()
             .map(|&d| record.rounding.get(d).copied().unwrap_or(0.0))
             .collect();
+        let noise_correlation = std::array::from_fn(|lag| match &filter {
+            Some(f) => f.correlation(lag),
+            None => f64::from(u8::from(lag == 0)),
+        });
         Ok(Self {
             period: record.period,
             kinds,
             stride,
             filter,
+            noise_correlation,
             samples,
             skin: Arc::new(skin),
             sd,
@@ -389,20 +412,32 @@ impl LimbMotion {
             .collect();
     }
 
-    /// The standard deviation of one component of SU `u`'s residual at sample `i`: its block
-    /// mean's noise and what the joint accelerations add.
-    pub(super) fn residual_sd(&self, u: usize, i: usize) -> f64 {
-        let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
-        (self.sd[u].powi(2) + extra.unwrap_or(0.0)).sqrt()
+    /// The variance of one component of SU `u`'s block, (m/s²)².
+    pub(super) fn skin_variance(&self, u: usize) -> f64 {
+        self.sd[u].powi(2)
     }
 
-    /// Every `every`-th of the blocks the fit uses (the skin kept whole): a coarse version for
-    /// the steps that only lead a fit to where the whole record takes over.
+    /// The variance of one component of SU `u`'s residual at sample `i` where the skin's noise
+    /// has `variance` times a block's ([`Interpolated::variance`]), (m/s²)².
+    pub(super) fn residual_variance(&self, u: usize, i: usize, variance: f64) -> f64 {
+        let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
+        self.sd[u].powi(2) * variance + extra.unwrap_or(0.0)
+    }
+
+    /// Every `every`-th of the blocks the fit uses (the skin kept whole, the samples' weights
+    /// kept): a coarse version for the steps that lead a fit to where the whole record takes
+    /// over, and for choosing the sensors' model. Neighbouring samples are `every` times as far
+    /// apart, and their filtered noise as much less correlated.
     pub(super) fn thinned(&self, every: usize) -> Self {
         let every = every.max(1);
         Self {
             samples: self.samples.iter().step_by(every).cloned().collect(),
-            joint_var: Vec::new(),
+            joint_var: self
+                .joint_var
+                .iter()
+                .map(|v| v.iter().step_by(every).copied().collect())
+                .collect(),
+            stride: self.stride * every,
             ..self.clone()
         }
     }
@@ -453,6 +488,12 @@ impl LimbMotion {
     /// block means interpolated (Catmull–Rom) at the block `delay` later; `None` where a block
     /// the interpolation needs has no sample.
     pub(super) fn measured(&self, u: usize, i: usize, delay: f64) -> Option<Vector3<f64>> {
+        self.interpolated(u, i, delay).map(|m| m.value)
+    }
+
+    /// [`LimbMotion::measured`] with its rate with the delay and its noise's: see
+    /// [`Interpolated`].
+    pub(super) fn interpolated(&self, u: usize, i: usize, delay: f64) -> Option<Interpolated> {
         let sample = &self.samples[i];
         let series = &self.skin[sample.run][u];
         let x = sample.block as f64 + delay.clamp(-MAX_DELAY, MAX_DELAY) / self.period;
@@ -462,13 +503,46 @@ impl LimbMotion {
         let at = |j: usize| series.get(j).copied().flatten();
         let (p0, p1, p2, p3) = (at(k.checked_sub(1)?)?, at(k)?, at(k + 1)?, at(k + 2)?);
         let (t2, t3) = (t * t, t * t * t);
-        Some(
-            (p1 * 2.0
-                + (p2 - p0) * t
-                + (p0 * 2.0 - p1 * 5.0 + p2 * 4.0 - p3) * t2
-                + (p1 * 3.0 - p0 - p2 * 3.0 + p3) * t3)
-                * 0.5,
-        )
+        let value = (p1 * 2.0
+            + (p2 - p0) * t
+            + (p0 * 2.0 - p1 * 5.0 + p2 * 4.0 - p3) * t2
+            + (p1 * 3.0 - p0 - p2 * 3.0 + p3) * t3)
+            * 0.5;
+        // The weights of the four blocks, and their rates with `t`.
+        let w = [
+            0.5 * (-t + 2.0 * t2 - t3),
+            0.5 * (2.0 - 5.0 * t2 + 3.0 * t3),
+            0.5 * (t + 4.0 * t2 - 3.0 * t3),
+            0.5 * (t3 - t2),
+        ];
+        let dw = [
+            0.5 * (-1.0 + 4.0 * t - 3.0 * t2),
+            0.5 * (9.0 * t2 - 10.0 * t),
+            0.5 * (1.0 + 8.0 * t - 9.0 * t2),
+            0.5 * (3.0 * t2 - 2.0 * t),
+        ];
+        let held = delay.abs() >= MAX_DELAY;
+        let per_second = if held { 0.0 } else { 1.0 / self.period };
+        let rate = [p0, p1, p2, p3]
+            .iter()
+            .zip(&dw)
+            .map(|(p, d)| p * *d)
+            .sum::<Vector3<f64>>()
+            * per_second;
+        let (mut variance, mut variance_rate) = (0.0, 0.0);
+        for a in 0..4_usize {
+            for b in 0..4 {
+                let rho = self.noise_correlation[a.abs_diff(b)];
+                variance += w[a] * w[b] * rho;
+                variance_rate += 2.0 * dw[a] * w[b] * rho;
+            }
+        }
+        Some(Interpolated {
+            value,
+            rate,
+            variance,
+            variance_rate: variance_rate * per_second,
+        })
     }
 
     /// Whether samples `i` and `j` are neighbouring samples of one run, a stride apart.

@@ -107,6 +107,10 @@ pub(super) struct Readings {
     /// `orientation[p]`: the base orientation of pose `p`, whose gravity its static readings
     /// read (`gravity`, or [`ChainState::other_gravities`]). Empty: every pose in the usual one.
     pub orientation: Vec<usize>,
+    /// Whether the motion rows' column of the skin's delay is the prediction's rate (the
+    /// information the record holds about the delay: for what is reported of a fit) rather than
+    /// the cost's own derivative (noisy, as the interpolated skin is: for the fit's steps).
+    pub expected_delay_rate: bool,
 }
 
 impl Readings {
@@ -612,11 +616,13 @@ impl MotionRows<'_> {
         for j in samples.clone() {
             let terms = &self.terms[j - self.first];
             let row = self.at + 3 * (j - samples.start);
-            let Some(measured) = motion.measured(u, j, state.skin_delay) else {
+            let Some(measured) = motion.interpolated(u, j, state.skin_delay) else {
                 continue;
             };
-            let sd = motion.residual_sd(u, j);
-            let residual = (predicted[j - self.first] - measured) / sd;
+            // Weighed by the interpolated skin's own noise, so that where the delay puts the
+            // skin between blocks does not pay by itself.
+            let sd = motion.residual_variance(u, j, measured.variance).sqrt();
+            let residual = (predicted[j - self.first] - measured.value) / sd;
             let (w, c) = data.robust(residual.norm());
             cost += c;
             count += 3;
@@ -635,9 +641,15 @@ impl MotionRows<'_> {
             };
             rows.fill(&su, terms, s, true, own, shared);
             if let Some(col) = delay_column {
-                // The residual's rate with the delay: minus the rate of what is measured, which
-                // the prediction's own rate stands for (smooth where the samples are noisy).
-                let d = self.rate(predicted, j);
+                // The residual's rate with the delay: of what is measured and of its weight
+                // (the cost's own); or, for what is reported, the information the record holds
+                // about the delay, the prediction's own rate standing for the measured one's.
+                let d = if data.expected_delay_rate {
+                    self.rate(predicted, j)
+                } else {
+                    let sd_rate = motion.skin_variance(u) * measured.variance_rate / (2.0 * sd);
+                    measured.rate + residual * sd_rate
+                };
                 shared
                     .fixed_view_mut::<3, 1>(row, col)
                     .copy_from(&(-d * scale));
@@ -1860,9 +1872,11 @@ fn solve_members(
             } else {
                 f64::NEG_INFINITY
             };
-            let (trials, trial_cost, step_norm) =
+            let (trials, trial_cost, step_norm, predicted) =
                 match damped_step(problems, &normal, shared, (sigma, lambda), wanted) {
-                    Trial::Taken(trials, trial_cost, step_norm) => (trials, trial_cost, step_norm),
+                    Trial::Taken(trials, trial_cost, step_norm, predicted) => {
+                        (trials, trial_cost, step_norm, predicted)
+                    }
                     Trial::Singular => {
                         lambda *= 10.0;
                         continue;
@@ -1870,15 +1884,21 @@ fn solve_members(
                     Trial::Negligible => break,
                 };
             if trial_cost < cost {
-                let relative = (cost - trial_cost) / cost.max(1e-300);
+                let decrease = cost - trial_cost;
+                let relative = decrease / cost.max(1e-300);
                 for (m, t) in members.iter_mut().zip(trials) {
                     m.state = t;
                 }
                 cost = trial_cost;
                 lambda = (lambda / 3.0).max(1e-12);
                 settled = lambda;
-                improved =
-                    relative > tolerance && cost * relative > MIN_DECREASE && step_norm > 1e-10;
+                // A step that lowered the cost, and was predicted to, by less than
+                // `CONVERGED_DECREASE` was the last that moved anything measurably.
+                let settled_step = predicted.max(decrease) < CONVERGED_DECREASE;
+                improved = relative > tolerance
+                    && decrease > MIN_DECREASE
+                    && step_norm > 1e-10
+                    && !settled_step;
                 break;
             }
             refused = true;
@@ -1906,6 +1926,11 @@ fn solve_members(
 
 /// The least decrease of the cost (`|r|²`, whitened) that an LM step counts as progress.
 const MIN_DECREASE: f64 = 1e-6;
+/// The decrease of the cost below which a step, taken and predicted alike, ends a solve: a
+/// Gauss–Newton step lowers the whitened cost by its own length squared in the estimate's
+/// standard deviations, so it moved no combination of the parameters by more than a tenth of
+/// that combination's standard deviation, and what a further step would move is smaller again.
+const CONVERGED_DECREASE: f64 = 1e-2;
 
 /// Problems solved together: the members, their column maps and the columns of their specs.
 type Problems<'a, 'b> = (&'a [Member<'b>], &'a [ColumnMap], &'a [Vec<(usize, usize)>]);
@@ -1917,8 +1942,9 @@ enum Trial {
     /// The linearised problem predicts a smaller decrease than the solve's stop asks for: no
     /// step from here would count, whatever λ (a larger one shortens it).
     Negligible,
-    /// The members' states after the step, their cost and the step's norm.
-    Taken(Vec<ChainState>, f64, f64),
+    /// The members' states after the step, their cost, the step's norm and the decrease of
+    /// the cost the linearised problem predicted.
+    Taken(Vec<ChainState>, f64, f64, f64),
 }
 
 /// The step damped by `lambda` from the members' normal equations `normal`, tried where the
@@ -1955,7 +1981,7 @@ fn damped_step(
         .map(|((t, m), map)| cost_of(t, m.layout, m.data, m.spec, map, sigma))
         .sum();
     let step_norm = steps.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
-    Trial::Taken(trials, cost, step_norm)
+    Trial::Taken(trials, cost, step_norm, predicted)
 }
 
 /// Symmetric pseudo-inverse, eigen-pairs below `floor` dropped; also returns the eigen-pairs.

@@ -343,6 +343,7 @@ fn what_others_tell(
         .map(|(limb, state)| {
             let readings = Readings {
                 gauge_prior: None,
+                expected_delay_rate: true,
                 ..limb.problem.readings.clone()
             };
             let map = ColumnMap::new(&limb.spec);
