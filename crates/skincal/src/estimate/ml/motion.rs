@@ -597,3 +597,73 @@ pub(super) fn segment_terms(
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A record of one SU and one block-mean series (no filter, `period` 10 ms), with one
+    /// sample at block `block`.
+    fn one_series(series: Vec<Option<Vector3<f64>>>, block: usize) -> LimbMotion {
+        LimbMotion {
+            period: 0.01,
+            kinds: vec![DofKind::Revolute],
+            stride: 1,
+            filter: None,
+            noise_correlation: [1.0, 0.0, 0.0, 0.0],
+            samples: vec![MotionSample {
+                run: 0,
+                block,
+                q: vec![0.0],
+                turns: vec![Isometry3::identity()],
+                qd: vec![0.0],
+                qdd: vec![0.0],
+                qdd_sd: vec![0.0],
+                read: (vec![0.0], vec![0.0]),
+            }],
+            skin: Arc::new(vec![vec![series]]),
+            sd: vec![0.01],
+            joint_var: Vec::new(),
+            rounding: vec![0.0],
+            corrected: 0.0,
+        }
+    }
+
+    /// Between blocks, a quadratic series is read exactly with its rate (Catmull–Rom reproduces
+    /// quadratics), and the noise of independent block means is averaged by the weights: midway,
+    /// `(1 + 81 + 81 + 1) / 256` of a block's variance; on a block, all of it. The variance's
+    /// rate is its derivative.
+    #[test]
+    fn the_interpolated_skin_reads_a_quadratic_exactly_and_states_its_averaged_noise() {
+        let f = |x: f64| Vector3::new(1.0 + 2.0 * x - 0.5 * x * x, -x * x, 3.0);
+        let df = |x: f64| Vector3::new(2.0 - x, -2.0 * x, 0.0);
+        let series: Vec<Option<Vector3<f64>>> = (0..10).map(|k| Some(f(k as f64))).collect();
+        let motion = one_series(series, 4);
+        for (delay, x) in [(0.005, 4.5), (0.0, 4.0), (0.0023, 4.23), (-0.007, 3.3)] {
+            let read = motion.interpolated(0, 0, delay).unwrap();
+            assert!(
+                (read.value - f(x)).amax() < 1e-12,
+                "{delay}: {}",
+                read.value
+            );
+            // Per s: per block over the period.
+            assert!(
+                (read.rate - df(x) / 0.01).amax() < 1e-9,
+                "{delay}: {}",
+                read.rate
+            );
+            let h = 1e-7;
+            let above = motion.interpolated(0, 0, delay + h).unwrap().variance;
+            let below = motion.interpolated(0, 0, delay - h).unwrap().variance;
+            let numeric = (above - below) / (2.0 * h);
+            assert!((read.variance_rate - numeric).abs() < 1e-5 * (1.0 + numeric.abs()));
+        }
+        let midway = motion.interpolated(0, 0, 0.005).unwrap().variance;
+        assert!((midway - 164.0 / 256.0).abs() < 1e-15, "{midway}");
+        assert_eq!(motion.interpolated(0, 0, 0.0).unwrap().variance, 1.0);
+        // A block the interpolation needs has no sample: nothing is read.
+        let mut gap: Vec<Option<Vector3<f64>>> = (0..10).map(|k| Some(f(k as f64))).collect();
+        gap[6] = None;
+        assert!(one_series(gap, 4).interpolated(0, 0, 0.015).is_none());
+    }
+}
