@@ -503,11 +503,6 @@ impl LimbMotion {
         let at = |j: usize| series.get(j).copied().flatten();
         let (p0, p1, p2, p3) = (at(k.checked_sub(1)?)?, at(k)?, at(k + 1)?, at(k + 2)?);
         let (t2, t3) = (t * t, t * t * t);
-        let value = (p1 * 2.0
-            + (p2 - p0) * t
-            + (p0 * 2.0 - p1 * 5.0 + p2 * 4.0 - p3) * t2
-            + (p1 * 3.0 - p0 - p2 * 3.0 + p3) * t3)
-            * 0.5;
         // The weights of the four blocks, and their rates with `t`.
         let w = [
             0.5 * (-t + 2.0 * t2 - t3),
@@ -523,12 +518,11 @@ impl LimbMotion {
         ];
         let held = delay.abs() >= MAX_DELAY;
         let per_second = if held { 0.0 } else { 1.0 / self.period };
-        let rate = [p0, p1, p2, p3]
-            .iter()
-            .zip(&dw)
-            .map(|(p, d)| p * *d)
-            .sum::<Vector3<f64>>()
-            * per_second;
+        let blocks = [p0, p1, p2, p3];
+        let weighed = |weights: &[f64; 4]| -> Vector3<f64> {
+            blocks.iter().zip(weights).map(|(p, w)| p * *w).sum()
+        };
+        let (value, rate) = (weighed(&w), weighed(&dw) * per_second);
         let (mut variance, mut variance_rate) = (0.0, 0.0);
         for a in 0..4_usize {
             for b in 0..4 {
