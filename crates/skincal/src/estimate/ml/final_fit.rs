@@ -162,7 +162,7 @@ impl FinalFit {
         let flat_dofs = data.chain.dofs();
         let flat_sus = data.chain.sus();
         let cov = &precision.cov;
-        let open = free_directions(&state, layout, readings, spec, config.noise_sd);
+        let open = &precision.open;
         let limb = limb_robot(&data.chain, &state, &data.su_depth)?;
         Ok(MlChainEstimate {
             robot: RobotFile::from_robot(&limb, Some("maximum-likelihood estimate".into())),
@@ -182,7 +182,7 @@ impl FinalFit {
                     .is_none_or(|r| r.band.is_none_or(|b| b.holds(r.residual_ratio))),
             residual_band: precision.band,
             fixed: problem.fixed.clone(),
-            uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, &open),
+            uncertainty: su_uncertainty(&state, layout, spec, &flat_sus, cov, open),
             joint_covariance: joint_covariance(spec, &flat_dofs, cov),
             intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, problem.intrinsics_model),
             intrinsics_model: Some(problem.intrinsics_model),
@@ -283,6 +283,9 @@ pub(super) struct Precision {
     /// The parameters' names, in the covariance's order.
     pub(super) names: Vec<String>,
     pub(super) unobservable: Vec<Unobservable>,
+    /// The problem with its gauge released ([`released`]) and the directions no reading
+    /// determines, over its columns ([`free_directions`]).
+    pub(super) open: (Spec, Vec<DVector<f64>>),
 }
 
 /// The residual of the blocks of `readings`' motion record in which the limb stood still, with
@@ -359,21 +362,23 @@ impl Precision {
         let ratio_of = |(cost, rows): (f64, usize)| {
             (cost / (rows.saturating_sub(dof_count)).max(1) as f64).sqrt()
         };
-        // The plain residual; the normal system of the weighted one when the noise was
-        // weighed by components.
-        let (mut normal, plain_rows, residual_ratio, scale) = match &weighted {
-            Some(weighted) => {
+        // The normal system of the readings as weighed, formed once with the gauge released:
+        // its null directions are what no reading determines, and kept to the fit's columns it
+        // is the fit's own.
+        let open = released(spec);
+        let open_map = ColumnMap::new(&open);
+        let weighed = weighted.as_ref().unwrap_or(&readings);
+        let released_normal = normal_system(state, layout, weighed, &open, &open_map, sigma);
+        let free = free_directions(&released_normal, &open_map, open.columns().len());
+        let mut normal = released_normal.restricted(&open_map, &map);
+        // The plain residual: the weighted one's when the noise was not weighed by components.
+        let scale = ratio_of((normal.cost, normal.rows));
+        let (plain_rows, residual_ratio) = match &weighted {
+            Some(_) => {
                 let plain = problem::cost_and_rows(state, layout, &readings, spec, &map, sigma);
-                let normal = normal_system(state, layout, weighted, spec, &map, sigma);
-                let ratio = ratio_of((normal.cost, normal.rows));
-                (normal, plain.1, ratio_of(plain), ratio)
+                (plain.1, ratio_of(plain))
             }
-            None => {
-                let normal = normal_system(state, layout, &readings, spec, &map, sigma);
-                let ratio = ratio_of((normal.cost, normal.rows));
-                let rows = normal.rows;
-                (normal, rows, ratio, ratio)
-            }
+            None => (normal.rows, scale),
         };
         let band = readings
             .motion
@@ -401,6 +406,7 @@ impl Precision {
             cov,
             names,
             unobservable,
+            open: (open, free),
         }
     }
 }

@@ -100,7 +100,9 @@ use search::{fit_ordered, keep_best, order_joints, spans, Retries, Span};
 pub use segment_sus::STATIC_ONLY_POSITIONS;
 use segment_sus::{add_segment_sus, full_spec, positions_in_one, su_intrinsics};
 pub use tree::refine_trees;
-use uncertainty::{column_names, dh_sd, free_directions, joint_covariance, su_uncertainty};
+use uncertainty::{
+    column_names, dh_sd, free_directions, joint_covariance, released, su_uncertainty,
+};
 
 pub use bound::{cramer_rao_bound, observable_su_errors, state_of, ObservableErrors};
 
@@ -118,7 +120,7 @@ use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::{DofKind, DofSpec, Limits, PlacementSpec, Robot, RobotBuilder, SuSpec};
 use problem::{
     covariance, frames, normal_system, prefixes, resume, retract, retract_columns, solve, turns_of,
-    Block, ColumnMap, Layout, Prefix, Readings, Solved, Spec,
+    Block, ColumnMap, Layout, Normal, Prefix, Readings, Solved, Spec,
 };
 
 /// Settings of the maximum-likelihood estimator.

@@ -1249,6 +1249,36 @@ pub(super) fn normal_system(
 }
 
 impl Normal {
+    /// The normal equations of the problem with fewer columns of the SUs' own: `self`, formed
+    /// with the columns of `from`, kept to those of `to` (whose shared columns are `from`'s, and
+    /// whose SUs' own columns are among `from`'s). Each entry is a sum over the rows of two
+    /// columns' products, so it is what [`normal_system`] forms with `to`'s columns.
+    pub(super) fn restricted(&self, from: &ColumnMap, to: &ColumnMap) -> Normal {
+        let sus = self
+            .sus
+            .iter()
+            .zip(from.own.iter().zip(&to.own))
+            .map(|(su, (all, kept))| {
+                let at: Vec<usize> = kept
+                    .iter()
+                    .filter_map(|column| all.iter().position(|c| c == column))
+                    .collect();
+                SuNormal {
+                    a: su.a.select_rows(&at).select_columns(&at),
+                    b: su.b.select_rows(&at),
+                    go: su.go.select_rows(&at),
+                }
+            })
+            .collect();
+        Normal {
+            sus,
+            c: self.c.clone(),
+            gs: self.gs.clone(),
+            cost: self.cost,
+            rows: self.rows,
+        }
+    }
+
     /// Adds `information` (in the shared columns' order) to the shared block: what other
     /// readings tell of the shared parameters.
     pub(super) fn add_shared_information(&mut self, information: &DMatrix<f64>) {
@@ -2239,14 +2269,10 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_damped_step_solves_the_damped_normal_equations_and_predicts_a_linear_problems_decrease()
-    {
-        // A linear problem r(δ) = r + Jδ: two SUs of 3 own columns each and 4 shared columns,
-        // one random block of rows per SU. The Schur step must be the dense damped step, and
-        // its predicted decrease |r|² − |r + Jδ|² exactly.
-        let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let (rows, shared, own) = (12, 4, 3);
+    /// Two SUs' random blocks of `rows` rows, `own` columns each and `shared` columns, from
+    /// `seed`, and their normal system.
+    fn random_system(seed: u64, rows: usize, shared: usize, own: usize) -> (Vec<SuBlock>, Normal) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut random =
             |r: usize, c: usize| DMatrix::from_fn(r, c, |_, _| rng.random_range(-1.0..1.0));
         let blocks: Vec<SuBlock> = (0..2)
@@ -2272,6 +2298,54 @@ mod tests {
             normal.gs += &part.gs;
             normal.sus.push(part.su);
         }
+        (blocks, normal)
+    }
+
+    #[test]
+    fn a_system_kept_to_fewer_own_columns_is_that_of_those_columns() {
+        // Two SUs of 6 own columns and 4 shared ones; kept: SU 0's columns 0, 2 and 5 (as a
+        // gauge holds some of an SU's pose), every column of SU 1.
+        let (rows, shared, own) = (15, 4, 6);
+        let (blocks, normal) = random_system(5, rows, shared, own);
+        let map_of = |kept: [Vec<usize>; 2]| {
+            let mut slots: Vec<Slot> = (0..shared).map(Slot::Shared).collect();
+            slots.extend((0..2).flat_map(|i| (0..kept[i].len()).map(move |l| Slot::Own(i, l))));
+            ColumnMap {
+                slots,
+                shared: (0..shared).map(|c| (0, c)).collect(),
+                own: kept
+                    .iter()
+                    .enumerate()
+                    .map(|(i, k)| k.iter().map(|&c| (1 + i, c)).collect())
+                    .collect(),
+            }
+        };
+        let kept = [vec![0, 2, 5], (0..own).collect()];
+        let from = map_of([(0..own).collect(), (0..own).collect()]);
+        let to = map_of(kept.clone());
+        let restricted = normal.restricted(&from, &to);
+        for (i, (block, su)) in blocks.iter().zip(&restricted.sus).enumerate() {
+            let own_kept = block.own.select_columns(&kept[i]);
+            let close = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a - b).amax() < 1e-12;
+            assert!(close(&su.a, &own_kept.tr_mul(&own_kept)), "SU {i}");
+            assert!(close(&su.b, &own_kept.tr_mul(&block.shared)), "SU {i}");
+            assert!(
+                (&su.go - own_kept.tr_mul(&block.r)).amax() < 1e-12,
+                "SU {i}"
+            );
+        }
+        assert_eq!(restricted.c, normal.c);
+        assert_eq!((restricted.cost, restricted.rows), (normal.cost, 2 * rows));
+    }
+
+    #[test]
+    fn the_damped_step_solves_the_damped_normal_equations_and_predicts_a_linear_problems_decrease()
+    {
+        // A linear problem r(δ) = r + Jδ: two SUs of 3 own columns each and 4 shared columns,
+        // one random block of rows per SU. The Schur step must be the dense damped step, and
+        // its predicted decrease |r|² − |r + Jδ|² exactly.
+        let (rows, shared, own) = (12, 4, 3);
+        let (blocks, normal) = random_system(11, rows, shared, own);
         // Columns: the shared ones, then each SU's own.
         let mut slots: Vec<Slot> = (0..shared).map(Slot::Shared).collect();
         slots.extend((0..2).flat_map(|i| (0..own).map(move |l| Slot::Own(i, l))));

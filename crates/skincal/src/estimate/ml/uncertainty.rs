@@ -191,29 +191,26 @@ pub(super) fn sd_without(cov: &Matrix3<f64>, basis: &[Vector3<f64>]) -> f64 {
     (p * cov * p).trace().max(0.0).sqrt()
 }
 
-/// The directions no reading determines, with the gauge released: `spec` with its SUs' held
-/// components freed (the gauge holds one SU's turn about and shift along the first axis, which
-/// fixes a direction without being it: the free motion is a turn about the axis itself), and the
-/// null directions of the information of that problem, unit vectors over its columns.
-pub(super) fn free_directions(
-    state: &ChainState,
-    layout: &Layout,
-    readings: &Readings,
-    spec: &Spec,
-    sigma: f64,
-) -> (Spec, Vec<DVector<f64>>) {
+/// `spec` with the gauge released: its SUs' held components freed (the gauge holds one SU's turn
+/// about and shift along the first axis, which fixes a direction without being it: the free
+/// motion is a turn about the axis itself).
+pub(super) fn released(spec: &Spec) -> Spec {
     let mut open = spec.clone();
     open.held
         .retain(|(b, _)| !matches!(spec.blocks[*b], Block::Su(_)));
-    let readings = Readings {
-        gauge_prior: None,
-        ..readings.clone()
-    };
-    let map = ColumnMap::new(&open);
-    let normal = normal_system(state, layout, &readings, &open, &map, sigma);
-    let names = vec![String::new(); open.columns().len()];
-    let free = problem::eliminate(&normal, &map, &names, f64::INFINITY).free;
-    (open, free)
+    open
+}
+
+/// The directions no reading determines: the null directions of `normal`, the normal system of
+/// the problem with its gauge released ([`released`], whose columns `map` maps), as unit vectors
+/// over its columns.
+pub(super) fn free_directions(
+    normal: &Normal,
+    map: &ColumnMap,
+    columns: usize,
+) -> Vec<DVector<f64>> {
+    let names = vec![String::new(); columns];
+    problem::eliminate(normal, map, &names, f64::INFINITY).free
 }
 
 /// Each SU's pose uncertainty relative to the previous SU, and the directions of it that no
