@@ -1,8 +1,9 @@
 //! Project tasks, run as `cargo xtask <task>` (an alias in `.cargo/config.toml`).
 //!
 //! `cargo xtask test [ARGS…]` makes sure everything the tests need is there, then runs
-//! `cargo test --workspace --release [ARGS…]` (optimised: the numerical tests run in a fraction
-//! of the time, and the Python package's tests then use the same release build):
+//! `cargo test --workspace --release [ARGS…]` (optimised: the integration tests take three
+//! quarters of the time they take at the debug build's light optimisation, and the Python
+//! package's tests then use much of the same release build):
 //! - the Python packages of `tests/python/requirements.txt` (pinned), in a virtual environment at
 //!   `target/test-env` that is made once and updated only when the requirements change, so the
 //!   second run costs nothing; the tests find it through `SKINCAL_TEST_PYTHON`;
