@@ -369,7 +369,7 @@ impl Precision {
         let open_map = ColumnMap::new(&open);
         let weighed = weighted.as_ref().unwrap_or(&readings);
         let released_normal = normal_system(state, layout, weighed, &open, &open_map, sigma);
-        let free = free_directions(&released_normal, &open_map, open.columns().len());
+        let free = free_directions(&released_normal, &open_map);
         let mut normal = released_normal.restricted(&open_map, &map);
         // The plain residual: the weighted one's when the noise was not weighed by components.
         let scale = ratio_of((normal.cost, normal.rows));

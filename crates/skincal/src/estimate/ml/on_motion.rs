@@ -241,8 +241,8 @@ pub(super) const QUASI_STATIC_STEPS: [f64; 4] = [1.0, 0.3, 0.1, 0.0];
 /// The steps of [`Lead::stages`] fit every this many blocks of the record at least: they lead
 /// the fit to the right basin, the final fit takes every block.
 pub(super) const LEAD_THINNING: usize = 5;
-/// The blocks of a long record that a limb's lead fits at most (every [`LEAD_THINNING`]-th
-/// block or fewer): 300 blocks of a skin of 100 SUs are 90,000 readings for some 700
+/// About how many blocks of a long record a limb's lead fits (every [`LEAD_THINNING`]-th block
+/// where that is fewer than 360): 300 blocks of a skin of 100 SUs are 90,000 readings for some 700
 /// parameters. On a 64 s continuous record (6383 blocks) the lead on every 21st block ends where
 /// the one on every 5th does: the final fit is the same, in a third of the lead's time.
 pub(super) const LEAD_BLOCKS: usize = 300;

@@ -230,6 +230,11 @@ impl ColumnMap {
         &self.shared
     }
 
+    /// How many free columns there are, shared and own.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
     pub fn new(spec: &Spec) -> Self {
         let mut slots = Vec::new();
         let mut shared = Vec::new();

@@ -204,12 +204,8 @@ pub(super) fn released(spec: &Spec) -> Spec {
 /// The directions no reading determines: the null directions of `normal`, the normal system of
 /// the problem with its gauge released ([`released`], whose columns `map` maps), as unit vectors
 /// over its columns.
-pub(super) fn free_directions(
-    normal: &Normal,
-    map: &ColumnMap,
-    columns: usize,
-) -> Vec<DVector<f64>> {
-    let names = vec![String::new(); columns];
+pub(super) fn free_directions(normal: &Normal, map: &ColumnMap) -> Vec<DVector<f64>> {
+    let names = vec![String::new(); map.len()];
     problem::eliminate(normal, map, &names, f64::INFINITY).free
 }
 
