@@ -58,12 +58,19 @@ pub fn mcap_to_db3(mcap: &Path, db3: &Path) {
     db.execute_batch("COMMIT;").unwrap();
 }
 
-/// A ROS 1 bag of the CSV log `csv`, with chunks compressed by `compression` (`none`, `bz2` or
-/// `lz4`), written by the `rosbags` Python package (an independent implementation of the format).
-pub fn ros1_bag(csv: &Path, bag: &Path, compression: &str) {
-    let compression = Path::new(compression);
-    crate::common::run_python(
-        "ros1_bag.py",
-        &[csv, bag, Path::new("--compression"), compression],
-    );
+/// ROS 1 bags of the CSV log `csv`, each `(path, compression)` with chunks compressed by
+/// `compression` (`none`, `bz2` or `lz4`), written by the `rosbags` Python package (an independent
+/// implementation of the format) in one run.
+pub fn ros1_bags(csv: &Path, bags: &[(&Path, &str)]) {
+    let specs: Vec<std::ffi::OsString> = bags
+        .iter()
+        .map(|(path, compression)| {
+            let mut spec = path.as_os_str().to_owned();
+            spec.push(format!(":{compression}"));
+            spec
+        })
+        .collect();
+    let mut args = vec![csv];
+    args.extend(specs.iter().map(Path::new));
+    crate::common::run_python("ros1_bag.py", &args);
 }

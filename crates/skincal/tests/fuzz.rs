@@ -544,8 +544,7 @@ fn formats(work: &Path) -> Vec<Format> {
     let db3_path = valid.join("log.db3");
     bags::mcap_to_db3(&mcap_path, &db3_path);
     let (bag_path, bz2_path) = (valid.join("log.bag"), valid.join("bz2.bag"));
-    bags::ros1_bag(&csv_dir, &bag_path, "none");
-    bags::ros1_bag(&csv_dir, &bz2_path, "bz2");
+    bags::ros1_bags(&csv_dir, &[(&bag_path, "none"), (&bz2_path, "bz2")]);
     let urdf = std::fs::read(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/fixtures/arm.urdf"

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::bags::{mcap_to_db3, ros1_bag, rosbag2};
+use crate::bags::{mcap_to_db3, ros1_bags, rosbag2};
 
 use nalgebra::Vector3;
 use skincal::estimate::body::calibrate_body;
@@ -1040,10 +1040,19 @@ fn ros1_bags_written_by_the_rosbags_package_read_like_the_csv_log_they_hold() {
         )
     };
     let from_csv = read(&csv).unwrap();
-    for compression in ["none", "bz2", "lz4"] {
-        let bag = dir.path().join(format!("{compression}.bag"));
-        ros1_bag(&csv, &bag, compression);
-        let from_bag = read(&bag).unwrap();
+    let compressions = ["none", "bz2", "lz4"];
+    let bags: Vec<_> = compressions
+        .iter()
+        .map(|c| dir.path().join(format!("{c}.bag")))
+        .collect();
+    let specs: Vec<(&Path, &str)> = bags
+        .iter()
+        .zip(compressions)
+        .map(|(b, c)| (b.as_path(), c))
+        .collect();
+    ros1_bags(&csv, &specs);
+    for (bag, compression) in specs {
+        let from_bag = read(bag).unwrap();
         let (a, b) = (&from_csv.measurements, &from_bag.measurements);
         assert_eq!(from_bag.report.logs[0].format, "ros1 bag");
         assert_eq!(a.training, b.training, "{compression}");

@@ -700,7 +700,7 @@ pub mod internals {
             .iter()
             .map(|d| {
                 let moved = retract(state, &spec, d);
-                problem::dense_problem(&moved, &layout, &readings, &spec, 0.05).0
+                problem::dense_residuals(&moved, &layout, &readings, &spec, 0.05)
             })
             .collect();
         (r, jac, after)
@@ -768,13 +768,12 @@ pub mod internals {
         delta: &[f64],
     ) -> nalgebra::DVector<f64> {
         let (layout, spec) = full_of(data);
-        problem::dense_problem(
+        problem::dense_residuals(
             &retract(state, &spec, delta),
             &layout,
             &readings(data),
             &spec,
             sigma,
         )
-        .0
     }
 }

@@ -1509,17 +1509,44 @@ pub(super) fn dense_problem(
     spec: &Spec,
     sigma: f64,
 ) -> (DVector<f64>, DMatrix<f64>) {
+    dense_rows(state, layout, data, spec, sigma, true)
+}
+
+/// The residuals of [`dense_problem`] alone (no Jacobian is formed).
+pub(super) fn dense_residuals(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> DVector<f64> {
+    dense_rows(state, layout, data, spec, sigma, false).0
+}
+
+/// [`dense_problem`], its Jacobian formed when `jacobian` (else it has no columns).
+fn dense_rows(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+    jacobian: bool,
+) -> (DVector<f64>, DMatrix<f64>) {
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, data, spec, &map, sigma, true, true);
+    let inputs = Blocks::new(state, layout, data, spec, &map, sigma, jacobian, true);
     let blocks: Vec<SuBlock> = (0..spec.sus.len()).map(|i| inputs.block(i)).collect();
     let priors = joint_priors(state, data, spec, &map);
     let rows: usize = blocks.iter().map(|b| b.r.len()).sum::<usize>() + 3 * priors.len();
     let mut r = DVector::zeros(rows);
-    let mut jac = DMatrix::zeros(rows, map.slots.len());
+    let mut jac = DMatrix::zeros(rows, if jacobian { map.slots.len() } else { 0 });
     let mut row = 0;
     for (i, block) in blocks.iter().enumerate() {
         let n = block.r.len();
         r.rows_mut(row, n).copy_from(&block.r);
+        if !jacobian {
+            row += n;
+            continue;
+        }
         for (col, slot) in map.slots.iter().enumerate() {
             match *slot {
                 Slot::Shared(j) => jac
@@ -1540,11 +1567,13 @@ pub(super) fn dense_problem(
         .filter(|(_, slot)| matches!(slot, Slot::Shared(_)))
         .map(|(col, _)| col)
         .collect();
-    for (columns, jacobian, residual) in priors {
+    for (columns, prior_jacobian, residual) in priors {
         r.fixed_rows_mut::<3>(row).copy_from(&residual);
-        for (k, &c) in columns.iter().enumerate() {
-            jac.fixed_view_mut::<3, 1>(row, shared_at[c])
-                .copy_from(&jacobian.column(k));
+        if jacobian {
+            for (k, &c) in columns.iter().enumerate() {
+                jac.fixed_view_mut::<3, 1>(row, shared_at[c])
+                    .copy_from(&prior_jacobian.column(k));
+            }
         }
         row += 3;
     }
