@@ -16,10 +16,10 @@
 //!   prints the command that installs them. The tests find the browser through
 //!   `SKINCAL_TEST_CHROMIUM`.
 //!
-//! After the Rust tests, a full run (no ARGS) tests the Python package: the release `skincal`
-//! command is built, the package is installed into the same environment
-//! (`pip install ./crates/skincal-py`, built by maturin from the same target directory), and
-//! `pytest crates/skincal-py/tests` and `examples/paper_arm.py` run.
+//! After the Rust tests, a full run (no ARGS) tests the Python package: the package is installed
+//! into the same environment (`pip install ./crates/skincal-py`, built by maturin from the same
+//! target directory), and `pytest crates/skincal-py/tests` and `examples/paper_arm.py` run against
+//! the release `skincal` command the Rust tests built.
 //!
 //! Nothing is skipped silently: what cannot be installed ends the task with the command that fixes it.
 //! `cargo xtask test-env` does the installation alone and prints the environment's Python.
@@ -136,16 +136,17 @@ fn step(program: &Path, args: &[&str], envs: &[(&str, &Path)], fix: &str) -> Res
     }
 }
 
-/// The Python package: the release command the tests compare with, the package installed into the
-/// test environment, then its tests and example.
+/// The Python package: installed into the test environment, then its tests and example, which
+/// compare it with the release command the Rust tests built (`cli`'s integration tests need it, so
+/// `cargo test --workspace --release` leaves it in the target directory).
 fn python_package(python: &Path) -> Result<ExitCode, String> {
-    let cargo = PathBuf::from(env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
-    step(
-        &cargo,
-        &["build", "--release", "--quiet", "-p", "skincal-cli"],
-        &[],
-        "see the build errors above",
-    )?;
+    let binary = target_dir(&workspace_root()).join("release/skincal");
+    if !binary.exists() {
+        return Err(format!(
+            "{} is missing after the tests: build it with cargo build --release",
+            binary.display()
+        ));
+    }
     step(
         python,
         &[
@@ -159,7 +160,6 @@ fn python_package(python: &Path) -> Result<ExitCode, String> {
         &[],
         "pip builds the package with maturin from PyPI (is PyPI reachable?)",
     )?;
-    let binary = target_dir(&workspace_root()).join("release/skincal");
     let envs = [("SKINCAL_BIN", binary.as_path())];
     step(
         python,
