@@ -208,6 +208,7 @@ impl FinalFit {
             iterations,
             seconds: started.elapsed().as_secs_f64(),
             state: Some(state),
+            runner_ups: Vec::new(),
             problem: FitProblem(Some(std::sync::Arc::new(problem))),
         })
     }

@@ -96,6 +96,7 @@ pub use report::{
     Unobservable, INTRINSICS_TEST_Z,
 };
 use robust::{leave_out_glitches, su_residual_ratios, weigh_by_noise_components};
+pub use search::RUNNER_UP_MARGIN;
 use search::{fit_ordered, keep_best, order_joints, spans, Retries, Span};
 pub use segment_sus::STATIC_ONLY_POSITIONS;
 use segment_sus::{add_segment_sus, full_spec, positions_in_one, su_intrinsics};

@@ -416,6 +416,11 @@ pub struct MlChainEstimate {
     /// The estimate in the estimator's own chart (not written to files).
     #[serde(skip)]
     pub state: Option<ChainState>,
+    /// The search's other end states whose readings fit within [`RUNNER_UP_MARGIN`] of the one
+    /// kept: readings that cannot tell them apart (static readings alone, a record's quiet
+    /// moments) leave the motion to choose (not written to files).
+    #[serde(skip)]
+    pub runner_ups: Vec<ChainState>,
     /// What its final fit solved (not written to files; no part of the estimate's value).
     #[serde(skip)]
     pub(crate) problem: FitProblem,

@@ -255,22 +255,36 @@ pub(super) fn fit_ordered(
         beam = next;
         iterations += its;
     }
-    let mut state = beam.swap_remove(0).0;
-    if vertical {
-        // Held along the first axis in the final fit (below).
-        state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
-    }
-    final_fit(
+    let upright = |mut state: ChainState| {
+        if vertical {
+            // Held along the first axis in the final fit (below).
+            state.gravity = Vector3::new(0.0, 0.0, state.gravity.z.signum() * state.gravity.norm());
+        }
+        state
+    };
+    let (state, best) = beam.remove(0);
+    let runner_ups = beam
+        .into_iter()
+        .filter(|(_, cost)| cost - best <= RUNNER_UP_MARGIN)
+        .map(|(state, _)| upright(state))
+        .collect();
+    let mut estimate = final_fit(
         data,
         base,
         search.readings,
-        state,
+        upright(state),
         vertical,
         iterations,
         started,
         config,
-    )
+    )?;
+    estimate.runner_ups = runner_ups;
+    Ok(estimate)
 }
+
+/// How much more than the best a search's end state may cost (`χ²`, whitened) and still be a
+/// runner-up ([`MlChainEstimate::runner_ups`]): a likelihood ratio the readings cannot tell.
+pub const RUNNER_UP_MARGIN: f64 = 9.0;
 
 /// Refuses a limb with fewer poses than its parameters need (at least [`crate::estimate::body::MIN_POSES`]).
 pub(super) fn enough_poses(data: &LimbData, base_dofs: usize) -> Result<(), EstimateError> {
