@@ -11,6 +11,13 @@ fn skincal(args: &[&str], dir: &Path) -> Output {
         .expect("run skincal")
 }
 
+/// The real robots' descriptions `cargo xtask test` unpacks.
+fn robot_descriptions() -> std::path::PathBuf {
+    std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
+        .map(std::path::PathBuf::from)
+        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`")
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -864,9 +871,7 @@ fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let panda = d.join("panda.urdf");
-    let stock = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
-        .map(|r| Path::new(&r).join("panda_description/urdf/panda.urdf"))
-        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let stock = robot_descriptions().join("panda_description/urdf/panda.urdf");
     let text = std::fs::read_to_string(stock).unwrap();
     // The fingers are held: the plan drives the arm's seven joints.
     std::fs::write(&panda, text.replace("type=\"prismatic\"", "type=\"fixed\"")).unwrap();
@@ -912,9 +917,7 @@ fn a_plans_ros2_trajectories_round_trip_through_the_reference_ros2_libraries() {
 fn the_merged_urdf_loads_in_mujoco_where_the_robots_own_did_with_one_body_per_su() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let root = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
-        .map(std::path::PathBuf::from)
-        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let root = robot_descriptions();
     let stock = std::fs::read_to_string(root.join("panda_description/urdf/panda.urdf"))
         .unwrap()
         .replace("type=\"prismatic\"", "type=\"fixed\"");
@@ -1009,9 +1012,7 @@ fn the_merged_urdf_loads_in_mujoco_where_the_robots_own_did_with_one_body_per_su
 fn planned_programs_keep_clear_of_the_robots_body_by_mujocos_collision_check() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let root = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
-        .map(std::path::PathBuf::from)
-        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let root = robot_descriptions();
     // Copies with the fingers held and the meshes named by absolute paths.
     let copy = |path: &str| {
         let text = std::fs::read_to_string(root.join(path)).unwrap();
@@ -2175,9 +2176,7 @@ fn every_number_the_report_draws_is_the_one_the_cli_prints() {
 fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let stock = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
-        .map(|r| Path::new(&r).join("panda_description/urdf/panda.urdf"))
-        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let stock = robot_descriptions().join("panda_description/urdf/panda.urdf");
     let stock = stock.to_str().unwrap();
     let run = |args: &[&str]| {
         let out = skincal(args, d);
@@ -2231,9 +2230,7 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
 fn a_head_the_quiet_moments_leave_open_is_led_from_its_runner_up() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let root = std::env::var_os("SKINCAL_ROBOT_DESCRIPTIONS")
-        .map(std::path::PathBuf::from)
-        .expect("SKINCAL_ROBOT_DESCRIPTIONS is not set: run the tests with `cargo xtask test`");
+    let root = robot_descriptions();
     let urdf = root.join("talos_data/robots/talos_reduced.urdf");
     let urdf = urdf.to_str().unwrap();
     let run = |args: &[&str]| {
