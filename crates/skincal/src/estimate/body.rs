@@ -672,7 +672,8 @@ fn reference_sus(
 ///
 /// Static readings alone (a record's quiet moments) may not tell the search's end states apart:
 /// where the fit from the kept one ends off the noise level, each runner-up
-/// ([`MlChainEstimate::runner_ups`]) is led to the motion too, and the best fit is kept (a head on
+/// ([`MlChainEstimate::runner_ups`]) is led to the motion in turn until one reaches it, and the
+/// best fit is kept (a head on
 /// a humanoid's trunk from a continuous program ended at 30 σ from the one and at the noise level
 /// from the other, whose readings fit 0.2 worse in χ²).
 fn on_motion(
@@ -687,7 +688,23 @@ fn on_motion(
     let Some(start) = estimate.state.clone() else {
         return Ok(estimate);
     };
-    let mut best = refine(&data, record, base, start, &estimate, config)?;
+    // The intrinsics the readings chose: the motion's thousands of rows would take a larger
+    // model for the smallest misfit of the signal chain, and pay for it in variance.
+    let config = match estimate.intrinsics_model {
+        Some(model) if config.select_intrinsics && !data.static_only() => MlConfig {
+            intrinsics: model,
+            select_intrinsics: false,
+            ..*config
+        },
+        _ => *config,
+    };
+    // Each fit takes the limb's motion (built again for each: held twice, a long record's would
+    // double the memory).
+    let refine = |start: ChainState| {
+        let motion = LimbMotion::new(record, &data, config.noise_sd)?;
+        refine_on_motion(&data, base, start, motion, &config)
+    };
+    let mut best = refine(start)?;
     if best.converged || !data.static_only() {
         return Ok(best.after(estimate));
     }
@@ -697,7 +714,7 @@ fn on_motion(
         .into_iter()
         .enumerate()
     {
-        let mut other = refine(&data, record, base, runner_up, &estimate, config)?;
+        let mut other = refine(runner_up)?;
         estimate.retries.push(format!(
             "the search's runner-up {} led to the motion: residual {:.2} σ (was {:.2} σ)",
             k + 1,
@@ -709,33 +726,13 @@ fn on_motion(
         }
         iterations += other.iterations;
         seconds += other.seconds;
+        if best.converged {
+            break;
+        }
     }
     best.iterations += iterations;
     best.seconds += seconds;
     Ok(best.after(estimate))
-}
-
-/// The fit of `data` on every sample of `record` from `start` (see [`on_motion`]).
-fn refine(
-    data: &LimbData,
-    record: &MotionRecord,
-    base: Option<&LimbBase>,
-    start: ChainState,
-    estimate: &MlChainEstimate,
-    config: &MlConfig,
-) -> Result<MlChainEstimate, EstimateError> {
-    let motion = LimbMotion::new(record, data, config.noise_sd)?;
-    // The intrinsics the readings chose: the motion's thousands of rows would take a larger
-    // model for the smallest misfit of the signal chain, and pay for it in variance.
-    let config = match estimate.intrinsics_model {
-        Some(model) if config.select_intrinsics && !data.static_only() => MlConfig {
-            intrinsics: model,
-            select_intrinsics: false,
-            ..*config
-        },
-        _ => *config,
-    };
-    refine_on_motion(data, base, start, motion, &config)
 }
 
 /// A residual this many times the noise, and twice the limb's median SU's, marks a broken SU.
