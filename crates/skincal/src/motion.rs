@@ -4,9 +4,10 @@
 //! Every sample of the log is in it. A block holds the mean of each SU's fresh samples in it (a
 //! sample that exactly repeats the one before is a board behind its port, not a measurement) and
 //! the joint positions, velocities and accelerations at its centre from a local polynomial fitted
-//! to the joint states around it. The skin's block means are corrected for the block's own
-//! averaging (the mean of a signal over a block is its value at the centre plus `Δ²/24` of its
-//! second derivative), so that both sides describe the same instant.
+//! to the joint states around it. The skin's block means are referred to the block's centre from
+//! the times of their samples (a block mean is the reading at its samples' mean time, plus their
+//! spread times half the reading's second derivative), so that both sides describe the same
+//! instant.
 //!
 //! A coarse encoder needs a wide polynomial, which sees the joint's acceleration through a
 //! kernel of its half-width ([`SkinFilter`]); the time-domain fit then reads the skin through the

@@ -42,6 +42,7 @@
 
 mod assemble;
 mod base;
+mod blocks;
 mod fit;
 pub mod motion;
 mod pass;

@@ -8,13 +8,14 @@
 //! read through the same kernel, [`crate::motion::SkinFilter`], through which the positions and
 //! velocities are then read too; the rounding's share of the
 //! acceleration's uncertainty is a staircase's, [`rounded_acceleration_sd`]); the skin's fresh
-//! samples are averaged per block and corrected for the block's averaging.
+//! samples are averaged per block and referred to its centre ([`super::blocks`]).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{SMatrix, SVector};
 
+use super::blocks::{raw_means, values, Centring, RawMean, SkinSum};
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
@@ -62,18 +63,18 @@ struct Gathered {
     /// `(stamp, position)` per DoF, in stamp order.
     joints: Vec<Vec<(f64, f64)>>,
     skin: Vec<SkinSeries>,
-    /// `sums[block][u]`: `[Σx, Σy, Σz, n]` of SU `u`'s fresh samples in the block. Block-major,
-    /// so that the record's runs take them a block at a time and free each as they go: a minute
-    /// of 100 SUs is 20 MB, and is not held twice.
-    sums: Vec<Vec<[f64; 4]>>,
+    /// `sums[block][u]`: SU `u`'s fresh samples in the block. Block-major, so that the record's
+    /// runs take them a block at a time and free each as they go: a minute of 100 SUs is 29 MB,
+    /// and is not held twice.
+    sums: Vec<Vec<SkinSum>>,
     /// The first stamp of the log (block 0 starts there).
     origin: f64,
 }
 
 impl Gathered {
-    /// Takes sample `a` of SU `u` stamped `stamp` (`usable`: finite and within range) of block
-    /// `block`.
-    fn add_skin(&mut self, u: usize, block: usize, stamp: f64, a: [f64; 3], usable: bool) {
+    /// Takes sample `a` of SU `u` stamped `stamp` (`usable`: finite and within range), taken
+    /// `at` blocks after the origin.
+    fn add_skin(&mut self, u: usize, at: f64, stamp: f64, a: [f64; 3], usable: bool) {
         let series = &mut self.skin[u];
         let repeat = series.last == Some(a);
         series.count.add(stamp, usable, repeat);
@@ -82,29 +83,23 @@ impl Gathered {
             return;
         }
         series.last = Some(a);
+        let block = at as usize;
         if self.sums.len() <= block {
             self.sums.resize_with(block + 1, Vec::new);
         }
         let row = &mut self.sums[block];
         if row.is_empty() {
-            row.resize(self.skin.len(), [0.0; 4]);
+            row.resize(self.skin.len(), SkinSum::default());
         }
-        let s = &mut row[u];
-        s[0] += a[0];
-        s[1] += a[1];
-        s[2] += a[2];
-        s[3] += 1.0;
+        row[u].add(a, at - block as f64 - 0.5);
     }
 
-    /// Every SU's mean of block `block`, its sums freed.
-    fn take_means(&mut self, block: usize) -> Vec<Option<[f64; 3]>> {
-        let row = self.sums.get_mut(block).map(std::mem::take);
-        (0..self.skin.len())
-            .map(|u| {
-                let s = row.as_ref()?.get(u)?;
-                (s[3] > 0.0).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
-            })
-            .collect()
+    /// Every SU's mean of block `block` and when its samples were taken, its sums freed.
+    fn take_means(&mut self, block: usize) -> Vec<Option<RawMean>> {
+        match self.sums.get_mut(block).map(std::mem::take) {
+            Some(row) if !row.is_empty() => raw_means(&row),
+            _ => vec![None; self.skin.len()],
+        }
     }
 }
 
@@ -259,10 +254,10 @@ fn gather(
                         gathered.origin = stamp;
                     }
                     let a = acceleration.map(|x| x * config.skin_scale);
-                    let block = (stamp - gathered.origin) / BLOCK;
+                    let at = (stamp - gathered.origin) / BLOCK;
                     let usable = a.iter().all(|x| x.is_finite()) && !config.saturated(&a);
-                    if let (Some(&u), true) = (su_index.get(frame_id), block >= 0.0) {
-                        gathered.add_skin(u, block as usize, stamp, a, usable);
+                    if let (Some(&u), true) = (su_index.get(frame_id), at >= 0.0) {
+                        gathered.add_skin(u, at, stamp, a, usable);
                     }
                 }
             }
@@ -292,6 +287,7 @@ fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) 
     let blocks = ((last - gathered.origin) / BLOCK).floor().max(0.0) as usize;
     let mut runs: Vec<MotionRun> = Vec::new();
     let mut open = false;
+    let mut centring = Centring::default();
     let mut cursors = vec![0usize; gathered.joints.len()];
     let kernel = Kernel::of_record(h, BLOCK);
     let roundings: Vec<f64> = gathered
@@ -320,6 +316,9 @@ fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) 
             .collect();
         let means = gathered.take_means(b);
         let Some(fitted) = fitted else {
+            if let (true, Some(run)) = (open, runs.last_mut()) {
+                centring.finish(run);
+            }
             open = false;
             continue;
         };
@@ -328,12 +327,13 @@ fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) 
             open = true;
         }
         let run = runs.last_mut().expect("a run was opened");
-        run.push(&fitted, means);
+        run.push(&fitted, values(&means));
+        centring.push(run, means);
+    }
+    if let (true, Some(run)) = (open, runs.last_mut()) {
+        centring.finish(run);
     }
     runs.retain(|r| r.len() >= 3);
-    for run in &mut runs {
-        undo_block_averaging(&mut run.skin);
-    }
     runs
 }
 
@@ -525,42 +525,6 @@ fn rounded_acceleration_sd(weights: &[(f64, f64)], count: f64) -> f64 {
         .map(|(k, sum)| sum.norm_sqr() / (2.0 * (std::f64::consts::PI * (k + 1) as f64).powi(2)))
         .sum();
     count * variance.sqrt()
-}
-
-/// Each block mean minus `1/24` of its second difference: the mean of a smooth signal over a block
-/// is its value at the centre plus `Δ²/24` of its second derivative. Blocks without both
-/// neighbours keep their mean.
-///
-/// In place: only the raw means of the block before are kept aside (a copy of the whole record's
-/// skin would double the record stage's memory).
-fn undo_block_averaging(skin: &mut [Vec<Option<[f64; 3]>>]) {
-    let Some(first) = skin.first() else {
-        return;
-    };
-    let mut before = first.clone();
-    for b in 1..skin.len().saturating_sub(1) {
-        let corrected = correct_block(&before, &skin[b], &skin[b + 1]);
-        before = std::mem::replace(&mut skin[b], corrected);
-    }
-}
-
-/// One block's means corrected from its own and its neighbours' raw means (see
-/// [`undo_block_averaging`]); an SU missing from any of the three keeps its mean.
-pub(super) fn correct_block(
-    before: &[Option<[f64; 3]>],
-    means: &[Option<[f64; 3]>],
-    after: &[Option<[f64; 3]>],
-) -> Vec<Option<[f64; 3]>> {
-    means
-        .iter()
-        .enumerate()
-        .map(|(u, &m)| match (m, before[u], after[u]) {
-            (Some(m), Some(before), Some(after)) => Some(std::array::from_fn(|i| {
-                m[i] - (after[i] - 2.0 * m[i] + before[i]) / 24.0
-            })),
-            _ => m,
-        })
-        .collect()
 }
 
 /// The standard deviation of one component of SU `u`'s corrected block means, from three
@@ -777,39 +741,6 @@ mod tests {
         }
     }
 
-    #[test]
-    fn undoing_the_block_averaging_gives_a_quadratics_value_at_each_centre() {
-        // The mean of t² over a block of width Δ about c is c² + Δ²/12, exactly: corrected by
-        // 1/24 of the means' second difference (2Δ² for t²), it is c². Each correction must read
-        // the raw neighbours, not the one corrected before it.
-        let delta = BLOCK;
-        let centre = |b: usize| (b as f64 + 0.5) * delta;
-        let mean = |b: usize| centre(b).powi(2) + delta * delta / 12.0;
-        let mut skin: Vec<Vec<Option<[f64; 3]>>> = (0..8)
-            .map(|b| vec![Some([mean(b), 2.0 * mean(b), -mean(b)]), Some([1.0; 3])])
-            .collect();
-        // SU 1 sent nothing in block 4: blocks 3–5 keep its mean.
-        skin[4][1] = None;
-        undo_block_averaging(&mut skin);
-        for (b, row) in skin.iter().enumerate() {
-            let m = row[0].unwrap();
-            let want = if b == 0 || b == 7 {
-                mean(b)
-            } else {
-                centre(b).powi(2)
-            };
-            for (got, scale) in m.iter().zip([1.0, 2.0, -1.0]) {
-                assert!(
-                    (got - scale * want).abs() < 1e-15,
-                    "block {b}: {got} for {}",
-                    scale * want
-                );
-            }
-            let constant = if b == 4 { None } else { Some([1.0; 3]) };
-            assert_eq!(row[1], constant, "block {b}");
-        }
-    }
-
     /// A skin whose block means carry independent noise of a known deviation, read while the
     /// arm holds still between short moves that start from rest (the speed below the still
     /// speed for a few blocks while the acceleration, and with it the reading, already grows):
@@ -822,6 +753,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let noise = Normal::new(0.0, sd).unwrap();
         let mut run = MotionRun::new("test", 0.0);
+        let mut centring = Centring::default();
         // 1000 cycles: 5 blocks of hold, then a move from rest whose acceleration ramps at
         // 45 rad/s³ for 5 blocks (the SU reads 0.8 q̈ more on each axis). The move's second and
         // third blocks are below the still speed (2 and 9 mrad/s) and read 0.36 and 0.72 m/s²
@@ -835,12 +767,16 @@ mod tests {
                 run.qdd.push(vec![qdd]);
                 run.qdd_sd.push(vec![0.0]);
                 let mean = [0.8 * qdd, 0.8 * qdd, 9.81 + 0.8 * qdd];
-                run.skin.push(vec![Some(std::array::from_fn(|i| {
-                    mean[i] + noise.sample(&mut rng)
-                }))]);
+                let raw = vec![Some(RawMean {
+                    value: std::array::from_fn(|i| mean[i] + noise.sample(&mut rng)),
+                    time: 0.0,
+                    time_squared: 1.0 / 12.0,
+                })];
+                run.skin.push(values(&raw));
+                centring.push(&mut run, raw);
             }
         }
-        undo_block_averaging(&mut run.skin);
+        centring.finish(&mut run);
         let truth = sd * (678.0f64 / 576.0).sqrt();
         let found = still_noise(&[run], 0, &IngestConfig::default()).unwrap();
         assert!(

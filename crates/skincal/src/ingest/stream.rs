@@ -1,12 +1,14 @@
 //! The motion record built as the samples come (a live stream, or a log read in chunks): the same
 //! blocks as [`super::motion::motion_record`] — joint states by the same local polynomials, the
-//! skin's fresh samples averaged per block and corrected for the averaging — each given out as
-//! soon as the joint states beyond its polynomial's window and the next block's skin have arrived.
+//! skin's fresh samples averaged per block and referred to its centre — each given out as soon as
+//! the joint states beyond its polynomial's window and the skin of the blocks its centring reads
+//! ([`super::blocks::CORRECTION_REACH`] after it) have arrived.
 //! Memory is bounded by that latency, not by the stream's length.
 
 use std::collections::{HashMap, VecDeque};
 
-use super::motion::{correct_block, half_width, local_polynomial, BLOCK, HALF_WIDTHS};
+use super::blocks::{raw_means, values, Centring, RawMean, SkinSum};
+use super::motion::{half_width, local_polynomial, BLOCK, HALF_WIDTHS};
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
 use crate::log::Sample;
@@ -37,8 +39,8 @@ pub struct MotionStream {
     /// Once the widths are learnt: the kernel the joint states are read through (`None` inside:
     /// the record reads the block means, [`Kernel::of_record`]).
     kernel: Option<Option<Kernel>>,
-    /// Per block from `base`: per SU `[Σx, Σy, Σz, n]` of its fresh samples.
-    skin: VecDeque<Vec<[f64; 4]>>,
+    /// Per block from `base`: per SU its fresh samples.
+    skin: VecDeque<Vec<SkinSum>>,
     base: usize,
     /// Per SU: its last sample (a repeat is a slower board's value held by its port).
     last: Vec<Option<[f64; 3]>>,
@@ -47,10 +49,11 @@ pub struct MotionStream {
     latest_skin: f64,
     /// The next block to compute.
     next: usize,
-    /// Blocks computed, their skin means not yet corrected (the last waits for its successor).
+    /// Blocks computed; the last [`Centring::pending`] of them wait for the blocks after them
+    /// to refer their skin means to their centres.
     open: Option<MotionRun>,
-    /// The raw skin means of the block before `open`'s first (its correction's neighbour).
-    before: Option<Vec<Option<[f64; 3]>>>,
+    /// The open run's latest raw skin means.
+    centring: Centring,
     done: Vec<MotionRun>,
     /// Skin samples stamped in a block already given out.
     pub late_samples: usize,
@@ -84,7 +87,7 @@ impl MotionStream {
             latest_skin: f64::NEG_INFINITY,
             next: 0,
             open: None,
-            before: None,
+            centring: Centring::default(),
             done: Vec::new(),
             late_samples: 0,
         }
@@ -126,19 +129,16 @@ impl MotionStream {
                     return;
                 }
                 self.last[u] = Some(a);
-                let block = ((stamp - origin) / BLOCK) as usize;
+                let at = (stamp - origin) / BLOCK;
+                let block = at as usize;
                 if block < self.base.max(self.next) {
                     self.late_samples += 1;
                     return;
                 }
                 while self.base + self.skin.len() <= block {
-                    self.skin.push_back(vec![[0.0; 4]; self.su_count]);
+                    self.skin.push_back(vec![SkinSum::default(); self.su_count]);
                 }
-                let cell = &mut self.skin[block - self.base][u];
-                for i in 0..3 {
-                    cell[i] += a[i];
-                }
-                cell[3] += 1.0;
+                self.skin[block - self.base][u].add(a, at - block as f64 - 0.5);
             }
         }
         self.advance();
@@ -169,8 +169,8 @@ impl MotionStream {
                     .iter()
                     .all(|j| j.back().is_some_and(|&(t, _)| t > centre + h))
             });
-            // The block after this one holds the skin its correction needs.
-            let skin_in = self.latest_skin > centre + 1.5 * BLOCK + SKIN_LATENCY;
+            // The block's own skin is in (its correction waits for the blocks after it).
+            let skin_in = self.latest_skin > centre + 0.5 * BLOCK + SKIN_LATENCY;
             if !(joints_in && skin_in) {
                 return;
             }
@@ -214,17 +214,16 @@ impl MotionStream {
         let run = self
             .open
             .get_or_insert_with(|| MotionRun::new(label, centre));
-        run.push(&fitted, raw);
+        run.push(&fitted, values(&raw));
+        self.centring.push(run, raw);
     }
 
-    /// Block `b`'s raw skin means.
-    fn raw_means(&self, b: usize) -> Vec<Option<[f64; 3]>> {
-        let Some(row) = b.checked_sub(self.base).and_then(|i| self.skin.get(i)) else {
-            return vec![None; self.su_count];
-        };
-        row.iter()
-            .map(|c| (c[3] > 0.0).then(|| [c[0] / c[3], c[1] / c[3], c[2] / c[3]]))
-            .collect()
+    /// Block `b`'s raw skin means and when their samples were taken.
+    fn raw_means(&self, b: usize) -> Vec<Option<RawMean>> {
+        match b.checked_sub(self.base).and_then(|i| self.skin.get(i)) {
+            Some(row) => raw_means(row),
+            None => vec![None; self.su_count],
+        }
     }
 
     /// Drops what no later block needs.
@@ -235,39 +234,29 @@ impl MotionStream {
                 series.pop_front();
             }
         }
-        // The block just computed stays: the next one's correction needs it.
-        while self.base + 1 < self.next && !self.skin.is_empty() {
+        // The centring keeps the raw means the corrections still need.
+        while self.base < self.next && !self.skin.is_empty() {
             self.skin.pop_front();
             self.base += 1;
         }
     }
 
-    /// Ends the open run: every block of it corrected, the last against no successor.
+    /// Ends the open run: every block of it corrected, the last ones from the blocks before.
     fn close(&mut self) {
-        if let Some(run) = self.open.take() {
-            self.done.push(finished(run, self.before.take(), None));
+        if let Some(mut run) = self.open.take() {
+            self.centring.finish(&mut run);
+            self.done.push(run);
         }
     }
 
-    /// Every block given out so far, as runs; the last block computed stays behind until its
-    /// successor's skin has come.
+    /// Every block given out so far, as runs; the last blocks computed stay behind until the
+    /// skin of the blocks after them has come.
     pub fn take(&mut self) -> Vec<MotionRun> {
-        if let Some(run) = self.open.as_mut().filter(|r| r.len() >= 2) {
-            let n = run.len() - 1;
-            let keep = MotionRun {
-                log: run.log.clone(),
-                start: run.start + n as f64 * BLOCK,
-                q: run.q.split_off(n),
-                qd: run.qd.split_off(n),
-                qdd: run.qdd.split_off(n),
-                qdd_sd: run.qdd_sd.split_off(n),
-                skin: run.skin.split_off(n),
-            };
+        let pending = self.centring.pending();
+        if let Some(run) = self.open.as_mut().filter(|r| r.len() > pending) {
+            let keep = run.split_off(run.len() - pending, BLOCK);
             let given = std::mem::replace(run, keep);
-            let after = run.skin.first().cloned();
-            let before = given.skin.last().cloned();
-            let old = std::mem::replace(&mut self.before, before);
-            self.done.push(finished(given, old, after));
+            self.done.push(given);
         }
         std::mem::take(&mut self.done)
     }
@@ -326,31 +315,4 @@ impl MotionStream {
             self.skin.len() + self.open.as_ref().map_or(0, MotionRun::len),
         )
     }
-}
-
-/// `run` with its skin means corrected for the block's averaging, `before`/`after` the raw means
-/// of the blocks around it (where they are).
-fn finished(
-    mut run: MotionRun,
-    before: Option<Vec<Option<[f64; 3]>>>,
-    after: Option<Vec<Option<[f64; 3]>>>,
-) -> MotionRun {
-    let raw = run.skin.clone();
-    let n = raw.len();
-    for b in 0..n {
-        let prev = if b == 0 {
-            before.as_ref()
-        } else {
-            raw.get(b - 1)
-        };
-        let next = if b + 1 == n {
-            after.as_ref()
-        } else {
-            raw.get(b + 1)
-        };
-        if let (Some(prev), Some(next)) = (prev, next) {
-            run.skin[b] = correct_block(prev, &raw[b], next);
-        }
-    }
-    run
 }
