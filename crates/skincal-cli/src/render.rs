@@ -505,9 +505,17 @@ fn fit_lines(out: &mut String, e: &skincal::estimate::ml::MlChainEstimate) {
                 )
             })
             .collect();
+        let pooled = if e.intrinsics_left_out.is_empty() {
+            "every limb of the skin pooled".to_string()
+        } else {
+            format!(
+                "the skin's limbs at the noise level pooled ({} left out: off it, a misfit is no sensor's)",
+                e.intrinsics_left_out.join(", ")
+            )
+        };
         let _ = writeln!(
             out,
-            "intrinsics as the data chose, every limb of the skin pooled: {} ({})",
+            "intrinsics as the data chose, {pooled}: {} ({})",
             e.intrinsics_model.map_or("?", |m| m.name()),
             tests.join("; ")
         );

@@ -2221,11 +2221,15 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
 }
 
 /// TALOS from its continuous program alone, as a user makes it (`plan --seed 2`, `record --seed
-/// 1` with 2 SUs per link, upright and tilted): the head on the trunk, both started from the
-/// record's quiet moments and fitted on every sample, reach the noise level, and the second
-/// joints of both agree with the URDF (head_2_joint 0.005° ± 0.015, 0.01 ± 0.11 mm).
+/// 1` with 2 SUs per link, upright and tilted), every limb started from the record's quiet
+/// moments and fitted on every sample: the trunk, the head, the legs and the right arm reach the
+/// noise level and every joint of theirs agrees with the URDF; the left arm does not (a wrong
+/// basin, 17 σ), and is named, and left out of what the others decide together: the skin's
+/// sensor model (clean: none; with the arm pooled in, bias and scale were taken, z = 84) and the
+/// body's joint fit (with the arm in it, torso_2_joint ended 19 mm off; without, 0.013° ± 0.013
+/// and 0.05 ± 0.05 mm, its deviation 0.35° from the trunk's own SUs).
 #[test]
-fn a_humanoids_head_calibrates_from_its_continuous_program_alone() {
+fn a_humanoid_calibrates_from_its_continuous_program_alone_what_reaches_the_noise() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let root = robot_descriptions();
@@ -2262,41 +2266,82 @@ fn a_humanoids_head_calibrates_from_its_continuous_program_alone() {
     run(&[&record[..], &["--seed", "1"], &tilted[..]].concat());
     run(&["ingest", "up.mcap", "tilt.mcap", "--out", "ing"]);
     run(&["explore", "ing"]);
-    let structure: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("ing/structure.json")).unwrap()).unwrap();
-    let head = structure["limbs"]
-        .as_array()
-        .unwrap()
+    let out = run(&["calibrate", "ing"]);
+    // Each limb's report, by its name.
+    let reports: Vec<(&str, &str)> = out
+        .split("\nlimb ")
+        .skip(1)
+        .map(|r| (r.split_whitespace().next().unwrap(), r))
+        .collect();
+    let limb_of = |dof: &str| {
+        reports
+            .iter()
+            .find(|(_, r)| r.lines().next().unwrap().contains(dof))
+            .unwrap_or_else(|| panic!("no limb with {dof}: {out}"))
+    };
+    for dof in ["torso_2_joint", "head_2_joint"] {
+        let (_, report) = limb_of(dof);
+        assert!(
+            report.contains(": converged;") && !report.contains("NOT CONVERGED"),
+            "{report}"
+        );
+    }
+    // The sensor model is the clean skin's, from the limbs at the noise level only: a limb off
+    // it is named as left out, and takes no part in the body's joint fit.
+    let failed: Vec<&str> = reports
         .iter()
-        .find(|l| {
-            l["dofs"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .any(|x| x == "head_2_joint")
-        })
-        .unwrap()["to"]
-        .as_str()
-        .unwrap()
-        .to_string();
-    let out = run(&["calibrate", "ing", "--limb", &head]);
-    let report = out
-        .split(&format!("limb {head} "))
-        .nth(1)
-        .expect("the head's report");
-    assert!(
-        report.contains(": converged;") && !report.contains("NOT CONVERGED"),
-        "{report}"
-    );
-    let model = format!("ing/model-{head}.json");
-    let check = skincal(&["check-urdf", &model, urdf], d);
+        .filter(|(_, r)| r.contains("NOT CONVERGED"))
+        .map(|(name, _)| *name)
+        .collect();
+    for (name, report) in &reports {
+        let line = report
+            .lines()
+            .find(|l| l.starts_with("intrinsics as the data chose"))
+            .unwrap_or_else(|| panic!("limb {name}: {report}"));
+        assert!(line.contains(": none ("), "{line}");
+        for f in &failed {
+            assert!(
+                line.contains(&format!("{f} left out")) || line.contains(&format!("{f},")),
+                "{line}"
+            );
+        }
+        if failed.contains(name) {
+            assert!(!report.contains("fitted with the"), "{report}");
+        }
+    }
+    let check = skincal(&["check-urdf", "ing/model.json", urdf], d);
     let check = String::from_utf8_lossy(&check.stdout).into_owned();
-    for joint in ["torso_2_joint", "head_2_joint"] {
+    // Every joint of a limb at the noise level agrees with the URDF; the trunk's, fitted with
+    // every SU it moves, within 0.05°.
+    let mut checked = 0;
+    for (name, report) in reports.iter().filter(|(n, _)| !failed.contains(n)) {
+        let header = report.lines().next().unwrap();
+        let dofs: Vec<&str> = header
+            .split("DoFs: ")
+            .nth(1)
+            .and_then(|r| r.split(';').next())
+            .unwrap()
+            .split(", ")
+            .collect();
+        for line in check.lines().filter(|l| {
+            l.split_whitespace()
+                .next()
+                .is_some_and(|j| dofs.contains(&j))
+        }) {
+            assert!(
+                line.contains("agrees") || line.contains("limb base"),
+                "limb {name}: {line}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 20, "{checked} joints checked: {check}");
+    for (joint, bound) in [("torso_2_joint", 0.05), ("head_2_joint", 0.1)] {
         let line = check
             .lines()
             .find(|l| l.starts_with(joint))
             .unwrap_or_else(|| panic!("{joint} checked: {check}"));
         let angle: f64 = line.split_whitespace().nth(1).unwrap().parse().unwrap();
-        assert!(angle < 0.1 && line.contains("agrees"), "{line}");
+        assert!(angle < bound && line.contains("agrees"), "{line}");
     }
 }

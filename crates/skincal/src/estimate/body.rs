@@ -411,11 +411,23 @@ fn calibrate_body_on(
         return Ok(model);
     }
     // One skin, one sensor model: the limbs' tests pooled decide it, so that a limb with few SUs
-    // (a trunk, whose estimate the limbs on it hold) is not left to decide alone.
+    // (a trunk, whose estimate the limbs on it hold) is not left to decide alone. A limb whose
+    // fit ended off the noise level is left out (its misfit is what a larger sensor model would
+    // take up: a TALOS arm at 17 σ made a clean skin's pooled test take bias and scale with
+    // z = 84), unless no limb converged.
+    let any_converged = model.limbs.iter().any(|l| l.estimate.converged);
+    let pooled_in = |l: &BodyLimb| l.estimate.converged || !any_converged;
+    let left_out: Vec<String> = model
+        .limbs
+        .iter()
+        .filter(|l| !pooled_in(l) && !l.estimate.intrinsics_tests.is_empty())
+        .map(|l| l.name.clone())
+        .collect();
     let Some((chosen, pooled)) = super::ml::pooled_intrinsics(
         model
             .limbs
             .iter()
+            .filter(|l| pooled_in(l))
             .map(|l| l.estimate.intrinsics_tests.as_slice()),
     ) else {
         return Ok(model);
@@ -437,6 +449,7 @@ fn calibrate_body_on(
     for limb in &mut model.limbs {
         limb.estimate.intrinsics_model = Some(chosen);
         limb.estimate.intrinsics_tests.clone_from(&pooled);
+        limb.estimate.intrinsics_left_out.clone_from(&left_out);
     }
     Ok(model)
 }

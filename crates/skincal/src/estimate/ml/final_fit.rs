@@ -187,6 +187,7 @@ impl FinalFit {
             intrinsics: su_intrinsics(&state, spec, &flat_sus, cov, problem.intrinsics_model),
             intrinsics_model: Some(problem.intrinsics_model),
             intrinsics_tests: problem.intrinsics_tests.clone(),
+            intrinsics_left_out: Vec::new(),
             noise_components: problem.noise_components,
             rejected: problem.rejected.clone(),
             missing_excitations: if readings.motion.is_some() {

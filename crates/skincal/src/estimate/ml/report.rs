@@ -392,6 +392,11 @@ pub struct MlChainEstimate {
     /// With `select_intrinsics`: each larger model against the one before it, in order.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics_tests: Vec<IntrinsicsTest>,
+    /// The limbs of the body whose tests were left out of the pooled [`Self::intrinsics_tests`]:
+    /// their fits ended off the noise level, where a misfit, not the sensors, is what larger
+    /// sensor models would explain.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub intrinsics_left_out: Vec<String>,
     /// Where the set gives no reading its own deviation: the static and the dynamic readings'
     /// noise estimated apart from the residuals, which weighed them in the fit.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -49,7 +49,8 @@ enum Shared {
 /// Every limb of `estimates` that hangs on a limb starting at the reference segment fitted again
 /// with that limb and every other limb of its tree in one problem (`parents[i]`: the index of the
 /// limb that limb `i` hangs on); where the limbs fitted the skin's delay and the body has more
-/// than one tree, every tree in one problem with one delay first. A group is left as it was when
+/// than one tree, every tree in one problem with one delay first. Limbs whose own fits ended
+/// beyond [`MlConfig::converged_ratio`] take no part, nor do those that hang on them. A group is left as it was when
 /// a limb's final problem is not kept, or when the joint fit leaves a limb that converged on its
 /// own above the noise.
 pub fn refine_trees(
@@ -57,9 +58,19 @@ pub fn refine_trees(
     parents: &[Option<usize>],
     config: &MlConfig,
 ) -> Result<(), EstimateError> {
+    // A limb whose fit ended off the noise level (a wrong basin) is no evidence of what it shares
+    // with the others: it and the limbs that hang on it stay as they are (TALOS: an arm left at
+    // 17 σ pulled its trunk's second joint 19 mm from the truth, and the head and the other arm
+    // with it, each to 1.03–1.05 σ).
+    // A limb on a held path within [`MlConfig::converged_ratio`] is what this fit is for.
+    let mut joins = vec![false; estimates.len()];
+    for i in 0..estimates.len() {
+        let fits = estimates[i].converged || estimates[i].residual_ratio <= config.converged_ratio;
+        joins[i] = fits && parents[i].is_none_or(|p| joins[p]);
+    }
     let trees: Vec<Vec<usize>> = (0..estimates.len())
-        .filter(|&i| parents[i].is_none())
-        .map(|root| tree_of(root, parents))
+        .filter(|&i| parents[i].is_none() && joins[i])
+        .map(|root| tree_of(root, parents, &joins))
         .collect();
     let delayed = estimates.iter().any(|e| {
         e.problem
@@ -76,13 +87,14 @@ pub fn refine_trees(
     Ok(())
 }
 
-/// `root` and every limb that hangs on it, directly or not, parents before children.
-fn tree_of(root: usize, parents: &[Option<usize>]) -> Vec<usize> {
+/// `root` and every limb that hangs on it, directly or not, of those that `joins`, parents
+/// before children.
+fn tree_of(root: usize, parents: &[Option<usize>], joins: &[bool]) -> Vec<usize> {
     let mut tree = vec![root];
     let mut at = 0;
     while at < tree.len() {
         let parent = tree[at];
-        tree.extend((0..parents.len()).filter(|&i| parents[i] == Some(parent)));
+        tree.extend((0..parents.len()).filter(|&i| parents[i] == Some(parent) && joins[i]));
         at += 1;
     }
     tree
