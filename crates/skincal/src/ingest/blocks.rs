@@ -89,12 +89,12 @@ fn corrected(rows: &VecDeque<Vec<Option<RawMean>>>, index: usize, u: usize) -> O
             0.5 * (m.time_squared + 2.0 * shift * m.time + shift * shift),
         ]
     };
-    let rows_of = [before, (0.0, own), after];
-    let a = Matrix3::from_fn(|i, j| row(rows_of[i])[j]);
-    let lu = a.lu();
+    let means = [before, (0.0, own), after];
+    let a = means.map(row);
+    let lu = Matrix3::from_fn(|i, j| a[i][j]).lu();
     let mut value = [0.0; 3];
     for (c, v) in value.iter_mut().enumerate() {
-        let b = Vector3::from_fn(|i, _| rows_of[i].1.value[c]);
+        let b = Vector3::from_fn(|i, _| means[i].1.value[c]);
         *v = lu.solve(&b)?[0];
     }
     Some(value)
@@ -112,9 +112,10 @@ pub struct Centring {
 }
 
 impl Centring {
-    /// A run's next block: `run` has it already (pushed with its raw means, `raw`). Corrects in
-    /// `run` the block [`CORRECTION_REACH`] before it.
-    pub fn push(&mut self, run: &mut MotionRun, raw: Vec<Option<RawMean>>) {
+    /// Adds a block to `run` (per DoF `[q, q̇, q̈, q̈'s deviation]`, and each SU's raw mean, which
+    /// it holds until corrected) and corrects the block [`CORRECTION_REACH`] before it.
+    pub fn push(&mut self, run: &mut MotionRun, joints: &[[f64; 4]], raw: Vec<Option<RawMean>>) {
+        run.push(joints, raw.iter().map(|m| m.map(|m| m.value)).collect());
         self.rows.push_back(raw);
         if self.rows.len() > self.done + CORRECTION_REACH {
             self.correct_next(run);
@@ -156,11 +157,6 @@ pub fn raw_means(row: &[SkinSum]) -> Vec<Option<RawMean>> {
     row.iter().map(SkinSum::mean).collect()
 }
 
-/// The values of raw means, as a run holds a block before it is corrected.
-pub fn values(raw: &[Option<RawMean>]) -> Vec<Option<[f64; 3]>> {
-    raw.iter().map(|m| m.map(|m| m.value)).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -170,8 +166,7 @@ mod tests {
         let mut run = MotionRun::new("test", 0.0);
         let mut centring = Centring::default();
         for raw in means {
-            run.push(&[], values(raw));
-            centring.push(&mut run, raw.clone());
+            centring.push(&mut run, &[], raw.clone());
         }
         centring.finish(&mut run);
         run.skin

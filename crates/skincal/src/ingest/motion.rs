@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{SMatrix, SVector};
 
-use super::blocks::{raw_means, values, Centring, RawMean, SkinSum};
+use super::blocks::{raw_means, Centring, RawMean, SkinSum};
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
@@ -327,8 +327,7 @@ fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) 
             open = true;
         }
         let run = runs.last_mut().expect("a run was opened");
-        run.push(&fitted, values(&means));
-        centring.push(run, means);
+        centring.push(run, &fitted, means);
     }
     if let (true, Some(run)) = (open, runs.last_mut()) {
         centring.finish(run);
@@ -762,18 +761,14 @@ mod tests {
             for b in 0..10usize {
                 let t = b.saturating_sub(5) as f64 * BLOCK;
                 let (qdd, qd) = (45.0 * t, 22.5 * t * t);
-                run.q.push(vec![0.0]);
-                run.qd.push(vec![qd]);
-                run.qdd.push(vec![qdd]);
-                run.qdd_sd.push(vec![0.0]);
+                let joints = [[0.0, qd, qdd, 0.0]];
                 let mean = [0.8 * qdd, 0.8 * qdd, 9.81 + 0.8 * qdd];
                 let raw = vec![Some(RawMean {
                     value: std::array::from_fn(|i| mean[i] + noise.sample(&mut rng)),
                     time: 0.0,
                     time_squared: 1.0 / 12.0,
                 })];
-                run.skin.push(values(&raw));
-                centring.push(&mut run, raw);
+                centring.push(&mut run, &joints, raw);
             }
         }
         centring.finish(&mut run);

@@ -7,7 +7,7 @@
 
 use std::collections::{HashMap, VecDeque};
 
-use super::blocks::{raw_means, values, Centring, RawMean, SkinSum};
+use super::blocks::{raw_means, Centring, RawMean, SkinSum};
 use super::motion::{half_width, local_polynomial, BLOCK, HALF_WIDTHS};
 use super::timeline::encoder_rounding;
 use super::IngestConfig;
@@ -214,8 +214,7 @@ impl MotionStream {
         let run = self
             .open
             .get_or_insert_with(|| MotionRun::new(label, centre));
-        run.push(&fitted, values(&raw));
-        self.centring.push(run, raw);
+        self.centring.push(run, &fitted, raw);
     }
 
     /// Block `b`'s raw skin means and when their samples were taken.

@@ -50,9 +50,9 @@ enum Shared {
 /// with that limb and every other limb of its tree in one problem (`parents[i]`: the index of the
 /// limb that limb `i` hangs on); where the limbs fitted the skin's delay and the body has more
 /// than one tree, every tree in one problem with one delay first. Limbs whose own fits ended
-/// beyond [`MlConfig::converged_ratio`] take no part, nor do those that hang on them. A group is left as it was when
-/// a limb's final problem is not kept, or when the joint fit leaves a limb that converged on its
-/// own above the noise.
+/// beyond [`MlConfig::converged_ratio`] take no part, nor do those that hang on them. A group is
+/// left as it was when a limb's final problem is not kept, or when the joint fit leaves a limb
+/// that converged on its own above the noise.
 pub fn refine_trees(
     estimates: &mut [MlChainEstimate],
     parents: &[Option<usize>],
@@ -61,8 +61,8 @@ pub fn refine_trees(
     // A limb whose fit ended off the noise level (a wrong basin) is no evidence of what it shares
     // with the others: it and the limbs that hang on it stay as they are (TALOS: an arm left at
     // 17 σ pulled its trunk's second joint 19 mm from the truth, and the head and the other arm
-    // with it, each to 1.03–1.05 σ).
-    // A limb on a held path within [`MlConfig::converged_ratio`] is what this fit is for.
+    // with it, each to 1.03–1.05 σ). A limb on a held path within `converged_ratio`, whose
+    // misfit is its parent's path, is what this fit is for.
     let mut joins = vec![false; estimates.len()];
     for i in 0..estimates.len() {
         let fits = estimates[i].converged || estimates[i].residual_ratio <= config.converged_ratio;
