@@ -1,6 +1,7 @@
 //! `skincal calibrate`: kinematic estimation of every limb of a measurement set, by maximum
 //! likelihood (the default) or by the paper's method.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
@@ -390,8 +391,18 @@ fn motion_record(
                 skincal::estimate::body::MIN_POSES
             )
         };
+        let holds = skincal::estimate::quiet::structure_holds(set, &record);
+        let orientations = holds.iter().map(|p| p.orientation).collect::<BTreeSet<_>>();
+        let holds = match holds.len() {
+            0 => String::new(),
+            n => format!(
+                " and the structure part's {n} holds ({} base orientation{})",
+                orientations.len(),
+                if orientations.len() == 1 { "" } else { "s" }
+            ),
+        };
         outln!(
-            "{readings}: every limb starts from {} quiet moments of {} ({} blocks of {} ms) \
+            "{readings}: every limb starts from {} quiet moments of {} ({} blocks of {} ms){holds} \
              and is fitted on every sample of it",
             skincal::estimate::body::QUIET_POSES,
             motion_path.display(),

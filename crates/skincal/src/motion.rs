@@ -567,12 +567,7 @@ impl MotionRecord {
             .flat_map(|(r, run)| (0..run.len()).map(move |b| (r, b)))
             .collect();
         let count = count.min(blocks.len());
-        let motion = |(r, b): (usize, usize)| -> f64 {
-            let run = &self.runs[r];
-            let qdd: f64 = run.qdd[b].iter().map(|a| a.abs()).sum();
-            let qd2: f64 = run.qd[b].iter().map(|v| v * v).sum();
-            QUIET_REACH * (qdd + qd2)
-        };
+        let motion = |(r, b): (usize, usize)| self.runs[r].motion_at(b);
         (0..count)
             .filter_map(|k| {
                 let slice = &blocks[k * blocks.len() / count..(k + 1) * blocks.len() / count];
@@ -605,6 +600,58 @@ impl MotionRecord {
                 })
             })
             .collect()
+    }
+}
+
+impl MotionRun {
+    /// What the joint motion at block `b` could add to gravity, m/s² (at a reach of
+    /// [`QUIET_REACH`]: `Σ|q̈| + Σq̇²` times the reach).
+    fn motion_at(&self, b: usize) -> f64 {
+        let qdd: f64 = self.qdd[b].iter().map(|a| a.abs()).sum();
+        let qd2: f64 = self.qd[b].iter().map(|v| v * v).sum();
+        QUIET_REACH * (qdd + qd2)
+    }
+}
+
+/// The median angle between two static readings of one joint pose beyond which the base stood
+/// otherwise, rad (3°: a reading's noise turns it by well under a degree, a tilted mount turns
+/// every SU's gravity by the tilt, tens of degrees).
+pub const OTHER_BASE: f64 = 3.0 * std::f64::consts::PI / 180.0;
+/// How far a block's joint pose may be from a held one and still be it, rad (m): a few counts of
+/// a coarse encoder.
+const SAME_POSE: f64 = 0.005;
+/// A reading shorter than this (m/s²) tells no direction of gravity (a dead or railed SU).
+pub const LEAST_GRAVITY: f64 = 3.0;
+
+impl MotionRecord {
+    /// Whether the robot's base stood in the record as it did when `readings` (one static reading
+    /// per SU) were taken at joint pose `pose`: the median angle between them and the skin at the
+    /// record's quietest block at that pose is within [`OTHER_BASE`]. `None` where the record never
+    /// holds that pose, or no SU read gravity at both.
+    pub fn same_base(&self, pose: &[f64], readings: &[[f64; 3]]) -> Option<bool> {
+        let at_pose = |q: &[f64]| {
+            q.len() == pose.len() && q.iter().zip(pose).all(|(a, b)| (a - b).abs() <= SAME_POSE)
+        };
+        let (run, b) = self
+            .runs
+            .iter()
+            .flat_map(|run| (0..run.len()).map(move |b| (run, b)))
+            .filter(|(run, b)| at_pose(&run.q[*b]))
+            .min_by(|x, y| x.0.motion_at(x.1).total_cmp(&y.0.motion_at(y.1)))?;
+        let mut angles: Vec<f64> = readings
+            .iter()
+            .enumerate()
+            .filter_map(|(u, held)| {
+                let (read, _) = nearest_sample(run, u, b)?;
+                let (x, y) = (Vector3::from(read), Vector3::from(*held));
+                (x.norm() > LEAST_GRAVITY && y.norm() > LEAST_GRAVITY).then(|| x.angle(&y))
+            })
+            .collect();
+        if angles.is_empty() {
+            return None;
+        }
+        angles.sort_by(f64::total_cmp);
+        Some(angles[angles.len() / 2] <= OTHER_BASE)
     }
 }
 

@@ -333,8 +333,9 @@ pub fn calibrate_body_reporting(
 ///
 /// A set with fewer than [`MIN_POSES`] training poses (a continuous program, a log of ordinary
 /// work, servos that never came to rest at the poses: ingest finds too few readings) starts from
-/// [`QUIET_POSES`] of the record's quietest moments instead ([`MotionRecord::quiet_poses`],
-/// weighted by what the motion there could add to gravity); the poses it has are in the record.
+/// [`QUIET_POSES`] of the record's quietest moments and the structure experiment's holds instead
+/// ([`super::quiet::quiet_set`]: static readings, weighted by what the motion there could add to
+/// gravity); the poses it has are in the record.
 /// Without a structure part, the tree must come from an earlier structure experiment.
 pub fn calibrate_body_on_motion(
     set: &MeasurementSet,
@@ -356,13 +357,7 @@ pub fn calibrate_body_on_motion(
                 .into(),
         ));
     }
-    let mut quiet = set.clone();
-    quiet.training = Some(TrainingExperiment {
-        pattern: ExcitationPattern::default(),
-        poses: motion.quiet_poses(QUIET_POSES),
-        from_motion: true,
-        extra: Default::default(),
-    });
+    let quiet = super::quiet::quiet_set(set, motion);
     // The quiet readings' deviations are what weighs them, whatever weighs the rest.
     let config = MlConfig {
         reading_sd: true,
@@ -379,8 +374,7 @@ pub fn calibrate_body_on_motion(
     )
 }
 
-/// Quiet moments of a motion record that start a fit without training poses.
-pub const QUIET_POSES: usize = 40;
+pub use super::quiet::QUIET_POSES;
 
 /// The fewest training poses the readings' fit starts from: a DoF's axis and its joint's place
 /// take three poses whatever the number of SUs.

@@ -22,6 +22,7 @@ pub mod dh;
 pub mod limb;
 pub mod ml;
 pub mod paper;
+pub mod quiet;
 mod rescue;
 
 pub use dh::{chain_frames_at_zero, dh_form, true_dh_table, ChainFrames, DhRow, SuRow};

@@ -6,13 +6,8 @@
 
 use crate::measurements::Reading;
 
-/// The median angle between two logs' gravity readings at one joint pose beyond which their base
-/// stood otherwise, rad (3°: a reading's noise turns it by well under a degree, and a tilted
-/// mount turns every SU's gravity by the tilt, tens of degrees).
-pub const OTHER_BASE: f64 = 3.0 * std::f64::consts::PI / 180.0;
-
-/// A reading shorter than this (m/s²) tells no direction of gravity (a dead or railed SU).
-const LEAST_GRAVITY: f64 = 3.0;
+use crate::motion::LEAST_GRAVITY;
+pub(super) use crate::motion::OTHER_BASE;
 
 /// One still station of a log, as this module needs it: the log and the joint pose held.
 pub(super) type Still<'a> = (usize, &'a [f64]);

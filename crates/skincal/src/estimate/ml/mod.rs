@@ -445,18 +445,50 @@ pub fn estimate_limb(
 /// A limb whose training poses stood in several base orientations: estimated from the poses of the
 /// usual one (the search assumes one gravity), then refitted on every pose from there, each
 /// other orientation with a gravity of its own, started from what the SUs read in it.
+///
+/// Where gravity runs along a vertical first axis, the usual orientation's readings cannot tell
+/// the fit from its mirror image ([`mirrored`]: the first DoF turning the other way), and the
+/// search keeps whichever came first; the other orientations can, so both are refitted and the
+/// better kept (a humanoid's trunk refitted from the wrong one ended with bias and scale taking up
+/// the misfit). The search's runner-ups get their other gravities too.
 fn with_other_orientations(
     data: &LimbData,
     base: Option<&LimbBase>,
     config: &MlConfig,
 ) -> Result<MlChainEstimate, EstimateError> {
-    let usual = estimate_limb(&data.usual_orientation(), base, config)?;
-    let Some(mut start) = usual.state.clone() else {
+    let mut usual = estimate_limb(&data.usual_orientation(), base, config)?;
+    let Some(start) = usual.state.clone() else {
         return Ok(usual);
     };
     let ordered = in_order_of(data, &usual.chain);
-    start.other_gravities = other_gravities_read(&ordered, &start);
-    Ok(refine_limb(&ordered, base, start, config)?.after(usual))
+    let with_gravities = |mut state: ChainState| {
+        state.other_gravities = other_gravities_read(&ordered, &state);
+        state
+    };
+    let runner_ups = std::mem::take(&mut usual.runner_ups);
+    let vertical = held_start(&ordered, base, with_gravities(start.clone()), config)?.1;
+    let mut best = refine_limb(&ordered, base, with_gravities(start.clone()), config)?;
+    if vertical {
+        let mirror = with_gravities(mirrored(&start, &ordered.su_depth));
+        let other = refine_limb(&ordered, base, mirror, config)?;
+        if other.residual_ratio < best.residual_ratio {
+            usual.retries.push(format!(
+                "the mirror image about the vertical first axis, which the other base \
+                 orientations tell apart: residual {:.2} σ (was {:.2} σ)",
+                other.residual_ratio, best.residual_ratio
+            ));
+            best = MlChainEstimate {
+                iterations: other.iterations + best.iterations,
+                seconds: other.seconds + best.seconds,
+                ..other
+            };
+        } else {
+            best.iterations += other.iterations;
+            best.seconds += other.seconds;
+        }
+    }
+    best.runner_ups = runner_ups.into_iter().map(with_gravities).collect();
+    Ok(best.after(usual))
 }
 
 /// `data` with every joint's DoFs in the order `chain` (the same limb) has them.
