@@ -397,7 +397,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         }
         bar.set_position(done);
     };
-    let ingested = ingest(&args.logs, &config, &mut show)?;
+    let mut ingested = ingest(&args.logs, &config, &mut show)?;
     let training_logs = skincal::ingest::motion::training_logs(&ingested.report);
     let motion = if args.no_motion || training_logs.is_empty() {
         None
@@ -410,6 +410,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
             &config,
             &mut show,
         )?;
+        skincal::ingest::moves::accelerations_of_moves(&mut ingested.measurements, &record);
         Some(record)
     };
     bar.finish_and_clear();
@@ -438,6 +439,23 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
             record.runs.len(),
             training_logs.len()
         );
+        let accelerated: Vec<&str> = ingested
+            .measurements
+            .structure
+            .iter()
+            .flat_map(|s| &s.orientations)
+            .flat_map(|o| &o.moves)
+            .filter(|m| !m.accelerated.is_empty())
+            .map(|m| m.dof.as_str())
+            .collect();
+        if !accelerated.is_empty() {
+            outln!(
+                "structure moves that turn no gravity read by what they accelerated, from the \
+                 motion record: {} ({})",
+                accelerated.len(),
+                accelerated.join(", ")
+            );
+        }
     }
     outln!("in {:.2} s", started.elapsed().as_secs_f64());
     outln!("wrote {}", measurements.display());

@@ -2220,6 +2220,114 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
     run(&["check-urdf", "sim/model.json", stock]);
 }
 
+/// A Panda with its gripper from its continuous program alone (`plan --protocol continuous`,
+/// `record` upright and tilted, `ingest --plan`): the finger is prismatic, so its structure move
+/// turns no gravity, and no training pattern excites it; `ingest` reads which SUs it carries from
+/// what the move accelerated in the motion record (the carried SUs read the slide's axis, 1 per
+/// m/s²; every other SU within 0.01 of nothing), `explore` places the left finger's SUs after it
+/// and sets the right finger's apart (they read the slide the other way: the mimic joint's body),
+/// and the limb calibrates to the noise level with the finger's axis agreeing with the URDF.
+/// Before, `explore` left every SU out and `calibrate` refused the set.
+#[test]
+fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let urdf = robot_descriptions().join("panda_description/urdf/panda.urdf");
+    let urdf = urdf.to_str().unwrap();
+    let run = |args: &[&str]| {
+        let out = skincal(args, d);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let plan = ["--protocol", "continuous", "--out", "plan", "--no-forecast"];
+    run(&[&["plan", "--robot", urdf][..], &plan[..]].concat());
+    let record = [
+        "record",
+        "--robot",
+        urdf,
+        "--plan",
+        "plan/plan.json",
+        "--sus-per-link",
+        "2",
+    ];
+    run(&[&record[..], &["--out", "up.mcap"]].concat());
+    let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
+    run(&[&record[..], &tilted[..]].concat());
+    let ingested = run(&[
+        "ingest",
+        "up.mcap",
+        "tilt.mcap",
+        "--plan",
+        "plan/plan.json",
+        "--out",
+        "ing",
+    ]);
+    assert!(
+        ingested.contains(
+            "structure moves that turn no gravity read by what they accelerated, from the \
+             motion record: 1 (panda_finger_joint1)"
+        ),
+        "{ingested}"
+    );
+    let set: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("ing/measurements.json")).unwrap())
+            .unwrap();
+    let sus: Vec<&str> = set["sus"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_str().unwrap())
+        .collect();
+    let moves = set["structure"]["orientations"][0]["moves"]
+        .as_array()
+        .unwrap();
+    let finger = moves
+        .iter()
+        .find(|m| m["dof"] == "panda_finger_joint1")
+        .unwrap();
+    for (su, gain) in sus.iter().zip(finger["accelerated"].as_array().unwrap()) {
+        let norm = gain
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let carried = su.contains("finger");
+        assert!(
+            if carried {
+                (norm - 1.0).abs() < 0.02
+            } else {
+                norm < 0.01
+            },
+            "{su}: {norm}"
+        );
+    }
+    let explored = run(&["explore", "ing"]);
+    assert!(
+        explored.contains("J8 [panda_finger_joint1] → S8 (2 SUs, end effector)")
+            && explored.contains(
+                "S8   1  1  1  1  1  1  1  1   panda_leftfinger_su1, panda_leftfinger_su2"
+            )
+            && explored.contains(
+                "panda_rightfinger_su1, panda_rightfinger_su2 move with DoF `panda_finger_joint1`"
+            )
+            && explored.contains("The tree of the rest is consistent"),
+        "{explored}"
+    );
+    let calibrated = run(&["calibrate", "ing"]);
+    assert!(
+        calibrated.contains(": converged;") && !calibrated.contains("NOT CONVERGED"),
+        "{calibrated}"
+    );
+    let check = run(&["check-urdf", "ing/model.json", urdf]);
+    let finger = check
+        .lines()
+        .find(|l| l.starts_with("panda_finger_joint1"))
+        .unwrap_or_else(|| panic!("{check}"));
+    assert!(finger.contains("agrees"), "{check}");
+}
+
 /// TALOS from its continuous program alone, as a user makes it (`plan --seed 2`, `record --seed
 /// 1` with 2 SUs per link, upright and tilted), every limb started from the record's quiet
 /// moments and the structure part's holds in both base orientations, then fitted on every

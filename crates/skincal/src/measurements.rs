@@ -171,6 +171,14 @@ pub struct Move {
     pub pose: Vec<f64>,
     /// Static readings, one per SU.
     pub readings: Vec<Reading>,
+    /// Per SU, how much its reading changed per unit of the DoF's acceleration on the way into
+    /// this pose (least squares over the move, SU frame; m/s² per m/s² for a prismatic DoF, per
+    /// rad/s² for a revolute one, which is m): a DoF that turns no gravity (a prismatic one) or
+    /// a body it moves without turning it (a parallel gripper's fingertip) changes no static
+    /// reading, but accelerates what it carries. Empty: not measured (where the training
+    /// experiment excites the DoF, its dynamic readings tell the same).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub accelerated: Vec<Reading>,
     /// Unknown fields, kept as written.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
@@ -309,6 +317,9 @@ impl MeasurementSet {
             filter(&mut o.rest);
             for mv in &mut o.moves {
                 filter(&mut mv.readings);
+                if !mv.accelerated.is_empty() {
+                    filter(&mut mv.accelerated);
+                }
             }
         }
         let filter_sd = |sd: &mut Vec<f64>| {
@@ -472,6 +483,9 @@ impl MeasurementSet {
                 self.check_dof(format!("{field}.dof"), &mv.dof)?;
                 self.check_pose(format!("{field}.pose"), &mv.pose)?;
                 self.check_readings(format!("{field}.readings"), &mv.readings)?;
+                if !mv.accelerated.is_empty() {
+                    self.check_readings(format!("{field}.accelerated"), &mv.accelerated)?;
+                }
             }
         }
         Ok(())

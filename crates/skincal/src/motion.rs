@@ -619,7 +619,7 @@ impl MotionRun {
 pub const OTHER_BASE: f64 = 3.0 * std::f64::consts::PI / 180.0;
 /// How far a block's joint pose may be from a held one and still be it, rad (m): a few counts of
 /// a coarse encoder.
-const SAME_POSE: f64 = 0.005;
+pub const SAME_POSE: f64 = 0.005;
 /// A reading shorter than this (m/s²) tells no direction of gravity (a dead or railed SU).
 pub const LEAST_GRAVITY: f64 = 3.0;
 

@@ -108,6 +108,7 @@ mod tests {
                 dof: "j".into(),
                 pose: vec![0.3],
                 readings: gravity(tilt + 0.3),
+                accelerated: Vec::new(),
                 extra: Default::default(),
             }],
             extra: Default::default(),

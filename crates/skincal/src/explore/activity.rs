@@ -914,25 +914,61 @@ fn prismatic_columns(
         for row in change.iter_mut() {
             row[d] = 0.0;
         }
-        let Some(training) = &set.training else {
+        // Per SU, the typical reading in units of what the DoF's pattern (or a unit of its
+        // acceleration) gives an SU it carries.
+        let carried = dynamic_medians(set, d)
+            .map(|(medians, peak)| medians.into_iter().map(|m| m / peak).collect())
+            .or_else(|| accelerated_medians(set, d));
+        let Some(carried) = carried else {
             continue;
         };
-        let peak = training.pattern.of(DofKind::Prismatic).peak_acceleration();
-        let readings: Vec<&Vec<[f64; 3]>> = training
-            .poses
-            .iter()
-            .filter_map(|p| p.dynamic.get(&set.dofs[d]))
-            .collect();
-        if readings.is_empty() || peak.is_nan() || peak <= 0.0 {
-            continue;
-        }
         explored[d] = true;
-        for (u, row) in change.iter_mut().enumerate() {
-            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
-            norms.sort_by(f64::total_cmp);
-            row[d] = norms[norms.len() / 2] * threshold / (0.5 * peak);
+        for (row, c) in change.iter_mut().zip(carried) {
+            row[d] = c * threshold / 0.5;
         }
     }
+}
+
+/// Per SU, the median norm of the training experiment's dynamic readings of DoF `d`, and the
+/// peak of the prismatic pattern; `None` without such readings.
+fn dynamic_medians(set: &MeasurementSet, d: usize) -> Option<(Vec<f64>, f64)> {
+    let training = set.training.as_ref()?;
+    let peak = training.pattern.of(DofKind::Prismatic).peak_acceleration();
+    let readings: Vec<&Vec<[f64; 3]>> = training
+        .poses
+        .iter()
+        .filter_map(|p| p.dynamic.get(&set.dofs[d]))
+        .collect();
+    if readings.is_empty() || peak.is_nan() || peak <= 0.0 {
+        return None;
+    }
+    Some((per_su_median(&readings, set.sus.len()), peak))
+}
+
+/// Per SU, the median norm over the structure moves of DoF `d` of what it read per unit of the
+/// DoF's acceleration on the way ([`crate::measurements::Move::accelerated`]); `None` where no
+/// move has it.
+fn accelerated_medians(set: &MeasurementSet, d: usize) -> Option<Vec<f64>> {
+    let readings: Vec<&Vec<[f64; 3]>> = set
+        .structure
+        .iter()
+        .flat_map(|s| &s.orientations)
+        .flat_map(|o| &o.moves)
+        .filter(|m| m.dof == set.dofs[d] && m.accelerated.len() == set.sus.len())
+        .map(|m| &m.accelerated)
+        .collect();
+    (!readings.is_empty()).then(|| per_su_median(&readings, set.sus.len()))
+}
+
+/// Per SU, the median norm of its reading in `readings` (one reading per SU each).
+fn per_su_median(readings: &[&Vec<[f64; 3]>], sus: usize) -> Vec<f64> {
+    (0..sus)
+        .map(|u| {
+            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
+            norms.sort_by(f64::total_cmp);
+            norms[norms.len() / 2]
+        })
+        .collect()
 }
 
 /// The columns of revolute DoFs with mimic followers, completed from the training experiment: a
@@ -941,26 +977,20 @@ fn prismatic_columns(
 /// accelerates it. An SU whose dynamic reading of the DoF typically exceeds half the peak of a
 /// point 0.1 m from its axis ([`crate::model::PRISMATIC_PATTERN_SCALE`]) is moved by it.
 fn led_columns(set: &MeasurementSet, prismatic: &[bool], change: &mut [Vec<f64>], threshold: f64) {
-    let Some(training) = &set.training else {
-        return;
-    };
-    let peak = training.pattern.of(DofKind::Prismatic).peak_acceleration();
-    if peak.is_nan() || peak <= 0.0 {
-        return;
-    }
     for d in (0..set.dofs.len()).filter(|&d| !prismatic[d] && !set.followers_of(d).is_empty()) {
-        let readings: Vec<&Vec<[f64; 3]>> = training
-            .poses
-            .iter()
-            .filter_map(|p| p.dynamic.get(&set.dofs[d]))
-            .collect();
-        if readings.is_empty() {
+        // Per SU, the typical lever arm its readings give, in m.
+        let arm = dynamic_medians(set, d)
+            .map(|(medians, peak)| {
+                let scale = crate::model::PRISMATIC_PATTERN_SCALE;
+                medians.into_iter().map(|m| m * scale / peak).collect()
+            })
+            .or_else(|| accelerated_medians(set, d));
+        let Some(arm) = arm else {
             continue;
-        }
-        for (u, row) in change.iter_mut().enumerate() {
-            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
-            norms.sort_by(f64::total_cmp);
-            row[d] = row[d].max(norms[norms.len() / 2] * threshold / (0.5 * peak));
+        };
+        let scale = crate::model::PRISMATIC_PATTERN_SCALE;
+        for (row, a) in change.iter_mut().zip(arm) {
+            row[d] = row[d].max(a * threshold / (0.5 * scale));
         }
     }
 }

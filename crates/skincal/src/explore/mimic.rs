@@ -120,15 +120,17 @@ fn rigid_bodies(set: &MeasurementSet, row: &[usize], leader: usize) -> Vec<Vec<u
 
 /// Whether SUs `i` and `j` sit on one rigid body: their static readings (structure experiment and
 /// training poses) agree up to one rotation and an offset (the biases), within [`RIGID_RESIDUAL`]
-/// in three training poses of four, and, for a prismatic `leader`, they read its excitation along one
-/// direction. With no training poses every pair is rigid (the structure experiment alone holds the
-/// leader at rest but for its own move, which says too little).
+/// in three training poses of four, and, for a prismatic `leader`, they read its slide along one
+/// direction (its excitation in the training poses, or what its structure moves accelerated,
+/// [`crate::measurements::Move::accelerated`]). The structure experiment holds the leader at
+/// rest but for its own move, so its readings agree whatever the bodies: without training poses
+/// only the slide can tell two bodies apart, and without either every pair is rigid.
 fn rigid_pair(set: &MeasurementSet, i: usize, j: usize, leader: usize) -> bool {
-    let Some(training) = &set.training else {
-        return true;
-    };
-    let mut pairs: Vec<(Vector3<f64>, Vector3<f64>)> = training
-        .poses
+    let poses = set
+        .training
+        .as_ref()
+        .map_or(&[][..], |t| t.poses.as_slice());
+    let mut pairs: Vec<(Vector3<f64>, Vector3<f64>)> = poses
         .iter()
         .map(|p| {
             (
@@ -137,39 +139,44 @@ fn rigid_pair(set: &MeasurementSet, i: usize, j: usize, leader: usize) -> bool {
             )
         })
         .collect();
+    let moves = || {
+        set.structure
+            .iter()
+            .flat_map(|s| &s.orientations)
+            .flat_map(|o| &o.moves)
+    };
     if let Some(s) = &set.structure {
         for o in &s.orientations {
             pairs.push((Vector3::from(o.rest[i]), Vector3::from(o.rest[j])));
-            pairs.extend(
-                o.moves
-                    .iter()
-                    .map(|m| (Vector3::from(m.readings[i]), Vector3::from(m.readings[j]))),
-            );
         }
     }
+    pairs.extend(moves().map(|m| (Vector3::from(m.readings[i]), Vector3::from(m.readings[j]))));
     let Some((rotation, residuals)) = fit_rotation(&pairs) else {
         return true;
     };
-    // The structure experiment holds the leader at rest (but in its own move): its pairs agree
-    // whatever the bodies, so only the training poses' residuals judge.
-    let mut sorted = residuals[..training.poses.len()].to_vec();
-    if sorted.is_empty() {
-        return true;
-    }
+    // Only the training poses' residuals judge.
+    let mut sorted = residuals[..poses.len()].to_vec();
     sorted.sort_by(f64::total_cmp);
-    if sorted[(3 * sorted.len()) / 4] > RIGID_RESIDUAL * STANDARD_GRAVITY {
+    if sorted
+        .get((3 * sorted.len()) / 4)
+        .is_some_and(|&r| r > RIGID_RESIDUAL * STANDARD_GRAVITY)
+    {
         return false;
     }
     if set.dof_kind(leader) != DofKind::Prismatic {
         return true;
     }
+    let name = &set.dofs[leader];
+    let slides = poses.iter().filter_map(|p| p.dynamic.get(name)).chain(
+        moves()
+            .filter(|m| m.dof == *name && !m.accelerated.is_empty())
+            .map(|m| &m.accelerated),
+    );
     let (mut along, mut size) = (0.0, 0.0);
-    for p in &training.poses {
-        if let Some(r) = p.dynamic.get(&set.dofs[leader]) {
-            let (a, b) = (Vector3::from(r[i]), rotation * Vector3::from(r[j]));
-            along += a.dot(&b);
-            size += a.norm() * b.norm();
-        }
+    for r in slides {
+        let (a, b) = (Vector3::from(r[i]), rotation * Vector3::from(r[j]));
+        along += a.dot(&b);
+        size += a.norm() * b.norm();
     }
     size == 0.0 || along / size > SAME_SLIDE_COSINE
 }

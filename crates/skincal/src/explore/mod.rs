@@ -558,7 +558,7 @@ fn unexplored_dofs(a: &ActivityMatrix) -> Vec<Diagnostic> {
             kind: DiagnosticKind::DofNotExplored,
             severity: Severity::Error,
             message: if a.is_prismatic(d) {
-                format!("prismatic DoF `{}` has no dynamic reading in the training experiment: it turns no gravity, so only the accelerations of its excitation pattern tell which SUs it carries; record the training experiment with its pattern", a.dofs[d])
+                format!("prismatic DoF `{}` has no dynamic reading in the training experiment and no accelerations of its structure moves: it turns no gravity, so only the accelerations it causes tell which SUs it carries; record the training experiment with its pattern, or ingest the log of its structure moves with the rest (`skincal ingest` reads them from the motion record)", a.dofs[d])
             } else {
                 format!("DoF `{}` was never moved in the structure experiment, so nothing is known about it: add a move of it from the rest pose", a.dofs[d])
             },

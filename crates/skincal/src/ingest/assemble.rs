@@ -587,6 +587,7 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
                 dof: passes.dofs[*d].clone(),
                 pose: st.pose.clone(),
                 readings,
+                accelerated: Vec::new(),
                 extra: Map::new(),
             }),
             several => {

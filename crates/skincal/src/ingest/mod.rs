@@ -45,6 +45,7 @@ mod base;
 mod blocks;
 mod fit;
 pub mod motion;
+pub mod moves;
 mod pass;
 mod queue;
 mod segment;

@@ -731,6 +731,7 @@ fn structure_experiment(
                     dof: model.dofs()[d].name.clone(),
                     pose,
                     readings,
+                    accelerated: Vec::new(),
                     extra: Map::new(),
                 }
             })

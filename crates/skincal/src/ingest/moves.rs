@@ -1,0 +1,291 @@
+//! What the structure part's moves accelerated, read from the motion record: a DoF that turns no
+//! gravity (a prismatic one), or a leader whose mimic follower carries a body without turning it
+//! (a parallel gripper's fingertip), changes no static reading, so the structure experiment's
+//! holds cannot tell which SUs it moves. Its move does accelerate them: regressed on the DoF's
+//! acceleration over the move, an SU it carries reads the axis (a unit vector per m/s² of a
+//! prismatic DoF), any other nothing. Where the training experiment excites the DoF its dynamic
+//! readings tell the same; a continuous program has none.
+
+use crate::measurements::{MeasurementSet, Reading};
+use crate::model::DofKind;
+use crate::motion::{MotionRecord, MotionRun, SAME_POSE};
+
+/// A DoF moves in a block when its speed exceeds this, rad/s (m/s); every other DoF is still in
+/// a move when it stays below it.
+const MOVING: f64 = 0.01;
+/// Blocks of stillness on each side of a move that join its regression (they carry the hold's
+/// reading, which the regression's intercept takes).
+const MARGIN: usize = 10;
+/// The least `Σ(q̈ − mean)²` over a move's blocks for its regression to tell anything, (m/s²)²
+/// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60.
+const LEAST_EXCITATION: f64 = 1.0;
+
+/// Fills [`crate::measurements::Move::accelerated`] of `set`'s structure moves of DoFs that turn
+/// no gravity (prismatic) or lead mimic followers, from `record` (ingested from the same logs):
+/// for each such move in the base orientation the record stood in ([`MotionRecord::same_base`]
+/// at the rest pose), the record's stretches in which that DoF alone moved (its followers with
+/// it) and which end at the move's pose. Moves the record does not hold stay empty.
+pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
+    let column = |name: &str| record.dofs.iter().position(|d| d == name);
+    let su_column: Vec<Option<usize>> = set
+        .sus
+        .iter()
+        .map(|su| record.sus.iter().position(|s| s == su))
+        .collect();
+    let wanted: Vec<(String, Vec<usize>)> = (0..set.dofs.len())
+        .filter(|&d| set.dof_kind(d) == DofKind::Prismatic || !set.followers_of(d).is_empty())
+        .filter_map(|d| {
+            let mut moving = vec![column(&set.dofs[d])?];
+            moving.extend(
+                set.followers_of(d)
+                    .into_iter()
+                    .filter_map(|f| column(&set.dofs[f])),
+            );
+            Some((set.dofs[d].clone(), moving))
+        })
+        .collect();
+    // Each record column's place in the set's poses.
+    let in_set: Option<Vec<usize>> = record.dofs.iter().map(|d| set.dof_index(d)).collect();
+    let Some(in_set) = in_set else {
+        return;
+    };
+    let to_record = |pose: &[f64]| -> Vec<f64> { in_set.iter().map(|&i| pose[i]).collect() };
+    if wanted.is_empty() {
+        return;
+    }
+    let Some(structure) = set.structure.as_mut() else {
+        return;
+    };
+    for o in &mut structure.orientations {
+        if record.same_base(&o.rest_pose, &o.rest) != Some(true) {
+            continue;
+        }
+        for mv in &mut o.moves {
+            let Some((_, moving)) = wanted.iter().find(|(name, _)| *name == mv.dof) else {
+                continue;
+            };
+            let pose = to_record(&mv.pose);
+            if moves_into(record, moving, &pose).next().is_none() {
+                continue;
+            }
+            mv.accelerated = su_column
+                .iter()
+                .map(|u| u.map_or([0.0; 3], |u| gain(record, moving, &pose, u)))
+                .collect();
+        }
+    }
+}
+
+/// The record's stretches `(run, first block, end block)` in which `moving[0]` moved with no
+/// DoF but `moving` (its followers) moving, widened by up to [`MARGIN`] still blocks on each
+/// side, and whose last block holds `pose`.
+fn moves_into<'a>(
+    record: &'a MotionRecord,
+    moving: &'a [usize],
+    pose: &'a [f64],
+) -> impl Iterator<Item = (&'a MotionRun, usize, usize)> + 'a {
+    record.runs.iter().flat_map(move |run| {
+        let moves = |b: usize| run.qd[b][moving[0]].abs() > MOVING;
+        let others_still = |b: usize| {
+            run.qd[b]
+                .iter()
+                .enumerate()
+                .all(|(e, v)| moving.contains(&e) || v.abs() <= MOVING)
+        };
+        let mut stretches = Vec::new();
+        let mut b = 0;
+        while b < run.len() {
+            if !moves(b) {
+                b += 1;
+                continue;
+            }
+            let first = b;
+            while b < run.len() && moves(b) {
+                b += 1;
+            }
+            let (mut start, mut end) = (first, b);
+            while start > 0 && first - start < MARGIN && !moves(start - 1) {
+                start -= 1;
+            }
+            while end < run.len() && end - b < MARGIN && !moves(end) {
+                end += 1;
+            }
+            let held = run.q[end - 1]
+                .iter()
+                .zip(pose)
+                .all(|(q, p)| (q - p).abs() <= SAME_POSE);
+            if held && (start..end).all(others_still) {
+                stretches.push((run, start, end));
+            }
+        }
+        stretches
+    })
+}
+
+/// SU `u`'s reading per unit of `moving[0]`'s acceleration over the stretches into `pose`: the
+/// least-squares slope, each stretch with an intercept of its own. Zero where the stretches do
+/// not excite it enough to tell ([`LEAST_EXCITATION`]) or the SU sent nothing in them.
+fn gain(record: &MotionRecord, moving: &[usize], pose: &[f64], u: usize) -> Reading {
+    let d = moving[0];
+    let (mut sxx, mut sxy) = (0.0, [0.0; 3]);
+    for (run, start, end) in moves_into(record, moving, pose) {
+        let samples: Vec<(f64, [f64; 3])> = (start..end)
+            .filter_map(|b| Some((run.qdd[b][d], run.skin[b][u]?)))
+            .collect();
+        if samples.len() < 3 {
+            continue;
+        }
+        let n = samples.len() as f64;
+        let mean_x = samples.iter().map(|s| s.0).sum::<f64>() / n;
+        let mut mean_y = [0.0; 3];
+        for (_, y) in &samples {
+            for k in 0..3 {
+                mean_y[k] += y[k] / n;
+            }
+        }
+        for (x, y) in &samples {
+            sxx += (x - mean_x).powi(2);
+            for k in 0..3 {
+                sxy[k] += (x - mean_x) * (y[k] - mean_y[k]);
+            }
+        }
+    }
+    if sxx < LEAST_EXCITATION {
+        return [0.0; 3];
+    }
+    sxy.map(|v| v / sxx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::measurements::{Move, Orientation, StructureExperiment};
+    use crate::motion::{MOTION_FORMAT, MOTION_VERSION};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// Gravity as SU `a` (on the slide, its frame turned so that the slide's axis is its
+    /// (0, 0.6, 0.8)) and SU `b` (on the base) read it.
+    const GRAVITY: [[f64; 3]; 2] = [[0.0, 7.848, -5.886], [0.0, 0.0, 9.81]];
+    /// The slide's axis in SU `a`'s frame.
+    const AXIS: [f64; 3] = [0.0, 0.6, 0.8];
+
+    /// A log of a prismatic DoF `slide` and a revolute `turn`: still at rest, `slide` moved out by
+    /// 4 cm in 0.3 s (a quintic) and held, then `turn` moved on its own, at 10 ms blocks with
+    /// ±0.01 g of noise on every reading (seeded).
+    fn record() -> MotionRecord {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let noise = Normal::new(0.0, 0.0566 / 10f64.sqrt()).unwrap();
+        let mut run = MotionRun::new("log", 0.0);
+        let (travel, time) = (0.04, 0.3);
+        for b in 0..200 {
+            let t = b as f64 * 0.01 - 0.5;
+            let s = (t / time).clamp(0.0, 1.0);
+            let (q, qd, qdd) = if (0.0..=time).contains(&t) {
+                (
+                    travel * (10.0 * s.powi(3) - 15.0 * s.powi(4) + 6.0 * s.powi(5)),
+                    travel * (30.0 * s * s - 60.0 * s.powi(3) + 30.0 * s.powi(4)) / time,
+                    travel * (60.0 * s - 180.0 * s * s + 120.0 * s.powi(3)) / (time * time),
+                )
+            } else {
+                (if t > time { travel } else { 0.0 }, 0.0, 0.0)
+            };
+            // The turn moves later, on its own: it accelerates SU `a` too, but is no slide.
+            let turning = (1.2..1.5).contains(&t);
+            let turn = if turning {
+                [0.3, 1.0, 5.0, 0.0]
+            } else {
+                [0.0; 4]
+            };
+            let mut a = GRAVITY[0];
+            for k in 0..3 {
+                a[k] += AXIS[k] * qdd + noise.sample(&mut rng) + if turning { 2.0 } else { 0.0 };
+            }
+            let mut still = GRAVITY[1];
+            for v in &mut still {
+                *v += noise.sample(&mut rng);
+            }
+            run.push(&[[q, qd, qdd, 0.0], turn], vec![Some(a), Some(still)]);
+        }
+        MotionRecord {
+            format: MOTION_FORMAT.into(),
+            version: MOTION_VERSION,
+            period: 0.01,
+            dofs: vec!["slide".into(), "turn".into()],
+            sus: vec!["a".into(), "b".into()],
+            noise_sd: vec![Some(0.018); 2],
+            half_width: None,
+            rounding: Vec::new(),
+            runs: vec![run],
+            samples: Vec::new(),
+        }
+    }
+
+    fn set() -> MeasurementSet {
+        let mut set = MeasurementSet::new(
+            vec!["slide".into(), "turn".into()],
+            vec!["a".into(), "b".into()],
+        );
+        set.prismatic = vec!["slide".into()];
+        let hold = |pose: Vec<f64>, dof: &str| Move {
+            dof: dof.into(),
+            pose,
+            readings: GRAVITY.to_vec(),
+            accelerated: Vec::new(),
+            extra: Default::default(),
+        };
+        set.structure = Some(StructureExperiment {
+            orientations: vec![Orientation {
+                rest_pose: vec![0.0, 0.0],
+                rest: GRAVITY.to_vec(),
+                moves: vec![
+                    hold(vec![0.04, 0.0], "slide"),
+                    hold(vec![0.04, 0.3], "turn"),
+                ],
+                extra: Default::default(),
+            }],
+            extra: Default::default(),
+        });
+        set
+    }
+
+    #[test]
+    fn a_slide_reads_its_axis_on_what_it_carries_and_nothing_elsewhere() {
+        let mut set = set();
+        accelerations_of_moves(&mut set, &record());
+        let moves = &set.structure.as_ref().unwrap().orientations[0].moves;
+        let carried = moves[0].accelerated[0];
+        for k in 0..3 {
+            assert!((carried[k] - AXIS[k]).abs() < 0.01, "{carried:?}");
+        }
+        let still = moves[0].accelerated[1];
+        assert!(still.iter().all(|v| v.abs() < 0.01), "{still:?}");
+        // A revolute DoF without followers turns gravity: its holds tell, nothing is regressed.
+        assert!(moves[1].accelerated.is_empty());
+    }
+
+    #[test]
+    fn a_move_the_record_does_not_hold_stays_unmeasured() {
+        // The hold is somewhere the record never went.
+        let mut set = set();
+        set.structure.as_mut().unwrap().orientations[0].moves[0].pose = vec![0.02, 0.0];
+        accelerations_of_moves(&mut set, &record());
+        assert!(set.structure.unwrap().orientations[0].moves[0]
+            .accelerated
+            .is_empty());
+        // Nor one in a base orientation the record did not stand in.
+        let mut set = set_tilted();
+        accelerations_of_moves(&mut set, &record());
+        assert!(set.structure.unwrap().orientations[0].moves[0]
+            .accelerated
+            .is_empty());
+    }
+
+    fn set_tilted() -> MeasurementSet {
+        let mut set = set();
+        let o = &mut set.structure.as_mut().unwrap().orientations[0];
+        o.rest = vec![[9.81, 0.0, 0.0], [9.81, 0.0, 0.0]];
+        set
+    }
+}
