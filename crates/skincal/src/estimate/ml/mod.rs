@@ -466,8 +466,9 @@ fn with_other_orientations(
         state
     };
     let runner_ups = std::mem::take(&mut usual.runner_ups);
-    let vertical = held_start(&ordered, base, with_gravities(start.clone()), config)?.1;
-    let mut best = refine_limb(&ordered, base, with_gravities(start.clone()), config)?;
+    let read = with_gravities(start.clone());
+    let vertical = held_start(&ordered, base, read.clone(), config)?.1;
+    let mut best = refine_limb(&ordered, base, read, config)?;
     if vertical {
         let mirror = with_gravities(mirrored(&start, &ordered.su_depth));
         let other = refine_limb(&ordered, base, mirror, config)?;
