@@ -2227,7 +2227,8 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
 /// m/s²; every other SU within 0.01 of nothing), `explore` places the left finger's SUs after it
 /// and sets the right finger's apart (they read the slide the other way: the mimic joint's body),
 /// and the limb calibrates to the noise level with the finger's axis agreeing with the URDF.
-/// Before, `explore` left every SU out and `calibrate` refused the set.
+/// Before, `explore` left every SU out and `calibrate` refused the set. Without `--plan`, the
+/// fingers' moves are transfers of two DoFs in proportion, and `ingest` says so.
 #[test]
 fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
     let dir = tempfile::tempdir().unwrap();
@@ -2253,6 +2254,22 @@ fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
     run(&[&record[..], &["--out", "up.mcap"]].concat());
     let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
     run(&[&record[..], &tilted[..]].concat());
+    // Without the plan (or the URDF) ingest does not know the second finger follows the first:
+    // it says which DoFs moved only in proportion, and how to read them.
+    let untold = skincal(&["ingest", "up.mcap", "tilt.mcap", "--out", "untold"], d);
+    let untold = format!(
+        "{}{}",
+        String::from_utf8_lossy(&untold.stdout),
+        stderr(&untold)
+    );
+    assert!(
+        untold.contains(
+            "up.mcap: DoFs `panda_finger_joint1` and `panda_finger_joint2` moved together, \
+             alone, in 2 motion(s), `panda_finger_joint2` 1.000 times `panda_finger_joint1` \
+             throughout"
+        ) && untold.contains("give `--robot` (the URDF) or `--plan`, which name mimic joints"),
+        "{untold}"
+    );
     let ingested = run(&[
         "ingest",
         "up.mcap",
@@ -2262,6 +2279,7 @@ fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
         "--out",
         "ing",
     ]);
+    assert!(!ingested.contains("moved together"), "{ingested}");
     assert!(
         ingested.contains(
             "structure moves that turn no gravity read by what they accelerated, from the \

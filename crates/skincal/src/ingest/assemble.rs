@@ -922,7 +922,41 @@ fn training_poses(
 /// frame ids and the saturated samples.
 fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
     let mut warnings = std::mem::take(&mut passes.warnings);
+    // A mimic pair moves only together, always in one proportion: neither DoF has a move or an
+    // excitation of its own in any log.
+    let alone: std::collections::BTreeSet<&str> = passes
+        .reports
+        .iter()
+        .flat_map(|r| &r.timeline)
+        .filter(|s| s.kind == "move" || s.kind == "excitation")
+        .filter_map(|s| s.dof.as_deref())
+        .collect();
     for r in &passes.reports {
+        let pairs = r.together.iter().filter(|t| {
+            t.same
+                && t.motions >= 2
+                && !alone.contains(t.leader.as_str())
+                && !alone.contains(t.follower.as_str())
+        });
+        for t in pairs {
+            warnings.push(format!(
+                "{}: DoFs `{}` and `{}` moved together, alone, in {} motion(s), `{}` {:.3} times \
+                 `{}` throughout: read as transfers of several DoFs and skipped. If `{}` is a \
+                 mimic joint of `{}` (a gripper's second finger), give `--robot` (the URDF) or \
+                 `--plan`, which name mimic joints: ingest then reads these as structure moves of \
+                 `{}`",
+                r.path.display(),
+                t.leader,
+                t.follower,
+                t.motions,
+                t.follower,
+                t.multiplier,
+                t.leader,
+                t.follower,
+                t.leader,
+                t.leader
+            ));
+        }
         if !r.unrecorded_joints.is_empty() {
             warnings.push(format!(
                 "{}: no joint states for the robot's DoF(s) {:?}: not recorded (a log of one part \

@@ -331,6 +331,10 @@ pub struct LogReport {
     pub moves: usize,
     /// Motions of several DoFs (transfers), skipped.
     pub transfers: usize,
+    /// Pairs of DoFs that moved alone together in transfers, one a fixed multiple of the other:
+    /// a mimic joint with its leader, when ingest was not told of it (`--robot`, `--plan`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub together: Vec<Together>,
     /// Motions that could not be used, with the reason.
     pub skipped: Vec<String>,
     /// The excitation windows of the training poses, as fitted.
@@ -341,6 +345,49 @@ pub struct LogReport {
     pub joint_read: ReadStats,
     /// Skin decoding problems.
     pub imu_read: ReadStats,
+}
+
+/// Two DoFs that moved alone together, the second a fixed multiple of the first (see
+/// [`LogReport::together`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Together {
+    /// The first of the two in the log's order.
+    pub leader: String,
+    /// The other.
+    pub follower: String,
+    /// The follower's motion over the leader's, in the first such transfer.
+    pub multiplier: f64,
+    /// How many transfers they made so.
+    pub motions: usize,
+    /// Whether every one of them had that multiplier (within [`SAME_MULTIPLIER`]): a mimic
+    /// joint's is fixed, a plan's transfer of two DoFs along one profile has one of its own.
+    pub same: bool,
+}
+
+/// Multipliers that differ by less than this share are one.
+pub const SAME_MULTIPLIER: f64 = 0.01;
+
+impl LogReport {
+    /// Counts a transfer in which `follower` moved alone with `leader`, `multiplier` times it.
+    pub(crate) fn add_together(&mut self, leader: String, follower: String, multiplier: f64) {
+        match self
+            .together
+            .iter_mut()
+            .find(|t| t.leader == leader && t.follower == follower)
+        {
+            Some(t) => {
+                t.motions += 1;
+                t.same &= (multiplier - t.multiplier).abs() <= SAME_MULTIPLIER * t.multiplier.abs();
+            }
+            None => self.together.push(Together {
+                leader,
+                follower,
+                multiplier,
+                motions: 1,
+                same: true,
+            }),
+        }
+    }
 }
 
 /// One window of a log's timeline.

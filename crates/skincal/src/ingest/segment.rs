@@ -88,7 +88,8 @@ enum After {
     /// A motion that cannot be used, and why.
     Broken(String),
     Move,
-    Transfer,
+    /// Several DoFs moved; with the pair that moved alone, one a fixed multiple of the other.
+    Transfer(Option<(String, String, f64)>),
     Excitation(Excitation),
 }
 
@@ -117,9 +118,12 @@ impl Segmentation {
                 report.moves += 1;
                 self.events.push(Event::Move);
             }
-            After::Transfer => {
+            After::Transfer(pair) => {
                 report.transfers += 1;
                 self.events.push(Event::Transfer);
+                if let Some((leader, follower, multiplier)) = pair {
+                    report.add_together(leader, follower, multiplier);
+                }
             }
             After::Excitation(x) => {
                 report.excitations += 1;
@@ -433,7 +437,8 @@ fn motion_after(
         }
         Motion::Transfer => {
             span("transfer", None);
-            After::Transfer
+            let pair = in_proportion(timeline, ms, me);
+            After::Transfer(pair.map(|(a, b, m)| (dofs[a].clone(), dofs[b].clone(), m)))
         }
         Motion::Excitation(excited) => match design(timeline, &excited, start, end, l) {
             Some(mut x) => {
@@ -471,6 +476,48 @@ const RETURN_FRACTION: f64 = 0.5;
 /// A DoF that went this share of its excursion to the other side of its start too went both
 /// ways: more than a servo's overshoot at the end of a pattern.
 const OTHER_SIDE_FRACTION: f64 = 0.3;
+
+/// A DoF moved with another in a transfer when its excursion is at least this share of the
+/// largest one.
+const TOGETHER_FRACTION: f64 = 0.1;
+/// Two DoFs moved in proportion when the second's path leaves at most this share of its
+/// excursion (RMS) from a fixed multiple of the first's.
+const PROPORTION_MISFIT: f64 = 0.01;
+
+/// The two DoFs that alone moved over grid `[ms, me]`, the second a fixed multiple of the first
+/// throughout (a mimic joint and its leader, when ingest was not told of them): `(first, second,
+/// multiple)`, the first in the log's order; `None` for any other motion.
+fn in_proportion(timeline: &Timeline, ms: usize, me: usize) -> Option<(usize, usize, f64)> {
+    let paths: Vec<Vec<f64>> = timeline
+        .theta
+        .iter()
+        .map(|th| th[ms..=me].iter().map(|q| q - th[ms]).collect())
+        .collect();
+    let excursion: Vec<f64> = paths
+        .iter()
+        .map(|p| p.iter().fold(0.0f64, |m, x| m.max(x.abs())))
+        .collect();
+    let largest = excursion.iter().copied().fold(0.0, f64::max);
+    let moved: Vec<usize> = (0..paths.len())
+        .filter(|&e| largest > 0.0 && excursion[e] >= TOGETHER_FRACTION * largest)
+        .collect();
+    let &[a, b] = moved.as_slice() else {
+        return None;
+    };
+    let (xx, xy) = paths[a]
+        .iter()
+        .zip(&paths[b])
+        .fold((0.0, 0.0), |(xx, xy), (x, y)| (xx + x * x, xy + x * y));
+    let multiple = xy / xx;
+    let misfit = (paths[a]
+        .iter()
+        .zip(&paths[b])
+        .map(|(x, y)| (y - multiple * x).powi(2))
+        .sum::<f64>()
+        / paths[a].len() as f64)
+        .sqrt();
+    (misfit <= PROPORTION_MISFIT * excursion[b]).then_some((a, b, multiple))
+}
 
 /// What a motion between two still windows was.
 enum Motion {
