@@ -435,7 +435,6 @@ fn a_calibrated_model_exports_predicts_and_validates() {
     );
 }
 
-/// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
 /// Runs `skincal args` in `dir`, requires success and returns the standard output.
 fn succeeds(args: &[&str], dir: &Path) -> String {
     let out = skincal(args, dir);
@@ -443,6 +442,7 @@ fn succeeds(args: &[&str], dir: &Path) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
+/// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
 fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
     let out = skincal(args, dir);
     assert_eq!(out.status.code(), Some(1), "{args:?}: {}", stderr(&out));
@@ -2220,6 +2220,35 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
     run(&["check-urdf", "sim/model.json", stock]);
 }
 
+/// A continuous program of the robot `urdf` (`plan --seed plan_seed`) recorded in `dir` with 2
+/// SUs per link (`record --seed record_seed`), as a user makes it: upright (`up.mcap`) and its
+/// structure part again with the base tilted (`tilt.mcap`).
+fn continuous_logs(dir: &Path, urdf: &str, plan_seed: &str, record_seed: &str) {
+    let plan = ["--protocol", "continuous", "--out", "plan", "--no-forecast"];
+    succeeds(
+        &[
+            &["plan", "--robot", urdf, "--seed", plan_seed][..],
+            &plan[..],
+        ]
+        .concat(),
+        dir,
+    );
+    let record = [
+        "record",
+        "--robot",
+        urdf,
+        "--plan",
+        "plan/plan.json",
+        "--sus-per-link",
+        "2",
+        "--seed",
+        record_seed,
+    ];
+    succeeds(&[&record[..], &["--out", "up.mcap"]].concat(), dir);
+    let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
+    succeeds(&[&record[..], &tilted[..]].concat(), dir);
+}
+
 /// A Panda with its gripper from its continuous program alone (`plan --protocol continuous`,
 /// `record` upright and tilted, `ingest --plan`): the finger is prismatic, so its structure move
 /// turns no gravity, and no training pattern excites it; `ingest` reads which SUs it carries from
@@ -2235,25 +2264,8 @@ fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
     let d = dir.path();
     let urdf = robot_descriptions().join("panda_description/urdf/panda.urdf");
     let urdf = urdf.to_str().unwrap();
-    let run = |args: &[&str]| {
-        let out = skincal(args, d);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    let plan = ["--protocol", "continuous", "--out", "plan", "--no-forecast"];
-    run(&[&["plan", "--robot", urdf][..], &plan[..]].concat());
-    let record = [
-        "record",
-        "--robot",
-        urdf,
-        "--plan",
-        "plan/plan.json",
-        "--sus-per-link",
-        "2",
-    ];
-    run(&[&record[..], &["--out", "up.mcap"]].concat());
-    let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
-    run(&[&record[..], &tilted[..]].concat());
+    let run = |args: &[&str]| succeeds(args, d);
+    continuous_logs(d, urdf, "1", "1");
     // Without the plan (or the URDF) ingest does not know the second finger follows the first:
     // it says which DoFs moved only in proportion, and how to read them.
     let untold = skincal(&["ingest", "up.mcap", "tilt.mcap", "--out", "untold"], d);
@@ -2358,27 +2370,8 @@ fn a_trunk_on_a_vertical_axis_is_told_from_its_mirror_image_by_the_tilted_holds(
     let d = dir.path();
     let urdf = robot_descriptions().join("talos_data/robots/talos_reduced.urdf");
     let urdf = urdf.to_str().unwrap();
-    let run = |args: &[&str]| {
-        let out = skincal(args, d);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    let plan = ["--protocol", "continuous", "--seed", "2", "--no-forecast"];
-    run(&[&["plan", "--robot", urdf, "--out", "plan"][..], &plan[..]].concat());
-    let record = [
-        "record",
-        "--robot",
-        urdf,
-        "--plan",
-        "plan/plan.json",
-        "--sus-per-link",
-        "2",
-        "--seed",
-        "5",
-    ];
-    run(&[&record[..], &["--out", "up.mcap"]].concat());
-    let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
-    run(&[&record[..], &tilted[..]].concat());
+    let run = |args: &[&str]| succeeds(args, d);
+    continuous_logs(d, urdf, "2", "5");
     run(&["ingest", "up.mcap", "tilt.mcap", "--out", "ing"]);
     run(&["explore", "ing"]);
     let trunk = run(&["calibrate", "ing", "--limb", "S2"]);
@@ -2405,38 +2398,10 @@ fn a_trunk_on_a_vertical_axis_is_told_from_its_mirror_image_by_the_tilted_holds(
 fn a_humanoid_calibrates_from_its_continuous_program_alone_what_reaches_the_noise() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let root = robot_descriptions();
-    let urdf = root.join("talos_data/robots/talos_reduced.urdf");
+    let urdf = robot_descriptions().join("talos_data/robots/talos_reduced.urdf");
     let urdf = urdf.to_str().unwrap();
-    let run = |args: &[&str]| {
-        let out = skincal(args, d);
-        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    };
-    run(&[
-        "plan",
-        "--robot",
-        urdf,
-        "--protocol",
-        "continuous",
-        "--seed",
-        "2",
-        "--out",
-        "plan",
-        "--no-forecast",
-    ]);
-    let record = [
-        "record",
-        "--robot",
-        urdf,
-        "--plan",
-        "plan/plan.json",
-        "--sus-per-link",
-        "2",
-    ];
-    run(&[&record[..], &["--seed", "1", "--out", "up.mcap"]].concat());
-    let tilted = ["--part", "structure", "--tilted", "--out", "tilt.mcap"];
-    run(&[&record[..], &["--seed", "1"], &tilted[..]].concat());
+    let run = |args: &[&str]| succeeds(args, d);
+    continuous_logs(d, urdf, "2", "1");
     run(&["ingest", "up.mcap", "tilt.mcap", "--out", "ing"]);
     run(&["explore", "ing"]);
     let out = run(&["calibrate", "ing"]);

@@ -977,18 +977,15 @@ fn per_su_median(readings: &[&Vec<[f64; 3]>], sus: usize) -> Vec<f64> {
 /// accelerates it. An SU whose dynamic reading of the DoF typically exceeds half the peak of a
 /// point 0.1 m from its axis ([`crate::model::PRISMATIC_PATTERN_SCALE`]) is moved by it.
 fn led_columns(set: &MeasurementSet, prismatic: &[bool], change: &mut [Vec<f64>], threshold: f64) {
+    let scale = crate::model::PRISMATIC_PATTERN_SCALE;
     for d in (0..set.dofs.len()).filter(|&d| !prismatic[d] && !set.followers_of(d).is_empty()) {
         // Per SU, the typical lever arm its readings give, in m.
         let arm = dynamic_medians(set, d)
-            .map(|(medians, peak)| {
-                let scale = crate::model::PRISMATIC_PATTERN_SCALE;
-                medians.into_iter().map(|m| m * scale / peak).collect()
-            })
+            .map(|(medians, peak)| medians.into_iter().map(|m| m * scale / peak).collect())
             .or_else(|| accelerated_medians(set, d));
         let Some(arm) = arm else {
             continue;
         };
-        let scale = crate::model::PRISMATIC_PATTERN_SCALE;
         for (row, a) in change.iter_mut().zip(arm) {
             row[d] = row[d].max(a * threshold / (0.5 * scale));
         }

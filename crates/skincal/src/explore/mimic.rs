@@ -139,17 +139,9 @@ fn rigid_pair(set: &MeasurementSet, i: usize, j: usize, leader: usize) -> bool {
             )
         })
         .collect();
-    let moves = || {
-        set.structure
-            .iter()
-            .flat_map(|s| &s.orientations)
-            .flat_map(|o| &o.moves)
-    };
-    if let Some(s) = &set.structure {
-        for o in &s.orientations {
-            pairs.push((Vector3::from(o.rest[i]), Vector3::from(o.rest[j])));
-        }
-    }
+    let orientations = || set.structure.iter().flat_map(|s| &s.orientations);
+    let moves = || orientations().flat_map(|o| &o.moves);
+    pairs.extend(orientations().map(|o| (Vector3::from(o.rest[i]), Vector3::from(o.rest[j]))));
     pairs.extend(moves().map(|m| (Vector3::from(m.readings[i]), Vector3::from(m.readings[j]))));
     let Some((rotation, residuals)) = fit_rotation(&pairs) else {
         return true;

@@ -44,15 +44,15 @@ pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
             Some((set.dofs[d].clone(), moving))
         })
         .collect();
+    if wanted.is_empty() {
+        return;
+    }
     // Each record column's place in the set's poses.
     let in_set: Option<Vec<usize>> = record.dofs.iter().map(|d| set.dof_index(d)).collect();
     let Some(in_set) = in_set else {
         return;
     };
     let to_record = |pose: &[f64]| -> Vec<f64> { in_set.iter().map(|&i| pose[i]).collect() };
-    if wanted.is_empty() {
-        return;
-    }
     let Some(structure) = set.structure.as_mut() else {
         return;
     };
@@ -64,71 +64,73 @@ pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
             let Some((_, moving)) = wanted.iter().find(|(name, _)| *name == mv.dof) else {
                 continue;
             };
-            let pose = to_record(&mv.pose);
-            if moves_into(record, moving, &pose).next().is_none() {
+            let stretches = moves_into(record, moving, &to_record(&mv.pose));
+            if stretches.is_empty() {
                 continue;
             }
             mv.accelerated = su_column
                 .iter()
-                .map(|u| u.map_or([0.0; 3], |u| gain(record, moving, &pose, u)))
+                .map(|u| u.map_or([0.0; 3], |u| gain(&stretches, moving[0], u)))
                 .collect();
         }
     }
 }
 
+/// A stretch of a run: `(run, first block, end block)`.
+type Stretch<'a> = (&'a MotionRun, usize, usize);
+
 /// The record's stretches `(run, first block, end block)` in which `moving[0]` moved with no
 /// DoF but `moving` (its followers) moving, widened by up to [`MARGIN`] still blocks on each
 /// side, and whose last block holds `pose`.
-fn moves_into<'a>(
-    record: &'a MotionRecord,
-    moving: &'a [usize],
-    pose: &'a [f64],
-) -> impl Iterator<Item = (&'a MotionRun, usize, usize)> + 'a {
-    record.runs.iter().flat_map(move |run| {
-        let moves = |b: usize| run.qd[b][moving[0]].abs() > MOVING;
-        let others_still = |b: usize| {
-            run.qd[b]
-                .iter()
-                .enumerate()
-                .all(|(e, v)| moving.contains(&e) || v.abs() <= MOVING)
-        };
-        let mut stretches = Vec::new();
-        let mut b = 0;
-        while b < run.len() {
-            if !moves(b) {
-                b += 1;
-                continue;
+fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> Vec<Stretch<'a>> {
+    record
+        .runs
+        .iter()
+        .flat_map(|run| {
+            let moves = |b: usize| run.qd[b][moving[0]].abs() > MOVING;
+            let others_still = |b: usize| {
+                run.qd[b]
+                    .iter()
+                    .enumerate()
+                    .all(|(e, v)| moving.contains(&e) || v.abs() <= MOVING)
+            };
+            let mut stretches = Vec::new();
+            let mut b = 0;
+            while b < run.len() {
+                if !moves(b) {
+                    b += 1;
+                    continue;
+                }
+                let first = b;
+                while b < run.len() && moves(b) {
+                    b += 1;
+                }
+                let (mut start, mut end) = (first, b);
+                while start > 0 && first - start < MARGIN && !moves(start - 1) {
+                    start -= 1;
+                }
+                while end < run.len() && end - b < MARGIN && !moves(end) {
+                    end += 1;
+                }
+                let held = run.q[end - 1]
+                    .iter()
+                    .zip(pose)
+                    .all(|(q, p)| (q - p).abs() <= SAME_POSE);
+                if held && (start..end).all(others_still) {
+                    stretches.push((run, start, end));
+                }
             }
-            let first = b;
-            while b < run.len() && moves(b) {
-                b += 1;
-            }
-            let (mut start, mut end) = (first, b);
-            while start > 0 && first - start < MARGIN && !moves(start - 1) {
-                start -= 1;
-            }
-            while end < run.len() && end - b < MARGIN && !moves(end) {
-                end += 1;
-            }
-            let held = run.q[end - 1]
-                .iter()
-                .zip(pose)
-                .all(|(q, p)| (q - p).abs() <= SAME_POSE);
-            if held && (start..end).all(others_still) {
-                stretches.push((run, start, end));
-            }
-        }
-        stretches
-    })
+            stretches
+        })
+        .collect()
 }
 
-/// SU `u`'s reading per unit of `moving[0]`'s acceleration over the stretches into `pose`: the
-/// least-squares slope, each stretch with an intercept of its own. Zero where the stretches do
-/// not excite it enough to tell ([`LEAST_EXCITATION`]) or the SU sent nothing in them.
-fn gain(record: &MotionRecord, moving: &[usize], pose: &[f64], u: usize) -> Reading {
-    let d = moving[0];
+/// SU `u`'s reading per unit of DoF `d`'s acceleration over `stretches`: the least-squares
+/// slope, each stretch with an intercept of its own. Zero where the stretches do not excite it
+/// enough to tell ([`LEAST_EXCITATION`]) or the SU sent nothing in them.
+fn gain(stretches: &[Stretch<'_>], d: usize, u: usize) -> Reading {
     let (mut sxx, mut sxy) = (0.0, [0.0; 3]);
-    for (run, start, end) in moves_into(record, moving, pose) {
+    for &(run, start, end) in stretches {
         let samples: Vec<(f64, [f64; 3])> = (start..end)
             .filter_map(|b| Some((run.qdd[b][d], run.skin[b][u]?)))
             .collect();
