@@ -439,21 +439,21 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
             record.runs.len(),
             training_logs.len()
         );
-        let accelerated: Vec<&str> = ingested
+        let moves: Vec<&skincal::measurements::Move> = ingested
             .measurements
             .structure
             .iter()
             .flat_map(|s| &s.orientations)
             .flat_map(|o| &o.moves)
-            .filter(|m| !m.accelerated.is_empty())
-            .map(|m| m.dof.as_str())
             .collect();
-        if !accelerated.is_empty() {
+        let accelerated = moves.iter().filter(|m| !m.accelerated.is_empty()).count();
+        if accelerated > 0 {
             outln!(
-                "structure moves that turn no gravity read by what they accelerated, from the \
-                 motion record: {} ({})",
-                accelerated.len(),
-                accelerated.join(", ")
+                "structure moves read by what they accelerated, from the motion record: {} of \
+                 {} (they tell what a DoF that turns no gravity moves: a prismatic one, or one \
+                 about a vertical axis)",
+                accelerated,
+                moves.len()
             );
         }
     }

@@ -626,7 +626,15 @@ fn render_plan(plan: &Plan) -> String {
             plan.config.structure_angle
         );
     }
-    if plan.config.structure && plan.config.tilted_poses == 0 {
+    if plan.config.structure && sweep.is_some() {
+        let _ = writeln!(
+            s,
+            "  one log, upright, is enough: `skincal ingest` tells what a DoF about a vertical \
+             axis moves from what its\n  structure move accelerated (a second recording of the \
+             structure part with the base tilted by about 90°\n  adds static readings in another \
+             orientation; give both logs to `skincal ingest`)."
+        );
+    } else if plan.config.structure && plan.config.tilted_poses == 0 {
         let _ = writeln!(
             s,
             "  OPERATOR: record the structure part twice, in two base orientations — upright, then \

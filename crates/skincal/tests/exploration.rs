@@ -193,6 +193,7 @@ fn without_the_tilted_orientation_vertical_axes_are_reported_not_hidden() {
 /// An activity matrix from 0/1 rows (1 → a change of 1 g, 0 → none).
 fn matrix(sus: &[&str], dofs: &[&str], rows: &[&[u8]]) -> ActivityMatrix {
     ActivityMatrix {
+        upright: Vec::new(),
         sus: sus.iter().map(|s| s.to_string()).collect(),
         dofs: dofs.iter().map(|s| s.to_string()).collect(),
         change: rows

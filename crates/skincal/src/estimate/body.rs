@@ -983,7 +983,10 @@ fn left_out(
             return format!("broken ({}): {}", b.kind, b.detail);
         }
         let found = structure.and_then(|s| {
-            s.diagnostics.iter().find(|d| {
+            // A note names what it is about, not what was left out.
+            let explains =
+                |d: &&crate::explore::Diagnostic| d.severity != crate::explore::Severity::Info;
+            s.diagnostics.iter().filter(explains).find(|d| {
                 if kind == "dof" {
                     d.dofs.iter().any(|n| n == name)
                 } else {

@@ -48,6 +48,10 @@ pub struct ActivityMatrix {
     /// Per DoF: whether it is prismatic (empty when none is).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub prismatic: Vec<bool>,
+    /// Per DoF: whether its column was read from what it accelerated because its axis stood
+    /// vertical in every base orientation (`upright_columns`; empty when none was).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub upright: Vec<bool>,
     /// The threshold, m/s².
     pub threshold: f64,
     /// The uncertainty factor.
@@ -743,6 +747,11 @@ impl ActivityMatrix {
         self.prismatic.get(d).copied().unwrap_or(false)
     }
 
+    /// Whether DoF `d`'s column was read from what it accelerated (its axis stood vertical).
+    pub fn is_upright(&self, d: usize) -> bool {
+        self.upright.get(d).copied().unwrap_or(false)
+    }
+
     /// Whether DoF `d` is a mimic DoF (it moves only with its leader and has no column).
     pub fn is_follower(&self, d: usize) -> bool {
         self.leader_of.get(d).is_some_and(Option::is_some)
@@ -804,6 +813,13 @@ pub fn activity_matrix(
     let mut explored = moves.explored;
     prismatic_columns(set, &prismatic, &mut change, &mut explored, threshold);
     led_columns(set, &prismatic, &mut change, threshold);
+    let upright = upright_columns(
+        set,
+        &prismatic,
+        &mut change,
+        threshold,
+        config.uncertainty_factor,
+    );
     let is_broken = |u: usize| screen.is_broken[u];
     // Prismatic columns come from the training experiment, and mimic DoFs have none.
     let own_column = |d: usize| !prismatic[d] && leader_of[d].is_none();
@@ -820,7 +836,7 @@ pub fn activity_matrix(
             misread.push(screen.misread_at(u, o, Some(&set.dofs[d]), &mv.readings[u]));
         }
     }
-    let active: Vec<Vec<bool>> = change
+    let mut active: Vec<Vec<bool>> = change
         .iter()
         .map(|row| {
             row.iter()
@@ -829,6 +845,10 @@ pub fn activity_matrix(
                 .collect()
         })
         .collect();
+    for (u, d) in near_upright_axes(&mut active, &upright) {
+        change[u][d] = typical_change(&change, u, d, threshold);
+        inferred.push((u, d, true));
+    }
     let mimic_driven = super::mimic::mimic_driven(set, &active, &screen.is_broken);
     let rest_turn = rest_turns(structure, &rest_misread, set.sus.len());
     Ok(ActivityMatrix {
@@ -838,6 +858,11 @@ pub fn activity_matrix(
         explored,
         prismatic: if prismatic.contains(&true) {
             prismatic
+        } else {
+            Vec::new()
+        },
+        upright: if upright.contains(&true) {
+            upright
         } else {
             Vec::new()
         },
@@ -979,17 +1004,163 @@ fn per_su_median(readings: &[&Vec<[f64; 3]>], sus: usize) -> Vec<f64> {
 fn led_columns(set: &MeasurementSet, prismatic: &[bool], change: &mut [Vec<f64>], threshold: f64) {
     let scale = crate::model::PRISMATIC_PATTERN_SCALE;
     for d in (0..set.dofs.len()).filter(|&d| !prismatic[d] && !set.followers_of(d).is_empty()) {
-        // Per SU, the typical lever arm its readings give, in m.
-        let arm = dynamic_medians(set, d)
-            .map(|(medians, peak)| medians.into_iter().map(|m| m * scale / peak).collect())
-            .or_else(|| accelerated_medians(set, d));
-        let Some(arm) = arm else {
+        let Some(arm) = lever_arms(set, d) else {
             continue;
         };
         for (row, a) in change.iter_mut().zip(arm) {
             row[d] = row[d].max(a * threshold / (0.5 * scale));
         }
     }
+}
+
+/// Per SU, the typical lever arm about revolute DoF `d` its readings give, m: the training
+/// experiment's dynamic readings of `d` per unit of the pattern's peak, or what the structure
+/// moves accelerated per rad/s²; `None` without either.
+fn lever_arms(set: &MeasurementSet, d: usize) -> Option<Vec<f64>> {
+    let scale = crate::model::PRISMATIC_PATTERN_SCALE;
+    dynamic_medians(set, d)
+        .map(|(medians, peak)| medians.into_iter().map(|m| m * scale / peak).collect())
+        .or_else(|| accelerated_medians(set, d))
+}
+
+/// The lever arm beyond which an SU counts as moved by a revolute DoF whose structure move turned
+/// no gravity, m: the regression on a 0.3 rad move leaves under 2 mm on SUs it does not carry,
+/// and an SU 1 cm from the axis (skin on a link's surface is 2–8 cm from its centre line) reads
+/// twice this.
+pub(super) const UPRIGHT_LEVER: f64 = 0.005;
+
+/// The columns of revolute DoFs whose axis stood (nearly) vertical in every base orientation of
+/// the structure experiment, completed from what they accelerated: turning about gravity changes
+/// no static reading, so no SU's change reaches `uncertainty_factor` times the threshold, while
+/// the move accelerates every SU the DoF carries by its lever arm
+/// ([`crate::measurements::Move::accelerated`]). An SU whose typical lever arm exceeds
+/// [`UPRIGHT_LEVER`] is moved by it; one on the axis itself stays unseen, as in any base
+/// orientation's gravity along the axis. Returns which DoFs' columns were completed so.
+fn upright_columns(
+    set: &MeasurementSet,
+    prismatic: &[bool],
+    change: &mut [Vec<f64>],
+    threshold: f64,
+    uncertainty_factor: f64,
+) -> Vec<bool> {
+    let mut upright = vec![false; set.dofs.len()];
+    for d in (0..set.dofs.len()).filter(|&d| !prismatic[d] && set.followers_of(d).is_empty()) {
+        let largest = change.iter().map(|row| row[d]).fold(0.0, f64::max);
+        if largest >= threshold * uncertainty_factor {
+            continue;
+        }
+        // A move is this DoF alone, regressed over hundreds of blocks (under 2 mm where it
+        // carries nothing); a pattern may run with other DoFs' at once, and one dynamic
+        // reading's noise is some 15 mm of lever arm.
+        let Some(arm) = accelerated_medians(set, d) else {
+            continue;
+        };
+        upright[d] = true;
+        for (row, a) in change.iter_mut().zip(arm) {
+            row[d] = row[d].max(a * threshold / UPRIGHT_LEVER);
+        }
+    }
+    upright
+}
+
+/// The entries of `upright` columns ([`upright_columns`]) that make an SU a segment mate of
+/// others: an SU on (or within a few mm of) an upright axis feels neither the gravity nor the
+/// acceleration of its turn, so its row lacks that DoF and does not fit the tree. For each SU
+/// whose row no other SU shares, the candidates are the other SUs' rows that hold its row plus
+/// upright DoFs only; the candidate that leaves the fewest conflicts in the tree
+/// ([`orphan_rows`]), then adds the fewest entries, is taken while one lowers the conflicts. Those
+/// entries are set in `active` and returned `(su, dof)`.
+fn near_upright_axes(active: &mut [Vec<bool>], upright: &[bool]) -> Vec<(usize, usize)> {
+    if !upright.contains(&true) || orphan_rows(active) == 0 {
+        return Vec::new();
+    }
+    // The greedy choice can be a tie that leads astray (an SU moved to the next segment instead
+    // of its mate to its own): every first step is followed to its end, and the ending with the
+    // fewest conflicts, then the fewest entries added, is kept.
+    // (conflicts left, entries added, the matrix then)
+    type Ending = (usize, Vec<(usize, usize)>, Vec<Vec<bool>>);
+    let mut best: Option<Ending> = None;
+    for (u, adds) in upright_candidates(active, upright) {
+        let mut trial = active.to_vec();
+        let mut added: Vec<(usize, usize)> = adds.iter().map(|&d| (u, d)).collect();
+        for &d in &adds {
+            trial[u][d] = true;
+        }
+        if orphan_rows(&trial) >= orphan_rows(active) {
+            continue;
+        }
+        added.extend(greedy_upright(&mut trial, upright));
+        let conflicts = orphan_rows(&trial);
+        let better = best
+            .as_ref()
+            .is_none_or(|b| (conflicts, added.len()) < (b.0, b.1.len()));
+        if better {
+            best = Some((conflicts, added, trial));
+        }
+    }
+    let Some((_, mut added, trial)) = best else {
+        return Vec::new();
+    };
+    active.clone_from_slice(&trial);
+    added.sort_unstable();
+    added
+}
+
+/// The candidate additions of [`near_upright_axes`]: per SU alone on its row, each distinct set
+/// of upright DoFs that makes its row another SU's.
+fn upright_candidates(active: &[Vec<bool>], upright: &[bool]) -> Vec<(usize, Vec<usize>)> {
+    let nu = active.len();
+    let mut candidates = Vec::new();
+    for u in (0..nu).filter(|&u| (0..nu).all(|v| v == u || active[v] != active[u])) {
+        let mut tried: Vec<Vec<usize>> = Vec::new();
+        for v in (0..nu).filter(|&v| v != u) {
+            let holds = active[u].iter().zip(&active[v]).all(|(&m, &t)| !m || t);
+            let adds: Vec<usize> = (0..upright.len())
+                .filter(|&d| active[v][d] && !active[u][d])
+                .collect();
+            if holds
+                && !adds.is_empty()
+                && adds.iter().all(|&d| upright[d])
+                && !tried.contains(&adds)
+            {
+                tried.push(adds.clone());
+                candidates.push((u, adds));
+            }
+        }
+    }
+    candidates
+}
+
+/// From `active`, the candidate ([`upright_candidates`]) that leaves the fewest conflicts, then
+/// adds the fewest entries, taken while one lowers the conflicts; returns the entries added.
+fn greedy_upright(active: &mut [Vec<bool>], upright: &[bool]) -> Vec<(usize, usize)> {
+    let mut added = Vec::new();
+    loop {
+        let now = orphan_rows(active);
+        if now == 0 {
+            break;
+        }
+        let mut best: Option<((usize, usize), usize, Vec<usize>)> = None;
+        for (u, adds) in upright_candidates(active, upright) {
+            let row = active[u].clone();
+            for &d in &adds {
+                active[u][d] = true;
+            }
+            let cost = (orphan_rows(active), adds.len());
+            active[u] = row;
+            if cost.0 < now && best.as_ref().is_none_or(|b| cost < b.0) {
+                best = Some((cost, u, adds));
+            }
+        }
+        let Some((_, u, adds)) = best else {
+            break;
+        };
+        for d in adds {
+            active[u][d] = true;
+            added.push((u, d));
+        }
+    }
+    added
 }
 
 fn check_config(config: &ExploreConfig) -> Result<(), ExploreError> {
@@ -1286,4 +1457,39 @@ pub(super) fn angle_between(a: &[f64; 3], b: &[f64; 3]) -> f64 {
         return 0.0;
     }
     (dot / (na * nb)).clamp(-1.0, 1.0).acos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 0/1 rows as an activity matrix.
+    fn rows(r: &[[u8; 3]]) -> Vec<Vec<bool>> {
+        r.iter()
+            .map(|r| r.iter().map(|&x| x == 1).collect())
+            .collect()
+    }
+
+    #[test]
+    fn an_su_near_an_upright_axis_joins_the_segment_its_row_becomes() {
+        // A chain yaw → pitch → yaw2; yaw and yaw2 stood vertical. Two SUs per segment; the
+        // second SU on the pitch's segment sits on yaw's axis, the second on yaw2's segment on
+        // yaw's too.
+        let mut active = rows(&[
+            [1, 0, 0],
+            [1, 0, 0],
+            [1, 1, 0],
+            [0, 1, 0],
+            [1, 1, 1],
+            [0, 1, 1],
+        ]);
+        let added = near_upright_axes(&mut active, &[true, false, true]);
+        assert_eq!(added, vec![(3, 0), (5, 0)]);
+        assert_eq!(active[3], active[2]);
+        assert_eq!(active[5], active[4]);
+        assert_eq!(orphan_rows(&active), 0);
+        // Without upright DoFs nothing is added.
+        let mut plain = rows(&[[1, 0, 0], [0, 1, 0]]);
+        assert!(near_upright_axes(&mut plain, &[false; 3]).is_empty());
+    }
 }

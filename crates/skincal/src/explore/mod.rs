@@ -127,6 +127,9 @@ pub enum DiagnosticKind {
     BrokenSu,
     /// SUs on a body that a mimic DoF drives, not the body of the DoF they move with.
     MimicDriven,
+    /// DoFs whose axis stood vertical in every base orientation, their columns read from what
+    /// they accelerated.
+    UprightAxis,
 }
 
 /// A finding, with the SUs and DoFs involved and the likely cause in plain words.
@@ -538,6 +541,7 @@ pub fn structure_from_activity(a: &ActivityMatrix, config: &ExploreConfig) -> St
     let nu = a.sus.len();
     let mut diagnostics = unexplored_dofs(a);
     diagnostics.extend(misread_readings(a));
+    diagnostics.extend(upright_axes(a));
     let moving = moving_dofs(a, &mut diagnostics);
     let dof_rows: Vec<FixedBitSet> = (0..nu).map(|u| activity_row(a, u, &moving)).collect();
     let mut excluded = vec![false; nu];
@@ -614,6 +618,47 @@ fn misread_readings(a: &ActivityMatrix) -> Option<Diagnostic> {
         ),
         sus,
         dofs: Vec::new(),
+    })
+}
+
+/// The DoFs whose columns were read from what they accelerated, their axes vertical in every
+/// base orientation, and the entries then decided by the tree (SUs near those axes).
+fn upright_axes(a: &ActivityMatrix) -> Option<Diagnostic> {
+    let dofs: Vec<String> = (0..a.dofs.len())
+        .filter(|&d| a.is_upright(d))
+        .map(|d| a.dofs[d].clone())
+        .collect();
+    if dofs.is_empty() {
+        return None;
+    }
+    let near: Vec<&Inferred> = a
+        .inferred
+        .iter()
+        .filter(|i| i.active && dofs.contains(&i.dof))
+        .collect();
+    let mut sus: Vec<String> = near.iter().map(|i| i.su.clone()).collect();
+    sus.dedup();
+    Some(Diagnostic {
+        kind: DiagnosticKind::UprightAxis,
+        severity: Severity::Info,
+        message: format!(
+            "DoF(s) {} turned too little gravity to tell (their axes stood vertical, or nearly, in every base orientation): the SUs each moves are those its structure moves accelerated, read with a lever arm of more than {:.0} mm{}",
+            dofs.iter().map(|d| format!("`{d}`")).collect::<Vec<_>>().join(", "),
+            activity::UPRIGHT_LEVER * 1e3,
+            if near.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; SUs nearer an axis, placed on the segment their other entries give: {}",
+                    near.iter()
+                        .map(|i| format!("{} × {}", i.su, i.dof))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            }
+        ),
+        sus,
+        dofs,
     })
 }
 
