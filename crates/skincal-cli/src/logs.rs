@@ -399,19 +399,10 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     };
     let mut ingested = ingest(&args.logs, &config, &mut show)?;
     let training_logs = skincal::ingest::motion::training_logs(&ingested.report);
-    let motion = if args.no_motion || training_logs.is_empty() {
+    let motion = if args.no_motion {
         None
     } else {
-        let set = &ingested.measurements;
-        let record = skincal::ingest::motion::motion_record(
-            &training_logs,
-            &set.dofs,
-            &set.sus,
-            &config,
-            &mut show,
-        )?;
-        skincal::ingest::moves::accelerations_of_moves(&mut ingested.measurements, &record);
-        Some(record)
+        skincal::ingest::motion::record_of(&mut ingested, &config, &mut show)?
     };
     bar.finish_and_clear();
     let mut files = vec![

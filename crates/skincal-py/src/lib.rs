@@ -666,7 +666,10 @@ fn ingest(
         .detach(|| {
             let mut report =
                 |stage: &str, done: u64, total: u64| call(&progress, stage, done, total);
-            skincal::ingest::ingest(&logs, &config, &mut report)
+            let mut ingested = skincal::ingest::ingest(&logs, &config, &mut report)?;
+            // What the structure moves accelerated, from the motion record, as `skincal ingest`.
+            skincal::ingest::motion::record_of(&mut ingested, &config, &mut report)?;
+            Ok::<_, skincal::ingest::IngestError>(ingested)
         })
         .map_err(error)?;
     Ok((

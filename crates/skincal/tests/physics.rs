@@ -82,21 +82,9 @@ fn thirteen_bit_logs(robot: &Robot, dir: &Path) -> (PathBuf, PathBuf) {
 /// The physics simulation of `plan` on `robot` into `dir`: the whole plan upright (seed 1) and
 /// its structure part tilted (seed 2), each with `extra` options; returns the two log directories.
 fn physics_logs(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> (PathBuf, PathBuf) {
-    let robot_file = dir.join("robot.json");
-    let plan_file = dir.join("plan.json");
-    std::fs::write(
-        &robot_file,
-        serde_json::to_string(&RobotFile::from_robot(robot, None)).unwrap(),
-    )
-    .unwrap();
-    std::fs::write(&plan_file, serde_json::to_string(plan).unwrap()).unwrap();
-    let (upright, tilted) = (dir.join("upright"), dir.join("tilted"));
-    physics_log(
-        &robot_file,
-        &plan_file,
-        &upright,
-        &[&["--seed", "1"][..], extra].concat(),
-    );
+    let upright = upright_physics_log(robot, plan, dir, extra);
+    let (robot_file, plan_file) = (dir.join("robot.json"), dir.join("plan.json"));
+    let tilted = dir.join("tilted");
     let g = BaseOrientation::tilted().gravity;
     let gravity = format!("{},{},{}", g[0], g[1], g[2]);
     let tilt = ["--part", "structure", "--seed", "2", "--gravity", &gravity];
@@ -107,6 +95,27 @@ fn physics_logs(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> (Path
         &[&tilt[..], extra].concat(),
     );
     (upright, tilted)
+}
+
+/// The physics simulation of the whole of `plan` on `robot`, upright (seed 1), with `extra`
+/// options, into `dir/upright` (beside the robot and plan files it reads); returns that log
+/// directory.
+fn upright_physics_log(robot: &Robot, plan: &Plan, dir: &Path, extra: &[&str]) -> PathBuf {
+    let (robot_file, plan_file) = (dir.join("robot.json"), dir.join("plan.json"));
+    std::fs::write(
+        &robot_file,
+        serde_json::to_string(&RobotFile::from_robot(robot, None)).unwrap(),
+    )
+    .unwrap();
+    std::fs::write(&plan_file, serde_json::to_string(plan).unwrap()).unwrap();
+    let upright = dir.join("upright");
+    physics_log(
+        &robot_file,
+        &plan_file,
+        &upright,
+        &[&["--seed", "1"][..], extra].concat(),
+    );
+    upright
 }
 
 /// The calibrated `model`'s predictions against 30 noise-free held-out poses of `robot` (seed 77),
@@ -487,18 +496,14 @@ fn excitations_whose_short_pauses_ring_through_are_read_one_by_one() {
     kinova_on_soft_servos(&["--pause", "0.3"]);
 }
 
-/// The Kinova arm's description (2 SUs per link, speed limits of 0.63 rad/s) through the
-/// continuous program on the physics engine's servos (6 Hz, damping 0.8, gravity compensated):
-/// the structure part and the tilted log give the tree, the 40 s sweep (nothing still, every DoF
-/// moving) gives no reading, and from its motion alone every limb converges at the noise level
-/// and predicts held-out poses within 0.008 static, 0.005 dynamic (0.0060/0.0035 m/s² measured;
-/// the speed limits bound how far the sweep reaches, and a longer one reaches further).
 /// `robot`'s physics logs through `plan`'s continuous program (sweep 40, seed 1) on servos of
-/// 6 Hz at damping 0.8 with `extra` options, ingested with default options: what ingest found,
-/// and the motion record of its training log (the upright one).
+/// 6 Hz at damping 0.8 with `extra` options — upright, and with `tilted` its structure part
+/// again with the base tilted — ingested with default options: what ingest found, and the
+/// motion record of its training log (the upright one).
 fn continuous_program_ingested(
     robot: &Robot,
     extra: &[&str],
+    tilted: bool,
 ) -> (skincal::ingest::Ingested, skincal::motion::MotionRecord) {
     let plan = Plan::new(
         PlanDof::from_robot(robot),
@@ -510,13 +515,21 @@ fn continuous_program_ingested(
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let (upright, tilted) = physics_logs(robot, &plan, dir.path(), &servos("6", "0.8", extra));
+    let servo = servos("6", "0.8", extra);
+    let logs = if tilted {
+        let (upright, tilted) = physics_logs(robot, &plan, dir.path(), &servo);
+        vec![upright, tilted]
+    } else {
+        vec![upright_physics_log(robot, &plan, dir.path(), &servo)]
+    };
+    let upright = logs[0].clone();
     let config = IngestConfig::default();
-    let ingested = ingest(&[upright.clone(), tilted], &config, &mut |_, _, _| {}).unwrap();
+    let mut ingested = ingest(&logs, &config, &mut |_, _, _| {}).unwrap();
     let training = skincal::ingest::motion::training_logs(&ingested.report);
     assert_eq!(training, vec![upright]);
     let set = &ingested.measurements;
     let record = motion_record(&training, &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
+    skincal::ingest::moves::accelerations_of_moves(&mut ingested.measurements, &record);
     (ingested, record)
 }
 
@@ -534,13 +547,33 @@ fn asks_for_no_intrinsics(model: &skincal::estimate::body::BodyModel) {
     }
 }
 
+/// The Kinova arm's description (2 SUs per link, speed limits of 0.63 rad/s) through the
+/// continuous program on the physics engine's servos (6 Hz, damping 0.8, gravity compensated),
+/// recorded once, upright: the arm's vertical axes at its rest pose turn no gravity in their
+/// structure moves, and `explore` reads what they move from what the moves accelerated on the
+/// servos (no structure part with the base tilted); the 40 s sweep (nothing still, every DoF
+/// moving) gives no reading, and from its motion alone every limb converges at the noise level
+/// and predicts held-out poses within 0.005 static and dynamic.
 #[test]
 fn a_continuous_program_on_physical_servos_calibrates_from_its_motion() {
     let robot = kinova();
-    let (ingested, record) = continuous_program_ingested(&robot, &[]);
+    let (ingested, record) = continuous_program_ingested(&robot, &[], false);
     let report = &ingested.report;
     assert_eq!(report.training_poses, 0);
-    assert_eq!(report.orientations, 2);
+    assert_eq!(report.orientations, 1);
+    let structure = skincal::explore::explore(
+        &ingested.measurements,
+        &skincal::explore::ExploreConfig::default(),
+    )
+    .unwrap();
+    assert!(
+        structure
+            .diagnostics
+            .iter()
+            .any(|d| d.kind == skincal::explore::DiagnosticKind::UprightAxis),
+        "{:?}",
+        structure.diagnostics
+    );
     let set = &ingested.measurements;
     let model = crate::common::calibrated_on_motion(set, &record, 1.1);
     // The skin is ideal but for its noise and quantisation: the data must not ask for biases
@@ -628,7 +661,7 @@ fn thirteen_bit_encoders_calibrate_at_the_noise_level() {
 fn a_clean_skin_read_through_the_kernel_asks_for_no_intrinsics() {
     let file = crate::real_robots::description("ur_description/urdf/ur5_robot.urdf");
     let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
-    let (ingested, record) = continuous_program_ingested(&robot, &["--encoder-bits", "13"]);
+    let (ingested, record) = continuous_program_ingested(&robot, &["--encoder-bits", "13"], true);
     let set = &ingested.measurements;
     assert_eq!(record.half_width, Some(0.16));
     let model = crate::common::calibrated_on_motion(set, &record, 1.1);

@@ -137,6 +137,24 @@ pub fn motion_record(
     motion_record_from(&sources, dofs, sus, config, progress)
 }
 
+/// What `skincal ingest` keeps beside the measurement set: the motion record of `ingested`'s
+/// training logs ([`training_logs`]; `None` where no log has any), with what the set's structure
+/// moves accelerated filled in from it ([`super::moves::accelerations_of_moves`]).
+pub fn record_of(
+    ingested: &mut super::Ingested,
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Option<MotionRecord>, IngestError> {
+    let logs = training_logs(&ingested.report);
+    if logs.is_empty() {
+        return Ok(None);
+    }
+    let set = &ingested.measurements;
+    let record = motion_record(&logs, &set.dofs, &set.sus, config, progress)?;
+    super::moves::accelerations_of_moves(&mut ingested.measurements, &record);
+    Ok(Some(record))
+}
+
 /// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass
 /// over each log.
 pub fn motion_record_from(
