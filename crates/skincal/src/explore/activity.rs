@@ -1071,37 +1071,38 @@ fn upright_columns(
 /// ([`orphan_rows`]), then adds the fewest entries, is taken while one lowers the conflicts. Those
 /// entries are set in `active` and returned `(su, dof)`.
 fn near_upright_axes(active: &mut [Vec<bool>], upright: &[bool]) -> Vec<(usize, usize)> {
-    if !upright.contains(&true) || orphan_rows(active) == 0 {
+    let now = orphan_rows(active);
+    if !upright.contains(&true) || now == 0 {
         return Vec::new();
     }
     // The greedy choice can be a tie that leads astray (an SU moved to the next segment instead
     // of its mate to its own): every first step is followed to its end, and the ending with the
     // fewest conflicts, then the fewest entries added, is kept.
-    // (conflicts left, entries added, the matrix then)
-    type Ending = (usize, Vec<(usize, usize)>, Vec<Vec<bool>>);
-    let mut best: Option<Ending> = None;
+    let mut best: Option<(usize, Vec<(usize, usize)>)> = None;
     for (u, adds) in upright_candidates(active, upright) {
         let mut trial = active.to_vec();
-        let mut added: Vec<(usize, usize)> = adds.iter().map(|&d| (u, d)).collect();
         for &d in &adds {
             trial[u][d] = true;
         }
-        if orphan_rows(&trial) >= orphan_rows(active) {
+        if orphan_rows(&trial) >= now {
             continue;
         }
+        let mut added: Vec<(usize, usize)> = adds.iter().map(|&d| (u, d)).collect();
         added.extend(greedy_upright(&mut trial, upright));
-        let conflicts = orphan_rows(&trial);
-        let better = best
+        let ending = (orphan_rows(&trial), added);
+        if best
             .as_ref()
-            .is_none_or(|b| (conflicts, added.len()) < (b.0, b.1.len()));
-        if better {
-            best = Some((conflicts, added, trial));
+            .is_none_or(|b| (ending.0, ending.1.len()) < (b.0, b.1.len()))
+        {
+            best = Some(ending);
         }
     }
-    let Some((_, mut added, trial)) = best else {
+    let Some((_, mut added)) = best else {
         return Vec::new();
     };
-    active.clone_from_slice(&trial);
+    for &(u, d) in &added {
+        active[u][d] = true;
+    }
     added.sort_unstable();
     added
 }
