@@ -16,7 +16,8 @@ plan's poses with a protocol of their own, not the plan's timing:
   limbs in parallel); run backwards where forwards would leave the DoF's range (the plan's limits),
   or, with `--away-from-nearer-limit`, wherever the pose is nearer the upper limit.
 
-Every SU is a site whose specific force (the second difference of its position over the integrator's
+Prismatic DoFs (`"kind": "prismatic"`) are slide joints, run through the pattern scaled by 0.1 m
+per rad as skincal's plans do. Every SU is a site whose specific force (the second difference of its position over the integrator's
 substeps, minus gravity, in the site frame) is recorded with Gaussian noise and the quantisation of a
 10-bit ±2 g part (MuJoCo's own accelerometer reads the forward dynamics' qacc, which RK4's trajectory
 does not follow exactly); joint positions are read through 17-bit encoders.
@@ -82,6 +83,16 @@ def placement(entry):
     return frame, np.array(entry.get("axis", [0.0, 0.0, 1.0]), dtype=float)
 
 
+def is_slide(dof):
+    """Whether a DoF of the robot or the plan is prismatic (positions in m)."""
+    return dof.get("kind") == "prismatic"
+
+
+# The plan's pattern is in rad; a prismatic DoF runs it scaled by this, m per rad (skincal's
+# `DofKind::pattern_scale`).
+PRISMATIC_PATTERN_SCALE = 0.1
+
+
 def sensor_frame(su):
     """The frame of an SU on its segment: DH+2 or xyz and rpy (URDF's order, Rz·Ry·Rx)."""
     if "dh" in su:
@@ -131,8 +142,9 @@ def mjcf(robot, gravity, gravcomp=False):
             frame, axis = placement(d)
             compensated = ' gravcomp="1"' if gravcomp else ""
             lines.append(f'{indent}<body name="{d["child"]}" {pose_attributes(frame)}{compensated}>')
+            kind = "slide" if is_slide(d) else "hinge"
             lines.append(
-                f'{indent}  <joint name="{d["name"]}" type="hinge" axis="{axis[0]} {axis[1]} {axis[2]}" armature="0.02"/>'
+                f'{indent}  <joint name="{d["name"]}" type="{kind}" axis="{axis[0]} {axis[1]} {axis[2]}" armature="0.02"/>'
             )
             lines += body(d["child"], indent + "  ")
             lines.append(f"{indent}</body>")
@@ -212,15 +224,19 @@ def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_fro
         elif action == "excitation":
             # One DoF, or several together (a plan's parallel limbs).
             excited = [dof_index[n] for n in [phase["dof"], *phase.get("together", [])]]
-            excursion = 2.0 * amplitude / w
+            scale = np.array(
+                [PRISMATIC_PATTERN_SCALE if is_slide(plan["dofs"][d]) else 1.0 for d in excited]
+            )
             sense = np.ones(len(excited))
             if backwards_near_limits:
                 for i, d in enumerate(excited):
+                    excursion = 2.0 * amplitude / w * scale[i]
                     lower = plan["dofs"][d].get("lower", -math.inf)
                     upper = plan["dofs"][d].get("upper", math.inf)
                     nearer_upper = away_from_nearer_limit and upper - a[d] < a[d] - lower
                     if a[d] + excursion > upper or nearer_upper:
                         sense[i] = -1.0
+            sense = sense * scale
 
             def excite(t, a=a, excited=excited, sense=sense):
                 q = a.copy()
@@ -359,7 +375,10 @@ def main():
             accs.append(a)
     qs = np.array(qs)
     if encoder:
-        qs = np.round(qs / encoder) * encoder
+        # A slide's encoder counts the same number of steps over a metre as a turn's over a
+        # revolution.
+        steps = np.array([encoder / (2.0 * math.pi) if is_slide(d) else encoder for d in plan["dofs"]])
+        qs = np.round(qs / steps) * steps
     accs = np.array(accs)
     accs = accs + rng.normal(0.0, args.noise, accs.shape)
     if lsb:

@@ -400,6 +400,9 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     let mut ingested = ingest(&args.logs, &config, &mut show)?;
     let training_logs = skincal::ingest::motion::training_logs(&ingested.report);
     let motion = if args.no_motion {
+        if config.prismatic.is_none() {
+            skincal::ingest::motion::tell_kinds(&mut ingested, None);
+        }
         None
     } else {
         skincal::ingest::motion::record_of(&mut ingested, &config, &mut show)?
@@ -489,18 +492,15 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
         let robot = io::load_robot(spec, SuPlacement::default())?;
         config.dofs = Some(robot.model.dof_names());
         config.sus = Some(robot.model.su_names());
-        config.prismatic = robot.model.prismatic_dof_names();
+        config.prismatic = Some(robot.model.prismatic_dof_names());
         config.mimic = robot.model.mimic_specs();
     }
     if let Some(path) = &args.plan {
         let plan = skincal::io::read_plan(path)?;
-        config.pattern = Some(plan.pattern);
         if config.dofs.is_none() {
             config.dofs = Some(plan.dof_names());
-            config.prismatic = plan.prismatic_dof_names();
-            config.mimic = plan.mimic_specs();
         }
-        config = config.for_still_periods(plan.config.still);
+        config = config.with_plan(&plan);
     }
     config.min_still = args.min_still.unwrap_or(config.min_still);
     config.trim = args.trim.unwrap_or(config.trim);
@@ -571,10 +571,32 @@ fn render_report(r: &IngestReport) -> String {
             n / STANDARD_GRAVITY
         );
     }
+    if !r.kinds.is_empty() {
+        let _ = writeln!(s, "{}", render_kinds(&r.kinds));
+    }
     for w in &r.warnings {
         let _ = writeln!(s, "warning: {w}");
     }
     s
+}
+
+/// The DoFs' kinds as their structure moves told them (no description named them): each slide
+/// with what told it, the turns counted.
+fn render_kinds(kinds: &[skincal::ingest::moves::KindTold]) -> String {
+    use skincal::model::DofKind;
+    use std::fmt::Write as _;
+    let turns = kinds
+        .iter()
+        .filter(|k| k.kind == Some(DofKind::Revolute))
+        .count();
+    let mut line = format!(
+        "DoF kinds, told from what the structure moves did to the skin (no --robot or --plan \
+         named them): {turns} revolute"
+    );
+    for slide in kinds.iter().filter(|k| k.kind == Some(DofKind::Prismatic)) {
+        let _ = write!(line, "; `{}` prismatic: {}", slide.dof, slide.evidence);
+    }
+    line
 }
 
 /// The share of coupled motion fitted out of a log's excitation windows, if any had some.

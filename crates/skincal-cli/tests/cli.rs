@@ -1862,6 +1862,14 @@ fn a_continuous_program_runs_from_plan_to_validation() {
         ),
         "{ingest}"
     );
+    // No description named the kinds: the moves tell every DoF a turn, the four about vertical
+    // axes by their lever arms.
+    assert!(
+        ingest.contains("DoF kinds, told from what the structure moves did to the skin")
+            && ingest.contains("): 7 revolute\n")
+            && !ingest.contains("slide or turn"),
+        "{ingest}"
+    );
     let explored = succeeds(&["explore", "run"], d);
     assert!(
         explored.contains("DoF(s) `dof1`, `dof3`, `dof5`, `dof7` turned too little gravity")

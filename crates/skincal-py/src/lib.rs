@@ -650,11 +650,7 @@ fn ingest(
         let text =
             std::fs::read_to_string(path).map_err(|e| error(format!("{}: {e}", path.display())))?;
         let plan = Plan::from_json(&text).map_err(|e| error(format!("{}: {e}", path.display())))?;
-        config = IngestConfig {
-            pattern: Some(plan.pattern),
-            ..config
-        }
-        .for_still_periods(plan.config.still);
+        config = config.with_plan(&plan);
     }
     if let Some((amplitude, frequency)) = pattern {
         config.pattern = Some(ExcitationPattern {

@@ -165,13 +165,7 @@ pub fn reading_noise(
         &imperfections,
         "one pose",
     )?;
-    let ingest_config = IngestConfig {
-        pattern: Some(plan.pattern),
-        prismatic: plan.prismatic_dof_names(),
-        mimic: plan.mimic_specs(),
-        ..IngestConfig::default()
-    }
-    .for_still_periods(plan.config.still);
+    let ingest_config = IngestConfig::default().with_plan(plan);
     let ingested = ingest_from(
         std::slice::from_ref(&log),
         &ingest_config,

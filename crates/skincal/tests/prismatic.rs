@@ -81,7 +81,7 @@ fn stock_urdfs_with_prismatic_fingers_calibrate_without_edits() {
 
 /// The paper's arm on a linear axis (tilted 17° from horizontal, ±0.3 m) whose carriage carries
 /// two SUs, and the same robot with that axis revolute.
-fn arm_on_a_rail(kind: &str) -> Robot {
+pub(crate) fn arm_on_a_rail(kind: &str) -> Robot {
     let preset = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("presets/paper-7dof.toml");
     let text = std::fs::read_to_string(preset).unwrap().replacen(
         "[[dofs]]\nname = \"dof1\"\n",
@@ -195,7 +195,7 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
     assert_eq!(plan.prismatic_dof_names(), ["rail"]);
     let dir = tempfile::tempdir().unwrap();
     let config = IngestConfig {
-        prismatic: robot.model.prismatic_dof_names(),
+        prismatic: Some(robot.model.prismatic_dof_names()),
         ..IngestConfig::default()
     };
     let (ingested, upright) =
@@ -206,6 +206,73 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
     assert!(structure.complete, "{:?}", structure.diagnostics);
     assert!(tree_is_exact(&robot, &structure));
     crate::common::logs_calibrate(&robot, (&set, &structure), &upright, &config, "rail");
+}
+
+/// The arm on its prismatic rail logged as above but ingested as `skincal ingest` does with no
+/// description (`--robot`, `--plan`): no DoF is named prismatic, and each DoF's kind is told
+/// from what its structure moves did to the skin. The rail is told prismatic (its carriage's
+/// two SUs read its axis, a unit vector per m/s², and the arm's every SU the same axis), every
+/// arm DoF revolute (the vertical first one from its lever arms and centripetal terms), so the
+/// set is the one ingested with the kinds given, and calibrates as it does.
+#[test]
+fn a_linear_axis_is_told_from_its_moves_where_no_description_names_it() {
+    use skincal::ingest::IngestConfig;
+    use skincal::plan::{Plan, PlanConfig, PlanDof};
+
+    let robot = arm_on_a_rail("prismatic");
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 8,
+            seed: 3,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let read = |config: &IngestConfig, name: &str| {
+        let dir = dir.path().join(name);
+        std::fs::create_dir(&dir).unwrap();
+        let (mut ingested, upright) =
+            crate::common::logged_and_ingested(&robot, &plan, config, &dir);
+        skincal::ingest::motion::record_of(&mut ingested, config, &mut |_, _, _| {}).unwrap();
+        (ingested, upright)
+    };
+    let untold = IngestConfig::default();
+    assert_eq!(untold.prismatic, None);
+    let (told, upright) = read(&untold, "untold");
+    for kind in &told.report.kinds {
+        eprintln!("{}: {:?}, {}", kind.dof, kind.kind, kind.evidence);
+        let truth = robot.model.dofs()[robot.model.dof_index(&kind.dof).unwrap()].kind;
+        assert_eq!(kind.kind, Some(truth), "{kind:?}");
+    }
+    assert_eq!(told.report.kinds.len(), robot.model.dofs().len());
+    assert!(
+        told.report
+            .warnings
+            .iter()
+            .all(|w| !w.contains("slide or turn")),
+        "{:?}",
+        told.report.warnings
+    );
+    let given = IngestConfig {
+        prismatic: Some(robot.model.prismatic_dof_names()),
+        ..IngestConfig::default()
+    };
+    let (named, _) = read(&given, "named");
+    assert!(named.report.kinds.is_empty());
+    // The same set but for the logs' directory its sources name.
+    let text = |set: &skincal::measurements::MeasurementSet, dir: &str| {
+        serde_json::to_string(set).unwrap().replace(dir, "logs")
+    };
+    assert_eq!(
+        text(&told.measurements, "untold"),
+        text(&named.measurements, "named")
+    );
+    let set = told.measurements;
+    let structure = explore(&set, &ExploreConfig::default()).unwrap();
+    assert!(tree_is_exact(&robot, &structure));
+    crate::common::logs_calibrate(&robot, (&set, &structure), &upright, &untold, "told rail");
 }
 
 /// `export-urdf --into` the stock Panda: each SU on a finger is put on its finger link where the

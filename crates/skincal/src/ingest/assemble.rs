@@ -751,6 +751,7 @@ pub(super) fn assemble(
         logs: passes.reports,
         pattern,
         pattern_source,
+        kinds: Vec::new(),
         warnings,
     };
     Ok(Ingested {
@@ -1018,12 +1019,19 @@ fn mimic_of(passes: &Passes<'_>) -> std::collections::BTreeMap<String, crate::mo
         .collect()
 }
 
-/// The logged DoFs that the configuration names prismatic.
+/// The logged DoFs that the configuration names prismatic (none where it names no kinds: they
+/// are told from the motion record, [`super::motion::record_of`]).
 fn prismatic_of(passes: &Passes<'_>) -> Vec<String> {
     passes
         .dofs
         .iter()
-        .filter(|d| passes.config.prismatic.contains(d))
+        .filter(|d| {
+            passes
+                .config
+                .prismatic
+                .as_ref()
+                .is_some_and(|p| p.contains(d))
+        })
         .cloned()
         .collect()
 }

@@ -139,8 +139,10 @@ pub struct IngestConfig {
     /// The SUs expected (in this order); other frame ids are reported as unknown.
     pub sus: Option<Vec<String>>,
     /// The DoFs that are prismatic (from the robot's description or the plan): the measurement
-    /// set says so, so that their positions are read in m and their patterns as scaled.
-    pub prismatic: Vec<String>,
+    /// set says so, so that their positions are read in m and their patterns as scaled. `None`
+    /// where no description says: each DoF's kind is then told from what its structure moves
+    /// did to the skin ([`moves::kinds_of_moves`], by [`motion::record_of`]).
+    pub prismatic: Option<Vec<String>>,
     /// The DoFs that are mimic joints, with the DoF each follows (from the robot's description or
     /// the plan): they move only with their leaders, so a leader's motion is told by the leader
     /// alone, and the measurement set says so.
@@ -158,6 +160,18 @@ impl IngestConfig {
     pub fn saturated(&self, a: &[f64; 3]) -> bool {
         a.iter()
             .any(|v| v.abs() >= self.saturation * (1.0 - TOP_CODE))
+    }
+
+    /// The configuration for the logs of `plan`'s program: its pattern, still windows that fit its
+    /// still periods ([`IngestConfig::for_still_periods`]), and, where no description named them
+    /// already, its DoFs' kinds and mimic joints.
+    pub fn with_plan(mut self, plan: &crate::plan::Plan) -> Self {
+        self.pattern = Some(plan.pattern);
+        if self.prismatic.is_none() {
+            self.prismatic = Some(plan.prismatic_dof_names());
+            self.mimic = plan.mimic_specs();
+        }
+        self.for_still_periods(plan.config.still)
     }
 
     /// The still-window lengths made to fit still periods of `still` seconds (a plan's): the
@@ -190,7 +204,7 @@ impl Default for IngestConfig {
             pattern: None,
             dofs: None,
             sus: None,
-            prismatic: Vec::new(),
+            prismatic: None,
             mimic: std::collections::BTreeMap::new(),
             explore: crate::explore::ExploreConfig::default(),
         }
@@ -441,6 +455,10 @@ pub struct IngestReport {
     pub dynamic: usize,
     /// RMS of the SU samples about their mean in still windows, m/s² (the sensor noise).
     pub sample_noise: Option<f64>,
+    /// Each DoF's kind as its structure moves told it, where no description said
+    /// ([`moves::kinds_of_moves`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub kinds: Vec<moves::KindTold>,
     /// Problems that affect the result, in words.
     pub warnings: Vec<String>,
 }

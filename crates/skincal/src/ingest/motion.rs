@@ -139,20 +139,62 @@ pub fn motion_record(
 
 /// What `skincal ingest` keeps beside the measurement set: the motion record of `ingested`'s
 /// training logs ([`training_logs`]; `None` where no log has any), with what the set's structure
-/// moves accelerated filled in from it ([`super::moves::accelerations_of_moves`]).
+/// moves accelerated filled in from it ([`super::moves::accelerations_of_moves`]). Where
+/// `config` names no kinds (no description), each DoF's is told from its structure moves first
+/// ([`super::moves::kinds_of_moves`]): the set names the slides, the report says what told each
+/// DoF's kind and warns of those nothing told (taken as revolute).
 pub fn record_of(
     ingested: &mut super::Ingested,
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Option<MotionRecord>, IngestError> {
     let logs = training_logs(&ingested.report);
-    if logs.is_empty() {
-        return Ok(None);
+    let record = if logs.is_empty() {
+        None
+    } else {
+        let set = &ingested.measurements;
+        Some(motion_record(&logs, &set.dofs, &set.sus, config, progress)?)
+    };
+    if config.prismatic.is_none() {
+        tell_kinds(ingested, record.as_ref());
     }
-    let set = &ingested.measurements;
-    let record = motion_record(&logs, &set.dofs, &set.sus, config, progress)?;
-    super::moves::accelerations_of_moves(&mut ingested.measurements, &record);
-    Ok(Some(record))
+    if let Some(record) = &record {
+        super::moves::accelerations_of_moves(&mut ingested.measurements, record);
+    }
+    Ok(record)
+}
+
+/// Each DoF's kind told from its structure moves ([`super::moves::kinds_of_moves`]), with what
+/// `record` read of them where there is one: the set names the slides, the report says what told each DoF's kind and warns of those nothing told
+/// (taken as revolute).
+pub fn tell_kinds(ingested: &mut super::Ingested, record: Option<&MotionRecord>) {
+    let kinds = super::moves::kinds_of_moves(&ingested.measurements, record);
+    ingested.measurements.prismatic = kinds
+        .iter()
+        .filter(|k| k.kind == Some(crate::model::DofKind::Prismatic))
+        .map(|k| k.dof.clone())
+        .collect();
+    // The DoFs nothing told, grouped by why.
+    let mut untold: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
+    for k in kinds.iter().filter(|k| k.kind.is_none()) {
+        untold
+            .entry(&k.evidence)
+            .or_default()
+            .push(format!("`{}`", k.dof));
+    }
+    if !untold.is_empty() {
+        let why: Vec<String> = untold
+            .iter()
+            .map(|(why, dofs)| format!("{} ({why})", dofs.join(", ")))
+            .collect();
+        ingested.report.warnings.push(format!(
+            "the structure moves did not tell whether DoF(s) {} slide or turn: taken as \
+             revolute; if any is prismatic, name the robot's description (--robot) or the plan \
+             (--plan)",
+            why.join("; ")
+        ));
+    }
+    ingested.report.kinds = kinds;
 }
 
 /// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass

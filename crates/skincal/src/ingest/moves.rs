@@ -8,8 +8,14 @@
 //! revolute one), any other nothing. Where the training experiment excites the DoF its dynamic
 //! readings tell the same; a continuous program has none. With these, no structure part needs
 //! to be recorded again with the base tilted.
+//!
+//! The same regressions tell a slide from a turn where no description says which a DoF is
+//! ([`kinds_of_moves`]): a turn turns gravity, spins its SUs outwards (a centripetal term as
+//! large as the tangential one) and reads its lever arm; a slide does neither and reads its
+//! axis, a unit vector, on every SU it carries.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::measurements::{MeasurementSet, Reading};
 use crate::model::DofKind;
@@ -18,12 +24,37 @@ use crate::motion::{MotionRecord, MotionRun, SAME_POSE};
 /// A DoF moves in a block when its speed exceeds this, rad/s (m/s); every other DoF is still in
 /// a move when it stays below it.
 const MOVING: f64 = 0.01;
+/// How far another DoF may be from the move's pose during a move, rad (m): a servo deflected by
+/// the move's reaction, or ringing as it stops. Its motion joins the move's regression.
+const DEFLECTED: f64 = 0.02;
 /// Blocks of stillness on each side of a move that join its regression (they carry the hold's
 /// reading, which the regression's intercept takes).
 const MARGIN: usize = 10;
 /// The least `Σ(q̈ − mean)²` over a move's blocks for its regression to tell anything, (m/s²)²
 /// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60.
 const LEAST_EXCITATION: f64 = 1.0;
+/// How many standard deviations make a term of the one-DoF model read: an SU carried, gravity
+/// turned, a centripetal term, a gain other than a slide's.
+const TOLD: f64 = 5.0;
+/// The least gravity a turn's move turns on an SU for it to count: m/s² per unit of `sin Δθ` in
+/// the regression, m/s² between the static readings at rest and after the move (a slide turns
+/// none; a move of 0.3 rad about an axis within 10° of vertical turns less).
+const TURNED: f64 = 0.5;
+/// How far from a slide's 1 per m/s² an SU's gain may read and still be a slide's.
+const UNIT_GAIN: f64 = 0.2;
+
+/// What a DoF's structure moves told of its kind, where no description said
+/// ([`kinds_of_moves`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KindTold {
+    /// The DoF's name.
+    pub dof: String,
+    /// `None` where its moves told neither (no move in the motion record, no SU it carries read
+    /// well enough, or readings of both kinds): it is taken as revolute.
+    pub kind: Option<DofKind>,
+    /// What told it, in words.
+    pub evidence: String,
+}
 
 /// Fills [`crate::measurements::Move::accelerated`] of `set`'s structure moves (of every DoF but
 /// mimic followers, which move with their leaders) from `record` (ingested from the same logs):
@@ -31,68 +62,192 @@ const LEAST_EXCITATION: f64 = 1.0;
 /// the rest pose), the record's stretches in which that DoF alone moved (its followers with it)
 /// and which end at the move's pose. Moves the record does not hold stay empty.
 pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
-    let column = |name: &str| record.dofs.iter().position(|d| d == name);
-    let su_column: Vec<Option<usize>> = set
-        .sus
+    let su_column = su_columns(set, record);
+    let gains: Vec<(usize, usize, Vec<Option<Reading>>)> = held_moves(set, record)
         .iter()
-        .map(|su| record.sus.iter().position(|s| s == su))
-        .collect();
-    let wanted: Vec<(String, Vec<usize>, DofKind)> = (0..set.dofs.len())
-        .filter(|&d| !set.mimic.contains_key(&set.dofs[d]))
-        .filter_map(|d| {
-            let mut moving = vec![column(&set.dofs[d])?];
-            moving.extend(
-                set.followers_of(d)
-                    .into_iter()
-                    .filter_map(|f| column(&set.dofs[f])),
-            );
-            Some((set.dofs[d].clone(), moving, set.dof_kind(d)))
+        .map(|held| {
+            let revolute = set.dof_kind(held.dof) == DofKind::Revolute;
+            let gains = su_column
+                .iter()
+                .map(|u| {
+                    let fit = u.and_then(|u| regress(held, u, revolute))?;
+                    fit.gain()
+                })
+                .collect();
+            (held.orientation, held.index, gains)
         })
         .collect();
-    if wanted.is_empty() {
-        return;
-    }
-    // Each record column's place in the set's poses.
-    let in_set: Option<Vec<usize>> = record.dofs.iter().map(|d| set.dof_index(d)).collect();
-    let Some(in_set) = in_set else {
-        return;
-    };
-    let to_record = |pose: &[f64]| -> Vec<f64> { in_set.iter().map(|&i| pose[i]).collect() };
     let Some(structure) = set.structure.as_mut() else {
         return;
     };
-    for o in &mut structure.orientations {
-        if record.same_base(&o.rest_pose, &o.rest) != Some(true) {
+    for (o, j, gains) in gains {
+        if gains.iter().any(Option::is_some) {
+            structure.orientations[o].moves[j].accelerated =
+                gains.into_iter().map(|g| g.unwrap_or([0.0; 3])).collect();
+        }
+    }
+}
+
+/// Whether each DoF of `set` (but mimic followers) slides or turns, told from its structure
+/// moves where no description says. A slide turns no gravity; a turn that is not about a vertical
+/// axis does, so any move whose static readings differ from the rest's by more than
+/// [`TURNED`] on some SU makes its DoF revolute (in any base orientation, with or without a
+/// motion record). In `record`, every SU is regressed on the revolute model over each move
+/// (which holds the slide's as a special case) and each SU a move carries votes: a turn turns
+/// gravity on it, or reads a gain other than a slide's 1 per m/s² (its lever arm, m), or a
+/// centripetal term as large as that gain; a slide reads 1 per m/s² with neither. One vote for a
+/// turn makes the DoF revolute (a slide's reading can be a turn's with a lever arm of 1 m); one
+/// for a slide and none for a turn, prismatic.
+pub fn kinds_of_moves(set: &MeasurementSet, record: Option<&MotionRecord>) -> Vec<KindTold> {
+    let held = record.map_or_else(Vec::new, |record| held_moves(set, record));
+    let su_column = record.map_or_else(Vec::new, |record| su_columns(set, record));
+    (0..set.dofs.len())
+        .filter(|&d| !set.is_follower(d))
+        .map(|dof| {
+            let mut votes = Votes {
+                turned: static_turns(set, dof),
+                ..Votes::default()
+            };
+            let moves: Vec<&Held<'_>> = held.iter().filter(|h| h.dof == dof).collect();
+            for held in &moves {
+                for u in su_column.iter().flatten() {
+                    if let Some(fit) = regress(held, *u, true) {
+                        votes.add(&fit);
+                    }
+                }
+            }
+            votes.told(&set.dofs[dof], moves.len())
+        })
+        .collect()
+}
+
+/// How many SUs a structure move of DoF `dof` (alone, its followers with it) turned gravity
+/// on: its static reading at the move's pose differs from the rest's by more than [`TURNED`]
+/// (most over its moves).
+fn static_turns(set: &MeasurementSet, dof: usize) -> usize {
+    let Some(structure) = set.structure.as_ref() else {
+        return 0;
+    };
+    let followers = set.followers_of(dof);
+    structure
+        .orientations
+        .iter()
+        .flat_map(|o| o.moves.iter().map(move |mv| (o, mv)))
+        .filter(|(o, mv)| {
+            mv.dof == set.dofs[dof]
+                && mv.pose.len() == o.rest_pose.len()
+                && mv
+                    .pose
+                    .iter()
+                    .zip(&o.rest_pose)
+                    .enumerate()
+                    .all(|(e, (p, r))| {
+                        e == dof || followers.contains(&e) || (p - r).abs() <= SAME_POSE
+                    })
+        })
+        .map(|(o, mv)| {
+            mv.readings
+                .iter()
+                .zip(&o.rest)
+                .filter(|(m, r)| {
+                    let change: f64 = (0..3).map(|a| (m[a] - r[a]).powi(2)).sum();
+                    change.sqrt() > TURNED
+                })
+                .count()
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+/// Each of `set`'s SUs' column in `record`.
+fn su_columns(set: &MeasurementSet, record: &MotionRecord) -> Vec<Option<usize>> {
+    set.sus
+        .iter()
+        .map(|su| record.sus.iter().position(|s| s == su))
+        .collect()
+}
+
+/// A structure move the motion record holds.
+struct Held<'a> {
+    /// Its place in the set: orientation, move.
+    orientation: usize,
+    index: usize,
+    /// Its DoF in the set.
+    dof: usize,
+    /// Its DoF's column in the record.
+    column: usize,
+    /// Where it moved ([`moves_into`]).
+    stretches: Vec<Stretch<'a>>,
+    /// Its DoF's position at the move's pose.
+    pose: f64,
+    /// The other DoFs (record columns) that moved a little in its stretches — servos deflected
+    /// by the move and ringing as it stops: their accelerations join the regression, so what
+    /// they add is not read as the move's.
+    others: Vec<usize>,
+}
+
+/// `set`'s structure moves (of every DoF but mimic followers) that `record` holds: in the base
+/// orientation the record stood in ([`MotionRecord::same_base`] at the rest pose), the
+/// record's stretches in which that DoF alone moved (its followers with it) and which end at
+/// the move's pose.
+fn held_moves<'a>(set: &MeasurementSet, record: &'a MotionRecord) -> Vec<Held<'a>> {
+    let column = |name: &str| record.dofs.iter().position(|d| d == name);
+    // Each record column's place in the set's poses.
+    let in_set: Option<Vec<usize>> = record.dofs.iter().map(|d| set.dof_index(d)).collect();
+    let (Some(in_set), Some(structure)) = (in_set, set.structure.as_ref()) else {
+        return Vec::new();
+    };
+    let mut held = Vec::new();
+    for (o, orientation) in structure.orientations.iter().enumerate() {
+        if record.same_base(&orientation.rest_pose, &orientation.rest) != Some(true) {
             continue;
         }
-        for mv in &mut o.moves {
-            let Some((_, moving, kind)) = wanted.iter().find(|(name, ..)| *name == mv.dof) else {
+        for (index, mv) in orientation.moves.iter().enumerate() {
+            let Some(dof) = set.dof_index(&mv.dof).filter(|&d| !set.is_follower(d)) else {
                 continue;
             };
-            let pose = to_record(&mv.pose);
-            let stretches = moves_into(record, moving, &pose);
-            if stretches.is_empty() {
+            let Some(leader) = column(&set.dofs[dof]) else {
                 continue;
-            }
-            let revolute = *kind == DofKind::Revolute;
-            let d = moving[0];
-            let gains: Vec<Option<Reading>> = su_column
-                .iter()
-                .map(|u| u.and_then(|u| gain(&stretches, d, u, revolute, pose[d])))
-                .collect();
-            if gains.iter().any(Option::is_some) {
-                mv.accelerated = gains.into_iter().map(|g| g.unwrap_or([0.0; 3])).collect();
+            };
+            let mut moving = vec![leader];
+            moving.extend(
+                set.followers_of(dof)
+                    .into_iter()
+                    .filter_map(|f| column(&set.dofs[f])),
+            );
+            let pose: Vec<f64> = in_set.iter().map(|&i| mv.pose[i]).collect();
+            let stretches = moves_into(record, &moving, &pose);
+            if !stretches.is_empty() {
+                let others = (0..record.dofs.len())
+                    .filter(|e| !moving.contains(e))
+                    .filter(|&e| {
+                        stretches.iter().any(|&(run, start, end)| {
+                            (start..end).any(|b| run.qd[b][e].abs() > MOVING)
+                        })
+                    })
+                    .collect();
+                held.push(Held {
+                    orientation: o,
+                    index,
+                    dof,
+                    column: leader,
+                    stretches,
+                    pose: pose[leader],
+                    others,
+                });
             }
         }
     }
+    held
 }
 
 /// A stretch of a run: `(run, first block, end block)`.
 type Stretch<'a> = (&'a MotionRun, usize, usize);
 
-/// The record's stretches `(run, first block, end block)` in which `moving[0]` moved with no
-/// DoF but `moving` (its followers) moving, widened by up to [`MARGIN`] still blocks on each
-/// side, and whose last block holds `pose`.
+/// The record's stretches `(run, first block, end block)` in which `moving[0]` moved with every
+/// DoF but `moving` (its followers) within [`DEFLECTED`] of `pose` (still, or deflected by the
+/// move), widened by up to [`MARGIN`] still blocks on each side, and whose last block holds
+/// `pose`.
 fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> Vec<Stretch<'a>> {
     record
         .runs
@@ -100,10 +255,11 @@ fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> V
         .flat_map(|run| {
             let moves = |b: usize| run.qd[b][moving[0]].abs() > MOVING;
             let others_still = |b: usize| {
-                run.qd[b]
+                run.q[b]
                     .iter()
+                    .zip(pose)
                     .enumerate()
-                    .all(|(e, v)| moving.contains(&e) || v.abs() <= MOVING)
+                    .all(|(e, (q, p))| moving.contains(&e) || (q - p).abs() <= DEFLECTED)
             };
             let mut stretches = Vec::new();
             let mut b = 0;
@@ -136,8 +292,8 @@ fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> V
         .collect()
 }
 
-/// SU `u`'s reading per unit of DoF `d`'s acceleration over `stretches`: the least-squares
-/// coefficient of `q̈` in the exact model of one DoF moving with everything upstream still,
+/// One SU's readings over a move regressed on the exact model of one DoF moving with everything
+/// upstream still,
 ///
 /// ```text
 /// s = c + k q̈                                        (prismatic: gravity does not turn)
@@ -147,20 +303,57 @@ fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> V
 /// whose coefficients are constant in the SU frame (the axis is fixed in the moving segment), so
 /// the gravity the move turns does not leak into `k`: `k` is the axis for a prismatic DoF that
 /// carries the SU (a unit vector), the tangent times the lever arm for a revolute one (its norm in
-/// m), zero for an SU the DoF does not move. `None` where the stretches do not excite `q̈` apart
-/// from the other regressors enough to tell ([`LEAST_EXCITATION`]) or the SU sent too little in
-/// them.
-fn gain(
-    stretches: &[Stretch<'_>],
-    d: usize,
-    u: usize,
+/// m), zero for an SU the DoF does not move; `k_ω` is minus the radial direction times the lever
+/// arm, as long as `k`.
+struct OneDof {
+    /// Per regressor (rows: `c`, then `G_c`, `G_s` for a turn, `k`, then `k_ω`; then each
+    /// deflected DoF's acceleration), per axis.
+    coefficients: DMatrix<f64>,
+    /// The inverse of the regressors' Gram matrix.
+    inverse: DMatrix<f64>,
+    /// The residual's variance per axis, (m/s²)².
+    variance: f64,
     revolute: bool,
-    pose: f64,
-) -> Option<Reading> {
+}
+
+impl OneDof {
+    /// The row of `k`.
+    fn k_row(&self) -> usize {
+        if self.revolute {
+            3
+        } else {
+            1
+        }
+    }
+
+    /// Regressor `row`'s coefficient and its standard deviation per axis.
+    fn term(&self, row: usize) -> (Vector3<f64>, f64) {
+        (
+            Vector3::from_fn(|a, _| self.coefficients[(row, a)]),
+            (self.variance * self.inverse[(row, row)]).max(0.0).sqrt(),
+        )
+    }
+
+    /// `k`, the SU's reading per unit of the DoF's acceleration; `None` where the move did not
+    /// excite `q̈` apart from the other regressors enough to tell ([`LEAST_EXCITATION`]).
+    fn gain(&self) -> Option<Reading> {
+        let k = self.k_row();
+        // `1 / (G⁻¹)ₖₖ` is what of `Σ q̈²` the other regressors leave to tell `k`.
+        if self.inverse[(k, k)] <= 0.0 || 1.0 / self.inverse[(k, k)] < LEAST_EXCITATION {
+            return None;
+        }
+        Some(self.term(k).0.into())
+    }
+}
+
+/// SU `u`'s readings over `held`'s stretches regressed on the one-DoF model ([`OneDof`]);
+/// `None` where the SU sent too little in them or the regressors are degenerate.
+fn regress(held: &Held<'_>, u: usize, revolute: bool) -> Option<OneDof> {
+    let d = held.column;
     let regressors = |run: &MotionRun, b: usize| -> Vec<f64> {
         let a = run.qdd[b][d];
-        if revolute {
-            let turned = run.q[b][d] - pose;
+        let mut x = if revolute {
+            let turned = run.q[b][d] - held.pose;
             vec![
                 1.0,
                 turned.cos() - 1.0,
@@ -170,14 +363,21 @@ fn gain(
             ]
         } else {
             vec![1.0, a]
+        };
+        // A deflected DoF's small motion, by its acceleration: its turn follows the move's
+        // acceleration (the servo yields to the reaction), and, a regressor of its own, would
+        // take the move's share; the gravity it turns is 0.01 rad of it at most.
+        for &e in &held.others {
+            x.push(run.qdd[b][e]);
         }
+        x
     };
-    let k = if revolute { 3 } else { 1 };
-    let n = if revolute { 5 } else { 2 };
+    let n = if revolute { 5 } else { 2 } + held.others.len();
     let mut gram = DMatrix::<f64>::zeros(n, n);
     let mut moment = DMatrix::<f64>::zeros(n, 3);
+    let mut squares = 0.0;
     let mut samples = 0;
-    for &(run, start, end) in stretches {
+    for &(run, start, end) in &held.stretches {
         for b in start..end {
             let Some(y) = run.skin[b][u] else {
                 continue;
@@ -186,6 +386,7 @@ fn gain(
             gram += &x * x.transpose();
             for (c, v) in y.iter().enumerate() {
                 moment.column_mut(c).axpy(*v, &x, 1.0);
+                squares += v * v;
             }
             samples += 1;
         }
@@ -194,16 +395,115 @@ fn gain(
         return None;
     }
     let inverse = gram.try_inverse()?;
-    // `1 / (G⁻¹)ₖₖ` is what of `Σ q̈²` the other regressors leave to tell `k`.
-    if inverse[(k, k)] <= 0.0 || 1.0 / inverse[(k, k)] < LEAST_EXCITATION {
-        return None;
+    let coefficients = &inverse * &moment;
+    let explained: f64 = (0..3)
+        .map(|c| coefficients.column(c).dot(&moment.column(c)))
+        .sum();
+    Some(OneDof {
+        coefficients,
+        inverse,
+        variance: (squares - explained).max(0.0) / (3 * (samples - n)) as f64,
+        revolute,
+    })
+}
+
+/// The votes of a DoF's carried SUs on its kind ([`kinds_of_moves`]).
+#[derive(Default)]
+struct Votes {
+    /// SUs on which its moves turned gravity.
+    turned: usize,
+    /// Gains of SUs that read other than a slide's, m (lever arms).
+    levers: Vec<f64>,
+    /// SUs with a centripetal term.
+    spun: usize,
+    /// Gains of SUs that read a slide's.
+    slides: Vec<f64>,
+}
+
+impl Votes {
+    /// `fit`'s vote, if its SU is carried (its gain told apart from nothing).
+    fn add(&mut self, fit: &OneDof) {
+        if !fit.revolute || fit.gain().is_none() {
+            return;
+        }
+        let (k, sd_k) = fit.term(3);
+        let gain = k.norm();
+        if gain <= TOLD * sd_k {
+            return;
+        }
+        let (turned, sd_turned) = fit.term(2);
+        let (spin, sd_spin) = fit.term(4);
+        let is_turned = turned.norm() > TURNED && turned.norm() > TOLD * sd_turned;
+        let off_unit = (gain - 1.0).abs();
+        let is_lever = off_unit > UNIT_GAIN && off_unit > TOLD * sd_k;
+        let is_spun = spin.norm() > 0.5 * gain && spin.norm() > TOLD * sd_spin;
+        self.turned += usize::from(is_turned);
+        self.spun += usize::from(is_spun);
+        if is_lever {
+            self.levers.push(gain);
+        }
+        if !(is_turned || is_lever || is_spun) && off_unit <= UNIT_GAIN {
+            self.slides.push(gain);
+        }
     }
-    let coefficients = inverse * moment;
-    Some([
-        coefficients[(k, 0)],
-        coefficients[(k, 1)],
-        coefficients[(k, 2)],
-    ])
+
+    /// The kind told of DoF `dof` from `moves` structure moves.
+    fn told(self, dof: &str, moves: usize) -> KindTold {
+        let range = |v: &[f64], scale: f64, digits: usize| {
+            let (low, high) = v
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+                    (l.min(x), h.max(x))
+                });
+            if v.len() == 1 {
+                format!("{:.digits$}", low * scale)
+            } else {
+                format!("{:.digits$}–{:.digits$}", low * scale, high * scale)
+            }
+        };
+        let (kind, evidence) = if self.turned + self.spun + self.levers.len() > 0 {
+            let mut why = Vec::new();
+            if self.turned > 0 {
+                why.push(format!("turned gravity on {} SU(s)", self.turned));
+            }
+            if !self.levers.is_empty() {
+                why.push(format!(
+                    "{} SU(s) read lever arms of {} mm",
+                    self.levers.len(),
+                    range(&self.levers, 1e3, 0)
+                ));
+            }
+            if self.spun > 0 {
+                why.push(format!("{} SU(s) were spun outwards", self.spun));
+            }
+            (Some(DofKind::Revolute), why.join("; "))
+        } else if !self.slides.is_empty() {
+            (
+                Some(DofKind::Prismatic),
+                format!(
+                    "{} SU(s) read its axis at {} per m/s², and none turned gravity or was spun \
+                     outwards",
+                    self.slides.len(),
+                    range(&self.slides, 1.0, 2)
+                ),
+            )
+        } else if moves == 0 {
+            (
+                None,
+                "no gravity turned, and no move of it alone in the motion record".to_string(),
+            )
+        } else {
+            (
+                None,
+                "no SU its moves carried read them well enough".to_string(),
+            )
+        };
+        KindTold {
+            dof: dof.to_string(),
+            kind,
+            evidence,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -374,24 +674,33 @@ mod tests {
     /// SU `a`'s distance from both axes, m.
     const LEVER: f64 = 0.03;
 
+    /// A structure move of `dof` to `pose` in [`turns`]'s record, with the static readings
+    /// there: the yaw leaves gravity where it was, the pitch turns it on SU `a`.
+    fn turn_hold(pose: Vec<f64>, dof: &str) -> Move {
+        let p = pose[1];
+        Move {
+            dof: dof.into(),
+            pose,
+            readings: vec![[9.81 * p.sin(), 9.81 * p.cos(), 0.0], [0.0, 9.81, 0.0]],
+            accelerated: Vec::new(),
+            extra: Default::default(),
+        }
+    }
+
     #[test]
     fn a_turn_reads_its_lever_arm_on_what_it_carries_whether_or_not_it_turns_gravity() {
         let mut set = MeasurementSet::new(
             vec!["yaw".into(), "pitch".into()],
             vec!["a".into(), "b".into()],
         );
-        let hold = |pose: Vec<f64>, dof: &str| Move {
-            dof: dof.into(),
-            pose,
-            readings: vec![[0.0; 3]; 2],
-            accelerated: Vec::new(),
-            extra: Default::default(),
-        };
         set.structure = Some(StructureExperiment {
             orientations: vec![Orientation {
                 rest_pose: vec![0.0, 0.0],
                 rest: vec![[0.0, 9.81, 0.0]; 2],
-                moves: vec![hold(vec![0.3, 0.0], "yaw"), hold(vec![0.3, 0.3], "pitch")],
+                moves: vec![
+                    turn_hold(vec![0.3, 0.0], "yaw"),
+                    turn_hold(vec![0.3, 0.3], "pitch"),
+                ],
                 extra: Default::default(),
             }],
             extra: Default::default(),
@@ -420,6 +729,55 @@ mod tests {
                 mv.dof
             );
         }
+    }
+
+    #[test]
+    fn a_slide_and_turns_are_told_apart_by_what_their_moves_did_to_the_skin() {
+        // The slide's move: SU `a` reads its axis, 1 per m/s², and nothing turns or spins.
+        let mut set = set();
+        set.prismatic.clear();
+        let told = kinds_of_moves(&set, Some(&record()));
+        assert_eq!(told.len(), 2);
+        assert_eq!(told[0].kind, Some(DofKind::Prismatic), "{:?}", told[0]);
+        // The turn's record holds no motion the one-DoF model can read (a constant speed and
+        // acceleration with its position held): nothing tells it.
+        assert_eq!(told[1].kind, None, "{:?}", told[1]);
+        // A yaw about a vertical axis turns no gravity, but its SU reads a 30 mm lever arm (and
+        // a pitch turns gravity too): both are turns.
+        let mut set = MeasurementSet::new(
+            vec!["yaw".into(), "pitch".into()],
+            vec!["a".into(), "b".into()],
+        );
+        set.structure = Some(StructureExperiment {
+            orientations: vec![Orientation {
+                rest_pose: vec![0.0, 0.0],
+                rest: vec![[0.0, 9.81, 0.0]; 2],
+                moves: vec![
+                    turn_hold(vec![0.3, 0.0], "yaw"),
+                    turn_hold(vec![0.3, 0.3], "pitch"),
+                ],
+                extra: Default::default(),
+            }],
+            extra: Default::default(),
+        });
+        let told = kinds_of_moves(&set, Some(&turns()));
+        assert_eq!(told[0].kind, Some(DofKind::Revolute), "{:?}", told[0]);
+        assert!(
+            told[0].evidence.contains("lever arms of 30 mm"),
+            "{:?}",
+            told[0]
+        );
+        assert!(
+            !told[0].evidence.contains("turned gravity"),
+            "{:?}",
+            told[0]
+        );
+        assert_eq!(told[1].kind, Some(DofKind::Revolute), "{:?}", told[1]);
+        assert!(
+            told[1].evidence.contains("turned gravity on 1 SU"),
+            "{:?}",
+            told[1]
+        );
     }
 
     #[test]
