@@ -298,10 +298,11 @@ pub(crate) struct IngestArgs {
     /// MCAP topic of sensor_msgs/msg/Imu.
     #[arg(long, default_value = skincal::log::IMU_TOPIC)]
     imu_topic: String,
-    /// A DoF is still below this speed, rad/s.
+    /// A DoF is still below this speed, rad/s (a tenth of it in m/s for a prismatic DoF).
     #[arg(long, default_value_t = IngestConfig::default().still_velocity)]
     still_velocity: f64,
-    /// Between two motions every DoF is slower than this (servo ringing allowed), rad/s.
+    /// Between two motions every DoF is slower than this (servo ringing allowed), rad/s (a tenth
+    /// of it in m/s for a prismatic DoF).
     #[arg(long, default_value_t = IngestConfig::default().quiet_velocity)]
     quiet_velocity: f64,
     /// Shortest pause that separates two motions, s.
@@ -401,7 +402,7 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
     let training_logs = skincal::ingest::motion::training_logs(&ingested.report);
     let motion = if args.no_motion {
         if config.prismatic.is_none() {
-            skincal::ingest::motion::tell_kinds(&mut ingested, None);
+            skincal::ingest::motion::tell_kinds(&mut ingested, &config, None, &mut show)?;
         }
         None
     } else {

@@ -743,7 +743,11 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
 /// ingested with default options and no description: the rail's kind is told from what its
 /// structure move did to the skin — every SU it carries read its axis, one per m/s², once the
 /// accelerations of the arm's servos, deflected by the rail's reaction, are regressed out — and
-/// every arm DoF's from the gravity its move turned; the tree is exact.
+/// every arm DoF's from the gravity its move turned. The logs are then read again with the rail
+/// named: its patterns (4.7 mm at 0.042 m/s, a tenth of a turn's speed) were pauses to thresholds
+/// in rad/s, and every training pose lacked the rail's excitation (the readings' fit then
+/// started the time-domain fit in a minimum at 8.1 σ, 0.38 m/s² held-out). The tree is exact and
+/// every sample of the log calibrates the arm on its rail at the noise level.
 #[test]
 fn a_linear_axis_on_physical_servos_is_told_prismatic_from_its_move() {
     let robot = crate::prismatic::arm_on_a_rail("prismatic");
@@ -760,7 +764,19 @@ fn a_linear_axis_on_physical_servos_is_told_prismatic_from_its_move() {
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servos("6", "0.8", &[]));
     let config = IngestConfig::default();
     let mut ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
-    skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {}).unwrap();
+    assert_eq!(
+        ingested.report.dynamic,
+        7 * 8,
+        "the rail's patterns are pauses at first"
+    );
+    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        ingested.report.dynamic,
+        8 * 8,
+        "read again with the rail named"
+    );
     for told in &ingested.report.kinds {
         eprintln!("{}: {:?}, {}", told.dof, told.kind, told.evidence);
         let truth = robot.model.dofs()[robot.model.dof_index(&told.dof).unwrap()].kind;
@@ -776,4 +792,7 @@ fn a_linear_axis_on_physical_servos_is_told_prismatic_from_its_move() {
     assert_eq!(set.prismatic, ["rail"]);
     let structure = explore(set, &ExploreConfig::default()).unwrap();
     assert!(crate::real_robots::tree_is_exact(&robot, &structure));
+    let model = crate::common::calibrated_on_motion(set, &record, 1.1);
+    let v = held_out_rms(&model, &robot, "rail told from its move, every sample: ");
+    assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
 }

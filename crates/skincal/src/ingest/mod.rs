@@ -107,9 +107,11 @@ pub const TOP_CODE: f64 = 1.0 / 256.0;
 pub struct IngestConfig {
     /// MCAP topic names.
     pub topics: Topics,
-    /// A DoF is still below this speed, rad/s (still windows give the static readings).
+    /// A DoF is still below this speed, rad/s (still windows give the static readings; for a
+    /// prismatic DoF, [`IngestConfig::speed_scale`] of it in m/s).
     pub still_velocity: f64,
-    /// Between two motions every DoF is slower than this, rad/s: a pause, which may ring.
+    /// Between two motions every DoF is slower than this, rad/s: a pause, which may ring (scaled
+    /// as `still_velocity` for a prismatic DoF).
     pub quiet_velocity: f64,
     /// Shortest pause that separates two motions, s.
     pub min_pause: f64,
@@ -160,6 +162,22 @@ impl IngestConfig {
     pub fn saturated(&self, a: &[f64; 3]) -> bool {
         a.iter()
             .any(|v| v.abs() >= self.saturation * (1.0 - TOP_CODE))
+    }
+
+    /// The factor on the speed thresholds (`still_velocity`, `quiet_velocity`) for DoF `dof`:
+    /// [`crate::model::PRISMATIC_PATTERN_SCALE`] for one the configuration names prismatic (its
+    /// pattern runs that many m per rad, so that a slide's pattern, a tenth of a turn's speed, is
+    /// not taken for a pause), else 1.
+    pub fn speed_scale(&self, dof: &str) -> f64 {
+        if self
+            .prismatic
+            .as_ref()
+            .is_some_and(|p| p.iter().any(|d| d == dof))
+        {
+            crate::model::PRISMATIC_PATTERN_SCALE
+        } else {
+            1.0
+        }
     }
 
     /// The configuration for the logs of `plan`'s program: its pattern, still windows that fit its

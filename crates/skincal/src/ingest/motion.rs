@@ -141,22 +141,15 @@ pub fn motion_record(
 /// training logs ([`training_logs`]; `None` where no log has any), with what the set's structure
 /// moves accelerated filled in from it ([`super::moves::accelerations_of_moves`]). Where
 /// `config` names no kinds (no description), each DoF's is told from its structure moves first
-/// ([`super::moves::kinds_of_moves`]): the set names the slides, the report says what told each
-/// DoF's kind and warns of those nothing told (taken as revolute).
+/// ([`tell_kinds`]).
 pub fn record_of(
     ingested: &mut super::Ingested,
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<Option<MotionRecord>, IngestError> {
-    let logs = training_logs(&ingested.report);
-    let record = if logs.is_empty() {
-        None
-    } else {
-        let set = &ingested.measurements;
-        Some(motion_record(&logs, &set.dofs, &set.sus, config, progress)?)
-    };
-    if config.prismatic.is_none() {
-        tell_kinds(ingested, record.as_ref());
+    let mut record = training_record(ingested, config, progress)?;
+    if config.prismatic.is_none() && tell_kinds(ingested, config, record.as_ref(), progress)? {
+        record = training_record(ingested, config, progress)?;
     }
     if let Some(record) = &record {
         super::moves::accelerations_of_moves(&mut ingested.measurements, record);
@@ -164,16 +157,53 @@ pub fn record_of(
     Ok(record)
 }
 
+/// The motion record of `ingested`'s training logs, if any has some.
+fn training_record(
+    ingested: &super::Ingested,
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<Option<MotionRecord>, IngestError> {
+    let logs = training_logs(&ingested.report);
+    if logs.is_empty() {
+        return Ok(None);
+    }
+    let set = &ingested.measurements;
+    motion_record(&logs, &set.dofs, &set.sus, config, progress).map(Some)
+}
+
 /// Each DoF's kind told from its structure moves ([`super::moves::kinds_of_moves`]), with what
-/// `record` read of them where there is one: the set names the slides, the report says what told each DoF's kind and warns of those nothing told
-/// (taken as revolute).
-pub fn tell_kinds(ingested: &mut super::Ingested, record: Option<&MotionRecord>) {
+/// `record` read of them where there is one (`ingested` read with `config`, which names no
+/// kinds). Where some DoF slides, the logs are read again with the slides named (a slide's
+/// pattern runs at a tenth of a turn's speed, which the pauses' thresholds must know:
+/// [`IngestConfig::speed_scale`]), and `true` says so (a record made before is of the old set).
+/// The set names the slides, the report says what told each DoF's kind and warns of those
+/// nothing told (taken as revolute).
+pub fn tell_kinds(
+    ingested: &mut super::Ingested,
+    config: &IngestConfig,
+    record: Option<&MotionRecord>,
+    progress: &mut Progress<'_>,
+) -> Result<bool, IngestError> {
     let kinds = super::moves::kinds_of_moves(&ingested.measurements, record);
-    ingested.measurements.prismatic = kinds
+    let slides: Vec<String> = kinds
         .iter()
         .filter(|k| k.kind == Some(crate::model::DofKind::Prismatic))
         .map(|k| k.dof.clone())
         .collect();
+    let again = !slides.is_empty();
+    if again {
+        let logs: Vec<PathBuf> = ingested
+            .report
+            .logs
+            .iter()
+            .map(|l| l.path.clone())
+            .collect();
+        let config = IngestConfig {
+            prismatic: Some(slides),
+            ..config.clone()
+        };
+        *ingested = super::ingest(&logs, &config, progress)?;
+    }
     // The DoFs nothing told, grouped by why.
     let mut untold: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
     for k in kinds.iter().filter(|k| k.kind.is_none()) {
@@ -195,6 +225,7 @@ pub fn tell_kinds(ingested: &mut super::Ingested, record: Option<&MotionRecord>)
         ));
     }
     ingested.report.kinds = kinds;
+    Ok(again)
 }
 
 /// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass

@@ -196,7 +196,7 @@ pub(super) fn pieces(
     let trim = trim_points(config, dt, l);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
     let first = timeline.first;
-    let (pauses, still) = pauses(timeline, config, l, at_end);
+    let (pauses, still) = pauses(timeline, dofs, config, l, at_end);
     let mut out = Vec::with_capacity(pauses.len());
     for (k, &(s, e)) in pauses.iter().enumerate() {
         // The longest still run of the pause, trimmed, gives the static reading; one shorter than
@@ -241,9 +241,11 @@ pub(super) fn pieces(
     out
 }
 
-/// The pauses of a stretch (see [`pieces`]) and where every DoF is still.
+/// The pauses of a stretch (see [`pieces`]) and where every DoF is still. A prismatic DoF's
+/// speeds are compared in its pattern's units ([`IngestConfig::speed_scale`]).
 fn pauses(
     timeline: &Timeline,
+    dofs: &[String],
     config: &IngestConfig,
     l: usize,
     at_end: bool,
@@ -256,6 +258,9 @@ fn pauses(
     let flicker: Vec<f64> = (0..timeline.theta.len())
         .map(|e| 2.0 * timeline.grid.count.get(e).copied().unwrap_or(0.0))
         .collect();
+    let scale: Vec<f64> = (0..timeline.theta.len())
+        .map(|e| dofs.get(e).map_or(1.0, |d| config.speed_scale(d)))
+        .collect();
     // Grid points where every DoF is slower than `limit`.
     let below = |limit: f64| -> Vec<bool> {
         (0..n)
@@ -267,7 +272,8 @@ fn pauses(
                     .theta
                     .iter()
                     .zip(&flicker)
-                    .all(|(th, f)| (th[i + l] - th[i - l]).abs() < limit * span + f)
+                    .zip(&scale)
+                    .all(|((th, f), s)| (th[i + l] - th[i - l]).abs() < limit * s * span + f)
             })
             .collect()
     };
