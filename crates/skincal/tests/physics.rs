@@ -692,8 +692,10 @@ fn a_clean_skin_read_through_the_kernel_asks_for_no_intrinsics() {
 /// poses): a still joint is read only to within a count, and a creeping one's acceleration from
 /// the staircase the polynomial bends to follow. Taken as read, the joint states put those errors
 /// into the geometry; fitted as unknowns held at the encoders' readings (`MlConfig::joint_states`,
-/// the default) the held-out error falls, static by a third and dynamic by a quarter (0.0105 /
-/// 0.0063 to 0.0070 / 0.0048 m/s²; exact encoders give 0.0008 / 0.0026).
+/// the default) the held-out error falls, static by half and dynamic by a quarter (0.0102 /
+/// 0.0063 to 0.0050 / 0.0048 m/s²; exact encoders give 0.0008 / 0.0026). A still joint's
+/// samples at one count share one correction: taken apart, each was held by the whole
+/// rounding's prior against one sample's readings, and the static error fell only to 0.0068.
 #[test]
 fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
     let robot = kinova();
@@ -725,7 +727,7 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
     };
     let (read, fitted) = (fit(false, "joint states as read: "), fit(true, "fitted: "));
     assert!(
-        fitted.static_rms < 0.8 * read.static_rms && fitted.dynamic_rms < 0.85 * read.dynamic_rms,
+        fitted.static_rms < 0.6 * read.static_rms && fitted.dynamic_rms < 0.85 * read.dynamic_rms,
         "static {} vs {}, dynamic {} vs {}",
         fitted.static_rms,
         read.static_rms,
@@ -733,7 +735,7 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
         read.dynamic_rms
     );
     assert!(
-        fitted.static_rms < 0.008 && fitted.dynamic_rms < 0.0055,
+        fitted.static_rms < 0.0055 && fitted.dynamic_rms < 0.0055,
         "{fitted:?}"
     );
 }
