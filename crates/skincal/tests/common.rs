@@ -233,3 +233,17 @@ pub fn run_python(script: &str, args: &[&std::path::Path]) -> Vec<u8> {
     );
     out.stdout
 }
+
+/// `plan`'s short program of `poses` training poses for `robot`, drawn with `seed`.
+pub fn short_plan(robot: &skincal::model::Robot, poses: usize, seed: u64) -> skincal::plan::Plan {
+    use skincal::plan::{Plan, PlanConfig, PlanDof};
+    Plan::new(
+        PlanDof::from_robot(robot),
+        &PlanConfig {
+            poses,
+            seed,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap()
+}

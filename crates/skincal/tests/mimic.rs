@@ -294,15 +294,7 @@ fn a_gripper_with_a_mimic_finger_is_calibrated_from_its_logs() {
         },
     )
     .unwrap();
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 8,
-            seed: 3,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
+    let plan = crate::common::short_plan(&robot, 8, 3);
     let dir = tempfile::tempdir().unwrap();
     let config = IngestConfig {
         mimic: robot.model.mimic_specs(),

@@ -753,15 +753,7 @@ fn coarse_encoders_joint_states_are_fitted_as_unknowns() {
 #[test]
 fn a_linear_axis_on_physical_servos_is_told_prismatic_from_its_move() {
     let robot = crate::prismatic::arm_on_a_rail("prismatic");
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 8,
-            seed: 3,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
+    let plan = crate::common::short_plan(&robot, 8, 3);
     let dir = tempfile::tempdir().unwrap();
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servos("6", "0.8", &[]));
     let config = IngestConfig::default();

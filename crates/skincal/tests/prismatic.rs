@@ -180,18 +180,9 @@ fn fingers_without_skin_are_listed_and_left_out() {
 #[test]
 fn a_linear_axis_is_calibrated_from_its_logs() {
     use skincal::ingest::IngestConfig;
-    use skincal::plan::{Plan, PlanConfig, PlanDof};
 
     let robot = arm_on_a_rail("prismatic");
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 8,
-            seed: 3,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
+    let plan = crate::common::short_plan(&robot, 8, 3);
     assert_eq!(plan.prismatic_dof_names(), ["rail"]);
     let dir = tempfile::tempdir().unwrap();
     let config = IngestConfig {
@@ -217,18 +208,9 @@ fn a_linear_axis_is_calibrated_from_its_logs() {
 #[test]
 fn a_linear_axis_is_told_from_its_moves_where_no_description_names_it() {
     use skincal::ingest::IngestConfig;
-    use skincal::plan::{Plan, PlanConfig, PlanDof};
 
     let robot = arm_on_a_rail("prismatic");
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 8,
-            seed: 3,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
+    let plan = crate::common::short_plan(&robot, 8, 3);
     let dir = tempfile::tempdir().unwrap();
     let read = |config: &IngestConfig, name: &str| {
         let dir = dir.path().join(name);

@@ -674,21 +674,8 @@ mod tests {
     /// SU `a`'s distance from both axes, m.
     const LEVER: f64 = 0.03;
 
-    /// A structure move of `dof` to `pose` in [`turns`]'s record, with the static readings
-    /// there: the yaw leaves gravity where it was, the pitch turns it on SU `a`.
-    fn turn_hold(pose: Vec<f64>, dof: &str) -> Move {
-        let p = pose[1];
-        Move {
-            dof: dof.into(),
-            pose,
-            readings: vec![[9.81 * p.sin(), 9.81 * p.cos(), 0.0], [0.0, 9.81, 0.0]],
-            accelerated: Vec::new(),
-            extra: Default::default(),
-        }
-    }
-
-    #[test]
-    fn a_turn_reads_its_lever_arm_on_what_it_carries_whether_or_not_it_turns_gravity() {
+    /// The structure experiment of [`turns`]'s record: the yaw's move, then the pitch's.
+    fn turns_set() -> MeasurementSet {
         let mut set = MeasurementSet::new(
             vec!["yaw".into(), "pitch".into()],
             vec!["a".into(), "b".into()],
@@ -705,6 +692,25 @@ mod tests {
             }],
             extra: Default::default(),
         });
+        set
+    }
+
+    /// A structure move of `dof` to `pose` in [`turns`]'s record, with the static readings
+    /// there: the yaw leaves gravity where it was, the pitch turns it on SU `a`.
+    fn turn_hold(pose: Vec<f64>, dof: &str) -> Move {
+        let p = pose[1];
+        Move {
+            dof: dof.into(),
+            pose,
+            readings: vec![[9.81 * p.sin(), 9.81 * p.cos(), 0.0], [0.0, 9.81, 0.0]],
+            accelerated: Vec::new(),
+            extra: Default::default(),
+        }
+    }
+
+    #[test]
+    fn a_turn_reads_its_lever_arm_on_what_it_carries_whether_or_not_it_turns_gravity() {
+        let mut set = turns_set();
         accelerations_of_moves(&mut set, &turns());
         for mv in &set.structure.unwrap().orientations[0].moves {
             let [x, y, z] = mv.accelerated[0];
@@ -744,22 +750,7 @@ mod tests {
         assert_eq!(told[1].kind, None, "{:?}", told[1]);
         // A yaw about a vertical axis turns no gravity, but its SU reads a 30 mm lever arm (and
         // a pitch turns gravity too): both are turns.
-        let mut set = MeasurementSet::new(
-            vec!["yaw".into(), "pitch".into()],
-            vec!["a".into(), "b".into()],
-        );
-        set.structure = Some(StructureExperiment {
-            orientations: vec![Orientation {
-                rest_pose: vec![0.0, 0.0],
-                rest: vec![[0.0, 9.81, 0.0]; 2],
-                moves: vec![
-                    turn_hold(vec![0.3, 0.0], "yaw"),
-                    turn_hold(vec![0.3, 0.3], "pitch"),
-                ],
-                extra: Default::default(),
-            }],
-            extra: Default::default(),
-        });
+        let set = turns_set();
         let told = kinds_of_moves(&set, Some(&turns()));
         assert_eq!(told[0].kind, Some(DofKind::Revolute), "{:?}", told[0]);
         assert!(
