@@ -49,8 +49,8 @@ const UNIT_GAIN: f64 = 0.2;
 pub struct KindTold {
     /// The DoF's name.
     pub dof: String,
-    /// `None` where its moves told neither (no move in the motion record, no SU it carries read
-    /// well enough, or readings of both kinds): it is taken as revolute.
+    /// `None` where its moves told neither (no gravity turned, and no move in the motion record
+    /// or no SU it carries read well enough): it is taken as revolute.
     pub kind: Option<DofKind>,
     /// What told it, in words.
     pub evidence: String,
