@@ -677,12 +677,13 @@ fn reference_sus(
 /// A limb's estimate fitted again on every sample of `record`, from where the readings' fit
 /// ended; the search's record (orders tried, retries) is kept.
 ///
-/// Static readings alone (a record's quiet moments) may not tell the search's end states apart:
-/// where the fit from the kept one ends off the noise level, each runner-up
-/// ([`MlChainEstimate::runner_ups`]) is led to the motion in turn until one reaches it, and the
-/// best fit is kept (a head on
-/// a humanoid's trunk from a continuous program ended at 30 σ from the one and at the noise level
-/// from the other, whose readings fit 0.2 worse in χ²).
+/// Readings may not tell the search's end states apart: where the fit from the kept one ends off
+/// the noise level, each runner-up ([`MlChainEstimate::runner_ups`]) is led to the motion in turn
+/// until one reaches it, and the best fit is kept. From static readings alone (a record's quiet
+/// moments), a head on a humanoid's trunk from a continuous program ended at 30 σ from the one
+/// and at the noise level from the other, whose readings fit 0.2 worse in χ²; with dynamic
+/// readings from one upright log, whose vertical axes leave them less to tell, the short
+/// program's humanoid neck ended at 8.5 σ from the one and at 1.0 σ from the other.
 fn on_motion(
     set: &MeasurementSet,
     record: &MotionRecord,
@@ -712,7 +713,7 @@ fn on_motion(
         refine_on_motion(&data, base, start, motion, &config)
     };
     let mut best = refine(start)?;
-    if best.converged || !data.static_only() {
+    if best.converged {
         return Ok(best.after(estimate));
     }
     // What the fits not kept took is counted with the one kept.
