@@ -317,10 +317,15 @@ struct OneDof {
 }
 
 impl OneDof {
+    /// The revolute model's rows of `G_s`, `k` and `k_ω` (the slide's has `c` and `k` alone).
+    const TURNED: usize = 2;
+    const GAIN: usize = 3;
+    const SPIN: usize = 4;
+
     /// The row of `k`.
     fn k_row(&self) -> usize {
         if self.revolute {
-            3
+            Self::GAIN
         } else {
             1
         }
@@ -426,13 +431,13 @@ impl Votes {
         if !fit.revolute || fit.gain().is_none() {
             return;
         }
-        let (k, sd_k) = fit.term(3);
+        let (k, sd_k) = fit.term(OneDof::GAIN);
         let gain = k.norm();
         if gain <= TOLD * sd_k {
             return;
         }
-        let (turned, sd_turned) = fit.term(2);
-        let (spin, sd_spin) = fit.term(4);
+        let (turned, sd_turned) = fit.term(OneDof::TURNED);
+        let (spin, sd_spin) = fit.term(OneDof::SPIN);
         let is_turned = turned.norm() > TURNED && turned.norm() > TOLD * sd_turned;
         let off_unit = (gain - 1.0).abs();
         let is_lever = off_unit > UNIT_GAIN && off_unit > TOLD * sd_k;
@@ -590,19 +595,28 @@ mod tests {
             accelerated: Vec::new(),
             extra: Default::default(),
         };
-        set.structure = Some(StructureExperiment {
+        set.structure = Some(upright(
+            GRAVITY.to_vec(),
+            vec![
+                hold(vec![0.04, 0.0], "slide"),
+                hold(vec![0.04, 0.3], "turn"),
+            ],
+        ));
+        set
+    }
+
+    /// A structure experiment of one base orientation: at rest (every DoF at 0) reading `rest`,
+    /// then `moves`.
+    fn upright(rest: Vec<Reading>, moves: Vec<Move>) -> StructureExperiment {
+        StructureExperiment {
             orientations: vec![Orientation {
-                rest_pose: vec![0.0, 0.0],
-                rest: GRAVITY.to_vec(),
-                moves: vec![
-                    hold(vec![0.04, 0.0], "slide"),
-                    hold(vec![0.04, 0.3], "turn"),
-                ],
+                rest_pose: vec![0.0; moves.first().map_or(0, |m| m.pose.len())],
+                rest,
+                moves,
                 extra: Default::default(),
             }],
             extra: Default::default(),
-        });
-        set
+        }
     }
 
     #[test]
@@ -680,18 +694,13 @@ mod tests {
             vec!["yaw".into(), "pitch".into()],
             vec!["a".into(), "b".into()],
         );
-        set.structure = Some(StructureExperiment {
-            orientations: vec![Orientation {
-                rest_pose: vec![0.0, 0.0],
-                rest: vec![[0.0, 9.81, 0.0]; 2],
-                moves: vec![
-                    turn_hold(vec![0.3, 0.0], "yaw"),
-                    turn_hold(vec![0.3, 0.3], "pitch"),
-                ],
-                extra: Default::default(),
-            }],
-            extra: Default::default(),
-        });
+        set.structure = Some(upright(
+            vec![[0.0, 9.81, 0.0]; 2],
+            vec![
+                turn_hold(vec![0.3, 0.0], "yaw"),
+                turn_hold(vec![0.3, 0.3], "pitch"),
+            ],
+        ));
         set
     }
 
