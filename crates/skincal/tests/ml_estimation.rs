@@ -465,3 +465,71 @@ fn training_poses_with_the_base_tilted_tell_the_turn_about_a_vertical_first_axis
         guessed.to_degrees()
     );
 }
+
+#[test]
+fn each_dofs_bound_on_its_dynamic_readings_is_what_noise_draws_give() {
+    // The Cramér–Rao bound on each DoF's held-out dynamic readings (the parameters' covariance
+    // at the truth propagated to their predictions) against the whole calibration run on 24
+    // draws of Gaussian noise on the same poses: per DoF, the draws' RMS error is the bound's,
+    // within what 48 draws tell (a DoF's squared error depends on a few parameters' errors and
+    // scatters about its mean by about its mean: the RMS over 48 by about a tenth).
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    use skincal::estimate::body::calibrate_body;
+    use skincal::estimate::ml::{dynamic_reading_bounds, IntrinsicsModel};
+    use skincal::explore::{explore, ExploreConfig};
+    use skincal::predict::validate;
+    let truth = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let clean = simulate(&truth, &noise_free()).unwrap().measurements;
+    let held_out = simulate(
+        &truth,
+        &SimulationConfig {
+            seed: 1001,
+            structure: false,
+            ..noise_free()
+        },
+    )
+    .unwrap()
+    .measurements;
+    let structure = explore(&clean, &ExploreConfig::default()).unwrap();
+    let sd = 0.01 * 9.81 / 3f64.sqrt();
+    let bounds = dynamic_reading_bounds(
+        &truth,
+        &gravity_upright(),
+        &LimbData::new(&clean, &chain(7)).unwrap(),
+        &LimbData::new(&held_out, &chain(7)).unwrap(),
+        sd,
+        IntrinsicsModel::None,
+    )
+    .unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    let normal = rand_distr::Normal::new(0.0, sd).unwrap();
+    let draws = 48;
+    let mut squares = [0.0; 7];
+    for _ in 0..draws {
+        let mut set = clean.clone();
+        for pose in &mut set.training.as_mut().unwrap().poses {
+            let dynamic = pose.dynamic.values_mut().flatten();
+            for reading in pose.static_readings.iter_mut().chain(dynamic) {
+                for x in reading {
+                    *x += normal.sample(&mut rng);
+                }
+            }
+        }
+        let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
+        let check = validate(&model, &held_out, "held-out").unwrap();
+        for e in check.dofs {
+            let d: usize = e.dof.trim_start_matches("dof").parse().unwrap();
+            squares[d - 1] += e.dynamic_rms.powi(2) / draws as f64;
+        }
+    }
+    for (d, (square, bound)) in squares.iter().zip(&bounds).enumerate() {
+        let ratio = square.sqrt() / bound;
+        eprintln!(
+            "dof{}: {:.4} m/s² over {draws} draws, bound {bound:.4} ({ratio:.2}×)",
+            d + 1,
+            square.sqrt()
+        );
+        assert!((0.8..1.25).contains(&ratio), "dof{}: {ratio:.2}×", d + 1);
+    }
+}

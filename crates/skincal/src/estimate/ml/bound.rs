@@ -14,8 +14,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::problem::{
-    covariance, frames, information, normal_system, retract_columns, turns_of, Block, ColumnMap,
-    Layout, Readings, Spec,
+    covariance, frames, information, normal_system, pose_jacobian, retract_columns, turns_of,
+    Block, ColumnMap, Layout, Readings, Spec,
 };
 use super::{full_spec, readings, serial_layout, ChainState, IntrinsicsModel, MlConfig};
 use crate::estimate::limb::{LimbChain, LimbData};
@@ -148,6 +148,90 @@ pub fn cramer_rao_bound(
     }
     let count = count.max(1) as f64;
     Some(((position / count).sqrt(), (rotation / count).sqrt()))
+}
+
+/// Per DoF of a limb (chain order): the Cramér–Rao bound on the RMS error of its dynamic
+/// readings predicted at the poses of `held_out` (the norm of each SU's 3-vector error, every SU
+/// the DoF moves, as [`crate::predict::validate`] measures it), for an estimator that fits
+/// `data`'s readings (noise `sigma` per component) with `intrinsics`: the parameters' covariance
+/// at the truth, propagated to those predictions. The directions no reading tells change no
+/// prediction in the same base orientation and are left out. `None` for a limb on a parent's
+/// path, or a truth that does not name the limb's DoFs and SUs.
+pub fn dynamic_reading_bounds(
+    truth: &Robot,
+    gravity: &Vector3<f64>,
+    data: &LimbData,
+    held_out: &LimbData,
+    sigma: f64,
+    intrinsics: IntrinsicsModel,
+) -> Option<Vec<f64>> {
+    let (data, held_out) = (data.usual_orientation(), held_out.usual_orientation());
+    let chain = &data.chain;
+    if chain.base_joints != 0 || held_out.su_depth != data.su_depth {
+        return None;
+    }
+    let state = sequence_state_of(truth, chain, &data.su_depth, gravity)?;
+    let layout = Layout::of(&data);
+    let mut spec = full_spec(&layout, 1, true, None, intrinsics);
+    if intrinsics.components() > 3 {
+        spec.blocks[0] = Block::GravityDirection;
+    }
+    let map = ColumnMap::new(&spec);
+    // Least squares on the readings as they are, each with `sigma`.
+    let plain = |d: &LimbData| Readings {
+        huber: None,
+        gauge_prior: None,
+        sd: None,
+        ..readings(d)
+    };
+    let normal = normal_system(&state, &layout, &plain(&data), &spec, &map, sigma);
+    let (_, covariance) = free_and_inverse(information(&normal, &map));
+    let jac = pose_jacobian(&state, &layout, &plain(&held_out), &spec, sigma) * sigma;
+    let dofs = layout.dofs;
+    let (mut sum, mut count) = (vec![0.0; dofs], vec![0usize; dofs]);
+    let mut row = 0;
+    for &u in &spec.sus {
+        let s = layout.su_segment[u];
+        for _ in 0..held_out.q.len() {
+            for j in 1..=s {
+                let rows = jac.rows(row + 3 * j, 3);
+                sum[j - 1] += (rows * &covariance * rows.transpose()).trace();
+                count[j - 1] += 1;
+            }
+            row += 3 * (1 + s);
+        }
+    }
+    Some(
+        sum.iter()
+            .zip(&count)
+            .map(|(s, &c)| (s.max(0.0) / c.max(1) as f64).sqrt())
+            .collect(),
+    )
+}
+
+/// A basis of the directions an information matrix leaves free (eigenvalues below
+/// [`FREE_DIRECTION`] of the largest), and its pseudo-inverse on the others (the parameters'
+/// covariance).
+fn free_and_inverse(information: DMatrix<f64>) -> (DMatrix<f64>, DMatrix<f64>) {
+    let n = information.nrows();
+    let eig = information.symmetric_eigen();
+    let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max);
+    let mut basis = Vec::new();
+    let mut inverse = DMatrix::zeros(n, n);
+    for (i, &e) in eig.eigenvalues.iter().enumerate() {
+        let v = eig.eigenvectors.column(i).into_owned();
+        if e <= largest * FREE_DIRECTION {
+            basis.push(v);
+        } else {
+            inverse += &v * v.transpose() / e;
+        }
+    }
+    let basis = if basis.is_empty() {
+        DMatrix::zeros(n, 0)
+    } else {
+        DMatrix::from_columns(&basis)
+    };
+    (basis, inverse)
 }
 
 /// An estimate's SU poses against the truth, each relative to the previous SU along the limb, in
@@ -390,7 +474,6 @@ impl<'a> PairProblem<'a> {
     /// The readings' information at a state: a basis of the directions it leaves free, and its
     /// pseudo-inverse on the others (the parameter covariance).
     fn information(&self, s: &ChainState) -> (DMatrix<f64>, DMatrix<f64>) {
-        let n = self.columns.len();
         let normal = normal_system(
             s,
             &self.layout,
@@ -399,24 +482,7 @@ impl<'a> PairProblem<'a> {
             &self.map,
             self.sigma,
         );
-        let eig = information(&normal, &self.map).symmetric_eigen();
-        let largest = eig.eigenvalues.iter().copied().fold(0.0f64, f64::max);
-        let mut basis = Vec::new();
-        let mut inverse = DMatrix::zeros(n, n);
-        for (i, &e) in eig.eigenvalues.iter().enumerate() {
-            let v = eig.eigenvectors.column(i).into_owned();
-            if e <= largest * FREE_DIRECTION {
-                basis.push(v);
-            } else {
-                inverse += &v * v.transpose() / e;
-            }
-        }
-        let basis = if basis.is_empty() {
-            DMatrix::zeros(n, 0)
-        } else {
-            DMatrix::from_columns(&basis)
-        };
-        (basis, inverse)
+        free_and_inverse(information(&normal, &self.map))
     }
 
     /// An orthonormal basis of what the free directions `basis` do to the pairs.

@@ -105,7 +105,9 @@ use uncertainty::{
     column_names, dh_sd, free_directions, joint_covariance, released, su_uncertainty,
 };
 
-pub use bound::{cramer_rao_bound, observable_su_errors, state_of, ObservableErrors};
+pub use bound::{
+    cramer_rao_bound, dynamic_reading_bounds, observable_su_errors, state_of, ObservableErrors,
+};
 
 use std::time::Instant;
 

@@ -1512,6 +1512,19 @@ pub(super) fn dense_problem(
     dense_rows(state, layout, data, spec, sigma, true)
 }
 
+/// The rows of the poses' readings alone in [`dense_problem`]'s Jacobian (no motion rows, no
+/// prior rows): SU by SU (`spec.sus` order), pose by pose, the static reading and then the
+/// dynamic one of each DoF before the SU, 3 rows each.
+pub(super) fn pose_jacobian(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+) -> DMatrix<f64> {
+    dense_rows_of(state, layout, data, spec, sigma, (true, true)).1
+}
+
 /// The residuals of [`dense_problem`] alone (no Jacobian is formed).
 pub(super) fn dense_residuals(
     state: &ChainState,
@@ -1532,17 +1545,42 @@ fn dense_rows(
     sigma: f64,
     jacobian: bool,
 ) -> (DVector<f64>, DMatrix<f64>) {
+    dense_rows_of(state, layout, data, spec, sigma, (jacobian, false))
+}
+
+/// [`dense_rows`]; with `poses_only`, each SU's pose rows alone and no prior rows
+/// ([`pose_jacobian`]).
+fn dense_rows_of(
+    state: &ChainState,
+    layout: &Layout,
+    data: &Readings,
+    spec: &Spec,
+    sigma: f64,
+    (jacobian, poses_only): (bool, bool),
+) -> (DVector<f64>, DMatrix<f64>) {
     let map = ColumnMap::new(spec);
     let inputs = Blocks::new(state, layout, data, spec, &map, sigma, jacobian, true);
     let blocks: Vec<SuBlock> = (0..spec.sus.len()).map(|i| inputs.block(i)).collect();
-    let priors = joint_priors(state, data, spec, &map);
-    let rows: usize = blocks.iter().map(|b| b.r.len()).sum::<usize>() + 3 * priors.len();
+    let kept = |i: usize, block: &SuBlock| match poses_only {
+        true => 3 * (1 + layout.su_segment[spec.sus[i]]) * data.q.len(),
+        false => block.r.len(),
+    };
+    let priors = match poses_only {
+        true => Vec::new(),
+        false => joint_priors(state, data, spec, &map),
+    };
+    let rows: usize = blocks
+        .iter()
+        .enumerate()
+        .map(|(i, b)| kept(i, b))
+        .sum::<usize>()
+        + 3 * priors.len();
     let mut r = DVector::zeros(rows);
     let mut jac = DMatrix::zeros(rows, if jacobian { map.slots.len() } else { 0 });
     let mut row = 0;
     for (i, block) in blocks.iter().enumerate() {
-        let n = block.r.len();
-        r.rows_mut(row, n).copy_from(&block.r);
+        let n = kept(i, block);
+        r.rows_mut(row, n).copy_from(&block.r.rows(0, n));
         if !jacobian {
             row += n;
             continue;
@@ -1551,10 +1589,10 @@ fn dense_rows(
             match *slot {
                 Slot::Shared(j) => jac
                     .view_mut((row, col), (n, 1))
-                    .copy_from(&block.shared.column(j)),
+                    .copy_from(&block.shared.view((0, j), (n, 1))),
                 Slot::Own(owner, l) if owner == i => jac
                     .view_mut((row, col), (n, 1))
-                    .copy_from(&block.own.column(l)),
+                    .copy_from(&block.own.view((0, l), (n, 1))),
                 Slot::Own(..) => {}
             }
         }
