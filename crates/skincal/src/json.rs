@@ -26,6 +26,24 @@ pub(crate) fn parse<T: DeserializeOwned>(text: &str, what: &str) -> Result<T, St
     })
 }
 
+/// Parses the file `reader` reads as a `T` described as `what`, without holding its text (a
+/// minute's motion record is 25 MB of it); on an error, `text` gives the file's text again and
+/// [`parse`] words the error from it.
+pub(crate) fn parse_reader<T: DeserializeOwned>(
+    reader: impl std::io::Read,
+    what: &str,
+    text: impl FnOnce() -> std::io::Result<String>,
+) -> Result<T, String> {
+    let mut de = serde_json::Deserializer::from_reader(std::io::BufReader::new(reader));
+    let parsed = serde_path_to_error::deserialize(&mut de)
+        .map_err(|_| ())
+        .and_then(|v: T| de.end().map(|()| v).map_err(|_| ()));
+    parsed.or_else(|()| match text() {
+        Ok(text) => parse(&text, what),
+        Err(e) => Err(format!("not JSON text: {e}")),
+    })
+}
+
 /// serde_json's message without its trailing " at line L column C".
 fn plain(e: &serde_json::Error) -> String {
     let text = e.to_string();

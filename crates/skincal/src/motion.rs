@@ -142,7 +142,211 @@ pub struct MotionRun {
     pub qdd_sd: Vec<Vec<f64>>,
     /// `skin[b][u]`: the mean specific force SU `u` read in block `b` (SU frame, m/s²), `null`
     /// where it sent no fresh sample.
-    pub skin: Vec<Vec<Option<[f64; 3]>>>,
+    pub skin: SkinRows,
+}
+
+/// The skin's block means of a run, `[block][u]`, held in single precision: a millionth of a
+/// m/s² at gravity's size, far below any accelerometer's resolution and a block mean's noise,
+/// and 12 bytes per SU and block (a minute of 100 SUs in 10 ms blocks is 7.2 MB). Held SU by SU
+/// (the fit reads one SU's blocks after another), written as rows of `null` (no fresh sample in
+/// the block) or `[x, y, z]`. A copy shares the values until one of them is changed: the
+/// time-domain fit reads a record's skin as it is, without a copy of its own.
+#[derive(Debug, Clone, Default)]
+pub struct SkinRows {
+    /// The number of rows.
+    rows: usize,
+    /// Per SU (entries per row: the first row's), its mean in each row; NaN where it sent no
+    /// fresh sample.
+    series: std::sync::Arc<Vec<Vec<[f32; 3]>>>,
+    /// The first row read with another number of entries than the first, and that number (the
+    /// row is kept cut or padded to the width, and [`MotionRecord::check`] refuses it).
+    ragged: Option<(usize, usize)>,
+}
+
+impl SkinRows {
+    /// `rows` rows of `width` entries, none of them holding a mean.
+    pub fn empty(width: usize, rows: usize) -> Self {
+        Self {
+            rows,
+            series: std::sync::Arc::new(vec![vec![[f32::NAN; 3]; rows]; width]),
+            ragged: None,
+        }
+    }
+
+    /// The number of rows (blocks).
+    pub fn len(&self) -> usize {
+        self.rows
+    }
+
+    /// Whether there is no row.
+    pub fn is_empty(&self) -> bool {
+        self.rows == 0
+    }
+
+    /// Entries per row (SUs; 0 before the first row).
+    pub fn width(&self) -> usize {
+        self.series.len()
+    }
+
+    /// SU `u`'s mean in block `b`; `None` where it sent no fresh sample, or beyond the rows.
+    pub fn get(&self, b: usize, u: usize) -> Option<[f64; 3]> {
+        let m = self.series.get(u)?.get(b)?;
+        (!m[0].is_nan()).then(|| m.map(f64::from))
+    }
+
+    /// Row `b`, SU by SU.
+    pub fn row(&self, b: usize) -> impl Iterator<Item = Option<[f64; 3]>> + '_ {
+        (0..self.width()).map(move |u| self.get(b, u))
+    }
+
+    /// Sets SU `u`'s mean in block `b` (a block within the rows).
+    pub fn set(&mut self, b: usize, u: usize, mean: Option<[f64; 3]>) {
+        if u < self.width() && b < self.rows {
+            std::sync::Arc::make_mut(&mut self.series)[u][b] = Self::packed(mean);
+        }
+    }
+
+    /// Adds a row (the first sets the width).
+    pub fn push(&mut self, row: &[Option<[f64; 3]>]) {
+        let series = std::sync::Arc::make_mut(&mut self.series);
+        if self.rows == 0 && series.is_empty() {
+            series.resize(row.len(), Vec::new());
+        }
+        if row.len() != series.len() && self.ragged.is_none() {
+            self.ragged = Some((self.rows, row.len()));
+        }
+        for (u, s) in series.iter_mut().enumerate() {
+            if s.len() == s.capacity() {
+                // A quarter more at a time, not twice as much: a record read from its file is
+                // not held with as much again free.
+                s.reserve_exact((s.len() / 4).max(256));
+            }
+            s.push(Self::packed(row.get(u).copied().flatten()));
+        }
+        self.rows += 1;
+    }
+
+    /// Replaces row `b` (a row within the rows).
+    pub fn set_row(&mut self, b: usize, row: &[Option<[f64; 3]>]) {
+        for u in 0..self.width() {
+            self.set(b, u, row.get(u).copied().flatten());
+        }
+    }
+
+    /// The rows from `at` on, taken off (these keep the first `at`).
+    pub fn split_off(&mut self, at: usize) -> SkinRows {
+        let at = at.min(self.rows);
+        let rest = SkinRows {
+            rows: self.rows - at,
+            series: std::sync::Arc::new(
+                std::sync::Arc::make_mut(&mut self.series)
+                    .iter_mut()
+                    .map(|s| s.split_off(at))
+                    .collect(),
+            ),
+            ragged: None,
+        };
+        self.rows = at;
+        rest
+    }
+
+    /// Appends `other`'s rows.
+    pub fn append(&mut self, other: &mut SkinRows) {
+        if self.rows == 0 && self.series.is_empty() {
+            std::mem::swap(self, other);
+            return;
+        }
+        if other.width() == self.width() {
+            let theirs = std::sync::Arc::make_mut(&mut other.series);
+            for (mine, theirs) in std::sync::Arc::make_mut(&mut self.series)
+                .iter_mut()
+                .zip(theirs)
+            {
+                mine.append(theirs);
+            }
+            self.rows += other.rows;
+        } else {
+            for b in 0..other.len() {
+                let row: Vec<Option<[f64; 3]>> = other.row(b).collect();
+                self.push(&row);
+            }
+        }
+        *other = SkinRows::default();
+    }
+
+    /// A mean as held (NaN: none).
+    fn packed(mean: Option<[f64; 3]>) -> [f32; 3] {
+        mean.map_or([f32::NAN; 3], |m| m.map(|x| x as f32))
+    }
+}
+
+impl PartialEq for SkinRows {
+    fn eq(&self, other: &Self) -> bool {
+        let bits = |s: &Self| -> Vec<u32> {
+            s.series
+                .iter()
+                .flatten()
+                .flatten()
+                .map(|x| x.to_bits())
+                .collect()
+        };
+        self.rows == other.rows
+            && self.width() == other.width()
+            && self.ragged == other.ragged
+            && bits(self) == bits(other)
+    }
+}
+
+impl From<Vec<Vec<Option<[f64; 3]>>>> for SkinRows {
+    fn from(rows: Vec<Vec<Option<[f64; 3]>>>) -> Self {
+        let mut out = SkinRows::default();
+        for row in &rows {
+            out.push(row);
+        }
+        out
+    }
+}
+
+impl Serialize for SkinRows {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeSeq;
+        let mut rows = serializer.serialize_seq(Some(self.rows))?;
+        for b in 0..self.rows {
+            let row: Vec<Option<[f32; 3]>> = self
+                .series
+                .iter()
+                .map(|s| Some(s[b]).filter(|m| !m[0].is_nan()))
+                .collect();
+            rows.serialize_element(&row)?;
+        }
+        rows.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for SkinRows {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Rows;
+        impl<'de> serde::de::Visitor<'de> for Rows {
+            type Value = SkinRows;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("rows of `null` or `[x, y, z]` per SU")
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<SkinRows, A::Error> {
+                let mut out = SkinRows::default();
+                while let Some(row) = seq.next_element::<Vec<Option<[f64; 3]>>>()? {
+                    out.push(&row);
+                }
+                for s in std::sync::Arc::make_mut(&mut out.series) {
+                    s.shrink_to_fit();
+                }
+                Ok(out)
+            }
+        }
+        deserializer.deserialize_seq(Rows)
+    }
 }
 
 impl MotionRun {
@@ -155,7 +359,7 @@ impl MotionRun {
             qd: Vec::new(),
             qdd: Vec::new(),
             qdd_sd: Vec::new(),
-            skin: Vec::new(),
+            skin: SkinRows::default(),
         }
     }
 
@@ -166,7 +370,7 @@ impl MotionRun {
         self.qd.push(column(1));
         self.qdd.push(column(2));
         self.qdd_sd.push(column(3));
-        self.skin.push(skin);
+        self.skin.push(&skin);
     }
 
     /// The number of blocks.
@@ -291,16 +495,22 @@ impl MotionRecord {
                     }
                 }
             }
-            for (b, row) in run.skin.iter().enumerate() {
-                if row.len() != self.sus.len() {
-                    return Err(format!(
-                        "`runs[{r}].skin[{b}]` has {} entries for {} SUs",
-                        row.len(),
-                        self.sus.len()
-                    ));
+            let ragged = match run.skin.ragged {
+                Some(at) => Some(at),
+                None => {
+                    (n > 0 && run.skin.width() != self.sus.len()).then_some((0, run.skin.width()))
                 }
-                let wild = row
-                    .iter()
+            };
+            if let Some((b, entries)) = ragged {
+                return Err(format!(
+                    "`runs[{r}].skin[{b}]` has {entries} entries for {} SUs",
+                    self.sus.len()
+                ));
+            }
+            for b in 0..n {
+                let wild = run
+                    .skin
+                    .row(b)
                     .flatten()
                     .flatten()
                     .any(|x| !x.is_finite() || x.abs() > MAX_READING);
@@ -662,7 +872,7 @@ fn nearest_sample(run: &MotionRun, u: usize, b: usize) -> Option<([f64; 3], usiz
         [b.checked_sub(off), Some(b + off)]
             .into_iter()
             .flatten()
-            .find_map(|i| run.skin.get(i).and_then(|row| row[u]))
+            .find_map(|i| run.skin.get(i, u))
             .map(|s| (s, off))
     })
 }
@@ -673,6 +883,75 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
+
+    /// A record of `rows` skin rows (JSON), one DoF at rest.
+    fn record_of_skin(rows: &str, sus: usize) -> Result<MotionRecord, String> {
+        let blocks = serde_json::from_str::<Vec<serde_json::Value>>(rows)
+            .unwrap()
+            .len();
+        let zeros = vec![vec![0.0]; blocks];
+        let text = serde_json::json!({
+            "format": MOTION_FORMAT, "version": MOTION_VERSION, "period": 0.01,
+            "dofs": ["j"], "sus": (0..sus).map(|u| format!("su{u}")).collect::<Vec<_>>(),
+            "noise_sd": vec![None::<f64>; sus],
+            "runs": [{"log": "l", "start": 0.0, "q": zeros, "qd": zeros, "qdd": zeros,
+                      "qdd_sd": zeros, "skin": serde_json::from_str::<serde_json::Value>(rows).unwrap()}],
+        });
+        let record: MotionRecord = serde_json::from_value(text).map_err(|e| e.to_string())?;
+        record.check().map(|()| record)
+    }
+
+    #[test]
+    fn the_skin_is_written_as_it_was_read_and_kept_to_single_precision() {
+        let rows = "[[[1.5,-2.25,9.8125],null],[null,[0.1,0.2,0.3]],[[1e-3,2,3],[4,5,6]]]";
+        let record = record_of_skin(rows, 2).unwrap();
+        let skin = &record.runs[0].skin;
+        assert_eq!((skin.len(), skin.width()), (3, 2));
+        assert_eq!(skin.get(0, 0), Some([1.5, -2.25, 9.8125]));
+        assert_eq!(
+            (skin.get(0, 1), skin.get(1, 0), skin.get(3, 0)),
+            (None, None, None)
+        );
+        // 0.1 as single precision: within half its spacing (7.5e-9), not to f64's last digit.
+        let read = skin.get(1, 1).unwrap();
+        for (x, want) in read.iter().zip([0.1, 0.2, 0.3]) {
+            assert!((x - want).abs() < 1.5e-8 && *x != want, "{x} for {want}");
+        }
+        // Written back: the same rows, each number the shortest that reads as its single.
+        let written = serde_json::to_string(&record.runs[0].skin).unwrap();
+        assert_eq!(
+            written,
+            "[[[1.5,-2.25,9.8125],null],[null,[0.1,0.2,0.3]],[[0.001,2.0,3.0],[4.0,5.0,6.0]]]"
+        );
+        // Split and joined again, the same rows.
+        let mut run = record.runs[0].clone();
+        let tail = run.split_off(1, 0.01);
+        assert_eq!(
+            (run.len(), tail.len(), tail.skin.get(0, 1)),
+            (1, 2, Some(read))
+        );
+        assert!(run.extend_with(tail, 0.01).is_none());
+        assert_eq!(run, record.runs[0]);
+    }
+
+    #[test]
+    fn a_skin_row_of_another_width_or_out_of_range_is_refused_by_name() {
+        let ragged = record_of_skin("[[null,null],[null],[null,null]]", 2).unwrap_err();
+        assert!(
+            ragged.contains("`runs[0].skin[1]` has 1 entries for 2 SUs"),
+            "{ragged}"
+        );
+        let narrow = record_of_skin("[[null],[null]]", 2).unwrap_err();
+        assert!(
+            narrow.contains("`runs[0].skin[0]` has 1 entries for 2 SUs"),
+            "{narrow}"
+        );
+        let wild = record_of_skin("[[null,null],[[1,2,3],[1e300,0,0]]]", 2).unwrap_err();
+        assert!(
+            wild.contains("`runs[0].skin[1]`: a reading beyond"),
+            "{wild}"
+        );
+    }
 
     #[test]
     fn the_overcount_is_what_the_filtered_noise_does() {

@@ -330,7 +330,7 @@ fn a_live_check_fed_sample_by_sample_finds_what_the_whole_log_finds_in_bounded_m
             worst.0 = worst.0.max((a.qdd[j][d] - b.qdd[i][d]).abs());
         }
         for u in 0..sus.len() {
-            if let (Some(x), Some(y)) = (a.skin[j][u], b.skin[i][u]) {
+            if let (Some(x), Some(y)) = (a.skin.get(j, u), b.skin.get(i, u)) {
                 worst.1 = worst
                     .1
                     .max((0..3).map(|k| (x[k] - y[k]).abs()).fold(0.0, f64::max));
@@ -644,8 +644,8 @@ fn a_swap_no_motion_tells_is_said_to_be_untellable() {
         let (a, b) = (index(a), index(b));
         let (mut sum, mut n) = (0.0, 0.0);
         for run in &record.runs {
-            for block in &run.skin {
-                if let (Some(x), Some(y)) = (block[a], block[b]) {
+            for block in 0..run.skin.len() {
+                if let (Some(x), Some(y)) = (run.skin.get(block, a), run.skin.get(block, b)) {
                     sum += (0..3).map(|k| (x[k] - y[k]).powi(2)).sum::<f64>() / 3.0;
                     n += 1.0;
                 }

@@ -202,8 +202,10 @@ fn a_small_misfit_is_seen_at_rest_and_not_called_converged() {
     let su = biased.sus.iter().position(|s| s == "su4").unwrap();
     let bias = 0.002 * skincal::model::sensor::STANDARD_GRAVITY;
     for run in &mut biased.runs {
-        for reading in run.skin.iter_mut().filter_map(|row| row[su].as_mut()) {
-            reading.iter_mut().for_each(|c| *c += bias);
+        for b in 0..run.skin.len() {
+            if let Some(reading) = run.skin.get(b, su) {
+                run.skin.set(b, su, Some(reading.map(|c| c + bias)));
+            }
         }
     }
     let (misfit, rest) = fit(&biased);
@@ -477,7 +479,7 @@ fn the_records_skin_is_what_each_su_felt_at_its_blocks_centre() {
             let frames = forward_kinematics(model, &robot.parameters, &state.q);
             let motion = segment_motion(model, &frames, &state.qd, &state.qdd);
             for (u, su) in model.sus().iter().enumerate() {
-                let Some(read) = run.skin[b][u] else {
+                let Some(read) = run.skin.get(b, u) else {
                     continue;
                 };
                 let felt = specific_force(&frames.sus[u], &motion[su.segment], &gravity);

@@ -546,7 +546,7 @@ fn skin_at(run: &MotionRun, c: usize, t: f64) -> Option<Vector3<f64>> {
     }
     let lo = t.floor() as usize;
     let frac = t - lo as f64;
-    let at = |b: usize| run.skin.get(b).and_then(|row| row[c]).map(Vector3::from);
+    let at = |b: usize| run.skin.get(b, c).map(Vector3::from);
     if frac < 1e-9 {
         return at(lo);
     }

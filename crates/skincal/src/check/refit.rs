@@ -63,9 +63,11 @@ fn second_difference_noise(record: &MotionRecord, c: usize) -> Option<f64> {
     let mut values = Vec::new();
     for run in &record.runs {
         for b in 1..run.len().saturating_sub(1) {
-            if let (Some(x), Some(y), Some(z)) =
-                (run.skin[b - 1][c], run.skin[b][c], run.skin[b + 1][c])
-            {
+            if let (Some(x), Some(y), Some(z)) = (
+                run.skin.get(b - 1, c),
+                run.skin.get(b, c),
+                run.skin.get(b + 1, c),
+            ) {
                 values.extend((0..3).map(|i| (x[i] - 2.0 * y[i] + z[i]).abs()));
             }
             if values.len() >= 3 * FIT_BLOCKS {

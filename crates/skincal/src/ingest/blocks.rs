@@ -144,10 +144,10 @@ impl Centring {
     fn correct_next(&mut self, run: &mut MotionRun) {
         let index = self.done;
         let b = run.len() - self.pending();
-        let values = (0..self.rows[index].len())
+        let values: Vec<Option<[f64; 3]>> = (0..self.rows[index].len())
             .map(|u| corrected(&self.rows, index, u))
             .collect();
-        run.skin[b] = values;
+        run.skin.set_row(b, &values);
         self.done += 1;
     }
 }
@@ -169,7 +169,20 @@ mod tests {
             centring.push(&mut run, &[], raw.clone());
         }
         centring.finish(&mut run);
-        run.skin
+        (0..run.skin.len())
+            .map(|b| run.skin.row(b).collect())
+            .collect()
+    }
+
+    /// Whether `x` is `want` as the record holds it (single precision: within its rounding,
+    /// besides the arithmetic's own 1e-12).
+    fn held(x: f64, want: f64) -> bool {
+        (x - want).abs() <= 1e-12 + f64::from(f32::EPSILON) * want.abs()
+    }
+
+    /// `value` as the record holds it.
+    fn rounded(value: [f64; 3]) -> [f64; 3] {
+        value.map(|x| f64::from(x as f32))
     }
 
     /// The mean over `samples` taken at `times` (blocks from block `b`'s centre) of `f`.
@@ -205,24 +218,17 @@ mod tests {
             let fast = row[0].unwrap();
             if inner {
                 for (x, s) in fast.iter().zip([1.0, 2.0, -1.0]) {
-                    assert!(
-                        (x - s * want).abs() < 1e-12,
-                        "block {b}: {x} for {}",
-                        s * want
-                    );
+                    assert!(held(*x, s * want), "block {b}: {x} for {}", s * want);
                 }
             } else {
-                assert_eq!(fast, means[b][0].unwrap().value, "block {b}");
+                assert_eq!(fast, rounded(means[b][0].unwrap().value), "block {b}");
             }
             match means[b][1] {
                 Some(_) if b > 0 && b < 27 => {
                     let x = row[1].unwrap()[0];
-                    assert!(
-                        (x - want).abs() < 1e-12,
-                        "slow board, block {b}: {x} for {want}"
-                    );
+                    assert!(held(x, want), "slow board, block {b}: {x} for {want}");
                 }
-                Some(m) => assert_eq!(row[1], Some(m.value), "slow board, block {b}"),
+                Some(m) => assert_eq!(row[1], Some(rounded(m.value)), "slow board, block {b}"),
                 None => assert_eq!(row[1], None, "slow board, block {b}"),
             }
         }
@@ -240,7 +246,7 @@ mod tests {
         };
         let got = centred(&[vec![even(1.0)], vec![even(5.0)], vec![even(2.0)]]);
         let want = 5.0 - (1.0 - 10.0 + 2.0) / 24.0;
-        assert!((got[1][0].unwrap()[0] - want).abs() < 1e-12);
+        assert!(held(got[1][0].unwrap()[0], want));
     }
 
     #[test]

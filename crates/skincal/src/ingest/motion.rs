@@ -638,9 +638,11 @@ pub(crate) fn still_noise(runs: &[MotionRun], u: usize, config: &IngestConfig) -
             if !(b - 2..=b + 2).all(|c| still(run, c)) {
                 continue;
             }
-            if let (Some(a), Some(m), Some(c)) =
-                (run.skin[b - 1][u], run.skin[b][u], run.skin[b + 1][u])
-            {
+            if let (Some(a), Some(m), Some(c)) = (
+                run.skin.get(b - 1, u),
+                run.skin.get(b, u),
+                run.skin.get(b + 1, u),
+            ) {
                 squares.extend((0..3).map(|i| (a[i] - 2.0 * m[i] + c[i]).powi(2)));
             }
         }

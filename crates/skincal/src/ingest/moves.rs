@@ -384,7 +384,7 @@ fn regress(held: &Held<'_>, u: usize, revolute: bool) -> Option<OneDof> {
     let mut samples = 0;
     for &(run, start, end) in &held.stretches {
         for b in start..end {
-            let Some(y) = run.skin[b][u] else {
+            let Some(y) = run.skin.get(b, u) else {
                 continue;
             };
             let x = DVector::from_vec(regressors(run, b));

@@ -324,8 +324,13 @@ pub fn read_motion(path: &Path) -> Result<crate::motion::MotionRecord, IoError> 
         path: path.to_path_buf(),
         message,
     };
+    let file = fs::File::open(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     let record: crate::motion::MotionRecord =
-        crate::json::parse(&read(path)?, "a motion record").map_err(json)?;
+        crate::json::parse_reader(file, "a motion record", || fs::read_to_string(path))
+            .map_err(json)?;
     record.check().map_err(json)?;
     Ok(record)
 }

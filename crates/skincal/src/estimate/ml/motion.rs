@@ -18,7 +18,7 @@ use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::DofKind;
-use crate::motion::{MotionRecord, SkinFilter, QUIET_REACH};
+use crate::motion::{MotionRecord, SkinFilter, SkinRows, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
 /// latency; more is another clock, which ingest refuses).
@@ -59,9 +59,6 @@ impl MotionSample {
         QUIET_REACH * (turn + spin * spin)
     }
 }
-
-/// One run's skin: `[u][block]`, `None` where the SU sent no sample in the block.
-type RunSkin = Vec<Vec<Option<Vector3<f64>>>>;
 
 /// An SU's skin interpolated between its blocks ([`LimbMotion::interpolated`]).
 #[derive(Debug, Clone, Copy)]
@@ -173,15 +170,18 @@ pub struct LimbMotion {
     /// means): what [`LimbMotion::interpolated`] averages.
     noise_correlation: [f64; 4],
     pub(super) samples: Vec<MotionSample>,
-    /// `skin[run][u][block]` for the limb's SUs: the block means, read through the record's
-    /// [`SkinFilter`] where it has one. Shared by the limb's coarse and at-rest versions
-    /// ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]): a minute of 100 SUs is 20 MB.
-    skin: Arc<Vec<RunSkin>>,
+    /// Per run, the block means: the record's own (shared, not copied), or where it has a
+    /// [`SkinFilter`], the limb's SUs' read through it. Shared by the limb's coarse and at-rest
+    /// versions ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]).
+    skin: Arc<Vec<SkinRows>>,
+    /// Per limb SU, its column in `skin`.
+    columns: Vec<usize>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
     /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
-    /// prediction at sample `i`, (m/s²)² (empty until [`LimbMotion::weigh`]).
-    joint_var: Vec<Vec<f64>>,
+    /// prediction at sample `i`, (m/s²)², in single precision (empty until
+    /// [`LimbMotion::weigh`]).
+    joint_var: Vec<Vec<f32>>,
     /// Per chain DoF: its encoder's rounding ([`MotionRecord::rounding`]), rad.
     rounding: Vec<f64>,
     /// How many of the residual's degrees of freedom the last correction of the joint states
@@ -255,21 +255,22 @@ impl LimbMotion {
                     qdd_sd: pick(&run.qdd_sd[b]),
                 });
             }
-            skin.push(
-                sus.iter()
-                    .map(|&u| {
-                        let means: Vec<Option<Vector3<f64>>> = run
-                            .skin
-                            .iter()
-                            .map(|row| row[u].map(Vector3::from))
+            skin.push(match &filter {
+                None => run.skin.clone(),
+                Some(f) => {
+                    let mut smoothed = SkinRows::empty(sus.len(), run.skin.len());
+                    for (column, &u) in sus.iter().enumerate() {
+                        let means: Vec<Option<Vector3<f64>>> = (0..run.skin.len())
+                            .map(|b| run.skin.get(b, u).map(Vector3::from))
                             .collect();
-                        match &filter {
-                            Some(f) => (0..means.len()).map(|b| f.smooth(&means, b)).collect(),
-                            None => means,
+                        for b in 0..means.len() {
+                            let value = f.smooth(&means, b).map(|v| [v.x, v.y, v.z]);
+                            smoothed.set(b, column, value);
                         }
-                    })
-                    .collect(),
-            );
+                    }
+                    smoothed
+                }
+            });
         }
         let per_block = (record.period * 1000.0).max(1.0);
         let factor = filter.as_ref().map_or(1.0, SkinFilter::noise_factor);
@@ -285,6 +286,10 @@ impl LimbMotion {
             Some(f) => f.correlation(lag),
             None => f64::from(u8::from(lag == 0)),
         });
+        let columns = match filter {
+            None => sus.clone(),
+            Some(_) => (0..sus.len()).collect(),
+        };
         Ok(Self {
             period: record.period,
             kinds,
@@ -293,6 +298,7 @@ impl LimbMotion {
             noise_correlation,
             samples,
             skin: Arc::new(skin),
+            columns,
             sd,
             joint_var: Vec::new(),
             rounding,
@@ -565,10 +571,13 @@ impl LimbMotion {
     /// and the fast ones hardly; lowered step by step, the fit is led from a start that gravity
     /// alone gave (orientations and axes) to the whole motion.
     pub(super) fn weigh_as_static(&mut self, state: &ChainState, su_segment: &[usize], kappa: f64) {
-        let joint_var: Vec<Vec<f64>> = self
-            .samples
-            .par_iter()
-            .map(|sample| {
+        // Sample by sample, every SU's, in one buffer; then SU by SU.
+        let sus = su_segment.len().max(1);
+        let mut by_sample = vec![0f32; self.samples.len() * sus];
+        by_sample
+            .par_chunks_mut(sus)
+            .zip(&self.samples)
+            .for_each(|(out, sample)| {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
                 let mut axes = Vec::with_capacity(state.joints.len());
@@ -583,28 +592,25 @@ impl LimbMotion {
                     segment = next;
                     segments.push(segment);
                 }
-                su_segment
-                    .iter()
-                    .zip(&state.sus)
-                    .map(|(&s, su)| {
-                        let p = (segments[s] * su).translation.vector;
-                        let joints: f64 = axes
-                            .iter()
-                            .take(s)
-                            .zip(&sample.qdd_sd)
-                            .map(|((z, o, kind), sd)| match kind {
-                                DofKind::Revolute => (z.cross(&(p - o)) * *sd).norm_squared(),
-                                DofKind::Prismatic => sd * sd,
-                            })
-                            .sum();
-                        joints + (kappa * sample.reach(s)).powi(2)
-                    })
-                    .collect()
-            })
-            .collect();
-        // Transposed: per SU, per sample.
+                let values = su_segment.iter().zip(&state.sus).map(|(&s, su)| {
+                    let p = (segments[s] * su).translation.vector;
+                    let joints: f64 = axes
+                        .iter()
+                        .take(s)
+                        .zip(&sample.qdd_sd)
+                        .map(|((z, o, kind), sd)| match kind {
+                            DofKind::Revolute => (z.cross(&(p - o)) * *sd).norm_squared(),
+                            DofKind::Prismatic => sd * sd,
+                        })
+                        .sum();
+                    (joints + (kappa * sample.reach(s)).powi(2)) as f32
+                });
+                for (o, v) in out.iter_mut().zip(values) {
+                    *o = v;
+                }
+            });
         self.joint_var = (0..su_segment.len())
-            .map(|u| joint_var.iter().map(|v| v[u]).collect())
+            .map(|u| by_sample.iter().skip(u).step_by(sus).copied().collect())
             .collect();
     }
 
@@ -617,7 +623,7 @@ impl LimbMotion {
     /// has `variance` times a block's ([`Interpolated::variance`]), (m/s²)².
     pub(super) fn residual_variance(&self, u: usize, i: usize, variance: f64) -> f64 {
         let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
-        self.sd[u].powi(2) * variance + extra.unwrap_or(0.0)
+        self.sd[u].powi(2) * variance + extra.map_or(0.0, f64::from)
     }
 
     /// Every `every`-th of the blocks the fit uses (the skin kept whole, the samples' weights
@@ -626,15 +632,37 @@ impl LimbMotion {
     /// apart, and their filtered noise as much less correlated.
     pub(super) fn thinned(&self, every: usize) -> Self {
         let every = every.max(1);
-        Self {
-            samples: self.samples.iter().step_by(every).cloned().collect(),
-            joint_var: self
-                .joint_var
+        self.with_samples(
+            self.samples.iter().step_by(every).cloned().collect(),
+            self.joint_var
                 .iter()
                 .map(|v| v.iter().step_by(every).copied().collect())
                 .collect(),
-            stride: self.stride * every,
-            ..self.clone()
+            self.stride * every,
+        )
+    }
+
+    /// This record's share with `samples` (their weights `joint_var`, `stride` blocks apart in
+    /// a run) in place of its own; the skin shared, not copied.
+    fn with_samples(
+        &self,
+        samples: Vec<MotionSample>,
+        joint_var: Vec<Vec<f32>>,
+        stride: usize,
+    ) -> Self {
+        Self {
+            period: self.period,
+            kinds: self.kinds.clone(),
+            stride,
+            filter: self.filter.clone(),
+            noise_correlation: self.noise_correlation,
+            samples,
+            skin: Arc::clone(&self.skin),
+            columns: self.columns.clone(),
+            sd: self.sd.clone(),
+            joint_var,
+            rounding: self.rounding.clone(),
+            corrected: self.corrected,
         }
     }
 
@@ -649,7 +677,7 @@ impl LimbMotion {
             .iter()
             .map(|s| s.reach(s.qd.len()) < 0.1 * quietest)
             .collect();
-        let kept = |values: &[f64]| -> Vec<f64> {
+        let kept = |values: &[f32]| -> Vec<f32> {
             values
                 .iter()
                 .zip(&keep)
@@ -657,17 +685,16 @@ impl LimbMotion {
                 .map(|(v, _)| *v)
                 .collect()
         };
-        Self {
-            samples: self
-                .samples
+        self.with_samples(
+            self.samples
                 .iter()
                 .zip(&keep)
                 .filter(|(_, &k)| k)
                 .map(|(s, _)| s.clone())
                 .collect(),
-            joint_var: self.joint_var.iter().map(|v| kept(v)).collect(),
-            ..self.clone()
-        }
+            self.joint_var.iter().map(|v| kept(v)).collect(),
+            self.stride,
+        )
     }
 
     /// The number of blocks the fit uses.
@@ -691,12 +718,12 @@ impl LimbMotion {
     /// [`Interpolated`].
     pub(super) fn interpolated(&self, u: usize, i: usize, delay: f64) -> Option<Interpolated> {
         let sample = &self.samples[i];
-        let series = &self.skin[sample.run][u];
+        let (series, column) = (&self.skin[sample.run], self.columns[u]);
         let x = sample.block as f64 + delay.clamp(-MAX_DELAY, MAX_DELAY) / self.period;
         let k = x.floor();
         let t = x - k;
         let k = k as usize;
-        let at = |j: usize| series.get(j).copied().flatten();
+        let at = |j: usize| series.get(j, column).map(Vector3::from);
         let (p0, p1, p2, p3) = (at(k.checked_sub(1)?)?, at(k)?, at(k + 1)?, at(k + 2)?);
         let (t2, t3) = (t * t, t * t * t);
         // The weights of the four blocks, and their rates with `t`.
@@ -811,7 +838,13 @@ mod tests {
                 qdd_sd: vec![0.0],
                 read: (vec![0.0], vec![0.0]),
             }],
-            skin: Arc::new(vec![vec![series]]),
+            skin: Arc::new(vec![SkinRows::from(
+                series
+                    .iter()
+                    .map(|m| vec![m.map(|v| [v.x, v.y, v.z])])
+                    .collect::<Vec<_>>(),
+            )]),
+            columns: vec![0],
             sd: vec![0.01],
             joint_var: Vec::new(),
             rounding: vec![0.0],

@@ -1042,6 +1042,41 @@ impl<'a> Blocks<'a> {
         }
     }
 
+    /// Per SU (`spec.sus` index), the cost of its motion rows and how many count, a window of
+    /// [`MOTION_WINDOW`] samples at a time (the segment terms of one window held at once, not of
+    /// the whole record), window by window in the record's order.
+    fn motion_costs(&self) -> Vec<(usize, (f64, usize))> {
+        let Some(motion) = self.data.motion.as_deref() else {
+            return Vec::new();
+        };
+        let mut out = Vec::new();
+        for lo in (0..motion.len()).step_by(MOTION_WINDOW) {
+            let hi = (lo + MOTION_WINDOW).min(motion.len());
+            let terms = motion_terms(
+                self.state,
+                self.layout,
+                self.spec,
+                self.map,
+                false,
+                (motion, lo..hi),
+            );
+            let window: Vec<(usize, (f64, usize))> = (0..self.spec.sus.len())
+                .into_par_iter()
+                .filter_map(|i| {
+                    let rows = self.motion_rows(i, 0, (&terms, lo))?;
+                    let predicted = rows.predicted(self.state);
+                    let mut r = DVector::zeros(3 * (hi - lo));
+                    Some((
+                        i,
+                        rows.fill(self.state, self.data, (lo..hi, &predicted), &mut r, None),
+                    ))
+                })
+                .collect();
+            out.extend(window);
+        }
+        out
+    }
+
     /// The free intrinsics of SU `spec.sus[i]` (and its position's components under a gauge
     /// prior), each with a prior row after the readings: (own column, block, component).
     fn prior_columns(&self, i: usize) -> Vec<(usize, Block, usize)> {
@@ -1363,18 +1398,22 @@ pub(super) fn cost_and_rows(
     map: &ColumnMap,
     sigma: f64,
 ) -> (f64, usize) {
-    let blocks = Blocks::new(state, layout, data, spec, map, sigma, false, true);
+    let blocks = Blocks::new(state, layout, data, spec, map, sigma, false, false);
     let priors = joint_priors(state, data, spec, map);
     let prior_cost: f64 = priors.iter().map(|(_, _, r)| r.norm_squared()).sum();
     // Summed in SU order: a parallel sum adds in the order its threads happened to split the
     // work, and a step the fit takes or refuses on a last bit of the cost would vary run to run.
-    let costs: Vec<(f64, usize)> = (0..spec.sus.len())
+    let mut costs: Vec<(f64, usize)> = (0..spec.sus.len())
         .into_par_iter()
         .map(|i| {
             let block = blocks.block(i);
             (block.cost, block.count)
         })
         .collect();
+    for (i, (cost, count)) in blocks.motion_costs() {
+        costs[i].0 += cost;
+        costs[i].1 += count;
+    }
     (
         prior_cost + costs.iter().map(|c| c.0).sum::<f64>(),
         3 * priors.len() + costs.iter().map(|c| c.1).sum::<usize>(),
@@ -1475,27 +1514,19 @@ pub(super) fn motion_sums(
     let Some(motion) = &data.motion else {
         return out;
     };
+    if motion.is_empty() {
+        return out;
+    }
     let plain = Readings {
         huber: None,
         ..data.clone()
     };
     let map = ColumnMap::new(spec);
-    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, true);
-    let sums: Vec<(usize, (f64, usize))> = (0..spec.sus.len())
-        .into_par_iter()
-        .map(|i| {
-            let u = spec.sus[i];
-            let block = inputs.block(i);
-            let at = (1 + layout.su_segment[u]) * 3 * data.q.len();
-            let rows = block.r.rows(at, 3 * motion.len());
-            let count = (0..motion.len())
-                .filter(|&j| rows.fixed_rows::<3>(3 * j).norm_squared() > 0.0)
-                .count();
-            (u, (rows.norm_squared(), 3 * count))
-        })
-        .collect();
-    for (u, sum) in sums {
-        out[u] = sum;
+    let inputs = Blocks::new(state, layout, &plain, spec, &map, sigma, false, false);
+    for (i, (cost, count)) in inputs.motion_costs() {
+        let sum = &mut out[spec.sus[i]];
+        sum.0 += cost;
+        sum.1 += count;
     }
     out
 }
