@@ -409,17 +409,24 @@ pub(crate) fn ingest_logs(args: IngestArgs) -> Result<()> {
         skincal::ingest::motion::record_of(&mut ingested, &config, &mut show)?
     };
     bar.finish_and_clear();
+    let (set_json, report_json) = (
+        ingested.measurements.to_json(),
+        serde_json::to_string_pretty(&ingested.report)?,
+    );
+    fn text(text: &str) -> Box<io::Writer<'_>> {
+        Box::new(move |w| w.write_all(text.as_bytes()))
+    }
     let mut files = vec![
-        (measurements.clone(), ingested.measurements.to_json()),
-        (
-            report_path.clone(),
-            serde_json::to_string_pretty(&ingested.report)?,
-        ),
+        (measurements.clone(), text(&set_json)),
+        (report_path.clone(), text(&report_json)),
     ];
     if let Some(record) = &motion {
-        files.push((motion_path.clone(), serde_json::to_string(record)?));
+        // A long log's record is written as it is serialised, not held as one string.
+        let write: Box<io::Writer<'_>> =
+            Box::new(move |w| serde_json::to_writer(w, record).map_err(std::io::Error::other));
+        files.push((motion_path.clone(), write));
     }
-    io::write_all(&files, args.force)?;
+    io::write_all_with(&files, args.force)?;
     if motion.is_none() && motion_path.exists() {
         // An earlier ingest's record would be fitted with this set (only reached with --force).
         std::fs::remove_file(&motion_path)

@@ -209,6 +209,23 @@ fn calibrates(path: &str, seeds: &[u64]) {
     }
 }
 
+/// Each DoF's held-out dynamic RMS error of `model` on `held_out`, and the median DoF's.
+fn dof_errors(
+    model: &skincal::estimate::body::BodyModel,
+    held_out: &MeasurementSet,
+) -> (std::collections::BTreeMap<String, f64>, f64) {
+    let errors: std::collections::BTreeMap<String, f64> = validate(model, held_out, "held-out")
+        .unwrap()
+        .dofs
+        .into_iter()
+        .map(|d| (d.dof, d.dynamic_rms))
+        .collect();
+    let mut sorted: Vec<f64> = errors.values().copied().collect();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    (errors, median)
+}
+
 #[test]
 fn talos_humanoid() {
     calibrates("talos_data/robots/talos_reduced.urdf", &[1, 2]);
@@ -224,16 +241,7 @@ fn a_trunk_is_fitted_from_every_su_it_moves() {
     for seed in [1, 2] {
         let (_, set, structure, held_out) = simulated(&file, seed);
         let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
-        let errors: std::collections::BTreeMap<String, f64> =
-            validate(&model, &held_out, "held-out")
-                .unwrap()
-                .dofs
-                .into_iter()
-                .map(|d| (d.dof, d.dynamic_rms))
-                .collect();
-        let mut sorted: Vec<f64> = errors.values().copied().collect();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted[sorted.len() / 2];
+        let (errors, median) = dof_errors(&model, &held_out);
         for dof in ["torso_1_joint", "torso_2_joint"] {
             let e = errors[dof];
             eprintln!("seed {seed}: {dof} {e:.4} m/s², median DoF {median:.4}");
@@ -393,16 +401,7 @@ fn a_humanoids_legs_predict_their_dynamic_readings_at_the_cramer_rao_bound() {
         for seed in 1..=8u64 {
             let (robot, set, structure, held_out) = simulated(&file, seed);
             let model = calibrate_body(&set, Some(&structure), &MlConfig::default(), None).unwrap();
-            let errors: std::collections::BTreeMap<String, f64> =
-                validate(&model, &held_out, "held-out")
-                    .unwrap()
-                    .dofs
-                    .into_iter()
-                    .map(|d| (d.dof, d.dynamic_rms))
-                    .collect();
-            let mut sorted: Vec<f64> = errors.values().copied().collect();
-            sorted.sort_by(f64::total_cmp);
-            let median = sorted[sorted.len() / 2];
+            let (errors, median) = dof_errors(&model, &held_out);
             let mut worst = (String::new(), 0.0);
             for chain in limb_chains(&structure).unwrap() {
                 let alone = !model

@@ -884,3 +884,34 @@ fn a_structure_experiment_without_orientations_is_refused_by_field() {
         "{e}"
     );
 }
+
+#[test]
+fn a_broken_motion_record_is_refused_naming_its_field_line_and_column() {
+    // `motion.json` is read as a stream; an error is worded from the file's text, as for every
+    // other JSON file: the field path, the line and column, the file.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("motion.json");
+    let zeros = "[[0.0],[0.0]]";
+    let record = |skin: &str| {
+        format!(
+            "{{\"format\":\"skincal-motion\",\"version\":1,\"period\":0.01,\"dofs\":[\"j\"],\n\
+             \"sus\":[\"a\",\"b\"],\"noise_sd\":[null,null],\"runs\":[{{\"log\":\"l\",\"start\":0.0,\n\
+             \"q\":{zeros},\"qd\":{zeros},\"qdd\":{zeros},\"qdd_sd\":{zeros},\n\
+             \"skin\":{skin}}}]}}"
+        )
+    };
+    std::fs::write(&path, record("[[null,[1,2,3]],[null,null]]")).unwrap();
+    let read = io::read_motion(&path).unwrap();
+    assert_eq!(read.runs[0].skin.get(0, 1), Some([1.0, 2.0, 3.0]));
+    std::fs::write(&path, record("[[null,[1,2,\"x\"]],[null,null]]")).unwrap();
+    let message = io::read_motion(&path).unwrap_err().to_string();
+    for part in ["motion.json", "runs[0].skin", "line 4"] {
+        assert!(message.contains(part), "{part}: {message}");
+    }
+    std::fs::write(&path, record("[[null,[1,2,3]],[null]]")).unwrap();
+    let message = io::read_motion(&path).unwrap_err().to_string();
+    assert!(
+        message.contains("`runs[0].skin[1]` has 1 entries for 2 SUs"),
+        "{message}"
+    );
+}

@@ -270,6 +270,22 @@ pub fn read_true_robot(path: &Path) -> Result<Robot, IoError> {
 /// Writes every `(path, contents)` pair whole or not at all. Without `force`, fails before writing
 /// anything if one of the paths exists. Creates missing directories.
 pub fn write_all<C: AsRef<[u8]>>(files: &[(PathBuf, C)], force: bool) -> Result<(), IoError> {
+    let writers: Vec<(PathBuf, Box<Writer<'_>>)> = files
+        .iter()
+        .map(|(path, contents)| {
+            let write: Box<Writer<'_>> = Box::new(move |w| w.write_all(contents.as_ref()));
+            (path.clone(), write)
+        })
+        .collect();
+    write_all_with(&writers, force)
+}
+
+/// What writes one file's contents ([`write_all_with`]).
+pub type Writer<'a> = dyn Fn(&mut dyn std::io::Write) -> std::io::Result<()> + 'a;
+
+/// [`write_all`] with each file's contents written by its own function straight into the file
+/// (a long log's motion record serialised as it goes, never held as one string).
+pub fn write_all_with(files: &[(PathBuf, Box<Writer<'_>>)], force: bool) -> Result<(), IoError> {
     if !force {
         if let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
             return Err(IoError::Exists { path: path.clone() });
@@ -278,14 +294,15 @@ pub fn write_all<C: AsRef<[u8]>>(files: &[(PathBuf, C)], force: bool) -> Result<
     let as_io = |e| staging_error(e, Path::new(""));
     // Staged files are removed again if anything fails before every one is written.
     let mut staged = Vec::with_capacity(files.len());
-    for (path, contents) in files {
-        let (stage, mut file) = Staged::create(path, true).map_err(as_io)?;
-        std::io::Write::write_all(&mut file, contents.as_ref()).map_err(|source| {
-            IoError::Write {
+    for (path, write) in files {
+        let (stage, file) = Staged::create(path, true).map_err(as_io)?;
+        let mut file = std::io::BufWriter::new(file);
+        write(&mut file)
+            .and_then(|()| std::io::Write::flush(&mut file))
+            .map_err(|source| IoError::Write {
                 path: stage.tmp().to_path_buf(),
                 source,
-            }
-        })?;
+            })?;
         staged.push(stage);
     }
     for stage in &mut staged {
