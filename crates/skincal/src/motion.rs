@@ -14,6 +14,8 @@
 //! same kernel, and the record holds the joint positions and velocities through it too, so that
 //! neither side is smoothed alone.
 
+use std::sync::Arc;
+
 use nalgebra::{SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -157,7 +159,7 @@ pub struct SkinRows {
     rows: usize,
     /// Per SU (entries per row: the first row's), its mean in each row; NaN where it sent no
     /// fresh sample.
-    series: std::sync::Arc<Vec<Vec<[f32; 3]>>>,
+    series: Arc<Vec<Vec<[f32; 3]>>>,
     /// The first row read with another number of entries than the first, and that number (the
     /// row is kept cut or padded to the width, and [`MotionRecord::check`] refuses it).
     ragged: Option<(usize, usize)>,
@@ -168,7 +170,7 @@ impl SkinRows {
     pub fn empty(width: usize, rows: usize) -> Self {
         Self {
             rows,
-            series: std::sync::Arc::new(vec![vec![[f32::NAN; 3]; rows]; width]),
+            series: Arc::new(vec![vec![[f32::NAN; 3]; rows]; width]),
             ragged: None,
         }
     }
@@ -202,13 +204,13 @@ impl SkinRows {
     /// Sets SU `u`'s mean in block `b` (a block within the rows).
     pub fn set(&mut self, b: usize, u: usize, mean: Option<[f64; 3]>) {
         if u < self.width() && b < self.rows {
-            std::sync::Arc::make_mut(&mut self.series)[u][b] = Self::packed(mean);
+            Arc::make_mut(&mut self.series)[u][b] = Self::packed(mean);
         }
     }
 
     /// Adds a row (the first sets the width).
     pub fn push(&mut self, row: &[Option<[f64; 3]>]) {
-        let series = std::sync::Arc::make_mut(&mut self.series);
+        let series = Arc::make_mut(&mut self.series);
         if self.rows == 0 && series.is_empty() {
             series.resize(row.len(), Vec::new());
         }
@@ -238,8 +240,8 @@ impl SkinRows {
         let at = at.min(self.rows);
         let rest = SkinRows {
             rows: self.rows - at,
-            series: std::sync::Arc::new(
-                std::sync::Arc::make_mut(&mut self.series)
+            series: Arc::new(
+                Arc::make_mut(&mut self.series)
                     .iter_mut()
                     .map(|s| s.split_off(at))
                     .collect(),
@@ -257,11 +259,8 @@ impl SkinRows {
             return;
         }
         if other.width() == self.width() {
-            let theirs = std::sync::Arc::make_mut(&mut other.series);
-            for (mine, theirs) in std::sync::Arc::make_mut(&mut self.series)
-                .iter_mut()
-                .zip(theirs)
-            {
+            let theirs = Arc::make_mut(&mut other.series);
+            for (mine, theirs) in Arc::make_mut(&mut self.series).iter_mut().zip(theirs) {
                 mine.append(theirs);
             }
             self.rows += other.rows;
@@ -339,7 +338,7 @@ impl<'de> Deserialize<'de> for SkinRows {
                 while let Some(row) = seq.next_element::<Vec<Option<[f64; 3]>>>()? {
                     out.push(&row);
                 }
-                for s in std::sync::Arc::make_mut(&mut out.series) {
+                for s in Arc::make_mut(&mut out.series) {
                     s.shrink_to_fit();
                 }
                 Ok(out)
@@ -495,12 +494,9 @@ impl MotionRecord {
                     }
                 }
             }
-            let ragged = match run.skin.ragged {
-                Some(at) => Some(at),
-                None => {
-                    (n > 0 && run.skin.width() != self.sus.len()).then_some((0, run.skin.width()))
-                }
-            };
+            let ragged = run.skin.ragged.or_else(|| {
+                (n > 0 && run.skin.width() != self.sus.len()).then_some((0, run.skin.width()))
+            });
             if let Some((b, entries)) = ragged {
                 return Err(format!(
                     "`runs[{r}].skin[{b}]` has {entries} entries for {} SUs",

@@ -89,18 +89,9 @@ pub fn cramer_rao_bound(
     let state = state_of(truth, chain, gravity)?;
     let dofs = chain.dofs().len();
     let layout = serial_layout(dofs);
-    let mut spec = full_spec(&layout, 1, true, Some(0), intrinsics);
-    if intrinsics.components() > 3 {
-        spec.blocks[0] = Block::GravityDirection;
-    }
+    let spec = bound_spec(&layout, Some(0), intrinsics);
     let map = ColumnMap::new(&spec);
-    // Least squares: the Jacobian alone, whatever the readings' residuals at the truth.
-    let plain = Readings {
-        huber: None,
-        gauge_prior: None,
-        ..readings(data)
-    };
-    let normal = normal_system(&state, &layout, &plain, &spec, &map, sigma);
+    let normal = normal_system(&state, &layout, &least_squares(data), &spec, &map, sigma);
     let columns = spec.columns();
     let n = columns.len();
     let (covariance, _) = covariance(
@@ -153,7 +144,8 @@ pub fn cramer_rao_bound(
 /// Per DoF of a limb (chain order): the Cramér–Rao bound on the RMS error of its dynamic
 /// readings predicted at the poses of `held_out` (the norm of each SU's 3-vector error, every SU
 /// the DoF moves, as [`crate::predict::validate`] measures it), for an estimator that fits
-/// `data`'s readings (noise `sigma` per component) with `intrinsics`: the parameters' covariance
+/// `data`'s readings (noise `sigma` per component, or each reading's own deviation where the set
+/// gives them) with `intrinsics`: the parameters' covariance
 /// at the truth, propagated to those predictions. The directions no reading tells change no
 /// prediction in the same base orientation and are left out. `None` for a limb on a parent's
 /// path, or a truth that does not name the limb's DoFs and SUs.
@@ -172,21 +164,11 @@ pub fn dynamic_reading_bounds(
     }
     let state = sequence_state_of(truth, chain, &data.su_depth, gravity)?;
     let layout = Layout::of(&data);
-    let mut spec = full_spec(&layout, 1, true, None, intrinsics);
-    if intrinsics.components() > 3 {
-        spec.blocks[0] = Block::GravityDirection;
-    }
+    let spec = bound_spec(&layout, None, intrinsics);
     let map = ColumnMap::new(&spec);
-    // Least squares on the readings as they are, each with `sigma`.
-    let plain = |d: &LimbData| Readings {
-        huber: None,
-        gauge_prior: None,
-        sd: None,
-        ..readings(d)
-    };
-    let normal = normal_system(&state, &layout, &plain(&data), &spec, &map, sigma);
+    let normal = normal_system(&state, &layout, &least_squares(&data), &spec, &map, sigma);
     let (_, covariance) = free_and_inverse(information(&normal, &map));
-    let jac = pose_jacobian(&state, &layout, &plain(&held_out), &spec, sigma) * sigma;
+    let jac = pose_jacobian(&state, &layout, &least_squares(&held_out), &spec, sigma) * sigma;
     let dofs = layout.dofs;
     let (mut sum, mut count) = (vec![0.0; dofs], vec![0usize; dofs]);
     let mut row = 0;
@@ -207,6 +189,26 @@ pub fn dynamic_reading_bounds(
             .map(|(s, &c)| (s.max(0.0) / c.max(1) as f64).sqrt())
             .collect(),
     )
+}
+
+/// Every parameter the estimator fits with `intrinsics` (the gravity's magnitude held where
+/// scales are fitted, as the estimator does), `gauge_su`'s height and turn held where given.
+fn bound_spec(layout: &Layout, gauge_su: Option<usize>, intrinsics: IntrinsicsModel) -> Spec {
+    let mut spec = full_spec(layout, 1, true, gauge_su, intrinsics);
+    if intrinsics.components() > 3 {
+        spec.blocks[0] = Block::GravityDirection;
+    }
+    spec
+}
+
+/// The readings of `data` for a bound: plain least squares (the Jacobian alone, whatever the
+/// readings' residuals at the truth), with no gauge prior.
+fn least_squares(data: &LimbData) -> Readings {
+    Readings {
+        huber: None,
+        gauge_prior: None,
+        ..readings(data)
+    }
 }
 
 /// A basis of the directions an information matrix leaves free (eigenvalues below
@@ -390,21 +392,14 @@ impl<'a> PairProblem<'a> {
         estimate: &ChainState,
     ) -> Self {
         let layout = Layout::of(data);
-        let mut spec = full_spec(&layout, 1, true, None, config.intrinsics);
-        if config.intrinsics.components() > 3 {
-            spec.blocks[0] = Block::GravityDirection;
-        }
+        let spec = bound_spec(&layout, None, config.intrinsics);
         let mut problem = Self {
             data,
             columns: spec.columns(),
             map: ColumnMap::new(&spec),
             spec,
             layout,
-            readings: Readings {
-                huber: None,
-                gauge_prior: None,
-                ..readings(data)
-            },
+            readings: least_squares(data),
             sigma: config.noise_sd,
             held_out,
             target: Vec::new(),

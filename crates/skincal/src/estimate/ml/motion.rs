@@ -6,8 +6,6 @@
 //! Each sample is one instant of the chain's motion: its segments' terms and their derivatives
 //! come from the limb's one kinematics ([`super::terms`]), as the readings' do.
 
-use std::sync::Arc;
-
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 use rayon::prelude::*;
 
@@ -170,10 +168,10 @@ pub struct LimbMotion {
     /// means): what [`LimbMotion::interpolated`] averages.
     noise_correlation: [f64; 4],
     pub(super) samples: Vec<MotionSample>,
-    /// Per run, the block means: the record's own (shared, not copied), or where it has a
-    /// [`SkinFilter`], the limb's SUs' read through it. Shared by the limb's coarse and at-rest
-    /// versions ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]).
-    skin: Arc<Vec<SkinRows>>,
+    /// Per run, the block means: the record's own, or where it has a [`SkinFilter`], the limb's
+    /// SUs' read through it. Shared (not copied) with the record and by the limb's coarse and
+    /// at-rest versions ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]).
+    skin: Vec<SkinRows>,
     /// Per limb SU, its column in `skin`.
     columns: Vec<usize>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
@@ -297,7 +295,7 @@ impl LimbMotion {
             filter,
             noise_correlation,
             samples,
-            skin: Arc::new(skin),
+            skin,
             columns,
             sd,
             joint_var: Vec::new(),
@@ -657,7 +655,7 @@ impl LimbMotion {
             filter: self.filter.clone(),
             noise_correlation: self.noise_correlation,
             samples,
-            skin: Arc::clone(&self.skin),
+            skin: self.skin.clone(),
             columns: self.columns.clone(),
             sd: self.sd.clone(),
             joint_var,
@@ -838,12 +836,12 @@ mod tests {
                 qdd_sd: vec![0.0],
                 read: (vec![0.0], vec![0.0]),
             }],
-            skin: Arc::new(vec![SkinRows::from(
+            skin: vec![SkinRows::from(
                 series
                     .iter()
                     .map(|m| vec![m.map(|v| [v.x, v.y, v.z])])
                     .collect::<Vec<_>>(),
-            )]),
+            )],
             columns: vec![0],
             sd: vec![0.01],
             joint_var: Vec::new(),

@@ -1540,7 +1540,7 @@ pub(super) fn dense_problem(
     spec: &Spec,
     sigma: f64,
 ) -> (DVector<f64>, DMatrix<f64>) {
-    dense_rows(state, layout, data, spec, sigma, true)
+    dense_rows(state, layout, data, spec, sigma, (true, false))
 }
 
 /// The rows of the poses' readings alone in [`dense_problem`]'s Jacobian (no motion rows, no
@@ -1553,7 +1553,7 @@ pub(super) fn pose_jacobian(
     spec: &Spec,
     sigma: f64,
 ) -> DMatrix<f64> {
-    dense_rows_of(state, layout, data, spec, sigma, (true, true)).1
+    dense_rows(state, layout, data, spec, sigma, (true, true)).1
 }
 
 /// The residuals of [`dense_problem`] alone (no Jacobian is formed).
@@ -1564,24 +1564,12 @@ pub(super) fn dense_residuals(
     spec: &Spec,
     sigma: f64,
 ) -> DVector<f64> {
-    dense_rows(state, layout, data, spec, sigma, false).0
+    dense_rows(state, layout, data, spec, sigma, (false, false)).0
 }
 
-/// [`dense_problem`], its Jacobian formed when `jacobian` (else it has no columns).
+/// [`dense_problem`], its Jacobian formed when `jacobian` (else it has no columns); with
+/// `poses_only`, each SU's pose rows alone and no prior rows ([`pose_jacobian`]).
 fn dense_rows(
-    state: &ChainState,
-    layout: &Layout,
-    data: &Readings,
-    spec: &Spec,
-    sigma: f64,
-    jacobian: bool,
-) -> (DVector<f64>, DMatrix<f64>) {
-    dense_rows_of(state, layout, data, spec, sigma, (jacobian, false))
-}
-
-/// [`dense_rows`]; with `poses_only`, each SU's pose rows alone and no prior rows
-/// ([`pose_jacobian`]).
-fn dense_rows_of(
     state: &ChainState,
     layout: &Layout,
     data: &Readings,
