@@ -179,6 +179,12 @@ pub struct Move {
     /// experiment excites the DoF, its dynamic readings tell the same).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub accelerated: Vec<Reading>,
+    /// Per SU, the standard deviation of each component of its `accelerated` value (the
+    /// regression's, from its residual; same units): a move the record barely holds tells its
+    /// gains only to within centimetres of lever arm. `null` for an SU that sent too little in the
+    /// move to tell; empty: not given (the gains are taken as exact).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub accelerated_sd: Vec<Option<f64>>,
     /// Unknown fields, kept as written.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
@@ -319,6 +325,11 @@ impl MeasurementSet {
                 filter(&mut mv.readings);
                 if !mv.accelerated.is_empty() {
                     filter(&mut mv.accelerated);
+                }
+                if !mv.accelerated_sd.is_empty() {
+                    let mut kept = keep.iter();
+                    mv.accelerated_sd
+                        .retain(|_| kept.next().copied().unwrap_or(true));
                 }
             }
         }
@@ -486,7 +497,43 @@ impl MeasurementSet {
                 if !mv.accelerated.is_empty() {
                     self.check_readings(format!("{field}.accelerated"), &mv.accelerated)?;
                 }
+                self.check_gain_deviations(&field, mv)?;
             }
+        }
+        Ok(())
+    }
+
+    /// A move's `accelerated_sd`: with `accelerated`, one non-negative number (or `null`) per SU.
+    fn check_gain_deviations(&self, field: &str, mv: &Move) -> Result<(), MeasurementError> {
+        if mv.accelerated_sd.is_empty() {
+            return Ok(());
+        }
+        let field = format!("{field}.accelerated_sd");
+        if mv.accelerated.is_empty() {
+            return Err(MeasurementError::InvalidValue {
+                field,
+                reason: "is given without `accelerated`: give both, or leave it out".into(),
+            });
+        }
+        shape(
+            &field,
+            mv.accelerated_sd.len(),
+            self.sus.len(),
+            "one standard deviation (or null) per SU",
+        )?;
+        let bad = mv
+            .accelerated_sd
+            .iter()
+            .enumerate()
+            .find_map(|(i, v)| v.filter(|v| !(v.is_finite() && *v >= 0.0)).map(|v| (i, v)));
+        if let Some((i, v)) = bad {
+            return Err(MeasurementError::InvalidValue {
+                field: format!("{field}[{i}] (SU {})", self.sus[i]),
+                reason: format!(
+                    "{v} must be a non-negative number in the units of `accelerated`, or null \
+                     where the SU's value is not known"
+                ),
+            });
         }
         Ok(())
     }

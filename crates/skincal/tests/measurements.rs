@@ -123,6 +123,37 @@ fn every_broken_invariant_is_named() {
         e.to_string().contains("no dynamic readings of that DoF"),
         "{e}"
     );
+    // A move's gains' standard deviations: with the gains, one non-negative number or null per SU.
+    let gains = serde_json::json!(vec![[0.0, 0.0, 0.0]; 7]);
+    let e = broken(|v| {
+        v["structure"]["orientations"][0]["moves"][1]["accelerated_sd"] =
+            serde_json::json!(vec![0.001; 7])
+    });
+    assert_eq!(
+        e.to_string(),
+        "structure.orientations[0].moves[1].accelerated_sd: is given without `accelerated`: give \
+         both, or leave it out"
+    );
+    let e = broken(|v| {
+        let mv = &mut v["structure"]["orientations"][0]["moves"][1];
+        mv["accelerated"] = gains.clone();
+        mv["accelerated_sd"] = serde_json::json!([0.001, null, 0.001, -0.002, 0.001, 0.001, 0.001]);
+    });
+    assert!(
+        e.to_string().starts_with(
+            "structure.orientations[0].moves[1].accelerated_sd[3] (SU su4): -0.002 must be a \
+             non-negative number"
+        ),
+        "{e}"
+    );
+    let mut v: serde_json::Value = serde_json::from_str(&small_set().to_json()).unwrap();
+    let mv = &mut v["structure"]["orientations"][0]["moves"][1];
+    mv["accelerated"] = gains;
+    mv["accelerated_sd"] = serde_json::json!([0.001, null, 0.001, 0.002, 0.001, 0.001, 0.001]);
+    let set = MeasurementSet::from_json(&v.to_string()).unwrap();
+    let sd = &set.structure.unwrap().orientations[0].moves[1].accelerated_sd;
+    assert_eq!(sd[1], None);
+    assert_eq!(sd[3], Some(0.002));
     // Base orientations: numbered from the usual one (0) without a gap, at most 8.
     let e = broken(|v| v["training"]["poses"][2]["orientation"] = 8.into());
     assert!(

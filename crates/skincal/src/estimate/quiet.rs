@@ -109,6 +109,7 @@ mod tests {
                 pose: vec![0.3],
                 readings: gravity(tilt + 0.3),
                 accelerated: Vec::new(),
+                accelerated_sd: Vec::new(),
                 extra: Default::default(),
             }],
             extra: Default::default(),

@@ -970,29 +970,49 @@ fn dynamic_medians(set: &MeasurementSet, d: usize) -> Option<(Vec<f64>, f64)> {
     Some((per_su_median(&readings, set.sus.len()), peak))
 }
 
-/// Per SU, the median norm over the structure moves of DoF `d` of what it read per unit of the
-/// DoF's acceleration on the way ([`crate::measurements::Move::accelerated`]); `None` where no
-/// move has it.
+/// How many of its standard deviations are taken off the norm of a move's gain
+/// ([`crate::measurements::Move::accelerated`]) before it counts: the norm of a gain that is only
+/// noise (three components of deviation σ) exceeds 3σ once in 35, and then by little. A move the
+/// motion record barely holds (a wrist's on a soft servo: 0.04 ± 0.03 m on SUs it does not
+/// carry) so tells nothing instead of carrying every SU.
+const GAIN_DEVIATIONS: f64 = 3.0;
+
+/// Per SU, the median over the structure moves of DoF `d` of what it read per unit of the DoF's
+/// acceleration on the way ([`crate::measurements::Move::accelerated`]): the norm, less
+/// [`GAIN_DEVIATIONS`] of its standard deviation where the move gives one, and at least 0;
+/// `None` where no move has it.
 fn accelerated_medians(set: &MeasurementSet, d: usize) -> Option<Vec<f64>> {
-    let readings: Vec<&Vec<[f64; 3]>> = set
+    let moves: Vec<&crate::measurements::Move> = set
         .structure
         .iter()
         .flat_map(|s| &s.orientations)
         .flat_map(|o| &o.moves)
         .filter(|m| m.dof == set.dofs[d] && m.accelerated.len() == set.sus.len())
-        .map(|m| &m.accelerated)
         .collect();
-    (!readings.is_empty()).then(|| per_su_median(&readings, set.sus.len()))
+    let told = |m: &crate::measurements::Move, u: usize| {
+        let sd = match m.accelerated_sd.get(u) {
+            None => 0.0,
+            Some(sd) => sd.unwrap_or(f64::INFINITY),
+        };
+        (norm(&m.accelerated[u]) - GAIN_DEVIATIONS * sd).max(0.0)
+    };
+    (!moves.is_empty()).then(|| {
+        (0..set.sus.len())
+            .map(|u| median(moves.iter().map(|m| told(m, u)).collect()))
+            .collect()
+    })
+}
+
+/// The median of `values` (the upper one of an even count).
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
 }
 
 /// Per SU, the median norm of its reading in `readings` (one reading per SU each).
 fn per_su_median(readings: &[&Vec<[f64; 3]>], sus: usize) -> Vec<f64> {
     (0..sus)
-        .map(|u| {
-            let mut norms: Vec<f64> = readings.iter().map(|r| norm(&r[u])).collect();
-            norms.sort_by(f64::total_cmp);
-            norms[norms.len() / 2]
-        })
+        .map(|u| median(readings.iter().map(|r| norm(&r[u])).collect()))
         .collect()
 }
 
@@ -1492,5 +1512,44 @@ mod tests {
         // Without upright DoFs nothing is added.
         let mut plain = rows(&[[1, 0, 0], [0, 1, 0]]);
         assert!(near_upright_axes(&mut plain, &[false; 3]).is_empty());
+    }
+
+    #[test]
+    fn a_moves_gain_counts_less_three_of_its_deviations() {
+        let robot = crate::model::presets::find("paper-7dof")
+            .unwrap()
+            .robot()
+            .unwrap();
+        let mut set = crate::sim::simulate(&robot, &crate::sim::SimulationConfig::default())
+            .unwrap()
+            .measurements;
+        let sus = set.sus.len();
+        let dof = set.dofs[0].clone();
+        let mut with = |gain: [f64; 3], sd: Vec<Option<f64>>| {
+            for mv in set
+                .structure
+                .iter_mut()
+                .flat_map(|s| &mut s.orientations)
+                .flat_map(|o| &mut o.moves)
+                .filter(|m| m.dof == dof)
+            {
+                mv.accelerated = vec![gain; sus];
+                mv.accelerated_sd = sd.clone();
+            }
+            accelerated_medians(&set, 0).unwrap()
+        };
+        // 5 cm of lever arm (norm of 0.03, 0.04, 0): as given where no deviation is.
+        let gain = [0.03, 0.04, 0.0];
+        assert!(with(gain, Vec::new())
+            .iter()
+            .all(|&m| (m - 0.05).abs() < 1e-12));
+        // Told within a millimetre: 5 cm less 3 mm.
+        let told = with(gain, vec![Some(0.001); sus]);
+        assert!(told.iter().all(|&m| (m - 0.047).abs() < 1e-12), "{told:?}");
+        // Within 3 cm (a move the record barely held): nothing; an SU that sent too little: nothing.
+        assert!(with(gain, vec![Some(0.03); sus]).iter().all(|&m| m == 0.0));
+        let mut unknown = vec![Some(0.001); sus];
+        unknown[2] = None;
+        assert_eq!(with(gain, unknown)[2], 0.0);
     }
 }

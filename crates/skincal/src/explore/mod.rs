@@ -642,8 +642,9 @@ fn upright_axes(a: &ActivityMatrix) -> Option<Diagnostic> {
         kind: DiagnosticKind::UprightAxis,
         severity: Severity::Info,
         message: format!(
-            "DoF(s) {} turned too little gravity to tell (their axes stood vertical, or nearly, in every base orientation): the SUs each moves are those its structure moves accelerated, read with a lever arm of more than {:.0} mm{}",
+            "DoF(s) {} turned no SU's gravity by {:.2} g in any base orientation (their axes stood vertical, or nearly): the SUs each moves are completed from what its structure moves accelerated, read with a lever arm of more than {:.0} mm beyond three times the move's own uncertainty{}",
             dofs.iter().map(|d| format!("`{d}`")).collect::<Vec<_>>().join(", "),
+            a.threshold * a.uncertainty_factor / STANDARD_GRAVITY,
             activity::UPRIGHT_LEVER * 1e3,
             if near.is_empty() {
                 String::new()

@@ -588,6 +588,7 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
                 pose: st.pose.clone(),
                 readings,
                 accelerated: Vec::new(),
+                accelerated_sd: Vec::new(),
                 extra: Map::new(),
             }),
             several => {

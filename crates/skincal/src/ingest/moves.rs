@@ -30,6 +30,11 @@ const DEFLECTED: f64 = 0.02;
 /// Blocks of stillness on each side of a move that join its regression (they carry the hold's
 /// reading, which the regression's intercept takes).
 const MARGIN: usize = 10;
+/// The most blocks a DoF may stay below [`MOVING`] within one move: a servo that overshoots and
+/// rings reverses at each swing (at 4 Hz and damping 0.6, a few blocks at each). Cut there, a
+/// move ended at its first overshoot, away from the pose, and was not taken; what was taken of
+/// it was a late swing, which told a wrist's gains only to within centimetres.
+const RINGING: usize = 10;
 /// The least `Σ(q̈ − mean)²` over a move's blocks for its regression to tell anything, (m/s²)²
 /// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60.
 const LEAST_EXCITATION: f64 = 1.0;
@@ -63,7 +68,9 @@ pub struct KindTold {
 /// and which end at the move's pose. Moves the record does not hold stay empty.
 pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
     let su_column = su_columns(set, record);
-    let gains: Vec<(usize, usize, Vec<Option<Reading>>)> = held_moves(set, record)
+    // Per move held: its orientation, its index there, and each SU's gain with its deviation.
+    type Gains = Vec<Option<(Reading, f64)>>;
+    let gains: Vec<(usize, usize, Gains)> = held_moves(set, record)
         .iter()
         .map(|held| {
             let revolute = set.dof_kind(held.dof) == DofKind::Revolute;
@@ -82,8 +89,12 @@ pub fn accelerations_of_moves(set: &mut MeasurementSet, record: &MotionRecord) {
     };
     for (o, j, gains) in gains {
         if gains.iter().any(Option::is_some) {
-            structure.orientations[o].moves[j].accelerated =
-                gains.into_iter().map(|g| g.unwrap_or([0.0; 3])).collect();
+            let mv = &mut structure.orientations[o].moves[j];
+            // An SU that sent too little in the move reads nothing, to within an unknown error.
+            (mv.accelerated, mv.accelerated_sd) = gains
+                .into_iter()
+                .map(|g| g.map_or(([0.0; 3], None), |(k, sd)| (k, Some(sd))))
+                .unzip();
         }
     }
 }
@@ -269,8 +280,16 @@ fn moves_into<'a>(record: &'a MotionRecord, moving: &[usize], pose: &[f64]) -> V
                     continue;
                 }
                 let first = b;
-                while b < run.len() && moves(b) {
-                    b += 1;
+                // Through every reversal of a servo that overshoots and rings: its speed drops
+                // below `MOVING` for a few blocks at each, and the move ends where it settles.
+                loop {
+                    while b < run.len() && moves(b) {
+                        b += 1;
+                    }
+                    match (b..run.len().min(b + RINGING)).find(|&c| moves(c)) {
+                        Some(c) => b = c,
+                        None => break,
+                    }
                 }
                 let (mut start, mut end) = (first, b);
                 while start > 0 && first - start < MARGIN && !moves(start - 1) {
@@ -339,15 +358,17 @@ impl OneDof {
         )
     }
 
-    /// `k`, the SU's reading per unit of the DoF's acceleration; `None` where the move did not
-    /// excite `q̈` apart from the other regressors enough to tell ([`LEAST_EXCITATION`]).
-    fn gain(&self) -> Option<Reading> {
+    /// `k`, the SU's reading per unit of the DoF's acceleration, and the standard deviation of
+    /// each of its components; `None` where the move did not excite `q̈` apart from the other
+    /// regressors enough to tell ([`LEAST_EXCITATION`]).
+    fn gain(&self) -> Option<(Reading, f64)> {
         let k = self.k_row();
         // `1 / (G⁻¹)ₖₖ` is what of `Σ q̈²` the other regressors leave to tell `k`.
         if self.inverse[(k, k)] <= 0.0 || 1.0 / self.inverse[(k, k)] < LEAST_EXCITATION {
             return None;
         }
-        Some(self.term(k).0.into())
+        let (gain, sd) = self.term(k);
+        Some((gain.into(), sd))
     }
 }
 
@@ -593,6 +614,7 @@ mod tests {
             pose,
             readings: GRAVITY.to_vec(),
             accelerated: Vec::new(),
+            accelerated_sd: Vec::new(),
             extra: Default::default(),
         };
         set.structure = Some(upright(
@@ -713,6 +735,7 @@ mod tests {
             pose,
             readings: vec![[9.81 * p.sin(), 9.81 * p.cos(), 0.0], [0.0, 9.81, 0.0]],
             accelerated: Vec::new(),
+            accelerated_sd: Vec::new(),
             extra: Default::default(),
         }
     }

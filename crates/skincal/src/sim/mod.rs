@@ -732,6 +732,7 @@ fn structure_experiment(
                     pose,
                     readings,
                     accelerated: Vec::new(),
+                    accelerated_sd: Vec::new(),
                     extra: Map::new(),
                 }
             })
