@@ -244,6 +244,48 @@ pub(crate) fn plan(args: PlanArgs) -> Result<()> {
     Ok(())
 }
 
+/// Shows what the search for a program that meets `target` m/s² is doing: a spinner while a
+/// program is forecast, and a line on standard error for each forecast (each takes minutes on a
+/// robot of many DoFs).
+fn design_progress(target: f64) -> impl FnMut(skincal::design::DesignStep<'_>) {
+    use skincal::design::DesignStep;
+    let mut busy: Option<indicatif::ProgressBar> = None;
+    let mut started = std::time::Instant::now();
+    let program = |config: &PlanConfig| {
+        if config.sweep > 0.0 {
+            format!("a sweep of {} s", config.sweep)
+        } else {
+            format!(
+                "{} training poses (best of {} draws)",
+                config.poses,
+                skincal::design::CANDIDATES
+            )
+        }
+    };
+    move |step| match step {
+        DesignStep::Trying(config) => {
+            started = std::time::Instant::now();
+            busy = Some(out::spinner(&format!(
+                "forecast: calibrating {} on the description",
+                program(config)
+            )));
+        }
+        DesignStep::Forecast(config, f) => {
+            let line = format!(
+                "forecast of {}: held-out RMS static {:.4}, dynamic {:.4} m/s² (aim {target}) in {:.1} s",
+                program(config),
+                f.static_rms,
+                f.dynamic_rms,
+                started.elapsed().as_secs_f64()
+            );
+            if let Some(bar) = busy.take() {
+                bar.finish_and_clear();
+            }
+            eprintln!("{line}");
+        }
+    }
+}
+
 /// The robot's DoFs with the limits and ranges the options give.
 fn plan_dofs(robot: &skincal::model::Robot, args: &PlanArgs) -> Result<Vec<PlanDof>> {
     let mut dofs = PlanDof::from_robot(robot);
@@ -523,10 +565,17 @@ fn planned(
 ) -> Result<(Plan, String)> {
     use skincal::design;
     let context = "cannot plan the exploration";
+    let aim = |target| (target, args.sample_noise);
     if let (Some(target), true) = (accuracy, config.training && config.sweep > 0.0) {
-        let (plan, forecast) =
-            design::sweep_for(robot, &dofs, config, target, args.sample_noise, clearance)
-                .context(context)?;
+        let (plan, forecast) = design::sweep_for(
+            robot,
+            &dofs,
+            config,
+            aim(target),
+            clearance,
+            &mut design_progress(target),
+        )
+        .context(context)?;
         let note = if forecast.worst() <= target {
             format!(
                 "a sweep of {} s meets {target} m/s² held-out RMS by the forecast (--accuracy)",
@@ -541,9 +590,15 @@ fn planned(
         return Ok((plan, note));
     }
     if let (Some(target), true) = (accuracy, config.training) {
-        let (plan, forecast) =
-            design::poses_for(robot, &dofs, config, target, args.sample_noise, clearance)
-                .context(context)?;
+        let (plan, forecast) = design::poses_for(
+            robot,
+            &dofs,
+            config,
+            aim(target),
+            clearance,
+            &mut design_progress(target),
+        )
+        .context(context)?;
         let note = if forecast.worst() <= target {
             format!(
                 "{} training poses (the best of {} draws) meet {target} m/s² held-out RMS by the forecast \

@@ -1752,8 +1752,18 @@ fn the_short_program_runs_the_whole_path_and_compares_with_the_recorded_truth() 
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let ok = |args: &[&str]| succeeds(args, d);
-    // The short program is the default, with its forecast.
-    let plan = ok(&["plan", "--robot", "paper-7dof", "--out", "p"]);
+    // The short program is the default, with its forecast; each program the search for one
+    // that meets the aim forecasts is reported on standard error as it is done.
+    let out = skincal(&["plan", "--robot", "paper-7dof", "--out", "p"], d);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let progress = stderr(&out);
+    assert!(
+        progress
+            .contains("forecast of 6 training poses (best of 4 draws): held-out RMS static 0.00")
+            && progress.contains("(aim 0.009) in "),
+        "{progress}"
+    );
+    let plan = String::from_utf8(out.stdout).unwrap();
     assert!(plan.contains("6 poses × 7 DoFs"), "{plan}");
     assert!(
         plan.contains("Forecast: held-out RMS") && plan.contains("meet 0.009 m/s²"),

@@ -707,9 +707,11 @@ fn plan(
     let plan = py
         .detach(|| -> Result<Plan, String> {
             match target {
-                Some(t) => skincal::design::poses_for(&robot, &dofs, &config, t, None, None)
-                    .map(|(plan, _)| plan)
-                    .map_err(|e| e.to_string()),
+                Some(t) => {
+                    skincal::design::poses_for(&robot, &dofs, &config, (t, None), None, &mut |_| {})
+                        .map(|(plan, _)| plan)
+                        .map_err(|e| e.to_string())
+                }
                 None => {
                     let mut plan = Plan::new(dofs.clone(), &config).map_err(|e| e.to_string())?;
                     // A description without SUs has no forecast; the plan stands without one.

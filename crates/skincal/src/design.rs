@@ -566,16 +566,28 @@ pub fn best_draw(
         .ok_or(DesignError::Incomplete("no pose draw tried"))
 }
 
+/// What [`poses_for`] and [`sweep_for`] are doing, for a caller that shows it: a program about
+/// to be forecast (each step calibrates it on the description several times, minutes on a robot
+/// of many DoFs), then its forecast.
+#[derive(Debug, Clone, Copy)]
+pub enum DesignStep<'a> {
+    /// This program is being forecast.
+    Trying(&'a PlanConfig),
+    /// Its forecast.
+    Forecast(&'a PlanConfig, &'a Forecast),
+}
+
 /// The plan with the fewest training poses (from `config.poses` up, at most [`MAX_POSES`]) whose
 /// forecast meets `target` m/s² RMS, static and dynamic, each the best of [`CANDIDATES`] pose
 /// draws, with its forecast (also in the plan's `forecast`); the largest tried when none does.
+/// `progress` is told each step ([`DesignStep`]).
 pub fn poses_for(
     robot: &Robot,
     dofs: &[PlanDof],
     config: &PlanConfig,
-    target: f64,
-    sample_sd: Option<f64>,
+    (target, sample_sd): (f64, Option<f64>),
     clearance: Option<&(dyn Clearance + Sync)>,
+    progress: &mut dyn FnMut(DesignStep<'_>),
 ) -> Result<(Plan, Forecast), DesignError> {
     let mut poses = config.poses.max(1);
     let noise = reading_noise(robot, &Plan::new(dofs.to_vec(), config)?, sample_sd)?;
@@ -585,7 +597,9 @@ pub fn poses_for(
             poses,
             ..config.clone()
         };
+        progress(DesignStep::Trying(&config));
         let (mut plan, f) = best_draw(robot, &reference, dofs, &config, &noise, clearance)?;
+        progress(DesignStep::Forecast(&config, &f));
         if f.worst() <= target || poses >= MAX_POSES {
             plan.forecast = Some(f.clone());
             return Ok((plan, f));
@@ -605,13 +619,14 @@ pub const MAX_SWEEP: f64 = 240.0;
 /// The continuous program with the shortest sweep (from `config.sweep` up, at most
 /// [`MAX_SWEEP`] s) whose forecast ([`forecast_sweep`]) meets `target` m/s² RMS, static and
 /// dynamic, with its forecast (also in the plan's `forecast`); the longest tried when none does.
+/// `progress` is told each step ([`DesignStep`]).
 pub fn sweep_for(
     robot: &Robot,
     dofs: &[PlanDof],
     config: &PlanConfig,
-    target: f64,
-    sample_sd: Option<f64>,
+    (target, sample_sd): (f64, Option<f64>),
     clearance: Option<&(dyn Clearance + Sync)>,
+    progress: &mut dyn FnMut(DesignStep<'_>),
 ) -> Result<(Plan, Forecast), DesignError> {
     let reference = Reference::of(robot)?;
     let mut sweep = config.sweep.max(1.0);
@@ -620,12 +635,14 @@ pub fn sweep_for(
             sweep,
             ..config.clone()
         };
+        progress(DesignStep::Trying(&config));
         let mut plan = Plan::new_clear(
             dofs.to_vec(),
             &config,
             clearance.map(|c| c as &dyn Clearance),
         )?;
         let f = forecast_sweep(robot, &reference, &plan, sample_sd)?;
+        progress(DesignStep::Forecast(&config, &f));
         plan.forecast = Some(f.clone());
         if f.worst() <= target || sweep >= MAX_SWEEP {
             return Ok((plan, f));

@@ -280,8 +280,15 @@ fn plan_log_ingest_matches_the_condensed_physics_and_calibrates_as_well() {
 fn short_program_whole_path(name: &str) -> (Plan, f64, f64) {
     let robot = robot(name);
     let dofs = PlanDof::from_robot(&robot);
-    let (plan, forecast) =
-        skincal::design::poses_for(&robot, &dofs, &PlanConfig::short(), 0.009, None, None).unwrap();
+    let (plan, forecast) = skincal::design::poses_for(
+        &robot,
+        &dofs,
+        &PlanConfig::short(),
+        (0.009, None),
+        None,
+        &mut |_| {},
+    )
+    .unwrap();
     assert!(forecast.worst() <= 0.009, "{forecast:?}");
     let dir = tempfile::tempdir().unwrap();
     let upright = dir.path().join("upright.mcap");
