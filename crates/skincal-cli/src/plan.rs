@@ -565,52 +565,43 @@ fn planned(
 ) -> Result<(Plan, String)> {
     use skincal::design;
     let context = "cannot plan the exploration";
-    let aim = |target| (target, args.sample_noise);
-    if let (Some(target), true) = (accuracy, config.training && config.sweep > 0.0) {
-        let (plan, forecast) = design::sweep_for(
+    if let (Some(target), true) = (accuracy, config.training) {
+        // A continuous program searches the sweep's length, any other the training poses.
+        let sweep = config.sweep > 0.0;
+        let search = if sweep {
+            design::sweep_for
+        } else {
+            design::poses_for
+        };
+        let (plan, forecast) = search(
             robot,
             &dofs,
             config,
-            aim(target),
+            (target, args.sample_noise),
             clearance,
             &mut design_progress(target),
         )
         .context(context)?;
-        let note = if forecast.worst() <= target {
-            format!(
+        let met = forecast.worst() <= target;
+        let note = match (sweep, met) {
+            (true, true) => format!(
                 "a sweep of {} s meets {target} m/s² held-out RMS by the forecast (--accuracy)",
                 plan.config.sweep
-            )
-        } else {
-            format!(
+            ),
+            (true, false) => format!(
                 "warning: even a sweep of {} s misses --accuracy {target} m/s² by the forecast",
                 plan.config.sweep
-            )
-        };
-        return Ok((plan, note));
-    }
-    if let (Some(target), true) = (accuracy, config.training) {
-        let (plan, forecast) = design::poses_for(
-            robot,
-            &dofs,
-            config,
-            aim(target),
-            clearance,
-            &mut design_progress(target),
-        )
-        .context(context)?;
-        let note = if forecast.worst() <= target {
-            format!(
+            ),
+            (false, true) => format!(
                 "{} training poses (the best of {} draws) meet {target} m/s² held-out RMS by the forecast \
                  (--accuracy)",
                 forecast.poses,
                 design::CANDIDATES
-            )
-        } else {
-            format!(
+            ),
+            (false, false) => format!(
                 "warning: even {} training poses miss --accuracy {target} m/s² by the forecast",
                 forecast.poses
-            )
+            ),
         };
         return Ok((plan, note));
     }
