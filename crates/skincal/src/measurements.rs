@@ -313,37 +313,30 @@ impl MeasurementSet {
     /// ignored): what the skin would have recorded without them.
     pub fn without_sus(&self, drop: &[String]) -> Self {
         let keep: Vec<bool> = self.sus.iter().map(|su| !drop.contains(su)).collect();
-        let filter = |readings: &mut Vec<Reading>| {
+        // Any per-SU list (readings, their deviations); an empty one stays empty.
+        fn filter<T>(values: &mut Vec<T>, keep: &[bool]) {
             let mut kept = keep.iter();
-            readings.retain(|_| kept.next().copied().unwrap_or(true));
-        };
+            values.retain(|_| kept.next().copied().unwrap_or(true));
+        }
         let mut set = self.clone();
         set.sus.retain(|su| !drop.contains(su));
         for o in set.structure.iter_mut().flat_map(|s| &mut s.orientations) {
-            filter(&mut o.rest);
+            filter(&mut o.rest, &keep);
             for mv in &mut o.moves {
-                filter(&mut mv.readings);
-                if !mv.accelerated.is_empty() {
-                    filter(&mut mv.accelerated);
-                }
-                if !mv.accelerated_sd.is_empty() {
-                    let mut kept = keep.iter();
-                    mv.accelerated_sd
-                        .retain(|_| kept.next().copied().unwrap_or(true));
-                }
+                filter(&mut mv.readings, &keep);
+                filter(&mut mv.accelerated, &keep);
+                filter(&mut mv.accelerated_sd, &keep);
             }
         }
-        let filter_sd = |sd: &mut Vec<f64>| {
-            let mut kept = keep.iter();
-            sd.retain(|_| kept.next().copied().unwrap_or(true));
-        };
         for pose in set.training.iter_mut().flat_map(|t| &mut t.poses) {
-            filter(&mut pose.static_readings);
+            filter(&mut pose.static_readings, &keep);
             for readings in pose.dynamic.values_mut() {
-                filter(readings);
+                filter(readings, &keep);
             }
-            pose.static_sd.iter_mut().for_each(filter_sd);
-            pose.dynamic_sd.values_mut().for_each(filter_sd);
+            pose.static_sd.iter_mut().for_each(|sd| filter(sd, &keep));
+            pose.dynamic_sd
+                .values_mut()
+                .for_each(|sd| filter(sd, &keep));
         }
         set
     }

@@ -32,8 +32,8 @@ const DEFLECTED: f64 = 0.02;
 const MARGIN: usize = 10;
 /// The most blocks a DoF may stay below [`MOVING`] within one move: a servo that overshoots and
 /// rings reverses at each swing (at 4 Hz and damping 0.6, a few blocks at each). Cut there, a
-/// move ended at its first overshoot, away from the pose, and was not taken; what was taken of
-/// it was a late swing, which told a wrist's gains only to within centimetres.
+/// move would end at its first overshoot, away from its pose, and not be taken; a late swing
+/// ending at the pose would stand for it and tell a wrist's gains only to within centimetres.
 const RINGING: usize = 10;
 /// The least `Σ(q̈ − mean)²` over a move's blocks for its regression to tell anything, (m/s²)²
 /// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60.
