@@ -59,7 +59,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::log::{LogError, LogSource, ReadStats, Topics};
-use crate::measurements::{ApparentUnit, MeasurementSet};
+use crate::measurements::{ApparentUnit, MeasurementError, MeasurementSet};
 use crate::model::sensor::{ExcitationPattern, STANDARD_GRAVITY};
 use assemble::{assemble, Passes};
 use pass::{one_pass, LogPass};
@@ -96,6 +96,13 @@ pub enum IngestError {
     /// The skin's samples are not in m/s².
     #[error("{0}")]
     SkinUnit(String),
+    /// The measurement set assembled from the logs breaks its own format (a defect of the
+    /// ingestion: nothing is written).
+    #[error(
+        "the measurement set read from the logs is not valid ({0}); nothing was written: this is \
+         a defect of skincal, please report it with the logs"
+    )]
+    Invalid(#[from] MeasurementError),
 }
 
 /// The share of the range below it that an accelerometer's highest code may sit: one step of a
@@ -609,6 +616,7 @@ fn ingest_logs(
     };
     let ingested = assemble(passes, pattern, pattern_source)?;
     skin_unit(&ingested.measurements, config.skin_scale, logs)?;
+    ingested.measurements.validate()?;
     Ok(ingested)
 }
 
