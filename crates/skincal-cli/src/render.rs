@@ -369,9 +369,17 @@ fn missing_excitations(out: &mut String, e: &skincal::estimate::ml::MlChainEstim
 pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
     let mut out = String::new();
     fit_lines(&mut out, e);
+    // The SU column as wide as the longest name (a description's link names run to 30).
+    let width = e
+        .uncertainty
+        .iter()
+        .map(|u| u.su.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(12);
     let _ = writeln!(
         out,
-        "\n{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
+        "\n{:>width$} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
         "SU",
         "position sd mm",
         "orientation sd °",
@@ -381,7 +389,7 @@ pub fn ml_summary(e: &skincal::estimate::ml::MlChainEstimate) -> String {
         "rejected"
     );
     for u in &e.uncertainty {
-        su_row(&mut out, e, u);
+        su_row(&mut out, e, u, width);
     }
     if e.intrinsics.iter().any(|i| !i.held.is_empty()) {
         let _ = writeln!(
@@ -537,6 +545,7 @@ fn su_row(
     out: &mut String,
     e: &skincal::estimate::ml::MlChainEstimate,
     u: &skincal::estimate::ml::SuUncertainty,
+    width: usize,
 ) {
     let i = e.chain.sus().iter().position(|s| *s == u.su);
     let ratio = i
@@ -577,7 +586,7 @@ fn su_row(
     let mark = if u.is_partial() { "†" } else { "" };
     let _ = writeln!(
         out,
-        "{:>12} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
+        "{:>width$} {:>16} {:>18} {:>11} {:>22} {:>20} {:>9}",
         u.su,
         format!("{:.2}{mark}", u.position_sd * 1e3),
         format!("{:.3}{mark}", u.orientation_sd.to_degrees()),

@@ -2189,6 +2189,42 @@ fn every_number_the_report_draws_is_the_one_the_cli_prints() {
     }
 }
 
+/// Every row of every SU table in `text` ends its position deviation under the header's (names
+/// of 20 characters and more, as `panda_leftfinger_su1`, once pushed every column right).
+fn su_tables_aligned(text: &str) {
+    let header = "position sd mm";
+    // The character column at which the `token`-th whitespace-separated token of `line` ends.
+    let column_end = |line: &str, token: usize| {
+        let chars: Vec<char> = line.chars().collect();
+        (0..chars.len())
+            .filter(|&i| {
+                !chars[i].is_whitespace() && chars.get(i + 1).is_none_or(|c| c.is_whitespace())
+            })
+            .nth(token)
+            .map(|i| i + 1)
+    };
+    let mut tables = 0;
+    let mut lines = text.lines();
+    while let Some(line) = lines.next() {
+        let Some(at) = line.find(header) else {
+            continue;
+        };
+        tables += 1;
+        let end = line[..at + header.len()].chars().count();
+        for row in lines
+            .by_ref()
+            .take_while(|l| !l.trim().is_empty() && !l.starts_with('('))
+        {
+            assert_eq!(
+                column_end(row, 1),
+                Some(end),
+                "misaligned row `{row}` under `{line}`"
+            );
+        }
+    }
+    assert!(tables > 0, "no SU table in:\n{text}");
+}
+
 /// The stock Panda URDF, prismatic fingers and all, through the command line as a user runs it:
 /// simulated, explored (complete tree), calibrated, exported with its fingers as prismatic joints,
 /// and its own URDF checked against the calibration (exit 0: every compared joint agrees).
@@ -2229,7 +2265,8 @@ fn the_stock_panda_with_its_prismatic_fingers_runs_through_every_command() {
             ),
         "{explored}"
     );
-    run(&["calibrate", "sim"]);
+    let calibrated = run(&["calibrate", "sim"]);
+    su_tables_aligned(&calibrated);
     let exported = run(&["export-urdf", "sim/model.json"]);
     assert!(
         exported.contains("7 continuous and 1 prismatic joints"),
