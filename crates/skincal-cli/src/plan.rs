@@ -781,6 +781,25 @@ fn render_forecast(s: &mut String, f: &skincal::plan::Forecast, sweep: bool, til
             skincal::predict::UNEVEN_DOFS
         );
     }
+    if !f.off_noise.is_empty() {
+        let list: Vec<String> = f
+            .off_noise
+            .iter()
+            .map(|o| {
+                format!(
+                    "{} ({} of {} draws, up to {:.1} σ)",
+                    o.limb, o.draws, f.trials, o.residual
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "  WARNING: limbs whose fit ended off the noise level: {}\n  (the program's poses do \
+             not tell their kinematics apart, and the errors above include that misfit: more \
+             poses, `--poses N`, or a wider `--pose-range`)",
+            list.join(", ")
+        );
+    }
     if !f.partly_measured.is_empty() {
         let list: Vec<String> = f
             .partly_measured

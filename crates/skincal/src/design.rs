@@ -33,7 +33,7 @@ use crate::measurements::{MeasurementSet, TrainingExperiment, TrainingPose};
 use crate::model::sensor::{gravity_upright, peak_dynamic_accelerations, static_readings};
 use crate::model::{DofKind, Robot};
 use crate::plan::{Clearance, Part, PartlyMeasured, Plan, PlanConfig, PlanDof, PlanError};
-pub use crate::plan::{DofForecast, Forecast, ReadingNoise};
+pub use crate::plan::{DofForecast, Forecast, OffNoise, ReadingNoise};
 use crate::predict::{validate, PredictError};
 use crate::sim::timeseries::{record, LogConfig, RecordError};
 use crate::sim::{simulate, Imperfections, SimulationConfig, SimulationError};
@@ -252,6 +252,16 @@ impl Reference {
             held_out,
         })
     }
+
+    /// A measurement set of the description with its structure part and no training: its DoFs
+    /// and SUs, which DoFs slide and which follow another (without them a slide would be
+    /// fitted as a hinge), for the readings of a program to be added to.
+    fn described(&self) -> MeasurementSet {
+        MeasurementSet {
+            training: None,
+            ..self.explored.clone()
+        }
+    }
 }
 
 /// The exact readings at one pose: static per SU, dynamic per DoF and SU.
@@ -348,10 +358,10 @@ pub fn forecast(
     let (mut static_ss, mut dynamic_ss) = (0.0, 0.0);
     let mut dof_ss: BTreeMap<String, f64> = BTreeMap::new();
     let mut partly_measured = Vec::new();
+    let mut off_noise = Vec::new();
     for trial in 0..trials.max(1) {
         let mut rng = ChaCha8Rng::seed_from_u64(trial as u64);
-        let mut set = MeasurementSet::new(robot.model.dof_names(), robot.model.su_names());
-        set.structure.clone_from(&reference.explored.structure);
+        let mut set = reference.described();
         set.training = Some(TrainingExperiment {
             from_motion: false,
             pattern: plan.pattern,
@@ -382,6 +392,7 @@ pub fn forecast(
         if trial == 0 {
             partly_measured = partly_measured_in(&calibrated);
         }
+        off_noise_in(&calibrated, &mut off_noise);
     }
     let n = trials.max(1) as f64;
     Ok(Forecast {
@@ -393,7 +404,27 @@ pub fn forecast(
         held_out: reference.held_out.summary().training_poses,
         partly_measured,
         dofs: dof_forecasts(robot, &dof_ss, n),
+        off_noise,
     })
+}
+
+/// Adds the limbs of `model` whose fit ended off the noise level to `off`: one more draw each,
+/// and the larger residual.
+fn off_noise_in(model: &crate::estimate::body::BodyModel, off: &mut Vec<OffNoise>) {
+    for limb in model.limbs.iter().filter(|l| !l.estimate.converged) {
+        let residual = limb.estimate.residual_ratio;
+        match off.iter_mut().find(|o| o.limb == limb.name) {
+            Some(o) => {
+                o.draws += 1;
+                o.residual = o.residual.max(residual);
+            }
+            None => off.push(OffNoise {
+                limb: limb.name.clone(),
+                draws: 1,
+                residual,
+            }),
+        }
+    }
 }
 
 /// Each DoF's dynamic RMS error squared in `check`.
@@ -484,8 +515,7 @@ pub fn forecast_sweep(
         what: "reading the recorded sweep",
         source,
     })?;
-    let mut set = MeasurementSet::new(dofs, sus);
-    set.structure.clone_from(&reference.explored.structure);
+    let set = reference.described();
     let calibrated = calibrate_body_on_motion(
         &set,
         &motion,
@@ -516,6 +546,11 @@ pub fn forecast_sweep(
         held_out: reference.held_out.summary().training_poses,
         partly_measured: partly_measured_in(&calibrated),
         dofs: dof_forecasts(robot, &dof_squares(&check), 1.0),
+        off_noise: {
+            let mut off = Vec::new();
+            off_noise_in(&calibrated, &mut off);
+            off
+        },
     })
 }
 
