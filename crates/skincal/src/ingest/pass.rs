@@ -20,7 +20,7 @@ use std::path::Path;
 use super::queue::Queue;
 use super::segment::{filter_points, pieces, trim_points, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
-use super::timeline::{newest_common, Grid, Timeline, GRID_SPAN, MAX_PAUSE};
+use super::timeline::{newest_common, Grid, Rounding, Timeline, GRID_SPAN, MAX_PAUSE};
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{LogError, LogSource, PassStats, Sample, Stream};
 
@@ -68,6 +68,9 @@ struct Pass<'a> {
     columns: Vec<Option<usize>>,
     /// Per DoF, `(stamp, position)`, sorted, without repeated stamps.
     series: Vec<Vec<(f64, f64)>>,
+    /// Per DoF, its encoder's step from the readings so far (the grid's `count`, kept up: a log
+    /// whose robot stood still for the grid's first second shows no step there).
+    rounding: Vec<Rounding>,
     grid: Option<Grid>,
     seg: Segmentation,
     router: Router,
@@ -115,6 +118,7 @@ pub(super) fn one_pass(
             .map(|(i, d)| (d.clone(), i))
             .collect(),
         series: vec![Vec::new(); dofs.len()],
+        rounding: Vec::new(),
         expected: dof_names.is_some(),
         dofs,
         names: Vec::new(),
@@ -314,9 +318,15 @@ impl Pass<'_> {
     /// Segments grid points `[from, to)`, the log's last when `at_end`, adds what is final to the
     /// windows and routes the held samples that precede what is not.
     fn settle_to(&mut self, to: usize, at_end: bool, report: &mut LogReport) {
-        let Some(grid) = self.grid.clone() else {
+        let Some(grid) = self.grid.as_mut() else {
             return;
         };
+        self.rounding.resize(self.series.len(), Rounding::default());
+        for (rounding, s) in self.rounding.iter_mut().zip(&self.series) {
+            rounding.read(s);
+        }
+        grid.count = self.rounding.iter().map(Rounding::count).collect();
+        let grid = grid.clone();
         if to > self.from {
             let timeline = Timeline::build(
                 &grid,

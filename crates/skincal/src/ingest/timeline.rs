@@ -24,9 +24,10 @@ pub(super) struct Grid {
     /// rounding, rad: the smallest step between two of its readings over √12 (0 for readings
     /// that are not rounded).
     pub(super) resolution: Vec<f64>,
-    /// Per DoF, its encoder's count (the smallest change of its readings in the first
-    /// [`GRID_SPAN`] seconds), rad; 0 where they do not change by whole counts. A still DoF's
-    /// readings may flicker by a count either way.
+    /// Per DoF, its encoder's count (the smallest change of its readings so far: those the grid
+    /// was fitted to, kept up by a single pass as the log is read, [`Rounding`]), rad; 0 where
+    /// they do not change by whole counts. A still DoF's readings may flicker by a count either
+    /// way.
     pub(super) count: Vec<f64>,
 }
 
@@ -109,7 +110,11 @@ impl Grid {
             resolution: Vec::new(),
             count: cleaned
                 .iter()
-                .map(|s| encoder_rounding(&s[..prefix(s).min(s.len())]) * 12f64.sqrt())
+                .map(|s| {
+                    let mut rounding = Rounding::default();
+                    rounding.read(s);
+                    rounding.count()
+                })
                 .collect(),
         })
     }
@@ -420,27 +425,69 @@ const WHOLE: f64 = 0.02;
 /// error's deviation); 0 when the readings change by less than a step's worth anywhere (they are
 /// not rounded, or the DoF never moved).
 pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
-    let step = series
-        .windows(2)
-        .map(|w| (w[1].1 - w[0].1).abs())
-        .filter(|&d| d > FINEST_STEP)
-        .fold(f64::INFINITY, f64::min);
-    if !step.is_finite() {
-        return 0.0;
+    let mut rounding = Rounding::default();
+    rounding.read(series);
+    rounding.count() / 12f64.sqrt()
+}
+
+/// An encoder's step, told from its readings as they come: the smallest change between two of
+/// them, and whether every change of a few such steps is a whole number of them.
+#[derive(Debug, Clone)]
+pub(super) struct Rounding {
+    /// Readings looked at.
+    read: usize,
+    step: f64,
+    whole: bool,
+}
+
+impl Default for Rounding {
+    fn default() -> Self {
+        Rounding {
+            read: 0,
+            step: f64::INFINITY,
+            whole: true,
+        }
     }
-    // A rounded encoder: every change of a few steps is a whole number of them, within what the
-    // log's printed decimals leave. A large change carries the step's own error times its count
-    // (9 decimals on a 17-bit step: 1e-5 of it) and tells nothing.
-    let whole = series
-        .windows(2)
-        .map(|w| (w[1].1 - w[0].1).abs() / step)
-        .filter(|&k| k <= FEW_STEPS)
-        .all(|k| (k - k.round()).abs() < WHOLE);
-    if whole {
-        step / 12f64.sqrt()
-    } else {
-        0.0
+}
+
+impl Rounding {
+    /// Looks at the readings of `series` (the same series, grown) not yet looked at. A smaller
+    /// step looks at every change again (a handful of times per series: as often as a new
+    /// smallest change comes).
+    pub(super) fn read(&mut self, series: &[(f64, f64)]) {
+        for i in self.read.max(1)..series.len() {
+            let change = (series[i].1 - series[i - 1].1).abs();
+            if change <= FINEST_STEP {
+                continue;
+            }
+            if change < self.step {
+                self.step = change;
+                self.whole = series[..=i]
+                    .windows(2)
+                    .all(|w| whole_steps((w[1].1 - w[0].1).abs(), change));
+            } else if self.whole {
+                self.whole = whole_steps(change, self.step);
+            }
+        }
+        self.read = self.read.max(series.len());
     }
+
+    /// The encoder's count, rad: 0 when no reading changed or they do not change by whole steps.
+    pub(super) fn count(&self) -> f64 {
+        if self.whole && self.step.is_finite() {
+            self.step
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Whether `change` is a whole number of `step`s, if it is a few of them. A rounded encoder's
+/// every change is, within what the log's printed decimals leave; a large change carries the
+/// step's own error times its count (9 decimals on a 17-bit step: 1e-5 of it) and tells nothing.
+fn whole_steps(change: f64, step: f64) -> bool {
+    let k = change / step;
+    k > FEW_STEPS || (k - k.round()).abs() < WHOLE
 }
 
 #[cfg(test)]
@@ -481,5 +528,52 @@ mod tests {
             "{printed}"
         );
         assert_eq!(encoder_rounding(&[(0.0, 0.25), (0.001, 0.25)]), 0.0);
+    }
+
+    #[test]
+    fn an_encoders_count_kept_up_as_readings_come_is_that_of_all_of_them() {
+        // Still for a second (no change), then a move with flicker: read in chunks of any
+        // size, the count is the whole series' once its first change has come, and 0 before.
+        let step = 2.0 * std::f64::consts::PI / 4096.0;
+        let series: Vec<(f64, f64)> = (0..3000)
+            .map(|i| {
+                let t = f64::from(i) * 1e-3;
+                let q = if t < 1.0 {
+                    0.0
+                } else {
+                    0.3 * (1.0 - (3.0 * (t - 1.0)).cos())
+                };
+                let flicker = if t >= 1.0 && i % 7 == 0 { step } else { 0.0 };
+                (
+                    t,
+                    format!("{:.9}", (q / step).round() * step + flicker)
+                        .parse()
+                        .unwrap(),
+                )
+            })
+            .collect();
+        let whole = encoder_rounding(&series) * 12f64.sqrt();
+        assert!((whole / step - 1.0).abs() < 1e-6, "{whole} against {step}");
+        for chunk in [1, 13, 999, 3000] {
+            let mut rounding = Rounding::default();
+            let mut end = 0;
+            while end < series.len() {
+                end = (end + chunk).min(series.len());
+                rounding.read(&series[..end]);
+                if end <= 1000 && series[..end].iter().all(|p| p.1 == 0.0) {
+                    assert_eq!(rounding.count(), 0.0, "chunk {chunk}, {end} read");
+                }
+            }
+            assert_eq!(rounding.count(), whole, "chunk {chunk}");
+        }
+        // Readings that do not change by whole steps: no count, however they are read.
+        let smooth: Vec<(f64, f64)> = (0..2000)
+            .map(|i| (f64::from(i) * 1e-3, (f64::from(i) * 2e-3).sin()))
+            .collect();
+        let mut rounding = Rounding::default();
+        for end in (100..=2000).step_by(100) {
+            rounding.read(&smooth[..end]);
+        }
+        assert_eq!(rounding.count(), 0.0);
     }
 }
