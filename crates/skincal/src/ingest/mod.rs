@@ -96,13 +96,10 @@ pub enum IngestError {
     /// The skin's samples are not in m/s².
     #[error("{0}")]
     SkinUnit(String),
-    /// The measurement set assembled from the logs breaks its own format (a defect of the
-    /// ingestion: nothing is written).
-    #[error(
-        "the measurement set read from the logs is not valid ({0}); nothing was written: this is \
-         a defect of skincal, please report it with the logs"
-    )]
-    Invalid(#[from] MeasurementError),
+    /// The measurement set assembled from the logs breaks a rule of its format (nothing is
+    /// written).
+    #[error("{0}")]
+    Invalid(String),
 }
 
 /// The share of the range below it that an accelerometer's highest code may sit: one step of a
@@ -616,8 +613,24 @@ fn ingest_logs(
     };
     let ingested = assemble(passes, pattern, pattern_source)?;
     skin_unit(&ingested.measurements, config.skin_scale, logs)?;
-    ingested.measurements.validate()?;
+    ingested
+        .measurements
+        .validate()
+        .map_err(|e| invalid_set(logs, &e))?;
     Ok(ingested)
+}
+
+/// The error of a measurement set read from `logs` that breaks a rule of its format.
+fn invalid_set(logs: &[LogSource], e: &MeasurementError) -> IngestError {
+    IngestError::Invalid(format!(
+        "{}: the measurement set read from these logs is not valid ({e}); nothing was written: \
+         check the logs' values that field comes from (if they are sound, this is a defect of \
+         skincal: please report it with the logs)",
+        logs.iter()
+            .map(|l| l.path().display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    ))
 }
 
 /// One log read in one pass where it can be (segmented every `step` skin samples), else in

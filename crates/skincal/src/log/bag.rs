@@ -10,7 +10,8 @@ use std::path::Path;
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
 use super::{
-    LogError, PassStats, Sample, Stream, Topics, NON_FINITE_ACCELERATION, NON_FINITE_POSITION,
+    usable_positions, LogError, PassStats, Sample, Stream, Topics, NON_FINITE_ACCELERATION,
+    NON_FINITE_POSITION,
 };
 
 /// ROS 1's name of the Imu type.
@@ -158,7 +159,7 @@ fn read_checked(
                     },
                     Some(Kind::Joints) if stream.joints() => {
                         match joint_state(m.data, &mut names, &mut positions) {
-                            Some(_) if !positions.iter().all(|q| q.is_finite()) => {
+                            Some(_) if !usable_positions(&positions) => {
                                 stats
                                     .joints
                                     .problem(format!("{}: {NON_FINITE_POSITION}", topics.joints));

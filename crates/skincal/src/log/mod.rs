@@ -324,7 +324,7 @@ pub(crate) fn deliver(
                     ));
                     return Ok(());
                 }
-                if !joint.position.iter().all(|q| q.is_finite()) {
+                if !usable_positions(&joint.position) {
                     stats
                         .joints
                         .problem(format!("{}: {NON_FINITE_POSITION}", topics.joints));
@@ -367,7 +367,16 @@ pub(crate) const NON_FINITE_ACCELERATION: &str =
     "a sample with a non-finite acceleration (NaN or infinite: a reading the driver could not take)";
 /// Why a joint state is not used.
 pub(crate) const NON_FINITE_POSITION: &str =
-    "a joint state with a non-finite position (NaN or infinite: a reading the driver could not take)";
+    "a joint state with a non-finite position (NaN or infinite: a reading the driver could not \
+     take) or one beyond ±10000 rad (a damaged one)";
+
+/// Whether every position of a joint state can be used: finite and within
+/// [`crate::model::sensor::MAX_ANGLE`] (what a measurement set holds).
+pub(crate) fn usable_positions(positions: &[f64]) -> bool {
+    positions
+        .iter()
+        .all(|q| q.is_finite() && q.abs() <= crate::model::sensor::MAX_ANGLE)
+}
 
 /// One accelerometer sample, read in place from the CDR `message`, to `visit`, counted; one with
 /// a non-finite component or whose frame id is not UTF-8 is counted as a problem.

@@ -184,9 +184,11 @@ fn read_file(
         if row.is_empty() || row.starts_with('#') {
             continue;
         }
-        let Some(stamp) = rows::joint_row(row, names.len(), &mut positions) else {
+        let stamp = rows::joint_row(row, names.len(), &mut positions)
+            .filter(|_| super::usable_positions(&positions));
+        let Some(stamp) = stamp else {
             stats.problem(format!(
-                "{}, line {}: expected a stamp and {} finite positions",
+                "{}, line {}: expected a stamp and {} finite positions within ±10000 rad",
                 path.display(),
                 lines.number,
                 names.len()
