@@ -370,12 +370,15 @@ pub(crate) const NON_FINITE_POSITION: &str =
     "a joint state with a non-finite position (NaN or infinite: a reading the driver could not \
      take) or one beyond ±10000 rad (a damaged one)";
 
-/// Whether every position of a joint state can be used: finite and within
-/// [`crate::model::sensor::MAX_ANGLE`] (what a measurement set holds).
+/// The largest joint position a log may hold, rad: what a measurement set holds (its poses' own
+/// bound, a layer above the logs).
+const MAX_POSITION: f64 = 1.0e4;
+
+/// Whether every position of a joint state can be used: finite and within [`MAX_POSITION`].
 pub(crate) fn usable_positions(positions: &[f64]) -> bool {
     positions
         .iter()
-        .all(|q| q.is_finite() && q.abs() <= crate::model::sensor::MAX_ANGLE)
+        .all(|q| q.is_finite() && q.abs() <= MAX_POSITION)
 }
 
 /// One accelerometer sample, read in place from the CDR `message`, to `visit`, counted; one with
