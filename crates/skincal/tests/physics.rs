@@ -133,6 +133,41 @@ fn held_out_rms(
     v
 }
 
+/// The description at `path` (2 SUs per link) through the short program (6 poses, plan seed
+/// `seed`) in the physics simulator with `options`, upright and its structure part tilted,
+/// ingested with default options as `skincal ingest` does: the robot, the ingestion and its
+/// motion record.
+fn short_program_ingested(
+    path: &str,
+    seed: u64,
+    options: &[&str],
+) -> (
+    Robot,
+    skincal::ingest::Ingested,
+    skincal::motion::MotionRecord,
+) {
+    let robot =
+        crate::real_robots::with_two_sus_per_link(&crate::real_robots::description(path), 1);
+    let plan = Plan::new(
+        PlanDof::from_robot(&robot),
+        &PlanConfig {
+            poses: 6,
+            seed,
+            ..PlanConfig::short()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), options);
+    let config = IngestConfig::default();
+    let mut ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
+    // The motion record, and what the structure moves accelerated.
+    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
+        .unwrap()
+        .unwrap();
+    (robot, ingested, record)
+}
+
 /// The tree of `set` checked complete and with the activity matrix of the condensed simulation
 /// of `robot` (independent kinematic data, the robot's own tree); every limb fitted on `record`
 /// within 1.1 σ; the held-out RMS, printed after `label`.
@@ -823,26 +858,11 @@ fn a_linear_axis_on_physical_servos_is_told_prismatic_from_its_move() {
 /// tree is the simulator's and every sample calibrates the arm within 0.005 m/s² held-out.
 #[test]
 fn a_move_that_rings_is_read_to_where_it_settles() {
-    let file = crate::real_robots::description("xarm_description/urdf/xarm7.urdf");
-    let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 6,
-            seed: 3,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let extra = ["--pause", "0.3", "--encoder-bits", "14"];
-    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servos("4", "0.6", &extra));
-    let config = IngestConfig::default();
-    let mut ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
-    // What `skincal ingest` does: the motion record, and what the structure moves accelerated.
-    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
-        .unwrap()
-        .unwrap();
+    let (robot, ingested, record) = short_program_ingested(
+        "xarm_description/urdf/xarm7.urdf",
+        3,
+        &servos("4", "0.6", &["--pause", "0.3", "--encoder-bits", "14"]),
+    );
     let set = &ingested.measurements;
     let moves = &set.structure.as_ref().unwrap().orientations[0].moves;
     for mv in moves {
@@ -882,22 +902,11 @@ fn a_move_that_rings_is_read_to_where_it_settles() {
 /// both DoFs. The count is now kept up as the log is read.
 #[test]
 fn an_encoder_that_first_changes_after_the_first_second_may_flicker_at_a_pose() {
-    let file = crate::real_robots::description("so_arm_description/urdf/so101.urdf");
-    let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
-    let plan = Plan::new(
-        PlanDof::from_robot(&robot),
-        &PlanConfig {
-            poses: 6,
-            seed: 1,
-            ..PlanConfig::short()
-        },
-    )
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let extra = ["--encoder-bits", "12"];
-    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &servos("5", "0.7", &extra));
-    let config = IngestConfig::default();
-    let mut ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
+    let (robot, ingested, record) = short_program_ingested(
+        "so_arm_description/urdf/so101.urdf",
+        1,
+        &servos("5", "0.7", &["--encoder-bits", "12"]),
+    );
     let skipped: Vec<&String> = ingested
         .report
         .warnings
@@ -905,9 +914,6 @@ fn an_encoder_that_first_changes_after_the_first_second_may_flicker_at_a_pose() 
         .filter(|w| w.contains("never still"))
         .collect();
     assert!(skipped.is_empty(), "{skipped:#?}");
-    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
-        .unwrap()
-        .unwrap();
     let set = &ingested.measurements;
     let v = exact_tree_and_held_out(
         &robot,

@@ -355,9 +355,9 @@ fn rounding_spread(x: &[f64], l: usize, len: usize, nc: usize, span: f64) -> DMa
 /// Directions of the scaled normal matrix (unit diagonal) with an eigenvalue below this are
 /// unknown and held at zero (a DoF that moved only by coupling at a station where it was never
 /// excited; two DoFs that moved alike wherever either moved, as two excited together with one
-/// pattern and nowhere apart). They are left out of
-/// the inverse rather than damped: a damped inverse is of the order of its damping's inverse
-/// along them, and its quadratic forms (the readings' variances) then cancel to nothing.
+/// pattern and nowhere apart). They are left out of the inverse rather than damped: a damped
+/// inverse is of the order of its damping's inverse along them, and its quadratic forms (the
+/// readings' variances) then cancel to nothing.
 const UNKNOWN: f64 = 1e-9;
 
 /// The joint fit of the excitation windows of one station: the pose-dependent coefficients are
@@ -568,9 +568,10 @@ mod tests {
     fn a_coefficients_deviation_is_that_of_its_estimates_when_two_dofs_moved_alike() {
         // DoF 1 moved as DoF 0 did, at 0.7 of its amplitude (two DoFs excited together with one
         // pattern): the direction of their difference is unknown (held at zero), and DoF 0's
-        // acceleration coefficient is the estimate of their shared response. Its deviation from the fit must be that of its
-        // estimates over independent noise draws (before, the damped inverse's quadratic form
-        // cancelled to 0 here, and ingest wrote a deviation of 0 that explore refused).
+        // acceleration coefficient is the estimate of their shared response. Its deviation from
+        // the fit must be that of its estimates over independent noise draws (before, the damped
+        // inverse's quadratic form cancelled to 0 here, and ingest wrote a deviation of 0 that
+        // explore refused).
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let rows = 600;

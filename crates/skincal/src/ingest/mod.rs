@@ -560,13 +560,9 @@ pub fn ingest_from(
     progress: &mut Progress<'_>,
 ) -> Result<Ingested, IngestError> {
     ingest_logs(logs, config, progress, Some(pass::HELD)).map_err(|e| match e {
-        IngestError::Empty(reason) if !logs.is_empty() => IngestError::Empty(format!(
-            "in {}: {reason}",
-            logs.iter()
-                .map(|l| l.path().display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )),
+        IngestError::Empty(reason) if !logs.is_empty() => {
+            IngestError::Empty(format!("in {}: {reason}", paths(logs)))
+        }
         other => other,
     })
 }
@@ -626,11 +622,16 @@ fn invalid_set(logs: &[LogSource], e: &MeasurementError) -> IngestError {
         "{}: the measurement set read from these logs is not valid ({e}); nothing was written: \
          check the logs' values that field comes from (if they are sound, this is a defect of \
          skincal: please report it with the logs)",
-        logs.iter()
-            .map(|l| l.path().display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+        paths(logs)
     ))
+}
+
+/// The paths of `logs`, comma-separated.
+fn paths(logs: &[LogSource]) -> String {
+    logs.iter()
+        .map(|l| l.path().display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// One log read in one pass where it can be (segmented every `step` skin samples), else in
