@@ -639,10 +639,12 @@ fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
     out
 }
 
-/// Per SU, which DoFs move it, by the tree that exploration finds in the structure part (with the
-/// configuration's settings); `None` for an SU it does not place.
+/// Per SU, which DoFs move it, by the configuration's tree or else the one exploration finds in
+/// the structure part (with the configuration's settings); `None` for an SU it does not place.
 fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec<bool>>> {
-    let nu = passes.sus.names.len();
+    if let Some(tree) = &passes.config.tree {
+        return moved_by_tree(tree, passes.dofs, &passes.sus.names);
+    }
     let mut set = MeasurementSet::new(passes.dofs.to_vec(), passes.sus.names.clone());
     set.prismatic = prismatic_of(passes);
     set.mimic = mimic_of(passes);
@@ -650,15 +652,24 @@ fn moved_by(passes: &Passes<'_>, orientations: &[Orientation]) -> Vec<Option<Vec
         orientations: orientations.to_vec(),
         extra: Map::new(),
     });
-    let Ok(structure) = crate::explore::explore(&set, &passes.config.explore) else {
-        return vec![None; nu];
-    };
-    let dof = |name: &String| passes.dofs.iter().position(|d| d == name);
-    let su = |name: &String| passes.sus.names.iter().position(|u| u == name);
+    match crate::explore::explore(&set, &passes.config.explore) {
+        Ok(structure) => moved_by_tree(&structure, passes.dofs, &passes.sus.names),
+        Err(_) => vec![None; passes.sus.names.len()],
+    }
+}
+
+/// Per SU of `sus`, which of `dofs` move it by `structure`; `None` for an SU it does not place.
+pub(super) fn moved_by_tree(
+    structure: &crate::explore::Structure,
+    dofs: &[String],
+    sus: &[String],
+) -> Vec<Option<Vec<bool>>> {
+    let dof = |name: &String| dofs.iter().position(|d| d == name);
+    let su = |name: &String| sus.iter().position(|u| u == name);
     let matrix = &structure.matrix;
-    let mut out = vec![None; nu];
+    let mut out = vec![None; sus.len()];
     for (row, id) in matrix.segments.iter().enumerate() {
-        let mut moved = vec![false; passes.dofs.len()];
+        let mut moved = vec![false; dofs.len()];
         for (column, joint) in matrix.joints.iter().enumerate() {
             if matrix.entries[row][column] {
                 for d in structure.joint(joint).into_iter().flat_map(|j| &j.dofs) {
@@ -758,6 +769,7 @@ pub(super) fn assemble(
     Ok(Ingested {
         measurements: set,
         report,
+        moved_by: passes.moved_by,
     })
 }
 
@@ -861,8 +873,8 @@ fn sample_noise(passes: &mut Passes<'_>) -> Option<f64> {
 }
 
 /// The structure part's orientations, one per group of still stations without excitations;
-/// where DoFs were excited together, which DoFs move each SU by the tree they give (in
-/// `passes`).
+/// where DoFs were excited together, which DoFs move each SU by the tree they give, or the
+/// configuration's (in `passes`).
 fn orientations(
     passes: &mut Passes<'_>,
     stations: &[Station],
@@ -883,7 +895,7 @@ fn orientations(
             .iter()
             .any(|&x| passes.segs[st.log].excitations[x].dofs.len() > 1)
     });
-    if together && !orientations.is_empty() {
+    if together && (passes.config.tree.is_some() || !orientations.is_empty()) {
         passes.moved_by = Some(moved_by(passes, &orientations));
     }
     orientations

@@ -156,6 +156,12 @@ pub struct IngestConfig {
     /// How the structure part's tree is found where ingest needs it (to tell which DoF of
     /// several excited together moved an SU): the settings `explore` will be run with.
     pub explore: crate::explore::ExploreConfig,
+    /// The tree that tells which DoF of several excited together moved an SU; `None`: the one
+    /// explored from the structure part's static readings. A DoF that turns no gravity (a
+    /// vertical axis in a log of one base orientation) moves no SU by those:
+    /// [`motion::record_of`] reads the logs again with the tree their structure moves'
+    /// accelerations give where it differs.
+    pub tree: Option<crate::explore::Structure>,
 }
 
 impl IngestConfig {
@@ -229,6 +235,7 @@ impl Default for IngestConfig {
             prismatic: None,
             mimic: std::collections::BTreeMap::new(),
             explore: crate::explore::ExploreConfig::default(),
+            tree: None,
         }
     }
 }
@@ -492,6 +499,9 @@ pub struct Ingested {
     pub measurements: MeasurementSet,
     /// What was found.
     pub report: IngestReport,
+    /// Per SU, which DoFs move it by the tree that told the DoFs excited together apart (`None`
+    /// for an SU it does not place); `None` where no DoFs were excited together.
+    pub(crate) moved_by: Option<Vec<Option<Vec<bool>>>>,
 }
 
 /// Progress of an ingestion: `(what, done, total)` in bytes of the pass.

@@ -153,8 +153,53 @@ pub fn record_of(
     }
     if let Some(record) = &record {
         super::moves::accelerations_of_moves(&mut ingested.measurements, record);
+        if let Some(tree) = tree_of_the_moves(ingested, config) {
+            // The record is the logs' own, whichever tree attributes the readings.
+            let config = IngestConfig {
+                prismatic: Some(ingested.measurements.prismatic.clone()),
+                tree: Some(tree),
+                ..config.clone()
+            };
+            read_again(ingested, &config, progress)?;
+            super::moves::accelerations_of_moves(&mut ingested.measurements, record);
+        }
     }
     Ok(record)
+}
+
+/// Where DoFs were excited together and told apart by a tree explored from the structure part's
+/// static readings, the tree that its moves' accelerations (filled in) give, where that places
+/// some SU otherwise. A DoF about a vertical axis in a log of one base orientation turns no
+/// gravity: the static tree has it move no SU, and every SU's reading of it was set to zero.
+fn tree_of_the_moves(
+    ingested: &super::Ingested,
+    config: &IngestConfig,
+) -> Option<crate::explore::Structure> {
+    let used = ingested.moved_by.as_ref()?;
+    if config.tree.is_some() {
+        return None;
+    }
+    let set = &ingested.measurements;
+    let tree = crate::explore::explore(set, &config.explore).ok()?;
+    (super::assemble::moved_by_tree(&tree, &set.dofs, &set.sus) != *used).then_some(tree)
+}
+
+/// `ingested`'s logs read again with `config`, the DoFs' kinds told before kept.
+fn read_again(
+    ingested: &mut super::Ingested,
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<(), IngestError> {
+    let logs: Vec<PathBuf> = ingested
+        .report
+        .logs
+        .iter()
+        .map(|l| l.path.clone())
+        .collect();
+    let kinds = std::mem::take(&mut ingested.report.kinds);
+    *ingested = super::ingest(&logs, config, progress)?;
+    note_kinds(&mut ingested.report, kinds);
+    Ok(())
 }
 
 /// The motion record of `ingested`'s training logs, if any has some.
@@ -192,18 +237,18 @@ pub fn tell_kinds(
         .collect();
     let again = !slides.is_empty();
     if again {
-        let logs: Vec<PathBuf> = ingested
-            .report
-            .logs
-            .iter()
-            .map(|l| l.path.clone())
-            .collect();
         let config = IngestConfig {
             prismatic: Some(slides),
             ..config.clone()
         };
-        *ingested = super::ingest(&logs, &config, progress)?;
+        read_again(ingested, &config, progress)?;
     }
+    note_kinds(&mut ingested.report, kinds);
+    Ok(again)
+}
+
+/// The DoFs' kinds as told in `report`, with a warning of those nothing told.
+fn note_kinds(report: &mut IngestReport, kinds: Vec<super::moves::KindTold>) {
     // The DoFs nothing told, grouped by why.
     let mut untold: std::collections::BTreeMap<&str, Vec<String>> = Default::default();
     for k in kinds.iter().filter(|k| k.kind.is_none()) {
@@ -217,15 +262,14 @@ pub fn tell_kinds(
             .iter()
             .map(|(why, dofs)| format!("{} ({why})", dofs.join(", ")))
             .collect();
-        ingested.report.warnings.push(format!(
+        report.warnings.push(format!(
             "the structure moves did not tell whether DoF(s) {} slide or turn: taken as \
              revolute; if any is prismatic, name the robot's description (--robot) or the plan \
              (--plan)",
             why.join("; ")
         ));
     }
-    ingested.report.kinds = kinds;
-    Ok(again)
+    report.kinds = kinds;
 }
 
 /// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass
