@@ -281,8 +281,10 @@ pub(crate) struct IngestArgs {
     /// Overwrite existing output files.
     #[arg(long)]
     force: bool,
-    /// The robot the logs are of (built-in, .toml or .urdf): fixes the DoF and SU names and
-    /// their order; other names are reported as unknown.
+    /// The robot the logs are of (built-in, .toml or .urdf): fixes the DoF names, their order,
+    /// kinds and mimic joints, and where the description places SUs (built-in, .toml) their
+    /// names and order; other names are reported as unknown. A URDF places none: the SUs are
+    /// the frame ids the logs hold.
     #[arg(long)]
     robot: Option<String>,
     /// The plan the logs followed: its pattern is the nominal one.
@@ -499,7 +501,9 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
     if let Some(spec) = &args.robot {
         let robot = io::load_robot(spec, SuPlacement::default())?;
         config.dofs = Some(robot.model.dof_names());
-        config.sus = Some(robot.model.su_names());
+        if io::places_its_sus(spec) {
+            config.sus = Some(robot.model.su_names());
+        }
         config.prismatic = Some(robot.model.prismatic_dof_names());
         config.mimic = robot.model.mimic_specs();
     }

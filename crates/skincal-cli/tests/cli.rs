@@ -442,6 +442,88 @@ fn succeeds(args: &[&str], dir: &Path) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
+/// A URDF places no skin: `ingest --robot arm.urdf` takes the DoFs' names, order and kinds from
+/// it and the SUs from the log. (It used to take the SUs `load_robot` places on a bare URDF, one
+/// per link named `<link>_su1`, and counted a real skin's every frame id as unknown.)
+#[test]
+fn ingest_with_a_urdf_keeps_the_skin_the_log_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let arm = fixture("arm.urdf");
+    succeeds(
+        &[
+            "plan",
+            "--robot",
+            &arm,
+            "--poses",
+            "2",
+            "--no-forecast",
+            "--out",
+            "p",
+        ],
+        d,
+    );
+    succeeds(
+        &[
+            "record",
+            "--robot",
+            &arm,
+            "--sus-per-link",
+            "2",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "up.mcap",
+        ],
+        d,
+    );
+    succeeds(
+        &[
+            "ingest",
+            "up.mcap",
+            "--robot",
+            &arm,
+            "--no-motion",
+            "--out",
+            "i",
+        ],
+        d,
+    );
+    let read = |file: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("i").join(file)).unwrap()).unwrap()
+    };
+    let mut sus: Vec<String> = read("measurements.json")["sus"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_str().unwrap().to_string())
+        .collect();
+    sus.sort();
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("up.truth.json")).unwrap()).unwrap();
+    let mut placed: Vec<String> = truth["robot"]["sus"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["name"].as_str().unwrap().to_string())
+        .collect();
+    placed.sort();
+    assert!(placed.iter().any(|s| s.ends_with("_su2")), "{placed:?}");
+    assert_eq!(sus, placed);
+    let report = read("ingest-report.json");
+    assert!(
+        report["logs"][0]["unknown_frames"]
+            .as_object()
+            .is_none_or(|f| f.is_empty()),
+        "{}",
+        report["logs"][0]["unknown_frames"]
+    );
+    assert_eq!(
+        read("measurements.json")["dofs"],
+        serde_json::json!(["shoulder", "wrist"])
+    );
+}
+
 /// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
 fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
     let out = skincal(args, dir);

@@ -106,6 +106,16 @@ pub struct SuPlacement {
     pub seed: u64,
 }
 
+/// Whether the robot `spec` names (as [`load_robot`] takes it) places SUs of its own: a
+/// built-in robot and a `.toml` description do; a `.urdf` file has none (those [`load_robot`]
+/// gives it are placed at random and named after its links).
+pub fn places_its_sus(spec: &str) -> bool {
+    Path::new(spec)
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_none_or(|e| !e.eq_ignore_ascii_case("urdf"))
+}
+
 /// Loads a robot: a built-in name, a `.toml` description or a `.urdf` file.
 ///
 /// A URDF has no SUs of its own: unless `sus.per_link` says otherwise, one random SU is placed on
