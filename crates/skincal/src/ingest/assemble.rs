@@ -395,7 +395,7 @@ impl<'d> PoseFits<'d> {
 }
 
 /// A station's dynamic readings per DoF and SU, scaled to the pattern's peak acceleration
-/// `alpha`, their standard deviations, and per window the power of the fitted signal from other
+/// `alpha` (a slide's, [`IngestConfig::speed_scale`] of it), their standard deviations, and per window the power of the fitted signal from other
 /// DoFs and from the excited one, summed over the SUs.
 struct DynamicReadings {
     dynamic: BTreeMap<String, Vec<Reading>>,
@@ -463,6 +463,9 @@ fn dynamic_readings(
                 if out.dynamic.get(name).is_some_and(|r| r.len() > su) {
                     continue;
                 }
+                // A slide's pattern is the nominal one scaled to m (the measurement set's
+                // convention, docs/measurements.md).
+                let alpha = alpha * passes.config.speed_scale(name);
                 let (reading, variance) = match class.fit.alpha(d) {
                     Some(column) => (
                         [0, 1, 2].map(|axis| coefficients[(column, axis)] * alpha),
@@ -683,6 +686,34 @@ pub(super) fn moved_by_tree(
             if let Some(u) = su(u) {
                 out[u] = Some(moved.clone());
             }
+        }
+    }
+    // SUs on a body a mimic DoF drives (left out of the tree): its leader moves them, with
+    // every DoF that moves the body the leader is mounted on.
+    let mimic_driven = structure
+        .diagnostics
+        .iter()
+        .filter(|d| d.kind == crate::explore::DiagnosticKind::MimicDriven);
+    for driven in mimic_driven {
+        let Some(leader) = driven.dofs.first() else {
+            continue;
+        };
+        let Some(joint) = structure.joints.iter().find(|j| j.dofs.contains(leader)) else {
+            continue;
+        };
+        let mut moved = vec![false; dofs.len()];
+        let mut next = Some(joint);
+        while let Some(j) = next {
+            for d in j.dofs.iter().filter_map(dof) {
+                moved[d] = true;
+            }
+            next = structure
+                .segment(&j.parent)
+                .and_then(|s| s.parent_joint.as_deref())
+                .and_then(|id| structure.joint(id));
+        }
+        for u in driven.sus.iter().filter_map(su) {
+            out[u] = Some(moved.clone());
         }
     }
     out

@@ -19,6 +19,7 @@ use super::blocks::{raw_means, Centring, RawMean, SkinSum};
 use super::timeline::encoder_rounding;
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
+use crate::measurements::MeasurementSet;
 use crate::motion::{
     Kernel, MotionRecord, MotionRun, SampleCount, SampleCounter, MOTION_FORMAT, MOTION_VERSION,
 };
@@ -168,9 +169,11 @@ pub fn record_of(
 }
 
 /// Where DoFs were excited together and told apart by a tree explored from the structure part's
-/// static readings, the tree that its moves' accelerations (filled in) give, where that places
-/// some SU otherwise. A DoF about a vertical axis in a log of one base orientation turns no
-/// gravity: the static tree has it move no SU, and every SU's reading of it was set to zero.
+/// static readings, the tree that the structure part with its moves' accelerations (filled in)
+/// gives, where that places some SU otherwise. A DoF about a vertical axis in a log of one base
+/// orientation, or a slide, turns no gravity: the static tree has it move no SU, and every SU's
+/// reading of it was set to zero. (The training readings, which that tree attributed, are left
+/// out: their zeros would tell exploration that the DoF accelerated nothing.)
 fn tree_of_the_moves(
     ingested: &super::Ingested,
     config: &IngestConfig,
@@ -180,7 +183,11 @@ fn tree_of_the_moves(
         return None;
     }
     let set = &ingested.measurements;
-    let tree = crate::explore::explore(set, &config.explore).ok()?;
+    let structure_part = MeasurementSet {
+        training: None,
+        ..set.clone()
+    };
+    let tree = crate::explore::explore(&structure_part, &config.explore).ok()?;
     (super::assemble::moved_by_tree(&tree, &set.dofs, &set.sus) != *used).then_some(tree)
 }
 
