@@ -290,6 +290,11 @@ pub(crate) struct IngestArgs {
     /// The plan the logs followed: its pattern is the nominal one.
     #[arg(long)]
     plan: Option<PathBuf>,
+    /// The tree of an earlier structure experiment (its structure.json): which DoF of several
+    /// excited together moved each SU, for training logs recorded without their structure part.
+    /// Without it, the logs' own structure part tells.
+    #[arg(long, value_name = "STRUCTURE_JSON")]
+    structure: Option<PathBuf>,
     /// The nominal pattern A,f (rad/s, Hz); estimated from the motion when neither this nor
     /// --plan is given.
     #[arg(long, value_name = "A,f")]
@@ -513,6 +518,9 @@ fn ingest_config(args: &IngestArgs) -> Result<IngestConfig> {
             config.dofs = Some(plan.dof_names());
         }
         config = config.with_plan(&plan);
+    }
+    if let Some(path) = &args.structure {
+        config.tree = Some(io::read_structure(path)?);
     }
     config.min_still = args.min_still.unwrap_or(config.min_still);
     config.trim = args.trim.unwrap_or(config.trim);

@@ -524,6 +524,69 @@ fn ingest_with_a_urdf_keeps_the_skin_the_log_holds() {
     );
 }
 
+/// Training recorded without its structure part, its limbs excited in parallel: `ingest` says
+/// which tree it needs, and takes it from an earlier structure experiment's structure.json.
+#[test]
+fn ingest_takes_the_tree_of_an_earlier_structure_experiment() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    succeeds(
+        &[
+            "plan",
+            "--robot",
+            "humanoid",
+            "--poses",
+            "1",
+            "--no-forecast",
+            "--out",
+            "p",
+        ],
+        d,
+    );
+    succeeds(
+        &[
+            "record",
+            "--robot",
+            "humanoid",
+            "--plan",
+            "p/plan.json",
+            "--part",
+            "training",
+            "--out",
+            "training.mcap",
+        ],
+        d,
+    );
+    fails_with(
+        &[
+            "ingest",
+            "training.mcap",
+            "--plan",
+            "p/plan.json",
+            "--out",
+            "a",
+        ],
+        d,
+        &["excited together", "--structure"],
+    );
+    succeeds(&["simulate", "--robot", "humanoid", "--out", "earlier"], d);
+    succeeds(&["explore", "earlier"], d);
+    let out = succeeds(
+        &[
+            "ingest",
+            "training.mcap",
+            "--plan",
+            "p/plan.json",
+            "--structure",
+            "earlier/structure.json",
+            "--out",
+            "b",
+        ],
+        d,
+    );
+    assert!(out.contains("1 training poses"), "{out}");
+}
+
 /// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
 fn fails_with(args: &[&str], dir: &Path, needles: &[&str]) {
     let out = skincal(args, dir);

@@ -599,7 +599,7 @@ fn limbs_excited_in_parallel_in_one_upright_log_are_told_apart_by_what_the_moves
 }
 
 /// Limbs excited in parallel: without the structure part, and with a wrong tree, ingest says why
-/// it cannot attribute them.
+/// it cannot attribute them; given the tree of an earlier structure experiment, it can.
 #[test]
 fn limbs_excited_in_parallel_need_the_structure_part_and_a_true_tree() {
     let robot = robot("humanoid");
@@ -619,13 +619,28 @@ fn limbs_excited_in_parallel_need_the_structure_part_and_a_true_tree() {
         ..LogConfig::default()
     };
     record_to(&robot, &plan, &only, &training, true);
-    let err = ingest(&[training], &config, &mut |_, _, _| {})
+    let err = ingest(std::slice::from_ref(&training), &config, &mut |_, _, _| {})
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("excited together") && err.contains("structure part"),
+        err.contains("excited together")
+            && err.contains("structure part")
+            && err.contains("--structure"),
         "{err}"
     );
+    // The tree of an earlier structure experiment (here the condensed simulation's) tells them
+    // apart: every reading is the true one.
+    let condensed = simulate(&robot, &SimulationConfig::default())
+        .unwrap()
+        .measurements;
+    let given = IngestConfig {
+        tree: Some(explore(&condensed, &ExploreConfig::default()).unwrap()),
+        pattern: Some(plan.pattern),
+        ..config.clone()
+    };
+    let ingested = ingest(&[training], &given, &mut |_, _, _| {}).unwrap();
+    assert_eq!(ingested.report.dynamic, 26);
+    each_dof_its_exact_response(&robot, &ingested.measurements);
     // A description whose tree is wrong (every DoF on the base) puts DoFs of one chain in one
     // window: the SUs that both move are named.
     let flat: Vec<PlanDof> = dofs

@@ -208,11 +208,12 @@ fn dropped_for(
     let Some(moved) = passes.moved_by.as_ref().and_then(|m| m[su].as_ref()) else {
         return Err(format!(
             "DoFs were excited together ({} and others), and which of them moves SU `{}` is told \
-             by the structure part: ingest its logs together with these{}",
+             by the structure part: ingest its logs together with these, or give the tree of an \
+             earlier structure experiment (--structure){}",
             name(together[0]),
             passes.sus.names[su],
             if passes.moved_by.is_some() {
-                " (the structure found does not place this SU)"
+                " (the tree does not place this SU)"
             } else {
                 ""
             }
@@ -890,13 +891,21 @@ fn training_orientations(passes: &mut Passes<'_>, mut stations: Vec<Station>) ->
 }
 
 /// Each SU's sample variance from the spread of its still windows (in `passes`, where every SU
-/// has enough samples to tell), and the noise of one sample over all SUs, m/s².
+/// has enough samples to tell; at least [`super::motion::NOISE_FLOOR`] squared, so that a skin
+/// without noise, a simulated one, still gives readings a deviation), and the noise of one
+/// sample over all SUs, m/s².
 fn sample_noise(passes: &mut Passes<'_>) -> Option<f64> {
     let scatter = scatter(passes.accumulated, passes.sus.names.len());
+    let floor = super::motion::NOISE_FLOOR.powi(2);
     passes.variance = scatter
         .iter()
         .all(|&(_, dof)| dof >= MIN_NOISE_DOF)
-        .then(|| scatter.iter().map(|&(ss, dof)| ss / dof).collect());
+        .then(|| {
+            scatter
+                .iter()
+                .map(|&(ss, dof)| (ss / dof).max(floor))
+                .collect()
+        });
     let (ss, dof) = scatter
         .iter()
         .fold((0.0, 0.0), |a, &(s, d)| (a.0 + s, a.1 + d));
