@@ -450,33 +450,7 @@ fn ingest_with_a_urdf_keeps_the_skin_the_log_holds() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let arm = fixture("arm.urdf");
-    succeeds(
-        &[
-            "plan",
-            "--robot",
-            &arm,
-            "--poses",
-            "2",
-            "--no-forecast",
-            "--out",
-            "p",
-        ],
-        d,
-    );
-    succeeds(
-        &[
-            "record",
-            "--robot",
-            &arm,
-            "--sus-per-link",
-            "2",
-            "--plan",
-            "p/plan.json",
-            "--out",
-            "up.mcap",
-        ],
-        d,
-    );
+    planned_and_recorded(d, &arm, "2", &["--sus-per-link", "2", "--out", "up.mcap"]);
     succeeds(
         &[
             "ingest",
@@ -530,32 +504,11 @@ fn ingest_with_a_urdf_keeps_the_skin_the_log_holds() {
 fn ingest_takes_the_tree_of_an_earlier_structure_experiment() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    succeeds(
-        &[
-            "plan",
-            "--robot",
-            "humanoid",
-            "--poses",
-            "1",
-            "--no-forecast",
-            "--out",
-            "p",
-        ],
+    planned_and_recorded(
         d,
-    );
-    succeeds(
-        &[
-            "record",
-            "--robot",
-            "humanoid",
-            "--plan",
-            "p/plan.json",
-            "--part",
-            "training",
-            "--out",
-            "training.mcap",
-        ],
-        d,
+        "humanoid",
+        "1",
+        &["--part", "training", "--out", "training.mcap"],
     );
     fails_with(
         &[
@@ -585,6 +538,24 @@ fn ingest_takes_the_tree_of_an_earlier_structure_experiment() {
         d,
     );
     assert!(out.contains("1 training poses"), "{out}");
+}
+
+/// `plan --robot robot --poses poses --no-forecast --out p`, then `record` of it on the same
+/// robot with `record` options.
+fn planned_and_recorded(d: &Path, robot: &str, poses: &str, record: &[&str]) {
+    let plan = [
+        "plan",
+        "--robot",
+        robot,
+        "--poses",
+        poses,
+        "--no-forecast",
+        "--out",
+        "p",
+    ];
+    succeeds(&plan, d);
+    let run = ["record", "--robot", robot, "--plan", "p/plan.json"];
+    succeeds(&[&run[..], record].concat(), d);
 }
 
 /// Runs a command that must fail with exit code 1 and an error mentioning every `needle`.
