@@ -396,8 +396,9 @@ impl<'d> PoseFits<'d> {
 }
 
 /// A station's dynamic readings per DoF and SU, scaled to the pattern's peak acceleration
-/// `alpha` (a slide's, [`IngestConfig::speed_scale`] of it), their standard deviations, and per window the power of the fitted signal from other
-/// DoFs and from the excited one, summed over the SUs.
+/// `alpha` (a slide's, [`IngestConfig::speed_scale`] of it), their standard deviations, and per
+/// window the power of the fitted signal from other DoFs and from the excited one, summed over
+/// the SUs.
 struct DynamicReadings {
     dynamic: BTreeMap<String, Vec<Reading>>,
     dynamic_sd: BTreeMap<String, Vec<f64>>,

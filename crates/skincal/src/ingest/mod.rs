@@ -156,11 +156,11 @@ pub struct IngestConfig {
     /// How the structure part's tree is found where ingest needs it (to tell which DoF of
     /// several excited together moved an SU): the settings `explore` will be run with.
     pub explore: crate::explore::ExploreConfig,
-    /// The tree that tells which DoF of several excited together moved an SU; `None`: the one
-    /// explored from the structure part's static readings. A DoF that turns no gravity (a
-    /// vertical axis in a log of one base orientation) moves no SU by those:
-    /// [`motion::record_of`] reads the logs again with the tree their structure moves'
-    /// accelerations give where it differs.
+    /// The tree that tells which DoF of several excited together moved an SU (`skincal ingest
+    /// --structure`: an earlier structure experiment's); `None`: the one explored from the
+    /// structure part's static readings. A DoF that turns no gravity (a vertical axis in a log of
+    /// one base orientation, a slide) moves no SU by those: [`motion::record_of`] reads the logs
+    /// again with the tree their structure moves' accelerations give where it differs.
     pub tree: Option<crate::explore::Structure>,
 }
 
