@@ -364,12 +364,18 @@ impl MotionRun {
 
     /// Adds a block: per DoF `[q, q̇, q̈, q̈'s deviation]`, and each SU's block mean.
     pub fn push(&mut self, joints: &[[f64; 4]], skin: Vec<Option<[f64; 3]>>) {
+        self.push_joints(joints);
+        self.skin.push(&skin);
+    }
+
+    /// Adds a block's joint states (per DoF `[q, q̇, q̈, q̈'s deviation]`) without its skin, which
+    /// is added after ([`SkinRows::push`]).
+    pub fn push_joints(&mut self, joints: &[[f64; 4]]) {
         let column = |k: usize| joints.iter().map(|x| x[k]).collect::<Vec<f64>>();
         self.q.push(column(0));
         self.qd.push(column(1));
         self.qdd.push(column(2));
         self.qdd_sd.push(column(3));
-        self.skin.push(&skin);
     }
 
     /// The number of blocks.

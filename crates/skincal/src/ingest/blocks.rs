@@ -115,7 +115,15 @@ impl Centring {
     /// Adds a block to `run` (per DoF `[q, q̇, q̈, q̈'s deviation]`, and each SU's raw mean, which
     /// it holds until corrected) and corrects the block [`CORRECTION_REACH`] before it.
     pub fn push(&mut self, run: &mut MotionRun, joints: &[[f64; 4]], raw: Vec<Option<RawMean>>) {
-        run.push(joints, raw.iter().map(|m| m.map(|m| m.value)).collect());
+        run.push_joints(joints);
+        self.push_skin(run, raw);
+    }
+
+    /// Adds a block's raw skin means to `run` (whose joint states may be in already), and
+    /// corrects the block [`CORRECTION_REACH`] before it.
+    pub fn push_skin(&mut self, run: &mut MotionRun, raw: Vec<Option<RawMean>>) {
+        let values: Vec<Option<[f64; 3]>> = raw.iter().map(|m| m.map(|m| m.value)).collect();
+        run.skin.push(&values);
         self.rows.push_back(raw);
         if self.rows.len() > self.done + CORRECTION_REACH {
             self.correct_next(run);
@@ -143,7 +151,7 @@ impl Centring {
     /// Corrects the oldest pending block, in `run`.
     fn correct_next(&mut self, run: &mut MotionRun) {
         let index = self.done;
-        let b = run.len() - self.pending();
+        let b = run.skin.len() - self.pending();
         let values: Vec<Option<[f64; 3]>> = (0..self.rows[index].len())
             .map(|u| corrected(&self.rows, index, u))
             .collect();

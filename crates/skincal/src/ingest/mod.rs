@@ -52,6 +52,7 @@ mod segment;
 mod skin;
 pub mod stream;
 mod timeline;
+mod window;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -11,18 +11,16 @@
 //! samples are averaged per block and referred to its centre ([`super::blocks`]).
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use nalgebra::{SMatrix, SVector};
 
-use super::blocks::{raw_means, Centring, RawMean, SkinSum};
-use super::timeline::encoder_rounding;
+use super::blocks::Centring;
+use super::window::{JointSurvey, JointWindow, SkinWindow};
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
 use crate::measurements::MeasurementSet;
-use crate::motion::{
-    Kernel, MotionRecord, MotionRun, SampleCount, SampleCounter, MOTION_FORMAT, MOTION_VERSION,
-};
+use crate::motion::{Kernel, MotionRecord, MotionRun, SampleCount, MOTION_FORMAT, MOTION_VERSION};
 
 /// Length of a block, s: the skin's samples are averaged over it (100 Hz: ten times the bandwidth
 /// of any excitation a servo follows).
@@ -51,58 +49,6 @@ const CHI2_1_MEDIAN: f64 = 0.454_936_423_119_572_7;
 /// The smallest noise a block mean is given, m/s² (0.01 mg): a simulated skin without noise
 /// would otherwise weigh its still blocks without bound.
 pub const NOISE_FLOOR: f64 = 1e-4;
-
-/// One SU's samples: what it sent last and their count.
-#[derive(Default)]
-struct SkinSeries {
-    last: Option<[f64; 3]>,
-    count: SampleCounter,
-}
-
-/// What one pass over a log gathers: every DoF's joint states and the skin's block sums.
-struct Gathered {
-    /// `(stamp, position)` per DoF, in stamp order.
-    joints: Vec<Vec<(f64, f64)>>,
-    skin: Vec<SkinSeries>,
-    /// `sums[block][u]`: SU `u`'s fresh samples in the block. Block-major, so that the record's
-    /// runs take them a block at a time and free each as they go: a minute of 100 SUs is 29 MB,
-    /// and is not held twice.
-    sums: Vec<Vec<SkinSum>>,
-    /// The first stamp of the log (block 0 starts there).
-    origin: f64,
-}
-
-impl Gathered {
-    /// Takes sample `a` of SU `u` stamped `stamp` (`usable`: finite and within range), taken
-    /// `at` blocks after the origin.
-    fn add_skin(&mut self, u: usize, at: f64, stamp: f64, a: [f64; 3], usable: bool) {
-        let series = &mut self.skin[u];
-        let repeat = series.last == Some(a);
-        series.count.add(stamp, usable, repeat);
-        if !usable || repeat {
-            // A repeat is exactly the sample before: a slower board's value held by its port.
-            return;
-        }
-        series.last = Some(a);
-        let block = at as usize;
-        if self.sums.len() <= block {
-            self.sums.resize_with(block + 1, Vec::new);
-        }
-        let row = &mut self.sums[block];
-        if row.is_empty() {
-            row.resize(self.skin.len(), SkinSum::default());
-        }
-        row[u].add(a, at - block as f64 - 0.5);
-    }
-
-    /// Every SU's mean of block `block` and when its samples were taken, its sums freed.
-    fn take_means(&mut self, block: usize) -> Vec<Option<RawMean>> {
-        match self.sums.get_mut(block).map(std::mem::take) {
-            Some(row) if !row.is_empty() => raw_means(&row),
-            _ => vec![None; self.skin.len()],
-        }
-    }
-}
 
 /// The logs whose every sample the time-domain fit takes, all in one base orientation: those with
 /// training poses (excitations), or where none has any, those where several DoFs moved at once (a
@@ -279,8 +225,12 @@ fn note_kinds(report: &mut IngestReport, kinds: Vec<super::moves::KindTold>) {
     report.kinds = kinds;
 }
 
-/// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in one pass
-/// over each log.
+/// The motion record of `logs` (files or logs in memory) for the DoFs and SUs named, in memory
+/// bounded by the record itself: a first look at each log's joint states tells each DoF's encoder
+/// and rate ([`JointSurvey`]), and with them the polynomials' half-width; then a pass over each
+/// log makes its blocks as its samples come ([`Blocks`]), holding only what the blocks still to
+/// compute read. A log whose samples come so far out of their stamps' order that some would be
+/// left out is read again holding all of them.
 pub fn motion_record_from(
     logs: &[LogSource],
     dofs: &[String],
@@ -288,31 +238,54 @@ pub fn motion_record_from(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
-    let mut gathered: Vec<Gathered> = logs
+    let index = |names: &[String]| -> HashMap<String, usize> {
+        names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.clone(), i))
+            .collect()
+    };
+    let (dof_index, su_index) = (index(dofs), index(sus));
+    let surveys: Vec<Survey> = logs
         .iter()
-        .map(|log| gather(log, dofs, sus, config, progress))
+        .map(|log| survey(log, &dof_index, config, progress))
         .collect::<Result<_, _>>()?;
-    let h = gathered
+    let h = surveys
         .iter()
-        .flat_map(|g| g.joints.iter().map(|s| half_width(s)))
+        .flat_map(|s| s.dofs.iter().map(JointSurvey::half_width))
         .fold(HALF_WIDTHS[0], f64::max);
     // Each DoF's coarsest rounding over the logs (one encoder; a log in which it never moved
     // tells none).
     let rounding = (0..dofs.len())
         .map(|d| {
-            gathered
+            surveys
                 .iter()
-                .map(|g| encoder_rounding(&g.joints[d]))
+                .map(|s| s.dofs[d].rounding())
                 .fold(0.0, f64::max)
         })
         .collect();
     let mut runs = Vec::new();
     let mut samples = vec![SampleCount::default(); sus.len()];
-    for (log, gathered) in logs.iter().zip(&mut gathered) {
-        runs.extend(runs_of(log.path(), gathered, h, config));
-        for (total, skin) in samples.iter_mut().zip(&gathered.skin) {
-            *total = total.plus(skin.count.count);
+    for (log, survey) in logs.iter().zip(&surveys) {
+        let Some(origin) = survey.origin else {
+            continue;
+        };
+        let pass = Pass {
+            source: log,
+            origin,
+            h,
+            config,
+        };
+        let roundings: Vec<f64> = survey.dofs.iter().map(JointSurvey::rounding).collect();
+        let mut part = pass.read(&dof_index, &su_index, &roundings, true, progress)?;
+        if part.late > 0 {
+            // A pass that holds every sample leaves none out.
+            part = pass.read(&dof_index, &su_index, &roundings, false, progress)?;
         }
+        for (total, count) in samples.iter_mut().zip(part.samples) {
+            *total = total.plus(count);
+        }
+        runs.extend(part.runs);
     }
     if runs.is_empty() {
         return Err(IngestError::Empty(format!(
@@ -342,64 +315,44 @@ pub fn motion_record_from(
     Ok(record)
 }
 
-fn gather(
+/// How long after the latest skin sample one stamped earlier may still come, s: a block is
+/// filled in once the skin is this far past it. Beyond the few milliseconds a board's driver
+/// adds, and a second of blocks of 100 SUs is half a megabyte.
+const SKIN_LATENCY: f64 = 1.0;
+
+/// What a first look at a log's joint states tells: its first stamp (block 0 starts there) and
+/// each DoF's encoder and rate.
+struct Survey {
+    origin: Option<f64>,
+    dofs: Vec<JointSurvey>,
+}
+
+fn survey(
     source: &LogSource,
-    dofs: &[String],
-    sus: &[String],
+    dof_index: &HashMap<String, usize>,
     config: &IngestConfig,
     progress: &mut Progress<'_>,
-) -> Result<Gathered, IngestError> {
-    let path = source.path();
-    let dof_index: HashMap<&str, usize> = dofs
-        .iter()
-        .enumerate()
-        .map(|(i, n)| (n.as_str(), i))
-        .collect();
-    let su_index: HashMap<&str, usize> = sus
-        .iter()
-        .enumerate()
-        .map(|(i, n)| (n.as_str(), i))
-        .collect();
-    let mut gathered = Gathered {
-        joints: vec![Vec::new(); dofs.len()],
-        skin: (0..sus.len()).map(|_| SkinSeries::default()).collect(),
-        sums: Vec::new(),
-        origin: f64::NAN,
+) -> Result<Survey, IngestError> {
+    let mut survey = Survey {
+        origin: None,
+        dofs: vec![JointSurvey::default(); dof_index.len()],
     };
-    let total = source.size(Stream::Both);
-    let label = format!("motion of {}", path.display());
+    let label = format!("joint states of {}", source.path().display());
+    let total = source.size(Stream::Joints);
     source.read(
-        Stream::Both,
+        Stream::Joints,
         &config.topics,
         &mut |sample| {
-            match sample {
-                Sample::Joints {
-                    stamp,
-                    names,
-                    positions,
-                } => {
-                    if gathered.origin.is_nan() {
-                        gathered.origin = stamp;
-                    }
-                    for (name, &q) in names.iter().zip(positions) {
-                        if let (Some(&d), true) = (dof_index.get(name.as_str()), q.is_finite()) {
-                            gathered.joints[d].push((stamp, q));
-                        }
-                    }
-                }
-                Sample::Imu {
-                    stamp,
-                    frame_id,
-                    acceleration,
-                } => {
-                    if gathered.origin.is_nan() {
-                        gathered.origin = stamp;
-                    }
-                    let a = acceleration.map(|x| x * config.skin_scale);
-                    let at = (stamp - gathered.origin) / BLOCK;
-                    let usable = a.iter().all(|x| x.is_finite()) && !config.saturated(&a);
-                    if let (Some(&u), true) = (su_index.get(frame_id), at >= 0.0) {
-                        gathered.add_skin(u, at, stamp, a, usable);
+            if let Sample::Joints {
+                stamp,
+                names,
+                positions,
+            } = sample
+            {
+                survey.origin.get_or_insert(stamp);
+                for (name, &q) in names.iter().zip(positions) {
+                    if let (Some(&d), true) = (dof_index.get(name.as_str()), q.is_finite()) {
+                        survey.dofs[d].take(stamp, q);
                     }
                 }
             }
@@ -407,90 +360,245 @@ fn gather(
         },
         &mut |done| progress(&label, done, total),
     )?;
-    for series in &mut gathered.joints {
-        series.sort_by(|a, b| a.0.total_cmp(&b.0));
-        series.dedup_by(|a, b| a.0 == b.0);
-    }
-    Ok(gathered)
+    Ok(survey)
 }
 
-/// The runs of consecutive blocks at whose centres every DoF's local polynomial of half-width `h`
-/// can be fitted.
-fn runs_of(path: &Path, gathered: &mut Gathered, h: f64, config: &IngestConfig) -> Vec<MotionRun> {
-    let Some(last) = gathered
-        .joints
-        .iter()
-        .map(|s| s.last().map_or(f64::NEG_INFINITY, |x| x.0))
-        .reduce(f64::min)
-        .filter(|t| t.is_finite())
-    else {
-        return Vec::new();
-    };
-    let blocks = ((last - gathered.origin) / BLOCK).floor().max(0.0) as usize;
-    let mut runs: Vec<MotionRun> = Vec::new();
-    let mut open = false;
-    let mut centring = Centring::default();
-    let mut cursors = vec![0usize; gathered.joints.len()];
-    let kernel = Kernel::of_record(h, BLOCK);
-    let roundings: Vec<f64> = gathered
-        .joints
-        .iter()
-        .map(|s| encoder_rounding(s))
-        .collect();
-    for b in 0..blocks {
-        let centre = gathered.origin + (b as f64 + 0.5) * BLOCK;
-        let fitted: Option<Vec<[f64; 4]>> = gathered
-            .joints
-            .iter()
-            .zip(&mut cursors)
-            .zip(&roundings)
-            .map(|((series, cursor), &rounding)| {
-                local_polynomial(
-                    series,
-                    cursor,
-                    centre,
-                    h,
-                    rounding,
-                    config.max_gap,
-                    kernel.as_ref(),
-                )
-            })
-            .collect();
-        let means = gathered.take_means(b);
-        let Some(fitted) = fitted else {
-            if let (true, Some(run)) = (open, runs.last_mut()) {
-                centring.finish(run);
-            }
-            open = false;
-            continue;
+/// A log's part of the record.
+struct LogPart {
+    runs: Vec<MotionRun>,
+    /// Per SU, its count of samples.
+    samples: Vec<SampleCount>,
+    /// The most joint states and skin blocks held at once while the log was read.
+    #[cfg(test)]
+    most_held: (usize, usize),
+    /// Samples that came after the blocks that read them were computed (left out).
+    late: usize,
+}
+
+/// One log's part of the record, made in one pass over its samples.
+struct Pass<'a> {
+    source: &'a LogSource,
+    /// The stamp block 0 starts at.
+    origin: f64,
+    /// The polynomials' half-width, s.
+    h: f64,
+    config: &'a IngestConfig,
+}
+
+impl Pass<'_> {
+    /// The runs of consecutive blocks at whose centres every DoF's local polynomial can be
+    /// fitted (`roundings`: each DoF's encoder's), and per SU its count of samples. `bounded`:
+    /// each block's joint states are computed as soon as every DoF's states reach past its
+    /// window, and its skin once the skin has come [`SKIN_LATENCY`] past it, and what no later
+    /// block reads is dropped (some sample may come after that: [`LogPart::late`]); else every
+    /// sample is held and the blocks computed at the end.
+    fn read(
+        &self,
+        dof_index: &HashMap<String, usize>,
+        su_index: &HashMap<String, usize>,
+        roundings: &[f64],
+        bounded: bool,
+        progress: &mut Progress<'_>,
+    ) -> Result<LogPart, IngestError> {
+        let mut blocks = Blocks {
+            pass: self,
+            roundings,
+            kernel: Kernel::of_record(self.h, BLOCK),
+            joints: JointWindow::new(dof_index.len()),
+            skin: SkinWindow::new(su_index.len()),
+            runs: Vec::new(),
+            open: false,
+            next_joints: 0,
+            next_skin: 0,
+            current: 0,
+            centring: Centring::default(),
+            #[cfg(test)]
+            most_held: (0, 0),
         };
-        if !open {
-            runs.push(MotionRun::new(&path.display().to_string(), centre));
-            open = true;
-        }
-        let run = runs.last_mut().expect("a run was opened");
-        centring.push(run, &fitted, means);
+        let label = format!("motion of {}", self.source.path().display());
+        let total = self.source.size(Stream::Both);
+        self.source.read(
+            Stream::Both,
+            &self.config.topics,
+            &mut |sample| {
+                match sample {
+                    Sample::Joints {
+                        stamp,
+                        names,
+                        positions,
+                    } => {
+                        for (name, &q) in names.iter().zip(positions) {
+                            if let (Some(&d), true) = (dof_index.get(name.as_str()), q.is_finite())
+                            {
+                                blocks.joints.take(d, stamp, q);
+                            }
+                        }
+                    }
+                    Sample::Imu {
+                        stamp,
+                        frame_id,
+                        acceleration,
+                    } => {
+                        let a = acceleration.map(|x| x * self.config.skin_scale);
+                        let at = (stamp - self.origin) / BLOCK;
+                        let usable = a.iter().all(|x| x.is_finite()) && !self.config.saturated(&a);
+                        if let (Some(&u), true) = (su_index.get(frame_id), at >= 0.0) {
+                            blocks.skin.take(u, stamp, at, a, usable);
+                        }
+                    }
+                }
+                if bounded {
+                    blocks.advance();
+                }
+                Ok(())
+            },
+            &mut |done| progress(&label, done, total),
+        )?;
+        Ok(blocks.finish())
     }
-    if let (true, Some(run)) = (open, runs.last_mut()) {
-        centring.finish(run);
+
+    fn centre(&self, b: usize) -> f64 {
+        self.origin + (b as f64 + 0.5) * BLOCK
     }
-    runs.retain(|r| r.len() >= 3);
-    runs
 }
 
-/// The narrowest of [`HALF_WIDTHS`] at which the rounding of the DoF's encoder (from its
-/// `(stamp, position)` series) leaves its acceleration within [`ACCELERATION_NOISE`] (the widest
-/// where none does): the
-/// variance of the polynomial's second coefficient on a window of evenly spaced states at the
-/// series' median rate.
-pub(super) fn half_width(series: &[(f64, f64)]) -> f64 {
-    let rounding = encoder_rounding(series);
-    let mut steps: Vec<f64> = series.windows(2).map(|w| w[1].0 - w[0].0).collect();
-    if rounding == 0.0 || steps.is_empty() {
+/// A log's blocks as its samples come: each block's joint states computed once every DoF's
+/// states reach past its window, which opens, extends or ends a run; its skin once the skin has
+/// come past it and its joint states are in, into the run it falls in.
+struct Blocks<'a> {
+    pass: &'a Pass<'a>,
+    roundings: &'a [f64],
+    kernel: Option<Kernel>,
+    joints: JointWindow,
+    skin: SkinWindow,
+    /// The runs so far, each with the index of its first block.
+    runs: Vec<(usize, MotionRun)>,
+    /// Whether the last block computed extended the last run.
+    open: bool,
+    /// The next block whose joint states to compute.
+    next_joints: usize,
+    /// The next block whose skin to take.
+    next_skin: usize,
+    /// The run the next skin block falls in or precedes.
+    current: usize,
+    centring: Centring,
+    /// The most joint states and skin blocks held after a sample.
+    #[cfg(test)]
+    most_held: (usize, usize),
+}
+
+impl Blocks<'_> {
+    /// Computes the blocks whose samples are all in, and drops what no later block reads.
+    fn advance(&mut self) {
+        let (h, latency) = (self.pass.h, SKIN_LATENCY);
+        while self
+            .joints
+            .newest_common()
+            .is_some_and(|t| t > self.pass.centre(self.next_joints) + h)
+        {
+            self.compute_joints();
+            self.joints
+                .forget_before(self.pass.centre(self.next_joints) - h);
+        }
+        while self.next_skin < self.next_joints
+            && self.skin.latest > self.pass.centre(self.next_skin) + 0.5 * BLOCK + latency
+        {
+            self.take_skin();
+        }
+        #[cfg(test)]
+        {
+            self.most_held = (
+                self.most_held.0.max(self.joints.held()),
+                self.most_held.1.max(self.skin.held()),
+            );
+        }
+    }
+
+    /// Block `next_joints`'s joint states, into the runs.
+    fn compute_joints(&mut self) {
+        let b = self.next_joints;
+        let centre = self.pass.centre(b);
+        let config = self.pass.config;
+        let fitted = self.joints.fit(
+            centre,
+            self.pass.h,
+            self.roundings,
+            config.max_gap,
+            self.kernel.as_ref(),
+        );
+        self.next_joints += 1;
+        let Some(fitted) = fitted else {
+            self.open = false;
+            return;
+        };
+        if !self.open {
+            let label = self.pass.source.path().display().to_string();
+            self.runs.push((b, MotionRun::new(&label, centre)));
+            self.open = true;
+        }
+        let (_, run) = self.runs.last_mut().expect("a run was opened");
+        run.push_joints(&fitted);
+    }
+
+    /// Block `next_skin`'s raw means, into the run it falls in (its joint states are in).
+    fn take_skin(&mut self) {
+        let b = self.next_skin;
+        let raw = self.skin.take_block(b);
+        self.next_skin += 1;
+        while let Some((first, run)) = self.runs.get_mut(self.current) {
+            if b < *first {
+                return;
+            }
+            if b < *first + run.len() {
+                self.centring.push_skin(run, raw);
+                return;
+            }
+            self.centring.finish(run);
+            self.current += 1;
+        }
+    }
+
+    /// Every block up to the last joint state every DoF has, as a whole log's record computes
+    /// them; the runs of three blocks or more, and each SU's count of samples.
+    fn finish(mut self) -> LogPart {
+        #[cfg(test)]
+        let most_held = self.most_held;
+        if let Some(last) = self.joints.newest_common() {
+            let blocks = ((last - self.pass.origin) / BLOCK).floor().max(0.0) as usize;
+            while self.next_joints < blocks {
+                self.compute_joints();
+            }
+        }
+        while self.next_skin < self.next_joints {
+            self.take_skin();
+        }
+        if let Some((_, run)) = self.runs.get_mut(self.current) {
+            self.centring.finish(run);
+        }
+        let runs = self
+            .runs
+            .into_iter()
+            .map(|(_, run)| run)
+            .filter(|r| r.len() >= 3)
+            .collect();
+        LogPart {
+            runs,
+            samples: self.skin.samples(),
+            #[cfg(test)]
+            most_held,
+            late: self.joints.late + self.skin.late,
+        }
+    }
+}
+
+/// The narrowest of [`HALF_WIDTHS`] at which an encoder's rounding (`rounding`: its standard
+/// deviation, rad) leaves the DoF's acceleration within [`ACCELERATION_NOISE`] (the widest where
+/// none does): the variance of the polynomial's second coefficient on a window of joint states
+/// evenly spaced by `step` (the series' median, s).
+pub(super) fn half_width_of(rounding: f64, step: f64) -> f64 {
+    if rounding == 0.0 || !(step > 0.0 && step.is_finite()) {
         return HALF_WIDTHS[0];
     }
-    let mid = steps.len() / 2;
-    let step = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
     let sd = |h: f64| {
         let n = (h / step).floor() as i64;
         let mut a = SMatrix::<f64, { DEGREE + 1 }, { DEGREE + 1 }>::zeros();
@@ -715,6 +823,8 @@ mod tests {
     use nalgebra::Vector3;
 
     use super::*;
+    use crate::ingest::blocks::RawMean;
+    use crate::ingest::timeline::encoder_rounding;
     use crate::motion::SkinFilter;
 
     /// The kernel keeps a cubic's value at the centre: `∫K = 1`, `∫K t = 0`, `∫K t² = 0`.
@@ -921,6 +1031,152 @@ mod tests {
         assert!(
             (found / truth - 1.0).abs() < 0.05,
             "{found} for a truth of {truth}"
+        );
+    }
+
+    /// How the samples of [`synthetic_log`] are put in the log.
+    #[derive(Clone, Copy, PartialEq)]
+    enum Order {
+        /// By stamp, skin and joint states interleaved.
+        Stamps,
+        /// Every joint state first, then the skin SU by SU (as a hand-made CSV might).
+        Grouped,
+    }
+
+    /// `seconds` of 1 kHz joint states of two DoFs moving smoothly (the second on a 13-bit
+    /// encoder) and of three SUs reading smooth signals with the same stamps.
+    fn synthetic_log(seconds: f64, order: Order) -> LogSource {
+        use crate::log::{LogSink, MemoryLog, Time};
+        let count = 2.0 * std::f64::consts::PI / 8192.0;
+        let n = (seconds * 1000.0) as usize;
+        let stamp = |i: usize| 100.0 + i as f64 * 1e-3;
+        let q = |t: f64| {
+            [
+                0.4 * (1.3 * t).sin(),
+                ((0.7 * t).cos() / count).round() * count,
+            ]
+        };
+        let a = |u: usize, t: f64| [u as f64 + (2.0 * t).sin(), 9.81 * (0.5 * t).cos(), 0.1];
+        let mut log = MemoryLog::new("synthetic");
+        let dofs = ["j1".to_string(), "j2".into()];
+        let sus: Vec<String> = (0..3).map(|u| format!("su{u}")).collect();
+        log.start(&dofs, &sus, 0.0).unwrap();
+        let t = Time::from_seconds;
+        let joint = |log: &mut MemoryLog, i: usize| {
+            let s = stamp(i);
+            log.joint_state(t(s), t(s), &q(s), &[0.0; 2]).unwrap();
+        };
+        match order {
+            Order::Stamps => {
+                for i in 0..n {
+                    joint(&mut log, i);
+                    for u in 0..3 {
+                        log.imu(t(stamp(i)), t(stamp(i)), u, a(u, stamp(i)))
+                            .unwrap();
+                    }
+                }
+            }
+            Order::Grouped => {
+                for i in 0..n {
+                    joint(&mut log, i);
+                }
+                for u in 0..3 {
+                    for i in 0..n {
+                        log.imu(t(stamp(i)), t(stamp(i)), u, a(u, stamp(i)))
+                            .unwrap();
+                    }
+                }
+            }
+        }
+        LogSource::Memory(log)
+    }
+
+    fn names(prefix: &str, n: usize) -> Vec<String> {
+        (0..n).map(|i| format!("{prefix}{i}")).collect()
+    }
+
+    #[test]
+    fn the_record_pass_holds_what_its_next_blocks_read_however_long_the_log() {
+        let dofs = vec!["j1".to_string(), "j2".into()];
+        let sus = names("su", 3);
+        let config = IngestConfig::default();
+        let index = |names: &[String]| -> HashMap<String, usize> {
+            names.iter().cloned().zip(0..).collect()
+        };
+        let held = |seconds: f64| {
+            let source = synthetic_log(seconds, Order::Stamps);
+            let survey = survey(&source, &index(&dofs), &config, &mut |_, _, _| {}).unwrap();
+            let h = survey
+                .dofs
+                .iter()
+                .map(JointSurvey::half_width)
+                .fold(0.0, f64::max);
+            let pass = Pass {
+                source: &source,
+                origin: survey.origin.unwrap(),
+                h,
+                config: &config,
+            };
+            let roundings: Vec<f64> = survey.dofs.iter().map(JointSurvey::rounding).collect();
+            let part = pass
+                .read(
+                    &index(&dofs),
+                    &index(&sus),
+                    &roundings,
+                    true,
+                    &mut |_, _, _| {},
+                )
+                .unwrap();
+            assert_eq!(part.late, 0);
+            // Every block but those within a half-width of the ends.
+            let blocks: usize = part.runs.iter().map(MotionRun::len).sum();
+            let ends = 2 * (h / BLOCK).ceil() as usize + 1;
+            assert!(
+                blocks + ends >= (seconds / BLOCK) as usize,
+                "{blocks} blocks"
+            );
+            (h, part.most_held)
+        };
+        let (h, short) = held(10.0);
+        let (_, long) = held(60.0);
+        // The 13-bit encoder needs a wide polynomial; the joint states of its window on either
+        // side, and a second of skin blocks, whatever the log's length.
+        assert!(h >= 0.1, "{h}");
+        assert_eq!(short, long);
+        let window = dofs.len() * (2 * ((h + 2.0 * BLOCK) * 1000.0) as usize + 2);
+        assert!(long.0 <= window, "{long:?} against {window}");
+        let latency = ((SKIN_LATENCY + 2.0 * BLOCK) / BLOCK) as usize;
+        assert!(long.1 <= latency, "{long:?} against {latency}");
+    }
+
+    #[test]
+    fn a_log_out_of_stamp_order_gives_the_record_it_gives_in_order() {
+        let dofs = vec!["j1".to_string(), "j2".into()];
+        let sus = names("su", 3);
+        let config = IngestConfig::default();
+        let record = |order| {
+            motion_record_from(
+                &[synthetic_log(12.0, order)],
+                &dofs,
+                &sus,
+                &config,
+                &mut |_, _, _| {},
+            )
+            .unwrap()
+        };
+        let (ordered, grouped) = (record(Order::Stamps), record(Order::Grouped));
+        assert_eq!(ordered.runs, grouped.runs);
+        assert_eq!(ordered.samples, grouped.samples);
+        // And what it holds is the motion: the first DoF's acceleration and an SU's reading at
+        // a block's centre.
+        let run = &ordered.runs[0];
+        let b = run.len() / 2;
+        let t = run.start + b as f64 * BLOCK;
+        assert!((run.qdd[b][0] + 0.4 * 1.69 * (1.3 * t).sin()).abs() < 1e-4);
+        let skin = run.skin.get(b, 1).unwrap();
+        assert!(
+            (skin[1] - 9.81 * (0.5 * t).cos()).abs() < 1e-4,
+            "{skin:?} at {t}"
         );
     }
 }

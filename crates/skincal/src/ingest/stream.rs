@@ -2,17 +2,18 @@
 //! blocks as [`super::motion::motion_record`] — joint states by the same local polynomials, the
 //! skin's fresh samples averaged per block and referred to its centre — each given out as soon as
 //! the joint states beyond its polynomial's window and the skin of the blocks its centring reads
-//! ([`super::blocks::CORRECTION_REACH`] after it) have arrived.
-//! Memory is bounded by that latency, not by the stream's length.
+//! ([`super::blocks::CORRECTION_REACH`] after it) have arrived. Unlike a whole log's record, which
+//! looks at every joint state first, each DoF's polynomial width and encoder are learnt from its
+//! first [`LEARN`] seconds. Memory is bounded by that latency, not by the stream's length.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 
-use super::blocks::{raw_means, Centring, RawMean, SkinSum};
-use super::motion::{half_width, local_polynomial, BLOCK, HALF_WIDTHS};
-use super::timeline::encoder_rounding;
+use super::blocks::Centring;
+use super::motion::{BLOCK, HALF_WIDTHS};
+use super::window::{JointSurvey, JointWindow, SkinWindow};
 use super::IngestConfig;
 use crate::log::Sample;
-use crate::motion::{Kernel, MotionRun, SampleCount, SampleCounter};
+use crate::motion::{Kernel, MotionRun, SampleCount};
 
 /// Seconds of each DoF's joint states from which its polynomial's half-width and its encoder's
 /// rounding are judged before any block is given out.
@@ -25,28 +26,21 @@ const SKIN_LATENCY: f64 = 0.05;
 pub struct MotionStream {
     dofs: HashMap<String, usize>,
     sus: HashMap<String, usize>,
-    su_count: usize,
     config: IngestConfig,
     label: String,
     /// The stamp of block 0's start (the first sample's).
     origin: Option<f64>,
-    /// Per DoF: its recent joint states, oldest first.
-    joints: Vec<VecDeque<(f64, f64)>>,
+    /// The joint states the blocks still to compute read.
+    joints: JointWindow,
     /// Per DoF: the polynomial's half-width and the encoder's rounding, once learnt.
     widths: Vec<Option<(f64, f64)>>,
-    /// Per DoF: its first states, until the widths are learnt.
-    learning: Vec<Vec<(f64, f64)>>,
+    /// Per DoF: its first stamp and what its states tell, until the widths are learnt.
+    learning: Vec<(Option<f64>, JointSurvey)>,
     /// Once the widths are learnt: the kernel the joint states are read through (`None` inside:
     /// the record reads the block means, [`Kernel::of_record`]).
     kernel: Option<Option<Kernel>>,
-    /// Per block from `base`: per SU its fresh samples.
-    skin: VecDeque<Vec<SkinSum>>,
-    base: usize,
-    /// Per SU: its last sample (a repeat is a slower board's value held by its port).
-    last: Vec<Option<[f64; 3]>>,
-    /// Per SU: its samples so far.
-    samples: Vec<SampleCounter>,
-    latest_skin: f64,
+    /// The skin's blocks not yet computed.
+    skin: SkinWindow,
     /// The next block to compute.
     next: usize,
     /// Blocks computed; the last [`Centring::pending`] of them wait for the blocks after them
@@ -55,8 +49,6 @@ pub struct MotionStream {
     /// The open run's latest raw skin means.
     centring: Centring,
     done: Vec<MotionRun>,
-    /// Skin samples stamped in a block already given out.
-    pub late_samples: usize,
 }
 
 impl MotionStream {
@@ -72,24 +64,18 @@ impl MotionStream {
         Self {
             dofs: index(dofs),
             sus: index(sus),
-            su_count: sus.len(),
             config: config.clone(),
             label: label.to_string(),
             origin: None,
-            joints: vec![VecDeque::new(); dofs.len()],
+            joints: JointWindow::new(dofs.len()),
             widths: vec![None; dofs.len()],
             kernel: None,
-            learning: vec![Vec::new(); dofs.len()],
-            skin: VecDeque::new(),
-            base: 0,
-            last: vec![None; sus.len()],
-            samples: vec![SampleCounter::default(); sus.len()],
-            latest_skin: f64::NEG_INFINITY,
+            learning: vec![(None, JointSurvey::default()); dofs.len()],
+            skin: SkinWindow::new(sus.len()),
             next: 0,
             open: None,
             centring: Centring::default(),
             done: Vec::new(),
-            late_samples: 0,
         }
     }
 
@@ -114,47 +100,25 @@ impl MotionStream {
                 acceleration,
             } => {
                 let origin = *self.origin.get_or_insert(stamp);
-                self.latest_skin = self.latest_skin.max(stamp);
                 let a = acceleration.map(|x| x * self.config.skin_scale);
                 let usable = a.iter().all(|x| x.is_finite()) && !self.config.saturated(&a);
-                let Some(&u) = self.sus.get(frame_id) else {
-                    return;
-                };
-                if stamp < origin {
-                    return;
+                if let (Some(&u), true) = (self.sus.get(frame_id), stamp >= origin) {
+                    self.skin
+                        .take(u, stamp, (stamp - origin) / BLOCK, a, usable);
                 }
-                let repeat = self.last[u] == Some(a);
-                self.samples[u].add(stamp, usable, repeat);
-                if !usable || repeat {
-                    return;
-                }
-                self.last[u] = Some(a);
-                let at = (stamp - origin) / BLOCK;
-                let block = at as usize;
-                if block < self.base.max(self.next) {
-                    self.late_samples += 1;
-                    return;
-                }
-                while self.base + self.skin.len() <= block {
-                    self.skin.push_back(vec![SkinSum::default(); self.su_count]);
-                }
-                self.skin[block - self.base][u].add(a, at - block as f64 - 0.5);
             }
         }
         self.advance();
     }
 
     fn joint(&mut self, d: usize, stamp: f64, q: f64) {
-        if self.joints[d].back().is_some_and(|&(t, _)| t >= stamp) {
-            return;
-        }
-        self.joints[d].push_back((stamp, q));
+        self.joints.take(d, stamp, q);
         if self.widths[d].is_none() {
-            let learning = &mut self.learning[d];
-            learning.push((stamp, q));
-            if stamp - learning[0].0 >= LEARN {
-                self.widths[d] = Some((half_width(learning), encoder_rounding(learning)));
-                *learning = Vec::new();
+            let (first, survey) = &mut self.learning[d];
+            survey.take(stamp, q);
+            if stamp - *first.get_or_insert(stamp) >= LEARN {
+                self.widths[d] = Some((survey.half_width(), survey.rounding()));
+                *survey = JointSurvey::default();
             }
         }
     }
@@ -164,19 +128,18 @@ impl MotionStream {
         let Some(origin) = self.origin else { return };
         loop {
             let centre = origin + (self.next as f64 + 0.5) * BLOCK;
-            let joints_in = self.half_width().is_some_and(|h| {
-                self.joints
-                    .iter()
-                    .all(|j| j.back().is_some_and(|&(t, _)| t > centre + h))
-            });
+            let joints_in = self
+                .half_width()
+                .is_some_and(|h| self.joints.newest_common().is_some_and(|t| t > centre + h));
             // The block's own skin is in (its correction waits for the blocks after it).
-            let skin_in = self.latest_skin > centre + 0.5 * BLOCK + SKIN_LATENCY;
+            let skin_in = self.skin.latest > centre + 0.5 * BLOCK + SKIN_LATENCY;
             if !(joints_in && skin_in) {
                 return;
             }
             self.compute(centre);
             self.next += 1;
-            self.trim(centre);
+            self.joints
+                .forget_before(centre - HALF_WIDTHS[HALF_WIDTHS.len() - 1] - BLOCK);
         }
     }
 
@@ -187,24 +150,11 @@ impl MotionStream {
         let kernel = *self
             .kernel
             .get_or_insert_with(|| Kernel::of_record(h, BLOCK));
-        let fitted: Option<Vec<[f64; 4]>> = self
+        let roundings = self.roundings();
+        let fitted = self
             .joints
-            .iter_mut()
-            .zip(&self.widths)
-            .map(|(series, w)| {
-                let (_, rounding) = w.expect("widths learnt before any block");
-                local_polynomial(
-                    series.make_contiguous(),
-                    &mut 0,
-                    centre,
-                    h,
-                    rounding,
-                    max_gap,
-                    kernel.as_ref(),
-                )
-            })
-            .collect();
-        let raw = self.raw_means(self.next);
+            .fit(centre, h, &roundings, max_gap, kernel.as_ref());
+        let raw = self.skin.take_block(self.next);
         let Some(fitted) = fitted else {
             // A run's first block keeps its mean, as in the record of a whole log.
             self.close();
@@ -215,29 +165,6 @@ impl MotionStream {
             .open
             .get_or_insert_with(|| MotionRun::new(label, centre));
         self.centring.push(run, &fitted, raw);
-    }
-
-    /// Block `b`'s raw skin means and when their samples were taken.
-    fn raw_means(&self, b: usize) -> Vec<Option<RawMean>> {
-        match b.checked_sub(self.base).and_then(|i| self.skin.get(i)) {
-            Some(row) => raw_means(row),
-            None => vec![None; self.su_count],
-        }
-    }
-
-    /// Drops what no later block needs.
-    fn trim(&mut self, centre: f64) {
-        let keep_from = centre - HALF_WIDTHS[HALF_WIDTHS.len() - 1] - BLOCK;
-        for series in &mut self.joints {
-            while series.len() > 1 && series[0].0 < keep_from {
-                series.pop_front();
-            }
-        }
-        // The centring keeps the raw means the corrections still need.
-        while self.base < self.next && !self.skin.is_empty() {
-            self.skin.pop_front();
-            self.base += 1;
-        }
     }
 
     /// Ends the open run: every block of it corrected, the last ones from the blocks before.
@@ -263,14 +190,8 @@ impl MotionStream {
     /// Ends the stream: the blocks up to the last joint state's are computed as the whole log's
     /// record computes them (where the polynomial has its states), and every block is given out.
     pub fn finish(mut self) -> Vec<MotionRun> {
-        if let (Some(origin), Some(last)) = (
-            self.origin,
-            self.joints
-                .iter()
-                .map(|j| j.back().map_or(f64::NEG_INFINITY, |x| x.0))
-                .reduce(f64::min),
-        ) {
-            self.latest_skin = f64::INFINITY;
+        if let (Some(origin), Some(last)) = (self.origin, self.joints.newest_common()) {
+            self.skin.latest = f64::INFINITY;
             self.advance();
             let blocks = ((last - origin) / BLOCK).floor().max(0.0) as usize;
             if self.widths.iter().all(Option::is_some) {
@@ -304,14 +225,19 @@ impl MotionStream {
 
     /// Per SU: how many samples came so far, and why some are in no block.
     pub fn samples(&self) -> Vec<SampleCount> {
-        self.samples.iter().map(|c| c.count).collect()
+        self.skin.samples()
+    }
+
+    /// Skin samples stamped in a block already given out.
+    pub fn late_samples(&self) -> usize {
+        self.skin.late
     }
 
     /// Joint states and skin blocks held now (what the stream's memory grows with).
     pub fn held(&self) -> (usize, usize) {
         (
-            self.joints.iter().map(VecDeque::len).sum(),
-            self.skin.len() + self.open.as_ref().map_or(0, MotionRun::len),
+            self.joints.held(),
+            self.skin.held() + self.open.as_ref().map_or(0, MotionRun::len),
         )
     }
 }

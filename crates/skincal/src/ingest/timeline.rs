@@ -430,51 +430,81 @@ pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
     rounding.count() / 12f64.sqrt()
 }
 
-/// An encoder's step, told from its readings as they come: the smallest change between two of
-/// them, and whether every change of a few such steps is a whole number of them.
+/// An encoder's step, told from its readings as they come, in memory bounded whatever their
+/// number: the smallest change between two of them, and whether every change of a few such
+/// steps is a whole number of them. A change of more than [`FEW_STEPS`] steps tells nothing, and
+/// steps only shrink: only the distinct small changes (to [`FINEST_STEP`]) are kept, to be looked
+/// at again when a smaller step comes. A rounded encoder's small changes take a few dozen values
+/// (whole counts, give or take what its printed decimals leave); readings that take more than
+/// [`MOST_SMALL_CHANGES`] are no encoder's counts.
 #[derive(Debug, Clone)]
 pub(super) struct Rounding {
-    /// Readings looked at.
+    /// Readings of the series [`Self::read`] looks at, looked at.
     read: usize,
+    /// The last reading taken.
+    last: Option<f64>,
     step: f64,
     whole: bool,
+    /// The changes of at most [`FEW_STEPS`] steps, by their number of [`FINEST_STEP`]s; `None`
+    /// once there were too many to be an encoder's.
+    small: Option<std::collections::BTreeMap<i64, f64>>,
 }
+
+/// The most distinct small changes an encoder's readings are taken to have.
+const MOST_SMALL_CHANGES: usize = 4096;
 
 impl Default for Rounding {
     fn default() -> Self {
         Rounding {
             read: 0,
+            last: None,
             step: f64::INFINITY,
             whole: true,
+            small: Some(Default::default()),
         }
     }
 }
 
 impl Rounding {
-    /// Looks at the readings of `series` (the same series, grown) not yet looked at. A smaller
-    /// step looks at every change again (a handful of times per series: as often as a new
-    /// smallest change comes).
+    /// Looks at the readings of `series` (the same series, grown) not yet looked at.
     pub(super) fn read(&mut self, series: &[(f64, f64)]) {
-        for i in self.read.max(1)..series.len() {
-            let change = (series[i].1 - series[i - 1].1).abs();
-            if change <= FINEST_STEP {
-                continue;
-            }
-            if change < self.step {
-                self.step = change;
-                self.whole = series[..=i]
-                    .windows(2)
-                    .all(|w| whole_steps((w[1].1 - w[0].1).abs(), change));
-            } else if self.whole {
-                self.whole = whole_steps(change, self.step);
-            }
+        for &(_, q) in &series[self.read.min(series.len())..] {
+            self.take(q);
         }
         self.read = self.read.max(series.len());
     }
 
+    /// Takes the next reading.
+    pub(super) fn take(&mut self, q: f64) {
+        let Some(last) = self.last.replace(q) else {
+            return;
+        };
+        let change = (q - last).abs();
+        if change <= FINEST_STEP || !change.is_finite() {
+            return;
+        }
+        let Some(small) = self.small.as_mut() else {
+            return;
+        };
+        if change < self.step {
+            self.step = change;
+            // Changes of more than a few of the new step tell nothing from now on.
+            small.retain(|_, c| *c <= FEW_STEPS * change);
+            self.whole = small.values().all(|&c| whole_steps(c, change));
+        } else if self.whole {
+            self.whole = whole_steps(change, self.step);
+        }
+        if change <= FEW_STEPS * self.step {
+            small.insert((change / FINEST_STEP).round() as i64, change);
+            if small.len() > MOST_SMALL_CHANGES {
+                self.small = None;
+            }
+        }
+    }
+
     /// The encoder's count, rad: 0 when no reading changed or they do not change by whole steps.
     pub(super) fn count(&self) -> f64 {
-        if self.whole && self.step.is_finite() {
+        if self.whole && self.step.is_finite() && self.small.is_some() {
             self.step
         } else {
             0.0
