@@ -9,7 +9,7 @@ use clap::Args;
 use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
-use skincal::ingest::{ingest, motion::motion_record, IngestConfig};
+use skincal::ingest::{ingest, motion::record_of, IngestConfig};
 use skincal::log::mcap::{Compression, McapSink};
 use skincal::log::Topics;
 use skincal::measurements::MeasurementSet;
@@ -54,12 +54,16 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     // Each stage's peak memory apart (the simulator's log is written to disk as it goes).
     crate::reset_peak_memory();
     let started = Instant::now();
-    let set = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?.measurements;
+    let mut ingested = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?;
     let ingest_s = started.elapsed().as_secs_f64();
     let ingest_mb = crate::peak_memory_mb();
     crate::reset_peak_memory();
     let started = Instant::now();
-    let motion = motion_record(&[log], &set.dofs, &set.sus, &config, &mut |_, _, _| {})?;
+    // As `skincal ingest` makes it, from what the measurement set's pass told of the joints.
+    let Some(motion) = record_of(&mut ingested, &config, &mut |_, _, _| {})? else {
+        bail!("the bench's log gave no motion record");
+    };
+    let set = ingested.measurements;
     let record_s = started.elapsed().as_secs_f64();
     let record_mb = crate::peak_memory_mb();
     crate::reset_peak_memory();

@@ -389,6 +389,9 @@ pub struct LogReport {
     pub joint_read: ReadStats,
     /// Skin decoding problems.
     pub imu_read: ReadStats,
+    /// What its joint states tell the motion record's polynomials (not written).
+    #[serde(skip)]
+    pub(crate) surveyed: Option<window::JointsSurveyed>,
 }
 
 /// Two DoFs that moved alone together, the second a fixed multiple of the first (see
@@ -882,6 +885,19 @@ mod tests {
             assert!(once.report.logs[1].moves >= 7, "{:?}", once.report);
             same(&once, &twice);
         }
+        // What the pass told the motion record of the joint states is what the record's own look
+        // at them tells: the same record.
+        let (once, _) = once_and_twice(&logs, 300);
+        let config = IngestConfig::default();
+        let told = motion::training_record(&once, &config, &mut |_, _, _| {})
+            .unwrap()
+            .unwrap();
+        let set = &once.measurements;
+        let looked =
+            motion::motion_record(&logs[..1], &set.dofs, &set.sus, &config, &mut |_, _, _| {})
+                .unwrap();
+        assert!(told.rounding.iter().any(|&r| r > 0.0));
+        assert_eq!(told, looked);
 
         // Joint stamps out of order: read twice, and the same.
         let shaken = dir.path().join("shaken.mcap");
@@ -896,6 +912,29 @@ mod tests {
         assert!(once.report.logs[0].unsorted_joint_stamps > 0);
         assert_eq!(once.report.logs[0].passes, 2);
         same(&once, &twice);
+    }
+
+    #[test]
+    fn a_sweep_is_read_in_two_passes() {
+        // A continuous program's sweep (15 s of every DoF at once) is one motion longer than the
+        // pass holds the skin samples of: read twice, its structure part whole.
+        let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+        let plan = Plan::new(
+            PlanDof::from_robot(&robot),
+            &PlanConfig {
+                sweep: 15.0,
+                ..PlanConfig::continuous()
+            },
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("sweep.mcap");
+        let mut sink = McapSink::new(&log, Topics::default(), Compression::Zstd, false);
+        record(&robot, &plan, &LogConfig::default(), &mut sink, &mut |_| {}).unwrap();
+        let (once, _) = once_and_twice(std::slice::from_ref(&log), 5000);
+        let report = &once.report.logs[0];
+        assert_eq!(report.passes, 2);
+        assert!(report.moves >= 7 && report.transfers > 0, "{report:?}");
     }
 
     #[test]

@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use nalgebra::{SMatrix, SVector};
 
 use super::blocks::Centring;
-use super::window::{JointSurvey, JointWindow, SkinWindow};
+use super::window::{JointSurvey, JointWindow, JointsSurveyed, SkinWindow};
 use super::{IngestConfig, IngestError, IngestReport, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
 use crate::measurements::MeasurementSet;
@@ -156,7 +156,7 @@ fn read_again(
 }
 
 /// The motion record of `ingested`'s training logs, if any has some.
-fn training_record(
+pub(super) fn training_record(
     ingested: &super::Ingested,
     config: &IngestConfig,
     progress: &mut Progress<'_>,
@@ -166,7 +166,15 @@ fn training_record(
         return Ok(None);
     }
     let set = &ingested.measurements;
-    motion_record(&logs, &set.dofs, &set.sus, config, progress).map(Some)
+    let known: Vec<Option<&JointsSurveyed>> = logs
+        .iter()
+        .map(|path| {
+            let log = ingested.report.logs.iter().find(|l| &l.path == path);
+            log.and_then(|l| l.surveyed.as_ref())
+        })
+        .collect();
+    let sources: Vec<LogSource> = logs.into_iter().map(LogSource::File).collect();
+    record(&sources, &known, &set.dofs, &set.sus, config, progress).map(Some)
 }
 
 /// Each DoF's kind told from its structure moves ([`super::moves::kinds_of_moves`]), with what
@@ -238,6 +246,19 @@ pub fn motion_record_from(
     config: &IngestConfig,
     progress: &mut Progress<'_>,
 ) -> Result<MotionRecord, IngestError> {
+    record(logs, &vec![None; logs.len()], dofs, sus, config, progress)
+}
+
+/// [`motion_record_from`] with what the measurement set's pass already told of some logs'
+/// joint states (`known`, per log): those are not looked at again.
+fn record(
+    logs: &[LogSource],
+    known: &[Option<&JointsSurveyed>],
+    dofs: &[String],
+    sus: &[String],
+    config: &IngestConfig,
+    progress: &mut Progress<'_>,
+) -> Result<MotionRecord, IngestError> {
     let index = |names: &[String]| -> HashMap<String, usize> {
         names
             .iter()
@@ -248,7 +269,11 @@ pub fn motion_record_from(
     let (dof_index, su_index) = (index(dofs), index(sus));
     let surveys: Vec<Survey> = logs
         .iter()
-        .map(|log| survey(log, &dof_index, config, progress))
+        .zip(known)
+        .map(|(log, known)| match known {
+            Some(known) => Ok(Survey::known(known, dofs)),
+            None => survey(log, &dof_index, config, progress),
+        })
         .collect::<Result<_, _>>()?;
     let h = surveys
         .iter()
@@ -325,6 +350,19 @@ const SKIN_LATENCY: f64 = 1.0;
 struct Survey {
     origin: Option<f64>,
     dofs: Vec<JointSurvey>,
+}
+
+impl Survey {
+    /// The survey of the DoFs `dofs` from what a pass over the log told.
+    fn known(known: &JointsSurveyed, dofs: &[String]) -> Survey {
+        Survey {
+            origin: known.origin,
+            dofs: dofs
+                .iter()
+                .map(|d| known.dofs.get(d).cloned().unwrap_or_default())
+                .collect(),
+        }
+    }
 }
 
 fn survey(

@@ -21,6 +21,7 @@ use super::queue::Queue;
 use super::segment::{filter_points, pieces, trim_points, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
 use super::timeline::{newest_common, Grid, Rounding, Timeline, GRID_SPAN, MAX_PAUSE};
+use super::window::JointsSurveyed;
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{LogError, LogSource, PassStats, Sample, Stream};
 
@@ -29,6 +30,11 @@ pub(super) const HELD: usize = 1 << 18;
 /// Most skin samples held (270 MB at 32 bytes each; 8 s of motion of 1000 SUs at 1 kHz): beyond,
 /// the log is read twice instead.
 const MOST_HELD: usize = 1 << 23;
+/// The longest motion whose skin samples are held, s: longer than any transfer or excitation of a
+/// structure or training program; a continuous program's sweep, or ordinary work, is read in two
+/// passes instead (its samples, which no reading of the set takes, would fill [`MOST_HELD`]:
+/// 270 MB held for a minute of 105 SUs).
+const LONGEST_HELD: f64 = 10.0;
 /// A skin sample this far ahead of the newest joint state waits aside until the log ends, s.
 const STRAY: f64 = 10.0;
 
@@ -196,6 +202,7 @@ impl Pass<'_> {
             *dof_names = Some(self.dofs.clone());
         }
         grid.finish(&self.series, self.config, report);
+        report.surveyed = Some(JointsSurveyed::of(&self.dofs, &self.series));
         self.seg.finish(report);
         report.joint_states = stats.joints.samples;
         report.joint_read = stats.joints;
@@ -310,7 +317,11 @@ impl Pass<'_> {
         if to >= 0.0 {
             self.settle_to(to as usize + 1, false, report);
         }
-        if self.held.len() + self.strays.len() > MOST_HELD {
+        let held_for = self
+            .held
+            .front()
+            .map_or(0.0, |(_, m, _)| (to - f64::from(m)) * grid.dt);
+        if self.held.len() + self.strays.len() > MOST_HELD || held_for > LONGEST_HELD {
             self.abandoned = Some("a motion longer than the samples that may be held");
         }
     }

@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use super::window::JointsSurveyed;
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
 
@@ -406,6 +407,10 @@ pub(super) fn read_joints(
     report.joint_states = stats.joints.samples;
     report.joint_read = stats.joints;
     let cleaned = series.clean(path, config, dof_names, report)?;
+    report.surveyed = Some(JointsSurveyed::of(
+        dof_names.as_deref().unwrap_or_default(),
+        &cleaned,
+    ));
     let mut grid = Grid::fit(path, &cleaned)?;
     let n = grid.points(path, &cleaned)?;
     grid.finish(&cleaned, config, report);
@@ -437,7 +442,7 @@ pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
 /// at again when a smaller step comes. A rounded encoder's small changes take a few dozen values
 /// (whole counts, give or take what its printed decimals leave); readings that take more than
 /// [`MOST_SMALL_CHANGES`] are no encoder's counts.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub(super) struct Rounding {
     /// Readings of the series [`Self::read`] looks at, looked at.
     read: usize,

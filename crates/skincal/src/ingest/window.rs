@@ -182,7 +182,7 @@ impl SkinWindow {
 
 /// What one look at a DoF's joint states tells, in memory bounded whatever their number: its
 /// encoder's rounding ([`Rounding`]) and its median step between states.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub(super) struct JointSurvey {
     rounding: Rounding,
     steps: StepMedian,
@@ -214,13 +214,37 @@ impl JointSurvey {
     }
 }
 
+/// What a log's joint states tell each DoF's polynomial ([`JointSurvey`]), and the first stamp.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct JointsSurveyed {
+    pub(super) origin: Option<f64>,
+    pub(super) dofs: std::collections::HashMap<String, JointSurvey>,
+}
+
+impl JointsSurveyed {
+    /// The survey of the series (stamp order) of the DoFs `names`.
+    pub(super) fn of(names: &[String], series: &[Vec<(f64, f64)>]) -> Self {
+        let mut surveyed = JointsSurveyed::default();
+        for (name, series) in names.iter().zip(series) {
+            let survey = surveyed.dofs.entry(name.clone()).or_default();
+            for &(stamp, q) in series {
+                survey.take(stamp, q);
+            }
+            if let Some(&(first, _)) = series.first() {
+                surveyed.origin = Some(surveyed.origin.map_or(first, |o: f64| o.min(first)));
+            }
+        }
+        surveyed
+    }
+}
+
 /// Bins per doubling of [`StepMedian`]'s histogram.
 const STEP_BINS_PER_OCTAVE: f64 = 128.0;
 
 /// The median of positive steps, from a histogram of them in bins of half a per cent (each
 /// bin's steps' count and sum: the median bin's mean is given, the median itself when the steps
 /// are regular). A DoF's steps span a few octaves at most: a few hundred bins.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 struct StepMedian {
     bins: BTreeMap<i32, (u64, f64)>,
     count: u64,
