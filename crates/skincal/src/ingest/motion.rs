@@ -486,7 +486,7 @@ impl Pass<'_> {
                     }
                 }
                 if bounded {
-                    blocks.advance();
+                    blocks.advance(matches!(sample, Sample::Joints { .. }));
                 }
                 Ok(())
             },
@@ -527,12 +527,15 @@ struct Blocks<'a> {
 
 impl Blocks<'_> {
     /// Computes the blocks whose samples are all in, and drops what no later block reads.
-    fn advance(&mut self) {
+    /// `joint_states`: the sample just taken was a joint state (only that lets a block's joint
+    /// states be computed; a skin sample, most of a log's, only lets a block's skin be taken).
+    fn advance(&mut self, joint_states: bool) {
         let (h, latency) = (self.pass.h, SKIN_LATENCY);
-        while self
-            .joints
-            .newest_common()
-            .is_some_and(|t| t > self.pass.centre(self.next_joints) + h)
+        while joint_states
+            && self
+                .joints
+                .newest_common()
+                .is_some_and(|t| t > self.pass.centre(self.next_joints) + h)
         {
             self.compute_joints();
             self.joints
