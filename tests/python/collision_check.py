@@ -156,26 +156,50 @@ def check(plan_dir, urdf, descriptions):
         poses.extend([float(v) for v in r[1:]] for r in rows)
     training = [p["to"] for p in plan["phases"] if p["part"] == "training" and p["action"] == "transfer"]
     poses.extend(training)
+    # What each pair of bodies is to the check: not checked (0: the same body, or a pair plan.json
+    # lists), touching at rest (1: by how much, `rest`) or checked (2).
+    body_names = [model.body(b).name for b in range(model.nbody)]
+    kind = np.full((model.nbody, model.nbody), 2)
+    rest = np.zeros((model.nbody, model.nbody))
+    for a, name_a in enumerate(body_names):
+        for b, name_b in enumerate(body_names):
+            pair = frozenset((name_a, name_b))
+            if a == b or pair in not_checked:
+                kind[a, b] = 0
+            elif pair in at_rest:
+                kind[a, b] = 1
+                rest[a, b] = at_rest[pair]
     deepest = {"checked": 0.0, "touching at rest": 0.0}
     for q in poses:
         data.qpos[:] = 0
         for name, value in zip(dofs, q):
             data.qpos[address[name]] = value
-        mujoco.mj_forward(model, data)
-        for c in data.contact[: data.ncon]:
-            a = model.body(model.geom_bodyid[c.geom1]).name
-            b = model.body(model.geom_bodyid[c.geom2]).name
-            pair = frozenset((a, b))
-            if pair in not_checked or a == b:
-                continue
-            if pair in at_rest:
-                deepest["touching at rest"] = min(deepest["touching at rest"], c.dist - at_rest[pair])
-                if c.dist < at_rest[pair] - SLACK - TOLERANCE:
-                    fail(f"{a} and {b} overlap {-c.dist * 1e3:.1f} mm, at rest {-at_rest[pair] * 1e3:.1f} mm")
-                continue
-            deepest["checked"] = min(deepest["checked"], c.dist)
-            if c.dist < -TOLERANCE:
-                fail(f"{a} and {b} overlap {-c.dist * 1e3:.1f} mm at a planned pose")
+        # Positions and contacts only: no dynamics.
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        if data.ncon == 0:
+            continue
+        a = model.geom_bodyid[data.contact.geom1]
+        b = model.geom_bodyid[data.contact.geom2]
+        dist = data.contact.dist
+        pairs = kind[a, b]
+        touching = pairs == 1
+        if touching.any():
+            beyond = dist[touching] - rest[a, b][touching]
+            worst = int(np.argmin(beyond))
+            deepest["touching at rest"] = min(deepest["touching at rest"], float(beyond[worst]))
+            if beyond[worst] < -SLACK - TOLERANCE:
+                i = np.flatnonzero(touching)[worst]
+                fail(
+                    f"{body_names[a[i]]} and {body_names[b[i]]} overlap {-dist[i] * 1e3:.1f} mm, "
+                    f"at rest {-rest[a[i], b[i]] * 1e3:.1f} mm"
+                )
+        checked = pairs == 2
+        if checked.any():
+            i = np.flatnonzero(checked)[int(np.argmin(dist[checked]))]
+            deepest["checked"] = min(deepest["checked"], float(dist[i]))
+            if dist[i] < -TOLERANCE:
+                fail(f"{body_names[a[i]]} and {body_names[b[i]]} overlap {-dist[i] * 1e3:.1f} mm at a planned pose")
     print(
         f"{len(poses)} poses ({len(training)} training poses), {model.ngeom} geoms: deepest overlap "
         f"of checked pairs {-deepest['checked'] * 1e3:.2f} mm, of pairs touching at rest "

@@ -33,6 +33,7 @@ import os
 import sys
 
 import mujoco
+from mujoco import rollout
 import numpy as np
 
 
@@ -153,6 +154,13 @@ def mjcf(robot, gravity, gravcomp=False):
     world = body(reference, "    ")
     # Position servos; their gains are set once the model's inertia is known.
     servos = [f'    <position name="{d["name"]}" joint="{d["name"]}" kp="1" kv="1"/>' for d in dofs]
+    # What the log records of every state: the joint positions, and every SU's position and axes
+    # in the world (its acceleration is the positions' second difference, see `main`).
+    sensors = [f'    <jointpos joint="{d["name"]}"/>' for d in dofs]
+    sensors += [f'    <framepos objtype="site" objname="{s["name"]}"/>' for s in sus]
+    sensors += [
+        f'    <frame{axis}axis objtype="site" objname="{s["name"]}"/>' for s in sus for axis in "xyz"
+    ]
     # Aluminium tube: 2.7 t/m³ over the full capsule is too heavy; a quarter of it.
     return "\n".join(
         [
@@ -165,6 +173,9 @@ def mjcf(robot, gravity, gravcomp=False):
             "  <actuator>",
             *servos,
             "  </actuator>",
+            "  <sensor>",
+            *sensors,
+            "  </sensor>",
             "</mujoco>",
         ]
     )
@@ -181,28 +192,30 @@ def sweep(phase, centre):
     harmonics = [np.array(h, dtype=float).reshape(-1, 2) for h in phase["harmonics"]]
 
     def window(t):
-        if t <= 0.0 or t >= duration:
-            return 0.0
-        if ramp > 0.0 and t < ramp:
-            return quintic(0.0, 1.0, t / ramp)
-        if ramp > 0.0 and t > duration - ramp:
-            return quintic(0.0, 1.0, (duration - t) / ramp)
-        return 1.0
+        w = np.where((t > 0.0) & (t < duration), 1.0, 0.0)
+        if ramp > 0.0:
+            rising = (t > 0.0) & (t < ramp)
+            falling = (t > duration - ramp) & (t < duration) & ~rising
+            w = np.where(rising, quintic(0.0, 1.0, np.clip(t / ramp, 0.0, 1.0)), w)
+            w = np.where(falling, quintic(0.0, 1.0, np.clip((duration - t) / ramp, 0.0, 1.0)), w)
+        return w
 
     def at(t, centre=centre):
-        q = centre.copy()
+        q = np.tile(centre, (len(t), 1))
         w = window(t)
         for d, h in enumerate(harmonics):
             k = np.arange(1, len(h) + 1)
-            phase_angle = 2.0 * math.pi * frequency * k * t
-            q[d] += w * float(np.sum(h[:, 0] * np.sin(phase_angle) + h[:, 1] * np.cos(phase_angle)))
+            phase_angle = 2.0 * math.pi * frequency * np.outer(t, k)
+            q[:, d] += w * (np.sin(phase_angle) @ h[:, 0] + np.cos(phase_angle) @ h[:, 1])
         return q
 
     return at
 
 
 def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_from_nearer_limit=False):
-    """The commanded trajectory as a list of (duration, function of time → q) segments."""
+    """The commanded trajectory as a list of (duration, function of times → q) segments: each
+    function takes an array of times from the segment's start and returns one row of positions per
+    time."""
     pattern = plan["pattern"]
     amplitude, frequency = pattern["amplitude"], pattern["frequency"]
     w = 2.0 * math.pi * frequency
@@ -215,10 +228,12 @@ def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_fro
         action = phase["action"]
         if action == "still":
             duration = pause if previous_excitation else phase["duration"]
-            segments.append((duration, lambda t, b=b: b))
+            segments.append((duration, lambda t, b=b: np.tile(b, (len(t), 1))))
         elif action in ("move", "transfer"):
             duration = phase["duration"]
-            segments.append((duration, lambda t, a=a, b=b, T=duration: quintic(a, b, min(t / T, 1.0))))
+            segments.append(
+                (duration, lambda t, a=a, b=b, T=duration: quintic(a, b, np.minimum(t / T, 1.0)[:, None]))
+            )
         elif action == "sweep":
             segments.append((phase["duration"], sweep(phase, a)))
         elif action == "excitation":
@@ -239,8 +254,8 @@ def reference(plan, part, pause, dof_index, backwards_near_limits=True, away_fro
             sense = sense * scale
 
             def excite(t, a=a, excited=excited, sense=sense):
-                q = a.copy()
-                q[excited] += sense * amplitude / w * (1.0 - math.cos(w * t))
+                q = np.tile(a, (len(t), 1))
+                q[:, excited] += np.outer(1.0 - np.cos(w * t), sense * amplitude / w)
                 return q
 
             segments.append((1.0 / frequency, excite))
@@ -304,7 +319,7 @@ def main():
     )
     if not segments:
         sys.exit("the plan has no phase of that part")
-    q0 = segments[0][1](0.0)
+    q0 = segments[0][1](np.zeros(1))[0]
 
     # Servo gains from the joint-space inertia at the first pose (or the largest over the plan's
     # poses, `--tune largest`, so that no pose leaves a servo below its bandwidth and damping):
@@ -340,61 +355,98 @@ def main():
     rng = np.random.default_rng(args.seed)
     encoder = 2.0 * math.pi / 2**args.encoder_bits if args.encoder_bits else 0.0
     lsb = 4.0 * 9.81 / 2**args.adc_bits if args.adc_bits else 0.0
-    qs, accs = [], []
 
     h = model.opt.timestep
     gravity_vector = np.array(gravity)
-    site_ids = [model.site(n).id for n in su_names]
+    nsu = len(su_names)
+    robot_dofs = [d["name"] for d in robot["dofs"]]
+    joint_sensor = [robot_dofs.index(n) for n in names]
+    # The sensors' layout (see `mjcf`): joint positions, then every site's position, then its
+    # axes.
+    nd = len(robot_dofs)
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    checked = [False]
 
-    def step(trajectory, t):
-        """Runs one sample period ending at `t`, the servos' command interpolated at every
-        substep (a command held for a whole period would jerk at 1 kHz); returns the joint
-        positions and every SU's specific force at its second-to-last substep. The acceleration
-        is the second difference of the site's positions over the substeps (what an
-        accelerometer senses, from the trajectory itself)."""
-        positions = []
-        for j in range(substeps):
-            data.ctrl[aadr] = trajectory(t - dt + (j + 1) * h)
-            mujoco.mj_step(model, data)
-            mujoco.mj_kinematics(model, data)
-            positions.append(data.site_xpos[site_ids].copy())
-            if j == substeps - 2:
-                q = data.qpos[qadr].copy()
-                rotations = data.site_xmat[site_ids].reshape(-1, 3, 3).copy()
-        a = (positions[-1] - 2.0 * positions[-2] + positions[-3]) / h**2
-        return q, np.einsum("sji,sj->si", rotations, a - gravity_vector)
+    def roll(state, control):
+        """Runs one step per row of `control` (the servos' commands, in `names` order) from the
+        full physics `state`, in MuJoCo's own loop; returns the state after the last step and the
+        sensors after every step (row k: after step k)."""
+        ctrl = np.zeros((len(control), model.nu))
+        ctrl[:, aadr] = control
+        states, sensors = rollout.rollout(model, data, state, ctrl[None])
+        states, sensors = states[0], sensors[0]
+        # MuJoCo computes a step's sensors at its start: after step k they are step k+1's; after
+        # the last step, they are computed here.
+        mujoco.mj_setState(model, data, states[-1], full)
+        mujoco.mj_forward(model, data)
+        after = np.concatenate([sensors[1:], data.sensordata[None]])
+        if not checked[0]:
+            # That convention, checked once against the sensors computed in the states after a
+            # few steps.
+            for k in np.linspace(0, len(after) - 1, 7).astype(int):
+                mujoco.mj_setState(model, data, states[k], full)
+                mujoco.mj_forward(model, data)
+                assert np.array_equal(after[k], data.sensordata), "rollout's sensors are not its states'"
+            checked[0] = True
+        return states[-1], after
 
+    def record(state, commands):
+        """The samples of one run of the servos' `commands` (one row per substep, `substeps` per
+        1 ms sample): per sample, the joint positions and every SU's specific force at its
+        second-to-last substep. The acceleration is the second difference of the site's positions
+        over the substeps (what an accelerometer senses, from the trajectory itself). Returns the
+        state after the run with the samples."""
+        state, after = roll(state, commands)
+        n = len(commands) // substeps
+        at = after.reshape(n, substeps, -1)
+        q = at[:, -2, :nd][:, joint_sensor]
+        p = at[:, -3:, nd : nd + 3 * nsu].reshape(n, 3, nsu, 3)
+        a = (p[:, 2] - 2.0 * p[:, 1] + p[:, 0]) / h**2
+        axes = at[:, -2, nd + 3 * nsu :].reshape(n, nsu, 3, 3)
+        # In the site's frame: the component along each of its axes.
+        return state, q, np.einsum("nsij,nsj->nsi", axes, a - gravity_vector)
+
+    # The servos' command is interpolated at every substep (a command held for a whole period
+    # would jerk at 1 kHz): substep j of the sample ending at t is commanded at t − dt + (j+1)·h.
+    offsets = (np.arange(substeps) + 1) * h - dt
+    state = np.zeros(mujoco.mj_stateSize(model, full))
+    mujoco.mj_getState(model, data, state, full)
     # Settle at the first pose (gravity sag) before recording.
-    for _ in range(int(2.0 / dt)):
-        step(lambda t: q0, 0.0)
+    state, _ = roll(state, np.tile(q0, (int(2.0 / dt) * substeps, 1)))
+    qs, accs = [], []
     for duration, trajectory in segments:
         n = int(round(duration / dt))
-        for i in range(n):
-            q, a = step(trajectory, (i + 1) * dt)
+        # At most 2 s of samples at a time: the sensors of every substep are held meanwhile.
+        for first in range(0, n, 2000):
+            samples = np.arange(first, min(n, first + 2000)) + 1
+            times = (samples[:, None] * dt + offsets[None]).reshape(-1)
+            state, q, a = record(state, trajectory(times))
             qs.append(q)
             accs.append(a)
-    qs = np.array(qs)
+    qs = np.concatenate(qs)
+    accs = np.concatenate(accs)
     if encoder:
         # A slide's encoder counts the same number of steps over a metre as a turn's over a
         # revolution.
         steps = np.array([encoder / (2.0 * math.pi) if is_slide(d) else encoder for d in plan["dofs"]])
         qs = np.round(qs / steps) * steps
-    accs = np.array(accs)
     accs = accs + rng.normal(0.0, args.noise, accs.shape)
     if lsb:
         accs = np.clip(np.round(accs / lsb) * lsb, -2.0 * 9.81, 2.0 * 9.81 - lsb)
 
     os.makedirs(args.out, exist_ok=True)
     stamps = args.start + np.arange(len(qs)) * dt
+    # One sample's rows formatted at once: each template takes the stamp and the sample's values.
+    joint_row = "%.6f," + ",".join(["%.9f"] * len(names)) + "\n"
+    imu_rows = "".join(f"%.6f,{name},%.6f,%.6f,%.6f\n" for name in su_names)
     with open(os.path.join(args.out, "joint_states.csv"), "w") as f:
         f.write("stamp," + ",".join(names) + "\n")
-        for t, q in zip(stamps, qs):
-            f.write(f"{t:.6f}," + ",".join(f"{x:.9f}" for x in q) + "\n")
+        for t, q in zip(stamps.tolist(), qs.tolist()):
+            f.write(joint_row % (t, *q))
     with open(os.path.join(args.out, "imu.csv"), "w") as f:
         f.write("stamp,frame_id,ax,ay,az\n")
-        for t, a in zip(stamps, accs):
-            for name, v in zip(su_names, a):
-                f.write(f"{t:.6f},{name},{v[0]:.6f},{v[1]:.6f},{v[2]:.6f}\n")
+        for t, a in zip(stamps.tolist(), accs.tolist()):
+            f.write(imu_rows % tuple(x for v in a for x in (t, *v)))
     print(f"{len(qs)} samples, {len(qs) * dt:.1f} s, kp {np.round(kp, 1).tolist()}")
 
 

@@ -2542,10 +2542,8 @@ fn a_gripper_finger_is_placed_from_what_its_structure_move_accelerated() {
 fn a_trunk_on_a_vertical_axis_is_told_from_its_mirror_image_by_the_tilted_holds() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let urdf = robot_descriptions().join("talos_data/robots/talos_reduced.urdf");
-    let urdf = urdf.to_str().unwrap();
     let run = |args: &[&str]| succeeds(args, d);
-    continuous_logs(d, urdf, ("2", "5"), true);
+    talos_continuous_logs(d);
     run(&["ingest", "up.mcap", "tilt.mcap", "--out", "ing"]);
     run(&["explore", "ing"]);
     let trunk = run(&["calibrate", "ing", "--limb", "S2"]);
@@ -2559,6 +2557,27 @@ fn a_trunk_on_a_vertical_axis_is_told_from_its_mirror_image_by_the_tilted_holds(
                 .contains("intrinsics as the data chose, every limb of the skin pooled: none ("),
         "{trunk}"
     );
+}
+
+/// TALOS's continuous program (`plan --seed 2`) recorded with 2 SUs per link (`record --seed
+/// 5`) upright, `up.mcap`, and its structure part tilted, `tilt.mcap`: made once for the tests
+/// that read it (in the target directory's scratch space, made afresh by every run), which link
+/// the logs into their own directories.
+fn talos_continuous_logs(dir: &Path) -> &'static str {
+    static MADE: std::sync::OnceLock<(std::path::PathBuf, String)> = std::sync::OnceLock::new();
+    let (logs, urdf) = MADE.get_or_init(|| {
+        let logs = Path::new(env!("CARGO_TARGET_TMPDIR")).join("talos-continuous");
+        let _ = std::fs::remove_dir_all(&logs);
+        std::fs::create_dir_all(&logs).unwrap();
+        let urdf = robot_descriptions().join("talos_data/robots/talos_reduced.urdf");
+        let urdf = urdf.to_str().unwrap().to_string();
+        continuous_logs(&logs, &urdf, ("2", "5"), true);
+        (logs, urdf)
+    });
+    for log in ["up.mcap", "tilt.mcap"] {
+        std::os::unix::fs::symlink(logs.join(log), dir.join(log)).unwrap();
+    }
+    urdf
 }
 
 /// TALOS from its continuous program alone, as a user makes it (`plan --seed 2`, `record --seed
@@ -2575,10 +2594,8 @@ fn a_trunk_on_a_vertical_axis_is_told_from_its_mirror_image_by_the_tilted_holds(
 fn a_humanoid_calibrates_from_its_continuous_program_alone_what_reaches_the_noise() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let urdf = robot_descriptions().join("talos_data/robots/talos_reduced.urdf");
-    let urdf = urdf.to_str().unwrap();
     let run = |args: &[&str]| succeeds(args, d);
-    continuous_logs(d, urdf, ("2", "5"), false);
+    let urdf = talos_continuous_logs(d);
     run(&["ingest", "up.mcap", "--out", "ing"]);
     let explored = run(&["explore", "ing"]);
     assert!(
