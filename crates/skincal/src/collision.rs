@@ -133,6 +133,8 @@ struct Part {
     /// `T_segment←shape`.
     offset: Isometry3<f64>,
     shape: SharedShape,
+    /// The shape's bounding box in its own frame.
+    local_box: Aabb,
 }
 
 /// Two links that touch at the rest pose.
@@ -144,6 +146,13 @@ pub struct RestContact {
     pub b: String,
     /// Their signed distance at rest, m (negative: they overlap).
     pub distance: f64,
+}
+
+/// The parts' bounding boxes at a pose: each enclosing box (its local box turned with it) at
+/// once, the exact one only where the enclosing boxes meet.
+struct Boxes {
+    enclosing: Vec<Aabb>,
+    exact: Vec<Option<Aabb>>,
 }
 
 /// A robot's collision geometry, ready to check poses.
@@ -321,6 +330,7 @@ impl Body {
                     link: link.name.clone(),
                     segment,
                     offset,
+                    local_box: shape.compute_local_aabb(),
                     shape,
                 });
             }
@@ -400,12 +410,12 @@ impl Body {
         // around it) are not checked; others are held to their rest distance less the slack.
         let rest = rest_pose(robot);
         let frames = self.frames(robot, &rest);
-        let boxes = self.boxes(&frames);
+        let mut boxes = self.boxes(&frames);
         let clearance = self.options.clearance;
         let mut at_rest: BTreeMap<(String, String), f64> = BTreeMap::new();
         let mut pairs = Vec::with_capacity(candidates.len());
         for (i, j) in candidates {
-            let Some(d) = self.distance(&frames, &boxes, (i, j), clearance) else {
+            let Some(d) = self.distance(&frames, &mut boxes, (i, j), clearance) else {
                 pairs.push((i, j, clearance));
                 continue;
             };
@@ -442,13 +452,22 @@ impl Body {
             .collect()
     }
 
-    /// Every part's bounding box in the frames `frames`.
-    fn boxes(&self, frames: &[Isometry3<f64>]) -> Vec<Aabb> {
-        self.parts
-            .iter()
-            .zip(frames)
-            .map(|(p, f)| p.shape.compute_aabb(f))
-            .collect()
+    /// Every part's bounding boxes in the frames `frames`.
+    fn boxes(&self, frames: &[Isometry3<f64>]) -> Boxes {
+        Boxes {
+            enclosing: self
+                .parts
+                .iter()
+                .zip(frames)
+                .map(|(p, f)| p.local_box.transform_by(f))
+                .collect(),
+            exact: vec![None; self.parts.len()],
+        }
+    }
+
+    /// Part `i`'s exact bounding box in `frames` (kept in `boxes` once computed).
+    fn exact_box(&self, frames: &[Isometry3<f64>], boxes: &mut Boxes, i: usize) -> Aabb {
+        *boxes.exact[i].get_or_insert_with(|| self.parts[i].shape.compute_aabb(&frames[i]))
     }
 
     /// The signed distance of parts `i` and `j` (negative: the depth of their overlap) if it is
@@ -456,22 +475,29 @@ impl Body {
     fn distance(
         &self,
         frames: &[Isometry3<f64>],
-        boxes: &[Aabb],
+        boxes: &mut Boxes,
         (i, j): (usize, usize),
         limit: f64,
     ) -> Option<f64> {
-        if !boxes[i].loosened(limit.max(0.0)).intersects(&boxes[j]) {
+        let margin = limit.max(0.0);
+        // The enclosing boxes first: where they keep apart, so do the exact ones.
+        if !boxes.enclosing[i]
+            .loosened(margin)
+            .intersects(&boxes.enclosing[j])
+        {
+            return None;
+        }
+        let (box_i, box_j) = (
+            self.exact_box(frames, boxes, i),
+            self.exact_box(frames, boxes, j),
+        );
+        if !box_i.loosened(margin).intersects(&box_j) {
             return None;
         }
         let (a, b) = (&self.parts[i], &self.parts[j]);
-        let contact = parry3d_f64::query::contact(
-            &frames[i],
-            &*a.shape,
-            &frames[j],
-            &*b.shape,
-            limit.max(0.0),
-        )
-        .ok()??;
+        let contact =
+            parry3d_f64::query::contact(&frames[i], &*a.shape, &frames[j], &*b.shape, margin)
+                .ok()??;
         (contact.dist < limit).then_some(contact.dist)
     }
 
@@ -484,9 +510,9 @@ impl Body {
     /// [`Body::contact`] with `extra` m added to every distance allowed.
     pub fn contact_within(&self, robot: &Robot, q: &[f64], extra: f64) -> Option<Contact> {
         let frames = self.frames(robot, q);
-        let boxes = self.boxes(&frames);
+        let mut boxes = self.boxes(&frames);
         for &(i, j, limit) in &self.pairs {
-            if let Some(distance) = self.distance(&frames, &boxes, (i, j), limit + extra) {
+            if let Some(distance) = self.distance(&frames, &mut boxes, (i, j), limit + extra) {
                 return Some(Contact {
                     a: self.parts[i].link.clone(),
                     b: self.parts[j].link.clone(),
@@ -497,20 +523,21 @@ impl Body {
         }
         let floor = self.options.floor?;
         let skin = self.options.clearance / 2.0 + extra;
-        self.parts
-            .iter()
-            .zip(&boxes)
-            .filter(|(p, _)| p.segment != 0)
-            .find_map(|(p, aabb)| {
-                // The lowest point of a convex part is its bounding box's bottom.
-                let low = aabb.mins.z - floor;
-                (low < skin).then(|| Contact {
-                    a: p.link.clone(),
-                    b: "floor".into(),
-                    distance: low,
-                    segments: (p.segment, 0),
-                })
+        // The lowest point of a convex part is its exact bounding box's bottom, which the
+        // enclosing box's is below.
+        let near: Vec<usize> = (0..self.parts.len())
+            .filter(|&i| self.parts[i].segment != 0 && boxes.enclosing[i].mins.z - floor < skin)
+            .collect();
+        near.into_iter().find_map(|i| {
+            let low = self.exact_box(&frames, &mut boxes, i).mins.z - floor;
+            let p = &self.parts[i];
+            (low < skin).then(|| Contact {
+                a: p.link.clone(),
+                b: "floor".into(),
+                distance: low,
+                segments: (p.segment, 0),
             })
+        })
     }
 
     /// Parts (collision elements) with geometry.

@@ -171,8 +171,11 @@ impl LogSink for McapSink {
             Compression::Lz4 => Some(mcap::Compression::Lz4),
             Compression::Zstd => Some(mcap::Compression::Zstd),
         };
+        // One thread: a log is written message by message, and zstd's worker threads would
+        // take a lock for every one of them (a third of the time spent writing).
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
+            .compression_threads(0)
             .profile("ros2")
             .library(concat!("skincal ", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::with_capacity(1 << 20, file))
