@@ -172,7 +172,7 @@ impl LogSink for McapSink {
             Compression::Zstd => Some(mcap::Compression::Zstd),
         };
         // One thread: a log is written message by message, and zstd's worker threads would
-        // take a lock for every one of them (a third of the time spent writing).
+        // take a lock for every one of them (a tenth of the time spent writing).
         let mut writer = mcap::WriteOptions::new()
             .compression(compression)
             .compression_threads(0)
