@@ -365,12 +365,12 @@ def main():
     # axes.
     nd = len(robot_dofs)
     full = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    checked = [False]
 
-    def roll(state, control):
+    def roll(state, control, check=False):
         """Runs one step per row of `control` (the servos' commands, in `names` order) from the
         full physics `state`, in MuJoCo's own loop; returns the state after the last step and the
-        sensors after every step (row k: after step k)."""
+        sensors after every step (row k: after step k). With `check`, that row convention is
+        checked against the sensors computed in the states after a few steps."""
         ctrl = np.zeros((len(control), model.nu))
         ctrl[:, aadr] = control
         states, sensors = rollout.rollout(model, data, state, ctrl[None])
@@ -380,14 +380,10 @@ def main():
         mujoco.mj_setState(model, data, states[-1], full)
         mujoco.mj_forward(model, data)
         after = np.concatenate([sensors[1:], data.sensordata[None]])
-        if not checked[0]:
-            # That convention, checked once against the sensors computed in the states after a
-            # few steps.
-            for k in np.linspace(0, len(after) - 1, 7).astype(int):
-                mujoco.mj_setState(model, data, states[k], full)
-                mujoco.mj_forward(model, data)
-                assert np.array_equal(after[k], data.sensordata), "rollout's sensors are not its states'"
-            checked[0] = True
+        for k in np.linspace(0, len(after) - 1, 7).astype(int) if check else []:
+            mujoco.mj_setState(model, data, states[k], full)
+            mujoco.mj_forward(model, data)
+            assert np.array_equal(after[k], data.sensordata), "rollout's sensors are not its states'"
         return states[-1], after
 
     def record(state, commands):
@@ -412,7 +408,7 @@ def main():
     state = np.zeros(mujoco.mj_stateSize(model, full))
     mujoco.mj_getState(model, data, state, full)
     # Settle at the first pose (gravity sag) before recording.
-    state, _ = roll(state, np.tile(q0, (int(2.0 / dt) * substeps, 1)))
+    state, _ = roll(state, np.tile(q0, (int(2.0 / dt) * substeps, 1)), check=True)
     qs, accs = [], []
     for duration, trajectory in segments:
         n = int(round(duration / dt))
