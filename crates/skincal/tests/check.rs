@@ -63,8 +63,7 @@ fn ordinary_motion(
 /// `robot` calibrated as skincal's own program does it: a continuous program (structure part and
 /// a 20 s sweep), fitted on every sample of its log.
 fn calibrated(robot: &Robot) -> BodyModel {
-    let dir = tempfile::tempdir().unwrap();
-    let (set, structure, record) = crate::motion::continuous(robot, dir.path());
+    let (set, structure, record) = crate::motion::continuous(robot);
     calibrate_body_on_motion(
         &set,
         &record,

@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use skincal::estimate::body::{calibrate_body, calibrate_body_on_motion, BodyModel};
 use skincal::estimate::ml::MlConfig;
 use skincal::explore::{explore, ExploreConfig};
-use skincal::ingest::motion::motion_record;
-use skincal::ingest::{ingest, IngestConfig};
+use skincal::ingest::motion::{motion_record, motion_record_from};
+use skincal::ingest::{ingest, ingest_from, IngestConfig};
 use skincal::log::mcap::{Compression, McapSink};
-use skincal::log::Topics;
+use skincal::log::{LogSource, MemoryLog, Topics};
 use skincal::model::{presets, Robot};
 use skincal::motion::MotionRecord;
 use skincal::plan::{Part, Plan, PlanConfig, PlanDof};
@@ -597,22 +597,21 @@ fn the_motion_rows_jacobian_matches_central_differences() {
 /// A continuous program (`PlanConfig::continuous`): the structure part and the tilted structure
 /// log give the tree; ingest finds no training pose (every DoF moves at once, nothing is still),
 /// and the limbs are calibrated from the motion record alone. Returns the set, the tree and the
-/// record.
+/// record. The logs are recorded into memory (what the file formats change is tested on their
+/// own; here it is the motion's fit).
 pub(crate) fn continuous(
     robot: &Robot,
-    dir: &Path,
 ) -> (
     skincal::measurements::MeasurementSet,
     skincal::explore::Structure,
     skincal::motion::MotionRecord,
 ) {
-    continuous_late(robot, dir, 0.0)
+    continuous_late(robot, 0.0)
 }
 
 /// [`continuous`] with the skin stamped `skin_delay` s late.
 fn continuous_late(
     robot: &Robot,
-    dir: &Path,
     skin_delay: f64,
 ) -> (
     skincal::measurements::MeasurementSet,
@@ -632,16 +631,28 @@ fn continuous_late(
         skin_delay,
         ..LogConfig::default()
     };
-    let logs = logs(robot, &plan, dir, &upright);
+    let tilt = LogConfig {
+        part: Some(Part::Structure),
+        orientation: BaseOrientation::tilted(),
+        seed: 6,
+        ..LogConfig::default()
+    };
+    let logs = [("upright", &upright), ("tilted", &tilt)].map(|(name, config)| {
+        let mut log = MemoryLog::new(name);
+        record(robot, &plan, config, &mut log, &mut |_| {}).unwrap();
+        LogSource::Memory(log)
+    });
     let config = IngestConfig::default();
-    let ingested = ingest(&logs, &config, &mut |_, _, _| {}).unwrap();
+    let ingested = ingest_from(&logs, &config, &mut |_, _, _| {}).unwrap();
     let set = ingested.measurements;
     assert!(set.training.is_none(), "a sweep read as training poses");
     let training = skincal::ingest::motion::training_logs(&ingested.report);
-    assert_eq!(training, vec![logs[0].clone()]);
+    assert_eq!(training, vec![PathBuf::from("upright")]);
     let structure = explore(&set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
-    let record = motion_record(&training, &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
+    let [upright, _] = logs;
+    let record =
+        motion_record_from(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
     (set, structure, record)
 }
 
@@ -654,8 +665,7 @@ fn continuous_late(
 fn the_limbs_of_a_body_share_one_skin_delay() {
     let file = crate::real_robots::description("talos_data/robots/talos_reduced.urdf");
     let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
-    let dir = tempfile::tempdir().unwrap();
-    let (set, structure, record) = continuous_late(&robot, dir.path(), 0.008);
+    let (set, structure, record) = continuous_late(&robot, 0.008);
     let model = crate::common::on_motion(&set, &record, &structure, &MlConfig::default());
     let mut delays = Vec::new();
     for limb in &model.limbs {
@@ -707,8 +717,7 @@ fn the_limbs_of_a_body_share_one_skin_delay() {
 #[test]
 fn a_continuous_program_calibrates_from_its_motion_alone() {
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let (set, structure, record) = continuous(&robot, dir.path());
+    let (set, structure, record) = continuous(&robot);
     let model = calibrate_body_on_motion(
         &set,
         &record,
@@ -755,8 +764,7 @@ fn a_continuous_program_calibrates_from_its_motion_alone() {
 #[test]
 fn the_motion_tells_a_joints_order_that_gravity_cannot() {
     let robot = presets::find("humanoid").unwrap().robot().unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let (set, mut structure, record) = continuous(&robot, dir.path());
+    let (set, mut structure, record) = continuous(&robot);
     let neck = structure
         .joints
         .iter()
