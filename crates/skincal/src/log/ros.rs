@@ -266,7 +266,16 @@ pub struct JointTrajectory {
 
 /// CDR (little-endian, with the encapsulation header) of a message.
 pub fn encode<T: Serialize>(message: &T) -> Result<Vec<u8>, cdr::Error> {
-    cdr::serialize::<_, _, cdr::CdrLe>(message, cdr::Infinite)
+    let mut bytes = Vec::new();
+    encode_into(message, &mut bytes)?;
+    Ok(bytes)
+}
+
+/// [`encode`] into `bytes` (cleared first): a writer of many messages reuses one buffer, and
+/// the message is serialised once, without a pass that sizes it first.
+pub fn encode_into<T: Serialize>(message: &T, bytes: &mut Vec<u8>) -> Result<(), cdr::Error> {
+    bytes.clear();
+    cdr::serialize_into::<_, _, _, cdr::CdrLe>(bytes, message, cdr::Infinite)
 }
 
 /// A message from CDR with the encapsulation header (either byte order). Trusted input only:
