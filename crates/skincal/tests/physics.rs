@@ -694,7 +694,7 @@ fn servos_too_slow_for_the_programs_pauses_calibrate_from_the_motion() {
     let record =
         motion_record(&[upright], &set.dofs, &set.sus, &config, &mut |_, _, _| {}).unwrap();
     let model = crate::common::calibrated_on_motion(set, &record, 1.2);
-    // 0.0059 / 0.0055 m/s² (read at 50 ms with the skin unfiltered: 0.0042 / 0.0056).
+    // 0.0044 / 0.0028 m/s² (read at 50 ms with the skin unfiltered: 0.0042 / 0.0056).
     let v = held_out_rms(&model, &robot, "3 Hz servos, 0.3 s pauses, every sample: ");
     assert!(v.static_rms < 0.01 && v.dynamic_rms < 0.01, "{v:?}");
 }
@@ -707,7 +707,7 @@ fn servos_too_slow_for_the_programs_pauses_calibrate_from_the_motion() {
 /// per reading, it was stated 3–4 times too small there, and the fit ended at 1.49 σ (0.0024 /
 /// 0.0048 m/s² held-out); with it, 1.01 σ (0.0018 / 0.0040); with the joint states fitted as
 /// unknowns too (`coarse_encoders_joint_states_are_fitted_as_unknowns`) and the positions and
-/// velocities read through the skin's kernel, 0.0017 / 0.0022 at 0.72 σ, which the corrections'
+/// velocities read through the skin's kernel, 0.0018 / 0.0022 at 0.72 σ, which the corrections'
 /// share of the residual's degrees of freedom leaves below 1.
 #[test]
 fn thirteen_bit_encoders_calibrate_at_the_noise_level() {
@@ -759,8 +759,8 @@ fn a_clean_skin_read_through_the_kernel_asks_for_no_intrinsics() {
 /// poses): a still joint is read only to within a count, and a creeping one's acceleration from
 /// the staircase the polynomial bends to follow. Taken as read, the joint states put those errors
 /// into the geometry; fitted as unknowns held at the encoders' readings (`MlConfig::joint_states`,
-/// the default) the held-out error falls, static by half and dynamic by a quarter (0.0102 /
-/// 0.0063 to 0.0050 / 0.0048 m/s²; exact encoders give 0.0008 / 0.0026). A still joint's
+/// the default) the held-out error falls, static by half and dynamic by a fifth (0.0096 /
+/// 0.0062 to 0.0050 / 0.0049 m/s²; exact encoders give 0.0008 / 0.0026). A still joint's
 /// samples at one count share one correction: taken apart, each was held by the whole
 /// rounding's prior against one sample's readings, and the static error fell only to 0.0068.
 #[test]
