@@ -1,7 +1,8 @@
 //! Project tasks, run as `cargo xtask <task>` (an alias in `.cargo/config.toml`).
 //!
-//! `cargo xtask test [ARGS…]` makes sure everything the tests need is there, then runs
-//! `cargo test --workspace --release [ARGS…]` (optimised: the integration tests take three
+//! `cargo xtask test [ARGS…]` makes sure everything the tests need is there (while the tests
+//! are built: `cargo test --no-run`), then runs `cargo test --workspace --release [ARGS…]`
+//! (optimised: the integration tests take three
 //! quarters of the time they take at the debug build's light optimisation, and the Python
 //! package's tests then use much of the same release build):
 //! - the Python packages of `tests/python/requirements.txt` (pinned), in a virtual environment at
@@ -44,15 +45,7 @@ fn main() -> ExitCode {
     let task = args.next();
     let rest: Vec<OsString> = args.collect();
     let result = match task.as_ref().and_then(|t| t.to_str()) {
-        Some("test") => test_env().and_then(|python| {
-            let robots = robot_descriptions(&python)?;
-            let browser = chromium()?;
-            let code = run_tests(&python, &robots, &browser, &rest)?;
-            if code != ExitCode::SUCCESS || !rest.is_empty() {
-                return Ok(code);
-            }
-            python_package(&python)
-        }),
+        Some("test") => test(&rest),
         Some("test-env") => test_env().and_then(|python| {
             robot_descriptions(&python)?;
             println!("{}", python.display());
@@ -93,6 +86,50 @@ fn target_dir(root: &Path) -> PathBuf {
             }
         })
         .unwrap_or_else(|| root.join("target"))
+}
+
+/// `cargo xtask test [ARGS…]`: the tests are built while what they need is installed (the
+/// installation waits on the network, the build on the processor), then run; without ARGS the
+/// Python package is tested after them.
+fn test(args: &[OsString]) -> Result<ExitCode, String> {
+    let mut build = start_build(args)?;
+    let needs = test_env().and_then(|python| {
+        let robots = robot_descriptions(&python)?;
+        let browser = chromium()?;
+        Ok((python, robots, browser))
+    });
+    let (python, robots, browser) = match needs {
+        Ok(needs) => needs,
+        Err(message) => {
+            let _ = build.kill();
+            let _ = build.wait();
+            return Err(message);
+        }
+    };
+    let built = build
+        .wait()
+        .map_err(|e| format!("could not wait for cargo test --no-run: {e}"))?;
+    if !built.success() {
+        return Err("the tests did not build (cargo's errors above)".into());
+    }
+    let code = run_tests(&python, &robots, &browser, args)?;
+    if code != ExitCode::SUCCESS || !args.is_empty() {
+        return Ok(code);
+    }
+    python_package(&python)
+}
+
+/// Starts `cargo test --workspace --release --no-run` with the cargo options of `args` (those
+/// before a `--`; what follows is the test binaries').
+fn start_build(args: &[OsString]) -> Result<std::process::Child, String> {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let options = args.iter().take_while(|a| *a != "--");
+    Command::new(cargo)
+        .args(["test", "--workspace", "--release", "--no-run"])
+        .args(options)
+        .current_dir(workspace_root())
+        .spawn()
+        .map_err(|e| format!("could not run cargo test --no-run: {e}"))
 }
 
 /// Runs every test with the test environment's Python and the robot descriptions.
