@@ -56,7 +56,7 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     let started = Instant::now();
     let mut ingested = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?;
     let ingest_s = started.elapsed().as_secs_f64();
-    let ingest_mb = crate::peak_memory_mb();
+    let ingest_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
     crate::reset_peak_memory();
     let started = Instant::now();
     // As `skincal ingest` makes it, from what the measurement set's pass told of the joints.
@@ -65,10 +65,10 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     };
     let set = ingested.measurements;
     let record_s = started.elapsed().as_secs_f64();
-    let record_mb = crate::peak_memory_mb();
+    let record_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
     crate::reset_peak_memory();
     let fits = Fits::of(&robot, &set, &motion, args.threads)?;
-    let fits_mb = crate::peak_memory_mb();
+    let fits_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
     let held_out = simulate(
         &robot,
         &SimulationConfig {
@@ -119,9 +119,14 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
             "samples": [s.static_rms, s.dynamic_rms],
         },
         "peak_mb": {
-            "ingest": ingest_mb,
-            "record": record_mb,
-            "fits": fits_mb,
+            "ingest": ingest_mb[0],
+            "record": record_mb[0],
+            "fits": fits_mb[0],
+        },
+        "peak_heap_mb": {
+            "ingest": ingest_mb[1],
+            "record": record_mb[1],
+            "fits": fits_mb[1],
         },
     }));
     Ok(())
@@ -176,19 +181,21 @@ impl Fits {
 
 /// The table's one row: ingest, record, readings' fit and samples' fit times (s), the blocks
 /// fitted, the held-out static and dynamic RMS of both fits (m/s²) and the peak memory (MB) of
-/// the ingest, the record's pass and the fits (each stage's own peak, what the stages before it
-/// left included).
+/// the ingest, the record's pass and the fits: each stage's peak resident memory (what the
+/// stages before it left included, and what the allocator keeps of their freed memory), and the
+/// most it allocated at once beyond what was allocated when it started (its own heap: for the
+/// fits, what they need beyond the record and the readings they are given).
 struct Row {
     times: [f64; 4],
     blocks: usize,
     held_out: [f64; 4],
-    peaks: [f64; 3],
+    peaks: [[f64; 2]; 3],
 }
 
 impl Row {
     fn print(&self) {
         outln!(
-            "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>10} {:>10} {:>8}",
+            "{:>10} {:>10} {:>12} {:>12} {:>10} {:>14} {:>14} {:>14} {:>14} {:>10} {:>10} {:>8} {:>12} {:>12} {:>10}",
             "ingest s",
             "record s",
             "readings s",
@@ -200,12 +207,15 @@ impl Row {
             "samples dyn",
             "ingest MB",
             "record MB",
-            "fits MB"
+            "fits MB",
+            "ingest heap",
+            "record heap",
+            "fits heap"
         );
         let [ingest, record, readings, samples] = self.times;
         let [rs, rd, ss, sd] = self.held_out;
         outln!(
-            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>10.0} {:>10.0} {:>8.0}",
+            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>10.0} {:>10.0} {:>8.0} {:>12.0} {:>12.0} {:>10.0}",
             ingest,
             record,
             readings,
@@ -215,9 +225,12 @@ impl Row {
             rd,
             ss,
             sd,
-            self.peaks[0],
-            self.peaks[1],
-            self.peaks[2]
+            self.peaks[0][0],
+            self.peaks[1][0],
+            self.peaks[2][0],
+            self.peaks[0][1],
+            self.peaks[1][1],
+            self.peaks[2][1]
         );
     }
 }

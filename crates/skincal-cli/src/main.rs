@@ -4,9 +4,12 @@
 
 /// The estimator allocates and frees blocks of hundreds of kilobytes in every iteration of its
 /// fits, on every thread: glibc's per-thread arenas hand such memory back to the kernel and fault
-/// it in again each time (a third of a 60-DoF chain's calibration); mimalloc keeps it.
+/// it in again each time (a third of a 60-DoF chain's calibration); mimalloc keeps it. Counted, so
+/// that the benches can tell the most a stage held at once ([`peak_heap_mb`]), apart from what the
+/// allocator keeps for later and from what stages before it left.
+static HEAP: PeakMemAlloc<mimalloc::MiMalloc> = PeakMemAlloc::new(mimalloc::MiMalloc);
 #[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+static ALLOCATOR: &PeakMemAlloc<mimalloc::MiMalloc> = &HEAP;
 
 mod bench_body;
 mod bench_calibrate;
@@ -33,6 +36,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use out::{out, outln};
+use peakmem_alloc::{PeakMemAlloc, PeakMemAllocTrait};
 use skincal::explore::ExploreConfig;
 use skincal::io;
 use skincal::model::presets::PRESETS;
@@ -582,9 +586,17 @@ fn robots(args: RobotsArgs) -> Result<()> {
 }
 
 /// Starts the peak of [`peak_memory_mb`] again from the memory in use now (Linux; elsewhere the
-/// peak stays the process's).
+/// peak stays the process's), and [`peak_heap_mb`] from nothing.
 pub(crate) fn reset_peak_memory() {
     let _ = std::fs::write("/proc/self/clear_refs", "5");
+    HEAP.reset_peak_memory();
+}
+
+/// The most memory allocated at once beyond what was allocated at the last
+/// [`reset_peak_memory`], MB: what a stage needed of its own, whatever the allocator kept of
+/// earlier stages' memory for later.
+pub(crate) fn peak_heap_mb() -> f64 {
+    HEAP.get_peak_memory() as f64 / (1024.0 * 1024.0)
 }
 
 /// CPU time this process has used so far, every thread's (those that ended too), s; `None` where

@@ -32,28 +32,93 @@ pub const SUDDEN: f64 = 3.0;
 /// the record read ([`LimbMotion::correct_joint_states`]), rad/s².
 pub const ACCELERATION_PRIOR: f64 = 0.005;
 
-/// One block of the record that the limb's fit uses.
+/// One block of the record that the limb's fit uses: its run and block, and in one allocation
+/// (the samples of an hour-long log are millions) the position, velocity, acceleration and the
+/// acceleration's uncertainty of every DoF, then what the record read of every DoF's position and
+/// acceleration before any correction ([`LimbMotion::correct_joint_states`]). A DoF's motion,
+/// `Rz(q)` or `Tz(q)` for a prismatic one, is computed where it is needed ([`MotionSample::turns`]).
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct MotionSample {
-    run: usize,
-    block: usize,
-    /// The position of every DoF, and its motion: `Rz(q)`, or `Tz(q)` for a prismatic one.
-    q: Vec<f64>,
-    turns: Vec<Isometry3<f64>>,
-    qd: Vec<f64>,
-    qdd: Vec<f64>,
-    qdd_sd: Vec<f64>,
-    /// What the record read of every DoF's position and acceleration, before any correction
-    /// ([`LimbMotion::correct_joint_states`]).
-    read: (Vec<f64>, Vec<f64>),
+    run: u32,
+    block: u32,
+    values: Box<[f64]>,
 }
 
+/// The parts of [`MotionSample::values`], each one entry per DoF.
+const Q: usize = 0;
+const QD: usize = 1;
+const QDD: usize = 2;
+const QDD_SD: usize = 3;
+const READ_Q: usize = 4;
+const READ_QDD: usize = 5;
+const PARTS: usize = 6;
+
 impl MotionSample {
+    /// Block `block` of run `run` with these joint states, as the record read them.
+    fn new(run: usize, block: usize, q: &[f64], qd: &[f64], qdd: &[f64], qdd_sd: &[f64]) -> Self {
+        let values = [q, qd, qdd, qdd_sd, q, qdd].concat().into_boxed_slice();
+        Self {
+            run: run as u32,
+            block: block as u32,
+            values,
+        }
+    }
+
+    fn dofs(&self) -> usize {
+        self.values.len() / PARTS
+    }
+
+    fn part(&self, part: usize) -> &[f64] {
+        let n = self.dofs();
+        &self.values[part * n..(part + 1) * n]
+    }
+
+    fn run(&self) -> usize {
+        self.run as usize
+    }
+
+    fn block(&self) -> usize {
+        self.block as usize
+    }
+
+    fn q(&self) -> &[f64] {
+        self.part(Q)
+    }
+
+    fn qd(&self) -> &[f64] {
+        self.part(QD)
+    }
+
+    fn qdd(&self) -> &[f64] {
+        self.part(QDD)
+    }
+
+    fn qdd_sd(&self) -> &[f64] {
+        self.part(QDD_SD)
+    }
+
+    /// What the record read of DoF `d`'s position and acceleration.
+    fn read(&self, d: usize) -> (f64, f64) {
+        (self.part(READ_Q)[d], self.part(READ_QDD)[d])
+    }
+
+    /// Moves DoF `d`'s position and acceleration by these corrections.
+    fn correct(&mut self, d: usize, q: f64, qdd: f64) {
+        let n = self.dofs();
+        self.values[Q * n + d] += q;
+        self.values[QDD * n + d] += qdd;
+    }
+
+    /// Every DoF's motion at the sample's positions.
+    fn turns(&self, kinds: &[DofKind]) -> Vec<Isometry3<f64>> {
+        super::problem::turns_of(self.q(), kinds)
+    }
+
     /// What the motion of the first `dofs` DoFs could add to gravity at an SU they move, m/s²:
     /// [`QUIET_REACH`] times `Σ|q̈| + (Σ|q̇|)²` over them, as the record read them.
     fn reach(&self, dofs: usize) -> f64 {
-        let spin: f64 = self.qd.iter().take(dofs).map(|v| v.abs()).sum();
-        let turn: f64 = self.read.1.iter().take(dofs).map(|a| a.abs()).sum();
+        let spin: f64 = self.qd().iter().take(dofs).map(|v| v.abs()).sum();
+        let turn: f64 = self.part(READ_QDD).iter().take(dofs).map(|a| a.abs()).sum();
         QUIET_REACH * (turn + spin * spin)
     }
 }
@@ -176,10 +241,10 @@ pub struct LimbMotion {
     columns: Vec<usize>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
-    /// `joint_var[u][i]`: the variance the joint accelerations' uncertainty adds to SU `u`'s
-    /// prediction at sample `i`, (m/s²)², in single precision (empty until
-    /// [`LimbMotion::weigh`]).
-    joint_var: Vec<Vec<f32>>,
+    /// `joint_var.1[i * joint_var.0 + u]`: the variance the joint accelerations' uncertainty
+    /// adds to SU `u`'s prediction at sample `i`, (m/s²)², in single precision, sample by sample
+    /// as it is computed (empty until [`LimbMotion::weigh`]).
+    joint_var: (usize, Vec<f32>),
     /// Per chain DoF: its encoder's rounding ([`MotionRecord::rounding`]), rad.
     rounding: Vec<f64>,
     /// How many of the residual's degrees of freedom the last correction of the joint states
@@ -241,17 +306,14 @@ impl LimbMotion {
                 {
                     continue;
                 }
-                let (q, qdd) = (pick(&run.q[b]), pick(&run.qdd[b]));
-                samples.push(MotionSample {
-                    run: r,
-                    block: b,
-                    turns: super::problem::turns_of(&q, &kinds),
-                    read: (q.clone(), qdd.clone()),
-                    q,
-                    qd: pick(&run.qd[b]),
-                    qdd,
-                    qdd_sd: pick(&run.qdd_sd[b]),
-                });
+                samples.push(MotionSample::new(
+                    r,
+                    b,
+                    &pick(&run.q[b]),
+                    &pick(&run.qd[b]),
+                    &pick(&run.qdd[b]),
+                    &pick(&run.qdd_sd[b]),
+                ));
             }
             skin.push(match &filter {
                 None => run.skin.clone(),
@@ -298,7 +360,7 @@ impl LimbMotion {
             skin,
             columns,
             sd,
-            joint_var: Vec::new(),
+            joint_var: (0, Vec::new()),
             rounding,
             corrected: 0.0,
         })
@@ -396,17 +458,14 @@ impl LimbMotion {
             })
             .collect();
         self.corrected = steps.iter().flatten().map(|(_, taken)| taken).sum::<f64>() + tied.taken;
-        let kinds = &self.kinds;
         self.samples
             .par_iter_mut()
             .zip(steps)
             .for_each(|(sample, step)| {
                 if let Some((step, _)) = step {
                     for (k, &d) in dofs.iter().enumerate() {
-                        sample.q[d] += relaxation * step[k];
-                        sample.qdd[d] += relaxation * step[n + k];
+                        sample.correct(d, relaxation * step[k], relaxation * step[n + k]);
                     }
-                    sample.turns = super::problem::turns_of(&sample.q, kinds);
                 }
             });
     }
@@ -424,12 +483,16 @@ impl LimbMotion {
             .filter_map(|u| Some((u, self.measured(u, i, delay)?)))
             .collect();
         let at = |x: &[f64]| {
-            let (mut q, mut qdd) = (sample.q.clone(), sample.qdd.clone());
+            let (mut q, mut qdd) = (sample.q().to_vec(), sample.qdd().to_vec());
             for (k, &d) in dofs.iter().enumerate() {
                 q[d] += x[k];
                 qdd[d] += x[n + k];
             }
-            predict(&super::problem::turns_of(&q, &self.kinds), &sample.qd, &qdd)
+            predict(
+                &super::problem::turns_of(&q, &self.kinds),
+                sample.qd(),
+                &qdd,
+            )
         };
         let mut x = vec![0.0; 2 * n];
         let base = at(&x);
@@ -463,9 +526,10 @@ impl LimbMotion {
         let mut held_at = DVector::zeros(2 * n);
         for (k, &d) in dofs.iter().enumerate() {
             prior[k] = self.rounding[d].powi(-2);
-            held_at[k] = sample.q[d] - sample.read.0[d];
-            prior[n + k] = sample.qdd_sd[d].max(ACCELERATION_PRIOR).powi(-2);
-            held_at[n + k] = sample.qdd[d] - sample.read.1[d];
+            let (read_q, read_qdd) = sample.read(d);
+            held_at[k] = sample.q()[d] - read_q;
+            prior[n + k] = sample.qdd_sd()[d].max(ACCELERATION_PRIOR).powi(-2);
+            held_at[n + k] = sample.qdd()[d] - read_qdd;
         }
         Some(Local {
             information: jac.transpose() * &jac,
@@ -485,7 +549,7 @@ impl LimbMotion {
             for i in 1..=self.samples.len() {
                 let same = i < self.samples.len() && {
                     let (a, b) = (&self.samples[start], &self.samples[i]);
-                    a.run == b.run && (a.read.0[d] - b.read.0[d]).abs() <= 1e-9
+                    a.run == b.run && (a.read(d).0 - b.read(d).0).abs() <= 1e-9
                 };
                 if !same {
                     if i - start >= TIED {
@@ -542,7 +606,7 @@ impl LimbMotion {
             let first = &self.samples[range.start];
             let prior = self.rounding[d].powi(-2);
             a[(t, t)] += prior;
-            b[t] += (first.q[d] - first.read.0[d]) * prior;
+            b[t] += (first.q()[d] - first.read(d).0) * prior;
         }
         let Some(cholesky) = (m > 0).then(|| a.cholesky()).flatten() else {
             return Tied {
@@ -569,7 +633,7 @@ impl LimbMotion {
     /// and the fast ones hardly; lowered step by step, the fit is led from a start that gravity
     /// alone gave (orientations and axes) to the whole motion.
     pub(super) fn weigh_as_static(&mut self, state: &ChainState, su_segment: &[usize], kappa: f64) {
-        // Sample by sample, every SU's, in one buffer; then SU by SU.
+        // Sample by sample, every SU's, in one buffer.
         let sus = su_segment.len().max(1);
         let mut by_sample = vec![0f32; self.samples.len() * sus];
         by_sample
@@ -579,8 +643,8 @@ impl LimbMotion {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
                 let mut axes = Vec::with_capacity(state.joints.len());
-                for ((joint, turn), kind) in state.joints.iter().zip(&sample.turns).zip(&self.kinds)
-                {
+                let turns = sample.turns(&self.kinds);
+                for ((joint, turn), kind) in state.joints.iter().zip(&turns).zip(&self.kinds) {
                     let (frame, next) = link(&segment, joint, turn);
                     axes.push((
                         frame.rotation * Vector3::z(),
@@ -595,7 +659,7 @@ impl LimbMotion {
                     let joints: f64 = axes
                         .iter()
                         .take(s)
-                        .zip(&sample.qdd_sd)
+                        .zip(sample.qdd_sd())
                         .map(|((z, o, kind), sd)| match kind {
                             DofKind::Revolute => (z.cross(&(p - o)) * *sd).norm_squared(),
                             DofKind::Prismatic => sd * sd,
@@ -607,9 +671,7 @@ impl LimbMotion {
                     *o = v;
                 }
             });
-        self.joint_var = (0..su_segment.len())
-            .map(|u| by_sample.iter().skip(u).step_by(sus).copied().collect())
-            .collect();
+        self.joint_var = (sus, by_sample);
     }
 
     /// The variance of one component of SU `u`'s block, (m/s²)².
@@ -620,7 +682,8 @@ impl LimbMotion {
     /// The variance of one component of SU `u`'s residual at sample `i` where the skin's noise
     /// has `variance` times a block's ([`Interpolated::variance`]), (m/s²)².
     pub(super) fn residual_variance(&self, u: usize, i: usize, variance: f64) -> f64 {
-        let extra = self.joint_var.get(u).and_then(|v| v.get(i)).copied();
+        let (sus, values) = &self.joint_var;
+        let extra = values.get(i * sus + u).copied().filter(|_| u < *sus);
         self.sd[u].powi(2) * variance + extra.map_or(0.0, f64::from)
     }
 
@@ -632,12 +695,17 @@ impl LimbMotion {
         let every = every.max(1);
         self.with_samples(
             self.samples.iter().step_by(every).cloned().collect(),
-            self.joint_var
-                .iter()
-                .map(|v| v.iter().step_by(every).copied().collect())
-                .collect(),
+            self.weights_of(|i| i % every == 0),
             self.stride * every,
         )
+    }
+
+    /// The samples' weights ([`LimbMotion::weigh`]) of the samples `i` that `kept` keeps.
+    fn weights_of(&self, kept: impl Fn(usize) -> bool) -> (usize, Vec<f32>) {
+        let (sus, values) = &self.joint_var;
+        let rows = values.chunks(*sus.max(&1)).enumerate();
+        let values = rows.filter(|(i, _)| kept(*i)).flat_map(|(_, row)| row);
+        (*sus, values.copied().collect())
     }
 
     /// This record's share with `samples` (their weights `joint_var`, `stride` blocks apart in
@@ -645,7 +713,7 @@ impl LimbMotion {
     fn with_samples(
         &self,
         samples: Vec<MotionSample>,
-        joint_var: Vec<Vec<f32>>,
+        joint_var: (usize, Vec<f32>),
         stride: usize,
     ) -> Self {
         Self {
@@ -673,16 +741,8 @@ impl LimbMotion {
         let keep: Vec<bool> = self
             .samples
             .iter()
-            .map(|s| s.reach(s.qd.len()) < 0.1 * quietest)
+            .map(|s| s.reach(s.dofs()) < 0.1 * quietest)
             .collect();
-        let kept = |values: &[f32]| -> Vec<f32> {
-            values
-                .iter()
-                .zip(&keep)
-                .filter(|(_, &k)| k)
-                .map(|(v, _)| *v)
-                .collect()
-        };
         self.with_samples(
             self.samples
                 .iter()
@@ -690,7 +750,7 @@ impl LimbMotion {
                 .filter(|(_, &k)| k)
                 .map(|(s, _)| s.clone())
                 .collect(),
-            self.joint_var.iter().map(|v| kept(v)).collect(),
+            self.weights_of(|i| keep[i]),
             self.stride,
         )
     }
@@ -716,8 +776,8 @@ impl LimbMotion {
     /// [`Interpolated`].
     pub(super) fn interpolated(&self, u: usize, i: usize, delay: f64) -> Option<Interpolated> {
         let sample = &self.samples[i];
-        let (series, column) = (&self.skin[sample.run], self.columns[u]);
-        let x = sample.block as f64 + delay.clamp(-MAX_DELAY, MAX_DELAY) / self.period;
+        let (series, column) = (&self.skin[sample.run()], self.columns[u]);
+        let x = sample.block() as f64 + delay.clamp(-MAX_DELAY, MAX_DELAY) / self.period;
         let k = x.floor();
         let t = x - k;
         let k = k as usize;
@@ -763,7 +823,7 @@ impl LimbMotion {
     /// Whether samples `i` and `j` are neighbouring samples of one run, a stride apart.
     pub(super) fn adjacent(&self, i: usize, j: usize) -> bool {
         let (a, b) = (&self.samples[i], &self.samples[j]);
-        a.run == b.run && a.block.abs_diff(b.block) == self.stride
+        a.run == b.run && a.block().abs_diff(b.block()) == self.stride
     }
 
     /// The time between two adjacent samples ([`LimbMotion::adjacent`]), s.
@@ -806,8 +866,8 @@ pub(super) fn segment_terms(
     motion.samples[samples]
         .par_iter()
         .map(|sample| {
-            let instant = [Instant::new(&sample.qd, &sample.qdd, true)];
-            let mut terms = chain.terms(&sample.turns, None, &instant, last);
+            let instant = [Instant::new(sample.qd(), sample.qdd(), true)];
+            let mut terms = chain.terms(&sample.turns(&motion.kinds), None, &instant, last);
             terms.swap_remove(0)
         })
         .collect()
@@ -826,16 +886,7 @@ mod tests {
             stride: 1,
             filter: None,
             noise_correlation: [1.0, 0.0, 0.0, 0.0],
-            samples: vec![MotionSample {
-                run: 0,
-                block,
-                q: vec![0.0],
-                turns: vec![Isometry3::identity()],
-                qd: vec![0.0],
-                qdd: vec![0.0],
-                qdd_sd: vec![0.0],
-                read: (vec![0.0], vec![0.0]),
-            }],
+            samples: vec![MotionSample::new(0, block, &[0.0], &[0.0], &[0.0], &[0.0])],
             skin: vec![SkinRows::from(
                 series
                     .iter()
@@ -844,7 +895,7 @@ mod tests {
             )],
             columns: vec![0],
             sd: vec![0.01],
-            joint_var: Vec::new(),
+            joint_var: (0, Vec::new()),
             rounding: vec![0.0],
             corrected: 0.0,
         }
