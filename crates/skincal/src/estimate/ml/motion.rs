@@ -44,14 +44,19 @@ pub(super) struct MotionSample {
     values: Box<[f64]>,
 }
 
-/// The parts of [`MotionSample::values`], each one entry per DoF.
-const Q: usize = 0;
-const QD: usize = 1;
-const QDD: usize = 2;
-const QDD_SD: usize = 3;
-const READ_Q: usize = 4;
-const READ_QDD: usize = 5;
-const PARTS: usize = 6;
+/// The parts of [`MotionSample::values`] in their order, each one entry per DoF.
+#[derive(Clone, Copy)]
+enum Part {
+    Q,
+    Qd,
+    Qdd,
+    QddSd,
+    ReadQ,
+    ReadQdd,
+}
+
+/// How many parts a sample holds.
+const PARTS: usize = Part::ReadQdd as usize + 1;
 
 impl MotionSample {
     /// Block `block` of run `run` with these joint states, as the record read them.
@@ -68,9 +73,9 @@ impl MotionSample {
         self.values.len() / PARTS
     }
 
-    fn part(&self, part: usize) -> &[f64] {
-        let n = self.dofs();
-        &self.values[part * n..(part + 1) * n]
+    fn part(&self, part: Part) -> &[f64] {
+        let (n, k) = (self.dofs(), part as usize);
+        &self.values[k * n..(k + 1) * n]
     }
 
     fn run(&self) -> usize {
@@ -82,31 +87,31 @@ impl MotionSample {
     }
 
     fn q(&self) -> &[f64] {
-        self.part(Q)
+        self.part(Part::Q)
     }
 
     fn qd(&self) -> &[f64] {
-        self.part(QD)
+        self.part(Part::Qd)
     }
 
     fn qdd(&self) -> &[f64] {
-        self.part(QDD)
+        self.part(Part::Qdd)
     }
 
     fn qdd_sd(&self) -> &[f64] {
-        self.part(QDD_SD)
+        self.part(Part::QddSd)
     }
 
     /// What the record read of DoF `d`'s position and acceleration.
     fn read(&self, d: usize) -> (f64, f64) {
-        (self.part(READ_Q)[d], self.part(READ_QDD)[d])
+        (self.part(Part::ReadQ)[d], self.part(Part::ReadQdd)[d])
     }
 
     /// Moves DoF `d`'s position and acceleration by these corrections.
     fn correct(&mut self, d: usize, q: f64, qdd: f64) {
         let n = self.dofs();
-        self.values[Q * n + d] += q;
-        self.values[QDD * n + d] += qdd;
+        self.values[Part::Q as usize * n + d] += q;
+        self.values[Part::Qdd as usize * n + d] += qdd;
     }
 
     /// Every DoF's motion at the sample's positions.
@@ -118,7 +123,12 @@ impl MotionSample {
     /// [`QUIET_REACH`] times `Σ|q̈| + (Σ|q̇|)²` over them, as the record read them.
     fn reach(&self, dofs: usize) -> f64 {
         let spin: f64 = self.qd().iter().take(dofs).map(|v| v.abs()).sum();
-        let turn: f64 = self.part(READ_QDD).iter().take(dofs).map(|a| a.abs()).sum();
+        let turn: f64 = self
+            .part(Part::ReadQdd)
+            .iter()
+            .take(dofs)
+            .map(|a| a.abs())
+            .sum();
         QUIET_REACH * (turn + spin * spin)
     }
 }
