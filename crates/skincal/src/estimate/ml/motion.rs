@@ -33,7 +33,7 @@ pub const SUDDEN: f64 = 3.0;
 pub const ACCELERATION_PRIOR: f64 = 0.005;
 
 /// One block of the record that the limb's fit uses: its run and block, and in one allocation
-/// (the samples of an hour-long log are millions) the position, velocity, acceleration and the
+/// (an hour of log in 10 ms blocks is 360 000 samples) the position, velocity, acceleration and the
 /// acceleration's uncertainty of every DoF, then what the record read of every DoF's position and
 /// acceleration before any correction ([`LimbMotion::correct_joint_states`]). A DoF's motion,
 /// `Rz(q)` or `Tz(q)` for a prismatic one, is computed where it is needed ([`MotionSample::turns`]).
