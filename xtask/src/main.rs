@@ -119,12 +119,16 @@ fn test(args: &[OsString]) -> Result<ExitCode, String> {
     python_package(&python)
 }
 
+/// The cargo that runs this task.
+fn cargo() -> OsString {
+    env::var_os("CARGO").unwrap_or_else(|| "cargo".into())
+}
+
 /// Starts `cargo test --workspace --release --no-run` with the cargo options of `args` (those
 /// before a `--`; what follows is the test binaries').
 fn start_build(args: &[OsString]) -> Result<std::process::Child, String> {
-    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let options = args.iter().take_while(|a| *a != "--");
-    Command::new(cargo)
+    Command::new(cargo())
         .args(["test", "--workspace", "--release", "--no-run"])
         .args(options)
         .current_dir(workspace_root())
@@ -139,8 +143,7 @@ fn run_tests(
     browser: &Path,
     args: &[OsString],
 ) -> Result<ExitCode, String> {
-    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let status = Command::new(cargo)
+    let status = Command::new(cargo())
         .args(["test", "--workspace", "--release"])
         .args(args)
         .current_dir(workspace_root())

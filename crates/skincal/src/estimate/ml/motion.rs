@@ -229,6 +229,32 @@ struct Tied {
     taken: f64,
 }
 
+/// What the joint accelerations' uncertainty adds to the variance of each SU's prediction at
+/// each sample ([`LimbMotion::weigh`]), (m/s²)², in single precision, sample by sample as it is
+/// computed: `values[i * sus + u]`.
+#[derive(Debug, Clone, Default, PartialEq)]
+struct JointVariance {
+    sus: usize,
+    values: Vec<f32>,
+}
+
+impl JointVariance {
+    /// SU `u`'s at sample `i`; `None` before any weighing.
+    fn get(&self, i: usize, u: usize) -> Option<f32> {
+        (u < self.sus).then(|| self.values.get(i * self.sus + u).copied())?
+    }
+
+    /// Those of the samples `i` that `kept` keeps, in their order.
+    fn of_samples(&self, kept: impl Fn(usize) -> bool) -> Self {
+        let rows = self.values.chunks(self.sus.max(1)).enumerate();
+        let values = rows.filter(|(i, _)| kept(*i)).flat_map(|(_, row)| row);
+        Self {
+            sus: self.sus,
+            values: values.copied().collect(),
+        }
+    }
+}
+
 /// A limb's share of a motion record: its DoFs (chain order) and SUs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LimbMotion {
@@ -251,10 +277,9 @@ pub struct LimbMotion {
     columns: Vec<usize>,
     /// Each SU's standard deviation of one component of `skin`, m/s².
     pub(super) sd: Vec<f64>,
-    /// `joint_var.1[i * joint_var.0 + u]`: the variance the joint accelerations' uncertainty
-    /// adds to SU `u`'s prediction at sample `i`, (m/s²)², in single precision, sample by sample
-    /// as it is computed (empty until [`LimbMotion::weigh`]).
-    joint_var: (usize, Vec<f32>),
+    /// The variance the joint accelerations' uncertainty adds to each SU's prediction at each
+    /// sample (empty until [`LimbMotion::weigh`]).
+    joint_var: JointVariance,
     /// Per chain DoF: its encoder's rounding ([`MotionRecord::rounding`]), rad.
     rounding: Vec<f64>,
     /// How many of the residual's degrees of freedom the last correction of the joint states
@@ -370,7 +395,7 @@ impl LimbMotion {
             skin,
             columns,
             sd,
-            joint_var: (0, Vec::new()),
+            joint_var: JointVariance::default(),
             rounding,
             corrected: 0.0,
         })
@@ -681,7 +706,10 @@ impl LimbMotion {
                     *o = v;
                 }
             });
-        self.joint_var = (sus, by_sample);
+        self.joint_var = JointVariance {
+            sus,
+            values: by_sample,
+        };
     }
 
     /// The variance of one component of SU `u`'s block, (m/s²)².
@@ -692,8 +720,7 @@ impl LimbMotion {
     /// The variance of one component of SU `u`'s residual at sample `i` where the skin's noise
     /// has `variance` times a block's ([`Interpolated::variance`]), (m/s²)².
     pub(super) fn residual_variance(&self, u: usize, i: usize, variance: f64) -> f64 {
-        let (sus, values) = &self.joint_var;
-        let extra = values.get(i * sus + u).copied().filter(|_| u < *sus);
+        let extra = self.joint_var.get(i, u);
         self.sd[u].powi(2) * variance + extra.map_or(0.0, f64::from)
     }
 
@@ -705,17 +732,9 @@ impl LimbMotion {
         let every = every.max(1);
         self.with_samples(
             self.samples.iter().step_by(every).cloned().collect(),
-            self.weights_of(|i| i % every == 0),
+            self.joint_var.of_samples(|i| i % every == 0),
             self.stride * every,
         )
-    }
-
-    /// The samples' weights ([`LimbMotion::weigh`]) of the samples `i` that `kept` keeps.
-    fn weights_of(&self, kept: impl Fn(usize) -> bool) -> (usize, Vec<f32>) {
-        let (sus, values) = &self.joint_var;
-        let rows = values.chunks(*sus.max(&1)).enumerate();
-        let values = rows.filter(|(i, _)| kept(*i)).flat_map(|(_, row)| row);
-        (*sus, values.copied().collect())
     }
 
     /// This record's share with `samples` (their weights `joint_var`, `stride` blocks apart in
@@ -723,7 +742,7 @@ impl LimbMotion {
     fn with_samples(
         &self,
         samples: Vec<MotionSample>,
-        joint_var: (usize, Vec<f32>),
+        joint_var: JointVariance,
         stride: usize,
     ) -> Self {
         Self {
@@ -760,7 +779,7 @@ impl LimbMotion {
                 .filter(|(_, &k)| k)
                 .map(|(s, _)| s.clone())
                 .collect(),
-            self.weights_of(|i| keep[i]),
+            self.joint_var.of_samples(|i| keep[i]),
             self.stride,
         )
     }
@@ -905,7 +924,7 @@ mod tests {
             )],
             columns: vec![0],
             sd: vec![0.01],
-            joint_var: (0, Vec::new()),
+            joint_var: JointVariance::default(),
             rounding: vec![0.0],
             corrected: 0.0,
         }
