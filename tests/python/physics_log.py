@@ -23,7 +23,11 @@ substeps, minus gravity, in the site frame) is recorded with Gaussian noise and 
 its trajectory's acceleration is not the forward dynamics' qacc that MuJoCo's own accelerometer
 reads, so the skin is read from the trajectory itself, whatever the integrator;
 joint positions are read through 17-bit encoders.
-Writes OUT_DIR/joint_states.csv and OUT_DIR/imu.csv (skincal's CSV log) at 1 kHz.
+Writes OUT_DIR/joint_states.csv and OUT_DIR/imu.csv (skincal's CSV log) at 1 kHz; with `--raw`,
+the same samples as little-endian doubles instead (OUT_DIR/raw.json names the DoFs and SUs and
+gives the first stamp, the period and the count; OUT_DIR/joint_states.f64 holds each sample's
+joint positions, OUT_DIR/imu.f64 each sample's SUs' x, y, z), for a caller that writes the log
+itself: formatting the CSV takes Python longer than the simulation.
 
 Needs the packages of tests/python/requirements.txt (`cargo xtask test` installs them).
 """
@@ -301,6 +305,7 @@ def main():
     parser.add_argument("--adc-bits", type=int, default=10, help="accelerometer resolution over ±2 g (0: exact)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--start", type=float, default=1_700_000_000.0, help="first stamp, s")
+    parser.add_argument("--raw", action="store_true", help="write the samples as doubles, not CSV")
     args = parser.parse_args()
 
     with open(args.robot) as f:
@@ -434,6 +439,13 @@ def main():
         accs = np.clip(np.round(accs / lsb) * lsb, -2.0 * 9.81, 2.0 * 9.81 - lsb)
 
     os.makedirs(args.out, exist_ok=True)
+    if args.raw:
+        with open(os.path.join(args.out, "raw.json"), "w") as f:
+            json.dump({"dofs": names, "sus": su_names, "start": args.start, "period": dt, "samples": len(qs)}, f)
+        qs.astype("<f8").tofile(os.path.join(args.out, "joint_states.f64"))
+        accs.astype("<f8").tofile(os.path.join(args.out, "imu.f64"))
+        print(f"{len(qs)} samples, {len(qs) * dt:.1f} s, kp {np.round(kp, 1).tolist()}")
+        return
     stamps = args.start + np.arange(len(qs)) * dt
     # One sample's rows formatted at once: each template takes the stamp and the sample's values.
     joint_row = "%.6f," + ",".join(["%.9f"] * len(names)) + "\n"

@@ -33,6 +33,7 @@ fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
         .arg(plan)
         .arg(out)
         .args(extra)
+        .arg("--raw")
         .output()
         .unwrap_or_else(|e| {
             panic!("cannot run {interpreter:?} ({e}): run the tests with `cargo xtask test`")
@@ -44,6 +45,56 @@ fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
          tests with `cargo xtask test`, which installs it into target/test-env\n{stderr}"
     );
     assert!(output.status.success(), "{stderr}");
+    write_csv_log(out);
+}
+
+/// The simulator's samples (`--raw`: little-endian doubles in `out`) written as skincal's CSV log
+/// in `out`, as the simulator writes it without `--raw` (the same columns, `%.6f` stamps and
+/// specific forces, `%.9f` joint positions), a sample's rows together; the raw files are removed.
+fn write_csv_log(out: &Path) {
+    #[derive(serde::Deserialize)]
+    struct Raw {
+        dofs: Vec<String>,
+        sus: Vec<String>,
+        start: f64,
+        period: f64,
+        samples: usize,
+    }
+    let raw: Raw =
+        serde_json::from_str(&std::fs::read_to_string(out.join("raw.json")).unwrap()).unwrap();
+    let doubles = |name: &str, per_sample: usize| -> Vec<f64> {
+        let bytes = std::fs::read(out.join(name)).unwrap();
+        assert_eq!(bytes.len(), raw.samples * per_sample * 8, "{name}");
+        bytes
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+            .collect()
+    };
+    let (dofs, sus) = (raw.dofs.len(), raw.sus.len());
+    let (q, a) = (
+        doubles("joint_states.f64", dofs),
+        doubles("imu.f64", 3 * sus),
+    );
+    let stamp = |k: usize| raw.start + k as f64 * raw.period;
+    let mut joints = format!("stamp,{}\n", raw.dofs.join(","));
+    let mut imu = String::from("stamp,frame_id,ax,ay,az\n");
+    for k in 0..raw.samples {
+        let t = stamp(k);
+        joints += &format!("{t:.6}");
+        for v in &q[k * dofs..(k + 1) * dofs] {
+            joints += &format!(",{v:.9}");
+        }
+        joints.push('\n');
+        for (s, name) in raw.sus.iter().enumerate() {
+            let v = &a[(k * sus + s) * 3..][..3];
+            imu += &format!("{t:.6},{name},{:.6},{:.6},{:.6}\n", v[0], v[1], v[2]);
+        }
+    }
+    std::fs::write(out.join("joint_states.csv"), joints).unwrap();
+    std::fs::write(out.join("imu.csv"), imu).unwrap();
+    for name in ["raw.json", "joint_states.f64", "imu.f64"] {
+        std::fs::remove_file(out.join(name)).unwrap();
+    }
 }
 
 /// The physics simulator's options for position servos of `bandwidth` Hz at `damping`, tuned at
