@@ -656,6 +656,84 @@ fn continuous_late(
     (set, structure, record)
 }
 
+/// The noise of a record's block means between blocks 1 to 3 apart, measured where the paper
+/// arm holds still (exact encoders, so no kernel: the blocks as ingest refers them to their
+/// centres): each block's `(−m₋₁ + 26 m₀ − m₁)/24` of independent raw means shares −52/678 of
+/// its variance with each neighbour and 1/678 with the next but one, what the time-domain fit
+/// takes for the skin it interpolates between blocks (`BLOCK_NOISE_CORRELATION`). From squared
+/// differences `k` blocks apart within the holds (gravity cancels), `ρ_k = 1 − D_k / D_4`.
+#[test]
+fn the_block_means_noise_is_correlated_as_the_fit_takes_it() {
+    let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
+    let plan = short_plan(&robot);
+    let dir = tempfile::tempdir().unwrap();
+    let exact = LogConfig {
+        encoder_resolution: 0.0,
+        ..LogConfig::default()
+    };
+    let [upright, _] = logs(&robot, &plan, dir.path(), &exact);
+    let record = motion_record(
+        &[upright],
+        &robot.model.dof_names(),
+        &robot.model.su_names(),
+        &IngestConfig::default(),
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    assert!(record.skin_filter().is_none());
+    // Sums of squared differences k = 1…4 blocks apart, and their counts.
+    let (mut sums, mut counts) = ([0.0; 5], [0usize; 5]);
+    for run in &record.runs {
+        let still = |b: usize| run.qd[b].iter().chain(&run.qdd[b]).all(|v| v.abs() < 1e-9);
+        // Blocks whose corrected means (and the raw means they read, one on each side) lie in
+        // a hold.
+        let quiet: Vec<bool> = (0..run.skin.len())
+            .map(|b| b >= 2 && b + 2 < run.skin.len() && (b - 2..=b + 2).all(still))
+            .collect();
+        for b in 0..run.skin.len().saturating_sub(4) {
+            if !(quiet[b] && quiet[b + 4]) {
+                continue;
+            }
+            for u in 0..run.skin.width() {
+                let (Some(x), Some(_)) = (run.skin.get(b, u), run.skin.get(b + 4, u)) else {
+                    continue;
+                };
+                for k in 1..=4 {
+                    let y = run.skin.get(b + k, u).unwrap();
+                    sums[k] += (0..3).map(|i| (x[i] - y[i]).powi(2)).sum::<f64>();
+                    counts[k] += 3;
+                }
+            }
+        }
+    }
+    assert!(counts[4] > 20_000, "{} still pairs", counts[4]);
+    let d = |k: usize| sums[k] / counts[k] as f64;
+    let rho: Vec<f64> = (1..=3).map(|k| 1.0 - d(k) / d(4)).collect();
+    eprintln!(
+        "block noise correlation at lags 1–3: {rho:?} over {} pairs",
+        counts[4]
+    );
+    let expected = [-52.0 / 678.0, 1.0 / 678.0, 0.0];
+    for (k, (measured, truth)) in rho.iter().zip(expected).enumerate() {
+        assert!(
+            (measured - truth).abs() < 0.02,
+            "lag {}: {measured} against {truth}",
+            k + 1
+        );
+        let taken = skincal::estimate::ml::BLOCK_NOISE_CORRELATION[k + 1];
+        assert!(
+            (taken - truth).abs() < 1e-12,
+            "lag {}: the fit takes {taken}",
+            k + 1
+        );
+    }
+    assert!(
+        rho[0] < -0.05,
+        "neighbours' noise runs against each other: {}",
+        rho[0]
+    );
+}
+
 /// TALOS (2 SUs per link) with its skin stamped 8 ms late, calibrated from its continuous
 /// program: the skin has one clock, so every limb reports one delay, which all SUs tell — those
 /// of the trunk's tree (the trunk, and the arms and head on it) and of each leg (a tree of its
