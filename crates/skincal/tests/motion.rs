@@ -720,7 +720,7 @@ fn the_block_means_noise_is_correlated_as_the_fit_takes_it() {
             "lag {}: {measured} against {truth}",
             k + 1
         );
-        let taken = skincal::estimate::ml::BLOCK_NOISE_CORRELATION[k + 1];
+        let taken = skincal::motion::BLOCK_NOISE_CORRELATION[k + 1];
         assert!(
             (taken - truth).abs() < 1e-12,
             "lag {}: the fit takes {taken}",

@@ -87,7 +87,7 @@ mod uncertainty;
 
 pub use band::{ResidualBand, FALSE_ALARM};
 use final_fit::{final_fit, gauge_su, mirrored, refit, FinalProblem};
-pub use motion::{LimbMotion, BLOCK_NOISE_CORRELATION, MAX_DELAY};
+pub use motion::{LimbMotion, MAX_DELAY};
 pub use on_motion::{order_on_motion, refine_on_motion};
 use report::rejected_counts;
 pub use report::{

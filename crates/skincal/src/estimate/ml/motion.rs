@@ -16,20 +16,11 @@ use crate::estimate::limb::LimbData;
 use crate::estimate::EstimateError;
 use crate::model::sensor::STANDARD_GRAVITY;
 use crate::model::DofKind;
-use crate::motion::{MotionRecord, SkinFilter, SkinRows, QUIET_REACH};
+use crate::motion::{MotionRecord, SkinFilter, SkinRows, BLOCK_NOISE_CORRELATION, QUIET_REACH};
 
 /// The largest delay of the skin's clock behind the joint states' that is estimated, s (a driver's
 /// latency; more is another clock, which ingest refuses).
 pub const MAX_DELAY: f64 = 0.05;
-/// The correlation of the noise of a record's block means 0 to 3 blocks apart. Each is its
-/// block's mean referred to the block's centre (`ingest::blocks`): for a block filled evenly,
-/// `(−m₋₁ + 26 m₀ − m₁)/24` of raw means with independent noise, a variance of 678/576 of one
-/// mean's, −52/576 shared with each neighbour and 1/576 with the next but one. Between blocks
-/// the interpolated skin averages neighbours whose noise runs against each other: taken as
-/// independent, its variance midway was 6 % too high, and a limb whose motion tells the delay
-/// less than its SUs' stillness tells their noise put the skin's delay midway between blocks
-/// (TALOS's trunk alone: 3.3 to 3.8 ms off, at rest 0.967 of its noise).
-pub const BLOCK_NOISE_CORRELATION: [f64; 4] = [1.0, -52.0 / 678.0, 1.0 / 678.0, 0.0];
 /// A block whose DoF accelerations are less certain than this is not fitted, rad/s²: the joint
 /// motion changed faster than the record's local polynomial follows (a jerk at a phase's start),
 /// and its prediction would be wrong by that much times the lever arm. A DoF whose encoder
