@@ -611,19 +611,15 @@ impl SkinFilter {
     /// in units of one block mean's variance: `Σ_i Σ_j w_i w_j ρ(|i + lag − j|)`.
     fn covariance(&self, lag: usize) -> f64 {
         let w = &self.weights;
-        let mut sum = 0.0;
-        for (i, a) in w.iter().enumerate() {
-            for (k, rho) in BLOCK_NOISE_CORRELATION.iter().enumerate() {
-                // Blocks `k` apart from `i + lag`, on either side (once where `k` is 0).
-                let near = [(i + lag).checked_sub(k), Some(i + lag + k)];
-                for j in near.into_iter().take(if k == 0 { 1 } else { 2 }).flatten() {
-                    if let Some(b) = w.get(j) {
-                        sum += a * b * rho;
-                    }
-                }
-            }
-        }
-        sum
+        let rho = |i: usize, j: usize| BLOCK_NOISE_CORRELATION.get((i + lag).abs_diff(j));
+        w.iter()
+            .enumerate()
+            .flat_map(|(i, a)| {
+                w.iter()
+                    .enumerate()
+                    .filter_map(move |(j, b)| rho(i, j).map(|r| a * b * r))
+            })
+            .sum()
     }
 
     /// How many times more a slowly varying direction's sum over the values a fit takes (every
