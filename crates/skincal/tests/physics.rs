@@ -278,6 +278,11 @@ fn errors(robot: &Robot, set: &MeasurementSet) -> ([f64; 2], [f64; 2]) {
     ([rms(0, 0), rms(1, 0)], [rms(0, 1), rms(1, 1)])
 }
 
+/// The paper's arm on MuJoCo's servos (17-bit encoders, ±0.01 g), the short program of 8 poses,
+/// upright and tilted, through the whole default path: ingest finds every excitation and move
+/// where the plan put them, each reading within its reported deviation of the noise-free truth;
+/// the readings calibrate at their own noise, and every sample of the log calibrates within
+/// 0.005 m/s².
 #[test]
 fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_options() {
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();
@@ -293,13 +298,33 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), &[]);
-
-    let ingested = ingest(
+    let mut ingested = ingest(
         &[upright, tilted],
         &IngestConfig::default(),
         &mut |_, _, _| {},
     )
     .unwrap();
+    every_excitation_and_move_is_read(&ingested, poses);
+    the_timeline_is_drawn(&ingested.report, poses);
+    the_servos_coupled_the_dofs(&ingested.report);
+    let (zs, zd) = readings_within_their_deviations(&robot, &ingested.measurements);
+    readings_calibrate_at_their_own_noise(&robot, &ingested.measurements, (zs, zd));
+
+    // The default path, every sample of the logs: 0.0004 / 0.0013 m/s² against the readings'
+    // 0.0013 / 0.0134 (one dynamic reading per DoF and pose, each 0.03 m/s² off the truth,
+    // against every sample of the holds, patterns and moves).
+    let config = IngestConfig::default();
+    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
+        .unwrap()
+        .unwrap();
+    let every = crate::common::calibrated_on_motion(&ingested.measurements, &record, 1.1);
+    let v = held_out_rms(&every, &robot, "every sample: ");
+    assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
+}
+
+/// Every excitation of the `poses` training poses is read, no pose skipped, no warning, and each
+/// orientation's structure part holds one move of every DoF, in order.
+fn every_excitation_and_move_is_read(ingested: &skincal::ingest::Ingested, poses: usize) {
     let report = &ingested.report;
     let set = &ingested.measurements;
     set.validate().unwrap();
@@ -323,12 +348,11 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
         moved.dedup();
         assert_eq!(moved, set.dofs, "one move of every DoF, in order");
     }
-    let ([s, dynamic], [zs, zd]) = errors(&robot, set);
-    eprintln!(
-        "against the noise-free truth: static {s:.4}, dynamic {dynamic:.4} m/s² RMS; \
-         {zs:.2} and {zd:.2} standard deviations"
-    );
-    // The timeline: every excitation and move where it was, and the report draws it.
+}
+
+/// The timeline holds every excitation and move where it was, in order, and the report draws
+/// each excitation of both logs.
+fn the_timeline_is_drawn(report: &skincal::ingest::IngestReport, poses: usize) {
     let timeline = &report.logs[0].timeline;
     let count = |kind: &str| timeline.iter().filter(|s| s.kind == kind).count();
     assert_eq!(count("excitation"), poses * 7);
@@ -349,7 +373,10 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
                 .filter(|s| s.kind == "excitation")
                 .count()
     );
-    // The servos really coupled the DoFs: the proximal excitations moved the others.
+}
+
+/// The servos really coupled the DoFs: the proximal excitations moved the others.
+fn the_servos_coupled_the_dofs(report: &skincal::ingest::IngestReport) {
     let fits = &report.logs[0].fits;
     let coupled = fits.iter().map(|f| f.coupled).fold(0.0, f64::max);
     eprintln!(
@@ -357,12 +384,20 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
         coupled * 100.0
     );
     assert!(coupled > 0.2, "{fits:#?}");
+}
 
+/// The readings against the noise-free truth: within 0.01 (static) and 0.05 m/s² (dynamic) RMS,
+/// and their errors the size of their reported deviations — the static ones from the samples'
+/// scatter, the dynamic ones from the same and the encoders' rounding through the fit (the terms
+/// the model leaves out add a little). Returns the errors in deviations, static and dynamic.
+fn readings_within_their_deviations(robot: &Robot, set: &MeasurementSet) -> (f64, f64) {
+    let ([s, dynamic], [zs, zd]) = errors(robot, set);
+    eprintln!(
+        "against the noise-free truth: static {s:.4}, dynamic {dynamic:.4} m/s² RMS; \
+         {zs:.2} and {zd:.2} standard deviations"
+    );
     assert!(s <= 0.01, "static {s}");
     assert!(dynamic <= 0.05, "dynamic {dynamic}");
-    // The reported uncertainties are the errors' size: the static ones from the samples' scatter,
-    // the dynamic ones from the same and the encoders' rounding through the fit (the terms the
-    // model leaves out add a little).
     assert!(
         (0.7..1.3).contains(&zs),
         "static errors are {zs} reported deviations"
@@ -371,15 +406,22 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
         (0.7..1.6).contains(&zd),
         "dynamic errors are {zd} reported deviations"
     );
+    (zs, zd)
+}
 
-    // Explore and calibrate.
+/// The tree is exact, and the readings' fit, weighted by the readings' own deviations, ends near
+/// 1 of them; with the default noise setting of ±0.01 g instead, it would be far below it and
+/// every reported standard deviation far too large. The dynamic readings' errors against the
+/// truth are `zd` of their deviations (`readings_within_their_deviations`): where that is beyond
+/// what the noise allows at this many readings, a fit to the truth is beyond the band too, and
+/// must not be called converged.
+fn readings_calibrate_at_their_own_noise(
+    robot: &Robot,
+    set: &MeasurementSet,
+    (zs, zd): (f64, f64),
+) {
     let structure = explore(set, &ExploreConfig::default()).unwrap();
     assert!(structure.complete, "{:?}", structure.diagnostics);
-    // Weighted by the readings' own deviations, the fit's residual is near 1 of them; with the
-    // default noise setting of ±0.01 g instead, it would be far below it and every reported
-    // standard deviation far too large. The dynamic readings' errors against the truth are `zd`
-    // of their deviations (above): where that is beyond what the noise allows at this many
-    // readings, a fit to the truth is beyond the band too, and must not be called converged.
     let model = calibrate_body(set, Some(&structure), &MlConfig::default(), None).unwrap();
     for limb in &model.limbs {
         let ratio = limb.estimate.residual_ratio;
@@ -408,20 +450,8 @@ fn a_compliant_robot_from_an_independent_physics_engine_ingests_with_default_opt
     let ratio = unweighted.limbs[0].estimate.residual_ratio;
     eprintln!("with the default noise setting instead: residual {ratio:.2} σ");
     assert!(ratio < 0.5, "{ratio}");
-    let v = held_out_rms(&model, &robot, "");
+    let v = held_out_rms(&model, robot, "");
     assert!(v.static_rms < 0.03 && v.dynamic_rms < 0.03, "{v:?}");
-
-    // The default path, every sample of the logs: 0.0009 / 0.0015 m/s² against the readings'
-    // 0.0013 / 0.0134 (one dynamic reading per DoF and pose, each 0.03 m/s² off the truth,
-    // against every sample of the holds, patterns and moves).
-    let mut ingested = ingested;
-    let config = IngestConfig::default();
-    let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
-        .unwrap()
-        .unwrap();
-    let every = crate::common::calibrated_on_motion(&ingested.measurements, &record, 1.1);
-    let v = held_out_rms(&every, &robot, "every sample: ");
-    assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
 }
 
 #[test]
