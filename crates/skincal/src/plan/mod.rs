@@ -27,6 +27,7 @@
 use std::f64::consts::PI;
 
 use rand::Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::model::sensor::ExcitationPattern;
@@ -123,8 +124,9 @@ pub enum PlanError {
     },
 }
 
-/// Tells whether the robot's body is clear of itself (and of the floor) at a pose.
-pub trait Clearance {
+/// Tells whether the robot's body is clear of itself (and of the floor) at a pose; asked from
+/// several threads at once.
+pub trait Clearance: Sync {
     /// `None` when the pose `q` (rad, one per DoF of the plan) is clear with `extra` m to
     /// spare beyond what is allowed; else what touches.
     fn contact(&self, q: &[f64], extra: f64) -> Option<Touch>;
@@ -1056,14 +1058,19 @@ impl Plan {
     }
 
     /// The finished program checked every [`CHECK_STEP`] s (with [`PATH_GRACE`]): one contact
-    /// per touching stretch.
+    /// per touching stretch. The poses are checked on the thread pool, each on its own.
     fn check_collisions(&self, clearance: &dyn Clearance, guard: &Guard<'_>) -> CollisionCheck {
         let n = (self.duration / CHECK_STEP).ceil() as usize;
+        let time = |i: usize| (i as f64 * CHECK_STEP).min(self.duration);
+        let touches: Vec<Option<Touch>> = (0..=n)
+            .into_par_iter()
+            .map(|i| clearance.contact(&self.state(time(i)).q, -PATH_GRACE))
+            .collect();
         let mut contacts: Vec<PlannedContact> = Vec::new();
         let mut touching = false;
-        for i in 0..=n {
-            let time = (i as f64 * CHECK_STEP).min(self.duration);
-            match clearance.contact(&self.state(time).q, -PATH_GRACE) {
+        for (i, touch) in touches.into_iter().enumerate() {
+            let time = time(i);
+            match touch {
                 Some(touch) if !touching => {
                     contacts.push(PlannedContact {
                         time,
@@ -1414,7 +1421,8 @@ const MEND_ROUND: usize = 50;
 
 impl Guard<'_> {
     /// The first contact on the straight joint-space path from `from` to `to` (every path a
-    /// transfer or a move takes, whatever its timing), checked every [`PATH_STEP`] rad.
+    /// transfer or a move takes, whatever its timing), checked every [`PATH_STEP`] rad (the
+    /// steps on the thread pool).
     fn path_contact(&self, from: &[f64], to: &[f64]) -> Option<Touch> {
         self.clearance?;
         let widest = from
@@ -1424,7 +1432,7 @@ impl Guard<'_> {
             .fold(0.0, f64::max);
         let steps = ((widest / PATH_STEP).ceil() as usize).max(1);
         let clearance = self.clearance?;
-        (1..=steps).find_map(|i| {
+        (1..=steps).into_par_iter().find_map_first(|i| {
             let u = i as f64 / steps as f64;
             let q: Vec<f64> = from.iter().zip(to).map(|(a, b)| a + (b - a) * u).collect();
             clearance.contact(&q, -PATH_GRACE)
@@ -1501,7 +1509,8 @@ impl Guard<'_> {
     /// A sweep clear of the body on its whole path (and on the way from `from` to its
     /// `centre`), checked every [`CHECK_STEP`] s: a sweep that touches is mended where it
     /// touches, the DoFs between the two parts moving a share less (and their centre a share
-    /// nearer the rest pose when the centre itself touches).
+    /// nearer the rest pose when the centre itself touches). Its instants are checked on the
+    /// thread pool; the first contact in time is the one mended.
     fn clear_sweep(
         &mut self,
         from: &[f64],
@@ -1517,11 +1526,12 @@ impl Guard<'_> {
         let mut last = String::new();
         for _ in 0..CLEAR_TRIES {
             let on_the_way = self.path_contact(from, centre);
+            let (about, drawn) = (&*centre, &sweep);
             let touch = on_the_way.clone().or_else(|| {
-                (0..=steps).find_map(|i| {
+                (0..=steps).into_par_iter().find_map_first(|i| {
                     let t = config.sweep * i as f64 / steps as f64;
-                    let q: Vec<f64> = (0..centre.len())
-                        .map(|d| centre[d] + sweep.at(d, config.sweep, t)[0])
+                    let q: Vec<f64> = (0..about.len())
+                        .map(|d| about[d] + drawn.at(d, config.sweep, t)[0])
                         .collect();
                     self.clearance.and_then(|c| c.contact(&q, -PATH_GRACE))
                 })
