@@ -3,8 +3,9 @@
 //! constrained minimisation of a derivative-free objective by a global algorithm with a local
 //! optimiser, stopped by an objective value, an evaluation budget or a relative tolerance.
 //!
-//! The C library is compiled by `build.rs` with the `cc` crate (no cmake, no system NLopt) under the
-//! flags of NLopt's own CMake build, so results are those of any other NLopt 2.9.1 build.
+//! The C library is compiled by `skincal-nlopt-sys`'s `build.rs` with the `cc` crate (no cmake, no
+//! system NLopt) under the flags of NLopt's own CMake build, so results are those of any other
+//! NLopt 2.9.1 build.
 //!
 //! ```
 //! use skincal_nlopt::{seed, Algorithm, Optimizer, Stop};
@@ -26,53 +27,12 @@
 //! ```
 
 use std::any::Any;
-use std::ffi::{c_char, c_double, c_int, c_uint, c_ulong, c_void, CStr};
+use std::ffi::{c_double, c_int, c_uint, c_ulong, c_void, CStr};
 use std::fmt;
 use std::panic::{catch_unwind, resume_unwind, AssertUnwindSafe};
 use std::ptr::NonNull;
 
-/// The C declarations of `nlopt.h` that this crate calls.
-mod ffi {
-    use super::{c_char, c_double, c_int, c_uint, c_ulong, c_void};
-
-    /// `struct nlopt_opt_s`, opaque.
-    #[repr(C)]
-    pub struct NloptOpt {
-        _private: [u8; 0],
-    }
-
-    /// `nlopt_func`: objective with optional gradient.
-    pub type Func = Option<
-        unsafe extern "C" fn(
-            n: c_uint,
-            x: *const c_double,
-            gradient: *mut c_double,
-            data: *mut c_void,
-        ) -> c_double,
-    >;
-
-    unsafe extern "C" {
-        pub fn nlopt_srand(seed: c_ulong);
-        pub fn nlopt_version(major: *mut c_int, minor: *mut c_int, bugfix: *mut c_int);
-        pub fn nlopt_algorithm_from_string(name: *const c_char) -> c_int;
-        #[cfg(test)]
-        pub fn nlopt_algorithm_to_string(algorithm: c_int) -> *const c_char;
-        #[cfg(test)]
-        pub fn nlopt_result_to_string(result: c_int) -> *const c_char;
-        pub fn nlopt_create(algorithm: c_int, n: c_uint) -> *mut NloptOpt;
-        pub fn nlopt_destroy(opt: *mut NloptOpt);
-        pub fn nlopt_optimize(opt: *mut NloptOpt, x: *mut c_double, opt_f: *mut c_double) -> c_int;
-        pub fn nlopt_set_min_objective(opt: *mut NloptOpt, f: Func, data: *mut c_void) -> c_int;
-        pub fn nlopt_get_errmsg(opt: *mut NloptOpt) -> *const c_char;
-        pub fn nlopt_set_lower_bounds(opt: *mut NloptOpt, lb: *const c_double) -> c_int;
-        pub fn nlopt_set_upper_bounds(opt: *mut NloptOpt, ub: *const c_double) -> c_int;
-        pub fn nlopt_set_stopval(opt: *mut NloptOpt, stopval: c_double) -> c_int;
-        pub fn nlopt_set_ftol_rel(opt: *mut NloptOpt, tol: c_double) -> c_int;
-        pub fn nlopt_set_maxeval(opt: *mut NloptOpt, maxeval: c_int) -> c_int;
-        pub fn nlopt_force_stop(opt: *mut NloptOpt) -> c_int;
-        pub fn nlopt_set_local_optimizer(opt: *mut NloptOpt, local: *const NloptOpt) -> c_int;
-    }
-}
+use skincal_nlopt_sys as ffi;
 
 /// The NLopt algorithms this interface offers (their `nlopt_algorithm` codes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
