@@ -9,12 +9,13 @@
 //! reads each mutant from a file, and whatever it accepts goes on through the next stages
 //! (exploration, calibration, prediction, simulation, ingestion) within a budget. Every case must
 //! end without a panic, within a time limit, within a memory limit (the allocator refuses to hold
-//! more), and a refusal must name the file.
+//! more), and a refusal must name the file. The formats are fuzzed side by side, one per thread,
+//! each from its own seeded sequence.
 //!
 //! `SKINCAL_FUZZ_CASES` (mutants per format, default 1000) and `SKINCAL_FUZZ_SEED` (default 1) run
 //! it longer or elsewhere: `SKINCAL_FUZZ_CASES=5000 cargo test --release -p skincal --test fuzz --
 //! --nocapture`. The table of what ran is printed at the end; a failing case is written to
-//! `fuzz-case.txt` in the test's temporary directory before it runs, so that an abort (memory)
+//! `fuzz-case-<format>.txt` in the test's temporary directory before it runs, so that an abort (memory)
 //! still tells which it was.
 
 use std::fmt::Write as _;
@@ -101,38 +102,110 @@ fn every_format_survives_mutation() {
     });
     let work = tempfile::tempdir().unwrap();
     let formats = formats(work.path());
-    let case_file = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("fuzz-case.txt");
+    // The formats are fuzzed side by side, on as many plain threads as the machine has cores
+    // (not rayon's: the cases' own stages run on its pool, which a worker waiting on a case
+    // would starve). Each may hold its own limit's worth at once.
+    let workers = std::thread::available_parallelism().map_or(1, usize::from);
     ALLOCATOR
-        .set_limit(ALLOCATOR.allocated() + MEMORY_LIMIT)
+        .set_limit(ALLOCATOR.allocated() + MEMORY_LIMIT * workers)
         .unwrap();
     let quiet = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
+    let formats: Vec<std::sync::Arc<Format>> =
+        formats.into_iter().map(std::sync::Arc::new).collect();
+    let run = Run {
+        cases,
+        seed,
+        only,
+        work: work.path(),
+    };
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let tallies = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            scope.spawn(|| loop {
+                // The last first: the bags, the slowest to read (bz2 most of all), do not
+                // start when the other threads are nearly done.
+                let taken = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(f) = formats.len().checked_sub(taken + 1) else {
+                    break;
+                };
+                let format = &formats[f];
+                let tally = run.format(f, format);
+                tallies.lock().unwrap().push((f, tally));
+            });
+        }
+    });
+    let mut tallies = tallies.into_inner().unwrap();
+    tallies.sort_by_key(|(f, _)| *f);
+    std::panic::set_hook(quiet);
     let mut report = String::new();
-    let mut failures = Vec::new();
     writeln!(
         report,
         "format            cases  accepted  refused  findings   (seed {seed})"
     )
     .unwrap();
-    let formats: Vec<std::sync::Arc<Format>> =
-        formats.into_iter().map(std::sync::Arc::new).collect();
-    for (f, format) in formats.iter().enumerate() {
+    let mut failures = Vec::new();
+    for (format, (_, tally)) in formats.iter().zip(tallies) {
+        writeln!(
+            report,
+            "{:<17} {:>5}  {:>8}  {:>7}  {:>8}",
+            format.name,
+            tally.cases,
+            tally.accepted,
+            tally.refused,
+            tally.findings.len()
+        )
+        .unwrap();
+        failures.extend(tally.findings);
+    }
+    println!("{report}");
+    assert!(
+        failures.is_empty(),
+        "{} findings:\n{}\n\n{report}",
+        failures.len(),
+        failures
+            .iter()
+            .take(30)
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+}
+
+/// What every format's cases share.
+struct Run<'a> {
+    cases: usize,
+    seed: u64,
+    only: Option<(String, usize)>,
+    work: &'a Path,
+}
+
+impl Run<'_> {
+    /// Runs the unmutated file and `cases` mutants of format number `f`, seeded by the run's
+    /// seed and `f` (so a format's cases are the same whatever runs beside them). A failing
+    /// valid file is a finding too.
+    fn format(&self, f: usize, format: &std::sync::Arc<Format>) -> Tally {
+        let seed = self.seed;
         let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(f as u64));
+        let case_file = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("fuzz-case-{}.txt", format.name.replace(' ', "-")));
         let mut tally = Tally::default();
         // The unmutated file first: it must be accepted.
-        for case in 0..=cases {
+        for case in 0..=self.cases {
             let (bytes, what) = if case == 0 {
                 (format.valid.clone(), "unmutated".to_string())
             } else {
                 mutate(&format.valid, format.kind, &mut rng)
             };
-            if only
+            if self
+                .only
                 .as_ref()
                 .is_some_and(|(name, c)| name != format.name || *c != case)
             {
                 continue;
             }
-            let dir = work.path().join(format!("{}-{case}", f));
+            let dir = self.work.join(format!("{f}-{case}"));
             std::fs::create_dir_all(&dir).unwrap();
             let path = place(format, &dir, &bytes);
             std::fs::write(
@@ -149,7 +222,9 @@ fn every_format_survives_mutation() {
                 Outcome::Refused(message) => {
                     tally.refused += 1;
                     if case == 0 {
-                        failures.push(format!("{label}: the valid file was refused: {message}"));
+                        tally
+                            .findings
+                            .push(format!("{label}: the valid file was refused: {message}"));
                     } else if !message.contains(format.file)
                         && !message.contains(&path.display().to_string())
                     {
@@ -168,32 +243,9 @@ fn every_format_survives_mutation() {
             }
             let _ = std::fs::remove_dir_all(&dir);
         }
-        writeln!(
-            report,
-            "{:<17} {:>5}  {:>8}  {:>7}  {:>8}",
-            format.name,
-            tally.cases,
-            tally.accepted,
-            tally.refused,
-            tally.findings.len()
-        )
-        .unwrap();
-        failures.extend(tally.findings);
+        let _ = std::fs::remove_file(&case_file);
+        tally
     }
-    std::panic::set_hook(quiet);
-    println!("{report}");
-    let _ = std::fs::remove_file(&case_file);
-    assert!(
-        failures.is_empty(),
-        "{} findings:\n{}\n\n{report}",
-        failures.len(),
-        failures
-            .iter()
-            .take(30)
-            .cloned()
-            .collect::<Vec<_>>()
-            .join("\n")
-    );
 }
 
 enum Outcome {
