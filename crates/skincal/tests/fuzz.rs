@@ -15,8 +15,8 @@
 //! `SKINCAL_FUZZ_CASES` (mutants per format, default 1000) and `SKINCAL_FUZZ_SEED` (default 1) run
 //! it longer or elsewhere: `SKINCAL_FUZZ_CASES=5000 cargo test --release -p skincal --test fuzz --
 //! --nocapture`. The table of what ran is printed at the end; a failing case is written to
-//! `fuzz-case-<format>.txt` in the test's temporary directory before it runs, so that an abort (memory)
-//! still tells which it was.
+//! `fuzz-case-<format>.txt` in the test's temporary directory before it runs, so that an abort
+//! (memory) still tells which it was.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
