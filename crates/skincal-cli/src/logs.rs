@@ -554,9 +554,18 @@ fn render_report(r: &IngestReport) -> String {
         }
         let _ = writeln!(
             s,
-            "  windows: {} still, {} short pauses, {} excitations, {} structure moves; {} \
+            "  windows: {} still{}, {} short pauses, {} excitations, {} structure moves; {} \
              transfers skipped",
-            l.still_windows, l.pauses, l.excitations, l.moves, l.transfers
+            l.still_windows,
+            if l.creeping > 0 {
+                format!(" ({} poses read creeping)", l.creeping)
+            } else {
+                String::new()
+            },
+            l.pauses,
+            l.excitations,
+            l.moves,
+            l.transfers
         );
         if let Some(line) = coupled_motion(l) {
             let _ = writeln!(s, "{line}");

@@ -199,8 +199,20 @@ fn short_program_ingested(
 ) {
     let robot =
         crate::real_robots::with_two_sus_per_link(&crate::real_robots::description(path), 1);
+    let (ingested, record) = short_program_of(&robot, seed, options);
+    (robot, ingested, record)
+}
+
+/// `robot` through the short program (6 poses, plan seed `seed`) in the physics simulator with
+/// `options`, upright and its structure part tilted, ingested with default options as `skincal
+/// ingest` does: the ingestion and its motion record.
+fn short_program_of(
+    robot: &Robot,
+    seed: u64,
+    options: &[&str],
+) -> (skincal::ingest::Ingested, skincal::motion::MotionRecord) {
     let plan = Plan::new(
-        PlanDof::from_robot(&robot),
+        PlanDof::from_robot(robot),
         &PlanConfig {
             poses: 6,
             seed,
@@ -209,14 +221,14 @@ fn short_program_ingested(
     )
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let (upright, tilted) = physics_logs(&robot, &plan, dir.path(), options);
+    let (upright, tilted) = physics_logs(robot, &plan, dir.path(), options);
     let config = IngestConfig::default();
     let mut ingested = ingest(&[upright, tilted], &config, &mut |_, _, _| {}).unwrap();
     // The motion record, and what the structure moves accelerated.
     let record = skincal::ingest::motion::record_of(&mut ingested, &config, &mut |_, _, _| {})
         .unwrap()
         .unwrap();
-    (robot, ingested, record)
+    (ingested, record)
 }
 
 /// The tree of `set` checked complete and with the activity matrix of the condensed simulation
@@ -1013,6 +1025,51 @@ fn an_encoder_that_first_changes_after_the_first_second_may_flicker_at_a_pose() 
         set,
         &record,
         "SO-101 on 5 Hz servos, 12-bit encoders: ",
+    );
+    assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
+}
+
+/// A mobile manipulator (TIAGo: two wheels, and a lift that carries a 2-DoF head and a 7-DoF
+/// arm; two SUs per link) on servos of 4 Hz at damping 0.6 with 14-bit encoders, ingested with
+/// default options and no description. Its heavy arm's servos ring after each move and then
+/// creep at 0.02 rad/s to the end of the hold, never below the still speed: those poses are read
+/// where they crept least (a creep is no acceleration). Its lift turns no gravity, so only what
+/// its 3 cm move accelerated tells which SUs it carries, and that it slides: the move's
+/// excitation (Σq̈² 0.45) was below what a move had to excite to be read, and the lift was left
+/// out of the tree, its bounce an unexplained misfit of every limb it carries. Known as a slide,
+/// its pauses are judged at a tenth of a turn's speed, and the lift bouncing a few tenths of a
+/// millimetre as the arm rang (6 mm/s) broke the arm's holds until a slide that stays within the
+/// motion threshold counted as not moving. Its patterns (6.8 mm) run with the arm's first
+/// joints (0.07 rad), and compared in their own units they were taken for the lift following
+/// the arm. Before: no measurement set at all; now the tree is exact and every sample of the
+/// log calibrates the robot at the noise level.
+#[test]
+fn a_mobile_manipulators_lift_on_soft_servos_is_told_a_slide_and_calibrated() {
+    let file = crate::real_robots::description("tiago_description/robots/tiago_no_hand.urdf");
+    let robot = crate::real_robots::with_two_sus_per_link(&file, 1);
+    let options = servos("4", "0.6", &["--encoder-bits", "14"]);
+    let (ingested, record) = short_program_of(&robot, 1, &options);
+    let report = &ingested.report;
+    let lift = report
+        .kinds
+        .iter()
+        .find(|k| k.dof == "torso_lift_joint")
+        .unwrap();
+    assert_eq!(lift.kind, Some(DofKind::Prismatic), "{lift:?}");
+    let set = &ingested.measurements;
+    assert_eq!(set.prismatic, ["torso_lift_joint"]);
+    let dofs = robot.model.dofs().len();
+    assert_eq!(report.dynamic, report.training_poses * dofs, "{report:#?}");
+    let crept: usize = report.logs.iter().map(|l| l.creeping).sum();
+    eprintln!(
+        "poses read creeping: {crept}; warnings {:#?}",
+        report.warnings
+    );
+    let v = exact_tree_and_held_out(
+        &robot,
+        set,
+        &record,
+        "TIAGo on 4 Hz servos at damping 0.6, 14-bit encoders: ",
     );
     assert!(v.static_rms < 0.005 && v.dynamic_rms < 0.005, "{v:?}");
 }

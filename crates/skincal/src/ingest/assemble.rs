@@ -57,32 +57,55 @@ impl Passes<'_> {
         self.grids[st.log].time(w.start)
     }
 
+    /// The still windows a station's reading pools: the full ones, or the short ones where there
+    /// is none, or those in which the DoFs crept least where none was still.
+    fn pooled(&self, st: &Station) -> Vec<usize> {
+        let windows = &self.segs[st.log].stills;
+        let rank = |w: usize| {
+            let w = &windows[w];
+            w.reading.then(|| (w.creeping.unwrap_or(0.0), w.short))
+        };
+        let best = st
+            .stills
+            .iter()
+            .filter_map(|&w| rank(w))
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        st.stills
+            .iter()
+            .copied()
+            .filter(|&w| best.is_some() && rank(w) == best)
+            .collect()
+    }
+
+    /// Counts a station read from windows in which the DoFs still crept in its log's report.
+    fn count_creep(&mut self, st: &Station) {
+        let windows = &self.segs[st.log].stills;
+        if self
+            .pooled(st)
+            .first()
+            .is_some_and(|&w| windows[w].creeping.is_some())
+        {
+            self.reports[st.log].creeping += 1;
+        }
+    }
+
     /// The static readings of a station, pooled over its still windows; why there are none as
     /// the error.
     fn still_reading(&self, st: &Station) -> Result<Vec<(Reading, u64)>, String> {
         let windows = &self.segs[st.log].stills;
         if st.stills.iter().all(|&w| !windows[w].reading) {
             return Err(format!(
-                "it was never still for a static reading (every DoF below {} rad/s for {:.3} s, \
-                 plus {} s trimmed at both ends): servos that ring longer than the program \
-                 holds need longer holds (`skincal plan --still S --settle S`), or ingest with \
-                 a larger --still-velocity",
+                "it was never still for a static reading (every DoF below {} rad/s, or creeping \
+                 below {} rad/s, for {:.3} s, plus {} s trimmed at both ends): servos that ring \
+                 longer than the program holds need longer holds (`skincal plan --still S \
+                 --settle S`), or ingest with a larger --quiet-velocity",
                 self.config.still_velocity,
+                self.config.quiet_velocity,
                 self.config.min_still / SHORT_STILL as f64,
                 self.config.trim
             ));
         }
-        // The full windows, or the short ones where there is none.
-        let full = st
-            .stills
-            .iter()
-            .any(|&w| windows[w].reading && !windows[w].short);
-        let pooled: Vec<usize> = st
-            .stills
-            .iter()
-            .copied()
-            .filter(|&w| windows[w].short != full)
-            .collect();
+        let pooled = self.pooled(st);
         let acc = &self.accumulated[st.log];
         (0..self.sus.names.len())
             .map(|su| {
@@ -258,7 +281,10 @@ fn training_pose(
         passes.warnings.push(warning);
     };
     let (static_readings, counts): (Vec<Reading>, Vec<u64>) = match passes.still_reading(st) {
-        Ok(r) => r.into_iter().unzip(),
+        Ok(r) => {
+            passes.count_creep(st);
+            r.into_iter().unzip()
+        }
         Err(why) => {
             skip(passes, why);
             return None;
@@ -569,7 +595,10 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
     let mut moves = Vec::new();
     for st in members {
         let readings: Vec<Reading> = match passes.still_reading(st) {
-            Ok(r) => r.into_iter().map(|(r, _)| r).collect(),
+            Ok(r) => {
+                passes.count_creep(st);
+                r.into_iter().map(|(r, _)| r).collect()
+            }
             Err(why) => {
                 let warning = format!(
                     "{path}: structure pose at {:.3} s skipped: {why}",
@@ -628,10 +657,15 @@ fn orientation(passes: &mut Passes<'_>, members: &[&Station]) -> Option<Orientat
 
 /// Per SU, the sum of squared deviations of its samples from their window's mean in the still
 /// windows (over the three axes) and its degrees of freedom.
-fn scatter(accumulated: &[Accumulated], sus: usize) -> Vec<(f64, f64)> {
+fn scatter(accumulated: &[Accumulated], segs: &[Segmentation], sus: usize) -> Vec<(f64, f64)> {
     let mut out = vec![(0.0, 0.0); sus];
-    for acc in accumulated {
-        for w in &acc.stills {
+    for (acc, seg) in accumulated.iter().zip(segs) {
+        let still = acc
+            .stills
+            .iter()
+            .zip(&seg.stills)
+            .filter(|(_, window)| window.creeping.is_none());
+        for (w, _) in still {
             for (s, o) in w.iter().zip(out.iter_mut()).filter(|(s, _)| s.n > 1) {
                 for k in 0..3 {
                     let n = s.n as f64;
@@ -896,7 +930,7 @@ fn training_orientations(passes: &mut Passes<'_>, mut stations: Vec<Station>) ->
 /// without noise, a simulated one, still gives readings a deviation), and the noise of one
 /// sample over all SUs, m/s².
 fn sample_noise(passes: &mut Passes<'_>) -> Option<f64> {
-    let scatter = scatter(passes.accumulated, passes.sus.names.len());
+    let scatter = scatter(passes.accumulated, passes.segs, passes.sus.names.len());
     let floor = super::motion::NOISE_FLOOR.powi(2);
     passes.variance = scatter
         .iter()
@@ -943,7 +977,7 @@ fn orientations(
 }
 
 /// The training poses of the stations with excitations; an error when there were some and every
-/// one was skipped.
+/// one was skipped, unless it was for a tree that the structure moves' accelerations may give.
 fn training_poses(
     passes: &mut Passes<'_>,
     stations: &[Station],
@@ -957,7 +991,23 @@ fn training_poses(
         .iter()
         .filter_map(|st| training_pose(passes, st, pattern))
         .collect();
-    if !training.is_empty() && poses.is_empty() {
+    // Where the structure part's static readings leave SUs unplaced (a slide, or a DoF about a
+    // vertical axis in one base orientation, turns no gravity), what its moves accelerated, from
+    // the motion record, may place them: the set keeps its structure part for that, and
+    // `motion::record_of` reads the logs again with the tree it gives.
+    let unplaced = passes
+        .moved_by
+        .as_ref()
+        .is_some_and(|m| m.iter().any(Option::is_none));
+    if !training.is_empty() && poses.is_empty() && unplaced && passes.config.tree.is_none() {
+        passes.warnings.push(format!(
+            "none of the {} training poses was read: DoFs were excited together, and the \
+             structure part's static readings do not tell which of them moves every SU (a slide, \
+             or a DoF about a vertical axis, turns no gravity); what its moves accelerated does, \
+             from the motion record, which `skincal ingest` makes and then reads the logs again",
+            training.len()
+        ));
+    } else if !training.is_empty() && poses.is_empty() {
         return Err(IngestError::Empty(format!(
             "all {} training poses found in the joint states were skipped, so the result \
              would have none; the first reason: {}",
@@ -1020,6 +1070,17 @@ fn warnings(passes: &mut Passes<'_>) -> Vec<String> {
                 r.path.display(),
                 r.unrecorded_joints,
                 passes.dofs.len()
+            ));
+        }
+        if r.creeping > 0 {
+            warnings.push(format!(
+                "{}: {} of its poses were read where the DoFs still crept, never below {} rad/s \
+                 for long enough: its servos settle slower than the program holds. A creep is no \
+                 acceleration and the readings hold, but longer holds (`skincal plan --still S \
+                 --settle S`) read those poses still",
+                r.path.display(),
+                r.creeping,
+                passes.config.still_velocity
             ));
         }
         if !r.unknown_frames.is_empty() {

@@ -361,6 +361,11 @@ pub struct LogReport {
     pub filled: u64,
     /// Still windows found (each gives a static reading).
     pub still_windows: usize,
+    /// Poses (structure and training) read from still windows in which the DoFs still crept,
+    /// never below `still_velocity` for long enough: the servos settle slower than the program
+    /// holds.
+    #[serde(default, skip_serializing_if = "crate::measurements::is_zero")]
+    pub creeping: usize,
     /// Pauses between motions too short or too restless for a static reading.
     pub pauses: usize,
     /// Single-DoF excitations found.

@@ -36,8 +36,11 @@ const MARGIN: usize = 10;
 /// ending at the pose would stand for it and tell a wrist's gains only to within centimetres.
 const RINGING: usize = 10;
 /// The least `Σ(q̈ − mean)²` over a move's blocks for its regression to tell anything, (m/s²)²
-/// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60.
-const LEAST_EXCITATION: f64 = 1.0;
+/// or (rad/s²)²: a 4 cm finger move in 0.3 s gives about 60, a mobile manipulator's 3 cm lift
+/// of its whole upper body on servos of 6 Hz 0.45 (and its SUs read 1.00 ± 0.05 per m/s²). Below
+/// it the regressors are all but degenerate; above, the gain's deviation says how well it was
+/// read.
+const LEAST_EXCITATION: f64 = 0.1;
 /// How many standard deviations make a term of the one-DoF model read: an SU carried, gravity
 /// turned, a centripetal term, a gain other than a slide's.
 const TOLD: f64 = 5.0;
@@ -45,6 +48,13 @@ const TOLD: f64 = 5.0;
 /// the regression, m/s² between the static readings at rest and after the move (a slide turns
 /// none; a move of 0.3 rad about an axis within 10° of vertical turns less).
 const TURNED: f64 = 0.5;
+/// How many times more SUs must read a slide's gain than a turn's signs for a DoF to be told a
+/// slide. Every SU a turn about a tilted axis carries turns gravity, and most it carries read a
+/// lever arm other than 1 m; a slide's SUs may show a sign of a turn now and then: a lift that
+/// carries an arm bounces as the arm's servos ring, and a hold read in the bounce (before the
+/// lift is known as a slide, whose pauses are judged at a tenth of a turn's speed) turns gravity
+/// on an SU or two of the thirty it carries.
+const SLIDE_MAJORITY: usize = 5;
 /// How far from a slide's 1 per m/s² an SU's gain may read and still be a slide's.
 const UNIT_GAIN: f64 = 0.2;
 
@@ -487,7 +497,8 @@ impl Votes {
                 format!("{:.digits$}–{:.digits$}", low * scale, high * scale)
             }
         };
-        let (kind, evidence) = if self.turned + self.spun + self.levers.len() > 0 {
+        let turns = self.turned + self.spun + self.levers.len();
+        let (kind, evidence) = if turns > 0 && self.slides.len() < SLIDE_MAJORITY * turns {
             let mut why = Vec::new();
             if self.turned > 0 {
                 why.push(format!("turned gravity on {} SU(s)", self.turned));
@@ -507,10 +518,15 @@ impl Votes {
             (
                 Some(DofKind::Prismatic),
                 format!(
-                    "{} SU(s) read its axis at {} per m/s², and none turned gravity or was spun \
-                     outwards",
+                    "{} SU(s) read its axis at {} per m/s², and {} turned gravity, was spun \
+                     outwards or read a lever arm",
                     self.slides.len(),
-                    range(&self.slides, 1.0, 2)
+                    range(&self.slides, 1.0, 2),
+                    if turns == 0 {
+                        "none".to_string()
+                    } else {
+                        turns.to_string()
+                    }
                 ),
             )
         } else if moves == 0 {

@@ -21,11 +21,35 @@ pub(super) struct StillWindow {
     /// short hold leaves no longer one. Its station's reading pools it only when the station
     /// has no full one (it may hold the end of the settling motion).
     pub(super) short: bool,
+    /// Where no DoF got below `still_velocity` for long enough in the pause: the speed every DoF
+    /// stayed below in the window instead, rad/s, the least of [`creep_limits`]. A servo that
+    /// settles slower than the program holds still creeps at the end of a hold (a heavy joint on
+    /// soft, lightly damped servos: 0.02 rad/s half a second after a move), and a creep is no
+    /// acceleration: the window's mean reading is that of its mean pose, to first order in the
+    /// pose's change across it. Its station's reading pools it only when the station has no
+    /// still one, and no noise is estimated from it.
+    pub(super) creeping: Option<f64>,
 }
 
 /// A still window may be this many times shorter than `min_still` where its station has no
 /// full one.
 pub(super) const SHORT_STILL: usize = 3;
+
+/// The speeds below which a pause without a still window is searched for the window in which it
+/// crept least ([`StillWindow::creeping`]): `still_velocity` doubled, and doubled again, up to
+/// `quiet_velocity`, which ends the list.
+fn creep_limits(config: &IngestConfig) -> Vec<f64> {
+    let mut limits = Vec::new();
+    let mut limit = 2.0 * config.still_velocity;
+    while limit < config.quiet_velocity {
+        limits.push(limit);
+        limit *= 2.0;
+    }
+    if config.quiet_velocity > config.still_velocity {
+        limits.push(config.quiet_velocity);
+    }
+    limits
+}
 
 /// Runs of `true` in `mask` at least `min` long, as `[start, end)`.
 fn runs(mask: &[bool], min: usize) -> Vec<(usize, usize)> {
@@ -196,15 +220,32 @@ pub(super) fn pieces(
     let trim = trim_points(config, dt, l);
     let min_still = ((config.min_still / dt).round() as usize).max(1);
     let first = timeline.first;
-    let (pauses, still) = pauses(timeline, dofs, config, l, at_end);
+    let slow = Slow::new(timeline, dofs, config, l);
+    let still = slow.below(config.still_velocity);
+    let pauses = pauses(timeline, config, &slow, l, at_end);
+    // The masks of the creep limits, made where a pause first needs them.
+    let limits = creep_limits(config);
+    let mut creep: Vec<Option<Vec<bool>>> = vec![None; limits.len()];
     let mut out = Vec::with_capacity(pauses.len());
     for (k, &(s, e)) in pauses.iter().enumerate() {
         // The longest still run of the pause, trimmed, gives the static reading; one shorter than
-        // `min_still` (but a third of it at least) only where its station has no other.
-        let reading = runs(&still[s..e], min_still.div_ceil(SHORT_STILL) + 2 * trim)
-            .into_iter()
-            .max_by_key(|(a, b)| b - a)
-            .map(|(a, b)| (s + a + trim, s + b - trim));
+        // `min_still` (but a third of it at least) only where its station has no other; where
+        // there is none, the longest run below the least creep limit that has one.
+        let longest = |mask: &[bool]| {
+            runs(&mask[s..e], min_still.div_ceil(SHORT_STILL) + 2 * trim)
+                .into_iter()
+                .max_by_key(|(a, b)| b - a)
+                .map(|(a, b)| (s + a + trim, s + b - trim))
+        };
+        let mut reading = longest(&still);
+        let mut creeping = None;
+        for (limit, mask) in limits.iter().zip(creep.iter_mut()) {
+            if reading.is_some() {
+                break;
+            }
+            reading = longest(mask.get_or_insert_with(|| slow.below(*limit)));
+            creeping = reading.map(|_| *limit);
+        }
         let short = reading.is_some_and(|(a, b)| b - a < min_still);
         let (a, b) = reading.unwrap_or((s, e));
         let pose = timeline
@@ -233,6 +274,7 @@ pub(super) fn pieces(
                 pose,
                 reading: reading.is_some(),
                 short,
+                creeping,
             },
             spans,
             after,
@@ -241,28 +283,69 @@ pub(super) fn pieces(
     out
 }
 
-/// The pauses of a stretch (see [`pieces`]) and where every DoF is still. A prismatic DoF's
-/// speeds are compared in its pattern's units ([`IngestConfig::speed_scale`]).
-fn pauses(
-    timeline: &Timeline,
-    dofs: &[String],
-    config: &IngestConfig,
+/// Where every DoF of a stretch is slower than a speed: each DoF's change over ±`filter` grid
+/// points, against that speed over the span and its encoder's flicker. A prismatic DoF's speeds
+/// are compared in its pattern's units ([`IngestConfig::speed_scale`]).
+struct Slow<'a> {
+    timeline: &'a Timeline,
     l: usize,
-    at_end: bool,
-) -> (Vec<(usize, usize)>, Vec<bool>) {
-    let n = timeline.len();
-    let dt = timeline.grid.dt;
-    let span = 2.0 * l as f64 * dt;
-    // A still DoF's encoder may read a count either way at both ends of the span: two counts
-    // over it are no motion (a flickering 0.044° encoder at ±50 ms reads 0.015 rad/s).
-    let flicker: Vec<f64> = (0..timeline.theta.len())
-        .map(|e| 2.0 * timeline.grid.count.get(e).copied().unwrap_or(0.0))
-        .collect();
-    let scale: Vec<f64> = (0..timeline.theta.len())
-        .map(|e| dofs.get(e).map_or(1.0, |d| config.speed_scale(d)))
-        .collect();
-    // Grid points where every DoF is slower than `limit`.
-    let below = |limit: f64| -> Vec<bool> {
+    span: f64,
+    /// Per DoF, what its encoder may read at a still joint over the span.
+    flicker: Vec<f64>,
+    /// Per DoF, its speeds' scale.
+    scale: Vec<f64>,
+}
+
+impl<'a> Slow<'a> {
+    fn new(timeline: &'a Timeline, dofs: &[String], config: &IngestConfig, l: usize) -> Self {
+        // A still DoF's encoder may read a count either way at both ends of the span: two
+        // counts over it are no motion (a flickering 0.044° encoder at ±50 ms reads 0.015 rad/s).
+        let flicker = (0..timeline.theta.len())
+            .map(|e| 2.0 * timeline.grid.count.get(e).copied().unwrap_or(0.0))
+            .collect();
+        let scale = (0..timeline.theta.len())
+            .map(|e| dofs.get(e).map_or(1.0, |d| config.speed_scale(d)))
+            .collect();
+        Self {
+            timeline,
+            l,
+            span: 2.0 * l as f64 * timeline.grid.dt,
+            flicker,
+            scale,
+        }
+    }
+
+    /// Grid points where every DoF is slower than `limit`.
+    fn below(&self, limit: f64) -> Vec<bool> {
+        self.slow_or_within(limit, None)
+    }
+
+    /// Grid points where every DoF is slower than `limit` or, ringing, stays within `within` of
+    /// where it is over twice the span: a DoF that has not moved by
+    /// [`IngestConfig::motion_threshold`] has not moved, however fast it rings. Only a slide's
+    /// speeds are low enough for that to matter at the defaults (0.005 m/s, half a millimetre
+    /// over the span, against 2 mm): a lift carrying an arm bounces as the arm's servos ring, a
+    /// few tenths of a millimetre at 4 Hz, 6 mm/s.
+    fn quiet(&self, limit: f64, within: f64) -> Vec<bool> {
+        self.slow_or_within(limit, Some(within))
+    }
+
+    fn slow_or_within(&self, limit: f64, within: Option<f64>) -> Vec<bool> {
+        let (timeline, l) = (self.timeline, self.l);
+        let n = timeline.len();
+        let ringing = |th: &[f64], i: usize, allowed: f64| {
+            within.is_some_and(|within| {
+                allowed < within && {
+                    let around = &th[i.saturating_sub(2 * l)..(i + 2 * l + 1).min(n)];
+                    let (low, high) = around
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                            (a.min(x), b.max(x))
+                        });
+                    high - low <= within
+                }
+            })
+        };
         (0..n)
             .map(|i| {
                 if i < l || i + l >= n || timeline.invalid[i] {
@@ -271,14 +354,29 @@ fn pauses(
                 timeline
                     .theta
                     .iter()
-                    .zip(&flicker)
-                    .zip(&scale)
-                    .all(|((th, f), s)| (th[i + l] - th[i - l]).abs() < limit * s * span + f)
+                    .zip(&self.flicker)
+                    .zip(&self.scale)
+                    .all(|((th, f), s)| {
+                        let allowed = limit * s * self.span + f;
+                        (th[i + l] - th[i - l]).abs() < allowed || ringing(th, i, allowed)
+                    })
             })
             .collect()
-    };
-    let still = below(config.still_velocity);
-    let quiet = below(config.quiet_velocity);
+    }
+}
+
+/// The pauses of a stretch (see [`pieces`]): runs where every DoF is slower than
+/// `quiet_velocity`.
+fn pauses(
+    timeline: &Timeline,
+    config: &IngestConfig,
+    slow: &Slow,
+    l: usize,
+    at_end: bool,
+) -> Vec<(usize, usize)> {
+    let n = timeline.len();
+    let dt = timeline.grid.dt;
+    let quiet = slow.quiet(config.quiet_velocity, config.motion_threshold);
     let min_pause = (config.min_pause / dt).round() as usize;
     let mut pauses = runs(&quiet, min_pause.max(4 * l + 1));
     // The recording's ends close a motion too: a quiet run that reaches the first or the last grid
@@ -294,7 +392,7 @@ fn pauses(
             pauses.insert(0, start);
         }
     }
-    (pauses, still)
+    pauses
 }
 
 /// A span of the report's timeline over local grid points `[from, to)`.
@@ -326,7 +424,7 @@ fn motions(
     (ms, me): (usize, usize),
     spans: &mut Vec<Span>,
 ) -> Vec<After> {
-    let motion = classify(timeline, ms, me, config);
+    let motion = classify(timeline, dofs, ms, me, config);
     let parts = match &motion {
         Motion::Excitation(excited) if excited.len() > 1 => {
             one_after_another(timeline, excited, (ms, me), l)
@@ -362,7 +460,7 @@ fn motions(
     bounds
         .windows(2)
         .map(|w| {
-            let part = classify(timeline, w[0], w[1], config);
+            let part = classify(timeline, dofs, w[0], w[1], config);
             let window = window(w[0], w[1]);
             motion_after(timeline, dofs, l, ((w[0], w[1]), window), part, spans)
         })
@@ -543,8 +641,20 @@ enum Motion {
 /// (the sag of a compliant servo under a changed load). DoFs that moved more and all came back
 /// were excited together (a plan's parallel limbs). Mimic DoFs (`config.mimic`) move with their
 /// leaders and tell nothing of their own.
-fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) -> Motion {
+fn classify(
+    timeline: &Timeline,
+    dofs: &[String],
+    ms: usize,
+    me: usize,
+    config: &IngestConfig,
+) -> Motion {
     let own = |e: usize| !timeline.follows(e);
+    // Excursions are compared with each other in the pattern's units: a slide's pattern runs
+    // a tenth of a metre per radian (`IngestConfig::speed_scale`), so that a lift excited with
+    // an arm's joint (6.8 mm against 0.07 rad) is excited, not following it.
+    let unit: Vec<f64> = (0..timeline.theta.len())
+        .map(|e| dofs.get(e).map_or(1.0, |d| 1.0 / config.speed_scale(d)))
+        .collect();
     let excursion: Vec<f64> = timeline
         .theta
         .iter()
@@ -558,20 +668,24 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
                 .fold(0.0f64, |m, q| m.max((q - th[ms]).abs()))
         })
         .collect();
-    let Some((main, &largest)) = excursion
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1.total_cmp(b.1))
+    let Some(main) = (0..excursion.len())
+        .max_by(|&a, &b| (excursion[a] * unit[a]).total_cmp(&(excursion[b] * unit[b])))
     else {
         return Motion::None;
     };
-    if largest <= config.motion_threshold {
+    if excursion.iter().all(|&x| x <= config.motion_threshold) {
         return Motion::None;
     }
-    let followed = |x: f64, of: f64| x <= config.motion_threshold.max(config.coupled_fraction * of);
+    let largest = excursion[main] * unit[main];
+    // DoF `e`, gone `x` (its own units), did not move, or only followed a DoF gone `of` (the
+    // pattern's units).
+    let followed = |e: usize, x: f64, of: f64| {
+        x <= config.motion_threshold || x * unit[e] <= config.coupled_fraction * of
+    };
     let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
     let mut leading = vec![main];
-    leading.extend((0..excursion.len()).filter(|&e| e != main && !followed(excursion[e], largest)));
+    leading
+        .extend((0..excursion.len()).filter(|&e| e != main && !followed(e, excursion[e], largest)));
     // A DoF came back when it ends nearer its start than its farthest point: a servo that lags
     // a pattern or sags under its changed load ends a few mrad off, a move ends where it went.
     let came_back = |e: usize| {
@@ -598,12 +712,12 @@ fn classify(timeline: &Timeline, ms: usize, me: usize, config: &IngestConfig) ->
     if leading.len() > 1 {
         return Motion::Transfer;
     }
-    let moved = net(&timeline.theta[main]);
+    let moved = net(&timeline.theta[main]) * unit[main];
     // A compliant servo's sag under a changed load is small in itself, not only beside the move:
     // a DoF that ends a tenth of a radian away was moved too.
     let sag = SAG_STEPS * config.motion_threshold;
     if timeline.theta.iter().enumerate().any(|(e, th)| {
-        e != main && own(e) && !followed(net(th), moved.min(sag / config.coupled_fraction))
+        e != main && own(e) && !followed(e, net(th), moved.min(sag / config.coupled_fraction))
     }) {
         Motion::Transfer
     } else {
