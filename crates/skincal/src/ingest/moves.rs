@@ -53,8 +53,10 @@ const TURNED: f64 = 0.5;
 /// lever arm other than 1 m; a slide's SUs may show a sign of a turn now and then: a lift that
 /// carries an arm bounces as the arm's servos ring, and a hold read in the bounce (before the
 /// lift is known as a slide, whose pauses are judged at a tenth of a turn's speed) turns gravity
-/// on an SU or two of the thirty it carries.
-const SLIDE_MAJORITY: usize = 5;
+/// on an SU or two of the thirty it carries, and a head on soft servos that nods with the lift's
+/// acceleration reads 1.3 per m/s² (TIAGo with one SU per link on servos of 4 Hz: 14 slides, 3
+/// such gains and one turn).
+const SLIDE_MAJORITY: usize = 3;
 /// How far from a slide's 1 per m/s² an SU's gain may read and still be a slide's.
 const UNIT_GAIN: f64 = 0.2;
 
