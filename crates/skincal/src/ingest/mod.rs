@@ -10,8 +10,9 @@
 //!    (its period fitted to the first second's stamps; linear interpolation; unsorted and duplicate
 //!    stamps and gaps counted). A grid point is still
 //!    when every DoF's speed, measured over ±`filter`, is below `still_velocity`; still runs longer
-//!    than `min_still` are still windows (trimmed by `trim` at both ends). The motion between two
-//!    still windows is classified by the DoFs that left their position by more than
+//!    than `min_still` are still windows (trimmed by `trim` at both ends), and a pause with none is
+//!    read where its DoFs crept least (a servo that settles slower than the hold). The motion
+//!    between two still windows is classified by the DoFs that left their position by more than
 //!    `motion_threshold`: none (ignored), one that comes back (an **excitation**), one that stays
 //!    (a structure **move**), several (a **transfer**, skipped).
 //! 2. **Samples → readings.** Every SU sample is routed to the window it falls in. A still window

@@ -21,13 +21,13 @@ pub(super) struct StillWindow {
     /// short hold leaves no longer one. Its station's reading pools it only when the station
     /// has no full one (it may hold the end of the settling motion).
     pub(super) short: bool,
-    /// Where no DoF got below `still_velocity` for long enough in the pause: the speed every DoF
-    /// stayed below in the window instead, rad/s, the least of [`creep_limits`]. A servo that
-    /// settles slower than the program holds still creeps at the end of a hold (a heavy joint on
-    /// soft, lightly damped servos: 0.02 rad/s half a second after a move), and a creep is no
-    /// acceleration: the window's mean reading is that of its mean pose, to first order in the
-    /// pose's change across it. Its station's reading pools it only when the station has no
-    /// still one, and no noise is estimated from it.
+    /// Where the DoFs never were all below `still_velocity` for long enough in the pause: the
+    /// speed every DoF stayed below in the window instead, rad/s, the least of
+    /// [`creep_limits`]. A servo that settles slower than the program holds still creeps at the
+    /// end of a hold (a heavy joint on soft, lightly damped servos: 0.02 rad/s half a second
+    /// after a move), and a creep is no acceleration: the window's mean reading is that of its
+    /// mean pose, to first order in the pose's change across it. Its station's reading pools it
+    /// only when the station has no still one, and no noise is estimated from it.
     pub(super) creeping: Option<f64>,
 }
 
