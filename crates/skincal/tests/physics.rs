@@ -48,6 +48,53 @@ fn physics_log(robot: &Path, plan: &Path, out: &Path, extra: &[&str]) {
     write_csv_log(out);
 }
 
+/// `v` with `decimals` digits after the point, as C's `%.*f` prints it (to the last digit's
+/// rounding of the product `v · 10^decimals`), appended to `s`: the logs hold tens of millions of
+/// numbers, which the standard library's exact formatting takes seconds over.
+fn fixed(s: &mut String, v: f64, decimals: u32) {
+    use std::fmt::Write;
+    let scale = 10u64.pow(decimals);
+    let n = (v.abs() * scale as f64).round() as u64;
+    if v < 0.0 && n != 0 {
+        s.push('-');
+    }
+    write!(
+        s,
+        "{}.{:0width$}",
+        n / scale,
+        n % scale,
+        width = decimals as usize
+    )
+    .unwrap();
+}
+
+/// The log's numbers read as the standard library prints them, to the last digit.
+#[test]
+fn the_logs_numbers_are_printed_as_the_standard_library_prints_them() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for k in 0..100_000 {
+        let v: f64 = match k % 3 {
+            0 => rng.random_range(-20.0..20.0),
+            1 => rng.random_range(-1e-5..1e-5),
+            _ => rng.random_range(0.0..400.0),
+        };
+        for decimals in [6, 9] {
+            let mut s = String::new();
+            fixed(&mut s, v, decimals);
+            let standard = format!("{v:.*}", decimals as usize);
+            // Equal, or one in the last digit where the product rounded across a half.
+            if s != standard {
+                let [a, b] = [&s, &standard].map(|t| t.parse::<f64>().unwrap());
+                assert!(
+                    (a - b).abs() <= 1.01 * 10f64.powi(-(decimals as i32)),
+                    "{s} {standard}"
+                );
+            }
+        }
+    }
+}
+
 /// The simulator's samples (`--raw`: little-endian doubles in `out`) written as skincal's CSV log
 /// in `out`, as the simulator writes it without `--raw` (the same columns, `%.6f` stamps and
 /// specific forces, `%.9f` joint positions), a sample's rows together; the raw files are removed.
@@ -78,16 +125,25 @@ fn write_csv_log(out: &Path) {
     let stamp = |k: usize| raw.start + k as f64 * raw.period;
     let mut joints = format!("stamp,{}\n", raw.dofs.join(","));
     let mut imu = String::from("stamp,frame_id,ax,ay,az\n");
+    let mut t = String::new();
     for k in 0..raw.samples {
-        let t = stamp(k);
-        joints += &format!("{t:.6}");
-        for v in &q[k * dofs..(k + 1) * dofs] {
-            joints += &format!(",{v:.9}");
+        t.clear();
+        fixed(&mut t, stamp(k), 6);
+        joints.push_str(&t);
+        for &v in &q[k * dofs..(k + 1) * dofs] {
+            joints.push(',');
+            fixed(&mut joints, v, 9);
         }
         joints.push('\n');
         for (s, name) in raw.sus.iter().enumerate() {
-            let v = &a[(k * sus + s) * 3..][..3];
-            imu += &format!("{t:.6},{name},{:.6},{:.6},{:.6}\n", v[0], v[1], v[2]);
+            imu.push_str(&t);
+            imu.push(',');
+            imu.push_str(name);
+            for &v in &a[(k * sus + s) * 3..][..3] {
+                imu.push(',');
+                fixed(&mut imu, v, 6);
+            }
+            imu.push('\n');
         }
     }
     std::fs::write(out.join("joint_states.csv"), joints).unwrap();
