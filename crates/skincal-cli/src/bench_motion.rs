@@ -56,7 +56,7 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     let started = Instant::now();
     let mut ingested = ingest(std::slice::from_ref(&log), &config, &mut |_, _, _| {})?;
     let ingest_s = started.elapsed().as_secs_f64();
-    let ingest_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
+    let ingest_mb = (crate::peak_memory_mb(), crate::peak_heap_mb());
     crate::reset_peak_memory();
     let started = Instant::now();
     // As `skincal ingest` makes it, from what the measurement set's pass told of the joints.
@@ -65,10 +65,10 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
     };
     let set = ingested.measurements;
     let record_s = started.elapsed().as_secs_f64();
-    let record_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
+    let record_mb = (crate::peak_memory_mb(), crate::peak_heap_mb());
     crate::reset_peak_memory();
     let fits = Fits::of(&robot, &set, &motion, args.threads)?;
-    let fits_mb = [crate::peak_memory_mb(), crate::peak_heap_mb()];
+    let fits_mb = (crate::peak_memory_mb(), crate::peak_heap_mb());
     let held_out = simulate(
         &robot,
         &SimulationConfig {
@@ -119,14 +119,15 @@ pub(crate) fn bench_motion(args: BenchMotionArgs) -> Result<()> {
             "samples": [s.static_rms, s.dynamic_rms],
         },
         "peak_mb": {
-            "ingest": ingest_mb[0],
-            "record": record_mb[0],
-            "fits": fits_mb[0],
+            "ingest": ingest_mb.0,
+            "record": record_mb.0,
+            "fits": fits_mb.0,
         },
+        // null unless built with the `heap-count` feature.
         "peak_heap_mb": {
-            "ingest": ingest_mb[1],
-            "record": record_mb[1],
-            "fits": fits_mb[1],
+            "ingest": ingest_mb.1,
+            "record": record_mb.1,
+            "fits": fits_mb.1,
         },
     }));
     Ok(())
@@ -184,12 +185,13 @@ impl Fits {
 /// the ingest, the record's pass and the fits: each stage's peak resident memory (what the
 /// stages before it left included, and what the allocator keeps of their freed memory), and the
 /// most it allocated at once beyond what was allocated when it started (its own heap: for the
-/// fits, what they need beyond the record and the readings they are given).
+/// fits, what they need beyond the record and the readings they are given; counted only in a
+/// build with the `heap-count` feature).
 struct Row {
     times: [f64; 4],
     blocks: usize,
     held_out: [f64; 4],
-    peaks: [[f64; 2]; 3],
+    peaks: [(f64, Option<f64>); 3],
 }
 
 impl Row {
@@ -214,8 +216,11 @@ impl Row {
         );
         let [ingest, record, readings, samples] = self.times;
         let [rs, rd, ss, sd] = self.held_out;
+        let heap = self
+            .peaks
+            .map(|(_, heap)| heap.map_or("-".to_string(), |mb| format!("{mb:.0}")));
         outln!(
-            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>10.0} {:>10.0} {:>8.0} {:>12.0} {:>12.0} {:>10.0}",
+            "{:>10.2} {:>10.2} {:>12.2} {:>12.2} {:>10} {:>14.4} {:>14.4} {:>14.4} {:>14.4} {:>10.0} {:>10.0} {:>8.0} {:>12} {:>12} {:>10}",
             ingest,
             record,
             readings,
@@ -225,12 +230,15 @@ impl Row {
             rd,
             ss,
             sd,
-            self.peaks[0][0],
-            self.peaks[1][0],
-            self.peaks[2][0],
-            self.peaks[0][1],
-            self.peaks[1][1],
-            self.peaks[2][1]
+            self.peaks[0].0,
+            self.peaks[1].0,
+            self.peaks[2].0,
+            heap[0],
+            heap[1],
+            heap[2]
         );
+        if self.peaks.iter().all(|(_, heap)| heap.is_none()) {
+            outln!("(the heap peaks are counted in a build with `--features heap-count`)");
+        }
     }
 }

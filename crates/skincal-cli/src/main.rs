@@ -4,12 +4,22 @@
 
 /// The estimator allocates and frees blocks of hundreds of kilobytes in every iteration of its
 /// fits, on every thread: glibc's per-thread arenas hand such memory back to the kernel and fault
-/// it in again each time (a third of a 60-DoF chain's calibration); mimalloc keeps it. Counted, so
-/// that the benches can tell the most a stage held at once ([`peak_heap_mb`]), apart from what the
-/// allocator keeps for later and from what stages before it left.
-static HEAP: PeakMemAlloc<mimalloc::MiMalloc> = PeakMemAlloc::new(mimalloc::MiMalloc);
+/// it in again each time (a third of a 60-DoF chain's calibration); mimalloc keeps it.
+#[cfg(not(feature = "heap-count"))]
 #[global_allocator]
-static ALLOCATOR: &PeakMemAlloc<mimalloc::MiMalloc> = &HEAP;
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// With the `heap-count` feature, every allocation is counted, so that `bench motion` can tell
+/// the most a stage held at once ([`peak_heap_mb`]), apart from what the allocator keeps for
+/// later and from what stages before it left. The count is two atomic operations on one shared
+/// counter per allocation, which the threads of a fit contend for: TALOS's calibration took a
+/// tenth to a sixth longer on two cores with it, so it is a build for measuring, not the default.
+#[cfg(feature = "heap-count")]
+static HEAP: peakmem_alloc::PeakMemAlloc<mimalloc::MiMalloc> =
+    peakmem_alloc::PeakMemAlloc::new(mimalloc::MiMalloc);
+#[cfg(feature = "heap-count")]
+#[global_allocator]
+static ALLOCATOR: &peakmem_alloc::PeakMemAlloc<mimalloc::MiMalloc> = &HEAP;
 
 mod bench_body;
 mod bench_calibrate;
@@ -36,7 +46,6 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use out::{out, outln};
-use peakmem_alloc::{PeakMemAlloc, PeakMemAllocTrait};
 use skincal::explore::ExploreConfig;
 use skincal::io;
 use skincal::model::presets::PRESETS;
@@ -589,14 +598,20 @@ fn robots(args: RobotsArgs) -> Result<()> {
 /// peak stays the process's), and [`peak_heap_mb`] from nothing.
 pub(crate) fn reset_peak_memory() {
     let _ = std::fs::write("/proc/self/clear_refs", "5");
-    HEAP.reset_peak_memory();
+    #[cfg(feature = "heap-count")]
+    peakmem_alloc::PeakMemAllocTrait::reset_peak_memory(&HEAP);
 }
 
 /// The most memory allocated at once beyond what was allocated at the last
 /// [`reset_peak_memory`], MB: what a stage needed of its own, whatever the allocator kept of
-/// earlier stages' memory for later.
-pub(crate) fn peak_heap_mb() -> f64 {
-    HEAP.get_peak_memory() as f64 / (1024.0 * 1024.0)
+/// earlier stages' memory for later; `None` unless built with the `heap-count` feature.
+pub(crate) fn peak_heap_mb() -> Option<f64> {
+    #[cfg(feature = "heap-count")]
+    return Some(
+        peakmem_alloc::PeakMemAllocTrait::get_peak_memory(&HEAP) as f64 / (1024.0 * 1024.0),
+    );
+    #[cfg(not(feature = "heap-count"))]
+    None
 }
 
 /// CPU time this process has used so far, every thread's (those that ended too), s; `None` where
