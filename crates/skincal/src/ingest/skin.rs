@@ -417,7 +417,12 @@ impl Router {
         Some(su)
     }
 
-    /// Adds the sample of SU `su` at grid point `m` to the window of `seg` it falls in, if any.
+    /// Adds the sample of SU `su` at grid point `m` to the windows of `seg` it falls in. A
+    /// motion's window reaches `2l` into the pauses on either side, where their still windows
+    /// read too: an excitation takes every sample of its window (once, given to the still window
+    /// instead, they were lost to its fit, which filled them with its nearest sample), and a
+    /// still window shares the end of its pause with the excitation after it but not its start
+    /// with the one before, where a servo that stopped may still ring.
     pub(super) fn route(
         &mut self,
         seg: &Segmentation,
@@ -429,24 +434,45 @@ impl Router {
         let acceleration = acceleration.map(|v| v * config.skin_scale);
         grow(&mut self.repeats, su + 1);
         self.repeats[su].add(acceleration);
-        // The window holding m: usually the current one or the next.
+        // The last window starting at or before m: usually the current one or the next.
         let routes = &seg.routes;
-        let route = self.route;
-        if !(route < routes.len() && routes[route].0 <= m && m < routes[route].1) {
+        let r = self.route;
+        let current =
+            r < routes.len() && routes[r].0 <= m && routes.get(r + 1).is_none_or(|next| next.0 > m);
+        if !current {
             self.route = routes.partition_point(|r| r.0 <= m).saturating_sub(1);
         }
-        let Some(&(start, end, is_still, w)) = routes.get(self.route) else {
-            return;
-        };
-        if m < start || m >= end {
-            return;
+        // Windows overlap only their neighbours: each is longer than what its neighbours reach
+        // into it (a pause is at least 4l + 1 long, its still window trimmed at both ends).
+        let (mut routed, mut after_motion) = (false, false);
+        for k in self.route.saturating_sub(2)..=self.route {
+            let Some(&(start, end, is_still, w)) = routes.get(k) else {
+                continue;
+            };
+            if m < start || m >= end || (is_still && after_motion) {
+                continue;
+            }
+            after_motion |= !is_still;
+            if !routed && config.saturated(&acceleration) {
+                // Only samples the readings would use are counted: a saturated sample during a
+                // transfer does not matter.
+                *self.saturated.entry(su).or_default() += 1;
+                return;
+            }
+            routed = true;
+            self.add(seg, su, (m, start, is_still, w), acceleration);
         }
-        if config.saturated(&acceleration) {
-            // Only samples the readings would use are counted: a saturated sample during a
-            // transfer does not matter.
-            *self.saturated.entry(su).or_default() += 1;
-            return;
-        }
+    }
+
+    /// Adds the sample of SU `su` at grid point `m` to window `w` (a still one or an excitation)
+    /// that starts at grid point `start`.
+    fn add(
+        &mut self,
+        seg: &Segmentation,
+        su: usize,
+        (m, start, is_still, w): (usize, usize, bool, usize),
+        acceleration: [f64; 3],
+    ) {
         if is_still {
             grow(&mut self.acc.stills, w + 1);
             let sums = &mut self.acc.stills[w];
