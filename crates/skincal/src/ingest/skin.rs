@@ -419,10 +419,10 @@ impl Router {
 
     /// Adds the sample of SU `su` at grid point `m` to the windows of `seg` it falls in. A
     /// motion's window reaches `2l` into the pauses on either side, where their still windows
-    /// read too: an excitation takes every sample of its window (once, given to the still window
-    /// instead, they were lost to its fit, which filled them with its nearest sample), and a
-    /// still window shares the end of its pause with the excitation after it but not its start
-    /// with the one before, where a servo that stopped may still ring.
+    /// read too: an excitation takes every sample of its window (one its fit lacks is filled
+    /// with its nearest sample), and a still window shares the end of its pause with the
+    /// excitation after it but not its start with the one before, where a servo that stopped
+    /// may still ring.
     pub(super) fn route(
         &mut self,
         seg: &Segmentation,
