@@ -2,9 +2,10 @@
 //! values computed by hand, independent re-implementations of the paper's equations, or laws that
 //! must hold.
 
-/// The allocator the `skincal` command and the Python package run the library on: the fits
-/// allocate and free blocks of kilobytes per sample on every thread, which glibc's malloc serves
-/// a sixth slower.
+/// The allocator the `skincal` command runs the library on: the fits allocate and free blocks of
+/// kilobytes per sample on every thread, which glibc's malloc serves a sixth slower. (The Python
+/// package keeps the system's: a module loaded by `dlopen` cannot take mimalloc's thread-local
+/// state from the static TLS block, and fails to import.)
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
