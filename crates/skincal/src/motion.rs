@@ -18,6 +18,7 @@ use std::sync::Arc;
 
 use nalgebra::{SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
+use skincal_scratch::Buffer;
 
 use crate::model::sensor::MAX_READING;
 
@@ -134,43 +135,98 @@ pub struct MotionRun {
     /// `q[b][d]`: position of DoF `d` at the centre of block `b`, rad (read through the record's
     /// [`SkinFilter`] kernel where it has one, as the velocities are; the accelerations are the
     /// polynomial's, which is the same kernel).
-    pub q: Vec<Vec<f64>>,
+    pub q: JointRows,
     /// Velocities, rad/s.
-    pub qd: Vec<Vec<f64>>,
+    pub qd: JointRows,
     /// Accelerations, rad/s².
-    pub qdd: Vec<Vec<f64>>,
+    pub qdd: JointRows,
     /// The standard deviation of each acceleration, rad/s², from the local polynomial's misfit: an
     /// encoder's rounding, or a change of the motion too sudden for the polynomial to follow.
-    pub qdd_sd: Vec<Vec<f64>>,
+    pub qdd_sd: JointRows,
     /// `skin[b][u]`: the mean specific force SU `u` read in block `b` (SU frame, m/s²), `null`
     /// where it sent no fresh sample.
     pub skin: SkinRows,
 }
 
-/// The skin's block means of a run, `[block][u]`, held in single precision: a millionth of a
-/// m/s² at gravity's size, far below any accelerometer's resolution and a block mean's noise,
-/// and 12 bytes per SU and block (a minute of 100 SUs in 10 ms blocks is 7.2 MB). Held SU by SU
-/// (the fit reads one SU's blocks after another), written as rows of `null` (no fresh sample in
-/// the block) or `[x, y, z]`. A copy shares the values until one of them is changed: the
-/// time-domain fit reads a record's skin as it is, without a copy of its own.
+/// A run's values per block and entry (DoF or SU), row by row in one [`Buffer`], which past a
+/// few megabytes is a memory-mapped scratch file: the fit reads a window of blocks at a time,
+/// every entry of each, and a long record's rows are the page cache's rather than the heap's. A
+/// copy shares the values until one of them is changed: the time-domain fit reads a record's
+/// skin as it is, without a copy of its own. Row `b` is [`Rows::slice`]`(b)`.
 #[derive(Debug, Clone, Default)]
-pub struct SkinRows {
+pub struct Rows<E: Entry> {
     /// The number of rows.
     rows: usize,
-    /// Per SU (entries per row: the first row's), its mean in each row; NaN where it sent no
-    /// fresh sample.
-    series: Arc<Vec<Vec<[f32; 3]>>>,
+    /// Entries per row (the first row's).
+    width: usize,
+    values: Arc<Buffer<E>>,
     /// The first row read with another number of entries than the first, and that number (the
-    /// row is kept cut or padded to the width, and [`MotionRecord::check`] refuses it).
+    /// row is kept cut, or padded with [`Entry::NONE`], to the width; [`MotionRecord::check`]
+    /// refuses it).
     ragged: Option<(usize, usize)>,
 }
 
-impl SkinRows {
-    /// `rows` rows of `width` entries, none of them holding a mean.
+/// What [`Rows`] hold per entry, and how `motion.json` writes it.
+pub trait Entry: bytemuck::Pod + Default {
+    /// An entry with no value (NaN).
+    const NONE: Self;
+    /// An entry as given and as read from `motion.json`.
+    type In: serde::de::DeserializeOwned + Copy;
+    /// An entry as written to `motion.json`.
+    type Out: Serialize;
+    /// What the rows are, for serde's error message.
+    const EXPECTING: &'static str;
+    /// An entry as held.
+    fn held(entry: Self::In) -> Self;
+    /// An entry as written.
+    fn written(self) -> Self::Out;
+}
+
+impl Entry for f64 {
+    const NONE: Self = f64::NAN;
+    type In = f64;
+    type Out = f64;
+    const EXPECTING: &'static str = "rows of numbers per DoF";
+    fn held(entry: f64) -> f64 {
+        entry
+    }
+    fn written(self) -> f64 {
+        self
+    }
+}
+
+/// A skin mean as held: `NONE` (NaN) where there is none; written in single precision (`null`
+/// where there is none), as it is held.
+impl Entry for [f32; 3] {
+    const NONE: Self = [f32::NAN; 3];
+    type In = Option<[f64; 3]>;
+    type Out = Option<[f32; 3]>;
+    const EXPECTING: &'static str = "rows of `null` or `[x, y, z]` per SU";
+    fn held(mean: Option<[f64; 3]>) -> Self {
+        mean.map_or(Self::NONE, |m| m.map(|x| x as f32))
+    }
+    fn written(self) -> Option<[f32; 3]> {
+        (!self[0].is_nan()).then_some(self)
+    }
+}
+
+/// One number per DoF and block of a run (`[block][d]`), rad, rad/s or rad/s²; written as rows
+/// of numbers. Row `b` is `rows[b]`.
+pub type JointRows = Rows<f64>;
+
+/// The skin's block means of a run, `[block][u]`, held in single precision: a millionth of a
+/// m/s² at gravity's size, far below any accelerometer's resolution and a block mean's noise,
+/// and 12 bytes per SU and block (a minute of 100 SUs in 10 ms blocks is 7.2 MB). Written as
+/// rows of `null` (no fresh sample in the block) or `[x, y, z]`.
+pub type SkinRows = Rows<[f32; 3]>;
+
+impl<E: Entry> Rows<E> {
+    /// `rows` rows of `width` entries, none of them holding a value.
     pub fn empty(width: usize, rows: usize) -> Self {
         Self {
             rows,
-            series: Arc::new(vec![vec![[f32::NAN; 3]; rows]; width]),
+            width,
+            values: Arc::new(Buffer::filled(width * rows, E::NONE)),
             ragged: None,
         }
     }
@@ -185,14 +241,123 @@ impl SkinRows {
         self.rows == 0
     }
 
-    /// Entries per row (SUs; 0 before the first row).
+    /// Entries per row (0 before the first row).
     pub fn width(&self) -> usize {
-        self.series.len()
+        self.width
     }
 
+    /// Whether its values are in a scratch file rather than on the heap.
+    pub fn is_mapped(&self) -> bool {
+        self.values.is_mapped()
+    }
+
+    /// Row `b` as held (a row within the rows).
+    pub fn slice(&self, b: usize) -> &[E] {
+        assert!(b < self.rows, "row {b} of {}", self.rows);
+        &self.values[b * self.width..(b + 1) * self.width]
+    }
+
+    /// Row `b` as held, to change (a row within the rows).
+    pub fn slice_mut(&mut self, b: usize) -> &mut [E] {
+        assert!(b < self.rows, "row {b} of {}", self.rows);
+        let width = self.width;
+        &mut Arc::make_mut(&mut self.values)[b * width..(b + 1) * width]
+    }
+
+    /// Adds a row of `len` entries (the first sets the width), `at(i)` giving entry `i`.
+    fn push_with(&mut self, len: usize, at: impl Fn(usize) -> E) {
+        if self.rows == 0 && self.width == 0 {
+            self.width = len;
+        }
+        if len != self.width && self.ragged.is_none() {
+            self.ragged = Some((self.rows, len));
+        }
+        let values = Arc::make_mut(&mut self.values);
+        let start = values.len();
+        values.resize(start + self.width, E::NONE);
+        for (i, slot) in values[start..].iter_mut().enumerate().take(len) {
+            *slot = at(i);
+        }
+        self.rows += 1;
+    }
+
+    /// The rows from `at` on, taken off (these keep the first `at`).
+    pub fn split_off(&mut self, at: usize) -> Self {
+        let at = at.min(self.rows);
+        let mut rest = Buffer::new();
+        rest.extend_from_slice(&self.values[at * self.width..]);
+        Arc::make_mut(&mut self.values).truncate(at * self.width);
+        let rest = Self {
+            rows: self.rows - at,
+            width: self.width,
+            values: Arc::new(rest),
+            ragged: None,
+        };
+        self.rows = at;
+        rest
+    }
+
+    /// Appends `other`'s rows.
+    pub fn append(&mut self, other: &mut Self) {
+        if self.rows == 0 && self.width == 0 {
+            std::mem::swap(self, other);
+            return;
+        }
+        if other.width == self.width {
+            Arc::make_mut(&mut self.values).extend_from_slice(&other.values);
+            self.rows += other.rows;
+        } else {
+            for b in 0..other.rows {
+                let row = other.slice(b);
+                self.push_with(row.len(), |i| row[i]);
+            }
+        }
+        *other = Self::default();
+    }
+
+    /// Adds a row (the first sets the width).
+    pub fn push(&mut self, row: &[E::In]) {
+        self.push_with(row.len(), |i| E::held(row[i]));
+    }
+
+    /// The first row read with another number of entries than the first, and that number.
+    fn ragged(&self) -> Option<(usize, usize)> {
+        self.ragged
+    }
+}
+
+impl JointRows {
+    /// Every row in order.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = &[f64]> + '_ {
+        (0..self.rows).map(|b| self.slice(b))
+    }
+
+    /// The first row.
+    pub fn first(&self) -> Option<&[f64]> {
+        (self.rows > 0).then(|| self.slice(0))
+    }
+}
+
+impl std::ops::Index<usize> for JointRows {
+    type Output = [f64];
+    fn index(&self, b: usize) -> &[f64] {
+        self.slice(b)
+    }
+}
+
+impl std::ops::IndexMut<usize> for JointRows {
+    fn index_mut(&mut self, b: usize) -> &mut [f64] {
+        self.slice_mut(b)
+    }
+}
+
+impl SkinRows {
     /// SU `u`'s mean in block `b`; `None` where it sent no fresh sample, or beyond the rows.
     pub fn get(&self, b: usize, u: usize) -> Option<[f64; 3]> {
-        let m = self.series.get(u)?.get(b)?;
+        if u >= self.width || b >= self.rows {
+            return None;
+        }
+        let m = self.values[b * self.width + u];
         (!m[0].is_nan()).then(|| m.map(f64::from))
     }
 
@@ -203,29 +368,9 @@ impl SkinRows {
 
     /// Sets SU `u`'s mean in block `b` (a block within the rows).
     pub fn set(&mut self, b: usize, u: usize, mean: Option<[f64; 3]>) {
-        if u < self.width() && b < self.rows {
-            Arc::make_mut(&mut self.series)[u][b] = Self::packed(mean);
+        if u < self.width && b < self.rows {
+            self.slice_mut(b)[u] = Entry::held(mean);
         }
-    }
-
-    /// Adds a row (the first sets the width).
-    pub fn push(&mut self, row: &[Option<[f64; 3]>]) {
-        let series = Arc::make_mut(&mut self.series);
-        if self.rows == 0 && series.is_empty() {
-            series.resize(row.len(), Vec::new());
-        }
-        if row.len() != series.len() && self.ragged.is_none() {
-            self.ragged = Some((self.rows, row.len()));
-        }
-        for (u, s) in series.iter_mut().enumerate() {
-            if s.len() == s.capacity() {
-                // A quarter more at a time, not twice as much: a record read from its file is
-                // not held with as much again free.
-                s.reserve_exact((s.len() / 4).max(256));
-            }
-            s.push(Self::packed(row.get(u).copied().flatten()));
-        }
-        self.rows += 1;
     }
 
     /// Replaces row `b` (a row within the rows).
@@ -234,71 +379,25 @@ impl SkinRows {
             self.set(b, u, row.get(u).copied().flatten());
         }
     }
-
-    /// The rows from `at` on, taken off (these keep the first `at`).
-    pub fn split_off(&mut self, at: usize) -> SkinRows {
-        let at = at.min(self.rows);
-        let rest = SkinRows {
-            rows: self.rows - at,
-            series: Arc::new(
-                Arc::make_mut(&mut self.series)
-                    .iter_mut()
-                    .map(|s| s.split_off(at))
-                    .collect(),
-            ),
-            ragged: None,
-        };
-        self.rows = at;
-        rest
-    }
-
-    /// Appends `other`'s rows.
-    pub fn append(&mut self, other: &mut SkinRows) {
-        if self.rows == 0 && self.series.is_empty() {
-            std::mem::swap(self, other);
-            return;
-        }
-        if other.width() == self.width() {
-            let theirs = Arc::make_mut(&mut other.series);
-            for (mine, theirs) in Arc::make_mut(&mut self.series).iter_mut().zip(theirs) {
-                mine.append(theirs);
-            }
-            self.rows += other.rows;
-        } else {
-            for b in 0..other.len() {
-                let row: Vec<Option<[f64; 3]>> = other.row(b).collect();
-                self.push(&row);
-            }
-        }
-        *other = SkinRows::default();
-    }
-
-    /// A mean as held (NaN: none).
-    fn packed(mean: Option<[f64; 3]>) -> [f32; 3] {
-        mean.map_or([f32::NAN; 3], |m| m.map(|x| x as f32))
-    }
 }
 
-impl PartialEq for SkinRows {
+/// Two records' rows are the same where they hold the same bits (a missing value is equal to a
+/// missing value).
+impl<E: Entry> PartialEq for Rows<E> {
     fn eq(&self, other: &Self) -> bool {
-        let bits = |s: &Self| -> Vec<u32> {
-            s.series
-                .iter()
-                .flatten()
-                .flatten()
-                .map(|x| x.to_bits())
-                .collect()
-        };
+        fn bytes<E: Entry>(r: &Rows<E>) -> &[u8] {
+            bytemuck::cast_slice(&r.values[..])
+        }
         self.rows == other.rows
-            && self.width() == other.width()
+            && self.width == other.width
             && self.ragged == other.ragged
-            && bits(self) == bits(other)
+            && bytes(self) == bytes(other)
     }
 }
 
-impl From<Vec<Vec<Option<[f64; 3]>>>> for SkinRows {
-    fn from(rows: Vec<Vec<Option<[f64; 3]>>>) -> Self {
-        let mut out = SkinRows::default();
+impl<E: Entry> From<Vec<Vec<E::In>>> for Rows<E> {
+    fn from(rows: Vec<Vec<E::In>>) -> Self {
+        let mut out = Self::default();
         for row in &rows {
             out.push(row);
         }
@@ -306,45 +405,40 @@ impl From<Vec<Vec<Option<[f64; 3]>>>> for SkinRows {
     }
 }
 
-impl Serialize for SkinRows {
+impl<E: Entry> Serialize for Rows<E> {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeSeq;
         let mut rows = serializer.serialize_seq(Some(self.rows))?;
         for b in 0..self.rows {
-            let row: Vec<Option<[f32; 3]>> = self
-                .series
-                .iter()
-                .map(|s| Some(s[b]).filter(|m| !m[0].is_nan()))
-                .collect();
+            let row: Vec<E::Out> = self.slice(b).iter().map(|e| e.written()).collect();
             rows.serialize_element(&row)?;
         }
         rows.end()
     }
 }
 
-impl<'de> Deserialize<'de> for SkinRows {
+/// Read one row at a time into the flat store, never a nested `Vec` of the whole run.
+impl<'de, E: Entry> Deserialize<'de> for Rows<E> {
     fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        struct Rows;
-        impl<'de> serde::de::Visitor<'de> for Rows {
-            type Value = SkinRows;
+        struct Visitor<E>(std::marker::PhantomData<E>);
+        impl<'de, E: Entry> serde::de::Visitor<'de> for Visitor<E> {
+            type Value = Rows<E>;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("rows of `null` or `[x, y, z]` per SU")
+                f.write_str(E::EXPECTING)
             }
             fn visit_seq<A: serde::de::SeqAccess<'de>>(
                 self,
                 mut seq: A,
-            ) -> Result<SkinRows, A::Error> {
-                let mut out = SkinRows::default();
-                while let Some(row) = seq.next_element::<Vec<Option<[f64; 3]>>>()? {
+            ) -> Result<Rows<E>, A::Error> {
+                let mut out = Rows::default();
+                while let Some(row) = seq.next_element::<Vec<E::In>>()? {
                     out.push(&row);
                 }
-                for s in Arc::make_mut(&mut out.series) {
-                    s.shrink_to_fit();
-                }
+                Arc::make_mut(&mut out.values).shrink_to_fit();
                 Ok(out)
             }
         }
-        deserializer.deserialize_seq(Rows)
+        deserializer.deserialize_seq(Visitor(std::marker::PhantomData))
     }
 }
 
@@ -354,10 +448,10 @@ impl MotionRun {
         Self {
             log: log.to_string(),
             start,
-            q: Vec::new(),
-            qd: Vec::new(),
-            qdd: Vec::new(),
-            qdd_sd: Vec::new(),
+            q: JointRows::default(),
+            qd: JointRows::default(),
+            qdd: JointRows::default(),
+            qdd_sd: JointRows::default(),
             skin: SkinRows::default(),
         }
     }
@@ -372,10 +466,10 @@ impl MotionRun {
     /// is added after ([`SkinRows::push`]).
     pub fn push_joints(&mut self, joints: &[[f64; 4]]) {
         let column = |k: usize| joints.iter().map(|x| x[k]).collect::<Vec<f64>>();
-        self.q.push(column(0));
-        self.qd.push(column(1));
-        self.qdd.push(column(2));
-        self.qdd_sd.push(column(3));
+        self.q.push(&column(0));
+        self.qd.push(&column(1));
+        self.qdd.push(&column(2));
+        self.qdd_sd.push(&column(3));
     }
 
     /// The number of blocks.
@@ -491,6 +585,16 @@ impl MotionRecord {
                 ("qdd_sd", &run.qdd_sd),
             ];
             for (name, rows) in all {
+                let ragged = rows
+                    .ragged()
+                    .map(|(b, _)| b)
+                    .or_else(|| (n > 0 && rows.width() != self.dofs.len()).then_some(0));
+                if let Some(b) = ragged {
+                    return Err(format!(
+                        "`runs[{r}].{name}[{b}]`: expected {} finite numbers",
+                        self.dofs.len()
+                    ));
+                }
                 for (b, row) in rows.iter().enumerate() {
                     if row.len() != self.dofs.len() || row.iter().any(|x| !x.is_finite()) {
                         return Err(format!(
@@ -822,7 +926,7 @@ impl MotionRecord {
                     })
                     .unzip();
                 Some(crate::measurements::TrainingPose {
-                    q: run.q[b].clone(),
+                    q: run.q[b].to_vec(),
                     static_readings: readings,
                     dynamic: Default::default(),
                     static_sd: Some(sd),
@@ -972,6 +1076,97 @@ mod tests {
         assert!(
             wild.contains("`runs[0].skin[1]`: a reading beyond"),
             "{wild}"
+        );
+    }
+
+    /// A run longer than a few megabytes: its rows leave the heap for a scratch file, and read,
+    /// split, join and write as they were given (the truth: the values pushed, and the same rows
+    /// written by serde from nested vectors).
+    #[test]
+    fn a_long_runs_rows_are_in_a_scratch_file_and_read_as_they_were_given() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let normal = Normal::new(0.0, 3.0).unwrap();
+        let (sus, dofs, blocks) = (120, 7, 3000);
+        let mut run = MotionRun::new("l", 0.5);
+        let (mut skin, mut joints) = (Vec::new(), Vec::new());
+        for b in 0..blocks {
+            let row: Vec<Option<[f64; 3]>> = (0..sus)
+                .map(|u| {
+                    let m = [0; 3].map(|_| f64::from(normal.sample(&mut rng) as f32));
+                    ((u + b) % 17 != 0).then_some(m)
+                })
+                .collect();
+            let joint: Vec<[f64; 4]> = (0..dofs)
+                .map(|_| [0; 4].map(|_| normal.sample(&mut rng)))
+                .collect();
+            run.push(&joint, row.clone());
+            skin.push(row);
+            joints.push(joint);
+        }
+        assert!(run.skin.is_mapped(), "{} bytes of skin", 12 * sus * blocks);
+        assert!(
+            !run.q.values.is_mapped(),
+            "{} bytes of positions",
+            8 * dofs * blocks
+        );
+        for b in [0, 1, 1717, blocks - 1] {
+            assert!(run.skin.row(b).eq(skin[b].iter().copied()));
+            let qdd: Vec<f64> = joints[b].iter().map(|x| x[2]).collect();
+            assert_eq!(run.qdd[b], qdd[..]);
+        }
+        assert_eq!(run.skin.get(blocks, 0), None);
+        let nested: Vec<Vec<Option<[f32; 3]>>> = skin
+            .iter()
+            .map(|row| row.iter().map(|m| m.map(|m| m.map(|x| x as f32))).collect())
+            .collect();
+        assert_eq!(
+            serde_json::to_string(&run.skin).unwrap(),
+            serde_json::to_string(&nested).unwrap()
+        );
+        let positions: Vec<Vec<f64>> = joints
+            .iter()
+            .map(|row| row.iter().map(|x| x[0]).collect())
+            .collect();
+        assert_eq!(
+            serde_json::to_string(&run.q).unwrap(),
+            serde_json::to_string(&positions).unwrap()
+        );
+        let read: SkinRows =
+            serde_json::from_str(&serde_json::to_string(&nested).unwrap()).unwrap();
+        assert!(read.is_mapped() && read == run.skin);
+        let whole = run.clone();
+        let tail = run.split_off(1234, 0.01);
+        assert_eq!((run.len(), tail.len()), (1234, blocks - 1234));
+        assert!(tail.skin.row(0).eq(skin[1234].iter().copied()));
+        assert_eq!(tail.qd[5][3], joints[1239][3][1]);
+        assert!(run.extend_with(tail, 0.01).is_none());
+        assert!(run == whole);
+    }
+
+    #[test]
+    fn a_joint_row_of_another_width_is_refused_by_name() {
+        let text = |q: &str| {
+            format!(
+                r#"{{"format": "{MOTION_FORMAT}", "version": {MOTION_VERSION}, "period": 0.01,
+                "dofs": ["j", "k"], "sus": [], "noise_sd": [], "runs": [{{"log": "l",
+                "start": 0.0, "q": {q}, "qd": [[0,0],[0,0]], "qdd": [[0,0],[0,0]],
+                "qdd_sd": [[0,0],[0,0]], "skin": [[],[]]}}]}}"#
+            )
+        };
+        let check = |q: &str| {
+            let record: MotionRecord = serde_json::from_str(&text(q)).unwrap();
+            record.check()
+        };
+        assert_eq!(check("[[0,0],[0,0]]"), Ok(()));
+        let long = check("[[0,0],[0,0,0]]").unwrap_err();
+        assert!(
+            long.contains("`runs[0].q[1]`: expected 2 finite numbers"),
+            "{long}"
+        );
+        let narrow = check("[[0],[0]]").unwrap_err();
+        assert!(
+            narrow.contains("`runs[0].q[0]`: expected 2 finite numbers"),
+            "{narrow}"
         );
     }
 

@@ -8,6 +8,7 @@
 
 use nalgebra::{DMatrix, DVector, Isometry3, Vector3};
 use rayon::prelude::*;
+use skincal_scratch::Buffer;
 
 use super::problem::Block;
 use super::terms::{link, Chain, Instant, SegmentTerms};
@@ -32,16 +33,100 @@ pub const SUDDEN: f64 = 3.0;
 /// the record read ([`LimbMotion::correct_joint_states`]), rad/s².
 pub const ACCELERATION_PRIOR: f64 = 0.005;
 
-/// One block of the record that the limb's fit uses: its run and block, and in one allocation
-/// (an hour of log in 10 ms blocks is 360 000 samples) the position, velocity, acceleration and the
-/// acceleration's uncertainty of every DoF, then what the record read of every DoF's position and
-/// acceleration before any correction ([`LimbMotion::correct_joint_states`]). A DoF's motion,
-/// `Rz(q)` or `Tz(q)` for a prismatic one, is computed where it is needed ([`MotionSample::turns`]).
-#[derive(Debug, Clone, PartialEq)]
-pub(super) struct MotionSample {
+/// The blocks of the record that the limb's fit uses, in two [`Buffer`]s (past a few megabytes,
+/// mapped scratch files: an hour of log in 10 ms blocks is 360 000 samples): each one's run and
+/// block, and its position, velocity, acceleration and the acceleration's uncertainty of every
+/// DoF, then what the record read of every DoF's position and acceleration before any correction
+/// ([`LimbMotion::correct_joint_states`]). A DoF's motion, `Rz(q)` or `Tz(q)` for a prismatic
+/// one, is computed where it is needed ([`MotionSample::turns`]).
+#[derive(Debug, Clone, Default)]
+pub(super) struct Samples {
+    dofs: usize,
+    at: Buffer<[u32; 2]>,
+    values: Buffer<f64>,
+}
+
+impl PartialEq for Samples {
+    fn eq(&self, other: &Self) -> bool {
+        self.dofs == other.dofs
+            && self.at[..] == other.at[..]
+            && self.values[..] == other.values[..]
+    }
+}
+
+impl Samples {
+    /// Adds block `block` of run `run` with these joint states, as the record read them.
+    fn push(&mut self, run: usize, block: usize, q: &[f64], qd: &[f64], qdd: &[f64], sd: &[f64]) {
+        self.dofs = q.len();
+        self.at.push([run as u32, block as u32]);
+        for part in [q, qd, qdd, sd, q, qdd] {
+            self.values.extend_from_slice(part);
+        }
+    }
+
+    /// How many samples.
+    pub(super) fn len(&self) -> usize {
+        self.at.len()
+    }
+
+    /// Whether there is none.
+    fn is_empty(&self) -> bool {
+        self.at.is_empty()
+    }
+
+    /// Sample `i`.
+    pub(super) fn get(&self, i: usize) -> MotionSample<'_> {
+        let [run, block] = self.at[i];
+        let width = PARTS * self.dofs;
+        MotionSample {
+            run,
+            block,
+            values: &self.values[i * width..(i + 1) * width],
+        }
+    }
+
+    /// Every sample in order.
+    fn iter(&self) -> impl Iterator<Item = MotionSample<'_>> + '_ {
+        (0..self.len()).map(|i| self.get(i))
+    }
+
+    /// Samples `range`, on the thread pool.
+    fn par_range(
+        &self,
+        range: std::ops::Range<usize>,
+    ) -> impl IndexedParallelIterator<Item = MotionSample<'_>> + '_ {
+        range.into_par_iter().map(|i| self.get(i))
+    }
+
+    /// Moves sample `i`'s position and acceleration of DoF `d` by these corrections.
+    fn correct(&mut self, i: usize, d: usize, q: f64, qdd: f64) {
+        let (n, start) = (self.dofs, i * PARTS * self.dofs);
+        self.values[start + Part::Q as usize * n + d] += q;
+        self.values[start + Part::Qdd as usize * n + d] += qdd;
+    }
+
+    /// The samples `i` that `keep` keeps, in their order.
+    fn select(&self, keep: impl Fn(usize) -> bool) -> Samples {
+        let mut out = Samples {
+            dofs: self.dofs,
+            ..Samples::default()
+        };
+        let width = PARTS * self.dofs;
+        for i in (0..self.len()).filter(|&i| keep(i)) {
+            out.at.push(self.at[i]);
+            out.values
+                .extend_from_slice(&self.values[i * width..(i + 1) * width]);
+        }
+        out
+    }
+}
+
+/// One sample of [`Samples`]: its run and block and every DoF's values.
+#[derive(Clone, Copy)]
+pub(super) struct MotionSample<'a> {
     run: u32,
     block: u32,
-    values: Box<[f64]>,
+    values: &'a [f64],
 }
 
 /// The parts of [`MotionSample::values`] in their order, each one entry per DoF.
@@ -58,22 +143,12 @@ enum Part {
 /// How many parts a sample holds.
 const PARTS: usize = Part::ReadQdd as usize + 1;
 
-impl MotionSample {
-    /// Block `block` of run `run` with these joint states, as the record read them.
-    fn new(run: usize, block: usize, q: &[f64], qd: &[f64], qdd: &[f64], qdd_sd: &[f64]) -> Self {
-        let values = [q, qd, qdd, qdd_sd, q, qdd].concat().into_boxed_slice();
-        Self {
-            run: run as u32,
-            block: block as u32,
-            values,
-        }
-    }
-
+impl<'a> MotionSample<'a> {
     fn dofs(&self) -> usize {
         self.values.len() / PARTS
     }
 
-    fn part(&self, part: Part) -> &[f64] {
+    fn part(&self, part: Part) -> &'a [f64] {
         let (n, k) = (self.dofs(), part as usize);
         &self.values[k * n..(k + 1) * n]
     }
@@ -86,32 +161,25 @@ impl MotionSample {
         self.block as usize
     }
 
-    fn q(&self) -> &[f64] {
+    fn q(&self) -> &'a [f64] {
         self.part(Part::Q)
     }
 
-    fn qd(&self) -> &[f64] {
+    fn qd(&self) -> &'a [f64] {
         self.part(Part::Qd)
     }
 
-    fn qdd(&self) -> &[f64] {
+    fn qdd(&self) -> &'a [f64] {
         self.part(Part::Qdd)
     }
 
-    fn qdd_sd(&self) -> &[f64] {
+    fn qdd_sd(&self) -> &'a [f64] {
         self.part(Part::QddSd)
     }
 
     /// What the record read of DoF `d`'s position and acceleration.
     fn read(&self, d: usize) -> (f64, f64) {
         (self.part(Part::ReadQ)[d], self.part(Part::ReadQdd)[d])
-    }
-
-    /// Moves DoF `d`'s position and acceleration by these corrections.
-    fn correct(&mut self, d: usize, q: f64, qdd: f64) {
-        let n = self.dofs();
-        self.values[Part::Q as usize * n + d] += q;
-        self.values[Part::Qdd as usize * n + d] += qdd;
     }
 
     /// Every DoF's motion at the sample's positions.
@@ -231,11 +299,18 @@ struct Tied {
 
 /// What the joint accelerations' uncertainty adds to the variance of each SU's prediction at
 /// each sample ([`LimbMotion::weigh`]), (m/s²)², in single precision, sample by sample as it is
-/// computed: `values[i * sus + u]`.
-#[derive(Debug, Clone, Default, PartialEq)]
+/// computed: `values[i * sus + u]` (past a few megabytes in a mapped scratch file, as the
+/// record's skin).
+#[derive(Debug, Clone, Default)]
 struct JointVariance {
     sus: usize,
-    values: Vec<f32>,
+    values: Buffer<f32>,
+}
+
+impl PartialEq for JointVariance {
+    fn eq(&self, other: &Self) -> bool {
+        self.sus == other.sus && self.values[..] == other.values[..]
+    }
 }
 
 impl JointVariance {
@@ -269,7 +344,7 @@ pub struct LimbMotion {
     /// ([`BLOCK_NOISE_CORRELATION`] for the record's block means): what
     /// [`LimbMotion::interpolated`] averages.
     noise_correlation: [f64; 4],
-    pub(super) samples: Vec<MotionSample>,
+    pub(super) samples: Samples,
     /// Per run, the block means: the record's own, or where it has a [`SkinFilter`], the limb's
     /// SUs' read through it. Shared (not copied) with the record and by the limb's coarse and
     /// at-rest versions ([`LimbMotion::thinned`], [`LimbMotion::at_rest`]).
@@ -330,10 +405,10 @@ impl LimbMotion {
         let limits = sudden_limits(record, &dofs);
         let filter = record.skin_filter();
         let stride = filter.as_ref().map_or(1, SkinFilter::stride);
-        let mut samples = Vec::new();
+        let mut samples = Samples::default();
         let mut skin = Vec::new();
         for (r, run) in record.runs.iter().enumerate() {
-            let pick = |row: &Vec<f64>| dofs.iter().map(|&d| row[d]).collect::<Vec<f64>>();
+            let pick = |row: &[f64]| dofs.iter().map(|&d| row[d]).collect::<Vec<f64>>();
             for b in (margin..run.len().saturating_sub(margin)).step_by(stride) {
                 let sudden = dofs.iter().zip(&limits);
                 if sudden
@@ -342,14 +417,14 @@ impl LimbMotion {
                 {
                     continue;
                 }
-                samples.push(MotionSample::new(
+                samples.push(
                     r,
                     b,
                     &pick(&run.q[b]),
                     &pick(&run.qd[b]),
                     &pick(&run.qdd[b]),
                     &pick(&run.qdd_sd[b]),
-                ));
+                );
             }
             skin.push(match &filter {
                 None => run.skin.clone(),
@@ -494,16 +569,14 @@ impl LimbMotion {
             })
             .collect();
         self.corrected = steps.iter().flatten().map(|(_, taken)| taken).sum::<f64>() + tied.taken;
-        self.samples
-            .par_iter_mut()
-            .zip(steps)
-            .for_each(|(sample, step)| {
-                if let Some((step, _)) = step {
-                    for (k, &d) in dofs.iter().enumerate() {
-                        sample.correct(d, relaxation * step[k], relaxation * step[n + k]);
-                    }
+        for (i, step) in steps.into_iter().enumerate() {
+            if let Some((step, _)) = step {
+                for (k, &d) in dofs.iter().enumerate() {
+                    let (q, qdd) = (relaxation * step[k], relaxation * step[n + k]);
+                    self.samples.correct(i, d, q, qdd);
                 }
-            });
+            }
+        }
     }
 
     /// Sample `i`'s normal equations in the corrections of `dofs`' positions and accelerations
@@ -514,7 +587,7 @@ impl LimbMotion {
         F: Fn(&[Isometry3<f64>], &[f64], &[f64]) -> Vec<Option<Vector3<f64>>> + Sync,
     {
         let n = dofs.len();
-        let sample = &self.samples[i];
+        let sample = self.samples.get(i);
         let measured: Vec<(usize, Vector3<f64>)> = (0..self.sd.len())
             .filter_map(|u| Some((u, self.measured(u, i, delay)?)))
             .collect();
@@ -584,7 +657,7 @@ impl LimbMotion {
             let mut start = 0;
             for i in 1..=self.samples.len() {
                 let same = i < self.samples.len() && {
-                    let (a, b) = (&self.samples[start], &self.samples[i]);
+                    let (a, b) = (self.samples.get(start), self.samples.get(i));
                     a.run == b.run && (a.read(d).0 - b.read(d).0).abs() <= 1e-9
                 };
                 if !same {
@@ -639,7 +712,7 @@ impl LimbMotion {
         let data = a.clone();
         for (t, (k, range)) in held.iter().enumerate() {
             let d = dofs[*k];
-            let first = &self.samples[range.start];
+            let first = self.samples.get(range.start);
             let prior = self.rounding[d].powi(-2);
             a[(t, t)] += prior;
             b[t] += (first.q()[d] - first.read(d).0) * prior;
@@ -671,10 +744,10 @@ impl LimbMotion {
     pub(super) fn weigh_as_static(&mut self, state: &ChainState, su_segment: &[usize], kappa: f64) {
         // Sample by sample, every SU's, in one buffer.
         let sus = su_segment.len().max(1);
-        let mut by_sample = vec![0f32; self.samples.len() * sus];
+        let mut by_sample = Buffer::filled(self.samples.len() * sus, 0f32);
         by_sample
             .par_chunks_mut(sus)
-            .zip(&self.samples)
+            .zip(self.samples.par_range(0..self.samples.len()))
             .for_each(|(out, sample)| {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
@@ -732,7 +805,7 @@ impl LimbMotion {
     pub(super) fn thinned(&self, every: usize) -> Self {
         let every = every.max(1);
         self.with_samples(
-            self.samples.iter().step_by(every).cloned().collect(),
+            self.samples.select(|i| i % every == 0),
             self.joint_var.of_samples(|i| i % every == 0),
             self.stride * every,
         )
@@ -740,12 +813,7 @@ impl LimbMotion {
 
     /// This record's share with `samples` (their weights `joint_var`, `stride` blocks apart in
     /// a run) in place of its own; the skin shared, not copied.
-    fn with_samples(
-        &self,
-        samples: Vec<MotionSample>,
-        joint_var: JointVariance,
-        stride: usize,
-    ) -> Self {
+    fn with_samples(&self, samples: Samples, joint_var: JointVariance, stride: usize) -> Self {
         Self {
             period: self.period,
             kinds: self.kinds.clone(),
@@ -774,12 +842,7 @@ impl LimbMotion {
             .map(|s| s.reach(s.dofs()) < 0.1 * quietest)
             .collect();
         self.with_samples(
-            self.samples
-                .iter()
-                .zip(&keep)
-                .filter(|(_, &k)| k)
-                .map(|(s, _)| s.clone())
-                .collect(),
+            self.samples.select(|i| keep[i]),
             self.joint_var.of_samples(|i| keep[i]),
             self.stride,
         )
@@ -805,7 +868,7 @@ impl LimbMotion {
     /// [`LimbMotion::measured`] with its rate with the delay and its noise's: see
     /// [`Interpolated`].
     pub(super) fn interpolated(&self, u: usize, i: usize, delay: f64) -> Option<Interpolated> {
-        let sample = &self.samples[i];
+        let sample = self.samples.get(i);
         let (series, column) = (&self.skin[sample.run()], self.columns[u]);
         let x = sample.block() as f64 + delay.clamp(-MAX_DELAY, MAX_DELAY) / self.period;
         let k = x.floor();
@@ -852,7 +915,7 @@ impl LimbMotion {
 
     /// Whether samples `i` and `j` are neighbouring samples of one run, a stride apart.
     pub(super) fn adjacent(&self, i: usize, j: usize) -> bool {
-        let (a, b) = (&self.samples[i], &self.samples[j]);
+        let (a, b) = (self.samples.get(i), self.samples.get(j));
         a.run == b.run && a.block().abs_diff(b.block()) == self.stride
     }
 
@@ -893,8 +956,9 @@ pub(super) fn segment_terms(
     samples: std::ops::Range<usize>,
 ) -> Vec<SegmentTerms> {
     let chain = Chain::new(state, &motion.kinds, columns);
-    motion.samples[samples]
-        .par_iter()
+    motion
+        .samples
+        .par_range(samples)
         .map(|sample| {
             let instant = [Instant::new(sample.qd(), sample.qdd(), true)];
             let mut terms = chain.terms(&sample.turns(&motion.kinds), None, &instant, last);
@@ -916,7 +980,11 @@ mod tests {
             stride: 1,
             filter: None,
             noise_correlation: [1.0, 0.0, 0.0, 0.0],
-            samples: vec![MotionSample::new(0, block, &[0.0], &[0.0], &[0.0], &[0.0])],
+            samples: {
+                let mut samples = Samples::default();
+                samples.push(0, block, &[0.0], &[0.0], &[0.0], &[0.0]);
+                samples
+            },
             skin: vec![SkinRows::from(
                 series
                     .iter()
