@@ -999,7 +999,8 @@ mod tests {
             .map(|&(t, x)| (t, (x / count).round() * count))
             .collect();
         let h = 0.16;
-        let rounding = encoder_rounding(&rounded);
+        let states: Vec<[f64; 2]> = rounded.iter().map(|&(t, x)| [t, x]).collect();
+        let rounding = encoder_rounding(&states);
         assert!((rounding * 12f64.sqrt() / count - 1.0).abs() < 1e-9);
         // By the counts the window's readings cross: none (held), a few (creeping), many.
         let edges = [1.0, 4.0, 21.0, 101.0, f64::INFINITY];

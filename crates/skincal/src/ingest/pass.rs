@@ -20,7 +20,9 @@ use std::path::Path;
 use super::queue::Queue;
 use super::segment::{filter_points, pieces, trim_points, Segmentation};
 use super::skin::{Accumulated, Router, SuRegistry};
-use super::timeline::{newest_common, Grid, Rounding, Timeline, GRID_SPAN, MAX_PAUSE};
+use super::timeline::{
+    new_series, newest_common, Grid, Rounding, Samples, Timeline, GRID_SPAN, MAX_PAUSE,
+};
 use super::window::JointsSurveyed;
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{LogError, LogSource, PassStats, Sample, Stream};
@@ -72,8 +74,8 @@ struct Pass<'a> {
     /// The last joint message's names and their DoFs.
     names: Vec<String>,
     columns: Vec<Option<usize>>,
-    /// Per DoF, `(stamp, position)`, sorted, without repeated stamps.
-    series: Vec<Vec<(f64, f64)>>,
+    /// Per DoF, `[stamp, position]`, sorted, without repeated stamps.
+    series: Vec<Samples>,
     /// Per DoF, its encoder's step from the readings so far (the grid's `count`, kept up: a log
     /// whose robot stood still for the grid's first second shows no step there).
     rounding: Vec<Rounding>,
@@ -123,7 +125,7 @@ pub(super) fn one_pass(
             .enumerate()
             .map(|(i, d)| (d.clone(), i))
             .collect(),
-        series: vec![Vec::new(); dofs.len()],
+        series: vec![new_series(); dofs.len()],
         rounding: Vec::new(),
         expected: dof_names.is_some(),
         dofs,
@@ -248,7 +250,7 @@ impl Pass<'_> {
                     None => {
                         self.index.insert(name.clone(), self.dofs.len());
                         self.dofs.push(name.clone());
-                        self.series.push(Vec::new());
+                        self.series.push(new_series());
                         Some(self.dofs.len() - 1)
                     }
                 };
@@ -262,17 +264,16 @@ impl Pass<'_> {
             };
             let s = &mut self.series[d];
             match s.last() {
-                Some(&(last, _)) if stamp < last => {
+                Some(&[last, _]) if stamp < last => {
                     self.abandoned = Some("joint stamps out of order");
                     return;
                 }
-                Some(&(last, _)) if stamp == last => report.duplicate_joint_stamps += 1,
-                _ => s.push((stamp, q)),
+                Some(&[last, _]) if stamp == last => report.duplicate_joint_stamps += 1,
+                _ => s.push([stamp, q]),
             }
         }
         if self.grid.is_none() {
-            let spanned =
-                |s: &Vec<(f64, f64)>| s.len() >= 2 && s[s.len() - 1].0 >= s[0].0 + GRID_SPAN;
+            let spanned = |s: &Samples| s.len() >= 2 && s[s.len() - 1][0] >= s[0][0] + GRID_SPAN;
             if !self.series.is_empty() && self.series.iter().all(spanned) {
                 self.fix_grid(report);
             }
@@ -309,7 +310,7 @@ impl Pass<'_> {
         let newest = newest_common(&self.series);
         let to = ((newest - grid.t0) / grid.dt).floor();
         // A far-off stamp must not make a stretch of years: the two passes will say what is wrong.
-        let samples = self.series.iter().map(Vec::len).max().unwrap_or(0) as f64;
+        let samples = self.series.iter().map(|s| s.len()).max().unwrap_or(0) as f64;
         if to > 4.0 * samples + MAX_PAUSE / grid.dt {
             self.abandoned = Some("a joint stamp far off");
             return;

@@ -682,7 +682,7 @@ fn classify(
     let followed = |e: usize, x: f64, of: f64| {
         x <= config.motion_threshold || x * unit[e] <= config.coupled_fraction * of
     };
-    let net = |th: &Vec<f64>| (th[me] - th[ms]).abs();
+    let net = |th: &[f64]| (th[me] - th[ms]).abs();
     let mut leading = vec![main];
     leading
         .extend((0..excursion.len()).filter(|&e| e != main && !followed(e, excursion[e], largest)));

@@ -3,6 +3,8 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use skincal_scratch::Buffer;
+
 use super::window::JointsSurveyed;
 use super::{IngestConfig, IngestError, LogReport, Progress};
 use crate::log::{LogSource, Sample, Stream};
@@ -50,18 +52,18 @@ impl Grid {
     /// The grid of the joint series `cleaned` (sorted, without repeated stamps, every DoF with two
     /// samples or more): it starts when every DoF has a sample, and its period is fitted to the
     /// stamps of the DoF with most samples in its first [`GRID_SPAN`] seconds.
-    pub(super) fn fit(path: &Path, cleaned: &[Vec<(f64, f64)>]) -> Result<Grid, IngestError> {
+    pub(super) fn fit(path: &Path, cleaned: &[Samples]) -> Result<Grid, IngestError> {
         let unusable = |reason: String| IngestError::Unusable {
             path: path.to_path_buf(),
             reason,
         };
-        let prefix = |s: &[(f64, f64)]| s.partition_point(|p| p.0 < s[0].0 + GRID_SPAN).max(2);
+        let prefix = |s: &[State]| s.partition_point(|p| p[0] < s[0][0] + GRID_SPAN).max(2);
         let densest = cleaned
             .iter()
             .max_by_key(|s| prefix(s))
             .ok_or_else(|| unusable("no DoF has joint states".into()))?;
         let densest = &densest[..prefix(densest).min(densest.len())];
-        let mut steps: Vec<f64> = densest.windows(2).map(|w| w[1].0 - w[0].0).collect();
+        let mut steps: Vec<f64> = densest.windows(2).map(|w| w[1][0] - w[0][0]).collect();
         steps.sort_by(f64::total_cmp);
         let rough = steps[steps.len() / 2];
         if !(rough > 0.0 && rough.is_finite()) {
@@ -72,11 +74,11 @@ impl Grid {
         // lost ones keep their place. A grid whose period is off by 1e-4 would slip by a sample
         // every ten seconds.
         let dt = {
-            let first = densest[0].0;
+            let first = densest[0][0];
             let (mut sk, mut st, mut skk, mut skt, mut count) = (0.0, 0.0, 0.0, 0.0, 0.0);
             let mut k = 0.0;
             let mut previous = first;
-            for &(t, _) in densest {
+            for &[t, _] in densest {
                 // Numbered step by step: a lost sample shows as a double step.
                 k += ((t - previous) / rough).round();
                 previous = t;
@@ -106,7 +108,7 @@ impl Grid {
             )));
         }
         Ok(Grid {
-            t0: cleaned.iter().map(|s| s[0].0).fold(f64::MIN, f64::max),
+            t0: cleaned.iter().map(|s| s[0][0]).fold(f64::MIN, f64::max),
             dt,
             resolution: Vec::new(),
             count: cleaned
@@ -122,11 +124,7 @@ impl Grid {
 
     /// Number of grid points of the whole log; checks that the DoFs overlap in time and that no
     /// stamp is far off.
-    pub(super) fn points(
-        &self,
-        path: &Path,
-        cleaned: &[Vec<(f64, f64)>],
-    ) -> Result<usize, IngestError> {
+    pub(super) fn points(&self, path: &Path, cleaned: &[Samples]) -> Result<usize, IngestError> {
         let t1 = newest_common(cleaned);
         let unusable = |reason: String| IngestError::Unusable {
             path: path.to_path_buf(),
@@ -140,7 +138,7 @@ impl Grid {
         let rate = 1.0 / self.dt;
         // Lengths come from the stamps: one far-off stamp must not make a grid of years.
         let span_points = (t1 - self.t0) / self.dt;
-        let samples = cleaned.iter().map(Vec::len).max().unwrap_or(0) as f64;
+        let samples = cleaned.iter().map(|s| s.len()).max().unwrap_or(0) as f64;
         if span_points > 4.0 * samples + MAX_PAUSE * rate {
             return Err(unusable(format!(
                 "the joint states span {} s, but their {} samples at {rate:.1} Hz cover {:.1} s: \
@@ -159,7 +157,7 @@ impl Grid {
     /// The whole log's figures in its report: duration, rate, gaps; and the encoders' rounding.
     pub(super) fn finish(
         &mut self,
-        cleaned: &[Vec<(f64, f64)>],
+        cleaned: &[Samples],
         config: &IngestConfig,
         report: &mut LogReport,
     ) {
@@ -167,7 +165,7 @@ impl Grid {
         report.rate = 1.0 / self.dt;
         for s in cleaned {
             for w in s.windows(2) {
-                let gap = w[1].0 - w[0].0;
+                let gap = w[1][0] - w[0][0];
                 if gap > config.max_gap {
                     report.joint_gaps += 1;
                 }
@@ -179,15 +177,28 @@ impl Grid {
 }
 
 /// The newest stamp every DoF's series has reached (`f64::MIN` while one is empty).
-pub(super) fn newest_common(series: &[Vec<(f64, f64)>]) -> f64 {
+pub(super) fn newest_common(series: &[Samples]) -> f64 {
     series
         .iter()
-        .map(|s| s.last().map_or(f64::MIN, |p| p.0))
+        .map(|s| s.last().map_or(f64::MIN, |p| p[0]))
         .fold(f64::MAX, f64::min)
 }
 
-/// One DoF's joint states: `(stamp, position)`, sorted.
-pub(super) type Samples = Vec<(f64, f64)>;
+/// One joint state: `[stamp, position]`.
+pub(super) type State = [f64; 2];
+
+/// One DoF's joint states, sorted: on the heap up to [`SERIES_HEAP`], past it in a scratch file.
+pub(super) type Samples = Buffer<State>;
+
+/// The most bytes of one DoF's joint states (its series as read, its positions on the grid) held
+/// on the heap: a minute at 1 kHz. A longer log's are in a scratch file, so that the heap holds
+/// as much for a log of hours as for one of a minute, whatever the number of DoFs.
+pub(super) const SERIES_HEAP: usize = 1 << 20;
+
+/// An empty series of joint states.
+pub(super) fn new_series() -> Samples {
+    Samples::with_limit(SERIES_HEAP)
+}
 
 /// Joint positions of grid points `[first, first + len)` of one log.
 #[derive(Debug, Clone)]
@@ -196,7 +207,7 @@ pub(super) struct Timeline {
     /// The grid point of `theta[·][0]`.
     pub(super) first: usize,
     /// Positions per DoF (in the order of the common DoF list), one per grid point.
-    pub(super) theta: Vec<Vec<f64>>,
+    pub(super) theta: Vec<Buffer<f64>>,
     /// Grid points inside a joint-state gap.
     pub(super) invalid: Vec<bool>,
     /// Per DoF: a mimic joint, which moves only with its leader (empty when none is).
@@ -233,25 +244,26 @@ impl Timeline {
         let mut invalid = vec![false; n];
         let mut theta = Vec::with_capacity(cleaned.len());
         for s in cleaned {
-            let mut column = Vec::with_capacity(n);
+            let mut column = Buffer::with_limit(SERIES_HEAP);
+            column.reserve(n);
             let time = |i: usize| grid.t0 + (from + i) as f64 * grid.dt;
             // The last sample at or before the point, but never the last of all.
             let mut j = s
-                .partition_point(|p| p.0 <= time(0))
+                .partition_point(|p| p[0] <= time(0))
                 .saturating_sub(1)
                 .min(s.len() - 2);
             for (i, flag) in invalid.iter_mut().enumerate() {
                 let t = time(i);
-                while j + 2 < s.len() && s[j + 1].0 <= t {
+                while j + 2 < s.len() && s[j + 1][0] <= t {
                     j += 1;
                 }
                 let (a, b) = (s[j], s[j + 1]);
-                let span = b.0 - a.0;
-                if span > max_gap && t > a.0 && t < b.0 {
+                let span = b[0] - a[0];
+                if span > max_gap && t > a[0] && t < b[0] {
                     *flag = true;
                 }
-                let u = ((t - a.0) / span).clamp(0.0, 1.0);
-                column.push(a.1 + (b.1 - a.1) * u);
+                let u = ((t - a[0]) / span).clamp(0.0, 1.0);
+                column.push(a[1] + (b[1] - a[1]) * u);
             }
             theta.push(column);
         }
@@ -265,11 +277,11 @@ impl Timeline {
     }
 }
 
-/// The joint states of one log as read, per DoF name in order of first appearance: `(stamp,
-/// position)` in arrival order.
+/// The joint states of one log as read, per DoF name in order of first appearance: `[stamp,
+/// position]` in arrival order.
 #[derive(Debug, Default)]
 pub(super) struct Series {
-    pub(super) by_name: HashMap<String, Vec<(f64, f64)>>,
+    pub(super) by_name: HashMap<String, Samples>,
     pub(super) order: Vec<String>,
 }
 
@@ -278,9 +290,9 @@ impl Series {
         for (name, &q) in names.iter().zip(positions) {
             let entry = self.by_name.entry(name.clone()).or_insert_with(|| {
                 self.order.push(name.clone());
-                Vec::new()
+                new_series()
             });
-            entry.push((stamp, q));
+            entry.push([stamp, q]);
         }
     }
 
@@ -292,18 +304,17 @@ impl Series {
         config: &IngestConfig,
         dof_names: &mut Option<Vec<String>>,
         report: &mut LogReport,
-    ) -> Result<Vec<Vec<(f64, f64)>>, IngestError> {
+    ) -> Result<Vec<Samples>, IngestError> {
         let dofs = expected_dofs(path, config, &self.order, dof_names, report, |name| {
-            self.by_name.get(name).map_or(0, Vec::len) as u64
+            self.by_name.get(name).map_or(0, |s| s.len()) as u64
         })?;
-        let mut cleaned: Vec<Vec<(f64, f64)>> = Vec::with_capacity(dofs.len());
+        let mut cleaned: Vec<Samples> = Vec::with_capacity(dofs.len());
         for d in &dofs {
-            let mut s = self.by_name.remove(d).unwrap_or_default();
-            report.unsorted_joint_stamps += s.windows(2).filter(|w| w[1].0 < w[0].0).count() as u64;
-            s.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let before = s.len();
-            s.dedup_by(|b, a| b.0 == a.0);
-            report.duplicate_joint_stamps += (before - s.len()) as u64;
+            let mut s = self.by_name.remove(d).unwrap_or_else(new_series);
+            report.unsorted_joint_stamps +=
+                s.windows(2).filter(|w| w[1][0] < w[0][0]).count() as u64;
+            s.sort_by(|a, b| a[0].total_cmp(&b[0]));
+            report.duplicate_joint_stamps += s.dedup_by(|b, a| b[0] == a[0]) as u64;
             too_few(path, d, &s)?;
             cleaned.push(s);
         }
@@ -312,7 +323,7 @@ impl Series {
 }
 
 /// An error unless DoF `d` has two joint states or more.
-fn too_few(path: &Path, d: &str, s: &[(f64, f64)]) -> Result<(), IngestError> {
+fn too_few(path: &Path, d: &str, s: &[State]) -> Result<(), IngestError> {
     if s.len() < 2 {
         return Err(IngestError::Unusable {
             path: path.to_path_buf(),
@@ -429,7 +440,7 @@ const WHOLE: f64 = 0.02;
 /// rounded reading changes by whole steps, the smallest of them (over √12, a uniform rounding
 /// error's deviation); 0 when the readings change by less than a step's worth anywhere (they are
 /// not rounded, or the DoF never moved).
-pub(super) fn encoder_rounding(series: &[(f64, f64)]) -> f64 {
+pub(super) fn encoder_rounding(series: &[State]) -> f64 {
     let mut rounding = Rounding::default();
     rounding.read(series);
     rounding.count() / 12f64.sqrt()
@@ -472,8 +483,8 @@ impl Default for Rounding {
 
 impl Rounding {
     /// Looks at the readings of `series` (the same series, grown) not yet looked at.
-    pub(super) fn read(&mut self, series: &[(f64, f64)]) {
-        for &(_, q) in &series[self.read.min(series.len())..] {
+    pub(super) fn read(&mut self, series: &[State]) {
+        for &[_, q] in &series[self.read.min(series.len())..] {
             self.take(q);
         }
         self.read = self.read.max(series.len());
@@ -533,12 +544,12 @@ mod tests {
     fn an_encoders_rounding_is_told_by_its_smallest_step() {
         let step = 2.0 * std::f64::consts::PI / f64::from(1u32 << 17);
         let motion = |t: f64| 0.3 * (2.0 * t).sin();
-        let series = |round: bool| -> Vec<(f64, f64)> {
+        let series = |round: bool| -> Vec<State> {
             (0..2000)
                 .map(|i| {
                     let t = f64::from(i) * 1e-3;
                     let q = motion(t);
-                    (t, if round { (q / step).round() * step } else { q })
+                    [t, if round { (q / step).round() * step } else { q }]
                 })
                 .collect()
         };
@@ -550,11 +561,11 @@ mod tests {
         assert_eq!(encoder_rounding(&series(false)), 0.0);
         // Printed with 9 decimals, as a CSV log holds it, and moving fast (hundreds of steps
         // per sample): still told rounded by its small changes.
-        let fast: Vec<(f64, f64)> = (0..2000)
+        let fast: Vec<State> = (0..2000)
             .map(|i| {
                 let t = f64::from(i) * 1e-3;
                 let q = ((1.5 * (10.0 * t).sin()) / step).round() * step;
-                (t, format!("{q:.9}").parse().unwrap())
+                [t, format!("{q:.9}").parse().unwrap()]
             })
             .collect();
         let printed = encoder_rounding(&fast);
@@ -562,7 +573,7 @@ mod tests {
             (printed / (step / 12f64.sqrt()) - 1.0).abs() < 1e-3,
             "{printed}"
         );
-        assert_eq!(encoder_rounding(&[(0.0, 0.25), (0.001, 0.25)]), 0.0);
+        assert_eq!(encoder_rounding(&[[0.0, 0.25], [0.001, 0.25]]), 0.0);
     }
 
     #[test]
@@ -570,7 +581,7 @@ mod tests {
         // Still for a second (no change), then a move with flicker: read in chunks of any
         // size, the count is the whole series' once its first change has come, and 0 before.
         let step = 2.0 * std::f64::consts::PI / 4096.0;
-        let series: Vec<(f64, f64)> = (0..3000)
+        let series: Vec<State> = (0..3000)
             .map(|i| {
                 let t = f64::from(i) * 1e-3;
                 let q = if t < 1.0 {
@@ -579,12 +590,12 @@ mod tests {
                     0.3 * (1.0 - (3.0 * (t - 1.0)).cos())
                 };
                 let flicker = if t >= 1.0 && i % 7 == 0 { step } else { 0.0 };
-                (
+                [
                     t,
                     format!("{:.9}", (q / step).round() * step + flicker)
                         .parse()
                         .unwrap(),
-                )
+                ]
             })
             .collect();
         let whole = encoder_rounding(&series) * 12f64.sqrt();
@@ -595,15 +606,15 @@ mod tests {
             while end < series.len() {
                 end = (end + chunk).min(series.len());
                 rounding.read(&series[..end]);
-                if end <= 1000 && series[..end].iter().all(|p| p.1 == 0.0) {
+                if end <= 1000 && series[..end].iter().all(|p| p[1] == 0.0) {
                     assert_eq!(rounding.count(), 0.0, "chunk {chunk}, {end} read");
                 }
             }
             assert_eq!(rounding.count(), whole, "chunk {chunk}");
         }
         // Readings that do not change by whole steps: no count, however they are read.
-        let smooth: Vec<(f64, f64)> = (0..2000)
-            .map(|i| (f64::from(i) * 1e-3, (f64::from(i) * 2e-3).sin()))
+        let smooth: Vec<State> = (0..2000)
+            .map(|i| [f64::from(i) * 1e-3, (f64::from(i) * 2e-3).sin()])
             .collect();
         let mut rounding = Rounding::default();
         for end in (100..=2000).step_by(100) {

@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, VecDeque};
 
 use super::blocks::{raw_means, RawMean, SkinSum};
 use super::motion::{half_width_of, local_polynomial};
-use super::timeline::Rounding;
+use super::timeline::{Rounding, Samples};
 use crate::motion::{Kernel, SampleCount, SampleCounter};
 
 /// Per DoF, its joint states from the earliest that a block still to compute reads, in stamp
@@ -223,14 +223,14 @@ pub struct JointsSurveyed {
 
 impl JointsSurveyed {
     /// The survey of the series (stamp order) of the DoFs `names`.
-    pub(super) fn of(names: &[String], series: &[Vec<(f64, f64)>]) -> Self {
+    pub(super) fn of(names: &[String], series: &[Samples]) -> Self {
         let mut surveyed = JointsSurveyed::default();
         for (name, series) in names.iter().zip(series) {
             let survey = surveyed.dofs.entry(name.clone()).or_default();
-            for &(stamp, q) in series {
+            for &[stamp, q] in series.iter() {
                 survey.take(stamp, q);
             }
-            if let Some(&(first, _)) = series.first() {
+            if let Some(&[first, _]) = series.first() {
                 surveyed.origin = Some(surveyed.origin.map_or(first, |o: f64| o.min(first)));
             }
         }
