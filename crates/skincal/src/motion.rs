@@ -146,6 +146,21 @@ pub struct MotionRun {
     /// `skin[b][u]`: the mean specific force SU `u` read in block `b` (SU frame, m/s²), `null`
     /// where it sent no fresh sample.
     pub skin: SkinRows,
+    /// Where the record reads the skin through a kernel ([`SkinFilter`]): the positions,
+    /// velocities and accelerations at each block's centre from the narrowest polynomial the
+    /// joint states allow, not read through the kernel (empty otherwise; rows as `q`'s). The
+    /// skin read through the kernel is the specific force read through it, which differs from the
+    /// specific force at the joint states read through it by the motion's spread within the
+    /// kernel (gravity turned by the position, the centripetal terms); from these the fit
+    /// predicts through the kernel too.
+    #[serde(default, skip_serializing_if = "Rows::is_empty")]
+    pub q_sharp: JointRows,
+    /// Velocities, rad/s (as `q_sharp`).
+    #[serde(default, skip_serializing_if = "Rows::is_empty")]
+    pub qd_sharp: JointRows,
+    /// Accelerations, rad/s² (as `q_sharp`).
+    #[serde(default, skip_serializing_if = "Rows::is_empty")]
+    pub qdd_sharp: JointRows,
 }
 
 /// A run's values per block and entry (DoF or SU), row by row in one [`Buffer`], which past a
@@ -453,7 +468,18 @@ impl MotionRun {
             qdd: JointRows::default(),
             qdd_sd: JointRows::default(),
             skin: SkinRows::default(),
+            q_sharp: JointRows::default(),
+            qd_sharp: JointRows::default(),
+            qdd_sharp: JointRows::default(),
         }
+    }
+
+    /// Adds a block's sharp joint states (`[q, q̇, q̈]` per DoF, see [`MotionRun::q_sharp`]).
+    pub fn push_sharp(&mut self, joints: &[[f64; 3]]) {
+        let column = |k: usize| joints.iter().map(|x| x[k]).collect::<Vec<f64>>();
+        self.q_sharp.push(&column(0));
+        self.qd_sharp.push(&column(1));
+        self.qdd_sharp.push(&column(2));
     }
 
     /// Adds a block: per DoF `[q, q̇, q̈, q̈'s deviation]`, and each SU's block mean.
@@ -489,6 +515,9 @@ impl MotionRun {
             qdd: self.qdd.split_off(at),
             qdd_sd: self.qdd_sd.split_off(at),
             skin: self.skin.split_off(at),
+            q_sharp: self.q_sharp.split_off(at),
+            qd_sharp: self.qd_sharp.split_off(at),
+            qdd_sharp: self.qdd_sharp.split_off(at),
         }
     }
 
@@ -504,6 +533,9 @@ impl MotionRun {
         self.qdd.append(&mut next.qdd);
         self.qdd_sd.append(&mut next.qdd_sd);
         self.skin.append(&mut next.skin);
+        self.q_sharp.append(&mut next.q_sharp);
+        self.qd_sharp.append(&mut next.qd_sharp);
+        self.qdd_sharp.append(&mut next.qdd_sharp);
         None
     }
 
@@ -578,13 +610,28 @@ impl MotionRecord {
             if run.skin.len() != n {
                 return Err(format!("`runs[{r}].skin` has another length than `q`"));
             }
+            let sharp = [
+                ("q_sharp", &run.q_sharp),
+                ("qd_sharp", &run.qd_sharp),
+                ("qdd_sharp", &run.qdd_sharp),
+            ];
+            let has_sharp = sharp.iter().any(|(_, v)| !v.is_empty());
+            if let Some((name, _)) = sharp.iter().find(|(_, v)| has_sharp && v.len() != n) {
+                return Err(format!(
+                    "`runs[{r}].{name}` has another length than `q` (the three sharp rows are \
+                     all there or all left out)"
+                ));
+            }
             let all = [
                 ("q", &run.q),
                 ("qd", &run.qd),
                 ("qdd", &run.qdd),
                 ("qdd_sd", &run.qdd_sd),
             ];
-            for (name, rows) in all {
+            for (name, rows) in all
+                .into_iter()
+                .chain(sharp.into_iter().filter(|_| has_sharp))
+            {
                 let ragged = rows
                     .ragged()
                     .map(|(b, _)| b)
@@ -690,6 +737,11 @@ impl SkinFilter {
                 .map(|j| k.value(j as f64 * period / half_width))
                 .collect(),
         })
+    }
+
+    /// `K(j·period/h)` for the blocks `j = −n..=n` about the centre (not normalised).
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
     }
 
     /// Blocks on each side of the centre.

@@ -174,6 +174,10 @@ pub struct MlConfig {
     /// unknowns held at what the encoders read ([`joint_states`]).
     #[serde(default = "fit_joint_states")]
     pub joint_states: bool,
+    /// On a motion record whose skin is read through a kernel, read the prediction through it
+    /// too ([`joint_states`]; the record's sharp joint states, `MotionRun::q_sharp`).
+    #[serde(default = "fit_joint_states")]
+    pub through_kernel: bool,
 }
 
 fn fit_joint_states() -> bool {
@@ -257,6 +261,7 @@ impl Default for MlConfig {
             whole_tree: true,
             limb_retries: true,
             joint_states: true,
+            through_kernel: true,
         }
     }
 }
