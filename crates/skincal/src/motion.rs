@@ -602,76 +602,83 @@ impl MotionRecord {
             ));
         }
         for (r, run) in self.runs.iter().enumerate() {
-            let n = run.len();
-            let rows = [("qd", &run.qd), ("qdd", &run.qdd), ("qdd_sd", &run.qdd_sd)];
-            if let Some((name, _)) = rows.iter().find(|(_, v)| v.len() != n) {
-                return Err(format!("`runs[{r}].{name}` has another length than `q`"));
-            }
-            if run.skin.len() != n {
-                return Err(format!("`runs[{r}].skin` has another length than `q`"));
-            }
-            let sharp = [
-                ("q_sharp", &run.q_sharp),
-                ("qd_sharp", &run.qd_sharp),
-                ("qdd_sharp", &run.qdd_sharp),
-            ];
-            let has_sharp = sharp.iter().any(|(_, v)| !v.is_empty());
-            if let Some((name, _)) = sharp.iter().find(|(_, v)| has_sharp && v.len() != n) {
+            self.check_run(r, run)?;
+        }
+        Ok(())
+    }
+
+    /// [`MotionRecord::check`] of run `r`: every row of every block there, each as long as the
+    /// DoFs or SUs, finite, the skin within range.
+    fn check_run(&self, r: usize, run: &MotionRun) -> Result<(), String> {
+        let n = run.len();
+        let rows = [("qd", &run.qd), ("qdd", &run.qdd), ("qdd_sd", &run.qdd_sd)];
+        if let Some((name, _)) = rows.iter().find(|(_, v)| v.len() != n) {
+            return Err(format!("`runs[{r}].{name}` has another length than `q`"));
+        }
+        if run.skin.len() != n {
+            return Err(format!("`runs[{r}].skin` has another length than `q`"));
+        }
+        let sharp = [
+            ("q_sharp", &run.q_sharp),
+            ("qd_sharp", &run.qd_sharp),
+            ("qdd_sharp", &run.qdd_sharp),
+        ];
+        let has_sharp = sharp.iter().any(|(_, v)| !v.is_empty());
+        if let Some((name, _)) = sharp.iter().find(|(_, v)| has_sharp && v.len() != n) {
+            return Err(format!(
+                "`runs[{r}].{name}` has another length than `q` (the three sharp rows are \
+                 all there or all left out)"
+            ));
+        }
+        let all = [
+            ("q", &run.q),
+            ("qd", &run.qd),
+            ("qdd", &run.qdd),
+            ("qdd_sd", &run.qdd_sd),
+        ];
+        for (name, rows) in all
+            .into_iter()
+            .chain(sharp.into_iter().filter(|_| has_sharp))
+        {
+            let ragged = rows
+                .ragged()
+                .map(|(b, _)| b)
+                .or_else(|| (n > 0 && rows.width() != self.dofs.len()).then_some(0));
+            if let Some(b) = ragged {
                 return Err(format!(
-                    "`runs[{r}].{name}` has another length than `q` (the three sharp rows are \
-                     all there or all left out)"
+                    "`runs[{r}].{name}[{b}]`: expected {} finite numbers",
+                    self.dofs.len()
                 ));
             }
-            let all = [
-                ("q", &run.q),
-                ("qd", &run.qd),
-                ("qdd", &run.qdd),
-                ("qdd_sd", &run.qdd_sd),
-            ];
-            for (name, rows) in all
-                .into_iter()
-                .chain(sharp.into_iter().filter(|_| has_sharp))
-            {
-                let ragged = rows
-                    .ragged()
-                    .map(|(b, _)| b)
-                    .or_else(|| (n > 0 && rows.width() != self.dofs.len()).then_some(0));
-                if let Some(b) = ragged {
+            for (b, row) in rows.iter().enumerate() {
+                if row.len() != self.dofs.len() || row.iter().any(|x| !x.is_finite()) {
                     return Err(format!(
                         "`runs[{r}].{name}[{b}]`: expected {} finite numbers",
                         self.dofs.len()
                     ));
                 }
-                for (b, row) in rows.iter().enumerate() {
-                    if row.len() != self.dofs.len() || row.iter().any(|x| !x.is_finite()) {
-                        return Err(format!(
-                            "`runs[{r}].{name}[{b}]`: expected {} finite numbers",
-                            self.dofs.len()
-                        ));
-                    }
-                }
             }
-            let ragged = run.skin.ragged.or_else(|| {
-                (n > 0 && run.skin.width() != self.sus.len()).then_some((0, run.skin.width()))
-            });
-            if let Some((b, entries)) = ragged {
+        }
+        let ragged = run.skin.ragged.or_else(|| {
+            (n > 0 && run.skin.width() != self.sus.len()).then_some((0, run.skin.width()))
+        });
+        if let Some((b, entries)) = ragged {
+            return Err(format!(
+                "`runs[{r}].skin[{b}]` has {entries} entries for {} SUs",
+                self.sus.len()
+            ));
+        }
+        for b in 0..n {
+            let wild = run
+                .skin
+                .row(b)
+                .flatten()
+                .flatten()
+                .any(|x| !x.is_finite() || x.abs() > MAX_READING);
+            if wild {
                 return Err(format!(
-                    "`runs[{r}].skin[{b}]` has {entries} entries for {} SUs",
-                    self.sus.len()
+                    "`runs[{r}].skin[{b}]`: a reading beyond ±{MAX_READING} m/s²"
                 ));
-            }
-            for b in 0..n {
-                let wild = run
-                    .skin
-                    .row(b)
-                    .flatten()
-                    .flatten()
-                    .any(|x| !x.is_finite() || x.abs() > MAX_READING);
-                if wild {
-                    return Err(format!(
-                        "`runs[{r}].skin[{b}]`: a reading beyond ±{MAX_READING} m/s²"
-                    ));
-                }
             }
         }
         Ok(())
@@ -1219,6 +1226,37 @@ mod tests {
         assert!(
             narrow.contains("`runs[0].q[0]`: expected 2 finite numbers"),
             "{narrow}"
+        );
+    }
+
+    /// The sharp joint states are optional, but all three or none, each row as `q`'s.
+    #[test]
+    fn sharp_joint_states_are_all_there_or_none_and_checked_as_q() {
+        let text = |sharp: &str| {
+            format!(
+                r#"{{"format": "{MOTION_FORMAT}", "version": {MOTION_VERSION}, "period": 0.01,
+                "dofs": ["j"], "sus": [], "noise_sd": [], "runs": [{{"log": "l",
+                "start": 0.0, "q": [[0],[0]], "qd": [[0],[0]], "qdd": [[0],[0]],
+                "qdd_sd": [[0],[0]], "skin": [[],[]]{sharp}}}]}}"#
+            )
+        };
+        let check = |sharp: &str| {
+            let record: MotionRecord = serde_json::from_str(&text(sharp)).unwrap();
+            record.check()
+        };
+        assert_eq!(check(""), Ok(()));
+        let all = r#", "q_sharp": [[0],[0]], "qd_sharp": [[0],[0]], "qdd_sharp": [[0],[0]]"#;
+        assert_eq!(check(all), Ok(()));
+        let two = check(r#", "q_sharp": [[0],[0]], "qd_sharp": [[0],[0]]"#).unwrap_err();
+        assert!(
+            two.contains("`runs[0].qdd_sharp` has another length"),
+            "{two}"
+        );
+        let wide = r#", "q_sharp": [[0],[0]], "qd_sharp": [[0],[0,1]], "qdd_sharp": [[0],[0]]"#;
+        let wide = check(wide).unwrap_err();
+        assert!(
+            wide.contains("`runs[0].qd_sharp[1]`: expected 1 finite numbers"),
+            "{wide}"
         );
     }
 

@@ -582,13 +582,12 @@ impl Blocks<'_> {
         if self.kernel.is_some() {
             // The sharp states (`MotionRun::q_sharp`): the narrowest polynomial every DoF's
             // states allow, its own position and velocity; the kernel's where none does.
-            let narrower = HALF_WIDTHS.into_iter().take_while(|&w| w < self.pass.h);
+            let mut narrower = HALF_WIDTHS.into_iter().take_while(|&w| w < self.pass.h);
             let sharp = narrower
-                .filter_map(|w| {
+                .find_map(|w| {
                     self.joints
                         .fit(centre, w, self.roundings, config.max_gap, None)
                 })
-                .next()
                 .unwrap_or(fitted);
             run.push_sharp(&sharp.iter().map(|x| [x[0], x[1], x[2]]).collect::<Vec<_>>());
         }

@@ -60,9 +60,10 @@ pub(super) fn with_joint_states(
     let Some(record) = readings.motion.as_ref() else {
         return (solved, readings, 0);
     };
-    let dofs = match config.joint_states {
-        true => record.coarse_dofs(),
-        false => Vec::new(),
+    let dofs = if config.joint_states {
+        record.coarse_dofs()
+    } else {
+        Vec::new()
     };
     let kernel = config.through_kernel && record.reads_through_kernel();
     if dofs.is_empty() && !kernel {

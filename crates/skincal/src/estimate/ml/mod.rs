@@ -176,11 +176,15 @@ pub struct MlConfig {
     pub joint_states: bool,
     /// On a motion record whose skin is read through a kernel, read the prediction through it
     /// too ([`joint_states`]; the record's sharp joint states, `MotionRun::q_sharp`).
-    #[serde(default = "fit_joint_states")]
+    #[serde(default = "predict_through_kernel")]
     pub through_kernel: bool,
 }
 
 fn fit_joint_states() -> bool {
+    true
+}
+
+fn predict_through_kernel() -> bool {
     true
 }
 
