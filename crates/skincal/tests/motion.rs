@@ -259,7 +259,8 @@ fn a_skin_stamped_8_ms_late_is_found_8_ms_late() {
 /// the blocks left out are only the sudden ones, the delay is found, and every sample predicts
 /// within 0.005 static and dynamic, ten times better than the windows (block means unfiltered
 /// at 80 ms: 0.0078 / 0.0501). The prediction is read through the kernel as the skin is: at the
-/// kernel's joint states alone it predicted 0.0020 / 0.0089, and must do worse here.
+/// kernel's joint states alone it predicts 0.0046 / 0.0093 (0.0019 / 0.0019 through it), and must
+/// do worse here.
 #[test]
 fn coarse_encoders_leave_out_only_their_sudden_blocks() {
     let robot = presets::find("paper-7dof").unwrap().robot().unwrap();

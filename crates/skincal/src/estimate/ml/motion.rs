@@ -302,6 +302,13 @@ struct Tied {
     taken: f64,
 }
 
+/// How many counts a joint whose acceleration the fit takes as an unknown may cross within the
+/// polynomial's span and still have its uncertainty left out of the noise
+/// ([`LimbMotion::weigh_fitted`]): a joint that stands or creeps, whose error is its encoder's
+/// staircase, which the correction takes; one that moves faster errs where the polynomial
+/// cannot follow it, in its velocity and position too, which no correction takes.
+const SLOW_COUNTS: f64 = 4.0;
+
 /// What the joint accelerations' uncertainty adds to the variance of each SU's prediction at
 /// each sample ([`LimbMotion::weigh`]), (m/s²)², in single precision, sample by sample as it is
 /// computed: `values[i * sus + u]` (past a few megabytes in a mapped scratch file, as the
@@ -856,14 +863,67 @@ impl LimbMotion {
         self.weigh_as_static(state, su_segment, 0.0);
     }
 
+    /// [`LimbMotion::weigh`] without what of the accelerations of `fitted` (chain DoFs) the fit
+    /// takes as unknowns ([`LimbMotion::correct_joint_states`], each held by a prior of that
+    /// same uncertainty), which weighed in the noise as well would count twice: all of it where
+    /// the joint crossed at most [`SLOW_COUNTS`] counts within the polynomial's span, and
+    /// elsewhere the rounding's share, the least any sample of the DoF was uncertain of (where
+    /// its polynomial fitted within the rounding).
+    pub(super) fn weigh_fitted(
+        &mut self,
+        state: &ChainState,
+        su_segment: &[usize],
+        fitted: &[usize],
+    ) {
+        self.weigh_with(state, su_segment, 0.0, fitted);
+    }
+
     /// [`LimbMotion::weigh`], and each prediction taken as if the limb stood still, with what its
     /// motion could add to gravity as error: `kappa` times [`QUIET_REACH`] times
     /// `Σ|q̈_d| + (Σ|q̇_d|)²` over the DoFs before the SU. With `kappa` 1 the quiet blocks count
     /// and the fast ones hardly; lowered step by step, the fit is led from a start that gravity
     /// alone gave (orientations and axes) to the whole motion.
     pub(super) fn weigh_as_static(&mut self, state: &ChainState, su_segment: &[usize], kappa: f64) {
+        self.weigh_with(state, su_segment, kappa, &[]);
+    }
+
+    /// [`LimbMotion::weigh_as_static`] without the accelerations of the chain DoFs `fitted`.
+    fn weigh_with(
+        &mut self,
+        state: &ChainState,
+        su_segment: &[usize],
+        kappa: f64,
+        fitted: &[usize],
+    ) {
         // Sample by sample, every SU's, in one buffer.
         let sus = su_segment.len().max(1);
+        // What of a fitted DoF's acceleration the correction takes ([`Self::weigh_fitted`]).
+        let span = self.filter.as_ref().map_or(0.0, |f| {
+            (f.weights().len().saturating_sub(1)) as f64 * self.period
+        });
+        let floor: Vec<f64> = (0..self.kinds.len())
+            .map(|d| {
+                if !fitted.contains(&d) {
+                    return 0.0;
+                }
+                let sds = self
+                    .samples
+                    .par_range(0..self.samples.len())
+                    .map(|s| s.qdd_sd()[d]);
+                sds.filter(|sd| *sd > 0.0)
+                    .min_by(f64::total_cmp)
+                    .unwrap_or(0.0)
+            })
+            .collect();
+        let kept = |d: usize, qd: f64, sd: f64| -> f64 {
+            if !fitted.contains(&d) {
+                sd * sd
+            } else if qd.abs() * span <= SLOW_COUNTS * self.rounding[d] * 12f64.sqrt() {
+                0.0
+            } else {
+                (sd * sd - floor[d] * floor[d]).max(0.0)
+            }
+        };
         let mut by_sample = Buffer::filled(self.samples.len() * sus, 0f32);
         by_sample
             .par_chunks_mut(sus)
@@ -889,9 +949,13 @@ impl LimbMotion {
                         .iter()
                         .take(s)
                         .zip(sample.qdd_sd())
-                        .map(|((z, o, kind), sd)| match kind {
-                            DofKind::Revolute => (z.cross(&(p - o)) * *sd).norm_squared(),
-                            DofKind::Prismatic => sd * sd,
+                        .enumerate()
+                        .map(|(d, ((z, o, kind), sd))| {
+                            let var = kept(d, sample.qd()[d], *sd);
+                            match kind {
+                                DofKind::Revolute => z.cross(&(p - o)).norm_squared() * var,
+                                DofKind::Prismatic => var,
+                            }
                         })
                         .sum();
                     (joints + (kappa * sample.reach(s)).powi(2)) as f32
