@@ -887,7 +887,8 @@ impl LimbMotion {
         self.weigh_with(state, su_segment, kappa, &[]);
     }
 
-    /// [`LimbMotion::weigh_as_static`] without the accelerations of the chain DoFs `fitted`.
+    /// [`LimbMotion::weigh_as_static`] without what the corrections take of the accelerations of
+    /// the chain DoFs `fitted` ([`LimbMotion::weigh_fitted`]).
     fn weigh_with(
         &mut self,
         state: &ChainState,
@@ -895,35 +896,26 @@ impl LimbMotion {
         kappa: f64,
         fitted: &[usize],
     ) {
-        // Sample by sample, every SU's, in one buffer.
         let sus = su_segment.len().max(1);
-        // What of a fitted DoF's acceleration the correction takes ([`Self::weigh_fitted`]).
+        // What of a fitted DoF's acceleration the correction takes ([`Self::weigh_fitted`]): per
+        // DoF, the speed below which all of it, and the rounding's share above.
         let span = self.filter.as_ref().map_or(0.0, |f| {
             (f.weights().len().saturating_sub(1)) as f64 * self.period
         });
-        let floor: Vec<f64> = (0..self.kinds.len())
+        let taken: Vec<Option<(f64, f64)>> = (0..self.kinds.len())
             .map(|d| {
-                if !fitted.contains(&d) {
-                    return 0.0;
-                }
-                let sds = self
-                    .samples
-                    .par_range(0..self.samples.len())
-                    .map(|s| s.qdd_sd()[d]);
-                sds.filter(|sd| *sd > 0.0)
-                    .min_by(f64::total_cmp)
-                    .unwrap_or(0.0)
+                fitted.contains(&d).then(|| {
+                    let slow = SLOW_COUNTS * self.rounding[d] * 12f64.sqrt();
+                    let sds = self
+                        .samples
+                        .par_range(0..self.samples.len())
+                        .map(|s| s.qdd_sd()[d]);
+                    let floor = sds.filter(|sd| *sd > 0.0).min_by(f64::total_cmp);
+                    (slow, floor.unwrap_or(0.0))
+                })
             })
             .collect();
-        let kept = |d: usize, qd: f64, sd: f64| -> f64 {
-            if !fitted.contains(&d) {
-                sd * sd
-            } else if qd.abs() * span <= SLOW_COUNTS * self.rounding[d] * 12f64.sqrt() {
-                0.0
-            } else {
-                (sd * sd - floor[d] * floor[d]).max(0.0)
-            }
-        };
+        // Sample by sample, every SU's, in one buffer.
         let mut by_sample = Buffer::filled(self.samples.len() * sus, 0f32);
         by_sample
             .par_chunks_mut(sus)
@@ -932,6 +924,14 @@ impl LimbMotion {
                 let mut segment = Isometry3::<f64>::identity();
                 let mut segments = vec![segment];
                 let mut axes = Vec::with_capacity(state.joints.len());
+                // Each DoF's acceleration variance the residual keeps, rad²/s⁴.
+                let kept: Vec<f64> = (sample.qd().iter().zip(sample.qdd_sd()).zip(&taken))
+                    .map(|((qd, sd), taken)| match taken {
+                        None => sd * sd,
+                        Some((slow, _)) if qd.abs() * span <= *slow => 0.0,
+                        Some((_, floor)) => (sd * sd - floor * floor).max(0.0),
+                    })
+                    .collect();
                 let turns = sample.turns(&self.kinds);
                 for ((joint, turn), kind) in state.joints.iter().zip(&turns).zip(&self.kinds) {
                     let (frame, next) = link(&segment, joint, turn);
@@ -948,14 +948,10 @@ impl LimbMotion {
                     let joints: f64 = axes
                         .iter()
                         .take(s)
-                        .zip(sample.qdd_sd())
-                        .enumerate()
-                        .map(|(d, ((z, o, kind), sd))| {
-                            let var = kept(d, sample.qd()[d], *sd);
-                            match kind {
-                                DofKind::Revolute => z.cross(&(p - o)).norm_squared() * var,
-                                DofKind::Prismatic => var,
-                            }
+                        .zip(&kept)
+                        .map(|((z, o, kind), var)| match kind {
+                            DofKind::Revolute => z.cross(&(p - o)).norm_squared() * var,
+                            DofKind::Prismatic => *var,
                         })
                         .sum();
                     (joints + (kappa * sample.reach(s)).powi(2)) as f32
